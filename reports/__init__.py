@@ -1,0 +1,1 @@
+"""armbench reports package."""
