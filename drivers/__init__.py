@@ -1,10 +1,11 @@
 """Host side of armbench: the protocol codec, the robot model, kinematics and the asyncio driver."""
 
+from drivers.errors import ArmbenchError
 from drivers.protocol import (
     Command,
     FrameError,
-    FrameValueError,
     Framer,
+    FrameValueError,
     ProtocolError,
     Reply,
     rad_to_ticks,
@@ -20,6 +21,7 @@ from drivers.settings import (
 )
 
 __all__ = [
+    "ArmbenchError",
     "Command",
     "FrameError",
     "FrameValueError",

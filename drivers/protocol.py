@@ -28,6 +28,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal, NamedTuple
 
+from drivers.errors import ArmbenchError
+
 __all__ = [
     "COMMAND_LEN",
     "JOINTS",
@@ -54,7 +56,7 @@ COMMAND_LEN: Final = 37
 TWO_PI: Final = 2.0 * math.pi
 
 
-class ProtocolError(ValueError):
+class ProtocolError(ArmbenchError, ValueError):
     """Base of the codec's errors."""
 
 

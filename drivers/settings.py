@@ -17,6 +17,8 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
+from drivers.errors import ArmbenchError
+
 __all__ = [
     "DEFAULT_JOINTS",
     "Geometry",
@@ -30,7 +32,7 @@ __all__ = [
 JOINT_COUNT = 4
 
 
-class SettingsError(ValueError):
+class SettingsError(ArmbenchError, ValueError):
     """A settings value is invalid; ``field`` is its dotted path in the TOML file."""
 
     def __init__(self, field: str, value: object, reason: str) -> None:

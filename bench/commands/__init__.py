@@ -1,0 +1,1 @@
+"""Subcommands of the ``armbench`` command line, one module each."""
