@@ -1,0 +1,84 @@
+"""An asyncio event loop on virtual time: when nothing is ready, the clock jumps to the next timer.
+
+Everything in armbench reads time from ``loop.time()`` and waits with asyncio, so the same code runs
+in real time against hardware and on this loop against the in-process emulator, where minutes of
+robot time pass in seconds. Only the selector's *waiting* is virtual: ready I/O is still served (a
+real pty or socket would see the virtual clock race ahead, so use this loop with in-process peers).
+
+Why a loop of our own: measured here (200 000 sequential ``asyncio.sleep(0.0027)``, best of 3 on a
+busy 2-core machine) this loop costs ~9.5 µs per virtual sleep against ~24 µs for ``looptime`` 0.9
+with ``noop_cycles=0``; it is ~60 lines with no pytest coupling. Its bare sleep is the bound of
+``emulator.loop_cost`` in ``armbench perf``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import selectors
+from collections.abc import Awaitable, Callable, Coroutine, Mapping
+from typing import Any, TypeVar
+
+__all__ = ["VirtualTimeLoop", "run_virtual", "virtual_loop_factory"]
+
+T = TypeVar("T")
+
+
+class _VirtualSelector(selectors.BaseSelector):
+    """Wraps a real selector; a wait with a timeout becomes a jump of the virtual clock."""
+
+    def __init__(self, real: selectors.BaseSelector, loop: VirtualTimeLoop) -> None:
+        self._real = real
+        self._loop = loop
+
+    def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
+        return self._real.register(fileobj, events, data)
+
+    def unregister(self, fileobj: Any) -> selectors.SelectorKey:
+        return self._real.unregister(fileobj)
+
+    def modify(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
+        return self._real.modify(fileobj, events, data)
+
+    def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        if timeout is None:  # nothing scheduled: only real I/O (or another thread) can wake us
+            return self._real.select(None)
+        # Only the loop's self-pipe registered: no peer can be ready, skip the system call.
+        events = self._real.select(0) if len(self._real.get_map()) > 1 or timeout <= 0 else []
+        if not events and timeout > 0:
+            self._loop.advance(timeout)
+        return events
+
+    def close(self) -> None:
+        self._real.close()
+
+    def get_map(self) -> Mapping[Any, selectors.SelectorKey]:
+        return self._real.get_map()
+
+
+class VirtualTimeLoop(asyncio.SelectorEventLoop):
+    """A selector event loop whose ``time()`` is virtual and starts at ``start_s``."""
+
+    def __init__(self, start_s: float = 0.0) -> None:
+        self._virtual_now = start_s
+        super().__init__(_VirtualSelector(selectors.DefaultSelector(), self))
+
+    def time(self) -> float:
+        """Virtual seconds."""
+        return self._virtual_now
+
+    def advance(self, dt_s: float) -> None:
+        """Move the virtual clock forward by ``dt_s`` seconds (also usable from tests)."""
+        if dt_s > 0:
+            self._virtual_now += dt_s
+
+
+def virtual_loop_factory() -> asyncio.AbstractEventLoop:
+    """A fresh virtual-time loop (for ``asyncio.Runner(loop_factory=...)`` and pytest-asyncio)."""
+    return VirtualTimeLoop()
+
+
+def run_virtual(main: Callable[[], Coroutine[Any, Any, T]] | Awaitable[T]) -> T:
+    """Run a coroutine to completion on a new virtual-time loop."""
+    coro = main() if callable(main) else main
+    with asyncio.Runner(loop_factory=virtual_loop_factory) as runner:
+        return runner.run(coro)  # type: ignore[arg-type]
