@@ -231,17 +231,20 @@ def dh_to_protocol(theta: npt.ArrayLike, settings: RobotSettings, *,
 
 
 def wrap_protocol(q: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
-    """Protocol angles (rad) moved by multiples of 2π into ``[mid - π, mid + π)`` per joint,
-    ``mid`` being the middle of the joint's limits; an angle within the limits stays unchanged."""
+    """Protocol angles (rad) moved by multiples of 2π into ``(mid - π, mid + π]`` per joint,
+    ``mid`` being the middle of the joint's limits (the window ``drivers.protocol`` decodes into);
+    an angle within the limits stays unchanged."""
     arr = _joint_array(q, "q")
     mid = np.array([(j.lower_rad + j.upper_rad) / 2 for j in settings.joints], dtype=np.float64)
-    out: FloatArray = mid + np.mod(arr - mid + math.pi, _TWO_PI) - math.pi
+    out: FloatArray = mid + math.pi - np.mod(mid + math.pi - arr, _TWO_PI)
     return out
 
 
 def fk(q_protocol: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
-    """TCP pose(s) in the base frame for protocol-convention angles (rad), shape ``(4,)`` or
-    ``(N, 4)`` → ``(4, 4)`` or ``(N, 4, 4)``, metres. Uses ``settings.geometry`` (incl. ``d4_m``)."""
+    """TCP pose(s) in the base frame for protocol-convention angles (rad).
+
+    Shape ``(4,)`` or ``(N, 4)`` → ``(4, 4)`` or ``(N, 4, 4)``, translations in metres; uses
+    ``settings.geometry`` including the gripper offset ``d4_m``."""
     return fk_dh(protocol_to_dh(q_protocol, settings), settings.geometry)
 
 
@@ -324,7 +327,7 @@ def _solution(branch: str, theta: Vec4, aliases: Sequence[str],
     violations: list[LimitViolation] = []
     for i, (joint, th) in enumerate(zip(settings.joints, theta, strict=True)):
         mid = (joint.lower_rad + joint.upper_rad) / 2
-        value = mid + (joint.from_dh(th) - mid + math.pi) % _TWO_PI - math.pi
+        value = mid + math.pi - (mid + math.pi - joint.from_dh(th)) % _TWO_PI
         if joint.lower_rad - _LIMIT_TOL_RAD <= value < joint.lower_rad:
             value = joint.lower_rad
         elif joint.upper_rad < value <= joint.upper_rad + _LIMIT_TOL_RAD:

@@ -87,12 +87,12 @@ def ticks_to_rad(ticks: int, lower_rad: float = 0.0, upper_rad: float = TWO_PI) 
     return q - TWO_PI * math.ceil((q - mid - math.pi) / TWO_PI)
 
 
-def _check_duty(duty: int, joint: int) -> int:
-    if isinstance(duty, bool) or not isinstance(duty, int):
-        if isinstance(duty, float) and duty.is_integer():
-            duty = int(duty)
-        else:
-            raise FrameValueError(joint, "duty", duty, "is not a whole number 0..99")
+def _check_duty(value: object, joint: int) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise FrameValueError(joint, "duty", value, "is not a whole number 0..99")
+    duty = value
     if not 0 <= duty <= MAX_DUTY:
         raise FrameValueError(joint, "duty", duty, f"is outside 0..{MAX_DUTY}")
     return duty

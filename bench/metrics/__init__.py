@@ -1,0 +1,74 @@
+"""Pure metric code of the bench suites: ISO 9283 pose/path figures and the paper's path errors.
+
+No I/O and no asyncio: every function takes arrays of positions in metres (robot base frame) and
+returns typed, frozen results in millimetres. See ``docs/metrics.md`` for the definitions.
+"""
+
+from __future__ import annotations
+
+from bench.metrics._common import MM_PER_M, MetricsInputError
+from bench.metrics.iso9283 import (
+    CUBE_PLANES,
+    POSE_CORNERS,
+    DistanceCharacteristics,
+    MultidirectionalVariation,
+    PathCharacteristics,
+    PathMethod,
+    PoseAccuracy,
+    PoseRepeatability,
+    cube_corners,
+    distance_characteristics,
+    iso_cube_poses,
+    multidirectional_variation,
+    path_characteristics,
+    pose_accuracy,
+    pose_repeatability,
+    resample_arc_length,
+    resample_normal_planes,
+)
+from bench.metrics.path import (
+    AxisErrorStats,
+    PathErrors,
+    PathErrorSummary,
+    PolylineProjection,
+    error_summary,
+    path_errors,
+    point_segment_distances,
+    project_to_polyline,
+    sample_polyline,
+    square_yz,
+    tracking_errors,
+)
+
+__all__ = [
+    "CUBE_PLANES",
+    "MM_PER_M",
+    "POSE_CORNERS",
+    "AxisErrorStats",
+    "DistanceCharacteristics",
+    "MetricsInputError",
+    "MultidirectionalVariation",
+    "PathCharacteristics",
+    "PathErrorSummary",
+    "PathErrors",
+    "PathMethod",
+    "PolylineProjection",
+    "PoseAccuracy",
+    "PoseRepeatability",
+    "cube_corners",
+    "distance_characteristics",
+    "error_summary",
+    "iso_cube_poses",
+    "multidirectional_variation",
+    "path_characteristics",
+    "path_errors",
+    "point_segment_distances",
+    "pose_accuracy",
+    "pose_repeatability",
+    "project_to_polyline",
+    "resample_arc_length",
+    "resample_normal_planes",
+    "sample_polyline",
+    "square_yz",
+    "tracking_errors",
+]
