@@ -1,0 +1,103 @@
+"""The one interface every transport implements: open, read, write, close, two byte counters.
+
+A transport carries raw bytes between the host and the arm's master board (or whatever stands in
+for it: a pty, a TCP socket, an RFC 2217 server, the emulator). It knows nothing about frames.
+All methods are coroutines to be awaited on one event loop; ``read`` is meant for one reader task
+and ``write`` may be called from any task of that loop. Callers put their own deadlines around the
+awaits (``asyncio.timeout``): a transport waits as long as the wire makes it wait.
+"""
+
+from __future__ import annotations
+
+import abc
+from types import TracebackType
+from typing import Self
+
+from drivers.errors import PortLostError, TransportError
+from drivers.settings import SerialSettings
+
+__all__ = ["READ_CHUNK", "Transport"]
+
+READ_CHUNK = 65536
+"""Most bytes one :meth:`Transport.read` returns."""
+
+
+class Transport(abc.ABC):
+    """A byte pipe to the arm, named by its port string.
+
+    Life cycle: construct (no I/O) → :meth:`open` → any number of :meth:`read`/:meth:`write` →
+    :meth:`close`. Also an async context manager that opens and closes.
+
+    Errors: :class:`~drivers.errors.TransportError` (naming the port) when the port cannot be
+    opened or configured or is used while not open; :class:`~drivers.errors.PortLostError` when
+    the port or its peer goes away while open (EOF, reset, EIO on a pty whose other end closed,
+    server killed). After a loss every read/write raises ``PortLostError`` again and
+    :meth:`close` still works.
+    """
+
+    #: URL scheme this transport serves (``""`` for plain serial device names).
+    scheme: str = ""
+
+    def __init__(self, port: str, serial: SerialSettings) -> None:
+        self.port = port
+        """The port string this transport was made from."""
+        self.serial = serial
+        """Line settings (baud rate etc.); TCP ignores them, serial and RFC 2217 apply them."""
+        self.bytes_in = 0
+        """Payload bytes returned by :meth:`read` since construction."""
+        self.bytes_out = 0
+        """Payload bytes accepted by :meth:`write` since construction."""
+
+    @property
+    @abc.abstractmethod
+    def is_open(self) -> bool:
+        """True between a successful :meth:`open` and :meth:`close` or the loss of the port."""
+
+    @abc.abstractmethod
+    async def open(self) -> None:
+        """Open and configure the port; raises :class:`TransportError` naming it on failure."""
+
+    @abc.abstractmethod
+    async def read(self) -> bytes:
+        """Wait for at least one byte and return what is there (at most :data:`READ_CHUNK`).
+
+        Raises :class:`PortLostError` when the port or its peer is gone and nothing is left to
+        read, :class:`TransportError` when not open.
+        """
+
+    @abc.abstractmethod
+    async def write(self, data: bytes) -> None:
+        """Write ``data`` and wait until the OS (or the peer's flow control) has taken it.
+
+        Raises :class:`PortLostError` when the port or its peer is gone, :class:`TransportError`
+        when not open.
+        """
+
+    @abc.abstractmethod
+    async def close(self) -> None:
+        """Release the port. Idempotent; safe after a loss and before :meth:`open`."""
+
+    async def __aenter__(self) -> Self:
+        await self.open()
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None,
+                        exc: BaseException | None, tb: TracebackType | None) -> None:
+        await self.close()
+
+    def __repr__(self) -> str:
+        state = "open" if self.is_open else "closed"
+        return (f"<{type(self).__name__} {self.port!r} {state} in={self.bytes_in} "
+                f"out={self.bytes_out}>")
+
+    # --- helpers for subclasses -----------------------------------------------------------------
+    def _error(self, reason: str) -> TransportError:
+        """A :class:`TransportError` naming this port."""
+        return TransportError(self.port, reason)
+
+    def _lost(self, reason: str) -> PortLostError:
+        """A :class:`PortLostError` naming this port."""
+        return PortLostError(self.port, reason)
+
+    def _not_open(self) -> TransportError:
+        return TransportError(self.port, "transport is not open")

@@ -1,0 +1,130 @@
+"""Local serial port (``/dev/ttyUSB0``, ``/dev/ttyACM0``, ``COM3``, a pty's ``/dev/pts/N``) via
+pyserial-asyncio-fast.
+
+pyserial-asyncio-fast was chosen over pyserial-asyncio 0.6 on measured figures (see
+``docs/transports.md`` and ``bench/perf/transports.py``). The port is opened with the baud rate,
+data bits, parity and stop bits of :class:`~drivers.settings.SerialSettings`; modem-control
+ioctls that a pty does not support are ignored by pyserial. A Linux pty keeps baud rate and stop
+bits but forces 8 data bits without parity, and glibc then reports the second ``tcsetattr``
+pyserial makes as EINVAL: on a pty use 8N1/8N2 (any baud rate); real UARTs take every setting.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Any
+
+import serial
+import serial_asyncio_fast
+
+from drivers.errors import PortLostError
+from drivers.settings import SerialSettings
+from drivers.transports.base import READ_CHUNK, Transport
+from drivers.transports.tcp import close_writer
+
+__all__ = ["OPEN_TIMEOUT_S", "SerialTransport", "pyserial_settings"]
+
+OPEN_TIMEOUT_S = 5.0
+"""Seconds :meth:`SerialTransport.open` waits for the device to open (USB adapters can be slow)."""
+
+_OPEN_ERRORS: tuple[type[Exception], ...] = (OSError, ValueError)
+with contextlib.suppress(ImportError):  # POSIX: pyserial lets termios.error out of open()
+    import termios
+
+    _OPEN_ERRORS += (termios.error,)
+
+_STOPBITS = {1: serial.STOPBITS_ONE, 1.5: serial.STOPBITS_ONE_POINT_FIVE, 2: serial.STOPBITS_TWO}
+
+
+def pyserial_settings(settings: SerialSettings) -> dict[str, Any]:
+    """The ``serial.Serial`` keyword arguments of ``settings`` (baudrate in bit/s)."""
+    return {
+        "baudrate": settings.baudrate,
+        "bytesize": settings.bytesize,
+        "parity": settings.parity,
+        "stopbits": _STOPBITS.get(settings.stopbits, settings.stopbits),
+    }
+
+
+class SerialTransport(Transport):
+    """A local serial device. EOF, EIO (a pty whose other end closed) or a vanished USB device
+    while open is a :class:`PortLostError`."""
+
+    scheme = ""
+
+    def __init__(self, port: str, serial: SerialSettings, *,
+                 open_timeout_s: float = OPEN_TIMEOUT_S) -> None:
+        super().__init__(port, serial)
+        self.open_timeout_s = open_timeout_s
+        """Seconds :meth:`open` waits for the device."""
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._lost_reason: str | None = None
+
+    @property
+    def is_open(self) -> bool:
+        return self._writer is not None and self._lost_reason is None
+
+    async def open(self) -> None:
+        if self._writer is not None:
+            raise self._error("transport is already open")
+        try:
+            async with asyncio.timeout(self.open_timeout_s):
+                reader, writer = await serial_asyncio_fast.open_serial_connection(
+                    loop=asyncio.get_running_loop(), url=self.port,
+                    **pyserial_settings(self.serial))
+        except TimeoutError:
+            raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
+        except _OPEN_ERRORS as exc:  # serial.SerialException is an OSError
+            raise self._error(f"cannot open: {exc}") from exc
+        self._reader, self._writer = reader, writer
+        self._lost_reason = None
+
+    async def read(self) -> bytes:
+        reader = self._reader
+        if reader is None:
+            raise self._not_open()
+        if self._lost_reason is not None:
+            raise self._lost(self._lost_reason)
+        try:
+            data = await reader.read(READ_CHUNK)
+        except OSError as exc:
+            raise self._mark_lost(f"device lost: {exc}") from exc
+        if not data:
+            if self._reader is None:
+                raise self._not_open()
+            raise self._mark_lost("device closed (end of file)")
+        self.bytes_in += len(data)
+        return data
+
+    async def write(self, data: bytes) -> None:
+        reader, writer = self._reader, self._writer
+        if reader is None or writer is None:
+            raise self._not_open()
+        if self._lost_reason is not None:
+            raise self._lost(self._lost_reason)
+        exc = reader.exception()
+        if exc is not None:
+            raise self._mark_lost(f"device lost: {exc}")
+        if writer.is_closing():  # the transport closes itself on a read/write error
+            raise self._mark_lost("device lost")
+        try:
+            writer.write(data)
+            await writer.drain()
+        except OSError as err:
+            raise self._mark_lost(f"device lost: {err}") from err
+        if writer.is_closing():  # pyserial-asyncio drops writes to a failed port silently
+            raise self._mark_lost("device lost while writing")
+        self.bytes_out += len(data)
+
+    async def close(self) -> None:
+        writer = self._writer
+        self._reader = self._writer = None
+        if writer is not None:
+            await close_writer(writer)
+
+    def _mark_lost(self, reason: str) -> PortLostError:
+        if self._lost_reason is None:
+            self._lost_reason = reason
+        return self._lost(self._lost_reason)
