@@ -1,6 +1,23 @@
 """Host side of armbench: the protocol codec, the robot model, kinematics and the asyncio driver."""
 
-from drivers.errors import ArmbenchError
+from drivers.errors import ArmbenchError, PortLostError, TransportError
+from drivers.kinematics import (
+    BRANCHES,
+    IKSolution,
+    JointLimitError,
+    KinematicsError,
+    LimitViolation,
+    UnreachableError,
+    dh_parameters,
+    dh_to_protocol,
+    fk,
+    fk_dh,
+    ik,
+    ik_best,
+    protocol_to_dh,
+    tcp_position,
+    wrap_protocol,
+)
 from drivers.protocol import (
     Command,
     FrameError,
@@ -21,19 +38,36 @@ from drivers.settings import (
 )
 
 __all__ = [
+    "BRANCHES",
     "ArmbenchError",
     "Command",
     "FrameError",
     "FrameValueError",
     "Framer",
     "Geometry",
+    "IKSolution",
+    "JointLimitError",
     "JointSettings",
+    "KinematicsError",
+    "LimitViolation",
+    "PortLostError",
     "ProtocolError",
     "Reply",
     "RobotSettings",
     "SerialSettings",
     "SettingsError",
+    "TransportError",
+    "UnreachableError",
+    "dh_parameters",
+    "dh_to_protocol",
+    "fk",
+    "fk_dh",
+    "ik",
+    "ik_best",
     "load_settings",
+    "protocol_to_dh",
     "rad_to_ticks",
+    "tcp_position",
     "ticks_to_rad",
+    "wrap_protocol",
 ]

@@ -236,7 +236,7 @@ def wrap_protocol(q: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
     an angle within the limits stays unchanged."""
     arr = _joint_array(q, "q")
     mid = np.array([(j.lower_rad + j.upper_rad) / 2 for j in settings.joints], dtype=np.float64)
-    out: FloatArray = mid + math.pi - np.mod(mid + math.pi - arr, _TWO_PI)
+    out: FloatArray = arr - _TWO_PI * np.ceil((arr - mid - math.pi) / _TWO_PI)
     return out
 
 
@@ -274,7 +274,8 @@ def _position_candidates(x: float, y: float, z: float,
 
     With ``u`` the signed distance of the TCP along ``x1`` and ``v = z - d1`` its height above the
     shoulder, FK gives ``x = u c1 + d2 s1``, ``y = u s1 - d2 c1`` and, in the arm plane,
-    ``(u, v) = a2·e(θ2) + L·e(θ2 + θ3 + φ)`` with ``L = √(a3² + d4²)``, ``φ = atan2(-d4, a3)``.
+    ``(u, v) = a2·e(θ2) + L·e(θ2 + θ3 + φ)`` with ``L = √(a3² + d4²)``, ``φ = atan2(-d4, a3)``
+    and ``e(α) = (cos α, sin α)``.
     """
     target = (x, y, z)
     d1, d2, a2, a3, d4 = g.d1_m, g.d2_m, g.a2_m, g.a3_m, g.d4_m
@@ -301,18 +302,23 @@ def _position_candidates(x: float, y: float, z: float,
         raise UnreachableError(target, "singular",
                                "on the shoulder axis with a2 = √(a3² + d4²): joint 2 is "
                                "undetermined")
-    cos3 = max(-1.0, min(1.0, (r * r - a2 * a2 - link * link) / (2.0 * a2 * link)))
-    sin3 = math.sqrt((1.0 - cos3) * (1.0 + cos3))
+    # Law of cosines at the shoulder: the angle γ between the shoulder→TCP line and link a2.
+    # Solving for θ2 first and taking the forearm direction from the elbow→TCP vector keeps the
+    # TCP residual at rounding level even for targets next to the shoulder axis.
+    cos_g = max(-1.0, min(1.0, ((a2 - link) * (a2 + link) + r * r) / (2.0 * a2 * r)))
+    gamma = math.acos(cos_g)
     heading = math.atan2(y, x)
     out: list[tuple[str, float, float, float]] = []
     for side, su in (("front", 1.0), ("back", -1.0)):
         u = su * u_abs
         theta1 = heading - math.atan2(-d2, u)
-        for elbow, se in (("up", -su), ("down", su)):
-            # the elbow lies above the shoulder→TCP line iff sin θ3' has the sign of -u
-            s3 = se * sin3
-            theta2 = math.atan2(v, u) - math.atan2(link * s3, a2 + link * cos3)
-            theta3 = math.atan2(s3, cos3) - phi
+        beta = math.atan2(v, u)
+        for elbow, turn in (("up", su * gamma), ("down", -su * gamma)):
+            # turning link a2 from the shoulder→TCP line towards +v (world z) when the TCP lies
+            # ahead (u > 0), towards -v behind, puts the elbow above that line: elbow "up"
+            theta2 = beta + turn
+            forearm = math.atan2(v - a2 * math.sin(theta2), u - a2 * math.cos(theta2))
+            theta3 = forearm - theta2 - phi
             out.append((f"{side}-{elbow}", theta1, theta2, theta3))
     return out
 
@@ -327,7 +333,8 @@ def _solution(branch: str, theta: Vec4, aliases: Sequence[str],
     violations: list[LimitViolation] = []
     for i, (joint, th) in enumerate(zip(settings.joints, theta, strict=True)):
         mid = (joint.lower_rad + joint.upper_rad) / 2
-        value = mid + math.pi - (mid + math.pi - joint.from_dh(th)) % _TWO_PI
+        value = joint.from_dh(th)
+        value -= _TWO_PI * math.ceil((value - mid - math.pi) / _TWO_PI)
         if joint.lower_rad - _LIMIT_TOL_RAD <= value < joint.lower_rad:
             value = joint.lower_rad
         elif joint.upper_rad < value <= joint.upper_rad + _LIMIT_TOL_RAD:
