@@ -16,6 +16,7 @@ __all__ = ["COMMAND_MODULES", "main"]
 COMMAND_MODULES: tuple[str, ...] = (
     "bench.commands.kinematics",
     "bench.commands.perf",
+    "bench.commands.emulate",
 )
 
 

@@ -175,7 +175,7 @@ class RobotSettings:
             "serial": {"baudrate": self.serial.baudrate, "bytesize": self.serial.bytesize,
                        "parity": self.serial.parity, "stopbits": self.serial.stopbits},
             "joints": {j.name: _joint_to_mapping(j) for j in self.joints},
-            **{k: dict(v) if isinstance(v, Mapping) else v for k, v in self.sections.items()},
+            **{k: _plain(v) for k, v in self.sections.items()},
         }
 
 
@@ -208,6 +208,15 @@ def _joint_to_mapping(j: JointSettings) -> dict[str, Any]:
         if v is not None:
             out[k] = v
     return out
+
+
+def _plain(value: Any) -> Any:
+    """A deep copy of a TOML-shaped value with plain dicts and lists."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
 
 
 def _number(path: str, value: object, *, integer: bool = False) -> float:
@@ -262,7 +271,7 @@ def _from_mapping(data: Mapping[str, Any]) -> RobotSettings:
             else:
                 kwargs[k] = _number(path, v, integer=k not in ("gear_ratio", "step_angle_deg"))
         joints.append(replace(default, **kwargs))
-    sections = {k: _table(k, data[k]) for k in _EXTENSION_SECTIONS if k in data}
+    sections = {k: data[k] for k in _EXTENSION_SECTIONS if k in data}
     return RobotSettings(geometry, tuple(joints), serial, sections)
 
 

@@ -17,6 +17,8 @@ __all__ = ["BENCHMARK_MODULES", "Figure", "PerfOptions", "best_rate", "run_bench
 #: Each module exposes ``run(options) -> list[Figure]``.
 BENCHMARK_MODULES: tuple[str, ...] = (
     "bench.perf.codec",
+    "bench.perf.emulator",
+    "bench.perf.transports",
 )
 
 

@@ -1,0 +1,101 @@
+"""``armbench emulate``: serve the emulated arm on a pseudo-terminal or a TCP port, in real time."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import ipaddress
+import logging
+import signal
+import sys
+from typing import Any
+
+from drivers.errors import ArmbenchError
+from drivers.settings import load_settings
+from fakes.arm import ArmEmulator
+from fakes.faults import load_faults
+from fakes.serve import PtyServer, TcpServer, parse_host_port
+from fakes.settings import emulator_settings
+
+__all__ = ["register"]
+
+log = logging.getLogger("armbench.emulator")
+
+
+def register(sub: Any) -> None:
+    """Add the ``emulate`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "emulate", help="serve the emulated arm on a pty or TCP port",
+        description="Run the firmware emulator in real time and serve it as the robot: on a "
+                    "pseudo-terminal (any serial program can open it) or on a TCP port.")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal")
+    where.add_argument("--tcp", metavar="HOST:PORT",
+                       help="serve on TCP (host defaults to 127.0.0.1)")
+    p.add_argument("--link", metavar="PATH", help="with --pty: make PATH a symlink to the device")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="with --tcp: allow binding an address other than loopback")
+    p.add_argument("--settings", metavar="FILE", help="robot settings TOML ([emulator] table too)")
+    p.add_argument("--faults", metavar="FILE", help="fault list TOML ([[faults]] tables)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the emulator's randomness")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--idle-timeout", type=float, default=300.0, metavar="S",
+                   help="with --tcp: disconnect a client silent for S seconds (default 300)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    robot = load_settings(args.settings)
+    overrides = {"seed": args.seed} if args.seed is not None else {}
+    settings = emulator_settings(robot, **overrides)
+    faults = load_faults(args.faults) if args.faults else []
+    if args.link and not args.pty:
+        raise ArmbenchError("--link: only with --pty")
+    host_port = parse_host_port(args.tcp) if args.tcp else None
+    if host_port is not None and not _is_loopback(host_port[0]):
+        if not args.allow_remote:
+            raise ArmbenchError(f"--tcp: {host_port[0]} is not a loopback address; anyone who "
+                                f"can reach it could move the arm (add --allow-remote to mean it)")
+        print(f"armbench emulate: WARNING: serving on {host_port[0]}, reachable from the network",
+              file=sys.stderr, flush=True)
+    arm = ArmEmulator(robot, settings, faults)
+    asyncio.run(_serve(arm, args, host_port))
+    return 0
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+async def _serve(arm: ArmEmulator, args: argparse.Namespace,
+                 host_port: tuple[str, int] | None) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    server: PtyServer | TcpServer
+    if host_port is None:
+        server = PtyServer(arm, args.link)
+        path = await server.start()
+        link = f" (link {args.link})" if args.link else ""
+        print(f"armbench emulate: serving the arm on {path}{link}", flush=True)
+    else:
+        server = TcpServer(arm, *host_port, idle_timeout_s=args.idle_timeout)
+        host, port = await server.start()
+        print(f"armbench emulate: serving the arm on socket://{host}:{port}", flush=True)
+    try:
+        with contextlib.suppress(TimeoutError):
+            async with asyncio.timeout(args.duration):
+                await stop.wait()
+    finally:
+        await server.close()
+        stats = arm.stats()
+        print(f"armbench emulate: stopped after {stats.loops} loops, {stats.commands} commands "
+              f"received", flush=True)

@@ -1,0 +1,112 @@
+"""``fake://`` — the firmware emulator in this process, on the running event loop.
+
+``fake://?seed=3&faults=faults.toml&settings=robot.toml``: the emulator is built from the robot
+settings file (defaults without one), its ``[emulator]`` table, the fault list and the seed. On a
+virtual-time loop (``fakes.vclock``) minutes of robot time pass in seconds; on a real loop it runs
+in real time. The emulator is exposed as ``transport.emulator`` for its side channels: ground truth
+and power control (what a laser tracker and a relay give on a real bench).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from urllib.parse import parse_qs, urlsplit
+
+from drivers.errors import ArmbenchError
+from drivers.settings import RobotSettings, SerialSettings, load_settings
+from drivers.transports.base import Transport
+from fakes.arm import ArmEmulator
+from fakes.faults import Fault, load_faults
+from fakes.settings import emulator_settings
+
+__all__ = ["FakeTransport", "parse_fake_url"]
+
+_KNOWN = {"seed", "faults", "settings"}
+
+
+def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
+    """Robot settings, seed and faults named by a ``fake://`` URL's query."""
+    parts = urlsplit(port)
+    if parts.scheme.lower() != "fake":
+        raise ArmbenchError(f"{port}: not a fake:// port")
+    query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
+    for key in query:
+        if key not in _KNOWN:
+            raise ArmbenchError(f"{port}: unknown query parameter {key!r} "
+                                f"(known: {', '.join(sorted(_KNOWN))})")
+    robot = load_settings(query["settings"][-1]) if "settings" in query else RobotSettings()
+    seed = None
+    if "seed" in query:
+        try:
+            seed = int(query["seed"][-1])
+        except ValueError:
+            raise ArmbenchError(f"{port}: seed {query['seed'][-1]!r} is not an integer") from None
+    faults = load_faults(query["faults"][-1]) if "faults" in query else []
+    return robot, seed, faults
+
+
+class FakeTransport(Transport):
+    """A transport whose other end is an :class:`~fakes.arm.ArmEmulator` on the same loop."""
+
+    scheme = "fake"
+
+    def __init__(self, port: str, serial: SerialSettings,
+                 emulator: ArmEmulator | None = None) -> None:
+        super().__init__(port, serial)
+        self._given = emulator
+        self.emulator: ArmEmulator | None = emulator
+        self._buf = bytearray()
+        self._waiter: asyncio.Future[None] | None = None
+        self._open = False
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    async def open(self) -> None:
+        if self._open:
+            return
+        if self.emulator is None:
+            robot, seed, faults = parse_fake_url(self.port)
+            overrides = {"seed": seed} if seed is not None else {}
+            self.emulator = ArmEmulator(robot, emulator_settings(robot, **overrides), faults)
+        self.emulator.attach_host(self._receive)
+        self._open = True
+        await self.emulator.start()
+
+    def _receive(self, data: bytes) -> None:
+        self._buf += data
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    async def read(self) -> bytes:
+        while not self._buf:
+            if not self._open:
+                raise self._not_open()
+            self._waiter = asyncio.get_running_loop().create_future()
+            try:
+                await self._waiter
+            finally:
+                self._waiter = None
+        data = bytes(self._buf)
+        self._buf.clear()
+        self.bytes_in += len(data)
+        return data
+
+    async def write(self, data: bytes) -> None:
+        if not self._open or self.emulator is None:
+            raise self._not_open()
+        self.emulator.host_write(data)
+        self.bytes_out += len(data)
+
+    async def close(self) -> None:
+        if not self._open:
+            return
+        self._open = False
+        if self._waiter is not None and not self._waiter.done():
+            self._waiter.set_exception(self._lost("transport closed"))
+        if self.emulator is not None:
+            self.emulator.detach_host()
+            if self._given is None:
+                await self.emulator.close()

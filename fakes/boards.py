@@ -1,0 +1,405 @@
+"""The four Arduino boards: the master (joint 1, Algorithm 1) and three slaves (Algorithm 2).
+
+Each board is one asyncio task while it has power. RAM (encoder counter, references, the PWM state
+machine) is lost on a power cut; the EEPROM and the mechanics (motor position) are not. At power-up
+each board runs the start-up procedure of §5.2 before its main loop: a record saying "stopped"
+restores the counter; "moving CW/CCW" drives the joint the opposite way until the Hall sensor
+resets the counter (and a joint driven into its hard limit instead stays there: a visible failure).
+
+Time: the master keeps its own cursor (``BusClock``) advanced by its I²C traffic, EEPROM writes,
+CPU time and blocking prints, and sleeps once per loop until the loop's end, so a loop costs one
+event-loop wake-up however many transactions it makes. Slaves answer the bus from its handlers
+(Arduino's Wire ISRs) at the transaction's time; their tasks only run the start-up procedure.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from typing import NamedTuple
+
+from smbus2 import i2c_msg
+
+from drivers.protocol import Command, Framer, rad_to_ticks, ticks_to_rad
+from drivers.settings import JointSettings
+from fakes.eeprom import Eeprom
+from fakes.i2c import (
+    REG_POSITION,
+    REG_REFERENCE,
+    REG_STATUS,
+    REG_WHO_AM_I,
+    BusClock,
+    I2CBus,
+)
+from fakes.joint import CYCLE_S, JointModel
+from fakes.settings import EmulatorSettings
+from fakes.uart import Uart
+
+__all__ = ["Board", "MasterBoard", "SlaveBoard", "TruthSample"]
+
+log = logging.getLogger("armbench.emulator")
+
+#: A master whose cursor falls this far behind the loop's clock (real time, busy CPU) resynchronises
+#: instead of trying to catch up with a burst of loops.
+MAX_LAG_S = 0.05
+
+
+class TruthSample(NamedTuple):
+    """Ground truth beside one reply frame: what a laser tracker would have measured.
+
+    ``t_s`` is when the reply was printed; ``true_rad`` the real joint angles (protocol
+    convention) and ``firmware_rad`` what the firmware believed (its encoder counters), each taken
+    when the firmware sampled that joint for the reply.
+    """
+
+    t_s: float
+    true_rad: tuple[float, float, float, float]
+    firmware_rad: tuple[float, float, float, float]
+
+
+class Board:
+    """One board: its joint, EEPROM and power. Subclasses add the main loop."""
+
+    def __init__(self, number: int, joint: JointSettings, settings: EmulatorSettings,
+                 eeprom: Eeprom, motor_steps: int = 0) -> None:
+        self.number = number
+        self.joint = joint
+        self.settings = settings
+        self.eeprom = eeprom
+        self.t0 = 0.0
+        self.powered = False
+        self.model: JointModel | None = None
+        self._motor_steps = motor_steps
+        self._task: asyncio.Task[None] | None = None
+        self.boots = 0
+        self.recoveries = 0
+        self.reference: tuple[int, int] | None = None  # (wire ticks, duty) last applied
+        self.last_truth_rad = motor_steps / joint.steps_per_rad
+        self.last_firmware_rad = 0.0
+        self.stalled = False
+        self._ticks_per_s = 1.0 / CYCLE_S
+        self._counts_per_rad = joint.counts_per_rad
+
+    # time ----------------------------------------------------------------------------------------
+    def tick(self, t_s: float) -> int:
+        """The board's control cycle count at ``t_s`` (cycles since its power-up)."""
+        return int((t_s - self.t0) * self._ticks_per_s + 1e-9)
+
+    def sync(self, t_s: float) -> JointModel:
+        """Bring the joint to ``t_s`` (never backwards) and store EEPROM records it produced."""
+        model = self.model
+        assert model is not None
+        tick = int((t_s - self.t0) * self._ticks_per_s + 1e-9)
+        if tick > model.tick:
+            model.advance(tick)
+        if model.pending_transitions:
+            self.store_transitions()
+        return model
+
+    def store_transitions(self) -> int:
+        """Write the EEPROM record for each motion change since the last call; cells written."""
+        assert self.model is not None
+        cells = 0
+        for _tick, motion, counter in self.model.drain_transitions():
+            cells += self.eeprom.store(motion, counter)
+        return cells
+
+    # conversions ---------------------------------------------------------------------------------
+    def counter_rad(self) -> float:
+        """The firmware's position belief, radians (protocol convention)."""
+        assert self.model is not None
+        return self.model.counter / self._counts_per_rad
+
+    def true_rad(self) -> float:
+        """The real joint angle, radians (protocol convention)."""
+        if self.model is None:
+            return self._motor_steps / self.joint.steps_per_rad
+        return self.model.true_angle_rad()
+
+    def apply_reference(self, t_s: float, ticks: int, duty: int) -> None:
+        """Take a reference (wire ticks, duty) into the controller at ``t_s``."""
+        if self.reference == (ticks, duty):
+            return
+        self.reference = (ticks, duty)
+        model = self.sync(t_s)
+        if model.homing:
+            return  # held until start-up recovery ends (see _initialise)
+        q = ticks_to_rad(ticks, self.joint.lower_rad, self.joint.upper_rad)
+        model.set_reference(model.tick, round(q * self.joint.counts_per_rad), duty)
+
+    # power ---------------------------------------------------------------------------------------
+    def power_on(self, t_s: float) -> None:
+        """Power the board: RAM starts blank, the start-up procedure runs, then the main loop."""
+        if self.powered:
+            return
+        self.powered = True
+        self.boots += 1
+        self.t0 = t_s
+        record = self.eeprom.load()
+        counter = record.counter if record is not None else round(
+            self._motor_steps * self.joint.counts_per_step)
+        self.model = JointModel(
+            self.joint, effects=self.settings.effects, seed=self.settings.seed * 31 + self.number
+            + 1000 * self.boots, deadband_counts=self.settings.deadband_counts,
+            motor_steps=self._motor_steps, counter=counter, tick=0)
+        if self.stalled:
+            self.model.stall(0, True)
+        self.reference = None
+        if record is not None and record.motion != "stopped":
+            direction = -1 if record.motion == "cw" else 1
+            self.model.home(0, direction, self.settings.recovery_duty)
+            self.recoveries += 1
+            log.info("joint %d: powered up after moving %s, driving %s to the Hall sensor",
+                     self.number, record.motion, "CCW" if direction < 0 else "CW")
+        self._on_power_on(t_s)
+        self._task = asyncio.get_running_loop().create_task(self._run(),
+                                                            name=f"board-{self.number}")
+
+    def power_off(self, t_s: float) -> None:
+        """Cut power at ``t_s``: the joint stops where it is, RAM is lost, EEPROM stays."""
+        if not self.powered:
+            return
+        self.sync(t_s)
+        assert self.model is not None
+        self._motor_steps = self.model.motor_steps
+        self.last_truth_rad = self.model.true_angle_rad()
+        self.powered = False
+        self._on_power_off()
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+        self.model = None
+
+    def set_stalled(self, t_s: float, stalled: bool) -> None:
+        """Fault: the joint is mechanically blocked (or freed)."""
+        self.stalled = stalled
+        if self.model is not None:
+            self.sync(t_s)
+            self.model.stall(self.model.tick, stalled)
+
+    async def _initialise(self) -> None:
+        """§5.2: wait for the drive to the Hall sensor (if any), then apply a held reference."""
+        loop = asyncio.get_running_loop()
+        model = self.model
+        assert model is not None
+        while model.homing:
+            nxt = model.next_event_tick()
+            if nxt is None:  # stalled against a hard limit: the firmware keeps trying forever
+                await asyncio.Event().wait()
+                return
+            await asyncio.sleep(max(0.0, self.t0 + (nxt + 1) * CYCLE_S - loop.time()))
+            self.sync(loop.time())
+        held, self.reference = self.reference, None
+        if held is not None:
+            self.apply_reference(loop.time(), *held)
+
+    async def _run(self) -> None:
+        raise NotImplementedError
+
+    def _on_power_on(self, t_s: float) -> None:
+        """Hook: attach to the bus (slaves)."""
+
+    def _on_power_off(self) -> None:
+        """Hook: detach from the bus (slaves)."""
+
+    def status_byte(self) -> int:
+        """The STATUS register: moving, CW, recovering, stalled at a limit, initialised."""
+        model = self.model
+        if model is None:
+            return 0
+        motion = model.motion
+        return ((motion != "stopped") | (motion == "cw") << 1 | model.homing << 2
+                | (model.homing and model.at_limit) << 3 | (not model.homing) << 4)
+
+
+class SlaveBoard(Board):
+    """Joints 2–4 (Algorithm 2): answer the master on I²C, run the joint."""
+
+    def __init__(self, number: int, joint: JointSettings, settings: EmulatorSettings,
+                 eeprom: Eeprom, bus: I2CBus, motor_steps: int = 0) -> None:
+        super().__init__(number, joint, settings, eeprom, motor_steps)
+        assert joint.i2c_address is not None
+        self.address = joint.i2c_address
+        self.bus = bus
+        self._pointer = REG_POSITION
+        self._last_write = b""
+        self.bad_writes = 0
+
+    def _on_power_on(self, t_s: float) -> None:
+        self._pointer = REG_POSITION
+        self._last_write = b""
+        self.bus.attach(self.address, self)  # Wire.begin(address) comes first in setup()
+
+    def _on_power_off(self) -> None:
+        self.bus.detach(self.address)
+
+    async def _run(self) -> None:
+        await self._initialise()
+        await asyncio.Event().wait()  # the rest happens in the Wire handlers
+
+    # Wire handlers -------------------------------------------------------------------------------
+    def on_receive(self, data: bytes, t_s: float) -> None:
+        """onReceive: a register pointer, optionally followed by a reference."""
+        if data == self._last_write:  # the master repeats its reference every loop
+            self._pointer = REG_POSITION
+            return
+        if not data:
+            return
+        register = data[0]
+        if register == REG_REFERENCE and len(data) == 4:
+            ticks = data[1] | data[2] << 8
+            duty = data[3]
+            if ticks > 62_832 or duty > 99:
+                self.bad_writes += 1
+            else:
+                self.apply_reference(t_s, ticks, duty)
+                self._last_write = data
+            self._pointer = REG_POSITION
+        elif len(data) == 1 and register in (REG_POSITION, REG_STATUS, REG_WHO_AM_I):
+            self._pointer = register
+        else:
+            self.bad_writes += 1
+
+    def on_request(self, length: int, t_s: float) -> bytes:
+        """onRequest: the register the pointer names; the pointer returns to POSITION."""
+        register, self._pointer = self._pointer, REG_POSITION
+        model = self.sync(t_s)
+        if register == REG_POSITION:
+            self.last_truth_rad = model.true_angle_rad()
+            self.last_firmware_rad = q = model.counter / self._counts_per_rad
+            ticks = rad_to_ticks(q)
+            return bytes((ticks & 0xFF, ticks >> 8))
+        if register == REG_STATUS:
+            return bytes((self.status_byte(),))
+        return bytes((0xA0 | self.number,))
+
+
+class MasterBoard(Board):
+    """Joint 1 (Algorithm 1): UART to the host, I²C master of the slaves."""
+
+    def __init__(self, joint: JointSettings, settings: EmulatorSettings, eeprom: Eeprom,
+                 bus: I2CBus, uart: Uart, slaves: list[SlaveBoard], motor_steps: int = 0,
+                 on_reply: Callable[[bytes, TruthSample], None] | None = None) -> None:
+        super().__init__(1, joint, settings, eeprom, motor_steps)
+        self.bus = bus
+        self.clock: BusClock = bus.clock
+        self.uart = uart
+        self.slaves = slaves
+        self.on_reply = on_reply
+        self.loops = 0
+        self.commands = 0
+        self.i2c_errors = 0
+        self.framer = Framer("command")
+
+    def _on_power_on(self, t_s: float) -> None:
+        self.framer = Framer("command")
+        self.clock.now = t_s
+
+    async def _run(self) -> None:
+        await self._initialise()
+        loop = asyncio.get_running_loop()
+        clock = self.clock
+        clock.now = max(clock.now, loop.time())
+        uart, bus, slaves, settings = self.uart, self.bus, self.slaves, self.settings
+        blocking = settings.uart_receive == "blocking"
+        line_end = settings.reply_line_end.encode()
+        eeprom_s = settings.eeprom_write_s_per_byte
+        overhead_s = settings.loop_overhead_s
+        ref_msgs = [i2c_msg.write(s.address, b"\x01\x00\x00\x00") for s in slaves]
+        pos_msgs = [i2c_msg.read(s.address, 2) for s in slaves]
+        positions = [0] * len(slaves)
+        command: Command | None = None
+        sent: Command | None = None
+        framer = self.framer
+        while True:
+            # Receive reference poses and velocities from UART
+            if blocking:
+                command = await self._receive_blocking(framer, loop)
+            else:
+                data = uart.read_available(clock.now)
+                if data:
+                    for event in framer.feed(data):
+                        if isinstance(event, Command):
+                            command = event
+                            self.commands += 1
+            new = command is not None and command is not sent
+            if new:
+                assert command is not None
+                for k, msg in enumerate(ref_msgs):
+                    t, d = command.ticks[k + 1], command.duties[k + 1]
+                    buf = msg.buf
+                    buf[1], buf[2], buf[3] = bytes((t & 0xFF,)), bytes((t >> 8,)), bytes((d,))
+            # Update reference pose and velocity of joints 2..4 through I2C (every loop; until
+            # the first command the references are "hold", duty 00)
+            for msg in ref_msgs:
+                try:
+                    bus.i2c_rdwr(msg)
+                except OSError:
+                    self.i2c_errors += 1
+            # Update reference pose of joint 1
+            if new:
+                assert command is not None
+                self.apply_reference(clock.now, command.ticks[0], command.duties[0])
+                sent = command
+            # Request current pose of joints 2..4 through I2C
+            for k, msg in enumerate(pos_msgs):
+                try:
+                    bus.i2c_rdwr(msg)
+                except OSError:
+                    self.i2c_errors += 1  # keep the last value, as Wire.requestFrom's 0 bytes
+                    continue
+                buf = msg.buf
+                positions[k] = buf[0][0] | buf[1][0] << 8
+            # Update current pose of joint 1
+            model = self.model
+            assert model is not None
+            tick = int((clock.now - self.t0) * self._ticks_per_s + 1e-9)
+            if tick > model.tick:
+                model.advance(tick)
+            self.last_truth_rad = model.true_angle_rad()
+            self.last_firmware_rad = q = model.counter / self._counts_per_rad
+            own = rad_to_ticks(q)
+            if model.pending_transitions:
+                clock.now += self.store_transitions() * eeprom_s
+            clock.now += overhead_s
+            # Pack all current poses and send through UART
+            reply = b"$%05d,%05d,%05d,%05d#" % (own, *positions) + line_end
+            t_sample = clock.now
+            clock.now = uart.write(reply, clock.now)
+            self.loops += 1
+            if self.on_reply is not None:
+                self.on_reply(reply, self._truth(t_sample))
+            delay = clock.now - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            else:
+                if delay < -MAX_LAG_S:
+                    clock.now = loop.time()
+                await asyncio.sleep(0)
+
+    async def _receive_blocking(self, framer: Framer, loop: asyncio.AbstractEventLoop) -> Command:
+        """Wait for a whole command frame, reading bytes as they arrive (``readBytesUntil``)."""
+        clock, uart = self.clock, self.uart
+        since = clock.now
+        while True:
+            for event in framer.feed(uart.read_available(clock.now, continuous_since=since)):
+                if isinstance(event, Command):
+                    self.commands += 1
+                    return event
+            t_hash = uart.time_of_next(ord("#"))
+            if t_hash is None:
+                uart.rx_event.clear()
+                await uart.rx_event.wait()
+                clock.now = max(clock.now, loop.time())
+            else:
+                clock.now = max(clock.now, t_hash)
+                await asyncio.sleep(max(0.0, t_hash - loop.time()))
+
+    def _truth(self, t_s: float) -> TruthSample:
+        s2, s3, s4 = self.slaves
+        return TruthSample(
+            t_s, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad, s4.last_truth_rad),
+            (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
+             s4.last_firmware_rad))
+

@@ -1,0 +1,515 @@
+"""Pure, event-driven model of one joint board's motion control (paper §5.1–§5.2, Fig. 7, (12)).
+
+No asyncio and no clocks: time is an integer count of 80 µs control cycles ("ticks"); the caller
+converts (``CYCLE_S``). The model is step-exact against the firmware's per-cycle state machine yet
+never loops per cycle or per step: between events (a stop, a reversal, the Hall reset, a hard
+limit, a spurious encoder count, a new reference) the steps are computed arithmetically, so a move
+of 200 000 steps costs a handful of loop iterations (``iterations`` counts them).
+
+Conventions (``docs/emulator-joint.md`` has the full semantics):
+
+* The state *at tick t* is the state when cycle t begins: every action of the cycles before t is
+  done, cycle t's action is not. ``advance(t)`` brings the model there; a reference set at tick t
+  is seen by cycle t's action. A transition made by cycle t's action is therefore stamped t + 1,
+  the first tick at which it can be observed.
+* Per cycle the firmware does one action (``v`` duty 0..99, ``err`` = target − counter, taken as 0
+  inside the deadband)::
+
+      STOP:      if v > 0 and err != 0: -> PWM_HIGH
+      PWM_HIGH:  if v == 0 or err == 0: -> STOP
+                 else: one step towards sign(err) (CW = +1 counts up); -> PWM_LOW; n = 0
+      PWM_LOW:   n += 1; if n >= 100 - v: -> PWM_HIGH
+
+  so a moving joint steps every 101 − v cycles, speed law (12).
+* The counter follows the motor-shaft encoder: ``counter = offset + floor(motor_steps × c)`` with
+  ``c = counts_per_step`` exact; the Hall reset and spurious counts change ``offset``.
+"""
+
+from __future__ import annotations
+
+import copy
+import enum
+from dataclasses import dataclass, replace
+from typing import Final, Literal, NamedTuple
+
+import numpy as np
+
+from drivers.protocol import MAX_DUTY
+from drivers.settings import JointSettings
+
+__all__ = [
+    "CYCLE_S",
+    "JointModel",
+    "Motion",
+    "PhysicalEffects",
+    "PwmState",
+    "Transition",
+    "step_period_ticks",
+]
+
+#: Seconds per control cycle (one tick): the firmware's 80 µs timer interrupt.
+CYCLE_S: Final = 80e-6
+
+#: Macro state the EEPROM logic stores (paper §5.2): stopped, moving CW, moving CCW.
+Motion = Literal["stopped", "cw", "ccw"]
+
+_FOREVER: Final = 1 << 62  # horizon of next_event_tick's look-ahead; never reached in practice
+_SEED_LIMIT: Final = 1 << 32
+
+
+class PwmState(enum.Enum):
+    """The states of the firmware's position-control state machine (paper Fig. 7)."""
+
+    STOP = "STOP"
+    PWM_HIGH = "PWM_HIGH"
+    PWM_LOW = "PWM_LOW"
+
+
+class Transition(NamedTuple):
+    """A change of ``motion``: first tick it is observed, the new motion, the counter then."""
+
+    tick: int
+    motion: Motion
+    counter: int
+
+
+def step_period_ticks(duty: int) -> int:
+    """Control cycles between two steps of a moving joint at ``duty`` 1..99: ``101 − duty``.
+
+    Speed law (12): ``1e6 / (80 × (101 − v))`` steps per second.
+    """
+    if isinstance(duty, bool) or not isinstance(duty, int) or not 1 <= duty <= MAX_DUTY:
+        raise ValueError(f"duty {duty!r} is not a whole number 1..{MAX_DUTY}")
+    return 101 - duty
+
+
+@dataclass(frozen=True, slots=True)
+class PhysicalEffects:
+    """Physical imperfections of the drive train; all off by default.
+
+    ``miss_probability``: chance (0 ≤ p < 1) that a step pulse is lost (the shaft does not move),
+    applied only to pulses issued at a duty above ``miss_above_duty`` (the start duty: a stepper
+    with high static friction keeps up below its pull-in rate and loses steps above it).
+    ``backlash_rad``: play of the gear at the joint, radians; the joint lags the motor by up to
+    this much after a reversal (hysteresis width). The encoder is on the motor, so only
+    ``true_angle_rad`` sees it.
+    ``noise_rate_hz``: spurious ±1 encoder counts per second of stepping at the commanded step
+    rate (see ``docs/emulator-joint.md`` for how it is drawn).
+    """
+
+    miss_probability: float = 0.0
+    miss_above_duty: int = 0
+    backlash_rad: float = 0.0
+    noise_rate_hz: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.miss_probability < 1.0:
+            raise ValueError(f"miss_probability {self.miss_probability!r} is not in [0, 1)")
+        if not 0 <= self.miss_above_duty <= MAX_DUTY:
+            raise ValueError(f"miss_above_duty {self.miss_above_duty!r} is not in 0..{MAX_DUTY}")
+        if not 0.0 <= self.backlash_rad < 1.0:
+            raise ValueError(f"backlash_rad {self.backlash_rad!r} is not in [0, 1) rad")
+        if not 0.0 <= self.noise_rate_hz < 1e6:
+            raise ValueError(f"noise_rate_hz {self.noise_rate_hz!r} is not in [0, 1e6) Hz")
+
+
+@dataclass(slots=True)
+class _Run:
+    """Pulses ``start, start + period, …`` in one direction with nothing special in between.
+
+    ``pulses`` is None for a blocked run (hard limit or stall fault): pulses forever, no step.
+    Otherwise the run issues ``pulses`` pulses of which ``steps`` move the shaft (the misses are
+    spread evenly, the last pulse always steps); ``offset_end`` is the counter offset after the
+    last pulse (Hall reset, spurious count), ``glitch`` the spurious count made with it.
+    """
+
+    start: int
+    period: int
+    direction: int
+    pulses: int | None
+    steps: int
+    s0: int
+    offset0: int
+    offset_end: int
+    glitch: int
+    hall_at_end: bool
+    done: int = 0
+
+    def steps_after(self, pulses: int) -> int:
+        """Shaft steps made by the first ``pulses`` pulses."""
+        return 0 if self.pulses is None else pulses * self.steps // self.pulses
+
+    def offset_after(self, pulses: int) -> int:
+        """Counter offset after the first ``pulses`` pulses."""
+        return self.offset_end if pulses == self.pulses else self.offset0
+
+
+def _clone(bits: np.random.PCG64 | None) -> np.random.PCG64 | None:
+    """An independent bit generator in the same state (cheaper than a deep copy)."""
+    if bits is None:
+        return None
+    twin = np.random.PCG64()
+    twin.state = bits.state
+    return twin
+
+
+class JointModel:
+    """One joint board's control loop, encoder, Hall sensor and drive, event-driven.
+
+    ``joint`` gives the drive train (``counts_per_step``, ``steps_per_rad``), the Hall position
+    and the hard limits; ``motor_steps`` is the start position of the motor in microsteps (0 = joint
+    angle 0), ``counter`` the start value of the position counter in encoder counts (default: the
+    encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the start time in control
+    cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts. ``seed``
+    (0 ≤ seed < 2³²) makes the physical effects reproducible.
+    """
+
+    def __init__(self, joint: JointSettings, *, effects: PhysicalEffects | None = None,
+                 seed: int = 0, deadband_counts: int = 1, motor_steps: int = 0,
+                 counter: int | None = None, tick: int = 0) -> None:
+        cps = joint.counts_per_step
+        self._num, self._den = cps.numerator, cps.denominator
+        self._steps_per_rad = joint.steps_per_rad
+        #: Motor position of the Hall sensor, microsteps.
+        self.hall_step: Final = round(joint.hall_rad * joint.steps_per_rad)
+        #: Counter value the Hall sensor sets, encoder counts.
+        self.hall_count: Final = round(joint.hall_rad * joint.counts_per_rad)
+        #: Hard limits of the motor position, microsteps (inclusive).
+        self.lower_steps: Final = round(joint.lower_rad * joint.steps_per_rad)
+        self.upper_steps: Final = round(joint.upper_rad * joint.steps_per_rad)
+        if not self.lower_steps <= motor_steps <= self.upper_steps:
+            raise ValueError(f"motor_steps {motor_steps} outside the limits "
+                             f"{self.lower_steps}..{self.upper_steps}")
+        if deadband_counts < 0:
+            raise ValueError(f"deadband_counts {deadband_counts} is negative")
+        if not 0 <= seed < _SEED_LIMIT:
+            raise ValueError(f"seed {seed} is not in 0..2**32-1")
+        self._effects = effects if effects is not None else PhysicalEffects()
+        self._deadband = deadband_counts
+        # one PCG64 stream per effect, None while the effect is off
+        self._miss_bits = np.random.PCG64([seed, 0]) if self._effects.miss_probability else None
+        self._noise_bits = np.random.PCG64([seed, 1]) if self._effects.noise_rate_hz else None
+        self._half_play = self._effects.backlash_rad * joint.steps_per_rad / 2.0
+
+        self._now = tick
+        self._state = PwmState.STOP
+        self._n = 0
+        self._dir = 0
+        self._s = motor_steps
+        self._offset = 0 if counter is None else counter - self._encoder(motor_steps)
+        self._gap = 0.0  # motor minus joint position in microsteps (backlash), |gap| ≤ half play
+        self._target = self.counter
+        self._duty = 0
+        self._homing_dir = 0
+        self._homed_tick: int | None = None
+        self._stalled = False
+        self._run: _Run | None = None
+        self._transitions: list[Transition] = []
+        #: Step pulses the firmware issued (PWM_HIGH actions that stepped).
+        self.pulses = 0
+        #: Pulses that moved the shaft.
+        self.steps_taken = 0
+        #: Pulses lost to the missed-step effect.
+        self.steps_missed = 0
+        #: Pulses that could not move the shaft: hard limit or stall fault.
+        self.steps_blocked = 0
+        #: Spurious encoder counts made so far (each ±1).
+        self.spurious_counts = 0
+        #: Iterations of the event loop so far (behaviour tests of the O(events) cost).
+        self.iterations = 0
+
+    # --- observation -------------------------------------------------------------------------
+
+    @property
+    def tick(self) -> int:
+        """The model's time in control cycles (the state is the one when this cycle begins)."""
+        return self._now
+
+    @property
+    def counter(self) -> int:
+        """The position counter, encoder counts: what the firmware reports."""
+        return self._offset + self._encoder(self._s)
+
+    @property
+    def motor_steps(self) -> int:
+        """Motor shaft position, microsteps (0 = joint angle 0, ignoring backlash)."""
+        return self._s
+
+    @property
+    def state(self) -> PwmState:
+        """The state machine's state."""
+        return self._state
+
+    @property
+    def non_moved_steps(self) -> int:
+        """The firmware's ``non_moved_steps`` (cycles spent in PWM_LOW since the last step)."""
+        return self._n
+
+    @property
+    def motion(self) -> Motion:
+        """'stopped' in STOP, else the direction of the current movement ('cw' counts up)."""
+        if self._state is PwmState.STOP:
+            return "stopped"
+        return "cw" if self._dir > 0 else "ccw"
+
+    @property
+    def target_counts(self) -> int:
+        """The position reference, encoder counts (not used while homing)."""
+        return self._target
+
+    @property
+    def duty(self) -> int:
+        """The velocity reference, PWM duty 0..99."""
+        return self._duty
+
+    @property
+    def homing(self) -> bool:
+        """True while a ``home`` drive has not reached the Hall sensor."""
+        return self._homing_dir != 0
+
+    @property
+    def homed_tick(self) -> int | None:
+        """Tick at which the last homing completed (None if none has)."""
+        return self._homed_tick
+
+    @property
+    def at_limit(self) -> bool:
+        """True while the machine drives into the hard limit the motor sits at."""
+        limit = self.upper_steps if self._dir > 0 else self.lower_steps
+        return self._state is not PwmState.STOP and self._s == limit
+
+    @property
+    def homing_failed(self) -> bool:
+        """True when a homing drive is stuck at a hard limit: it can never reach the Hall."""
+        return self.homing and self.at_limit
+
+    @property
+    def stalled(self) -> bool:
+        """True while the stall fault holds the joint."""
+        return self._stalled
+
+    def true_angle_rad(self) -> float:
+        """Ground-truth joint angle in radians, backlash included (what a laser tracker sees)."""
+        return (self._s - self._gap) / self._steps_per_rad
+
+    @property
+    def pending_transitions(self) -> int:
+        """How many motion changes wait for :meth:`drain_transitions` (cheap to poll)."""
+        return len(self._transitions)
+
+    def drain_transitions(self) -> list[Transition]:
+        """The motion changes since the last call, oldest first (the board writes EEPROM)."""
+        out, self._transitions = self._transitions, []
+        return out
+
+    def next_event_tick(self) -> int | None:
+        """First tick at which ``motion`` will have changed or homing completed, assuming no new
+        reference; None if nothing is pending (idle, or pushing against a limit or stall forever).
+        """
+        probe = copy.copy(self)  # every other attribute is immutable
+        probe._transitions = []
+        probe._run = None if self._run is None else replace(self._run)
+        probe._miss_bits = _clone(self._miss_bits)
+        probe._noise_bits = _clone(self._noise_bits)
+        return probe._run_until(_FOREVER, probe=True)
+
+    # --- inputs ------------------------------------------------------------------------------
+
+    def advance(self, tick: int) -> None:
+        """Bring the state to ``tick`` (control cycles, not before the model's time)."""
+        if tick < self._now:
+            raise ValueError(f"tick {tick} is before the model's time {self._now}")
+        self._run_until(tick, probe=False)
+
+    def set_reference(self, tick: int, target_counts: int, duty: int) -> None:
+        """New position (encoder counts) and velocity (duty 0..99) reference from tick on.
+
+        Raises RuntimeError while homing: the firmware takes no reference before its
+        initialisation is done (paper §5.2).
+        """
+        if isinstance(duty, bool) or not isinstance(duty, int) or not 0 <= duty <= MAX_DUTY:
+            raise ValueError(f"duty {duty!r} is not a whole number 0..{MAX_DUTY}")
+        self.advance(tick)
+        if self.homing:
+            raise RuntimeError("the joint is homing; it takes no reference until it is done")
+        if (target_counts, duty) != (self._target, self._duty):
+            self._target, self._duty = target_counts, duty
+            self._run = None
+
+    def home(self, tick: int, direction: int, duty: int) -> None:
+        """Start the startup recovery at ``tick``: drive ``direction`` (+1 CW, −1 CCW) at ``duty``
+        until the motor steps onto the Hall position, where the counter becomes ``hall_count`` and
+        the target too (the joint stops there). On the Hall position already, it completes at once.
+        """
+        if direction not in (1, -1):
+            raise ValueError(f"direction {direction!r} is not +1 or -1")
+        step_period_ticks(duty)  # validates 1..99: duty 0 would never move
+        self.advance(tick)
+        self._run = None
+        self._duty = duty
+        if self._s == self.hall_step:
+            self._finish_homing(tick)
+        else:
+            self._homing_dir = direction
+
+    def stall(self, tick: int, stalled: bool) -> None:
+        """Fault injection from ``tick`` on: while ``stalled`` no pulse moves the shaft."""
+        self.advance(tick)
+        if stalled != self._stalled:
+            self._stalled = stalled
+            self._run = None
+
+    # --- the event loop ----------------------------------------------------------------------
+
+    def _encoder(self, steps: int) -> int:
+        return steps * self._num // self._den
+
+    def _error(self) -> int:
+        if self._homing_dir:
+            return self._homing_dir
+        err = self._target - self.counter
+        return 0 if abs(err) <= self._deadband else err
+
+    def _record(self, tick: int, counter: int) -> None:
+        self._transitions.append(Transition(tick, self.motion, counter))
+
+    def _finish_homing(self, tick: int) -> None:
+        self._homing_dir = 0
+        self._offset = self.hall_count - self._encoder(self._s)
+        self._target = self.hall_count
+        self._homed_tick = tick
+
+    def _run_until(self, until: int, *, probe: bool) -> int | None:
+        """Execute the cycles before ``until``. With ``probe``, stop at the first motion change or
+        homing completion and return its tick, or return None as soon as nothing can happen."""
+        homed = self._homed_tick
+        while self._now < until:
+            self.iterations += 1
+            run = self._run
+            if run is not None:
+                if probe and run.pulses is None and run.direction == self._dir:
+                    return None  # pushing against a limit or stall: nothing will change
+                self._execute(run, until)
+            elif self._state is PwmState.STOP:
+                err = self._error()
+                if self._duty > 0 and err != 0:
+                    self._state = PwmState.PWM_HIGH
+                    self._dir = 1 if err > 0 else -1
+                    self._now += 1
+                    self._record(self._now, self.counter)
+                elif probe:
+                    return None
+                else:
+                    self._now = until
+            elif self._state is PwmState.PWM_LOW:
+                wait = max(1, 100 - self._duty - self._n)
+                if self._now + wait <= until:
+                    self._now += wait
+                    self._n += wait
+                    self._state = PwmState.PWM_HIGH
+                else:
+                    self._n += until - self._now
+                    self._now = until
+            else:
+                err = self._error()
+                if self._duty == 0 or err == 0:
+                    self._state = PwmState.STOP
+                    self._now += 1
+                    self._record(self._now, self.counter)
+                else:
+                    self._run = self._plan(1 if err > 0 else -1)
+            if probe:
+                if self._transitions:
+                    return self._transitions[0].tick
+                if self._homed_tick != homed:
+                    return self._homed_tick
+        return None
+
+    def _plan(self, d: int) -> _Run:
+        """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
+        period = 101 - self._duty
+        limit = self.upper_steps if d > 0 else self.lower_steps
+        if self._stalled or self._s == limit:
+            return _Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
+                        False)
+        steps = d * (limit - self._s)
+        hall = d * (self.hall_step - self._s)
+        if hall > 0:
+            steps = min(steps, hall)
+        if not self._homing_dir:
+            steps = min(steps, self._steps_to_deadband(d))
+        glitch = 0
+        if self._noise_bits is not None:
+            noise = np.random.Generator(self._noise_bits)
+            first = int(noise.geometric(min(1.0, self._effects.noise_rate_hz * period * CYCLE_S)))
+            if first <= steps:
+                steps = first
+                glitch = 1 if noise.integers(2) else -1
+        hall_at_end = hall == steps
+        offset_end = self._offset + glitch
+        if hall_at_end:
+            offset_end = self.hall_count - self._encoder(self.hall_step)
+        misses = 0
+        if self._miss_bits is not None and self._duty > self._effects.miss_above_duty:
+            misses = int(np.random.Generator(self._miss_bits).negative_binomial(
+                steps, 1.0 - self._effects.miss_probability))
+        return _Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
+                    offset_end, glitch, hall_at_end)
+
+    def _steps_to_deadband(self, d: int) -> int:
+        """Steps towards ``d`` before a PWM_HIGH check finds the error no longer beyond the
+        deadband on side ``d`` (≥ 1 when called: the current check passed)."""
+        base = self._target - self._offset
+        if d > 0:  # continue while floor(s·c) < base − deadband
+            return -(-(base - self._deadband) * self._den // self._num) - self._s
+        # continue while floor(s·c) ≥ base + deadband + 1
+        return self._s + (-(base + self._deadband + 1) * self._den // self._num) + 1
+
+    def _execute(self, run: _Run, until: int) -> None:
+        """Apply the run's pulses before ``until`` and land on the state at ``until`` (or at the
+        PWM_HIGH after the run's last pulse, which ends the run)."""
+        period = run.period
+        done = -((run.start - until) // period)  # pulses at start + k·period < until
+        if run.pulses is not None:
+            done = min(done, run.pulses)
+        if done > run.done:
+            self._pulse(run, done)
+        last = run.start + (done - 1) * period
+        end = until
+        if done == run.pulses:
+            end = min(until, last + period)
+            if end == last + period:
+                self._run = None
+        self._now = end
+        lows = end - 1 - last
+        if lows >= period - 1:
+            self._state = PwmState.PWM_HIGH
+            self._n = period - 1
+        else:
+            self._state = PwmState.PWM_LOW
+            self._n = lows
+
+    def _pulse(self, run: _Run, done: int) -> None:
+        """Apply pulses ``run.done`` .. ``done − 1`` of the run."""
+        before = run.steps_after(run.done)
+        after = run.steps_after(done)
+        count = done - run.done
+        self.pulses += count
+        if run.pulses is None:
+            self.steps_blocked += count
+        else:
+            self.steps_taken += after - before
+            self.steps_missed += count - (after - before)
+        if run.done == 0 and run.direction != self._dir:
+            self._dir = run.direction
+            first = run.s0 + run.direction * run.steps_after(1)
+            self._record(run.start + 1, run.offset_after(1) + self._encoder(first))
+        run.done = done
+        self._s = run.s0 + run.direction * after
+        self._offset = run.offset_after(done)
+        self._gap = min(self._half_play,
+                        max(-self._half_play, self._gap + run.direction * (after - before)))
+        if done == run.pulses:
+            self.spurious_counts += abs(run.glitch)
+            if run.hall_at_end and self._homing_dir:
+                self._finish_homing(run.start + (done - 1) * run.period + 1)

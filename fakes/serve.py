@@ -1,0 +1,203 @@
+"""Serve the emulated arm in real time on a pseudo-terminal or a TCP port.
+
+Any serial program (pyserial, minicom, the paper's ROS driver) can open the pty's device as the
+robot; a TCP client (``socket://`` in armbench, a ser2net-style client) gets the same byte stream.
+The UART's byte timing is emulated by the arm, so the stream has the baud rate's pace even though a
+pty has no baud rate of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import logging
+import os
+import termios
+import tty
+from collections.abc import Callable
+from pathlib import Path
+
+from drivers.errors import ArmbenchError
+from drivers.protocol import Framer
+from fakes.arm import ArmEmulator
+
+__all__ = ["FrameLogger", "PtyServer", "TcpServer", "parse_host_port"]
+
+log = logging.getLogger("armbench.emulator")
+
+#: A TCP client that sends nothing for this long is disconnected (issue: idle clients time out).
+DEFAULT_IDLE_TIMEOUT_S = 300.0
+
+
+class FrameLogger:
+    """Logs every frame in and out at debug level (costs nothing when debug is off)."""
+
+    def __init__(self) -> None:
+        self._in = Framer("command")
+        self._out = Framer("reply")
+
+    def received(self, data: bytes) -> None:
+        """Bytes from the host."""
+        if log.isEnabledFor(logging.DEBUG):
+            for event in self._in.feed(data):
+                log.debug("host -> arm %r", event)
+
+    def sent(self, data: bytes) -> None:
+        """Bytes to the host."""
+        if log.isEnabledFor(logging.DEBUG):
+            for event in self._out.feed(data):
+                log.debug("arm -> host %r", event)
+
+
+class PtyServer:
+    """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
+
+    def __init__(self, arm: ArmEmulator, link: str | Path | None = None) -> None:
+        self.arm = arm
+        self.link = Path(link) if link is not None else None
+        self._master_fd = -1
+        self._slave_fd = -1
+        self.path = ""
+        self.dropped_bytes = 0
+        self._frames = FrameLogger()
+
+    async def start(self) -> str:
+        """Create the pty, start the arm and return the device path."""
+        self._master_fd, self._slave_fd = os.openpty()
+        # Raw mode: no echo, no CR/LF translation; the slave end stays open here so that a
+        # client closing it does not end the stream (EIO) for the next client.
+        tty.setraw(self._slave_fd, termios.TCSANOW)
+        os.set_blocking(self._master_fd, False)
+        self.path = os.ttyname(self._slave_fd)
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                self.link.unlink()
+            self.link.symlink_to(self.path)
+        loop = asyncio.get_running_loop()
+        loop.add_reader(self._master_fd, self._readable)
+        self.arm.attach_host(self._write)
+        await self.arm.start()
+        return self.path
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._master_fd, 4096)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno != errno.EIO:
+                raise
+            return
+        if data:
+            self._frames.received(data)
+            self.arm.host_write(data)
+
+    def _write(self, data: bytes) -> None:
+        self._frames.sent(data)
+        try:
+            os.write(self._master_fd, data)
+        except (BlockingIOError, OSError):
+            self.dropped_bytes += len(data)  # nobody reads the pty: the line drops it
+
+    async def close(self) -> None:
+        """Stop serving and remove the pty (and the link)."""
+        self.arm.detach_host()
+        await self.arm.close()
+        if self._master_fd >= 0:
+            asyncio.get_running_loop().remove_reader(self._master_fd)
+            os.close(self._master_fd)
+            os.close(self._slave_fd)
+            self._master_fd = self._slave_fd = -1
+        if self.link is not None and self.link.is_symlink():
+            self.link.unlink()
+
+
+class TcpServer:
+    """The arm on a TCP port, one client at a time; more clients are turned away."""
+
+    def __init__(self, arm: ArmEmulator, host: str = "127.0.0.1", port: int = 0,
+                 idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S) -> None:
+        self.arm = arm
+        self.host = host
+        self.port = port
+        self.idle_timeout_s = idle_timeout_s
+        self._server: asyncio.Server | None = None
+        self._client: asyncio.StreamWriter | None = None
+        self.clients_served = 0
+        self.clients_refused = 0
+        self.on_client: Callable[[str], None] | None = None
+
+    async def start(self) -> tuple[str, int]:
+        """Listen, start the arm, and return the bound (host, port)."""
+        self._server = await asyncio.start_server(self._serve, self.host, self.port)
+        sock = self._server.sockets[0].getsockname()
+        self.host, self.port = sock[0], sock[1]
+        await self.arm.start()
+        return self.host, self.port
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        peer = str(writer.get_extra_info("peername"))
+        if self._client is not None:
+            self.clients_refused += 1
+            log.warning("refusing %s: another client is connected", peer)
+            writer.close()
+            return
+        self._client = writer
+        self.clients_served += 1
+        log.info("client %s connected", peer)
+        if self.on_client is not None:
+            self.on_client(peer)
+        frames = FrameLogger()
+
+        def sink(data: bytes) -> None:
+            frames.sent(data)
+            if not writer.is_closing():
+                writer.write(data)
+
+        self.arm.attach_host(sink)
+        try:
+            while True:
+                async with asyncio.timeout(self.idle_timeout_s):
+                    data = await reader.read(4096)
+                if not data:
+                    break
+                frames.received(data)
+                self.arm.host_write(data)
+        except TimeoutError:
+            log.warning("client %s idle for %.0f s: disconnected", peer, self.idle_timeout_s)
+        except (ConnectionError, OSError) as exc:
+            log.info("client %s: %s", peer, exc)
+        finally:
+            self.arm.detach_host()
+            self._client = None
+            writer.close()
+            with contextlib.suppress(ConnectionError, OSError):
+                await writer.wait_closed()
+            log.info("client %s left", peer)
+
+    async def close(self) -> None:
+        """Stop listening, drop the client, power the arm down."""
+        if self._server is not None:
+            self._server.close()
+            if self._client is not None:
+                self._client.close()
+            await self._server.wait_closed()
+            self._server = None
+        self.arm.detach_host()
+        await self.arm.close()
+
+
+def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+    """``HOST:PORT``, ``:PORT`` or ``PORT`` → (host, port); ``[::1]:PORT`` for IPv6."""
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "", text
+    host = host.strip("[]") or default_host
+    try:
+        number = int(port)
+    except ValueError:
+        raise ArmbenchError(f"--tcp: {text!r} is not HOST:PORT") from None
+    if not 0 <= number <= 65535:
+        raise ArmbenchError(f"--tcp: port {number} is not in 0..65535")
+    return host, number

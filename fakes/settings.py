@@ -1,0 +1,112 @@
+"""Settings of the firmware emulator: the ``[emulator]`` table of a robot settings file.
+
+Every choice the paper leaves open is a field here, with the default the real firmware most
+plausibly has (see ``docs/emulator.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Literal
+
+from drivers.settings import RobotSettings, SettingsError
+from fakes.joint import CYCLE_S, PhysicalEffects
+
+__all__ = ["CYCLE_S", "EmulatorSettings", "PhysicalEffects", "emulator_settings"]
+
+@dataclass(frozen=True, slots=True)
+class EmulatorSettings:
+    """How the emulated firmware behaves where the paper is silent."""
+
+    uart_receive: Literal["polling", "blocking"] = "polling"
+    """Polling: the master's loop runs continuously and replies every loop (what the ROS driver's
+    continuous stream needs); blocking: each loop waits for a whole command frame."""
+    i2c_hz: int = 100_000
+    """I²C bus clock: 100 kHz (Arduino Wire default) or 400 kHz."""
+    rx_buffer_bytes: int = 64
+    """The Arduino core's serial receive buffer; bytes arriving when it is full are dropped."""
+    tx_buffer_bytes: int = 64
+    """The serial transmit buffer; a longer print blocks the loop until it drains."""
+    loop_overhead_s: float = 100e-6
+    """CPU time of one master loop besides I²C and UART (parsing, formatting) at 16 MHz."""
+    reply_line_end: str = ""
+    """Bytes after each reply's '#': the paper shows none (``Serial.print``)."""
+    deadband_counts: int = 1
+    """A joint stops when |target − counter| ≤ this many encoder counts."""
+    recovery_duty: int = 90
+    """Duty used when driving to the Hall sensor at start-up (§5.2)."""
+    eeprom_write_s_per_byte: float = 3.3e-3
+    """ATmega328P EEPROM write time per byte; the master's loop stalls while it writes."""
+    eeprom_cells: int = 1024
+    seed: int = 0
+    effects: PhysicalEffects = field(default_factory=PhysicalEffects)
+
+    @property
+    def i2c_bit_s(self) -> float:
+        """Seconds per bit on the I²C bus."""
+        return 1.0 / self.i2c_hz
+
+
+_TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str}
+
+
+def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSettings:
+    """Validated emulator settings from the robot file's ``[emulator]`` table plus overrides."""
+    table: dict[str, Any] = dict(robot.sections.get("emulator", {}))
+    table.update(overrides)
+    effects_in = table.pop("effects", {})
+    if isinstance(effects_in, PhysicalEffects):
+        effects = effects_in
+    else:
+        if not isinstance(effects_in, Mapping):
+            raise SettingsError("emulator.effects", effects_in, "is not a table")
+        known_fx = {f.name for f in fields(PhysicalEffects)}
+        for k, v in effects_in.items():
+            if k not in known_fx:
+                raise SettingsError(f"emulator.effects.{k}", v, "is not a known setting")
+            _check_number(f"emulator.effects.{k}", v)
+        try:
+            effects = PhysicalEffects(**effects_in)
+        except ValueError as exc:
+            raise SettingsError("emulator.effects", dict(effects_in), str(exc)) from None
+    known = {f.name for f in fields(EmulatorSettings)} - {"effects"}
+    for k, v in table.items():
+        if k not in known:
+            raise SettingsError(f"emulator.{k}", v, f"is not a known setting (known: "
+                                                    f"{', '.join(sorted(known))})")
+        if _TYPES.get(k) is str:
+            if not isinstance(v, str):
+                raise SettingsError(f"emulator.{k}", v, "is not a string")
+        else:
+            _check_number(f"emulator.{k}", v)
+    s = replace(EmulatorSettings(), effects=effects, **table)
+    _validate(s)
+    return s
+
+
+def _check_number(path: str, v: object) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise SettingsError(path, v, "is not a finite number")
+
+
+def _validate(s: EmulatorSettings) -> None:
+    if s.uart_receive not in ("polling", "blocking"):
+        raise SettingsError("emulator.uart_receive", s.uart_receive,
+                            "must be 'polling' or 'blocking'")
+    if not 10_000 <= s.i2c_hz <= 3_400_000:
+        raise SettingsError("emulator.i2c_hz", s.i2c_hz, "is not an I²C clock (10 kHz..3.4 MHz)")
+    for name in ("rx_buffer_bytes", "tx_buffer_bytes"):
+        v = getattr(s, name)
+        if not isinstance(v, int) or v < 1:
+            raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
+    if s.loop_overhead_s < 0 or s.eeprom_write_s_per_byte < 0:
+        raise SettingsError("emulator.loop_overhead_s", s.loop_overhead_s, "must be >= 0")
+    if s.reply_line_end not in ("", "\n", "\r\n"):
+        raise SettingsError("emulator.reply_line_end", s.reply_line_end,
+                            "must be '', '\\n' or '\\r\\n'")
+    if not isinstance(s.deadband_counts, int) or s.deadband_counts < 0:
+        raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be >= 0")
+    if not isinstance(s.recovery_duty, int) or not 1 <= s.recovery_duty <= 99:
+        raise SettingsError("emulator.recovery_duty", s.recovery_duty, "must be 1..99")

@@ -1,0 +1,132 @@
+"""The master board's UART as the host sees it: bytes take the time the baud rate implies.
+
+Host → master: each byte completes one byte time after the previous one on the line; the master's
+loop reads what has completed into the Arduino core's receive buffer, and bytes that arrive while
+that buffer is full are dropped (counted in ``rx_overflow_bytes``), as on a real ATmega328P.
+
+Master → host: ``write`` queues bytes behind what is still on the line and returns when the rest
+fits the transmit buffer (a longer print blocks the loop, as ``Serial.print`` does); the bytes reach
+the host when their last bit has left, as one chunk, through a ``call_at`` on the running loop.
+All computed from timestamps, never per byte in a loop of the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections import deque
+from collections.abc import Callable
+
+__all__ = ["Uart"]
+
+Deliver = Callable[[bytes], None]
+# (data, t_s) -> [(extra delay s, chunk)]: how a chunk to the host is cut, delayed or altered.
+TxFilter = Callable[[bytes, float], list[tuple[float, bytes]]]
+# (data, t_s) -> data: what a host write turns into on the way to the board.
+RxFilter = Callable[[bytes, float], bytes]
+
+
+class Uart:
+    """One serial line between the host and the master board."""
+
+    def __init__(self, byte_s: float, rx_buffer_bytes: int = 64, tx_buffer_bytes: int = 64) -> None:
+        self.byte_s = byte_s
+        self.rx_buffer_bytes = rx_buffer_bytes
+        self.tx_buffer_bytes = tx_buffer_bytes
+        self._rx: deque[tuple[float, bytes]] = deque()  # (start of first byte, bytes)
+        self._rx_line_free = -math.inf
+        self._tx_line_free = -math.inf
+        self.host_sink: Deliver | None = None
+        self.tx_filter: TxFilter | None = None
+        self.rx_filter: RxFilter | None = None
+        self.rx_event = asyncio.Event()
+        self.rx_bytes = 0
+        self.rx_overflow_bytes = 0
+        self.tx_bytes = 0
+        self.tx_dropped_bytes = 0
+        """Bytes the master printed while no host was connected."""
+
+    # host side ---------------------------------------------------------------------------------
+    def host_write(self, data: bytes, t_s: float) -> None:
+        """The host sends ``data`` at ``t_s``: the bytes queue behind what is on the line."""
+        if self.rx_filter is not None:
+            data = self.rx_filter(data, t_s)
+        if not data:
+            return
+        start = max(t_s, self._rx_line_free)
+        self._rx.append((start, bytes(data)))
+        self._rx_line_free = start + len(data) * self.byte_s
+        self.rx_event.set()
+
+    # master side -------------------------------------------------------------------------------
+    def read_available(self, t_s: float, continuous_since: float | None = None) -> bytes:
+        """Bytes received by ``t_s`` since the last read, after receive-buffer overflow.
+
+        Bytes completing after ``continuous_since`` were read as they came (a blocking read),
+        so they cannot overflow the buffer.
+        """
+        rx = self._rx
+        if not rx:
+            return b""
+        out = bytearray()
+        room = self.rx_buffer_bytes
+        byte_s = self.byte_s
+        while rx:
+            start, data = rx[0]
+            done = int((t_s - start) / byte_s + 1e-9)
+            if done <= 0:
+                break
+            done = min(done, len(data))
+            chunk = data[:done]
+            if continuous_since is None:
+                keep = chunk[:room]
+            else:
+                # bytes completed before the blocking read began are subject to overflow
+                early = max(0, min(done, int((continuous_since - start) / byte_s + 1e-9)))
+                keep = chunk[:min(early, room)] + chunk[early:]
+            room = max(0, room - len(keep))
+            self.rx_overflow_bytes += len(chunk) - len(keep)
+            out += keep
+            if done == len(data):
+                rx.popleft()
+            else:
+                rx[0] = (start + done * byte_s, data[done:])
+                break
+        if not rx:
+            self.rx_event.clear()
+        self.rx_bytes += len(out)
+        return bytes(out)
+
+    def time_of_next(self, byte: int) -> float | None:
+        """When the next pending (unread) occurrence of ``byte`` will have completed."""
+        for start, data in self._rx:
+            i = data.find(byte)
+            if i >= 0:
+                return start + (i + 1) * self.byte_s
+        return None
+
+    def write(self, data: bytes, t_s: float) -> float:
+        """The master prints ``data`` at ``t_s``; returns when the print call returns."""
+        byte_s = self.byte_s
+        queued = max(0.0, (self._tx_line_free - t_s) / byte_s)
+        start = max(t_s, self._tx_line_free)
+        done = start + len(data) * byte_s
+        self._tx_line_free = done
+        self.tx_bytes += len(data)
+        sink = self.host_sink
+        if sink is None:
+            self.tx_dropped_bytes += len(data)
+        else:
+            loop = asyncio.get_running_loop()
+            if self.tx_filter is None:
+                loop.call_at(done, sink, data)
+            else:
+                for delay_s, chunk in self.tx_filter(data, done):
+                    loop.call_at(done + delay_s, sink, chunk)
+        overflow = queued + len(data) - self.tx_buffer_bytes
+        return t_s + overflow * byte_s if overflow > 0 else t_s
+
+    @property
+    def rx_line_free_s(self) -> float:
+        """When the host's last byte will have arrived."""
+        return self._rx_line_free

@@ -1,0 +1,138 @@
+"""``armbench emulate``: the emulator served in real time on a pty (driven with plain pyserial)
+and on TCP (driven with a plain socket), as separate processes."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import serial
+
+from bench.cli import main
+from drivers.protocol import Command, Framer, Reply
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def start(*args: str) -> tuple[subprocess.Popen[str], str]:
+    """Start ``armbench emulate ARGS`` and return it with the address it printed."""
+    proc = subprocess.Popen([sys.executable, "-m", "bench", "emulate", *args], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    m = re.search(r"serving the arm on (\S+)", line)
+    if m is None:
+        proc.kill()
+        raise AssertionError(f"unexpected first line {line!r}; stderr: {proc.stderr.read()}")
+    return proc, m.group(1)
+
+
+def stop(proc: subprocess.Popen[str]) -> str:
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    return out
+
+
+def replies(data: bytes) -> list[Reply]:
+    return [e for e in Framer().feed(data) if isinstance(e, Reply)]
+
+
+def read_for(read: object, seconds: float) -> bytes:
+    out = bytearray()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        out += read()  # type: ignore[operator]
+    return bytes(out)
+
+
+@pytest.fixture
+def pty_emulator(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[str], str, Path]]:
+    link = tmp_path / "arm"
+    proc, path = start("--pty", "--link", str(link), "--duration", "60")
+    try:
+        yield proc, path, link
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_pty_with_plain_pyserial(pty_emulator: tuple[subprocess.Popen[str], str, Path]) -> None:
+    proc, path, link = pty_emulator
+    assert path.startswith("/dev/pts/")
+    assert os.path.realpath(link) == path
+    with serial.Serial(str(link), 115200, timeout=0.05) as port:
+        first = read_for(lambda: port.read(4096), 0.5)
+        got = replies(first)
+        # ~420 loops/s in real time; allow a slow CI machine
+        assert len(got) > 50
+        assert got[-1] == Reply(0, 0, 0, 0)
+        port.write(Command.from_rad([0.02, 0.0, 0.0, 0.0], 99).encode())
+        after = replies(read_for(lambda: port.read(4096), 1.5))
+        assert abs(after[-1].j1 - 200) <= 2  # within the firmware's 1-count deadband
+    out = stop(proc)
+    assert "stopped after" in out and "1 commands received" in out
+    assert not link.exists()
+
+
+def test_pty_survives_a_client_closing_and_reopening(
+        pty_emulator: tuple[subprocess.Popen[str], str, Path]) -> None:
+    _, path, _ = pty_emulator
+    for _ in range(2):
+        with serial.Serial(path, 115200, timeout=0.05) as port:
+            assert replies(read_for(lambda: port.read(4096), 0.3))
+
+
+def test_tcp_with_a_plain_socket_one_client_at_a_time() -> None:
+    proc, url = start("--tcp", "127.0.0.1:0", "--duration", "60")
+    try:
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        assert host == "127.0.0.1"
+        with socket.create_connection((host, int(port)), timeout=2) as sock:
+            sock.settimeout(0.05)
+
+            def read() -> bytes:
+                try:
+                    return sock.recv(4096)
+                except TimeoutError:
+                    return b""
+
+            assert len(replies(read_for(read, 0.5))) > 50
+            with socket.create_connection((host, int(port)), timeout=2) as other:
+                other.settimeout(2)
+                assert other.recv(100) == b""  # turned away while the first is connected
+            sock.sendall(Command.from_rad([0.0, 0.0, 0.0, 0.01], 99).encode())
+            assert abs(replies(read_for(read, 1.0))[-1].j4 - 100) <= 2
+        time.sleep(0.2)
+        with socket.create_connection((host, int(port)), timeout=2) as again:
+            again.settimeout(2)
+            assert again.recv(4096)  # the next client is served after the first left
+        assert "stopped after" in stop(proc)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_tcp_refuses_a_remote_bind_without_the_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["emulate", "--tcp", "0.0.0.0:0", "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "not a loopback address" in err and "--allow-remote" in err
+
+
+def test_bad_settings_file_is_a_one_line_error(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "robot.toml"
+    bad.write_text("[emulator]\ni2c_hz = 5\n")
+    assert main(["emulate", "--pty", "--settings", str(bad), "--duration", "0.1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "emulator.i2c_hz" in err[0]

@@ -1,0 +1,448 @@
+"""The emulated firmware as a whole: Algorithm 1/2 over I²C, UART timing, EEPROM, recovery, faults.
+
+Everything runs on virtual time (``fakes.vclock``); each test drives the arm like a host would,
+through ``host_write`` and the reply stream, and checks against ground truth.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import math
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from drivers.protocol import Command, FrameError, Framer, Reply
+from drivers.settings import RobotSettings
+from fakes.arm import ArmEmulator, ArmStats
+from fakes.faults import Fault, parse_faults
+from fakes.i2c import transaction_bits
+from fakes.settings import emulator_settings
+from fakes.vclock import run_virtual
+
+ROBOT = RobotSettings()
+LOWER, UPPER = ROBOT.lower_rad, ROBOT.upper_rad
+
+
+class Host:
+    """A minimal host on the emulator's UART: collects replies with their arrival times."""
+
+    def __init__(self, arm: ArmEmulator) -> None:
+        self.arm = arm
+        self.framer = Framer("reply")
+        self.replies: list[tuple[float, Reply]] = []
+        self.errors: list[FrameError] = []
+        self.chunks = 0
+        arm.attach_host(self._sink)
+
+    def _sink(self, data: bytes) -> None:
+        self.chunks += 1
+        t = asyncio.get_running_loop().time()
+        for e in self.framer.feed(data):
+            if isinstance(e, Reply):
+                self.replies.append((t, e))
+            else:
+                self.errors.append(e)
+
+    def send(self, q_rad: list[float], duty: int | list[int] = 99) -> None:
+        self.arm.host_write(Command.from_rad(q_rad, duty).encode())
+
+    def angles(self) -> tuple[float, ...]:
+        return self.replies[-1][1].angles_rad(LOWER, UPPER)
+
+
+def emulate(body: Callable[[ArmEmulator, Host], Awaitable[Any]], **kwargs: Any) -> Any:
+    """Run ``body(arm, host)`` on virtual time with a started emulator."""
+    faults = kwargs.pop("faults", ())
+    initial = kwargs.pop("initial_q_rad", None)
+    robot = kwargs.pop("robot", ROBOT)
+
+    async def main() -> Any:
+        arm = ArmEmulator(robot, emulator_settings(robot, **kwargs), faults, initial)
+        host = Host(arm)
+        await arm.start()
+        try:
+            return await body(arm, host)
+        finally:
+            await arm.close()
+
+    return run_virtual(main)
+
+
+def loop_period_s(robot: RobotSettings = ROBOT, i2c_hz: int = 100_000) -> float:
+    """What the master's loop must take: six I²C transactions plus the CPU overhead."""
+    bits = 3 * (1 + 9 * 5 + 1) + 3 * (1 + 9 * 3 + 1)
+    return bits / i2c_hz + emulator_settings(robot).loop_overhead_s
+
+
+def test_bus_timing_matches_transaction_bits() -> None:
+    from smbus2 import i2c_msg
+
+    assert transaction_bits((i2c_msg.write(0x10, b"1234"),)) == 1 + 9 * 5 + 1
+    assert transaction_bits((i2c_msg.read(0x10, 2),)) == 1 + 9 * 3 + 1
+
+
+def test_polling_firmware_replies_every_loop_at_the_bus_rate() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(1.0)
+
+    arm_loops: list[int] = []
+
+    async def counted(arm: ArmEmulator, host: Host) -> None:
+        await body(arm, host)
+        arm_loops.append(arm.stats().loops)
+        # the master's cursor may be a loop ahead of the clock, and a reply takes 2.17 ms
+        assert arm.stats().loops - 2 <= len(host.replies) <= arm.stats().loops
+        times = [t for t, _ in host.replies]
+        gaps = [b - a for a, b in itertools.pairwise(times)]
+        assert max(gaps) == pytest.approx(min(gaps), rel=1e-6)
+        assert gaps[0] == pytest.approx(loop_period_s(), rel=1e-6)
+        assert host.replies[-1][1] == Reply(0, 0, 0, 0)
+
+    emulate(counted)
+    assert arm_loops[0] == pytest.approx(1.0 / loop_period_s(), abs=2)
+
+
+def test_400khz_bus_makes_the_loop_uart_bound() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(1.0)
+        times = [t for t, _ in host.replies]
+        gap = (times[-1] - times[10]) / (len(times) - 11)
+        # 25 bytes of 10 bits at 115200 baud: 2.17 ms per reply, slower than the 400 kHz loop
+        assert gap == pytest.approx(25 * 10 / 115200, rel=1e-3)
+
+    emulate(body, i2c_hz=400_000)
+
+
+def test_command_moves_every_joint_to_its_target() -> None:
+    target = [0.8, 0.5, -0.6, 1.2]
+
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send(target, 99)
+        await asyncio.sleep(15)
+        for got, want in zip(host.angles(), target, strict=True):
+            assert got == pytest.approx(want, abs=2e-4)
+        for true, want in zip(arm.true_angles_rad(), target, strict=True):
+            assert true == pytest.approx(want, abs=2e-4)
+        assert arm.stats().commands == 1
+
+    emulate(body)
+
+
+@pytest.mark.parametrize("duty", [1, 50, 99])
+def test_speed_law_12_at_system_level(duty: int) -> None:
+    j3 = ROBOT.joints[2]
+    steps = 600
+    distance = steps / j3.steps_per_rad
+
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.0, 0.0, distance, 0.0], duty)
+        await asyncio.sleep(0.5)
+        q0 = arm.true_angles_rad()[2]
+        await asyncio.sleep(1.0)
+        q1 = arm.true_angles_rad()[2]
+        rate = (q1 - q0) * j3.steps_per_rad
+        expected = 1e6 / (80 * (101 - duty))
+        if q1 < distance - 1e-9:  # still moving through the whole window
+            assert rate == pytest.approx(expected, abs=1.01)
+
+    emulate(body)
+
+
+def test_rx_buffer_overflows_when_the_host_floods() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.05)
+        frame = Command.from_rad([0.1, 0.0, 0.0, 0.0], 10).encode()
+        arm.host_write(frame * 40)  # 1480 bytes at once: far more than 64 per loop
+        await asyncio.sleep(0.5)
+        stats = arm.stats()
+        assert stats.rx_overflow_bytes > 0
+        assert stats.rx_bytes + stats.rx_overflow_bytes == len(frame) * 40
+        assert stats.commands < 40
+
+    emulate(body)
+
+
+def test_blocking_receive_replies_once_per_command() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.5)
+        assert host.replies == []
+        for k in range(5):
+            host.send([0.01 * k, 0.0, 0.0, 0.0], 50)
+            await asyncio.sleep(0.05)
+        assert len(host.replies) == 5
+
+    emulate(body, uart_receive="blocking")
+
+
+def test_replies_can_end_in_crlf() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.1)
+        assert host.replies and not host.errors
+        assert host.framer.discarded_bytes == 0
+
+    emulate(body, reply_line_end="\r\n")
+
+
+def test_eeprom_written_on_each_motion_change() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.2, 0.0, 0.0, 0.0], 99)
+        await asyncio.sleep(3)
+        host.send([-0.2, 0.0, 0.0, 0.0], 99)
+        await asyncio.sleep(6)
+        # joint 1: stopped->cw, cw->stopped, stopped->ccw, ccw->stopped
+        assert arm.eeproms[0].record_writes == 4
+        assert arm.eeproms[1].record_writes == 0
+        record = arm.eeproms[0].load()
+        assert record is not None and record.motion == "stopped"
+
+    emulate(body)
+
+
+# --- startup recovery (§5.2) -----------------------------------------------------------------
+
+def _cut_and_restore(target: list[float], cut_after_s: float, settle_s: float,
+                     **kwargs: Any) -> tuple[ArmStats, tuple[float, ...], tuple[float, ...],
+                                             tuple[float | None, ...]]:
+    out: list[Any] = []
+
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send(target, 99)
+        await asyncio.sleep(cut_after_s)
+        arm.power_off()
+        truth_at_cut = arm.true_angles_rad()
+        await asyncio.sleep(1.0)
+        arm.power_on()
+        await asyncio.sleep(settle_s)
+        out.extend([arm.stats(), truth_at_cut, arm.true_angles_rad(),
+                    arm.firmware_angles_rad()])
+
+    emulate(body, **kwargs)
+    return out[0], out[1], out[2], out[3]
+
+
+def test_recovery_after_a_cut_while_stopped_restores_the_position() -> None:
+    stats, at_cut, true, firmware = _cut_and_restore([0.3, 0.2, -0.1, 0.5], 10, 1)
+    assert stats.recoveries == (0, 0, 0, 0)
+    for t, f, c in zip(true, firmware, at_cut, strict=True):
+        assert f is not None
+        assert f == pytest.approx(t, abs=1e-4)
+        assert t == pytest.approx(c, abs=1e-12)
+
+
+def test_recovery_after_a_cut_moving_cw_drives_ccw_to_the_hall() -> None:
+    stats, at_cut, true, firmware = _cut_and_restore([0.6, 0.0, 0.0, 0.0], 0.5, 8)
+    assert stats.recoveries[0] == 1
+    assert 0.0 < at_cut[0] < 0.6
+    # back at the Hall sensor (0 rad), counter reset there: belief equals truth again
+    assert true[0] == pytest.approx(0.0, abs=2e-4)
+    assert firmware[0] == pytest.approx(true[0], abs=2e-4)
+
+
+def test_recovery_after_a_cut_moving_ccw_drives_cw_to_the_hall() -> None:
+    stats, at_cut, true, firmware = _cut_and_restore([-0.6, 0.0, 0.0, 0.0], 0.5, 8)
+    assert stats.recoveries[0] == 1
+    assert -0.6 < at_cut[0] < 0.0
+    assert true[0] == pytest.approx(0.0, abs=2e-4)
+    assert firmware[0] == pytest.approx(true[0], abs=2e-4)
+
+
+def test_recovery_driving_away_from_the_hall_fails_at_the_limit() -> None:
+    # Start past the Hall sensor: moving CCW from +1.0 towards +0.5 never crosses 0, so the
+    # recovery (drive CW) runs away from the Hall sensor into the upper hard limit.
+    out: list[Any] = []
+
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.5, 0.0, 0.0, 0.0], 99)
+        await asyncio.sleep(0.3)
+        arm.power_off()
+        await asyncio.sleep(0.1)
+        arm.power_on()
+        await asyncio.sleep(60)
+        out.append((arm.true_angles_rad()[0], arm.master.model, len(host.replies)))
+
+    emulate(body, initial_q_rad=[1.0, 0.0, 0.0, 0.0])
+    true_q1, model, _ = out[0]
+    assert model is not None and model.homing and model.at_limit
+    assert true_q1 == pytest.approx(UPPER[0], abs=1e-3)
+
+
+# --- faults ----------------------------------------------------------------------------------
+
+def _faults(*items: dict[str, Any]) -> list[Fault]:
+    return parse_faults(items)
+
+
+def test_uart_corruption_to_host_is_seen_as_frame_errors() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(1)
+        assert host.errors
+        assert host.replies
+
+    emulate(body, faults=_faults({"kind": "uart_corrupt", "at_s": 0.2, "duration_s": 0.5,
+                                  "probability": 0.05}))
+
+
+def test_uart_drop_and_insert_to_robot_lose_commands_not_the_firmware() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        for k in range(50):
+            host.send([0.001 * k, 0.0, 0.0, 0.0], 10)
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(0.2)
+        assert 0 < arm.stats().commands < 50
+        assert arm.master.framer.errors > 0
+
+    emulate(body, faults=_faults(
+        {"kind": "uart_drop", "at_s": 0.0, "probability": 0.01, "direction": "to_robot"},
+        {"kind": "uart_insert", "at_s": 0.0, "probability": 0.3, "count": 3,
+         "direction": "to_robot"}))
+
+
+def test_split_and_delayed_writes_reach_the_host_intact() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.5)
+        assert not host.errors
+        assert host.chunks > 2 * len(host.replies) > 0
+
+    emulate(body, faults=_faults(
+        {"kind": "split_write", "at_s": 0.0, "count": 2, "delay_s": 0.0002},
+        {"kind": "delay_write", "at_s": 0.0, "delay_s": 0.01}))
+
+
+@pytest.mark.parametrize("kind", ["i2c_nak", "i2c_bus_error"])
+def test_i2c_fault_on_a_slave_freezes_its_reported_position(kind: str) -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.0, 0.3, 0.0, 0.0], 99)
+        await asyncio.sleep(3)
+        frozen = host.angles()[1]
+        assert arm.bus.stats.naks + arm.bus.stats.bus_errors > 0
+        assert frozen < 0.05  # fault began at 0.1 s: the master never saw the move
+        await asyncio.sleep(3)
+        assert host.angles()[1] == pytest.approx(0.3, abs=2e-4)
+
+    emulate(body, faults=_faults({"kind": kind, "at_s": 0.1, "duration_s": 4.0, "joint": 2}))
+
+
+def test_slave_reset_reboots_one_board_and_recovers() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.0, 0.0, 0.4, 0.0], 99)
+        await asyncio.sleep(12)
+        stats = arm.stats()
+        assert stats.boots == (1, 1, 2, 1)
+        assert stats.recoveries == (0, 0, 1, 0)
+
+    emulate(body, faults=_faults({"kind": "slave_reset", "at_s": 0.3, "joint": 3}))
+
+
+def test_stalled_joint_does_not_move_until_freed() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.0, 0.0, 0.0, 0.3], 99)
+        await asyncio.sleep(1.5)
+        assert arm.true_angles_rad()[3] == pytest.approx(0.0, abs=1e-9)
+        await asyncio.sleep(6)
+        assert arm.true_angles_rad()[3] == pytest.approx(0.3, abs=2e-4)
+
+    emulate(body, faults=_faults({"kind": "stall", "at_s": 0.0, "duration_s": 2.0,
+                                  "joint": 4}))
+
+
+def test_power_cut_and_restore_by_schedule() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(1.0)
+        assert not arm.powered
+        n = len(host.replies)
+        await asyncio.sleep(1.0)
+        assert arm.powered and len(host.replies) > n
+
+    emulate(body, faults=_faults({"kind": "power_cut", "at_s": 0.5},
+                                 {"kind": "power_restore", "at_s": 1.5}))
+
+
+def test_event_scheduled_fault_after_frames() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        for _k in range(5):
+            host.send([0.0, 0.0, 0.0, 0.0], 0)
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(0.2)
+        assert not arm.powered
+        assert arm.injector.activations[0][1].startswith("power_cut")
+
+    emulate(body, faults=_faults({"kind": "power_cut", "after_frames": 3}))
+
+
+def test_same_faults_and_seed_reproduce_the_same_run() -> None:
+    faults = _faults({"kind": "uart_corrupt", "at_s": 0.0, "probability": 0.02},
+                     {"kind": "split_write", "at_s": 0.0, "count": 3, "probability": 0.5})
+
+    async def body(arm: ArmEmulator, host: Host) -> list[object]:
+        host.send([0.2, 0.1, 0.1, 0.1], 99)
+        await asyncio.sleep(1.0)
+        return [*host.replies, *host.errors]
+
+    a = emulate(body, faults=faults, seed=7)
+    b = emulate(body, faults=faults, seed=7)
+    c = emulate(body, faults=faults, seed=8)
+    assert a == b
+    assert a != c
+
+
+@pytest.mark.parametrize(("item", "field"), [
+    ({"kind": "meteor", "at_s": 1}, "faults[0].kind"),
+    ({"kind": "stall", "at_s": 1}, "faults[0].joint"),
+    ({"kind": "power_cut"}, "faults[0]"),
+    ({"kind": "i2c_nak", "at_s": 1, "joint": 1}, "faults[0].joint"),
+    ({"kind": "uart_drop", "at_s": 1, "probability": 2}, "faults[0].probability"),
+    ({"kind": "uart_drop", "at_s": -1}, "faults[0].at_s"),
+    ({"kind": "uart_drop", "at_s": 1, "colour": "red"}, "faults[0].colour"),
+])
+def test_bad_fault_entries_name_the_field(item: dict[str, Any], field: str) -> None:
+    from drivers.settings import SettingsError
+
+    with pytest.raises(SettingsError) as info:
+        parse_faults([item])
+    assert info.value.field == field
+
+
+# --- robustness ------------------------------------------------------------------------------
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.binary(max_size=120), max_size=25))
+def test_the_firmware_never_dies_on_random_bytes(chunks: list[bytes]) -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        for c in chunks:
+            arm.host_write(c)
+            await asyncio.sleep(0.003)
+        host.send([0.05, 0.0, 0.0, 0.0], 99)
+        await asyncio.sleep(1.0)
+        assert arm.master._task is not None and not arm.master._task.done()
+        assert host.angles()[0] == pytest.approx(0.05, abs=2e-4)
+
+    emulate(body)
+
+
+def test_i2c_scan_finds_the_three_slaves() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> list[int]:
+        await asyncio.sleep(0.01)
+        return arm.bus.scan()
+
+    assert emulate(body) == [0x10, 0x11, 0x12]
+
+
+def test_ground_truth_beside_each_reply_includes_backlash() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.0, 0.2, 0.0, 0.0], 99)
+        await asyncio.sleep(4)
+        host.send([0.0, 0.1, 0.0, 0.0], 99)
+        await asyncio.sleep(4)
+        sample = arm.truth[-1]
+        assert sample.firmware_rad[1] == pytest.approx(0.1, abs=2e-4)
+        # the link sits half the gear play behind the motor's nominal angle (the play is centred
+        # on it: docs/emulator-joint.md), on the side it last came from
+        assert sample.true_rad[1] - sample.firmware_rad[1] == pytest.approx(0.001, abs=2e-4)
+        assert math.isfinite(sample.t_s)
+
+    emulate(body, effects={"backlash_rad": 0.002})
