@@ -17,6 +17,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "bench.commands.kinematics",
     "bench.commands.perf",
     "bench.commands.emulate",
+    "bench.commands.monitor",
+    "bench.commands.move",
+    "bench.commands.i2c",
 )
 
 

@@ -1,4 +1,8 @@
-"""Host side of armbench: the protocol codec, the robot model, kinematics and the asyncio driver."""
+"""Host side of armbench: the protocol codec, the robot model, kinematics and the asyncio driver.
+
+The driver (``drivers.arm``) is imported lazily on first use of its names, so that the emulator,
+which shares the codec and the robot model, never imports the driver.
+"""
 
 from drivers.errors import ArmbenchError, PortLostError, TransportError
 from drivers.kinematics import (
@@ -71,3 +75,16 @@ __all__ = [
     "ticks_to_rad",
     "wrap_protocol",
 ]
+
+_DRIVER_NAMES = ("Arm", "JointState", "PathRun", "ReconnectPolicy", "DriverError",
+                 "DriverClosedError", "ReplyTimeoutError", "WaitTimeoutError", "MoveTimeoutError",
+                 "MoveInterruptedError", "InvalidTargetError", "JointRangeError")
+__all__ += list(_DRIVER_NAMES)
+
+
+def __getattr__(name: str) -> object:
+    if name in _DRIVER_NAMES:
+        from drivers import arm
+
+        return getattr(arm, name)
+    raise AttributeError(f"module 'drivers' has no attribute {name!r}")

@@ -24,17 +24,30 @@ T = TypeVar("T")
 
 
 class _VirtualSelector(selectors.BaseSelector):
-    """Wraps a real selector; a wait with a timeout becomes a jump of the virtual clock."""
+    """Wraps a real selector; a wait with a timeout becomes a jump of the virtual clock.
+
+    With nothing registered but the loop's own self-pipe no peer can be ready, so the real
+    selector is asked only now and then (to drain the self-pipe of thread wake-ups, whose
+    callbacks are already queued): no system call per loop iteration.
+    """
+
+    POLL_EVERY = 256
 
     def __init__(self, real: selectors.BaseSelector, loop: VirtualTimeLoop) -> None:
         self._real = real
         self._loop = loop
+        self._registered = 0
+        self._skipped = 0
 
     def register(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
-        return self._real.register(fileobj, events, data)
+        key = self._real.register(fileobj, events, data)
+        self._registered += 1
+        return key
 
     def unregister(self, fileobj: Any) -> selectors.SelectorKey:
-        return self._real.unregister(fileobj)
+        key = self._real.unregister(fileobj)
+        self._registered -= 1
+        return key
 
     def modify(self, fileobj: Any, events: int, data: Any = None) -> selectors.SelectorKey:
         return self._real.modify(fileobj, events, data)
@@ -42,8 +55,15 @@ class _VirtualSelector(selectors.BaseSelector):
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
         if timeout is None:  # nothing scheduled: only real I/O (or another thread) can wake us
             return self._real.select(None)
-        # Only the loop's self-pipe registered: no peer can be ready, skip the system call.
-        events = self._real.select(0) if len(self._real.get_map()) > 1 or timeout <= 0 else []
+        if self._registered > 1:
+            events = self._real.select(0)
+        else:
+            self._skipped += 1
+            if self._skipped < self.POLL_EVERY:
+                events = []
+            else:
+                self._skipped = 0
+                events = self._real.select(0)
         if not events and timeout > 0:
             self._loop.advance(timeout)
         return events

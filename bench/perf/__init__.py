@@ -19,6 +19,7 @@ BENCHMARK_MODULES: tuple[str, ...] = (
     "bench.perf.codec",
     "bench.perf.emulator",
     "bench.perf.transports",
+    "bench.perf.driver",
 )
 
 

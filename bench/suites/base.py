@@ -109,7 +109,8 @@ class Suite(abc.ABC):
         self.validate(settings, params)
         return params
 
-    def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
+    def validate(self, settings: RobotSettings,  # noqa: B027 (an optional hook)
+                 params: Mapping[str, Any]) -> None:
         """Raise ``SettingsError`` naming the field for an invalid parameter (before any motion)."""
 
     @abc.abstractmethod

@@ -1,0 +1,176 @@
+"""``armbench monitor``: live joint angles, TCP position, frame rate and error counts.
+
+On a terminal the display is refreshed in place (ANSI cursor moves) ``--rate`` times per second;
+otherwise one summary line per refresh; with ``--json`` one JSON object per state received. Against
+``fake://`` the emulator runs in-process on virtual time (``--duration`` then counts simulated
+seconds and defaults to 10 s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import math
+import sys
+from collections import deque
+from collections.abc import Coroutine
+from typing import Any, TextIO, TypeVar
+
+from drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
+from drivers.settings import RobotSettings, load_settings
+from drivers.transports import scheme_of
+
+__all__ = ["DEFAULT_FAKE_DURATION_S", "monitor", "register", "run_on_port"]
+
+T = TypeVar("T")
+
+#: ``--duration`` against ``fake://`` when none is given (virtual time runs as fast as it can).
+DEFAULT_FAKE_DURATION_S = 10.0
+#: Window of the frame-rate estimate, seconds.
+RATE_WINDOW_S = 1.0
+
+
+def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
+    """Run ``main`` on virtual time for ``fake://`` (the emulator in-process), else in real time."""
+    if scheme_of(port) == "fake":
+        from fakes.vclock import run_virtual  # the CLI may use fakes; the driver may not
+
+        return run_virtual(main)
+    return asyncio.run(main)
+
+
+def register(sub: Any) -> None:
+    """Add the ``monitor`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "monitor", help="live joint angles, TCP position, frame rate and error counts",
+        description="Show the arm's state as it streams in: joint angles (rad and degrees), the "
+                    "TCP position by forward kinematics, the reply rate and the error counters.")
+    p.add_argument("--port", default="fake://",
+                   help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or fake:// "
+                        "(default fake://, the emulator on virtual time)")
+    p.add_argument("--json", action="store_true", help="one JSON object per state on stdout")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds (default: until Ctrl-C; "
+                        f"{DEFAULT_FAKE_DURATION_S:g} simulated s on fake://)")
+    p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
+    p.add_argument("--rate", type=float, default=10.0, metavar="HZ",
+                   help="display refreshes per second without --json (default 10)")
+    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
+                   help="report the arm as silent after S seconds without a reply (default 0.5)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    duration = args.duration
+    if duration is None and scheme_of(args.port) == "fake":
+        duration = DEFAULT_FAKE_DURATION_S
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        from drivers.arm import InvalidTargetError
+
+        raise InvalidTargetError(None, "--duration", duration, "must be > 0")
+    return run_on_port(args.port, monitor(args.port, settings, json_lines=args.json,
+                                          duration_s=duration, refresh_hz=args.rate,
+                                          reply_timeout_s=args.reply_timeout, out=sys.stdout))
+
+
+class _Rate:
+    """Replies per second over the last ``RATE_WINDOW_S``."""
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, int]] = deque()
+
+    def update(self, t_s: float, count: int) -> float:
+        s = self._samples
+        s.append((t_s, count))
+        while len(s) > 2 and t_s - s[1][0] >= RATE_WINDOW_S:
+            s.popleft()
+        t0, c0 = s[0]
+        return (count - c0) / (t_s - t0) if t_s > t0 else 0.0
+
+
+def state_json(arm: Arm, state: JointState, rate_hz: float, skipped: int) -> dict[str, Any]:
+    """The ``--json`` object of one state."""
+    return {
+        "t_s": state.t_s, "seq": state.seq,
+        "q_rad": list(state.q_rad), "q_deg": [math.degrees(q) for q in state.q_rad],
+        "ticks": list(state.ticks), "tcp_m": list(state.tcp_m(arm.settings)),
+        "rate_hz": rate_hz, "frames_received": arm.frames_received,
+        "frames_dropped": arm.frames_dropped, "discarded_bytes": arm.discarded_bytes,
+        "skipped": skipped, "reconnects": arm.reconnects,
+    }
+
+
+def _lines(arm: Arm, state: JointState, rate_hz: float, stream: StateStream,
+           note: str) -> list[str]:
+    x, y, z = state.tcp_m(arm.settings)
+    out = [f"armbench monitor  {arm.port}  t = {state.t_s:9.3f} s  {rate_hz:7.1f} replies/s  "
+           f"{note}",
+           f"received {arm.frames_received}  dropped {arm.frames_dropped}  discarded "
+           f"{arm.discarded_bytes} B  skipped {stream.skipped}  reconnects {arm.reconnects}",
+           "joint        rad        deg   ticks"]
+    for j, q, t in zip(arm.settings.joints, state.q_rad, state.ticks, strict=True):
+        out.append(f"{j.name:<5s} {q:+10.5f} {math.degrees(q):+10.3f}   {t:5d}")
+    out.append(f"TCP   x {x:+.4f} m   y {y:+.4f} m   z {z:+.4f} m")
+    return out
+
+
+def _summary(arm: Arm, state: JointState, rate_hz: float, note: str) -> str:
+    q = " ".join(f"{v:+.5f}" for v in state.q_rad)
+    x, y, z = state.tcp_m(arm.settings)
+    line = (f"t={state.t_s:.3f}s q=[{q}] rad tcp=({x:+.4f}, {y:+.4f}, {z:+.4f}) m "
+            f"{rate_hz:.1f}/s rx={arm.frames_received} dropped={arm.frames_dropped} "
+            f"discarded={arm.discarded_bytes}B")
+    return f"{line} {note}" if note else line
+
+
+async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = False,
+                  duration_s: float | None = None, refresh_hz: float = 10.0,
+                  reply_timeout_s: float = 0.5, out: TextIO = sys.stdout) -> int:
+    """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation."""
+    tty = out.isatty() and not json_lines
+    period = 1.0 / refresh_hz if refresh_hz > 0 else 0.0
+    rate = _Rate()
+    drawn = 0
+    async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s) as arm:
+        loop = asyncio.get_running_loop()
+        end = None if duration_s is None else loop.time() + duration_s
+        stream = arm.states()
+        last_draw = -math.inf
+        note = ""
+        while end is None or loop.time() < end:
+            try:
+                async with asyncio.timeout_at(end) as cm:
+                    state = await anext(stream)
+            except ReplyTimeoutError as exc:
+                note = f"SILENT: {exc}"
+                state = arm.state
+            except TimeoutError:
+                if cm.expired():
+                    break
+                raise
+            except StopAsyncIteration:
+                break
+            else:
+                note = ""
+            r = rate.update(state.t_s, arm.frames_received)
+            if json_lines:
+                out.write(json.dumps(state_json(arm, state, r, stream.skipped)) + "\n")
+                continue
+            now = loop.time()
+            if now - last_draw < period and not note:
+                continue
+            last_draw = now
+            lines = _lines(arm, state, r, stream, note)
+            if tty:
+                if drawn:
+                    out.write(f"\x1b[{drawn}A")
+                out.write("".join(f"\r{line}\x1b[K\n" for line in lines))
+                drawn = len(lines)
+            else:
+                out.write(_summary(arm, state, r, note) + "\n")
+            with contextlib.suppress(BrokenPipeError):
+                out.flush()
+    return 0

@@ -1,0 +1,190 @@
+"""Traffic capture: every frame in and out of the driver as JSON Lines, and replay of a capture.
+
+One record per line::
+
+    {"t_s": 0.0123, "dir": "out", "frame": "$01000,99,...#", "error": null}
+    {"t_s": 0.0150, "dir": "in",  "frame": "$01000,00000,00000,00000#", "error": null}
+    {"t_s": 0.0170, "dir": "in",  "frame": "$0x000,0", "error": "bytes outside a frame"}
+
+``t_s`` is seconds since the capture started, on the event loop's clock (virtual seconds against
+``fake://``); ``dir`` is ``"out"`` (host → arm) or ``"in"`` (arm → host); ``frame`` the frame as
+ASCII (non-ASCII bytes of a bad stretch as ``\\xNN``; at most its first 64 bytes); ``error`` the
+framer's reason for a stretch that was not a valid frame, else ``null``. Records are buffered and
+written in batches (:data:`BATCH_RECORDS` records or :data:`BATCH_INTERVAL_S` seconds, whichever
+comes first) so memory stays bounded however long the capture runs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any, Final, Literal, NamedTuple
+
+from drivers.errors import ArmbenchError
+from drivers.protocol import Command, Framer
+
+__all__ = [
+    "BATCH_INTERVAL_S",
+    "BATCH_RECORDS",
+    "CaptureError",
+    "CaptureRecord",
+    "CaptureWriter",
+    "ReplayCommand",
+    "read_capture",
+    "replay_capture",
+]
+
+#: Records buffered before a write.
+BATCH_RECORDS: Final = 512
+#: Loop seconds after which buffered records are written even if the batch is not full.
+BATCH_INTERVAL_S: Final = 1.0
+
+Direction = Literal["in", "out"]
+
+
+class CaptureError(ArmbenchError, ValueError):
+    """A capture file cannot be written or is not a valid capture; names the file and line."""
+
+    def __init__(self, path: str, line: int | None, reason: str) -> None:
+        where = f"{path}:{line}" if line is not None else path
+        super().__init__(f"{where}: {reason}")
+        self.path = path
+        self.line = line
+        self.reason = reason
+
+
+class CaptureRecord(NamedTuple):
+    """One line of a capture file."""
+
+    t_s: float
+    dir: Direction
+    frame: str
+    error: str | None
+
+
+def frame_text(data: bytes) -> str:
+    """ASCII text of wire bytes; other bytes as ``\\xNN``."""
+    return data.decode("ascii", "backslashreplace")
+
+
+class CaptureWriter:
+    """Appends records to a JSON Lines file in batches. Times are given by the caller (loop time)
+    and stored relative to ``t0_s``."""
+
+    def __init__(self, path: str | Path, t0_s: float, *, batch_records: int = BATCH_RECORDS,
+                 batch_interval_s: float = BATCH_INTERVAL_S) -> None:
+        self.path = Path(path)
+        self.t0_s = t0_s
+        self.batch_records = max(1, batch_records)
+        self.batch_interval_s = batch_interval_s
+        self.records = 0
+        """Records accepted so far."""
+        self.batches = 0
+        """Batches written so far."""
+        self._buf: list[str] = []
+        self._last_flush = t0_s
+        try:
+            self._fh: IO[str] | None = self.path.open("w", encoding="ascii")
+        except OSError as exc:
+            raise CaptureError(str(self.path), None,
+                               f"cannot write: {exc.strerror or exc}") from exc
+
+    @property
+    def buffered(self) -> int:
+        """Records waiting for the next batch (never more than ``batch_records``)."""
+        return len(self._buf)
+
+    def write(self, t_s: float, direction: Direction, frame: str, error: str | None) -> None:
+        """Add one record (``t_s`` in loop seconds)."""
+        if self._fh is None:
+            return
+        self._buf.append(json.dumps({"t_s": round(t_s - self.t0_s, 9), "dir": direction,
+                                     "frame": frame, "error": error}))
+        self.records += 1
+        if len(self._buf) >= self.batch_records or t_s - self._last_flush >= self.batch_interval_s:
+            self.flush(t_s)
+
+    def flush(self, t_s: float | None = None) -> None:
+        """Write the buffered records out now."""
+        if self._fh is None or not self._buf:
+            return
+        self._fh.write("\n".join(self._buf) + "\n")
+        self._fh.flush()
+        self._buf.clear()
+        self.batches += 1
+        if t_s is not None:
+            self._last_flush = t_s
+
+    def close(self) -> None:
+        """Flush and close (idempotent)."""
+        if self._fh is None:
+            return
+        try:
+            self.flush()
+        finally:
+            self._fh.close()
+            self._fh = None
+
+
+def _record(obj: Any, path: str, line: int) -> CaptureRecord:
+    if not isinstance(obj, dict):
+        raise CaptureError(path, line, "is not a JSON object")
+    t, d, f, e = obj.get("t_s"), obj.get("dir"), obj.get("frame"), obj.get("error")
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        raise CaptureError(path, line, f"t_s {t!r} is not a finite number")
+    if d not in ("in", "out"):
+        raise CaptureError(path, line, f"dir {d!r} is not 'in' or 'out'")
+    if not isinstance(f, str):
+        raise CaptureError(path, line, f"frame {f!r} is not a string")
+    if e is not None and not isinstance(e, str):
+        raise CaptureError(path, line, f"error {e!r} is not a string or null")
+    return CaptureRecord(float(t), d, f, e)
+
+
+def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
+    """Every record of a capture file, in order (streamed: the file is not loaded whole)."""
+    p = str(path)
+    try:
+        fh = Path(path).open(encoding="ascii")  # noqa: SIM115 - closed by the with below
+    except OSError as exc:
+        raise CaptureError(p, None, f"cannot read: {exc.strerror or exc}") from exc
+    with fh:
+        for n, text in enumerate(fh, 1):
+            if not text.strip():
+                continue
+            try:
+                obj = json.loads(text)
+            except ValueError as exc:
+                raise CaptureError(p, n, f"is not JSON: {exc}") from None
+            yield _record(obj, p, n)
+
+
+class ReplayCommand(NamedTuple):
+    """A host → arm command of a capture: seconds after the first command, the command, and
+    seconds after the capture started."""
+
+    t_s: float
+    command: Command
+    capture_t_s: float
+
+
+def replay_capture(path: str | Path) -> Iterator[ReplayCommand]:
+    """The host → arm commands of a capture, with their times relative to the first one.
+
+    Records with an ``error`` and ``in`` records are skipped; an ``out`` frame that is not a valid
+    command is a :class:`CaptureError` (the driver only ever writes valid commands).
+    """
+    t0: float | None = None
+    for n, rec in enumerate(read_capture(path), 1):
+        if rec.dir != "out" or rec.error is not None:
+            continue
+        framer = Framer("command")
+        events = framer.feed(rec.frame.encode("ascii", "backslashreplace"))
+        if len(events) != 1 or not isinstance(events[0], Command):
+            raise CaptureError(str(path), None,
+                               f"record {n}: out frame {rec.frame!r} is not one command")
+        if t0 is None:
+            t0 = rec.t_s
+        yield ReplayCommand(rec.t_s - t0, events[0], rec.t_s)
