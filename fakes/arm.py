@@ -86,8 +86,8 @@ class ArmEmulator:
         if self.started:
             return
         self.started = True
-        self.injector.start(self._now())
         self.power_on()
+        self.injector.start(self._now())
         await asyncio.sleep(0)
 
     async def close(self) -> None:
@@ -121,6 +121,7 @@ class ArmEmulator:
         t = self._now()
         for b in self.boards:
             b.power_off(t)
+        self.uart.cut()
 
     def reset_board(self, joint: int) -> None:
         """Reboot one board (a brown-out or watchdog reset)."""

@@ -166,7 +166,11 @@ class FaultInjector:
         self.t_start = t_s
         loop = asyncio.get_running_loop()
         for i, f in enumerate(self.faults):
-            if f.at_s is not None:
+            if f.at_s is None:
+                continue
+            if f.at_s <= 0:  # before the boards' first step, so not even one loop escapes it
+                self._activate(i)
+            else:
                 self._handles.append(loop.call_at(t_s + f.at_s, self._activate, i))
 
     def stop(self) -> None:

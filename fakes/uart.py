@@ -44,7 +44,8 @@ class Uart:
         self.rx_overflow_bytes = 0
         self.tx_bytes = 0
         self.tx_dropped_bytes = 0
-        """Bytes the master printed while no host was connected."""
+        """Bytes the master printed that no host received (none connected, or power cut)."""
+        self._generation = 0
 
     # host side ---------------------------------------------------------------------------------
     def host_write(self, data: bytes, t_s: float) -> None:
@@ -113,18 +114,26 @@ class Uart:
         done = start + len(data) * byte_s
         self._tx_line_free = done
         self.tx_bytes += len(data)
-        sink = self.host_sink
-        if sink is None:
-            self.tx_dropped_bytes += len(data)
+        loop = asyncio.get_running_loop()
+        if self.tx_filter is None:
+            loop.call_at(done, self._deliver, self._generation, data)
         else:
-            loop = asyncio.get_running_loop()
-            if self.tx_filter is None:
-                loop.call_at(done, sink, data)
-            else:
-                for delay_s, chunk in self.tx_filter(data, done):
-                    loop.call_at(done + delay_s, sink, chunk)
+            for delay_s, chunk in self.tx_filter(data, done):
+                loop.call_at(done + delay_s, self._deliver, self._generation, chunk)
         overflow = queued + len(data) - self.tx_buffer_bytes
         return t_s + overflow * byte_s if overflow > 0 else t_s
+
+    def _deliver(self, generation: int, data: bytes) -> None:
+        sink = self.host_sink
+        if sink is None or generation != self._generation:
+            self.tx_dropped_bytes += len(data)
+        else:
+            sink(data)
+
+    def cut(self) -> None:
+        """The board lost power: bytes still on the line never arrive, the line is idle."""
+        self._generation += 1
+        self._tx_line_free = -math.inf
 
     @property
     def rx_line_free_s(self) -> float:

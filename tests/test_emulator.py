@@ -362,6 +362,27 @@ def test_power_cut_and_restore_by_schedule() -> None:
                                  {"kind": "power_restore", "at_s": 1.5}))
 
 
+@pytest.mark.parametrize("kind", ["power_cut", "uart_drop"])
+def test_a_fault_at_time_zero_acts_before_the_first_loop(kind: str) -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.5)
+        assert host.replies == [] and host.chunks == 0
+
+    emulate(body, faults=_faults({"kind": kind, "at_s": 0}))
+
+
+def test_replies_on_the_wire_at_a_power_cut_never_arrive() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        await asyncio.sleep(0.1)
+        n = len(host.replies)
+        arm.power_off()
+        await asyncio.sleep(0.1)
+        assert len(host.replies) == n
+        assert not host.errors
+
+    emulate(body)
+
+
 def test_event_scheduled_fault_after_frames() -> None:
     async def body(arm: ArmEmulator, host: Host) -> None:
         for _k in range(5):
