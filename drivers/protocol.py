@@ -43,6 +43,7 @@ __all__ = [
     "Framer",
     "ProtocolError",
     "Reply",
+    "encode_reply",
     "rad_to_ticks",
     "ticks_to_rad",
 ]
@@ -112,6 +113,12 @@ def _check_ticks(ticks: Sequence[int]) -> tuple[int, int, int, int]:
     return (ticks[0], ticks[1], ticks[2], ticks[3])
 
 
+def encode_reply(j1: int, j2: int, j3: int, j4: int) -> bytes:
+    """The 25 wire bytes of a reply from four tick counts already known to be valid (0..62832):
+    the firmware's side of :meth:`Reply.encode`, without building a frame object."""
+    return b"$%05d,%05d,%05d,%05d#" % (j1, j2, j3, j4)
+
+
 class Reply(NamedTuple):
     """The master's reply: current joint positions in wire ticks, joints 1..4."""
 
@@ -141,7 +148,7 @@ class Reply(NamedTuple):
 
     def encode(self) -> bytes:
         """The 25 wire bytes of this reply."""
-        return b"$%05d,%05d,%05d,%05d#" % (self.j1, self.j2, self.j3, self.j4)
+        return encode_reply(self.j1, self.j2, self.j3, self.j4)
 
 
 @dataclass(frozen=True, slots=True)

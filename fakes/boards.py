@@ -21,7 +21,7 @@ from typing import NamedTuple
 
 from smbus2 import i2c_msg
 
-from drivers.protocol import Command, Framer, rad_to_ticks, ticks_to_rad
+from drivers.protocol import Command, Framer, encode_reply, rad_to_ticks, ticks_to_rad
 from drivers.settings import JointSettings
 from fakes.eeprom import Eeprom
 from fakes.i2c import (
@@ -264,7 +264,13 @@ class SlaveBoard(Board):
     def on_request(self, length: int, t_s: float) -> bytes:
         """onRequest: the register the pointer names; the pointer returns to POSITION."""
         register, self._pointer = self._pointer, REG_POSITION
-        model = self.sync(t_s)
+        model = self.model
+        assert model is not None
+        tick = int((t_s - self.t0) * self._ticks_per_s + 1e-9)
+        if tick > model.tick:
+            model.advance(tick)
+        if model.pending_transitions:
+            self.store_transitions()
         if register == REG_POSITION:
             self.last_truth_rad = model.true_angle_rad()
             self.last_firmware_rad = q = model.counter / self._counts_per_rad
@@ -364,7 +370,9 @@ class MasterBoard(Board):
                 clock.now += self.store_transitions() * eeprom_s
             clock.now += overhead_s
             # Pack all current poses and send through UART
-            reply = b"$%05d,%05d,%05d,%05d#" % (own, *positions) + line_end
+            reply = encode_reply(own, positions[0], positions[1], positions[2])
+            if line_end:
+                reply += line_end
             t_sample = clock.now
             clock.now = uart.write(reply, clock.now)
             self.loops += 1
@@ -372,7 +380,11 @@ class MasterBoard(Board):
                 self.on_reply(reply, self._truth(t_sample))
             delay = clock.now - loop.time()
             if delay > 0:
-                await asyncio.sleep(delay)
+                # One wake-up per loop: a bare future and a timer (what asyncio.sleep does,
+                # without its call_later indirection and the cancel of a fired handle).
+                wake = loop.create_future()
+                loop.call_at(clock.now, _wake, wake)
+                await wake
             else:
                 if delay < -MAX_LAG_S:
                     clock.now = loop.time()
@@ -403,3 +415,8 @@ class MasterBoard(Board):
             (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
              s4.last_firmware_rad))
 
+
+def _wake(future: asyncio.Future[None]) -> None:
+    """Timer callback ending a board's sleep (the task may have been cancelled meanwhile)."""
+    if not future.done():
+        future.set_result(None)

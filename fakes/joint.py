@@ -319,6 +319,35 @@ class JointModel:
         """Bring the state to ``tick`` (control cycles, not before the model's time)."""
         if tick < self._now:
             raise ValueError(f"tick {tick} is before the model's time {self._now}")
+        run = self._run
+        if run is not None and run.done > 0 and run.pulses is not None:
+            # Fast path, the common case of a board sampling a moving joint: inside a stepping
+            # run that does not end before ``tick`` nothing but steps happens, so do what
+            # _execute/_pulse do for that case inline (no Hall, no limit, no motion change).
+            period = run.period
+            done = -((run.start - tick) // period)
+            if done < run.pulses:
+                prev = run.done
+                if done > prev:
+                    after = done * run.steps // run.pulses
+                    moved = after - prev * run.steps // run.pulses
+                    self.pulses += done - prev
+                    self.steps_taken += moved
+                    self.steps_missed += done - prev - moved
+                    run.done = done
+                    self._s = run.s0 + run.direction * after
+                    gap = self._gap + run.direction * moved
+                    play = self._half_play
+                    self._gap = play if gap > play else -play if gap < -play else gap
+                self._now = tick
+                lows = tick - 1 - (run.start + (done - 1) * period)
+                if lows >= period - 1:
+                    self._state = PwmState.PWM_HIGH
+                    self._n = period - 1
+                else:
+                    self._state = PwmState.PWM_LOW
+                    self._n = lows
+                return
         self._run_until(tick, probe=False)
 
     def set_reference(self, tick: int, target_counts: int, duty: int) -> None:
