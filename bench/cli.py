@@ -20,6 +20,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "bench.commands.monitor",
     "bench.commands.move",
     "bench.commands.i2c",
+    "bench.commands.report",
+    "bench.commands.compare",
 )
 
 

@@ -1,1 +1,22 @@
-"""armbench reports package."""
+"""HTML reports of bench runs: one self-contained page per run (``render_report``) and an index
+over many runs with trends (``render_index``). They read ``results.json`` (and ``capture.jsonl``
+beside it) only; see ``docs/reports.md``."""
+
+from __future__ import annotations
+
+from reports.format import CSP, VERDICT_MARKS, format_duration, format_number, format_value
+from reports.index import INDEX_FILE, render_index
+from reports.render import REPORT_FILE, build_report_html, render_report
+
+__all__ = [
+    "CSP",
+    "INDEX_FILE",
+    "REPORT_FILE",
+    "VERDICT_MARKS",
+    "build_report_html",
+    "format_duration",
+    "format_number",
+    "format_value",
+    "render_index",
+    "render_report",
+]

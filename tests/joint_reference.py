@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from drivers.settings import JointSettings
-from fakes.joint import PwmState, Transition
+from fakes.joint import Motion, PwmState, Transition
 
 
 class ReferenceJoint:
@@ -45,7 +45,7 @@ class ReferenceJoint:
         return math.floor(steps * self.cps)
 
     @property
-    def motion(self) -> str:
+    def motion(self) -> Motion:
         """'stopped' in STOP, else the direction of the current movement."""
         if self.state is PwmState.STOP:
             return "stopped"

@@ -20,6 +20,7 @@ BENCHMARK_MODULES: tuple[str, ...] = (
     "bench.perf.emulator",
     "bench.perf.transports",
     "bench.perf.driver",
+    "bench.perf.report",
 )
 
 

@@ -1,0 +1,54 @@
+"""``armbench compare A B``: the suite-level metrics of run B against baseline run A.
+
+Prints the metric-by-metric table of :func:`bench.baseline.format_comparison` (or JSON with
+``--json``). Exit status: 1 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
+record cannot be used (missing, invalid, another schema or limits spec, a changed unit).
+Tolerances come from ``--limits bench.toml`` (``[regression]``), else 10 % for every metric.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from bench.baseline import compare, format_comparison, load_baseline
+from bench.limits import LimitsConfig, load_limits
+from bench.record import RESULTS_FILE, load_record
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``compare`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "compare", help="compare run B with baseline run A, metric by metric",
+        description="Compare the suite-level measurements of run B with those of baseline run "
+                    "A. Exit status 1 on a regression beyond tolerance, 0 otherwise, 2 on bad "
+                    "input.")
+    p.add_argument("baseline", metavar="A", help="baseline results.json (or its run directory)")
+    p.add_argument("current", metavar="B", help="results.json of the run to judge (or its "
+                                                "run directory)")
+    p.add_argument("--limits", metavar="TOML", default=None,
+                   help="limits file whose [regression] tolerances apply (default: 10 %% of "
+                        "the baseline value for every metric)")
+    p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.set_defaults(func=_run)
+
+
+def _results(name: str) -> Path:
+    path = Path(name)
+    return path / RESULTS_FILE if path.is_dir() else path
+
+
+def _run(args: argparse.Namespace) -> int:
+    config = LimitsConfig() if args.limits is None else load_limits(args.limits)
+    baseline = load_baseline(_results(args.baseline))
+    current = load_record(_results(args.current))
+    comparison = compare(current, baseline, config)
+    if args.json:
+        print(json.dumps({"run_id": current.run_id, **comparison.to_json()}, indent=1))
+    else:
+        print(format_comparison(comparison, run_id=current.run_id))
+    return 1 if comparison.regressed else 0

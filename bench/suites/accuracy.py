@@ -1,0 +1,240 @@
+"""The paper's experiment (§7): a square in the YZ plane, driven the paper's way and armbench's way.
+
+Each lap is driven in two styles, one trial each, alternating within the run so both see the same
+arm, emulator seed and drift:
+
+* ``paper`` — corners only, full duty, no path planning: ``move_to`` each corner at ``duty`` (99)
+  with one duty for all joints, wait for the arrival, next corner. Each joint runs flat out and
+  stops on its own, so the TCP leaves the straight edge in between (the paper reports a mean
+  Euclidean error of 12.4 mm for its square).
+* ``coordinated`` — armbench's coordinated Cartesian streaming: ``follow_path`` along the edges,
+  waypoints ``spacing_m`` apart at ``speed_m_s``, each joint's duty chosen so all joints arrive
+  at every waypoint together.
+
+The reply stream is sampled throughout each lap (one sample per ``sample_period_s``): the reported
+joints, the reported TCP (forward kinematics of them, as the paper did) and, when the bench has a
+reference instrument (``ctx.truth``), the true TCP. Errors are distances to the nearest point of
+the reference square (:func:`bench.metrics.path_errors`); figures in mm. See ``docs/suites.md``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+import numpy as np
+
+from bench.metrics import MM_PER_M, error_summary, path_errors, sample_polyline, square_yz
+from bench.record import PAPER_REFERENCE, Measurement, Trial
+from bench.suites._common import (
+    FloatArray,
+    Measurements,
+    StateRecorder,
+    check_branch,
+    check_int,
+    check_number,
+    check_reachable,
+    check_vec3,
+    guarded_trial,
+    loop_time,
+    settled_state,
+)
+from bench.suites.base import Suite, SuiteContext
+from drivers.protocol import MAX_DUTY
+from drivers.settings import RobotSettings, SettingsError
+
+__all__ = ["STYLES", "AccuracySuite", "path_figures"]
+
+#: The two ways a lap is driven, in the order they alternate.
+STYLES: Final = ("paper", "coordinated")
+
+#: Default square: centre (m) in front of the arm, elbow up, every edge point ≥ 3° inside the
+#: joint limits on the ``front-up`` branch; side (m).
+DEFAULT_CENTRE_M: Final = (0.38, 0.0, 0.80)
+DEFAULT_SIDE_M: Final = 0.15
+
+
+def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) -> dict[str, float]:
+    """The path figures (mm) of ``samples`` against the closed polyline ``corners_m`` (m).
+
+    Keys (suffixes of the measurement names): ``mean_mm``, ``rms_mm``, ``max_mm`` and per axis
+    ``{x,y,z}_mean_mm`` (signed bias), ``{x,y,z}_rms_mm``, ``{x,y,z}_max_mm`` (largest |error|)
+    of the reported TCP (``reported_m``: FK of the reported joints); the same with a ``true_``
+    prefix for the true TCP (``true_m``) when every sample has one, and ``belief_mean_mm`` /
+    ``belief_rms_mm`` / ``belief_max_mm``: the distance between the firmware's belief (reported
+    TCP) and the truth. Empty for no samples.
+    """
+    if not samples:
+        return {}
+    out: dict[str, float] = {}
+    reported = np.array([s["reported_m"] for s in samples], dtype=np.float64)
+    _series(out, "", reported, corners_m)
+    if all("true_m" in s for s in samples):
+        true = np.array([s["true_m"] for s in samples], dtype=np.float64)
+        _series(out, "true_", true, corners_m)
+        belief = np.linalg.norm(reported - true, axis=1) * MM_PER_M
+        out["belief_mean_mm"] = float(belief.mean())
+        out["belief_rms_mm"] = float(np.sqrt(np.mean(belief * belief)))
+        out["belief_max_mm"] = float(belief.max())
+    return out
+
+
+def _series(out: dict[str, float], prefix: str, points_m: FloatArray,
+            corners_m: FloatArray) -> None:
+    s = error_summary(path_errors(points_m, corners_m, closed=True))
+    out[f"{prefix}mean_mm"] = s.mean_mm
+    out[f"{prefix}rms_mm"] = s.rms_mm
+    out[f"{prefix}max_mm"] = s.max_mm
+    for axis, st in (("x", s.x), ("y", s.y), ("z", s.z)):
+        out[f"{prefix}{axis}_mean_mm"] = st.mean_mm
+        out[f"{prefix}{axis}_rms_mm"] = st.rms_mm
+        out[f"{prefix}{axis}_max_mm"] = st.max_abs_mm
+
+
+_DESCRIPTIONS: Final = {
+    "mean_mm": "mean Euclidean distance of the reported TCP (FK) to the square (paper's figure)",
+    "rms_mm": "RMS distance of the reported TCP to the square",
+    "max_mm": "largest distance of the reported TCP to the square",
+    "true_mean_mm": "mean distance of the true TCP to the square",
+    "true_rms_mm": "RMS distance of the true TCP to the square",
+    "true_max_mm": "largest distance of the true TCP to the square",
+    "belief_mean_mm": "mean distance between the reported (firmware) and the true TCP",
+    "belief_rms_mm": "RMS distance between the reported (firmware) and the true TCP",
+    "belief_max_mm": "largest distance between the reported (firmware) and the true TCP",
+}
+
+
+_SIGNED: Final = re.compile(r"(true_)?[xyz]_mean_mm")
+
+
+def _add_figures(ms: Measurements, prefix: str, figures: Mapping[str, float]) -> None:
+    for key, value in figures.items():
+        signed = _SIGNED.fullmatch(key) is not None
+        ms.add(f"{prefix}.{key}", value, "mm", undirected=signed,
+               description=_DESCRIPTIONS.get(key) or _axis_description(key))
+
+
+def _axis_description(key: str) -> str:
+    true = key.startswith("true_")
+    axis = key.removeprefix("true_")[0]
+    what = {"mean": "mean signed error (bias)", "rms": "RMS error",
+            "max": "largest |error|"}[key.removeprefix("true_")[2:-3]]
+    return f"{what} along {axis} of the {'true' if true else 'reported'} TCP"
+
+
+class AccuracySuite(Suite):
+    """The square in the YZ plane: paper style against coordinated streaming (see module doc)."""
+
+    name = "accuracy"
+    version = "1"
+
+    def default_params(self, settings: RobotSettings) -> dict[str, Any]:
+        """Defaults: a 0.15 m square centred at (0.38, 0, 0.80) m, 3 laps per style."""
+        return {
+            "centre_m": list(DEFAULT_CENTRE_M),
+            "side_m": DEFAULT_SIDE_M,
+            "duty": MAX_DUTY,
+            "speed_m_s": 0.05,
+            "spacing_m": 0.005,
+            "laps": 3,
+            "sample_period_s": 0.01,
+            "settle_s": 0.2,
+            "approach_duty": MAX_DUTY,
+            "branch": "front-up",
+            "roll_rad": 0.0,
+            "styles": list(STYLES),
+            "paper_mean_error_mm": PAPER_REFERENCE["paper_mean_error_mm"],
+        }
+
+    def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
+        """Types and ranges of every parameter, and the whole square reachable on ``branch``."""
+        where = f"suites.{self.name}"
+        centre = check_vec3(f"{where}.centre_m", params["centre_m"])
+        side = check_number(f"{where}.side_m", params["side_m"], low=0.0, low_open=True,
+                            high=0.5)
+        check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
+        check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
+        check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
+        check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
+        check_int(f"{where}.laps", params["laps"], low=1)
+        check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
+        check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
+        check_number(f"{where}.paper_mean_error_mm", params["paper_mean_error_mm"], low=0.0)
+        branch = check_branch(f"{where}.branch", params["branch"])
+        roll = check_number(f"{where}.roll_rad", params["roll_rad"])
+        styles = params["styles"]
+        if (isinstance(styles, (str, bytes)) or not isinstance(styles, Sequence) or not styles
+                or any(s not in STYLES for s in styles) or len(set(styles)) != len(styles)):
+            raise SettingsError(f"{where}.styles", styles,
+                                f"must list some of {', '.join(STYLES)}, each once")
+        edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
+        check_reachable(f"{where}.centre_m", edge, settings, branch=branch, roll_rad=roll)
+
+    def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
+        """One trial per (lap, style): lap 0 paper, lap 0 coordinated, lap 1 paper, ..."""
+        return [{"style": style, "lap": lap}
+                for lap in range(int(params["laps"])) for style in params["styles"]]
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        """Drive one lap in ``trial_params["style"]`` and measure its path errors."""
+        p = ctx.params
+        style = str(trial_params["style"])
+        corners = square_yz(p["centre_m"], float(p["side_m"]))
+        perimeter = 4.0 * float(p["side_m"])
+        timeout_s = 120.0 + 4.0 * perimeter / float(p["speed_m_s"])
+        ctx.progress(f"accuracy: lap {trial_params['lap']} ({style})")
+
+        async def body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                               list[Measurement]]:
+            arm = ctx.arm
+            branch, roll = str(p["branch"]), float(p["roll_rad"])
+            await arm.move_to(corners[0], roll, branch=branch, duty=int(p["approach_duty"]),
+                              coordinated=True)
+            await settled_state(arm, float(p["settle_s"]))
+            t0 = loop_time()
+            async with StateRecorder(ctx, t0, float(p["sample_period_s"]), into=samples):
+                if style == "paper":
+                    for k in (1, 2, 3, 0):
+                        await arm.move_to(corners[k], roll, branch=branch, duty=int(p["duty"]))
+                else:
+                    await arm.follow_path([*corners, corners[0]], speed_m_s=float(p["speed_m_s"]),
+                                          spacing_m=float(p["spacing_m"]), branch=branch,
+                                          roll_rad=roll)
+                lap_s = loop_time() - t0
+            ms = Measurements(ctx)
+            _add_figures(ms, f"accuracy.{style}", path_figures(samples, corners))
+            ms.add(f"accuracy.{style}.lap_time_s", lap_s, "s", undirected=True,
+                   description="time from the first command to the arrival back at the start")
+            return samples, ms.items
+
+        return await guarded_trial(ctx, index, trial_params, body, timeout_s=timeout_s)
+
+    def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
+        """Per style, the figures over the samples of all its done laps pooled; the improvement
+        ratio paper mean / coordinated mean (reported and true)."""
+        p = ctx.params
+        corners = square_yz(p["centre_m"], float(p["side_m"]))
+        ms = Measurements(ctx)
+        figures: dict[str, dict[str, float]] = {}
+        for style in STYLES:
+            done = [t for t in trials if t.status == "done" and t.params.get("style") == style]
+            pooled = [s for t in done for s in t.samples]
+            if not pooled:
+                continue
+            figures[style] = f = path_figures(pooled, corners)
+            _add_figures(ms, f"accuracy.{style}", f)
+            laps = [m.value for t in done for m in t.measurements
+                    if m.name == f"accuracy.{style}.lap_time_s"]
+            if laps:
+                ms.add(f"accuracy.{style}.lap_time_s", float(np.mean(laps)), "s",
+                       undirected=True, description="mean lap time")
+            ms.add(f"accuracy.{style}.laps", float(len(done)), "", description="laps measured")
+        paper, coord = figures.get("paper", {}), figures.get("coordinated", {})
+        for key, name in (("mean_mm", "accuracy.improvement_ratio"),
+                          ("true_mean_mm", "accuracy.true_improvement_ratio")):
+            if key in paper and coord.get(key, 0.0) > 0.0:
+                ms.add(name, paper[key] / coord[key], "", better="higher",
+                       description=f"paper-style {key} / coordinated {key}")
+        return ms.items

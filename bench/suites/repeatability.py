@@ -1,0 +1,425 @@
+"""ISO 9283 pose accuracy and repeatability, distance, multi-directional and path characteristics.
+
+Test cube (``cube_centre_m``, ``cube_side_m``) in the reachable workspace; P1 at its centre and
+P2..P5 on the diagonal plane ``plane`` at 10 % of the diagonal from its corners
+(:func:`bench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the rated
+joint speed; law (12) maps it to a duty, see :func:`bench.suites._common.duty_for_speed_pct`):
+
+* ``pose`` trials, one per cycle (``cycles``, ISO: 30): P1 → P5 → P4 → P3 → P2, each pose
+  reached through an approach point ``approach_offset_m`` away from it, so every pose is entered
+  from the same side (the gear play and the encoder deadband are taken up the same way each time);
+  after ``settle_s`` the reply is sampled. Gives AP / RP per pose (§7.2.1, §7.2.2) and AD / RD
+  between P2 and P4 (§7.4).
+* ``vap`` trials, one per cycle (``vap_cycles``): each pose of ``vap_poses`` approached from three
+  directions parallel to the base axes (travelling +x, +y, +z into the pose from ``vap_offset_m``
+  away). Gives vAP (§7.3).
+* ``path`` trials, one per cycle (``path_cycles``, ISO: 10): the straight line P2 → P4 with
+  ``follow_path`` at ``speed_pct`` % of ``path_speed_m_s``, the reply stream sampled every
+  ``sample_period_s``. Gives AT / RT (§8.2, normal-plane pairing) on the interior 90 % of the line.
+
+Every figure is computed twice when the bench has a reference instrument: from the forward
+kinematics of the reported joints (the paper's way) and from the true position (``true_`` names).
+Figures in mm; see ``docs/suites.md`` for names and choices.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from typing import Any, Final
+
+import numpy as np
+
+from bench.metrics import (
+    CUBE_PLANES,
+    MM_PER_M,
+    MetricsInputError,
+    distance_characteristics,
+    iso_cube_poses,
+    multidirectional_variation,
+    path_characteristics,
+    pose_accuracy,
+    pose_repeatability,
+)
+from bench.record import Measurement, Trial
+from bench.suites._common import (
+    FloatArray,
+    Measurements,
+    StateRecorder,
+    check_branch,
+    check_int,
+    check_number,
+    check_reachable,
+    check_vec3,
+    duty_for_speed_pct,
+    guarded_trial,
+    loop_time,
+    pos_list,
+    settled_state,
+)
+from bench.suites.base import Suite, SuiteContext
+from drivers.settings import RobotSettings, SettingsError
+
+__all__ = [
+    "CYCLE_ORDER",
+    "POSE_NAMES",
+    "RepeatabilitySuite",
+    "distance_figures",
+    "path_figures",
+    "pose_figures",
+    "speed_label",
+    "vap_figures",
+]
+
+#: Names of the five ISO poses, rows 0..4 of ``iso_cube_poses``.
+POSE_NAMES: Final = ("P1", "P2", "P3", "P4", "P5")
+#: ISO 9283's cycle order.
+CYCLE_ORDER: Final = ("P1", "P5", "P4", "P3", "P2")
+#: Directions of travel into a pose for vAP: along +x, +y, +z of the base frame.
+VAP_DIRECTIONS: Final = (("+x", (1.0, 0.0, 0.0)), ("+y", (0.0, 1.0, 0.0)),
+                         ("+z", (0.0, 0.0, 1.0)))
+#: Default test cube: centre (m) and side (m), chosen so every pose and approach point is ≥ 9°
+#: inside the joint limits on the front-up branch.
+DEFAULT_CUBE_CENTRE_M: Final = (0.35, 0.0, 0.82)
+DEFAULT_CUBE_SIDE_M: Final = 0.10
+#: The path of the AT/RT trials runs between these two poses (the distance pair of ISO too).
+PATH_POSES: Final = ("P2", "P4")
+#: Fraction of the path line at each end where AT/RT are not evaluated (start/stop transients and
+#: the normal planes at the very ends, which a path that stops short never crosses).
+PATH_END_MARGIN: Final = 0.05
+
+
+def speed_label(speed_pct: float) -> str:
+    """The name part of a speed: ``v100``, ``v50``, ``v10`` (``v12.5`` for fractions)."""
+    return f"v{speed_pct:g}"
+
+
+def _positions(samples: Sequence[Mapping[str, Any]], key: str) -> FloatArray | None:
+    if not samples or any(key not in s for s in samples):
+        return None
+    return np.array([s[key] for s in samples], dtype=np.float64).reshape(-1, 3)
+
+
+def pose_figures(samples: Sequence[Mapping[str, Any]], commanded_m: Sequence[float],
+                 key: str = "reported_m") -> dict[str, float]:
+    """AP (``ap_mm`` = APp, signed ``ap_x_mm`` ...) and, with ≥ 2 samples, RP (``rp_mm``) of the
+    attained positions ``samples[i][key]`` (m) of one pose at one speed; mm."""
+    pts = _positions(samples, key)
+    if pts is None:
+        return {}
+    ap = pose_accuracy(pts, commanded_m)
+    out = {"ap_mm": ap.ap_p_mm, "ap_x_mm": ap.ap_x_mm, "ap_y_mm": ap.ap_y_mm,
+           "ap_z_mm": ap.ap_z_mm}
+    if len(pts) >= 2:
+        out["rp_mm"] = pose_repeatability(pts).rp_mm
+    return out
+
+
+def distance_figures(first: Sequence[Mapping[str, Any]], second: Sequence[Mapping[str, Any]],
+                     commanded_first_m: Sequence[float], commanded_second_m: Sequence[float],
+                     key: str = "reported_m") -> dict[str, float]:
+    """AD (``ad_mm`` signed, ``ad_x_mm`` ...) and RD (``rd_mm`` ...) between two poses, samples
+    paired by cycle (≥ 2 cycles); mm."""
+    a, b = _positions(first, key), _positions(second, key)
+    if a is None or b is None or len(a) != len(b) or len(a) < 2:
+        return {}
+    d = distance_characteristics(a, b, commanded_first_m, commanded_second_m)
+    return {"ad_mm": d.ad_p_mm, "ad_x_mm": d.ad_x_mm, "ad_y_mm": d.ad_y_mm,
+            "ad_z_mm": d.ad_z_mm, "rd_mm": d.rd_p_mm, "rd_x_mm": d.rd_x_mm,
+            "rd_y_mm": d.rd_y_mm, "rd_z_mm": d.rd_z_mm}
+
+
+def vap_figures(by_direction: Sequence[Sequence[Mapping[str, Any]]],
+                key: str = "reported_m") -> dict[str, float]:
+    """vAP (``vap_mm``, ``vap_x_mm`` ...) of one pose from the samples of each approach
+    direction (≥ 2 directions with samples); mm."""
+    groups = [_positions(g, key) for g in by_direction]
+    if len(groups) < 2 or any(g is None for g in groups):
+        return {}
+    v = multidirectional_variation([g for g in groups if g is not None])
+    return {"vap_mm": v.vap_p_mm, "vap_x_mm": v.vap_x_mm, "vap_y_mm": v.vap_y_mm,
+            "vap_z_mm": v.vap_z_mm}
+
+
+def path_reference(start_m: Sequence[float], end_m: Sequence[float],
+                   spacing_m: float) -> FloatArray:
+    """The evaluation points (m) of AT/RT on the line ``start_m`` → ``end_m``: at most
+    ``spacing_m`` apart over its interior (``PATH_END_MARGIN`` left out at each end)."""
+    a, b = np.asarray(start_m, dtype=np.float64), np.asarray(end_m, dtype=np.float64)
+    length = float(np.linalg.norm(b - a))
+    span = (1.0 - 2.0 * PATH_END_MARGIN) * length
+    n = max(2, math.ceil(span / spacing_m) + 1)
+    t = np.linspace(PATH_END_MARGIN, 1.0 - PATH_END_MARGIN, n)
+    out: FloatArray = a[None, :] + t[:, None] * (b - a)[None, :]
+    return out
+
+
+def path_figures(paths: Sequence[Sequence[Mapping[str, Any]]], reference_m: FloatArray,
+                 key: str = "reported_m") -> dict[str, float]:
+    """AT (``at_mm``) and, with ≥ 2 paths, RT (``rt_mm``) of the recorded paths against the
+    evaluation points ``reference_m`` (m), ISO normal-plane pairing; mm. Empty when a path has
+    no samples of ``key`` or misses a normal plane."""
+    arrays = [_positions(p, key) for p in paths]
+    if not arrays or any(a is None or len(a) < 2 for a in arrays):
+        return {}
+    try:
+        pc = path_characteristics([a for a in arrays if a is not None], reference_m,
+                                  method="normal_planes")
+    except MetricsInputError:
+        return {}
+    out = {"at_mm": pc.at_mm}
+    if pc.rt_mm is not None:
+        out["rt_mm"] = pc.rt_mm
+    return out
+
+
+class RepeatabilitySuite(Suite):
+    """ISO 9283 pose and path characteristics at three speeds (see module doc)."""
+
+    name = "repeatability"
+    version = "1"
+
+    def default_params(self, settings: RobotSettings) -> dict[str, Any]:
+        """Defaults: a 0.1 m cube at (0.35, 0, 0.82) m, ISO's 30 pose cycles and 10 path cycles
+        at 100 / 50 / 10 % speed, 10 vAP cycles."""
+        return {
+            "cube_centre_m": list(DEFAULT_CUBE_CENTRE_M),
+            "cube_side_m": DEFAULT_CUBE_SIDE_M,
+            "plane": "C1-C2-C7-C8",
+            "cycles": 30,
+            "speeds_pct": [100, 50, 10],
+            "settle_s": 0.3,
+            "approach_offset_m": [0.0, 0.0, 0.02],
+            "vap_cycles": 10,
+            "vap_poses": ["P1", "P2", "P4"],
+            "vap_offset_m": 0.02,
+            "path_cycles": 10,
+            "path_speed_m_s": 0.1,
+            "path_spacing_m": 0.005,
+            "sample_period_s": 0.01,
+            "branch": "front-up",
+            "roll_rad": 0.0,
+        }
+
+    def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
+        """Types and ranges of every parameter; every pose, approach point and the path line
+        reachable on ``branch`` within the joint limits."""
+        w = f"suites.{self.name}"
+        centre = check_vec3(f"{w}.cube_centre_m", params["cube_centre_m"])
+        side = check_number(f"{w}.cube_side_m", params["cube_side_m"], low=0.0, low_open=True,
+                            high=0.5)
+        plane = params["plane"]
+        if plane not in CUBE_PLANES:
+            raise SettingsError(f"{w}.plane", plane, f"is not one of {', '.join(CUBE_PLANES)}")
+        check_int(f"{w}.cycles", params["cycles"], low=1)
+        speeds = params["speeds_pct"]
+        if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
+            raise SettingsError(f"{w}.speeds_pct", speeds, "is not a list of percentages")
+        for v in speeds:
+            check_number(f"{w}.speeds_pct", v, low=0.0, low_open=True, high=100.0)
+        if len({speed_label(float(v)) for v in speeds}) != len(speeds):
+            raise SettingsError(f"{w}.speeds_pct", speeds, "lists a speed twice")
+        check_number(f"{w}.settle_s", params["settle_s"], low=0.0, high=60.0)
+        approach = check_vec3(f"{w}.approach_offset_m", params["approach_offset_m"])
+        check_int(f"{w}.vap_cycles", params["vap_cycles"], low=0)
+        vap_poses = params["vap_poses"]
+        if (isinstance(vap_poses, (str, bytes)) or not isinstance(vap_poses, Sequence)
+                or any(p not in POSE_NAMES for p in vap_poses)
+                or len(set(vap_poses)) != len(vap_poses)):
+            raise SettingsError(f"{w}.vap_poses", vap_poses,
+                                f"must list some of {', '.join(POSE_NAMES)}, each once")
+        vap_offset = check_number(f"{w}.vap_offset_m", params["vap_offset_m"], low=0.0,
+                                  low_open=True, high=0.1)
+        check_int(f"{w}.path_cycles", params["path_cycles"], low=0)
+        check_number(f"{w}.path_speed_m_s", params["path_speed_m_s"], low=0.0, low_open=True,
+                     high=1.0)
+        check_number(f"{w}.path_spacing_m", params["path_spacing_m"], low=0.0005, high=0.05)
+        check_number(f"{w}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
+        branch = check_branch(f"{w}.branch", params["branch"])
+        roll = check_number(f"{w}.roll_rad", params["roll_rad"])
+        poses = iso_cube_poses(centre, side, str(plane))
+        points = [*poses, *(poses + np.asarray(approach))]
+        for name in vap_poses:
+            p = poses[POSE_NAMES.index(name)]
+            points += [p - vap_offset * np.asarray(e) for _, e in VAP_DIRECTIONS]
+        a, b = poses[POSE_NAMES.index(PATH_POSES[0])], poses[POSE_NAMES.index(PATH_POSES[1])]
+        points += list(np.linspace(a, b, 21))
+        check_reachable(f"{w}.cube_centre_m", points, settings, branch=branch, roll_rad=roll)
+
+    def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
+        """Per speed: the pose cycles, then the vAP cycles, then the path cycles; each trial one
+        cycle (``{"kind", "speed_pct", "duty", "cycle"}``)."""
+        out: list[dict[str, Any]] = []
+        for v in params["speeds_pct"]:
+            pct = float(v)
+            duty = duty_for_speed_pct(pct)
+            for kind, n in (("pose", params["cycles"]), ("vap", params["vap_cycles"]),
+                            ("path", params["path_cycles"])):
+                out += [{"kind": kind, "speed_pct": v, "duty": duty, "cycle": c}
+                        for c in range(int(n))]
+        return out
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        """One cycle of ``trial_params["kind"]`` at ``trial_params["speed_pct"]``."""
+        p = ctx.params
+        kind = str(trial_params["kind"])
+        pct = float(trial_params["speed_pct"])
+        duty = duty_for_speed_pct(pct)
+        poses = iso_cube_poses(p["cube_centre_m"], float(p["cube_side_m"]), str(p["plane"]))
+        branch, roll = str(p["branch"]), float(p["roll_rad"])
+        settle_s = float(p["settle_s"])
+        arm = ctx.arm
+        ctx.progress(f"repeatability: {kind} cycle {trial_params['cycle']} at {pct:g} % "
+                     f"(duty {duty})")
+
+        async def reach(target: FloatArray, via: FloatArray) -> None:
+            await arm.move_to(via, roll, branch=branch, duty=duty)
+            await arm.move_to(target, roll, branch=branch, duty=duty)
+
+        async def pose_body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                                    list[Measurement]]:
+            t0 = loop_time()
+            rec = StateRecorder(ctx, t0, 0.0, into=samples)
+            offset = np.asarray(p["approach_offset_m"], dtype=np.float64)
+            for name in CYCLE_ORDER:
+                target = poses[POSE_NAMES.index(name)]
+                await reach(target, target + offset)
+                rec.sample(await settled_state(arm, settle_s), kind="pose", pose=name,
+                           commanded_m=pos_list(target))
+            return samples, _pose_error_measurements(ctx, samples)
+
+        async def vap_body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                                   list[Measurement]]:
+            t0 = loop_time()
+            rec = StateRecorder(ctx, t0, 0.0, into=samples)
+            d = float(p["vap_offset_m"])
+            for name in p["vap_poses"]:
+                target = poses[POSE_NAMES.index(name)]
+                for direction, e in VAP_DIRECTIONS:
+                    await reach(target, target - d * np.asarray(e))
+                    rec.sample(await settled_state(arm, settle_s), kind="vap", pose=name,
+                               direction=direction, commanded_m=pos_list(target))
+            return samples, _pose_error_measurements(ctx, samples)
+
+        async def path_body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
+                                                                    list[Measurement]]:
+            a = poses[POSE_NAMES.index(PATH_POSES[0])]
+            b = poses[POSE_NAMES.index(PATH_POSES[1])]
+            await reach(a, a + np.asarray(p["approach_offset_m"], dtype=np.float64))
+            await settled_state(arm, settle_s)
+            speed = pct / 100.0 * float(p["path_speed_m_s"])
+            t0 = loop_time()
+            async with StateRecorder(ctx, t0, float(p["sample_period_s"]),
+                                     extra={"kind": "path"}, into=samples):
+                run = await arm.follow_path([a, b], speed_m_s=speed,
+                                            spacing_m=float(p["path_spacing_m"]), branch=branch,
+                                            roll_rad=roll, max_duty=duty)
+            ms = Measurements(ctx)
+            ref = path_reference(a, b, float(p["path_spacing_m"]))
+            for prefix, key in (("", "reported_m"), ("true_", "true_m")):
+                f = path_figures([samples], ref, key)
+                ms.add(f"repeatability.path.{prefix}at_mm", f.get("at_mm"), "mm",
+                       description="ISO 9283 path accuracy AT of this one path")
+            ms.add("repeatability.path.duration_s", run.duration_s, "s", undirected=True,
+                   description="time from the first path command to the arrival at P4")
+            return samples, ms.items
+
+        bodies = {"pose": pose_body, "vap": vap_body, "path": path_body}
+        if kind not in bodies:
+            raise SettingsError("trial.kind", kind, "is not pose, vap or path")
+        return await guarded_trial(ctx, index, trial_params, bodies[kind],
+                                   timeout_s=self._timeout_s(kind, pct, p))
+
+    @staticmethod
+    def _timeout_s(kind: str, pct: float, p: Mapping[str, Any]) -> float:
+        """A generous bound (s) on one trial: the driver's own move timeouts fire first."""
+        slow = 100.0 / pct
+        if kind == "path":
+            side = float(p["cube_side_m"])
+            return 120.0 + 10.0 * side * math.sqrt(3.0) / (pct / 100.0 * float(p["path_speed_m_s"]))
+        moves = 10 if kind == "pose" else 6 * len(p["vap_poses"])
+        return 120.0 + moves * (5.0 * slow + float(p["settle_s"]))
+
+    def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
+        """Per speed: AP/RP per pose, AD/RD between P2 and P4, vAP per pose, AT/RT of the path,
+        from the reported positions and (``true_``) the true ones."""
+        p = ctx.params
+        poses = iso_cube_poses(p["cube_centre_m"], float(p["cube_side_m"]), str(p["plane"]))
+        ms = Measurements(ctx)
+        done = [t for t in trials if t.status == "done"]
+        keys = (("", "reported_m"), ("true_", "true_m"))
+        for v in p["speeds_pct"]:
+            label = f"repeatability.{speed_label(float(v))}"
+            at_speed = [t for t in done if float(t.params.get("speed_pct", -1)) == float(v)]
+            pose_trials = [t for t in at_speed if t.params.get("kind") == "pose"]
+            by_pose: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
+            for t in pose_trials:
+                for s in t.samples:
+                    by_pose[str(s["pose"])].append(s)
+            if pose_trials:
+                ms.add(f"{label}.cycles", float(len(pose_trials)), "",
+                       description="pose cycles measured")
+            for name in POSE_NAMES:
+                cmd = poses[POSE_NAMES.index(name)]
+                for prefix, key in keys:
+                    f = pose_figures(by_pose.get(name, []), cmd, key)
+                    _add(ms, f"{label}.{name.lower()}.{prefix}", f, "ISO 9283 pose")
+            # Distance P2-P4, paired by cycle (trials that sampled both).
+            pairs = [(_one(t, "P2"), _one(t, "P4")) for t in pose_trials]
+            complete = [(a, b) for a, b in pairs if a is not None and b is not None]
+            a_s = [a for a, _ in complete]
+            b_s = [b for _, b in complete]
+            for prefix, key in keys:
+                f = distance_figures(a_s, b_s, poses[1], poses[3], key)
+                _add(ms, f"{label}.{prefix}", f, "ISO 9283 distance P2-P4")
+            # Multi-directional variation.
+            vap = [s for t in at_speed if t.params.get("kind") == "vap" for s in t.samples]
+            for name in p["vap_poses"]:
+                groups = [[s for s in vap if s.get("pose") == name and s.get("direction") == d]
+                          for d, _ in VAP_DIRECTIONS]
+                groups = [g for g in groups if g]
+                for prefix, key in keys:
+                    f = vap_figures(groups, key)
+                    _add(ms, f"{label}.{str(name).lower()}.{prefix}", f, "ISO 9283 vAP")
+            # Path accuracy / repeatability.
+            paths = [list(t.samples) for t in at_speed if t.params.get("kind") == "path"]
+            if paths:
+                ref = path_reference(poses[1], poses[3], float(p["path_spacing_m"]))
+                for prefix, key in keys:
+                    f = path_figures(paths, ref, key)
+                    _add(ms, f"{label}.path.{prefix}", f, "ISO 9283 path P2-P4")
+        return ms.items
+
+
+_SIGNED_KEYS: Final = frozenset({"ap_x_mm", "ap_y_mm", "ap_z_mm", "ad_mm", "ad_x_mm", "ad_y_mm",
+                                 "ad_z_mm"})
+
+
+def _add(ms: Measurements, prefix: str, figures: Mapping[str, float], what: str) -> None:
+    """Add ``figures`` as ``prefix + key`` (mm); signed figures get no regression direction."""
+    source = "true position" if prefix.endswith("true_") else "FK of the reported joints"
+    for key, value in figures.items():
+        ms.add(f"{prefix}{key}", value, "mm", undirected=key in _SIGNED_KEYS,
+               description=f"{what} {key.removesuffix('_mm').upper()}, {source}")
+
+
+def _one(trial: Trial, pose: str) -> Mapping[str, Any] | None:
+    for s in trial.samples:
+        if s.get("pose") == pose:
+            return s
+    return None
+
+
+def _pose_error_measurements(ctx: SuiteContext,
+                             samples: Sequence[Mapping[str, Any]]) -> list[Measurement]:
+    """Per trial: the largest distance (mm) between a sampled pose and its commanded position."""
+    ms = Measurements(ctx)
+    for prefix, key in (("", "reported_m"), ("true_", "true_m")):
+        errs = [float(np.linalg.norm(np.subtract(s[key], s["commanded_m"]))) * MM_PER_M
+                for s in samples if key in s]
+        if errs and len(errs) == len(samples):
+            ms.add(f"repeatability.cycle.{prefix}pose_error_max_mm", max(errs), "mm",
+                   description="largest distance of a sampled pose to its commanded position")
+    return ms.items
