@@ -238,7 +238,8 @@ def _table(path: str, value: object) -> Mapping[str, Any]:
 def _unknown(path: str, table: Mapping[str, Any], known: set[str]) -> None:
     for key in table:
         if key not in known:
-            where = f"{path}.{key}" if path else key
+            name = key if key else '""'
+            where = f"{path}.{name}" if path else name
             raise SettingsError(where, table[key], f"is not a known setting (known: "
                                                    f"{', '.join(sorted(known))})")
 

@@ -36,9 +36,10 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Literal, Protocol, get_args
 
-from drivers.settings import SettingsError
+from drivers.settings import RobotSettings, SettingsError
 
-__all__ = ["FAULT_KINDS", "Fault", "FaultInjector", "load_faults", "parse_faults"]
+__all__ = ["FAULT_KINDS", "Fault", "FaultInjector", "faults_from_settings", "load_faults",
+           "parse_faults"]
 
 FaultKind = Literal["uart_corrupt", "uart_drop", "uart_insert", "split_write", "delay_write",
                     "i2c_nak", "i2c_bus_error", "slave_reset", "stall", "power_cut",
@@ -123,6 +124,14 @@ def load_faults(path: str | Path) -> list[Fault]:
     except tomllib.TOMLDecodeError as exc:
         raise SettingsError("faults", str(p), f"is not valid TOML: {exc}") from None
     items = data.get("faults", [])
+    if not isinstance(items, list):
+        raise SettingsError("faults", items, "must be an array of tables ([[faults]])")
+    return parse_faults(items)
+
+
+def faults_from_settings(robot: RobotSettings) -> list[Fault]:
+    """The ``[[faults]]`` tables of a robot settings file (none if it has none)."""
+    items = robot.sections.get("faults", [])
     if not isinstance(items, list):
         raise SettingsError("faults", items, "must be an array of tables ([[faults]])")
     return parse_faults(items)

@@ -54,7 +54,10 @@ _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str}
 
 def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSettings:
     """Validated emulator settings from the robot file's ``[emulator]`` table plus overrides."""
-    table: dict[str, Any] = dict(robot.sections.get("emulator", {}))
+    section = robot.sections.get("emulator", {})
+    if not isinstance(section, Mapping):
+        raise SettingsError("emulator", section, "is not a table")
+    table: dict[str, Any] = dict(section)
     table.update(overrides)
     effects_in = table.pop("effects", {})
     if isinstance(effects_in, PhysicalEffects):

@@ -10,6 +10,7 @@ import asyncio
 import itertools
 import math
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -409,6 +410,18 @@ def test_same_faults_and_seed_reproduce_the_same_run() -> None:
     c = emulate(body, faults=faults, seed=8)
     assert a == b
     assert a != c
+
+
+def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> None:
+    from drivers.transports.fake import parse_fake_url
+
+    robot = tmp_path / "robot.toml"
+    robot.write_text('[[faults]]\nkind = "power_cut"\nat_s = 2.0\n')
+    extra = tmp_path / "faults.toml"
+    extra.write_text('[[faults]]\nkind = "stall"\njoint = 2\nat_s = 1.0\n')
+    _, seed, faults = parse_fake_url(f"fake://?settings={robot}&faults={extra}&seed=4")
+    assert seed == 4
+    assert [f.kind for f in faults] == ["power_cut", "stall"]
 
 
 @pytest.mark.parametrize(("item", "field"), [

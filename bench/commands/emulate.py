@@ -14,7 +14,7 @@ from typing import Any
 from drivers.errors import ArmbenchError
 from drivers.settings import load_settings
 from fakes.arm import ArmEmulator
-from fakes.faults import load_faults
+from fakes.faults import faults_from_settings, load_faults
 from fakes.serve import PtyServer, TcpServer, parse_host_port
 from fakes.settings import emulator_settings
 
@@ -50,7 +50,7 @@ def _run(args: argparse.Namespace) -> int:
     robot = load_settings(args.settings)
     overrides = {"seed": args.seed} if args.seed is not None else {}
     settings = emulator_settings(robot, **overrides)
-    faults = load_faults(args.faults) if args.faults else []
+    faults = faults_from_settings(robot) + (load_faults(args.faults) if args.faults else [])
     if args.link and not args.pty:
         raise ArmbenchError("--link: only with --pty")
     host_port = parse_host_port(args.tcp) if args.tcp else None

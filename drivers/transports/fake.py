@@ -16,7 +16,7 @@ from drivers.errors import ArmbenchError
 from drivers.settings import RobotSettings, SerialSettings, load_settings
 from drivers.transports.base import Transport
 from fakes.arm import ArmEmulator
-from fakes.faults import Fault, load_faults
+from fakes.faults import Fault, faults_from_settings, load_faults
 from fakes.settings import emulator_settings
 
 __all__ = ["FakeTransport", "parse_fake_url"]
@@ -41,7 +41,9 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
             seed = int(query["seed"][-1])
         except ValueError:
             raise ArmbenchError(f"{port}: seed {query['seed'][-1]!r} is not an integer") from None
-    faults = load_faults(query["faults"][-1]) if "faults" in query else []
+    faults = faults_from_settings(robot)
+    if "faults" in query:
+        faults += load_faults(query["faults"][-1])
     return robot, seed, faults
 
 
