@@ -14,6 +14,7 @@ __all__ = ["COMMAND_MODULES", "main"]
 
 #: Each module exposes ``register(subparsers)``, which adds its parser and sets ``func``.
 COMMAND_MODULES: tuple[str, ...] = (
+    "bench.commands.run",
     "bench.commands.kinematics",
     "bench.commands.perf",
     "bench.commands.emulate",

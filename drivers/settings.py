@@ -219,13 +219,20 @@ def _plain(value: Any) -> Any:
     return value
 
 
+#: No setting of the robot needs a magnitude beyond this; larger ones (TOML integers are unbounded)
+#: are refused before any arithmetic can overflow.
+_MAGNITUDE_LIMIT = 1e12
+
+
 def _number(path: str, value: object, *, integer: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SettingsError(path, value, "is not a number")
     if integer and not isinstance(value, int):
         raise SettingsError(path, value, "is not an integer")
-    if not math.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         raise SettingsError(path, value, "is not finite")
+    if abs(value) > _MAGNITUDE_LIMIT:
+        raise SettingsError(path, value, f"is beyond ±{_MAGNITUDE_LIMIT:g}")
     return value
 
 
@@ -289,8 +296,10 @@ def _validate(s: RobotSettings) -> None:
     addresses: set[int] = set()
     for i, j in enumerate(s.joints):
         p = f"joints.{j.name}"
-        if j.gear_ratio <= 0:
-            raise SettingsError(f"{p}.gear_ratio", j.gear_ratio, "must be > 0")
+        _number(f"{p}.gear_ratio", j.gear_ratio)
+        _number(f"{p}.step_angle_deg", j.step_angle_deg)
+        if not 0.01 <= j.gear_ratio <= 10_000:
+            raise SettingsError(f"{p}.gear_ratio", j.gear_ratio, "must be in 0.01..10000")
         if j.sign not in (1, -1):
             raise SettingsError(f"{p}.sign", j.sign, "must be 1 or -1")
         if not j.lower_rad < j.upper_rad:
@@ -303,15 +312,17 @@ def _validate(s: RobotSettings) -> None:
         if not j.lower_rad <= j.hall_rad <= j.upper_rad:
             raise SettingsError(f"{p}.hall_deg", math.degrees(j.hall_rad),
                                 "must lie within the joint limits")
+        if not 0.01 <= j.step_angle_deg <= 90:
+            raise SettingsError(f"{p}.step_angle_deg", j.step_angle_deg, "must be in 0.01..90")
         full_steps = 360.0 / j.step_angle_deg
-        if j.step_angle_deg <= 0 or abs(full_steps - round(full_steps)) > 1e-9:
+        if abs(full_steps - round(full_steps)) > 1e-9:
             raise SettingsError(f"{p}.step_angle_deg", j.step_angle_deg,
                                 "must divide 360° into a whole number of steps")
-        if j.microsteps < 1:
-            raise SettingsError(f"{p}.microsteps", j.microsteps, "must be >= 1")
-        if j.encoder_counts_per_motor_rev < 1:
+        if not 1 <= j.microsteps <= 256:
+            raise SettingsError(f"{p}.microsteps", j.microsteps, "must be 1..256")
+        if not 1 <= j.encoder_counts_per_motor_rev <= 10_000_000:
             raise SettingsError(f"{p}.encoder_counts_per_motor_rev",
-                                j.encoder_counts_per_motor_rev, "must be >= 1")
+                                j.encoder_counts_per_motor_rev, "must be 1..10000000")
         if i == 0:
             if j.i2c_address is not None:
                 raise SettingsError(f"{p}.i2c_address", j.i2c_address,

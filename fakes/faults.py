@@ -94,12 +94,16 @@ def parse_faults(items: Iterable[Mapping[str, Any]], where: str = "faults") -> l
             raise SettingsError(path, dict(item), "needs exactly one of at_s or after_frames")
         for name in ("at_s", "duration_s", "delay_s"):
             v = getattr(fault, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or v < 0):
-                raise SettingsError(f"{path}.{name}", v, "must be a number >= 0")
-        if not 0 <= fault.probability <= 1:
+            if v is not None and not _real(v, 0.0, 1e6):
+                raise SettingsError(f"{path}.{name}", v, "must be a number of seconds 0..1e6")
+        if fault.after_frames is not None and not _whole(fault.after_frames, 1, 10**9):
+            raise SettingsError(f"{path}.after_frames", fault.after_frames,
+                                "must be a whole number of frames 1..1e9")
+        if not _real(fault.probability, 0.0, 1.0):
             raise SettingsError(f"{path}.probability", fault.probability, "must be in [0, 1]")
-        if fault.joint is not None and fault.joint not in (1, 2, 3, 4):
+        if not _whole(fault.count, 1, 1024):
+            raise SettingsError(f"{path}.count", fault.count, "must be a whole number 1..1024")
+        if fault.joint is not None and not _whole(fault.joint, 1, 4):
             raise SettingsError(f"{path}.joint", fault.joint, "must be 1..4")
         if fault.kind in ("i2c_nak", "i2c_bus_error") and fault.joint == 1:
             raise SettingsError(f"{path}.joint", 1, "is the I²C master; slaves are 2..4")
@@ -108,10 +112,19 @@ def parse_faults(items: Iterable[Mapping[str, Any]], where: str = "faults") -> l
         if fault.direction not in ("to_host", "to_robot"):
             raise SettingsError(f"{path}.direction", fault.direction,
                                 "must be 'to_host' or 'to_robot'")
-        if fault.count < 1:
-            raise SettingsError(f"{path}.count", fault.count, "must be >= 1")
         out.append(fault)
     return out
+
+
+def _real(value: object, low: float, high: float) -> bool:
+    """A number (not a bool, not NaN) within [low, high]."""
+    return (not isinstance(value, bool) and isinstance(value, (int, float))
+            and low <= value <= high)
+
+
+def _whole(value: object, low: int, high: int) -> bool:
+    """An integer (not a bool) within [low, high]."""
+    return not isinstance(value, bool) and isinstance(value, int) and low <= value <= high
 
 
 def load_faults(path: str | Path) -> list[Fault]:

@@ -39,6 +39,10 @@ class EmulatorSettings:
     """Duty used when driving to the Hall sensor at start-up (§5.2)."""
     eeprom_write_s_per_byte: float = 3.3e-3
     """ATmega328P EEPROM write time per byte; the master's loop stalls while it writes."""
+    boot_s: float = 0.1
+    """From power-up to ``setup()``: the ATmega328P's 65 ms oscillator start-up delay (fuses of an
+    Arduino Pro Mini) plus the core's initialisation; a boot loader that waits for an upload on
+    every reset would add about 1 s (set it here)."""
     eeprom_cells: int = 1024
     seed: int = 0
     effects: PhysicalEffects = field(default_factory=PhysicalEffects)
@@ -90,8 +94,10 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
 
 
 def _check_number(path: str, v: object) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise SettingsError(path, v, "is not a finite number")
+    if (isinstance(v, float) and not math.isfinite(v)) or abs(v) > 1e12:
+        raise SettingsError(path, v, "is not a finite number within ±1e12")
 
 
 def _validate(s: EmulatorSettings) -> None:
@@ -104,8 +110,9 @@ def _validate(s: EmulatorSettings) -> None:
         v = getattr(s, name)
         if not isinstance(v, int) or v < 1:
             raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
-    if s.loop_overhead_s < 0 or s.eeprom_write_s_per_byte < 0:
-        raise SettingsError("emulator.loop_overhead_s", s.loop_overhead_s, "must be >= 0")
+    for name in ("loop_overhead_s", "eeprom_write_s_per_byte", "boot_s"):
+        if getattr(s, name) < 0:
+            raise SettingsError(f"emulator.{name}", getattr(s, name), "must be >= 0")
     if s.reply_line_end not in ("", "\n", "\r\n"):
         raise SettingsError("emulator.reply_line_end", s.reply_line_end,
                             "must be '', '\\n' or '\\r\\n'")
@@ -113,3 +120,14 @@ def _validate(s: EmulatorSettings) -> None:
         raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be >= 0")
     if not isinstance(s.recovery_duty, int) or not 1 <= s.recovery_duty <= 99:
         raise SettingsError("emulator.recovery_duty", s.recovery_duty, "must be 1..99")
+    if not isinstance(s.seed, int) or not 0 <= s.seed < 2**32:
+        raise SettingsError("emulator.seed", s.seed, "must be a whole number 0..2**32-1")
+    if not isinstance(s.eeprom_cells, int) or not 5 <= s.eeprom_cells <= 65536:
+        raise SettingsError("emulator.eeprom_cells", s.eeprom_cells,
+                            "must be a whole number 5..65536 (the record takes 5 bytes)")
+    if 0 < s.effects.noise_rate_hz < 1e-3:
+        raise SettingsError("emulator.effects.noise_rate_hz", s.effects.noise_rate_hz,
+                            "must be 0 (off) or at least 0.001 Hz")
+    if not isinstance(s.effects.miss_above_duty, int):
+        raise SettingsError("emulator.effects.miss_above_duty", s.effects.miss_above_duty,
+                            "must be a whole number 0..99")

@@ -56,7 +56,7 @@ uart_receive = "blocking"
 @pytest.mark.parametrize(("toml", "field", "words"), [
     ("[geometry]\nd5_m = 1", "geometry.d5_m", "not a known setting"),
     ("[joints.j2]\nlower_deg = 80", "joints.j2.lower_deg", "must be below upper_deg"),
-    ("[joints.j2]\ngear_ratio = -3", "joints.j2.gear_ratio", "must be > 0"),
+    ("[joints.j2]\ngear_ratio = -3", "joints.j2.gear_ratio", "must be in 0.01..10000"),
     ("[joints.j4]\nsign = 2", "joints.j4.sign", "must be 1 or -1"),
     ("[joints.j5]\ngear_ratio = 3", "joints.j5", "not a known setting"),
     ("[joints.j3]\ni2c_address = 0x10", "joints.j3.i2c_address", "used by another joint"),

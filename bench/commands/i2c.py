@@ -13,6 +13,7 @@ wrongly, 2 for an unusable bus or port.
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
 from collections.abc import Callable
@@ -190,6 +191,8 @@ async def _scan_fake(port: str, settings: RobotSettings) -> ScanResult:
         bus = getattr(emulator, "bus", None)
         if bus is None:
             raise ArmbenchError(f"i2c scan: {port} has no emulated bus")
+        async with asyncio.timeout(5.0):  # the arm is up (booted) once it replies
+            await transport.read()
         found = set(bus.scan())
         return scan_bus(bus, lambda a: a in found)
     finally:

@@ -1,0 +1,106 @@
+"""``armbench run``: run bench suites against the arm and judge them (see ``docs/runner.md``).
+
+``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
+[--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
+[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N]``
+
+Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
+failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
+moves —, a lost arm, a trial in error), 130 interrupted (resume with ``--resume DIR``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from bench.runner import RunOptions, RunOutcome, run_sync
+from bench.suites import SUITES
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``run`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "run", help="run bench suites and judge them against limits and a baseline",
+        description="Run bench suites against the arm (the built-in emulator on virtual time "
+                    "unless --port is given), write results.json after every trial, then "
+                    "junit.xml, report.html and the traffic capture capture.jsonl.",
+        epilog="Exit status: 0 pass, 1 a limit or regression failed, 2 the bench could not run "
+               "or the run is incomplete, 130 interrupted (continue with --resume DIR).")
+    p.add_argument("suites", nargs="*", metavar="SUITE",
+                   help=f"suites to run (default: all: {', '.join(SUITES)}); "
+                        "package.module:Class runs a suite of your own")
+    p.add_argument("--port", default=None,
+                   help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or fake:// "
+                        "(default fake://, the emulator on virtual time)")
+    p.add_argument("--config", metavar="FILE",
+                   help="limits and suite parameters (default: the packaged default_bench.toml)")
+    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
+    p.add_argument("--baseline", metavar="FILE",
+                   help="results.json of an earlier run: fail on regressions against it")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the interrupted run in DIR (finished trials are kept)")
+    p.add_argument("--seed", type=int, default=None, metavar="N",
+                   help="seed of the run's random choices and of the emulator (default 0)")
+    p.add_argument("--settings", metavar="FILE", help="robot settings TOML ([emulator] too)")
+    p.add_argument("--faults", metavar="FILE",
+                   help="fault list TOML ([[faults]]) injected into the emulator (fake:// only)")
+    p.add_argument("--tracker", metavar="MODULE:CLASS",
+                   help="measurement source plug-in (a laser tracker driver implementing "
+                        "PoseSource)")
+    power = p.add_mutually_exclusive_group()
+    power.add_argument("--power-command", nargs=2, metavar=("CMD_OFF", "CMD_ON"),
+                       help="commands that cut and restore the arm's power (a relay script)")
+    power.add_argument("--power-manual", action="store_true",
+                       help="ask the operator to switch the power and wait for Enter")
+    p.add_argument("--retries", type=int, default=None, metavar="N",
+                   help="measure a trial that ended in error up to N more times (default: "
+                        "[bench] retries, else 0)")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    options = RunOptions(
+        suites=list(args.suites), port=args.port, config=args.config, out=args.out,
+        baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
+        faults=args.faults, tracker=args.tracker,
+        power_command=tuple(args.power_command) if args.power_command else None,
+        power_manual=args.power_manual, retries=args.retries)
+    outcome = run_sync(options, progress=sys.stderr)
+    _summary(outcome)
+    return outcome.exit_status
+
+
+def _summary(outcome: RunOutcome) -> None:
+    record = outcome.record
+    out = sys.stdout
+    print(f"run {record.run_id}: verdict {record.verdict}"
+          + (f" ({outcome.error})" if outcome.error else ""), file=out)
+    for suite in record.suites.values():
+        for trial in suite.trials:
+            if trial.status == "error":
+                print(f"  error  {suite.name} trial {trial.index}: {trial.error}", file=out)
+            for m in trial.measurements:
+                if m.outcome == "fail":
+                    print(f"  FAIL   {suite.name} trial {trial.index}: {m.name} = {m.value:.6g} "
+                          f"{m.unit} (limit {m.limit.describe() if m.limit else '-'})", file=out)
+        if suite.error and not any(t.status == "error" for t in suite.trials):
+            print(f"  error  {suite.name}: {suite.error}", file=out)
+        for m in suite.measurements:
+            if m.outcome == "fail":
+                print(f"  FAIL   {m.name} = {m.value:.6g} {m.unit} "
+                      f"(limit {m.limit.describe() if m.limit else '-'})", file=out)
+    if record.baseline is not None:
+        for row in record.baseline.regressions:
+            print(f"  REGRESSED  {row.name}: {row.baseline:.6g} -> {row.value:.6g} {row.unit} "
+                  f"(tolerance {row.tolerance:.3g})", file=out)
+    for name in ("results.json", "report.html", "junit.xml", "capture.jsonl"):
+        path = outcome.out_dir / name
+        if path.exists():
+            print(f"  {name:<13} {path}", file=out)
+    if outcome.exit_status in (2, 130) and record.verdict in ("incomplete", "error"):
+        print(f"  continue with: armbench run --resume {outcome.out_dir}", file=out)
+    out.flush()

@@ -1,0 +1,96 @@
+"""The bench suites, by name: what ``armbench run SUITE ...`` runs.
+
+:data:`SUITES` maps each suite's command-line name to ``"module:Class"``; the module is imported
+only when the suite is loaded, so a broken or slow suite module costs nothing to the others.
+Besides a registered name, :func:`load_suite` accepts a ``"package.module:Class"`` of any
+:class:`~bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from bench.suites.base import PoseSource, PowerSwitch, Progress, Suite, SuiteContext
+from drivers.errors import ArmbenchError
+
+__all__ = [
+    "SUITES",
+    "PoseSource",
+    "PowerSwitch",
+    "Progress",
+    "Suite",
+    "SuiteContext",
+    "SuiteError",
+    "UnknownSuiteError",
+    "is_suite_spec",
+    "load_suite",
+    "suite_class",
+    "suite_names",
+]
+
+#: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order.
+SUITES: dict[str, str] = {
+    "accuracy": "bench.suites.accuracy:AccuracySuite",
+    "repeatability": "bench.suites.repeatability:RepeatabilitySuite",
+    "startup-recovery": "bench.suites.startup_recovery:StartupRecoverySuite",
+}
+
+
+class SuiteError(ArmbenchError, ValueError):
+    """A suite cannot be loaded: its module fails to import or is not a Suite class."""
+
+
+class UnknownSuiteError(SuiteError):
+    """A suite name that is neither registered nor a ``module:Class``; lists the known names."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__(f"unknown suite {name!r} (known: {', '.join(SUITES)}; or give "
+                         "package.module:Class of a Suite subclass)")
+        self.name = name
+
+
+def suite_names() -> list[str]:
+    """The registered suite names, in the default run order."""
+    return list(SUITES)
+
+
+def is_suite_spec(name: str) -> bool:
+    """True for a ``"package.module:Class"`` reference (rather than a registered name)."""
+    module, sep, cls = name.partition(":")
+    return bool(sep and module and cls)
+
+
+def suite_class(name: str) -> type[Suite]:
+    """The Suite class of a registered name or a ``"module:Class"`` reference.
+
+    Raises :class:`UnknownSuiteError` for an unknown name and :class:`SuiteError` when the module
+    cannot be imported or the attribute is not a :class:`Suite` subclass.
+    """
+    target = SUITES.get(name)
+    if target is None:
+        if not is_suite_spec(name):
+            raise UnknownSuiteError(name)
+        target = name
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise SuiteError(f"suite {name!r}: module {module_name} cannot be imported: "
+                         f"{exc}") from exc
+    cls = getattr(module, class_name, None)
+    if not (isinstance(cls, type) and issubclass(cls, Suite)):
+        raise SuiteError(f"suite {name!r}: {target} is not a Suite subclass")
+    return cls
+
+
+def load_suite(name: str) -> Suite:
+    """A new instance of the suite ``name`` (registered name or ``"module:Class"``)."""
+    cls = suite_class(name)
+    try:
+        suite = cls()
+    except TypeError as exc:
+        raise SuiteError(f"suite {name!r}: {cls.__qualname__}() cannot be created without "
+                         f"arguments: {exc}") from exc
+    if not suite.name:
+        raise SuiteError(f"suite {name!r}: {cls.__qualname__}.name is empty")
+    return suite
