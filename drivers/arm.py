@@ -48,6 +48,10 @@ from drivers.protocol import (
     COMMAND_LEN,
     JOINTS,
     MAX_DUTY,
+    MAX_TICKS,
+    REPLY_LEN,
+    TICKS_PER_RAD,
+    TWO_PI,
     Command,
     FrameError,
     Reply,
@@ -400,24 +404,62 @@ def _never(state: JointState) -> bool:
 class _Waiter:
     """A task waiting for a state that satisfies ``predicate``: the reader evaluates it on each
     new state and resolves ``future`` with the first state that does (no task switch per reply).
-    A timer resolves it with None (``expire``), :meth:`Arm._wake_all` too, marking it ``woken``
-    so that the waiting task returns to re-check its conditions."""
+    The arm's alarm resolves it with None at loop time ``wake_at`` (``inf``: never),
+    :meth:`Arm._wake_all` too, marking it ``woken`` so that the waiting task returns to re-check
+    its conditions."""
 
-    __slots__ = ("future", "predicate", "woken")
+    __slots__ = ("future", "predicate", "wake_at", "woken")
 
     def __init__(self, predicate: Callable[[JointState], bool],
-                 future: asyncio.Future[JointState | None]) -> None:
+                 future: asyncio.Future[JointState | None], wake_at: float) -> None:
         self.predicate = predicate
         self.future = future
+        self.wake_at = wake_at
         self.woken = False
-
-    def expire(self) -> None:
-        if not self.future.done():
-            self.future.set_result(None)
 
     def wake(self) -> None:
         self.woken = True
-        self.expire()
+        if not self.future.done():
+            self.future.set_result(None)
+
+
+def _angle_decoder(lower_rad: Sequence[float],
+                   upper_rad: Sequence[float]) -> Callable[[Reply], Vec4]:
+    """``reply.angles_rad(lower_rad, upper_rad)``, bit for bit, without four calls per reply.
+
+    :func:`~drivers.protocol.ticks_to_rad` subtracts ``2π · k`` with ``k = ceil((ticks / 10 000
+    − mid − π) / 2π)``: a monotonic step function of the ticks that takes at most three values on
+    0..MAX_TICKS. So ``k`` is its value at 0 plus one for each threshold (found once, by
+    bisection on that very expression) the ticks have reached."""
+
+    def k_of(ticks: int, mid: float) -> int:
+        return math.ceil((ticks / TICKS_PER_RAD - mid - math.pi) / TWO_PI)
+
+    steps: list[tuple[int, int, int]] = []
+    for lo, up in zip(lower_rad, upper_rad, strict=True):
+        mid = 0.5 * (lo + up)
+        k0 = k_of(0, mid)
+        thresholds = [MAX_TICKS + 1, MAX_TICKS + 1]
+        for n in range(k_of(MAX_TICKS, mid) - k0):  # the first ticks with k >= k0 + n + 1
+            a, b = 0, MAX_TICKS
+            while a < b:
+                m = (a + b) // 2
+                if k_of(m, mid) > k0 + n:
+                    b = m
+                else:
+                    a = m + 1
+            thresholds[n] = a
+        steps.append((k0, thresholds[0], thresholds[1]))
+    (k1, a1, b1), (k2, a2, b2), (k3, a3, b3), (k4, a4, b4) = steps
+
+    def decode(reply: Reply) -> Vec4:
+        t1, t2, t3, t4 = reply
+        return (t1 / TICKS_PER_RAD - TWO_PI * (k1 + (t1 >= a1) + (t1 >= b1)),
+                t2 / TICKS_PER_RAD - TWO_PI * (k2 + (t2 >= a2) + (t2 >= b2)),
+                t3 / TICKS_PER_RAD - TWO_PI * (k3 + (t3 >= a3) + (t3 >= b3)),
+                t4 / TICKS_PER_RAD - TWO_PI * (k4 + (t4 >= a4) + (t4 >= b4)))
+
+    return decode
 
 
 def _consume(task: asyncio.Task[Any]) -> None:
@@ -436,7 +478,8 @@ class Arm:
     """
 
     def __init__(self, port: str, settings: RobotSettings | None = None, *,
-                 reply_timeout_s: float = 0.5, capture: str | FsPath | None = None,
+                 reply_timeout_s: float = 0.5,
+                 capture: str | FsPath | CaptureWriter | None = None,
                  reconnect: bool | ReconnectPolicy = False,
                  connect_timeout_s: float = CONNECT_TIMEOUT_S,
                  resend_after_s: float = RESEND_AFTER_S,
@@ -453,7 +496,9 @@ class Arm:
         self.reply_timeout_s = float(reply_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.resend_after_s = float(resend_after_s)
-        self.capture_path = FsPath(capture) if capture is not None else None
+        self._capture = capture if isinstance(capture, CaptureWriter) else None
+        self.capture_path = (capture.path if isinstance(capture, CaptureWriter)
+                             else FsPath(capture) if capture is not None else None)
         self.reconnect_policy: ReconnectPolicy | None = (
             reconnect if isinstance(reconnect, ReconnectPolicy)
             else ReconnectPolicy() if reconnect else None)
@@ -462,9 +507,9 @@ class Arm:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._reader: asyncio.Task[None] | None = None
         self._framer = _Framer("reply")
-        self._capture: CaptureWriter | None = None
         self._lower = self.settings.lower_rad
         self._upper = self.settings.upper_rad
+        self._decode = _angle_decoder(self._lower, self._upper)
         self._default_tol: Vec4 = tuple(  # type: ignore[assignment]
             max(DEFAULT_TOLERANCE_RAD, 1.5 / j.counts_per_rad + 1e-4)
             for j in self.settings.joints)
@@ -476,6 +521,8 @@ class Arm:
         self._linked_s = -math.inf
         self._linked0_s = 0.0
         self._waiters: list[_Waiter] = []
+        self._alarm: asyncio.TimerHandle | None = None
+        self._alarm_at = math.inf
         self._recorders: list[list[JointState]] = []
         self._failure: BaseException | None = None
         self._opened = False
@@ -503,7 +550,8 @@ class Arm:
 
     @classmethod
     def connect(cls, port: str, settings: RobotSettings | None = None, *,
-                reply_timeout_s: float = 0.5, capture: str | FsPath | None = None,
+                reply_timeout_s: float = 0.5,
+                capture: str | FsPath | CaptureWriter | None = None,
                 reconnect: bool | ReconnectPolicy = False,
                 connect_timeout_s: float = CONNECT_TIMEOUT_S,
                 resend_after_s: float = RESEND_AFTER_S,
@@ -512,7 +560,9 @@ class Arm:
 
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
         longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
-        receives every frame in and out (see :mod:`drivers.capture`). ``reconnect``: True or a
+        receives every frame in and out (see :mod:`drivers.capture`), times counted from the
+        opening; or a :class:`~drivers.capture.CaptureWriter` with a time origin of the
+        caller's, which the connection uses and closes. ``reconnect``: True or a
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
         unopened transport to use instead of ``open_transport(port)`` (reconnections still use
@@ -538,7 +588,7 @@ class Arm:
         self._transport = transport
         self._linked_s = self._linked0_s = loop.time()
         try:
-            if self.capture_path is not None:
+            if self._capture is None and self.capture_path is not None:
                 self._capture = CaptureWriter(self.capture_path, loop.time())
             self._reader = loop.create_task(self._read_loop(), name=f"arm-reader {self.port}")
             if self._state is None and await self._wait(
@@ -557,6 +607,9 @@ class Arm:
             return
         self._closed = True
         self._wake_all()
+        if self._alarm is not None:
+            self._alarm.cancel()
+            self._alarm = None
         try:
             reader, self._reader = self._reader, None
             if reader is not None and not reader.done():
@@ -638,6 +691,9 @@ class Arm:
             while True:
                 transport = self._transport
                 assert transport is not None
+                push = getattr(transport, "set_receiver", None)
+                if push is not None:  # fake://: replies come straight to _on_pushed
+                    push(self._on_pushed)
                 try:
                     data = await transport.read()
                 except TransportError as exc:
@@ -657,16 +713,29 @@ class Arm:
             log.exception("%s: reader failed", self.port)
             self._set_failure(exc)
 
+    def _on_pushed(self, data: bytes) -> None:
+        """A chunk a transport hands over as it arrives (``set_receiver``, ``fake://``): handled
+        as the reader handles a read, minus a future and a task switch per reply."""
+        if self._closed or self._failure is not None:  # the reader would have stopped by now
+            return
+        try:
+            self._on_data(data)
+        except Exception as exc:  # a bug: show it to the waiters, as the reader does
+            log.exception("%s: reader failed", self.port)
+            self._set_failure(exc)
+
     def _on_data(self, data: bytes) -> None:
         assert self._loop is not None
         t = self._loop.time()
         framer = self._framer
+        # a chunk that starts a frame, one frame long: if it is a reply, its bytes are the reply
+        single = len(data) == REPLY_LEN and not framer.buffered
         before = framer.discarded_bytes
         events = framer.feed(data)
         self.discarded_bytes += framer.discarded_bytes - before
         capture = self._capture
         recorders = self._recorders
-        lo, up = self._lower, self._upper
+        decode = self._decode
         last: Reply | None = None
         recorded: JointState | None = None
         n = 0
@@ -676,11 +745,12 @@ class Arm:
                 last = ev
                 self._synced = True
                 if recorders:
-                    recorded = _new(JointState, (t, ev.angles_rad(lo, up), ev, self._seq + n))
+                    recorded = _new(JointState, (t, decode(ev), ev, self._seq + n))
                     for r in recorders:
                         r.append(recorded)
                 if capture is not None:
-                    capture.write(t, "in", ev.encode().decode("ascii"), None)
+                    capture.write(t, "in", (data if single else ev.encode()).decode("ascii"),
+                                  None)
             elif isinstance(ev, FrameError):
                 if self._synced:
                     self.frames_dropped += 1
@@ -691,28 +761,61 @@ class Arm:
             self.frames_received += n
             state = self._state = (
                 recorded if recorded is not None and recorded.ticks is last
-                else _new(JointState, (t, last.angles_rad(lo, up), last, self._seq)))
+                else _new(JointState, (t, decode(last), last, self._seq)))
             self._last_rx_s = t
             if self._waiters:
                 self._offer(state)
 
     def _offer(self, state: JointState) -> None:
-        """Resolve the waiters whose predicate the new state satisfies."""
-        keep: list[_Waiter] = []
+        """Resolve the waiters whose predicate the new state satisfies; drop the resolved ones
+        (and those whose task was cancelled)."""
+        done = False
         for w in self._waiters:
             fut = w.future
             if fut.done():
+                done = True
                 continue
             try:
                 hit = w.predicate(state)
             except Exception as exc:  # a user predicate failed: its waiter raises it
                 fut.set_exception(exc)
+                done = True
                 continue
             if hit:
                 fut.set_result(state)
-            else:
-                keep.append(w)
+                done = True
+        if done:
+            self._waiters = [w for w in self._waiters if not w.future.done()]
+
+    def _set_alarm(self, when: float) -> None:
+        """Wake :meth:`_on_alarm` at loop time ``when`` (instead of a later alarm)."""
+        assert self._loop is not None
+        if self._alarm is not None:
+            self._alarm.cancel()
+        self._alarm_at = when
+        self._alarm = self._loop.call_at(when, self._on_alarm)
+
+    def _on_alarm(self) -> None:
+        """Expire the waiters due at the alarm's time, then set it for the next one due.
+
+        One timer for all waiters instead of one per wait: a wait that ends with a reply (most
+        do, hundreds per second) leaves no cancelled timer behind in the loop's heap."""
+        due = self._alarm_at
+        self._alarm, self._alarm_at = None, math.inf
+        keep: list[_Waiter] = []
+        nxt = math.inf
+        for w in self._waiters:
+            fut = w.future
+            if fut.done():
+                continue
+            if w.wake_at <= due:
+                fut.set_result(None)
+                continue
+            keep.append(w)
+            nxt = min(nxt, w.wake_at)
         self._waiters = keep
+        if nxt < math.inf:
+            self._set_alarm(nxt)
 
     async def _reconnect(self, exc: TransportError) -> bool:
         policy = self.reconnect_policy
@@ -800,29 +903,23 @@ class Arm:
             now = loop.time()
             if deadline is not None and now >= deadline:
                 return None
-            wake_at = deadline
+            wake_at = math.inf if deadline is None else deadline
             if reply_timeout and not self._reconnecting:
                 silent_until = max(self._last_rx_s, since, self._linked_s) + self.reply_timeout_s
                 if now >= silent_until:
                     raise ReplyTimeoutError(self.port, self.reply_timeout_s, self._state)
-                wake_at = silent_until if wake_at is None else min(wake_at, silent_until)
+                wake_at = min(wake_at, silent_until)
             fut: asyncio.Future[JointState | None] = loop.create_future()
-            waiter = _Waiter(predicate, fut)
-            self._waiters.append(waiter)
-            handle = loop.call_at(wake_at, waiter.expire) if wake_at is not None else None
-            try:
-                state = await fut
-            finally:
-                if handle is not None:
-                    handle.cancel()
-                if not waiter.woken:  # still listed after a timer or a cancellation
-                    with contextlib.suppress(ValueError):
-                        self._waiters.remove(waiter)
+            waiter = _Waiter(predicate, fut, wake_at)
+            self._waiters.append(waiter)  # whoever resolves it drops it from the list
+            if wake_at < self._alarm_at:
+                self._set_alarm(wake_at)
+            state = await fut
             if state is not None:
                 return state
             if waiter.woken:
                 return None
-            # a timer: the deadline (returns above) or a silence check (raises or waits again)
+            # the alarm: the deadline (returns above) or a silence check (raises or waits again)
 
     async def _wait_link(self, gen: int) -> None:
         """Wait until the reader has reconnected (link generation past ``gen``) or failed."""
@@ -1064,19 +1161,17 @@ class Arm:
         last_progress = last_send = t_start
         resend_after = self.resend_after_s
 
+        g1, g2, g3, g4 = goal
+        tol1, tol2, tol3, tol4 = tol
+
         def arrived(state: JointState) -> bool:
             """Evaluated by the reader on every new state: arrival, and progress bookkeeping."""
             nonlocal best, last_progress
-            q = state.q_rad
-            total = 0.0
-            done = True
-            for i in range(JOINTS):
-                e = abs(q[i] - goal[i])
-                total += e
-                if e > tol[i]:
-                    done = False
-            if done:
+            q1, q2, q3, q4 = state.q_rad
+            e1, e2, e3, e4 = abs(q1 - g1), abs(q2 - g2), abs(q3 - g3), abs(q4 - g4)
+            if e1 <= tol1 and e2 <= tol2 and e3 <= tol3 and e4 <= tol4:
                 return True
+            total = e1 + e2 + e3 + e4
             if total < best - _PROGRESS_RAD:
                 best, last_progress = total, state.t_s
             return False

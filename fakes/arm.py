@@ -71,7 +71,9 @@ class ArmEmulator:
                                   self.uart, self.slaves, steps[0], on_reply=self._on_reply)
         self.boards: list[Board] = [self.master, *self.slaves]
         self.truth: deque[TruthSample] = deque(maxlen=TRUTH_HISTORY)
-        """Ground truth beside each reply the master printed (the newest last)."""
+        """Ground truth of each reply that reached the host (the newest last): ``truth[-1]``
+        belongs to the newest reply the host has received."""
+        self.uart.on_delivered = self.truth.append  # each reply's sample, the master's tag
         self.reply_listeners: list[Callable[[bytes, TruthSample], None]] = []
         self.injector = FaultInjector(faults, self.settings.seed, self)
         self.bus.fault = self.injector.i2c_fault if faults else None
@@ -182,7 +184,6 @@ class ArmEmulator:
         return tuple(out)
 
     def _on_reply(self, reply: bytes, sample: TruthSample) -> None:
-        self.truth.append(sample)
         if self._commands_seen != self.master.commands:
             while self._commands_seen < self.master.commands:
                 self._commands_seen += 1

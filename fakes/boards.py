@@ -7,21 +7,23 @@ restores the counter; "moving CW/CCW" drives the joint the opposite way until th
 resets the counter (and a joint driven into its hard limit instead stays there: a visible failure).
 
 Time: the master keeps its own cursor (``BusClock``) advanced by its I²C traffic, EEPROM writes,
-CPU time and blocking prints, and sleeps once per loop until the loop's end, so a loop costs one
-event-loop wake-up however many transactions it makes. Slaves answer the bus from its handlers
-(Arduino's Wire ISRs) at the transaction's time; their tasks only run the start-up procedure.
+CPU time and blocking prints. Each main loop (with the default polling receive) is one timer
+callback at the loop's start, so a loop costs one event-loop pass however many transactions it
+makes, plus one for the delivery of its reply. Slaves answer the bus from its handlers (Arduino's
+Wire ISRs) at the transaction's time; their tasks only run the start-up procedure.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Generator
 from typing import NamedTuple
 
 from smbus2 import i2c_msg
 
-from drivers.protocol import Command, Framer, encode_reply, rad_to_ticks, ticks_to_rad
+from drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from drivers.settings import JointSettings
 from fakes.eeprom import Eeprom
 from fakes.i2c import (
@@ -43,6 +45,8 @@ log = logging.getLogger("armbench.emulator")
 #: A master whose cursor falls this far behind the loop's clock (real time, busy CPU) resynchronises
 #: instead of trying to catch up with a burst of loops.
 MAX_LAG_S = 0.05
+
+_new_tuple = tuple.__new__  # builds a NamedTuple without its Python-level __new__ (hot path)
 
 
 class TruthSample(NamedTuple):
@@ -111,6 +115,16 @@ class Board:
         assert self.model is not None
         return self.model.counter / self._counts_per_rad
 
+    def sample_position(self, t_s: float) -> int:
+        """The firmware reads its counter for a position report at ``t_s``: the joint is brought
+        there, the truth and the belief beside the report are recorded; wire ticks."""
+        model = self.model
+        assert model is not None
+        counter, self.last_truth_rad = model.sample(
+            int((t_s - self.t0) * self._ticks_per_s + 1e-9))
+        self.last_firmware_rad = q = counter / self._counts_per_rad
+        return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)  # rad_to_ticks(q), inline: hot
+
     def true_rad(self) -> float:
         """The real joint angle, radians (protocol convention)."""
         if self.model is None:
@@ -130,11 +144,25 @@ class Board:
 
     # power ---------------------------------------------------------------------------------------
     def power_on(self, t_s: float) -> None:
-        """Power the board: RAM starts blank, the start-up procedure runs, then the main loop."""
+        """Power the board: after the boot delay RAM starts blank, the start-up procedure runs,
+        then the main loop."""
         if self.powered:
             return
         self.powered = True
         self.boots += 1
+        self._task = asyncio.get_running_loop().create_task(self._boot(),
+                                                            name=f"board-{self.number}")
+
+    async def _boot(self) -> None:
+        """Boot loader and clock start-up (``emulator.boot_s``), then ``setup()`` and the loop."""
+        if self.settings.boot_s > 0:
+            await asyncio.sleep(self.settings.boot_s)
+        self._setup(asyncio.get_running_loop().time())
+        await self._run()
+
+    def _setup(self, t_s: float) -> None:
+        """``setup()``: read the EEPROM record, restore the counter or start the drive to the
+        Hall sensor (§5.2), start the 80 µs control cycle at ``t_s``."""
         self.t0 = t_s
         record = self.eeprom.load()
         counter = record.counter if record is not None else round(
@@ -153,19 +181,17 @@ class Board:
             log.info("joint %d: powered up after moving %s, driving %s to the Hall sensor",
                      self.number, record.motion, "CCW" if direction < 0 else "CW")
         self._on_power_on(t_s)
-        self._task = asyncio.get_running_loop().create_task(self._run(),
-                                                            name=f"board-{self.number}")
 
     def power_off(self, t_s: float) -> None:
         """Cut power at ``t_s``: the joint stops where it is, RAM is lost, EEPROM stays."""
         if not self.powered:
             return
-        self.sync(t_s)
-        assert self.model is not None
-        self._motor_steps = self.model.motor_steps
-        self.last_truth_rad = self.model.true_angle_rad()
         self.powered = False
-        self._on_power_off()
+        if self.model is not None:  # else still booting: nothing ran yet
+            self.sync(t_s)
+            self._motor_steps = self.model.motor_steps
+            self.last_truth_rad = self.model.true_angle_rad()
+            self._on_power_off()
         if self._task is not None:
             self._task.cancel()
             self._task = None
@@ -264,21 +290,15 @@ class SlaveBoard(Board):
     def on_request(self, length: int, t_s: float) -> bytes:
         """onRequest: the register the pointer names; the pointer returns to POSITION."""
         register, self._pointer = self._pointer, REG_POSITION
+        if register != REG_POSITION:
+            self.sync(t_s)
+            return bytes((self.status_byte() if register == REG_STATUS else 0xA0 | self.number,))
+        ticks = self.sample_position(t_s)
         model = self.model
         assert model is not None
-        tick = int((t_s - self.t0) * self._ticks_per_s + 1e-9)
-        if tick > model.tick:
-            model.advance(tick)
         if model.pending_transitions:
             self.store_transitions()
-        if register == REG_POSITION:
-            self.last_truth_rad = model.true_angle_rad()
-            self.last_firmware_rad = q = model.counter / self._counts_per_rad
-            ticks = rad_to_ticks(q)
-            return bytes((ticks & 0xFF, ticks >> 8))
-        if register == REG_STATUS:
-            return bytes((self.status_byte(),))
-        return bytes((0xA0 | self.number,))
+        return ticks.to_bytes(2, "little")
 
 
 class MasterBoard(Board):
@@ -297,18 +317,65 @@ class MasterBoard(Board):
         self.commands = 0
         self.i2c_errors = 0
         self.framer = Framer("command")
+        self._timer: asyncio.TimerHandle | None = None
 
     def _on_power_on(self, t_s: float) -> None:
         self.framer = Framer("command")
         self.clock.now = t_s
+        self.uart.begin(t_s)
+
+    def _on_power_off(self) -> None:
+        if self._timer is not None:  # the task's cancellation comes later: a loop may be due now
+            self._timer.cancel()
+            self._timer = None
 
     async def _run(self) -> None:
         await self._initialise()
         loop = asyncio.get_running_loop()
+        self.clock.now = max(self.clock.now, loop.time())
+        if self.settings.uart_receive == "blocking":
+            await self._run_blocking(loop)
+        else:
+            await self._run_polling(loop)
+
+    async def _run_polling(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Each main loop is one timer callback at the start time the previous one yielded: one
+        event-loop pass per loop, without a task wake-up (a future and a second pass). The task
+        waits here until power-off cancels it, or ends with the exception of a failed loop."""
+        loops = self._main_loops(loop, None)
+        failed: asyncio.Future[None] = loop.create_future()
+
+        def next_loop() -> None:
+            try:
+                start = next(loops)
+            except Exception as exc:
+                failed.set_exception(exc)
+                return
+            self._timer = loop.call_at(start, next_loop)
+
+        next_loop()
+        await failed
+
+    async def _run_blocking(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Each main loop starts with a blocking read of a whole command."""
+        loops = self._main_loops(loop, await self._receive_blocking(self.framer, loop))
+        start = next(loops)
+        while True:
+            resume: asyncio.Future[None] = loop.create_future()
+            self._timer = loop.call_at(start, _wake, resume)
+            await resume
+            start = loops.send(await self._receive_blocking(self.framer, loop))
+
+    def _main_loops(self, loop: asyncio.AbstractEventLoop,
+                    received: Command | None) -> Generator[float, Command | None, None]:
+        """Algorithm 1, one main loop per step; yields when the next loop starts: when this one
+        ends (the master's clock), or now if the master has fallen behind.
+
+        Each step is sent the command a blocking receive got, or None: the loop then polls the
+        UART itself and keeps the last complete command.
+        """
         clock = self.clock
-        clock.now = max(clock.now, loop.time())
         uart, bus, slaves, settings = self.uart, self.bus, self.slaves, self.settings
-        blocking = settings.uart_receive == "blocking"
         line_end = settings.reply_line_end.encode()
         eeprom_s = settings.eeprom_write_s_per_byte
         overhead_s = settings.loop_overhead_s
@@ -318,10 +385,12 @@ class MasterBoard(Board):
         command: Command | None = None
         sent: Command | None = None
         framer = self.framer
+        model = self.model
+        assert model is not None
         while True:
             # Receive reference poses and velocities from UART
-            if blocking:
-                command = await self._receive_blocking(framer, loop)
+            if received is not None:
+                command = received
             else:
                 data = uart.read_available(clock.now)
                 if data:
@@ -329,7 +398,7 @@ class MasterBoard(Board):
                         if isinstance(event, Command):
                             command = event
                             self.commands += 1
-            new = command is not None and command is not sent
+            new = command is not sent
             if new:
                 assert command is not None
                 for k, msg in enumerate(ref_msgs):
@@ -358,14 +427,7 @@ class MasterBoard(Board):
                 buf = msg.buf
                 positions[k] = buf[0][0] | buf[1][0] << 8
             # Update current pose of joint 1
-            model = self.model
-            assert model is not None
-            tick = int((clock.now - self.t0) * self._ticks_per_s + 1e-9)
-            if tick > model.tick:
-                model.advance(tick)
-            self.last_truth_rad = model.true_angle_rad()
-            self.last_firmware_rad = q = model.counter / self._counts_per_rad
-            own = rad_to_ticks(q)
+            own = self.sample_position(clock.now)
             if model.pending_transitions:
                 clock.now += self.store_transitions() * eeprom_s
             clock.now += overhead_s
@@ -373,22 +435,14 @@ class MasterBoard(Board):
             reply = encode_reply(own, positions[0], positions[1], positions[2])
             if line_end:
                 reply += line_end
-            t_sample = clock.now
-            clock.now = uart.write(reply, clock.now)
+            sample = self._truth(clock.now)
+            clock.now = uart.write(reply, clock.now, sample)
             self.loops += 1
             if self.on_reply is not None:
-                self.on_reply(reply, self._truth(t_sample))
-            delay = clock.now - loop.time()
-            if delay > 0:
-                # One wake-up per loop: a bare future and a timer (what asyncio.sleep does,
-                # without its call_later indirection and the cancel of a fired handle).
-                wake = loop.create_future()
-                loop.call_at(clock.now, _wake, wake)
-                await wake
-            else:
-                if delay < -MAX_LAG_S:
-                    clock.now = loop.time()
-                await asyncio.sleep(0)
+                self.on_reply(reply, sample)
+            if clock.now < loop.time() - MAX_LAG_S:  # real time, busy CPU: drop the lag, no burst
+                clock.now = loop.time()
+            received = yield clock.now
 
     async def _receive_blocking(self, framer: Framer, loop: asyncio.AbstractEventLoop) -> Command:
         """Wait for a whole command frame, reading bytes as they arrive (``readBytesUntil``)."""
@@ -410,13 +464,13 @@ class MasterBoard(Board):
 
     def _truth(self, t_s: float) -> TruthSample:
         s2, s3, s4 = self.slaves
-        return TruthSample(
+        return _new_tuple(TruthSample, (
             t_s, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad, s4.last_truth_rad),
             (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
-             s4.last_firmware_rad))
+             s4.last_firmware_rad)))
 
 
 def _wake(future: asyncio.Future[None]) -> None:
-    """Timer callback ending a board's sleep (the task may have been cancelled meanwhile)."""
+    """Timer callback ending the master's wait (its task may have been cancelled meanwhile)."""
     if not future.done():
         future.set_result(None)

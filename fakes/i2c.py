@@ -130,11 +130,11 @@ class I2CBus:
         now = self.clock.now + bit_s  # START
         stats = self.stats
         stats.transactions += 1
+        fault = self.fault
         for m in msgs:
-            address = m.addr
-            length = m.len
+            address, length, buf = m.addr, m.len, m.buf
             device = self._devices.get(address)
-            code = 0 if self.fault is None else self.fault(address, now)
+            code = 0 if fault is None else fault(address, now)
             if device is None or code:
                 self.clock.now = now + 10 * bit_s  # address byte, NAK, STOP
                 if code == errno.EIO:
@@ -147,11 +147,10 @@ class I2CBus:
             stats.bytes += length
             if m.flags & I2C_M_RD:
                 data = device.on_request(length, now)
-                if len(data) < length:
-                    data = data + b"\xff" * (length - len(data))
-                buf = m.buf
-                for i in range(length):
-                    buf[i] = data[i:i + 1]
+                if len(data) != length:  # a short answer reads as 0xFF (the idle bus level)
+                    data = data[:length].ljust(length, b"\xff")
+                for i, byte in enumerate(data):
+                    buf[i] = byte
             else:
-                device.on_receive(m.buf[:length], now)
+                device.on_receive(buf[:length], now)
         self.clock.now = now  # the last bit time above is the STOP

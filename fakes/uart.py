@@ -16,6 +16,7 @@ import asyncio
 import math
 from collections import deque
 from collections.abc import Callable
+from typing import Any
 
 __all__ = ["Uart"]
 
@@ -37,15 +38,20 @@ class Uart:
         self._rx_line_free = -math.inf
         self._tx_line_free = -math.inf
         self.host_sink: Deliver | None = None
+        self.on_delivered: Callable[[Any], None] | None = None  # gets the tag of a write
         self.tx_filter: TxFilter | None = None
         self.rx_filter: RxFilter | None = None
         self.rx_event = asyncio.Event()
         self.rx_bytes = 0
         self.rx_overflow_bytes = 0
+        self.rx_lost_bytes = 0
+        """Bytes that arrived while the master's receiver was off (unpowered, booting)."""
+        self._rx_enabled_s = math.inf
         self.tx_bytes = 0
         self.tx_dropped_bytes = 0
         """Bytes the master printed that no host received (none connected, or power cut)."""
         self._generation = 0
+        self._loop: asyncio.AbstractEventLoop | None = None  # the master's, from Serial.begin()
 
     # host side ---------------------------------------------------------------------------------
     def host_write(self, data: bytes, t_s: float) -> None:
@@ -78,7 +84,12 @@ class Uart:
             if done <= 0:
                 break
             done = min(done, len(data))
-            chunk = data[:done]
+            if start < self._rx_enabled_s:  # bytes complete before Serial.begin() are lost
+                lost = min(done, max(0, int((self._rx_enabled_s - start) / byte_s + 1e-9)))
+                self.rx_lost_bytes += lost
+                chunk = data[lost:done]
+            else:
+                chunk = data[:done]
             if continuous_since is None:
                 keep = chunk[:room]
             else:
@@ -106,34 +117,51 @@ class Uart:
                 return start + (i + 1) * self.byte_s
         return None
 
-    def write(self, data: bytes, t_s: float) -> float:
-        """The master prints ``data`` at ``t_s``; returns when the print call returns."""
+    def write(self, data: bytes, t_s: float, tag: object = None) -> float:
+        """The master prints ``data`` at ``t_s``; returns when the print call returns.
+
+        ``tag`` (if not None) is handed to ``on_delivered`` when the last byte reaches the host.
+        """
         byte_s = self.byte_s
-        queued = max(0.0, (self._tx_line_free - t_s) / byte_s)
-        start = max(t_s, self._tx_line_free)
+        free = self._tx_line_free
+        queued = (free - t_s) / byte_s if free > t_s else 0.0
+        start = free if free > t_s else t_s
         done = start + len(data) * byte_s
         self._tx_line_free = done
         self.tx_bytes += len(data)
-        loop = asyncio.get_running_loop()
+        loop = self._loop
+        assert loop is not None, "Uart.begin() first"
         if self.tx_filter is None:
-            loop.call_at(done, self._deliver, self._generation, data)
+            loop.call_at(done, self._deliver, self._generation, data, tag)
         else:
-            for delay_s, chunk in self.tx_filter(data, done):
-                loop.call_at(done + delay_s, self._deliver, self._generation, chunk)
+            pieces = self.tx_filter(data, done)
+            for k, (delay_s, chunk) in enumerate(pieces):
+                loop.call_at(done + delay_s, self._deliver, self._generation, chunk,
+                             tag if k == len(pieces) - 1 else None)
         overflow = queued + len(data) - self.tx_buffer_bytes
         return t_s + overflow * byte_s if overflow > 0 else t_s
 
-    def _deliver(self, generation: int, data: bytes) -> None:
+    def _deliver(self, generation: int, data: bytes, tag: object) -> None:
         sink = self.host_sink
         if sink is None or generation != self._generation:
             self.tx_dropped_bytes += len(data)
-        else:
-            sink(data)
+            return
+        sink(data)
+        if tag is not None and self.on_delivered is not None:
+            self.on_delivered(tag)
 
     def cut(self) -> None:
-        """The board lost power: bytes still on the line never arrive, the line is idle."""
+        """The board lost power: bytes still on the line never arrive, the line is idle, and the
+        receiver is off until the next :meth:`begin`."""
         self._generation += 1
         self._tx_line_free = -math.inf
+        self._rx_enabled_s = math.inf
+
+    def begin(self, t_s: float) -> None:
+        """``Serial.begin()`` at ``t_s`` on the running loop: bytes completing from now on are
+        received; what the master prints is delivered on that loop."""
+        self._rx_enabled_s = t_s
+        self._loop = asyncio.get_running_loop()
 
     @property
     def rx_line_free_s(self) -> float:

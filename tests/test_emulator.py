@@ -57,7 +57,9 @@ class Host:
 
 
 def emulate(body: Callable[[ArmEmulator, Host], Awaitable[Any]], **kwargs: Any) -> Any:
-    """Run ``body(arm, host)`` on virtual time with a started emulator."""
+    """Run ``body(arm, host)`` on virtual time with a started emulator, once it has booted and
+    replied (as a driver connects), unless ``ready=False``."""
+    ready = kwargs.pop("ready", True)
     faults = kwargs.pop("faults", ())
     initial = kwargs.pop("initial_q_rad", None)
     robot = kwargs.pop("robot", ROBOT)
@@ -66,6 +68,8 @@ def emulate(body: Callable[[ArmEmulator, Host], Awaitable[Any]], **kwargs: Any) 
         arm = ArmEmulator(robot, emulator_settings(robot, **kwargs), faults, initial)
         host = Host(arm)
         await arm.start()
+        while ready and not host.replies:
+            await asyncio.sleep(0.001)
         try:
             return await body(arm, host)
         finally:
@@ -104,8 +108,9 @@ def test_polling_firmware_replies_every_loop_at_the_bus_rate() -> None:
         assert gaps[0] == pytest.approx(loop_period_s(), rel=1e-6)
         assert host.replies[-1][1] == Reply(0, 0, 0, 0)
 
-    emulate(counted)
-    assert arm_loops[0] == pytest.approx(1.0 / loop_period_s(), abs=2)
+    emulate(counted, ready=False)
+    boot_s = emulator_settings(ROBOT).boot_s
+    assert arm_loops[0] == pytest.approx((1.0 - boot_s) / loop_period_s(), abs=2)
 
 
 def test_400khz_bus_makes_the_loop_uart_bound() -> None:
@@ -177,12 +182,12 @@ def test_blocking_receive_replies_once_per_command() -> None:
             await asyncio.sleep(0.05)
         assert len(host.replies) == 5
 
-    emulate(body, uart_receive="blocking")
+    emulate(body, uart_receive="blocking", ready=False)  # it never replies unasked
 
 
 def test_replies_can_end_in_crlf() -> None:
     async def body(arm: ArmEmulator, host: Host) -> None:
-        await asyncio.sleep(0.1)
+        await asyncio.sleep(0.2)
         assert host.replies and not host.errors
         assert host.framer.discarded_bytes == 0
 
@@ -363,13 +368,26 @@ def test_power_cut_and_restore_by_schedule() -> None:
                                  {"kind": "power_restore", "at_s": 1.5}))
 
 
+def test_boards_boot_before_they_answer() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.01, 0.0, 0.0, 0.0], 99)  # lost: the receiver is off until Serial.begin()
+        await asyncio.sleep(0.29)
+        assert host.replies == []
+        assert arm.bus.scan() == []  # the slaves join the bus in setup()
+        await asyncio.sleep(0.02)
+        assert host.replies and arm.stats().commands == 0
+        assert arm.uart.rx_lost_bytes == 37
+
+    emulate(body, boot_s=0.3, ready=False)
+
+
 @pytest.mark.parametrize("kind", ["power_cut", "uart_drop"])
 def test_a_fault_at_time_zero_acts_before_the_first_loop(kind: str) -> None:
     async def body(arm: ArmEmulator, host: Host) -> None:
         await asyncio.sleep(0.5)
         assert host.replies == [] and host.chunks == 0
 
-    emulate(body, faults=_faults({"kind": kind, "at_s": 0}))
+    emulate(body, faults=_faults({"kind": kind, "at_s": 0}), ready=False)
 
 
 def test_replies_on_the_wire_at_a_power_cut_never_arrive() -> None:
@@ -460,10 +478,25 @@ def test_the_firmware_never_dies_on_random_bytes(chunks: list[bytes]) -> None:
 
 def test_i2c_scan_finds_the_three_slaves() -> None:
     async def body(arm: ArmEmulator, host: Host) -> list[int]:
-        await asyncio.sleep(0.01)
+        await asyncio.sleep(0.2)  # after the boot delay
         return arm.bus.scan()
 
     assert emulate(body) == [0x10, 0x11, 0x12]
+
+
+def test_the_newest_truth_sample_belongs_to_the_newest_delivered_reply() -> None:
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        host.send([0.5, 0.4, -0.3, 0.6], 99)
+        for _ in range(200):
+            await asyncio.sleep(0.0011)
+            if host.replies:
+                reply = host.replies[-1][1]
+                sample = arm.truth[-1]
+                assert reply == Reply.from_rad(sample.firmware_rad)
+                assert sample.t_s <= host.replies[-1][0]
+        assert len(arm.truth) == len(host.replies)
+
+    emulate(body)
 
 
 def test_ground_truth_beside_each_reply_includes_backlash() -> None:

@@ -2,8 +2,9 @@
 
 * ``driver.fake_realtime_factor`` — simulated seconds per wall second of a sequence of full-duty
   ``move_joints`` over ``fake://`` on the virtual-time loop (best of ``repeats``). ``bound``: the
-  same for the emulator alone (``fake://`` opened, its replies read and dropped, no driver), i.e.
-  the most any driver could reach on this machine; ``ratio`` is the driver's share of it.
+  same for the emulator alone (``fake://`` opened, its replies dropped as they arrive, no
+  driver), i.e. the most any driver could reach on this machine; ``ratio`` is the driver's share
+  of it.
 * ``driver.fake_roundtrips`` — command → next reply round trips per wall second over ``fake://``,
   each command issued at a random phase of the firmware's loop (seeded), so the latency is spread
   over one loop period; the note gives its percentiles in simulated ms, also reported as
@@ -38,7 +39,7 @@ from bench.perf import Figure, PerfOptions
 from drivers.arm import Arm
 from drivers.protocol import REPLY_LEN, Command
 from drivers.settings import RobotSettings, SerialSettings
-from drivers.transports import open_transport
+from drivers.transports.fake import FakeTransport
 from fakes.i2c import transaction_bits
 from fakes.settings import EmulatorSettings, emulator_settings
 from fakes.vclock import run_virtual
@@ -79,25 +80,22 @@ async def _moves(sim_s: float) -> tuple[float, float]:
         return loop.time() - t0, time.perf_counter() - w0
 
 
+def _drop(data: bytes) -> None:
+    """A receiver that throws the replies away."""
+
+
 async def _emulator_alone(sim_s: float) -> tuple[float, float]:
-    """The emulator over ``fake://`` with a bare reader and no driver: (simulated s, wall s)."""
-    transport = open_transport("fake://")
+    """The emulator over ``fake://`` with no driver, its replies handed to a receiver that drops
+    them (as the driver receives them: ``FakeTransport.set_receiver``): (simulated s, wall s)."""
+    transport = FakeTransport("fake://", SerialSettings())
     await transport.open()
+    transport.set_receiver(_drop)
     loop = asyncio.get_running_loop()
-
-    async def drain() -> None:
-        while True:
-            await transport.read()
-
-    task = loop.create_task(drain())
     try:
         t0, w0 = loop.time(), time.perf_counter()
         await asyncio.sleep(sim_s)
         return loop.time() - t0, time.perf_counter() - w0
     finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await task
         await transport.close()
 
 

@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from bench.record import Better, Measurement, Trial
 from bench.suites.base import SuiteContext
+from drivers.arm import DriverClosedError
 from drivers.errors import ArmbenchError
 from drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
 from drivers.motion import MAX_PERIOD_CYCLES, MIN_PERIOD_CYCLES, duty_for_step_rate, step_rate
@@ -296,8 +297,8 @@ class TruthProbe:
 class StateRecorder:
     """``async with StateRecorder(ctx, t0, period_s) as rec:`` records the reply stream.
 
-    A background task follows ``arm.states()`` and keeps one sample per ``period_s`` (s; 0 = every
-    reply it sees): ``{"t_s": s from t0, "q_rad": reported joints, "reported_m": FK of them,
+    A background task follows the newest state and keeps one sample per ``period_s`` (s; 0 =
+    every new state): ``{"t_s": s from t0, "q_rad": reported joints, "reported_m": FK of them,
     "true_m": true TCP (when truth exists)}`` plus ``extra`` keys. The driver raises on a silent
     arm (``reply_timeout_s``) or a lost port; the error is kept and re-raised by :meth:`check`
     and on exit, so a trial whose recording broke becomes an error trial.
@@ -331,12 +332,23 @@ class StateRecorder:
         return s
 
     async def _run(self) -> None:
+        arm = self._ctx.arm
+        period = self._period
         last_t = -math.inf
+        seen = 0
+
+        def due(state: JointState) -> bool:
+            return state.seq > seen and state.t_s - last_t + 1e-9 >= period
+
+        # The driver checks ``due`` on each new state and wakes this task only for a state to
+        # record, not for every reply (~420/s) as ``async for state in arm.states()`` would.
         try:
-            async for state in self._ctx.arm.states():
-                if state.t_s - last_t + 1e-9 >= self._period:
-                    last_t = state.t_s
-                    self.sample(state)
+            while True:
+                state = await arm.wait_state(due)
+                last_t, seen = state.t_s, state.seq
+                self.sample(state)
+        except DriverClosedError:
+            return  # the connection ended: so does the recording
         except asyncio.CancelledError:
             raise
         except MEASUREMENT_ERRORS as exc:

@@ -10,6 +10,7 @@ and power control (what a laser tracker and a relay give on a real bench).
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from urllib.parse import parse_qs, urlsplit
 
 from drivers.errors import ArmbenchError
@@ -57,7 +58,8 @@ class FakeTransport(Transport):
         super().__init__(port, serial)
         self._given = emulator
         self.emulator: ArmEmulator | None = emulator
-        self._buf = bytearray()
+        self._chunks: list[bytes] = []
+        self._receiver: Callable[[bytes], None] | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._open = False
 
@@ -76,14 +78,26 @@ class FakeTransport(Transport):
         self._open = True
         await self.emulator.start()
 
+    def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
+        """Hand each chunk to ``receiver`` the moment it arrives (in the emulator's callback, at
+        its loop time) instead of keeping it for :meth:`read`: no future and no task switch per
+        reply. Chunks already kept are read first; :meth:`read` then waits for more kept chunks
+        or the end of the connection. None: back to plain reads."""
+        self._receiver = receiver
+
     def _receive(self, data: bytes) -> None:
-        self._buf += data
+        receiver = self._receiver
+        if receiver is not None and not self._chunks:
+            self.bytes_in += len(data)
+            receiver(data)
+            return
+        self._chunks.append(data)
         waiter = self._waiter
         if waiter is not None and not waiter.done():
             waiter.set_result(None)
 
     async def read(self) -> bytes:
-        while not self._buf:
+        while not self._chunks:
             if not self._open:
                 raise self._not_open()
             self._waiter = asyncio.get_running_loop().create_future()
@@ -91,8 +105,8 @@ class FakeTransport(Transport):
                 await self._waiter
             finally:
                 self._waiter = None
-        data = bytes(self._buf)
-        self._buf.clear()
+        data = b"".join(self._chunks)  # no copy for the usual single chunk
+        self._chunks.clear()
         self.bytes_in += len(data)
         return data
 
@@ -106,6 +120,7 @@ class FakeTransport(Transport):
         if not self._open:
             return
         self._open = False
+        self._receiver = None
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_exception(self._lost("transport closed"))
         if self.emulator is not None:
