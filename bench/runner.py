@@ -636,6 +636,15 @@ def _latest_time(record: RunRecord) -> float:
     return max(times)
 
 
+def _first_capture_time(part: Path) -> float | None:
+    """``t_s`` of the first record of a capture part, or None if it has none readable."""
+    try:
+        with part.open(encoding="ascii") as fh:
+            return float(json.loads(fh.readline())["t_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _default_emulator(robot: RobotSettings, settings: EmulatorSettings,
                       faults: Sequence[Fault]) -> ArmEmulator:
     from fakes.arm import ArmEmulator
@@ -675,6 +684,7 @@ class _Run:
         self.conn: _Connection | None = None
         self.capture = writer.artifact_path(CAPTURE_FILE)
         self._parts = 0
+        self._unmerged: list[Path] = []
         self.last_arm: Any = None
 
     # -- connections ---------------------------------------------------------------------
@@ -715,14 +725,35 @@ class _Run:
         self.last_arm = arm
         return _Connection(arm, emulator, part)
 
-    async def disconnect(self, conn: _Connection) -> None:
+    async def disconnect(self, conn: _Connection, *, merge: bool = True) -> None:
+        """Close the arm (and its emulator); its capture part is merged now, or, with
+        ``merge=False``, by the caller once the trial it holds is in the record."""
         try:
             await conn.arm.close()
         finally:
             if conn.emulator is not None:
                 with contextlib.suppress(Exception):
                     await conn.emulator.close()
-            self._merge_capture(conn.part)
+            if merge:
+                self._merge_capture(conn.part)
+
+    def recover_parts(self) -> None:
+        """On ``--resume``: the capture parts a killed run left behind. A part whose first frame
+        falls within a recorded trial is merged (the kill came between the record and the merge);
+        any other holds a trial the record lacks, which is measured again, and is dropped, so
+        ``capture.jsonl`` stays one stream on the run clock."""
+        spans = [(t.started_s, t.ended_s) for s in self.writer.record.suites.values()
+                 for t in (*s.trials, *s.superseded_trials)]
+        parts = sorted(self.writer.out_dir.glob(".capture.part*.jsonl"),
+                       key=lambda p: p.stat().st_mtime)
+        for part in parts:
+            first = _first_capture_time(part)
+            if first is not None and any(a - 1e-6 <= first <= b + 1e-6 for a, b in spans):
+                self._merge_capture(part)
+            else:
+                log.info("dropping %s: its trial is not in the record", part.name)
+                with contextlib.suppress(OSError):
+                    part.unlink()
 
     def _merge_capture(self, part: Path) -> None:
         """Append a connection's capture (written with ``t_s`` on the run clock) to
@@ -817,6 +848,9 @@ class _Run:
             wall0 = time.perf_counter()
             trial = await self._attempt(ps, index, attempt)
             self.writer.add_trial(ps.name, trial)
+            for part in self._unmerged:  # after the record: see recover_parts
+                self._merge_capture(part)
+            self._unmerged.clear()
             status = trial.status if trial.status == "done" else f"error ({trial.error})"
             if trial.status == "error" and attempt + 1 < attempts:
                 status += f", retrying ({attempt + 1}/{plan.retries})"
@@ -859,7 +893,8 @@ class _Run:
                          status="error", error=_describe(exc))
         finally:
             if own is not None:
-                await self.disconnect(own)
+                self._unmerged.append(own.part)
+                await self.disconnect(own, merge=False)
 
     async def _run_connection(self) -> _Connection:
         """The run's connection (``isolation = "run"``), opened again when it was lost."""
@@ -916,6 +951,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     run = _Run(plan, writer, printer,
                emulator_factory if emulator_factory is not None else _default_emulator)
+    if plan.resume is not None:
+        run.recover_parts()
     printer.message(f"armbench run {plan.run_id}: {', '.join(s.name for s in plan.suites)} on "
                     f"{plan.port} -> {plan.out_dir}")
     error: str | None = None

@@ -1183,8 +1183,9 @@ class Arm:
                 state = self.state
                 if arrived(state):
                     return state
-                now = loop.time()
-                if now - last_progress >= resend_after and now - last_send >= resend_after:
+                # the very sum the wake-up below is set at: comparing differences instead can
+                # miss it by one ulp on virtual time, and the loop would spin without yielding
+                if loop.time() >= max(last_progress, last_send) + resend_after:
                     await self._resend(cmd)
                     last_send = last_progress = loop.time()
                 wake = min(deadline, max(last_progress, last_send) + resend_after)
@@ -1357,8 +1358,7 @@ class Arm:
                     raise MoveInterruptedError(goal, self._state)
                 state = self.state
                 if not reached(state):
-                    now = loop.time()
-                    if now - last_progress >= resend_after and now - last_send >= resend_after:
+                    if loop.time() >= max(last_progress, last_send) + resend_after:
                         await self._resend(cmds[k])
                         last_send = last_progress = loop.time()
                     wake = min(deadline, max(last_progress, last_send) + resend_after)

@@ -17,7 +17,6 @@ import math
 import os
 import select
 import signal
-import socket
 import subprocess
 import sys
 from collections.abc import Awaitable, Callable, Coroutine, Iterator, Sequence
@@ -27,6 +26,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import pytest
+from netutil import free_port
 
 from bench.commands import i2c as i2c_cmd
 from bench.commands import monitor as monitor_cmd
@@ -158,16 +158,10 @@ class Link:
         if self.kind == "pty":
             emu = EmulatorProcess("pty", self.tmp, link=self.tmp / "arm-pty")
         else:
-            emu = EmulatorProcess("tcp", self.tmp, tcp_port=_free_port())
+            emu = EmulatorProcess("tcp", self.tmp, tcp_port=free_port())
         emu.start()
         return emu
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import pytest
+from netutil import free_port, listening
 
 from drivers.errors import PortLostError, TransportError
 from drivers.settings import SerialSettings
@@ -304,21 +305,6 @@ class Ser2net:
     pty: Pty
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _listening(tcp_port: int) -> bool:
-    """True when something listens on 127.0.0.1:``tcp_port`` (read from /proc, no connection:
-    a probe connection would make ser2net open the serial device)."""
-    with open("/proc/net/tcp") as fh:
-        for line in fh.readlines()[1:]:
-            fields = line.split()
-            if fields[1].endswith(f":{tcp_port:04X}") and fields[3] == "0A":
-                return True
-    return False
 
 
 @pytest.fixture
@@ -328,7 +314,7 @@ async def ser2net(tmp_path: Path, pty: Pty) -> AsyncIterator[Ser2net]:
     exe = shutil.which("ser2net") or shutil.which("ser2net", path="/usr/sbin:/usr/local/sbin")
     if exe is None:
         pytest.skip("ser2net not installed (Debian package 'ser2net'): RFC 2217 tests need it")
-    tcp_port = _free_port()
+    tcp_port = free_port()
     config = tmp_path / "ser2net.yaml"
     config.write_text(
         "connection: &armbench\n"
@@ -341,7 +327,7 @@ async def ser2net(tmp_path: Path, pty: Pty) -> AsyncIterator[Ser2net]:
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         async with asyncio.timeout(5.0):
-            while not _listening(tcp_port):
+            while not listening(tcp_port):
                 if proc.poll() is not None:
                     pytest.fail(f"ser2net exited with {proc.returncode}; config:\n"
                                 f"{config.read_text()}")

@@ -1,0 +1,196 @@
+"""Soak (issue 7): an hour of simulated motion over ``fake://`` on virtual time — Cartesian paths
+streamed with ``follow_path`` and coordinated joint moves to seeded random targets, every frame
+captured to a file — with the memory sampled every simulated minute: ``tracemalloc``'s current
+size (Python allocations since the soak started) and ``resource.getrusage`` max RSS.
+
+Asserted: after a warm-up, neither grows beyond a fixed bound (tracemalloc ≤ warm-up + 5 MB, max
+RSS ≤ warm-up + 30 MB) while the capture on disk grows by ~2.3 MB per simulated minute (~140 MB
+an hour): the frames go to the file, not to memory. No frame is dropped, no move re-sent.
+
+``tracemalloc`` makes the process ~6× slower, so the hour costs ~10 min of CPU here: it is marked
+``slow`` (``pytest -m "not slow"`` leaves it out). ``test_soak_short`` runs the same loop for two
+simulated minutes in the default run. Both print the memory at the start, after the warm-up and at
+the end, the CPU and wall time, and the capture's size (``-s``); figures in docs/reliability.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import random
+import resource
+import signal
+import time
+import tracemalloc
+from collections.abc import Awaitable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TypeVar
+
+import pytest
+
+from drivers.arm import Arm
+from drivers.motion import square
+from fakes.vclock import run_virtual
+
+T = TypeVar("T")
+MB = 1024 * 1024
+TRACEMALLOC_GROWTH_MAX = 5 * MB
+"""Allowed growth of tracemalloc's current size after the warm-up (bytes)."""
+MAX_RSS_GROWTH_MAX_KB = 30 * 1024
+"""Allowed growth of the max RSS after the warm-up (KiB, as ``ru_maxrss`` on Linux)."""
+CENTRE_M = (0.38, 0.0, 0.80)
+"""The accuracy suite's square centre: reachable on the front-up branch."""
+
+
+@dataclass(frozen=True)
+class Sample:
+    t_s: float
+    """Simulated seconds since the soak started."""
+    traced: int
+    """tracemalloc's current size (bytes)."""
+    max_rss_kb: int
+    capture_bytes: int
+    frames: int
+
+
+@dataclass(frozen=True)
+class SoakReport:
+    samples: list[Sample]
+    cpu_s: float
+    wall_s: float
+    frames_received: int
+    frames_dropped: int
+    commands_sent: int
+    resends: int
+    moves: int
+    capture_lines: int
+
+
+class Livelock(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def cpu_guard(cpu_s: float) -> Iterator[None]:
+    """A loop that never yields freezes the virtual clock (no asyncio.timeout fires): stop it
+    after ``cpu_s`` seconds of CPU instead of hanging."""
+
+    def on_prof(signum: int, frame: object) -> None:
+        raise Livelock(f"more than {cpu_s:g} s of CPU")
+
+    old = signal.signal(signal.SIGPROF, on_prof)
+    signal.setitimer(signal.ITIMER_PROF, cpu_s)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        signal.signal(signal.SIGPROF, old)
+
+
+async def within(aw: Awaitable[T], timeout_s: float) -> T:
+    async with asyncio.timeout(timeout_s):
+        return await aw
+
+
+def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9) -> SoakReport:
+    """Move for ``duration_s`` simulated seconds, sampling memory every ``sample_s``."""
+    samples: list[Sample] = []
+
+    async def main() -> SoakReport:
+        loop = asyncio.get_running_loop()
+        rng = random.Random(seed)
+        async with Arm.connect("fake://", capture=capture) as arm:
+            t0 = loop.time()
+
+            def sample() -> None:
+                samples.append(Sample(
+                    loop.time() - t0, tracemalloc.get_traced_memory()[0],
+                    resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                    capture.stat().st_size if capture.exists() else 0, arm.frames_received))
+
+            async def sampler() -> None:
+                while True:
+                    sample()
+                    await asyncio.sleep(t0 + len(samples) * sample_s - loop.time())
+
+            sampling = asyncio.create_task(sampler())
+            moves = 0
+            try:
+                while loop.time() - t0 < duration_s:
+                    if moves % 2 == 0:  # a 10 cm square in the YZ plane at 0.1 m/s (~5 s)
+                        run = await within(arm.follow_path(square(CENTRE_M, 0.10, "yz"),
+                                                           speed_m_s=0.1), 120.0)
+                        assert run.states
+                    else:  # a coordinated joint move to a random pose (~1 s)
+                        q = (rng.uniform(-0.6, 0.6), rng.uniform(0.1, 0.6),  # inside limits
+                             rng.uniform(0.3, 0.95), rng.uniform(-0.4, 0.6))
+                        await within(arm.move_joints(q, 99, coordinated=True), 60.0)
+                    moves += 1
+            finally:
+                sampling.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await sampling
+            sample()
+            counters = (arm.frames_received, arm.frames_dropped, arm.commands_sent,
+                        arm.resends)
+        with capture.open("rb") as fh:
+            lines = sum(1 for _ in fh)
+        return SoakReport(samples, 0.0, 0.0, *counters, moves=moves, capture_lines=lines)
+
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    tracemalloc.start()
+    try:
+        report = run_virtual(main())
+    finally:
+        tracemalloc.stop()
+    return SoakReport(**{**report.__dict__, "cpu_s": time.process_time() - cpu0,
+                         "wall_s": time.perf_counter() - wall0})
+
+
+def check(report: SoakReport, warmup_s: float, duration_s: float, sample_s: float) -> str:
+    """The assertions of both soaks; returns the summary printed with ``-s``."""
+    samples = report.samples
+    assert samples[-1].t_s >= duration_s
+    assert len(samples) >= duration_s / sample_s
+    warm = next(s for s in samples if s.t_s >= warmup_s)
+    after = [s for s in samples if s.t_s >= warm.t_s]
+    end = samples[-1]
+    worst = max(s.traced for s in after)
+    assert worst <= warm.traced + TRACEMALLOC_GROWTH_MAX, (warm.traced, worst)
+    assert end.max_rss_kb <= warm.max_rss_kb + MAX_RSS_GROWTH_MAX_KB, (warm.max_rss_kb,
+                                                                       end.max_rss_kb)
+    # Frames go to disk: the capture grows with the frames while traced memory does not.
+    frames = end.frames - warm.frames
+    assert frames >= 300 * (end.t_s - warm.t_s)  # ~420 replies per simulated second
+    assert end.capture_bytes - warm.capture_bytes >= 40 * frames  # a JSON line per frame
+    assert report.capture_lines >= report.frames_received + report.commands_sent
+    assert report.frames_dropped == 0 and report.resends == 0
+    first = samples[0]
+    lines = [f"soak of {end.t_s / 60:.1f} simulated min: {report.moves} moves, "
+             f"{report.frames_received} frames in, {report.commands_sent} commands out",
+             f"  CPU {report.cpu_s:.1f} s, wall {report.wall_s:.1f} s "
+             f"({end.t_s / report.cpu_s:.1f} simulated s per CPU s, tracemalloc on)",
+             "  t_sim      traced MB   max RSS MB   capture MB"]
+    lines += [f"  {s.t_s:7.0f} s  {s.traced / MB:9.2f}   {s.max_rss_kb / 1024:10.1f}   "
+              f"{s.capture_bytes / MB:10.1f}" for s in samples]
+    lines.append(f"  start {first.traced / MB:.2f} MB traced / {first.max_rss_kb / 1024:.1f} MB "
+                 f"max RSS; after warm-up ({warm.t_s:.0f} s) {warm.traced / MB:.2f} / "
+                 f"{warm.max_rss_kb / 1024:.1f}; end {end.traced / MB:.2f} / "
+                 f"{end.max_rss_kb / 1024:.1f}; worst traced after warm-up {worst / MB:.2f} MB")
+    return "\n".join(lines)
+
+
+@pytest.mark.slow
+def test_soak_hour(tmp_path: Path) -> None:
+    """An hour of simulated motion, memory sampled every simulated minute, warm-up 5 minutes."""
+    with cpu_guard(3600.0):
+        report = soak(3600.0, 60.0, tmp_path / "soak.jsonl")
+    print("\n" + check(report, warmup_s=300.0, duration_s=3600.0, sample_s=60.0))
+
+
+def test_soak_short(tmp_path: Path) -> None:
+    """The same loop for two simulated minutes, sampled every 10 s, warm-up 30 s."""
+    with cpu_guard(300.0):
+        report = soak(120.0, 10.0, tmp_path / "soak.jsonl")
+    print("\n" + check(report, warmup_s=30.0, duration_s=120.0, sample_s=10.0))
