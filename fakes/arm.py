@@ -79,6 +79,8 @@ class ArmEmulator:
         self.bus.fault = self.injector.i2c_fault if faults else None
         self.uart.rx_filter = self.injector.to_robot if faults else None
         self.uart.tx_filter = self.injector.to_host if faults else None
+        self.master.deferrable = not faults
+        self.uart.before_deliver = self.master.catch_up
         self._commands_seen = 0
         self.started = False
 
@@ -194,6 +196,8 @@ class ArmEmulator:
     # statistics ----------------------------------------------------------------------------------
     def stats(self) -> ArmStats:
         """Counters so far."""
+        if self.started:
+            self._now()
         return ArmStats(
             loops=self.master.loops, commands=self.master.commands,
             rx_bytes=self.uart.rx_bytes, rx_overflow_bytes=self.uart.rx_overflow_bytes,
@@ -211,4 +215,8 @@ class ArmEmulator:
         return RATED_CYCLES
 
     def _now(self) -> float:
-        return asyncio.get_running_loop().time()
+        """The loop's time, with every main loop due by then run (see ``MasterBoard.catch_up``):
+        whatever the caller looks at or changes happens after them, as in the firmware."""
+        t = asyncio.get_running_loop().time()
+        self.master.catch_up(t)
+        return t

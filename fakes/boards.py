@@ -293,12 +293,15 @@ class SlaveBoard(Board):
         if register != REG_POSITION:
             self.sync(t_s)
             return bytes((self.status_byte() if register == REG_STATUS else 0xA0 | self.number,))
-        ticks = self.sample_position(t_s)
         model = self.model
         assert model is not None
+        # sample_position, inline (three calls per main loop)
+        counter, self.last_truth_rad = model.sample(
+            int((t_s - self.t0) * self._ticks_per_s + 1e-9))
+        self.last_firmware_rad = q = counter / self._counts_per_rad
         if model.pending_transitions:
             self.store_transitions()
-        return ticks.to_bytes(2, "little")
+        return math.floor(q % math.tau * TICKS_PER_RAD + 0.5).to_bytes(2, "little")
 
 
 class MasterBoard(Board):
@@ -318,6 +321,11 @@ class MasterBoard(Board):
         self.i2c_errors = 0
         self.framer = Framer("command")
         self._timer: asyncio.TimerHandle | None = None
+        self._run_due: Callable[[float], None] | None = None
+        self.deferrable = False
+        """Whether a main loop may run at the delivery of the previous reply rather than at its
+        own start (see :meth:`_run_polling`); the arm sets it when no fault is scheduled, as a
+        fault's hooks answer by the time of the call."""
 
     def _on_power_on(self, t_s: float) -> None:
         self.framer = Framer("command")
@@ -325,6 +333,7 @@ class MasterBoard(Board):
         self.uart.begin(t_s)
 
     def _on_power_off(self) -> None:
+        self._run_due = None
         if self._timer is not None:  # the task's cancellation comes later: a loop may be due now
             self._timer.cancel()
             self._timer = None
@@ -339,22 +348,57 @@ class MasterBoard(Board):
             await self._run_polling(loop)
 
     async def _run_polling(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Each main loop is one timer callback at the start time the previous one yielded: one
-        event-loop pass per loop, without a task wake-up (a future and a second pass). The task
-        waits here until power-off cancels it, or ends with the exception of a failed loop."""
+        """Main loops as timer callbacks, not task wake-ups (a future and a second pass each).
+
+        When :attr:`deferrable`, a loop whose start falls before the delivery of the previous
+        reply is run by that delivery instead of a timer of its own (``Uart.before_deliver``), just
+        before the reply reaches the host: one event-loop pass per loop. Nothing can tell the
+        difference: the loop reads the UART bytes complete at its start, as before, and whoever
+        looks at the arm in between (host writes, ground truth, power) goes through
+        :meth:`catch_up` first. The task waits here until power-off cancels it, or ends with the
+        exception of a failed loop."""
         loops = self._main_loops(loop, None)
         failed: asyncio.Future[None] = loop.create_future()
+        boot = self.boots
+        uart = self.uart
+        due = -math.inf
+        timer_at = math.nan
 
-        def next_loop() -> None:
-            try:
-                start = next(loops)
-            except Exception as exc:
-                failed.set_exception(exc)
+        def run_due(t_s: float) -> None:
+            nonlocal due, timer_at
+            while due <= t_s:
+                try:
+                    due = next(loops)
+                except Exception as exc:
+                    due = math.inf
+                    if not failed.done():
+                        failed.set_exception(exc)
+                    return
+                if not self.powered or self.boots != boot:  # a fault cut the power in that loop
+                    due = math.inf
+                    return
+            if self.deferrable and uart.pending_delivery_s >= due:
                 return
-            self._timer = loop.call_at(start, next_loop)
+            if timer_at != due:
+                if self._timer is not None:
+                    self._timer.cancel()
+                timer_at = due
+                self._timer = loop.call_at(due, on_timer)
 
-        next_loop()
+        def on_timer() -> None:
+            nonlocal timer_at
+            self._timer, timer_at = None, math.nan
+            run_due(loop.time())
+
+        self._run_due = run_due
+        run_due(loop.time())
         await failed
+
+    def catch_up(self, t_s: float) -> None:
+        """Run the main loops due by ``t_s`` that were deferred (see :meth:`_run_polling`)."""
+        run_due = self._run_due
+        if run_due is not None:
+            run_due(t_s)
 
     async def _run_blocking(self, loop: asyncio.AbstractEventLoop) -> None:
         """Each main loop starts with a blocking read of a whole command."""

@@ -127,30 +127,34 @@ class I2CBus:
     def i2c_rdwr(self, *msgs: i2c_msg) -> None:
         """Run a combined transaction, as ``smbus2.SMBus.i2c_rdwr`` does."""
         bit_s = self.bit_s
-        now = self.clock.now + bit_s  # START
+        clock = self.clock
+        now = clock.now + bit_s  # START
         stats = self.stats
         stats.transactions += 1
         fault = self.fault
+        devices = self._devices
         for m in msgs:
-            address, length, buf = m.addr, m.len, m.buf
-            device = self._devices.get(address)
+            address = m.addr
+            device = devices.get(address)
             code = 0 if fault is None else fault(address, now)
             if device is None or code:
-                self.clock.now = now + 10 * bit_s  # address byte, NAK, STOP
+                clock.now = now + 10 * bit_s  # address byte, NAK, STOP
                 if code == errno.EIO:
                     stats.bus_errors += 1
                 else:
                     stats.naks += 1
                     code = errno.EREMOTEIO
                 raise OSError(code, f"{os.strerror(code)} (I²C address 0x{address:02x})")
+            length = m.len
             now += (9 * length + 10) * bit_s  # address + data bytes with ACKs, repeated START
             stats.bytes += length
             if m.flags & I2C_M_RD:
                 data = device.on_request(length, now)
                 if len(data) != length:  # a short answer reads as 0xFF (the idle bus level)
                     data = data[:length].ljust(length, b"\xff")
-                for i, byte in enumerate(data):
-                    buf[i] = byte
+                buf = m.buf
+                for i in range(length):
+                    buf[i] = data[i]
             else:
-                device.on_receive(buf[:length], now)
-        self.clock.now = now  # the last bit time above is the STOP
+                device.on_receive(m.buf[:length], now)
+        clock.now = now  # the last bit time above is the STOP

@@ -50,6 +50,10 @@ class Uart:
         self.tx_bytes = 0
         self.tx_dropped_bytes = 0
         """Bytes the master printed that no host received (none connected, or power cut)."""
+        self.before_deliver: Callable[[float], None] | None = None
+        """Called with the loop's time before a chunk reaches the host (deferred main loops)."""
+        self.pending_delivery_s = -math.inf
+        """When the last unfiltered write reaches the host; -inf after a filtered one."""
         self._generation = 0
         self._loop: asyncio.AbstractEventLoop | None = None  # the master's, from Serial.begin()
 
@@ -133,7 +137,9 @@ class Uart:
         assert loop is not None, "Uart.begin() first"
         if self.tx_filter is None:
             loop.call_at(done, self._deliver, self._generation, data, tag)
+            self.pending_delivery_s = done
         else:
+            self.pending_delivery_s = -math.inf
             pieces = self.tx_filter(data, done)
             for k, (delay_s, chunk) in enumerate(pieces):
                 loop.call_at(done + delay_s, self._deliver, self._generation, chunk,
@@ -142,8 +148,14 @@ class Uart:
         return t_s + overflow * byte_s if overflow > 0 else t_s
 
     def _deliver(self, generation: int, data: bytes, tag: object) -> None:
+        if generation != self._generation:
+            self.tx_dropped_bytes += len(data)
+            return
+        if self.before_deliver is not None:
+            assert self._loop is not None
+            self.before_deliver(self._loop.time())
         sink = self.host_sink
-        if sink is None or generation != self._generation:
+        if sink is None:
             self.tx_dropped_bytes += len(data)
             return
         sink(data)
@@ -155,6 +167,7 @@ class Uart:
         receiver is off until the next :meth:`begin`."""
         self._generation += 1
         self._tx_line_free = -math.inf
+        self.pending_delivery_s = -math.inf
         self._rx_enabled_s = math.inf
 
     def begin(self, t_s: float) -> None:
