@@ -235,7 +235,7 @@ class Framer:
     so a stream without ``#`` cannot grow memory. CR/LF between frames are accepted silently.
     """
 
-    __slots__ = ("_buf", "_fast", "_len", "_make", "discarded_bytes", "errors", "frames", "kind")
+    __slots__ = ("_buf", "_fast", "_len", "_one", "discarded_bytes", "errors", "frames", "kind")
 
     def __init__(self, kind: FrameKind = "reply") -> None:
         if kind not in ("reply", "command"):
@@ -243,6 +243,7 @@ class Framer:
         self.kind: FrameKind = kind
         self._len = REPLY_LEN if kind == "reply" else COMMAND_LEN
         self._fast = (_REPLY_RE if kind == "reply" else _COMMAND_RE).findall
+        self._one = _REPLY_RE.fullmatch if kind == "reply" else None
         self._buf = b""
         self.frames = 0
         """Valid frames decoded."""
@@ -258,6 +259,13 @@ class Framer:
 
     def feed(self, data: bytes) -> list[Event]:
         """Add bytes from the wire; return the frames and errors they complete, in stream order."""
+        if self._one is not None and not self._buf and len(data) == REPLY_LEN:
+            # one whole reply in one chunk: how a fake:// or a quiet line delivers them
+            m = self._one(data)
+            if m is not None:
+                a, b, c, d = m.groups()
+                self.frames += 1
+                return [_new(Reply, (int(a), int(b), int(c), int(d)))]
         buf = self._buf + data if self._buf else bytes(data)
         end = buf.rfind(b"#") + 1
         events: list[Event] = []

@@ -68,19 +68,19 @@ class ArmEmulator:
         self.slaves = [SlaveBoard(k + 1, j, self.settings, self.eeproms[k], self.bus, steps[k])
                        for k, j in enumerate(self.robot.joints) if k > 0]
         self.master = MasterBoard(self.robot.joints[0], self.settings, self.eeproms[0], self.bus,
-                                  self.uart, self.slaves, steps[0], on_reply=self._on_reply)
+                                  self.uart, self.slaves, steps[0])
         self.boards: list[Board] = [self.master, *self.slaves]
         self.truth: deque[TruthSample] = deque(maxlen=TRUTH_HISTORY)
         """Ground truth of each reply that reached the host (the newest last): ``truth[-1]``
         belongs to the newest reply the host has received."""
         self.uart.on_delivered = self.truth.append  # each reply's sample, the master's tag
-        self.reply_listeners: list[Callable[[bytes, TruthSample], None]] = []
         self.injector = FaultInjector(faults, self.settings.seed, self)
         self.bus.fault = self.injector.i2c_fault if faults else None
         self.uart.rx_filter = self.injector.to_robot if faults else None
         self.uart.tx_filter = self.injector.to_host if faults else None
         self.master.deferrable = not faults
-        self.uart.before_deliver = self.master.catch_up
+        if any(f.after_frames is not None for f in faults):
+            self.master.on_reply = self._on_reply  # counts the commands for their schedule
         self._commands_seen = 0
         self.started = False
 
@@ -186,12 +186,9 @@ class ArmEmulator:
         return tuple(out)
 
     def _on_reply(self, reply: bytes, sample: TruthSample) -> None:
-        if self._commands_seen != self.master.commands:
-            while self._commands_seen < self.master.commands:
-                self._commands_seen += 1
-                self.injector.on_command(self._commands_seen)
-        for listener in self.reply_listeners:
-            listener(reply, sample)
+        while self._commands_seen < self.master.commands:
+            self._commands_seen += 1
+            self.injector.on_command(self._commands_seen)
 
     # statistics ----------------------------------------------------------------------------------
     def stats(self) -> ArmStats:

@@ -19,6 +19,7 @@ import asyncio
 import logging
 import math
 from collections.abc import Callable, Generator
+from ctypes import create_string_buffer
 from typing import NamedTuple
 
 from smbus2 import i2c_msg
@@ -27,6 +28,7 @@ from drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks
 from drivers.settings import JointSettings
 from fakes.eeprom import Eeprom
 from fakes.i2c import (
+    I2C_M_RD,
     REG_POSITION,
     REG_REFERENCE,
     REG_STATUS,
@@ -97,7 +99,7 @@ class Board:
         tick = int((t_s - self.t0) * self._ticks_per_s + 1e-9)
         if tick > model.tick:
             model.advance(tick)
-        if model.pending_transitions:
+        if model.transitions:
             self.store_transitions()
         return model
 
@@ -289,8 +291,9 @@ class SlaveBoard(Board):
 
     def on_request(self, length: int, t_s: float) -> bytes:
         """onRequest: the register the pointer names; the pointer returns to POSITION."""
-        register, self._pointer = self._pointer, REG_POSITION
+        register = self._pointer
         if register != REG_POSITION:
+            self._pointer = REG_POSITION
             self.sync(t_s)
             return bytes((self.status_byte() if register == REG_STATUS else 0xA0 | self.number,))
         model = self.model
@@ -299,7 +302,7 @@ class SlaveBoard(Board):
         counter, self.last_truth_rad = model.sample(
             int((t_s - self.t0) * self._ticks_per_s + 1e-9))
         self.last_firmware_rad = q = counter / self._counts_per_rad
-        if model.pending_transitions:
+        if model.transitions:
             self.store_transitions()
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5).to_bytes(2, "little")
 
@@ -333,7 +336,7 @@ class MasterBoard(Board):
         self.uart.begin(t_s)
 
     def _on_power_off(self) -> None:
-        self._run_due = None
+        self._run_due = self.uart.before_deliver = None
         if self._timer is not None:  # the task's cancellation comes later: a loop may be due now
             self._timer.cancel()
             self._timer = None
@@ -391,6 +394,8 @@ class MasterBoard(Board):
             run_due(loop.time())
 
         self._run_due = run_due
+        if self.deferrable:
+            uart.before_deliver = run_due
         run_due(loop.time())
         await failed
 
@@ -423,20 +428,31 @@ class MasterBoard(Board):
         line_end = settings.reply_line_end.encode()
         eeprom_s = settings.eeprom_write_s_per_byte
         overhead_s = settings.loop_overhead_s
-        ref_msgs = [i2c_msg.write(s.address, b"\x01\x00\x00\x00") for s in slaves]
-        pos_msgs = [i2c_msg.read(s.address, 2) for s in slaves]
+        # smbus2 messages over buffers of our own (as i2c_msg.write/read build them), read and
+        # filled through memoryviews: cheaper than ctypes item access on msg.buf
+        ref_bufs = [create_string_buffer(bytes((REG_REFERENCE, 0, 0, 0)), 4) for _ in slaves]
+        ref_msgs = [i2c_msg(addr=s.address, flags=0, len=4, buf=b)
+                    for s, b in zip(slaves, ref_bufs, strict=True)]
+        ref_views = [memoryview(b).cast("B") for b in ref_bufs]
+        pos_bufs = [create_string_buffer(2) for _ in slaves]
+        pos_msgs = [i2c_msg(addr=s.address, flags=I2C_M_RD, len=2, buf=b)
+                    for s, b in zip(slaves, pos_bufs, strict=True)]
+        pos_views = [memoryview(b).cast("B") for b in pos_bufs]
         positions = [0] * len(slaves)
         command: Command | None = None
         sent: Command | None = None
         framer = self.framer
         model = self.model
         assert model is not None
+        t0, ticks_per_s, counts_per_rad = self.t0, self._ticks_per_s, self._counts_per_rad
+        s2, s3, s4 = slaves
+        rdwr, read_available, write = bus.i2c_rdwr, uart.read_available, uart.write
         while True:
             # Receive reference poses and velocities from UART
             if received is not None:
                 command = received
             else:
-                data = uart.read_available(clock.now)
+                data = read_available(clock.now)
                 if data:
                     for event in framer.feed(data):
                         if isinstance(event, Command):
@@ -445,15 +461,14 @@ class MasterBoard(Board):
             new = command is not sent
             if new:
                 assert command is not None
-                for k, msg in enumerate(ref_msgs):
-                    t, d = command.ticks[k + 1], command.duties[k + 1]
-                    buf = msg.buf
-                    buf[1], buf[2], buf[3] = bytes((t & 0xFF,)), bytes((t >> 8,)), bytes((d,))
+                for k, view in enumerate(ref_views):
+                    t = command.ticks[k + 1]
+                    view[1], view[2], view[3] = t & 0xFF, t >> 8, command.duties[k + 1]
             # Update reference pose and velocity of joints 2..4 through I2C (every loop; until
             # the first command the references are "hold", duty 00)
             for msg in ref_msgs:
                 try:
-                    bus.i2c_rdwr(msg)
+                    rdwr(msg)
                 except OSError:
                     self.i2c_errors += 1
             # Update reference pose of joint 1
@@ -464,23 +479,30 @@ class MasterBoard(Board):
             # Request current pose of joints 2..4 through I2C
             for k, msg in enumerate(pos_msgs):
                 try:
-                    bus.i2c_rdwr(msg)
+                    rdwr(msg)
                 except OSError:
                     self.i2c_errors += 1  # keep the last value, as Wire.requestFrom's 0 bytes
                     continue
-                buf = msg.buf
-                positions[k] = buf[0][0] | buf[1][0] << 8
-            # Update current pose of joint 1
-            own = self.sample_position(clock.now)
-            if model.pending_transitions:
-                clock.now += self.store_transitions() * eeprom_s
-            clock.now += overhead_s
+                view = pos_views[k]
+                positions[k] = view[0] | view[1] << 8
+            # Update current pose of joint 1 (sample_position, inline: hot)
+            now = clock.now
+            counter, self.last_truth_rad = model.sample(int((now - t0) * ticks_per_s + 1e-9))
+            self.last_firmware_rad = q = counter / counts_per_rad
+            own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
+            if model.transitions:
+                now += self.store_transitions() * eeprom_s
+            now += overhead_s
             # Pack all current poses and send through UART
             reply = encode_reply(own, positions[0], positions[1], positions[2])
             if line_end:
                 reply += line_end
-            sample = self._truth(clock.now)
-            clock.now = uart.write(reply, clock.now, sample)
+            sample = _new_tuple(TruthSample, (
+                now, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad,
+                      s4.last_truth_rad),
+                (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
+                 s4.last_firmware_rad)))
+            clock.now = write(reply, now, sample)
             self.loops += 1
             if self.on_reply is not None:
                 self.on_reply(reply, sample)
@@ -505,14 +527,6 @@ class MasterBoard(Board):
             else:
                 clock.now = max(clock.now, t_hash)
                 await asyncio.sleep(max(0.0, t_hash - loop.time()))
-
-    def _truth(self, t_s: float) -> TruthSample:
-        s2, s3, s4 = self.slaves
-        return _new_tuple(TruthSample, (
-            t_s, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad, s4.last_truth_rad),
-            (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
-             s4.last_firmware_rad)))
-
 
 def _wake(future: asyncio.Future[None]) -> None:
     """Timer callback ending the master's wait (its task may have been cancelled meanwhile)."""

@@ -137,7 +137,7 @@ class I2CBus:
             address = m.addr
             device = devices.get(address)
             code = 0 if fault is None else fault(address, now)
-            if device is None or code:
+            if code or device is None:
                 clock.now = now + 10 * bit_s  # address byte, NAK, STOP
                 if code == errno.EIO:
                     stats.bus_errors += 1
@@ -150,9 +150,13 @@ class I2CBus:
             stats.bytes += length
             if m.flags & I2C_M_RD:
                 data = device.on_request(length, now)
+                buf = m.buf
+                if length == 2 and len(data) == 2:  # the master's position read: hot
+                    buf[0] = data[0]
+                    buf[1] = data[1]
+                    continue
                 if len(data) != length:  # a short answer reads as 0xFF (the idle bus level)
                     data = data[:length].ljust(length, b"\xff")
-                buf = m.buf
                 for i in range(length):
                     buf[i] = data[i]
             else:

@@ -209,7 +209,9 @@ class JointModel:
         self._stalled = False
         self._run: _Run | None = None
         self._idle = False  # STOP with nothing to do: until an input, time passes and that is all
-        self._transitions: list[Transition] = []
+        self.transitions: list[Transition] = []
+        """Motion changes not yet taken by :meth:`drain_transitions`, oldest first (the boards
+        poll its truth: no call)."""
         #: Step pulses the firmware issued (PWM_HIGH actions that stepped).
         self.pulses = 0
         #: Pulses that moved the shaft.
@@ -297,14 +299,9 @@ class JointModel:
         """Ground-truth joint angle in radians, backlash included (what a laser tracker sees)."""
         return (self._s - self._gap) / self._steps_per_rad
 
-    @property
-    def pending_transitions(self) -> int:
-        """How many motion changes wait for :meth:`drain_transitions` (cheap to poll)."""
-        return len(self._transitions)
-
     def drain_transitions(self) -> list[Transition]:
         """The motion changes since the last call, oldest first (the board writes EEPROM)."""
-        out, self._transitions = self._transitions, []
+        out, self.transitions = self.transitions, []
         return out
 
     def next_event_tick(self) -> int | None:
@@ -312,7 +309,7 @@ class JointModel:
         reference; None if nothing is pending (idle, or pushing against a limit or stall forever).
         """
         probe = copy.copy(self)  # every other attribute is immutable
-        probe._transitions = []
+        probe.transitions = []
         probe._run = None if self._run is None else replace(self._run)
         probe._miss_bits = _clone(self._miss_bits)
         probe._noise_bits = _clone(self._noise_bits)
@@ -324,51 +321,53 @@ class JointModel:
         """Bring the state to ``tick`` (control cycles, not before the model's time)."""
         if tick < self._now:
             raise ValueError(f"tick {tick} is before the model's time {self._now}")
-        if self._idle:
-            self._now = tick
-            return
-        run = self._run
-        if run is not None and run.done > 0 and run.pulses is not None:
-            # Fast path, the common case of a board sampling a moving joint: inside a stepping
-            # run that does not end before ``tick`` nothing but steps happens, so do what
-            # _execute/_pulse do for that case inline (no Hall, no limit, no motion change).
-            period = run.period
-            # the pulses at start + k·period < tick, and the cycles since the last of them
-            done, lows = divmod(tick - 1 - run.start, period)
-            done += 1
-            if done < run.pulses:
-                prev = run.done
-                if done > prev:
-                    if run.steps == run.pulses:  # no missed steps: run.steps_after is identity
-                        after, moved = done, done - prev
-                    else:
-                        after = done * run.steps // run.pulses
-                        moved = after - prev * run.steps // run.pulses
-                        self.steps_missed += done - prev - moved
-                    self.pulses += done - prev
-                    self.steps_taken += moved
-                    run.done = done
-                    self._s = run.s0 + run.direction * after
-                    play = self._half_play
-                    if play:  # backlash
-                        gap = self._gap + run.direction * moved
-                        self._gap = play if gap > play else -play if gap < -play else gap
-                self._now = tick
-                if lows >= period - 1:
-                    self._state = _PWM_HIGH
-                    self._n = period - 1
-                else:
-                    self._state = _PWM_LOW
-                    self._n = lows
-                return
-        self._run_until(tick, probe=False)
+        self.sample(tick)
 
     def sample(self, tick: int) -> tuple[int, float]:
         """The counter and :meth:`true_angle_rad` at ``tick``, or at the model's time if that is
         later (never backwards): a board's position report and the truth beside it, advancing
         and reading in one call (the boards make four per main loop)."""
         if tick > self._now:
-            self.advance(tick)
+            run = self._run
+            if self._idle:
+                self._now = tick
+            elif run is not None and run.done > 0 and run.pulses is not None:
+                # Fast path, the common case of a board sampling a moving joint: inside a
+                # stepping run that does not end before ``tick`` nothing but steps happens, so do
+                # what _execute/_pulse do for that case inline (no Hall, no limit, no motion
+                # change).
+                period = run.period
+                # the pulses at start + k·period < tick, and the cycles since the last of them
+                done, lows = divmod(tick - 1 - run.start, period)
+                done += 1
+                if done < run.pulses:
+                    prev = run.done
+                    if done > prev:
+                        if run.steps == run.pulses:  # no missed steps: steps_after is identity
+                            after, moved = done, done - prev
+                        else:
+                            after = done * run.steps // run.pulses
+                            moved = after - prev * run.steps // run.pulses
+                            self.steps_missed += done - prev - moved
+                        self.pulses += done - prev
+                        self.steps_taken += moved
+                        run.done = done
+                        self._s = run.s0 + run.direction * after
+                        play = self._half_play
+                        if play:  # backlash
+                            gap = self._gap + run.direction * moved
+                            self._gap = play if gap > play else -play if gap < -play else gap
+                    self._now = tick
+                    if lows >= period - 1:
+                        self._state = _PWM_HIGH
+                        self._n = period - 1
+                    else:
+                        self._state = _PWM_LOW
+                        self._n = lows
+                else:
+                    self._run_until(tick, probe=False)
+            else:
+                self._run_until(tick, probe=False)
         s = self._s
         return self._offset + s * self._num // self._den, (s - self._gap) / self._steps_per_rad
 
@@ -425,7 +424,7 @@ class JointModel:
         return 0 if abs(err) <= self._deadband else err
 
     def _record(self, tick: int, counter: int) -> None:
-        self._transitions.append(Transition(tick, self.motion, counter))
+        self.transitions.append(Transition(tick, self.motion, counter))
 
     def _finish_homing(self, tick: int) -> None:
         self._homing_dir = 0
@@ -474,8 +473,8 @@ class JointModel:
                 else:
                     self._run = self._plan(1 if err > 0 else -1)
             if probe:
-                if self._transitions:
-                    return self._transitions[0].tick
+                if self.transitions:
+                    return self.transitions[0].tick
                 if self._homed_tick != homed:
                     return self._homed_tick
         return None

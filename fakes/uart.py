@@ -13,6 +13,7 @@ All computed from timestamps, never per byte in a loop of the event loop.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import math
 from collections import deque
 from collections.abc import Callable
@@ -56,6 +57,7 @@ class Uart:
         """When the last unfiltered write reaches the host; -inf after a filtered one."""
         self._generation = 0
         self._loop: asyncio.AbstractEventLoop | None = None  # the master's, from Serial.begin()
+        self._context: contextvars.Context | None = None
 
     # host side ---------------------------------------------------------------------------------
     def host_write(self, data: bytes, t_s: float) -> None:
@@ -136,14 +138,14 @@ class Uart:
         loop = self._loop
         assert loop is not None, "Uart.begin() first"
         if self.tx_filter is None:
-            loop.call_at(done, self._deliver, self._generation, data, tag)
+            loop.call_at(done, self._deliver, self._generation, data, tag, context=self._context)
             self.pending_delivery_s = done
         else:
             self.pending_delivery_s = -math.inf
             pieces = self.tx_filter(data, done)
             for k, (delay_s, chunk) in enumerate(pieces):
                 loop.call_at(done + delay_s, self._deliver, self._generation, chunk,
-                             tag if k == len(pieces) - 1 else None)
+                             tag if k == len(pieces) - 1 else None, context=self._context)
         overflow = queued + len(data) - self.tx_buffer_bytes
         return t_s + overflow * byte_s if overflow > 0 else t_s
 
@@ -175,6 +177,7 @@ class Uart:
         received; what the master prints is delivered on that loop."""
         self._rx_enabled_s = t_s
         self._loop = asyncio.get_running_loop()
+        self._context = contextvars.copy_context()  # one for every delivery: no copy per call_at
 
     @property
     def rx_line_free_s(self) -> float:
