@@ -749,8 +749,7 @@ class Arm:
                     for r in recorders:
                         r.append(recorded)
                 if capture is not None:
-                    capture.write(t, "in", (data if single else ev.encode()).decode("ascii"),
-                                  None)
+                    capture.frame(t, "in", (data if single else ev.encode()).decode("ascii"))
             elif isinstance(ev, FrameError):
                 if self._synced:
                     self.frames_dropped += 1
@@ -954,7 +953,7 @@ class Arm:
                 continue
             self.commands_sent += 1
             if self._capture is not None:
-                self._capture.write(t, "out", data.decode("ascii"), None)
+                self._capture.frame(t, "out", data.decode("ascii"))
             return t
 
     async def send(self, command: Command) -> float:
