@@ -67,7 +67,7 @@ from bench.record import (
 from bench.suites import Suite, SuiteContext, load_suite, suite_names
 from bench.suites.base import PoseSource, PowerSwitch
 from bench.truth import EmulatorTruth, aclose_source, aopen_source, load_tracker
-from drivers.errors import ArmbenchError
+from drivers.errors import ArmbenchError, TransportError
 from drivers.settings import RobotSettings, SettingsError, load_settings
 from drivers.transports import scheme_of, transport_class
 
@@ -351,6 +351,9 @@ def prepare(options: RunOptions) -> BenchPlan:
     env = None if resume is None else resume.environment
     port = options.port or (env.port if env is not None and env.port else None) or "fake://"
     transport_class(port)  # unknown scheme or a transport that cannot be imported
+    if scheme_of(port) is None and "/" in port and not Path(port).exists():
+        raise TransportError(port, "no such serial device (is the arm plugged in? "
+                                   "'python3 -m serial.tools.list_ports' lists the ports)")
     fake = scheme_of(port) == "fake"
     url_settings: str | None = None
     url_seed: int | None = None
@@ -476,6 +479,12 @@ def prepare(options: RunOptions) -> BenchPlan:
         if theirs is not None and theirs != config.spec_version:
             raise BaselineError(f"baseline {options.baseline}: limits spec version {theirs!r} "
                                 f"differs from this run's {config.spec_version!r}")
+        for ps in planned:  # figures of another suite version measure something else
+            theirs_suite = baseline.suites.get(ps.name)
+            if theirs_suite is not None and theirs_suite.version != ps.suite.version:
+                raise BaselineError(f"baseline {options.baseline}: suites.{ps.name}.version "
+                                    f"{theirs_suite.version!r} differs from this run's "
+                                    f"{ps.suite.version!r}; measure a new baseline")
 
     # --- measurement source and power -------------------------------------------------------
     tracker = load_tracker(options.tracker, settings, tracker_params) if options.tracker else None

@@ -48,6 +48,14 @@ log = logging.getLogger("armbench.emulator")
 #: instead of trying to catch up with a burst of loops.
 MAX_LAG_S = 0.05
 
+#: The 80 µs control cycle in nanoseconds. Cycle counts are taken from times since a board's
+#: power-up rounded to the nanosecond, and the master's clock is put back on that nanosecond grid
+#: after every loop: sums of bit times on an absolute float clock drift by ulps (~5e-13 s per
+#: simulated second at 4..32 s of loop time), which made reads that fall exactly on a cycle edge
+#: (every I²C time is whole 10 µs bits) count one cycle less at some absolute times than at
+#: others. So a run measures the same whatever loop time it starts at.
+NS_PER_CYCLE = round(CYCLE_S * 1e9)
+
 _new_tuple = tuple.__new__  # builds a NamedTuple without its Python-level __new__ (hot path)
 
 
@@ -84,19 +92,18 @@ class Board:
         self.last_truth_rad = motor_steps / joint.steps_per_rad
         self.last_firmware_rad = 0.0
         self.stalled = False
-        self._ticks_per_s = 1.0 / CYCLE_S
         self._counts_per_rad = joint.counts_per_rad
 
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
         """The board's control cycle count at ``t_s`` (cycles since its power-up)."""
-        return int((t_s - self.t0) * self._ticks_per_s + 1e-9)
+        return round((t_s - self.t0) * 1e9) // NS_PER_CYCLE
 
     def sync(self, t_s: float) -> JointModel:
         """Bring the joint to ``t_s`` (never backwards) and store EEPROM records it produced."""
         model = self.model
         assert model is not None
-        tick = int((t_s - self.t0) * self._ticks_per_s + 1e-9)
+        tick = round((t_s - self.t0) * 1e9) // NS_PER_CYCLE
         if tick > model.tick:
             model.advance(tick)
         if model.transitions:
@@ -123,7 +130,7 @@ class Board:
         model = self.model
         assert model is not None
         counter, self.last_truth_rad = model.sample(
-            int((t_s - self.t0) * self._ticks_per_s + 1e-9))
+            round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)  # rad_to_ticks(q), inline: hot
 
@@ -300,7 +307,7 @@ class SlaveBoard(Board):
         assert model is not None
         # sample_position, inline (three calls per main loop)
         counter, self.last_truth_rad = model.sample(
-            int((t_s - self.t0) * self._ticks_per_s + 1e-9))
+            round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         if model.transitions:
             self.store_transitions()
@@ -444,7 +451,7 @@ class MasterBoard(Board):
         framer = self.framer
         model = self.model
         assert model is not None
-        t0, ticks_per_s, counts_per_rad = self.t0, self._ticks_per_s, self._counts_per_rad
+        t0, counts_per_rad = self.t0, self._counts_per_rad
         s2, s3, s4 = slaves
         rdwr, read_available, write = bus.i2c_rdwr, uart.read_available, uart.write
         while True:
@@ -487,7 +494,7 @@ class MasterBoard(Board):
                 positions[k] = view[0] | view[1] << 8
             # Update current pose of joint 1 (sample_position, inline: hot)
             now = clock.now
-            counter, self.last_truth_rad = model.sample(int((now - t0) * ticks_per_s + 1e-9))
+            counter, self.last_truth_rad = model.sample(round((now - t0) * 1e9) // NS_PER_CYCLE)
             self.last_firmware_rad = q = counter / counts_per_rad
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
@@ -508,6 +515,7 @@ class MasterBoard(Board):
                 self.on_reply(reply, sample)
             if clock.now < loop.time() - MAX_LAG_S:  # real time, busy CPU: drop the lag, no burst
                 clock.now = loop.time()
+            clock.now = t0 + round((clock.now - t0) * 1e9) * 1e-9  # see NS_PER_CYCLE
             received = yield clock.now
 
     async def _receive_blocking(self, framer: Framer, loop: asyncio.AbstractEventLoop) -> Command:

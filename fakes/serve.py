@@ -13,6 +13,7 @@ import contextlib
 import errno
 import logging
 import os
+import socket
 import termios
 import tty
 from collections.abc import Callable
@@ -26,8 +27,17 @@ __all__ = ["FrameLogger", "PtyServer", "TcpServer", "parse_host_port"]
 
 log = logging.getLogger("armbench.emulator")
 
-#: A TCP client that sends nothing for this long is disconnected (issue: idle clients time out).
+#: A TCP client that sends nothing for this long, and does not read the reply stream either, is
+#: disconnected (issue: idle clients time out). A client that only listens (``armbench monitor``)
+#: keeps the server's send buffer near empty and stays.
 DEFAULT_IDLE_TIMEOUT_S = 300.0
+#: Bytes waiting in the server's send buffer above which a silent client counts as not reading.
+STALLED_BUFFER_BYTES = 64 * 1024
+#: Kernel send buffer of a client's socket (the reply stream is ~11 kB/s at 115200 baud).
+SEND_BUFFER_BYTES = 16 * 1024
+#: Bytes kept for a client that does not read; replies beyond are dropped, as on a serial line
+#: nobody reads (memory stays bounded).
+MAX_BUFFER_BYTES = 1024 * 1024
 
 
 class FrameLogger:
@@ -117,11 +127,15 @@ class TcpServer:
     """The arm on a TCP port, one client at a time; more clients are turned away."""
 
     def __init__(self, arm: ArmEmulator, host: str = "127.0.0.1", port: int = 0,
-                 idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S) -> None:
+                 idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
+                 stalled_buffer_bytes: int = STALLED_BUFFER_BYTES) -> None:
         self.arm = arm
         self.host = host
         self.port = port
         self.idle_timeout_s = idle_timeout_s
+        self.stalled_buffer_bytes = stalled_buffer_bytes
+        self.dropped_bytes = 0
+        """Reply bytes dropped because the client did not read them."""
         self._server: asyncio.Server | None = None
         self._client: asyncio.StreamWriter | None = None
         self.clients_served = 0
@@ -150,16 +164,31 @@ class TcpServer:
             self.on_client(peer)
         frames = FrameLogger()
 
+        transport = writer.transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:  # ~1.5 s of replies in the kernel: a client that stops reading shows
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+
         def sink(data: bytes) -> None:
             frames.sent(data)
-            if not writer.is_closing():
-                writer.write(data)
+            if writer.is_closing():
+                return
+            if transport.get_write_buffer_size() > MAX_BUFFER_BYTES:
+                self.dropped_bytes += len(data)
+                return
+            writer.write(data)
 
         self.arm.attach_host(sink)
         try:
             while True:
-                async with asyncio.timeout(self.idle_timeout_s):
-                    data = await reader.read(4096)
+                try:
+                    async with asyncio.timeout(self.idle_timeout_s):
+                        data = await reader.read(4096)
+                except TimeoutError:
+                    if transport.get_write_buffer_size() <= self.stalled_buffer_bytes:
+                        continue  # silent but reading the replies: a listener, not idle
+                    raise
                 if not data:
                     break
                 frames.received(data)

@@ -3,6 +3,7 @@ and on TCP (driven with a plain socket), as separate processes."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 import re
 import signal
@@ -136,3 +137,44 @@ def test_bad_settings_file_is_a_one_line_error(tmp_path: Path,
     assert main(["emulate", "--pty", "--settings", str(bad), "--duration", "0.1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "emulator.i2c_hz" in err[0]
+
+
+def test_tcp_listener_stays_and_a_stalled_client_is_dropped() -> None:
+    """Idle timeout (issue 7): a client that only reads the reply stream (as ``armbench monitor``
+    does) stays past the timeout; one that neither writes nor reads is disconnected. Real sockets
+    on a real-time loop; the client that stalls has a tiny receive buffer so the server's send
+    buffer fills within seconds."""
+    from fakes.arm import ArmEmulator
+    from fakes.serve import TcpServer
+
+    async def main() -> None:
+        server = TcpServer(ArmEmulator(), idle_timeout_s=0.3, stalled_buffer_bytes=2048)
+        host, port = await server.start()
+        loop = asyncio.get_running_loop()
+        try:
+            reader, writer = await asyncio.open_connection(host, port)
+            got = 0
+            t_end = loop.time() + 1.5
+            while loop.time() < t_end:  # five idle timeouts long, reading all the while
+                chunk = await asyncio.wait_for(reader.read(4096), 1.0)
+                assert chunk, "the listening client was disconnected"
+                got += len(chunk)
+            assert got > 25 * 300
+            writer.close()
+            await writer.wait_closed()
+            await asyncio.sleep(0.1)
+
+            sock = socket.socket()
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+            sock.setblocking(False)
+            await loop.sock_connect(sock, (host, port))
+            t0 = loop.time()
+            while server._client is not None or loop.time() - t0 < 0.5:
+                assert loop.time() - t0 < 30, "the stalled client was never dropped"
+                await asyncio.sleep(0.1)
+            sock.close()
+            assert server.clients_served == 2
+        finally:
+            await server.close()
+
+    asyncio.run(main())

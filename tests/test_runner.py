@@ -333,6 +333,12 @@ def _bad_options(tmp_path: Path) -> dict[str, tuple[RunOptions, str]]:
     other_schema.write_text(json.dumps({"schema": "armbench-run/99"}))
     bad_faults = tmp_path / "faults.toml"
     bad_faults.write_text('[[faults]]\nkind = "meteor"\nat_s = 1.0\n')
+    earlier = run(RunOptions(suites=["tiny"], config=write_config(tmp_path, trials=1),
+                             out=tmp_path / "earlier"))
+    old_version = tmp_path / "old_version.json"
+    doc = json.loads(earlier.results_path.read_text())
+    doc["suites"]["tiny"]["version"] = "0"
+    old_version.write_text(json.dumps(doc))
     out = tmp_path / "never"
     return {
         "unknown suite": (RunOptions(suites=["tiny", "nope"], config=good, out=out),
@@ -347,6 +353,11 @@ def _bad_options(tmp_path: Path) -> dict[str, tuple[RunOptions, str]]:
                                         baseline=tmp_path / "nothing.json"), "does not exist"),
         "baseline schema": (RunOptions(suites=["tiny"], config=good, out=out,
                                        baseline=other_schema), "armbench-run/99"),
+        "baseline suite version": (RunOptions(suites=["tiny"], config=good, out=out,
+                                              baseline=old_version), "suites.tiny.version"),
+        "missing serial device": (RunOptions(suites=["tiny"], config=good, out=out,
+                                             port=str(tmp_path / "ttyNOPE0")),
+                                  "no such serial device"),
         "port scheme": (RunOptions(suites=["tiny"], config=good, out=out, port="warp://x"),
                         "unknown transport scheme"),
         "faults file": (RunOptions(suites=["tiny"], config=good, out=out, faults=bad_faults),
