@@ -31,6 +31,7 @@ Semantics of errors, retries, cancellation and resume: ``docs/runner.md``.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import dataclasses
 import hashlib
@@ -38,7 +39,11 @@ import html
 import json
 import logging
 import math
+import multiprocessing
+import os
+import pickle
 import random
+import re
 import shutil
 import sys
 import time
@@ -67,11 +72,13 @@ from bench.record import (
 from bench.suites import Suite, SuiteContext, load_suite, suite_names
 from bench.suites.base import PoseSource, PowerSwitch
 from bench.truth import EmulatorTruth, aclose_source, aopen_source, load_tracker
+from drivers.capture import shift_capture
 from drivers.errors import ArmbenchError, TransportError
 from drivers.settings import RobotSettings, SettingsError, load_settings
 from drivers.transports import scheme_of, transport_class
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
+    from bench.workers import JobResult, TrialJob
     from fakes.arm import ArmEmulator
     from fakes.faults import Fault
     from fakes.settings import EmulatorSettings
@@ -127,7 +134,7 @@ _EXIT_BY_VERDICT: dict[Verdict, int] = {
 
 Isolation = Literal["trial", "run"]
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
-               "power_timeout_s", "tracker"}
+               "power_timeout_s", "tracker", "workers"}
 
 EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault]"],
                            "ArmEmulator"]
@@ -181,6 +188,9 @@ class RunOptions:
     power_manual: bool = False
     retries: int | None = None
     """Extra attempts for a trial that ends in error; None: ``[bench] retries`` or 0."""
+    workers: int | None = None
+    """Processes measuring ``fake://`` trials at once; None: ``[bench] workers`` or one per CPU
+    (at most 2)."""
 
 
 @dataclass(slots=True)
@@ -223,6 +233,8 @@ class BenchPlan:
     tracker: PoseSource | None
     run_id: str
     runner_info: dict[str, Any] = field(default_factory=dict)
+    workers: int = 1
+    """Processes measuring ``fake://`` trials at once (``bench.workers``)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
@@ -412,6 +424,12 @@ def prepare(options: RunOptions) -> BenchPlan:
     retries = _integer("bench.retries", bench.get("retries", 0))
     if options.retries is not None:
         retries = _integer("--retries", options.retries)
+    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)))
+    if options.workers is not None:
+        workers = _integer("--workers", options.workers)
+    if workers < 1:
+        raise SettingsError("--workers" if options.workers is not None else "bench.workers",
+                            workers, "must be at least 1")
     isolation = bench.get("isolation", "trial" if fake else "run")
     if isolation not in ("trial", "run"):
         raise SettingsError("bench.isolation", isolation, "must be 'trial' or 'run'")
@@ -518,7 +536,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         seed=seed, faults=faults, suites=planned, out_dir=out_dir, resume=resume,
         baseline=baseline, retries=retries, isolation=isolation,
         reply_timeout_s=reply_timeout_s, connect_timeout_s=connect_timeout_s, settle_s=settle_s,
-        power=power, tracker=tracker, run_id=run_id, runner_info=runner_info,
+        power=power, tracker=tracker, run_id=run_id, runner_info=runner_info, workers=workers,
     )
 
 
@@ -634,6 +652,11 @@ class _LoopClockWriter(RecordWriter):
     def elapsed_s(self) -> float:
         return self._start_s + self._loop.time() - self._loop_t0
 
+    def advance(self, dt_s: float) -> None:
+        """Move the run clock by ``dt_s`` (s) of robot time spent elsewhere: a trial measured
+        in a worker process on its own loop."""
+        self._start_s += dt_s
+
 
 def _latest_time(record: RunRecord) -> float:
     times = [0.0]
@@ -643,6 +666,11 @@ def _latest_time(record: RunRecord) -> float:
             times.append(s.ended_s)
         times.extend(t.ended_s for t in (*s.trials, *s.superseded_trials))
     return max(times)
+
+
+_JOB_PART = re.compile(
+    r"\.capture\.part\d+-job-(?P<suite>.+)-(?P<index>\d+)-(?P<attempt>\d+)\.jsonl")
+"""A worker's capture part (``bench.workers.job_part_tag``)."""
 
 
 def _first_capture_time(part: Path) -> float | None:
@@ -685,7 +713,7 @@ class _Run:
     """The state of one execution of a plan."""
 
     def __init__(self, plan: BenchPlan, writer: RecordWriter, progress: ProgressPrinter,
-                 emulator_factory: EmulatorFactory) -> None:
+                 emulator_factory: EmulatorFactory, *, part_tag: str = "") -> None:
         self.plan = plan
         self.writer = writer
         self.progress = progress
@@ -693,8 +721,12 @@ class _Run:
         self.conn: _Connection | None = None
         self.capture = writer.artifact_path(CAPTURE_FILE)
         self._parts = 0
-        self._unmerged: list[Path] = []
+        self._part_tag = part_tag
+        self.unmerged: list[Path] = []
+        """Capture parts of trials not yet in the record (merged once they are)."""
         self.last_arm: Any = None
+        self.pool: Any = None
+        """The worker processes of parallel trials (``bench.workers``), once started."""
 
     # -- connections ---------------------------------------------------------------------
 
@@ -704,7 +736,7 @@ class _Run:
 
         plan = self.plan
         self._parts += 1
-        part = self.writer.artifact_path(f".capture.part{self._parts}.jsonl")
+        part = self.writer.artifact_path(f".capture.part{self._parts}{self._part_tag}.jsonl")
         emulator = None
         transport = None
         if plan.fake:
@@ -755,7 +787,19 @@ class _Run:
                  for t in (*s.trials, *s.superseded_trials)]
         parts = sorted(self.writer.out_dir.glob(".capture.part*.jsonl"),
                        key=lambda p: p.stat().st_mtime)
+        recorded = {(name, t.index): t for name, s in self.writer.record.suites.items()
+                    for t in s.trials}
         for part in parts:
+            job = _JOB_PART.fullmatch(part.name)
+            if job is not None:  # a worker's part: times from its own 0 (bench.workers)
+                trial = recorded.get((job["suite"], int(job["index"])))
+                if trial is not None:
+                    self._merge_capture(part, trial.started_s)
+                    continue
+                log.info("dropping %s: its trial is not in the record", part.name)
+                with contextlib.suppress(OSError):
+                    part.unlink()
+                continue
             first = _first_capture_time(part)
             if first is not None and any(a - 1e-6 <= first <= b + 1e-6 for a, b in spans):
                 self._merge_capture(part)
@@ -764,14 +808,17 @@ class _Run:
                 with contextlib.suppress(OSError):
                     part.unlink()
 
-    def _merge_capture(self, part: Path) -> None:
-        """Append a connection's capture (written with ``t_s`` on the run clock) to
-        ``capture.jsonl``."""
+    def _merge_capture(self, part: Path, offset_s: float = 0.0) -> None:
+        """Append a connection's capture to ``capture.jsonl``: written with ``t_s`` on the run
+        clock, or ``offset_s`` before it (a worker's trial)."""
         if not part.exists():
             return
         try:
             with part.open("rb") as src, self.capture.open("ab") as dst:
-                shutil.copyfileobj(src, dst, _COPY_CHUNK)
+                if offset_s:
+                    shift_capture(src, dst, offset_s)
+                else:
+                    shutil.copyfileobj(src, dst, _COPY_CHUNK)
         except OSError as exc:
             log.warning("capture %s could not be merged into %s: %s", part, self.capture, exc)
             return
@@ -817,17 +864,123 @@ class _Run:
         todo = [i for i in range(n) if i not in done]
         self.progress.message(f"[{name}] {n} trial(s)" + (
             f", {len(done)} already measured" if done else ""))
-        first = True
-        for index in todo:
-            if not first and self.plan.settle_s > 0:
-                await asyncio.sleep(self.plan.settle_s)
-            first = False
-            trial = await self.run_trial(ps, index)
-            if trial.status == "error":
-                writer.end_suite(name, error=f"trial {index}: {trial.error}")
-                self.progress.message(f"[{name}] stopped: trial {index}: {trial.error}")
-                return
+        if self.parallel(ps, todo):
+            stopped = await self._run_parallel(ps, todo)
+        else:
+            stopped = None
+            first = True
+            for index in todo:
+                if not first and self.plan.settle_s > 0:
+                    await asyncio.sleep(self.plan.settle_s)
+                first = False
+                trial = await self.run_trial(ps, index)
+                if trial.status == "error":
+                    stopped = trial
+                    break
+        if stopped is not None:
+            writer.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
+            self.progress.message(f"[{name}] stopped: trial {stopped.index}: {stopped.error}")
+            return
         await self.summarize(ps)
+
+    # -- parallel trials (bench.workers) -------------------------------------------------
+
+    def parallel(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
+        """Whether the trials of ``ps`` go to worker processes: ``fake://`` with trial isolation
+        and the built-in emulator, more than one worker and trial, on a virtual-time loop (the
+        run clock is moved by each trial's duration), and a plan that can be sent."""
+        plan = self.plan
+        if not (plan.fake and plan.isolation == "trial" and plan.workers > 1 and len(todo) > 1
+                and self.emulator_factory is _default_emulator and plan.tracker is None
+                and plan.power is None and isinstance(self.writer, _LoopClockWriter)):
+            return False
+        from fakes.vclock import VirtualTimeLoop
+
+        if not isinstance(asyncio.get_running_loop(), VirtualTimeLoop):
+            return False
+        try:
+            pickle.dumps(self._job(ps, todo[0], 0))
+        except Exception as exc:  # a user's suite that cannot be sent: measured in turn
+            log.info("suite %s: trials measured in turn (%s cannot be sent to a worker: %s)",
+                     ps.name, type(exc).__name__, exc)
+            return False
+        return True
+
+    def _job(self, ps: PlannedSuite, index: int, attempt: int) -> TrialJob:
+        from bench.workers import TrialJob
+
+        plan = dataclasses.replace(self.plan, suites=[], resume=None, baseline=None,
+                                   runner_info={})
+        return TrialJob(plan, ps, index, attempt)
+
+    async def _run_parallel(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
+        """Measure ``todo`` in worker processes, commit them in order (as :meth:`run_trial`
+        would, each attempt on the run clock); the trial that stopped the suite, or None."""
+        from bench.workers import run_job, worker_init
+
+        loop = asyncio.get_running_loop()
+        if self.pool is None:
+            self.pool = concurrent.futures.ProcessPoolExecutor(
+                self.plan.workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=worker_init, initargs=(os.getpid(),))
+        pool = self.pool
+        attempts = self.plan.retries + 1
+
+        async def measure(index: int) -> list[tuple[JobResult, float]]:
+            """Every attempt of trial ``index`` (until one is done), with its wall seconds."""
+            results = []
+            for attempt in range(attempts):
+                wall0 = time.perf_counter()
+                result: JobResult = await loop.run_in_executor(
+                    pool, run_job, self._job(ps, index, attempt))
+                results.append((result, time.perf_counter() - wall0))
+                if result.trial.status == "done":
+                    break
+            return results
+
+        tasks = [asyncio.ensure_future(measure(index)) for index in todo]
+        try:
+            for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
+                results = await task
+                if k and self.plan.settle_s > 0:
+                    self.writer_clock.advance(self.plan.settle_s)
+                for attempt, (result, wall_s) in enumerate(results):
+                    trial = self._commit(ps, index, attempt, result, wall_s)
+                if trial.status == "error":
+                    return trial
+            return None
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            for path in self.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.jsonl"):
+                with contextlib.suppress(OSError):  # parts of trials never committed
+                    path.unlink()
+
+    @property
+    def writer_clock(self) -> _LoopClockWriter:
+        assert isinstance(self.writer, _LoopClockWriter)
+        return self.writer
+
+    def _commit(self, ps: PlannedSuite, index: int, attempt: int, result: JobResult,
+                wall_s: float) -> Trial:
+        """One attempt measured by a worker, into the record as :meth:`run_trial` does: it
+        starts on the run clock now and moves it by its duration; its capture is merged with
+        its times moved onto the run clock."""
+        clock = self.writer_clock
+        start = clock.elapsed_s()
+        trial = dataclasses.replace(result.trial, started_s=start)
+        clock.advance(trial.duration_s)
+        self.writer.add_trial(ps.name, trial)
+        for part in result.parts:
+            self._merge_capture(part, start - result.trial.started_s)
+        for line in result.messages:
+            self.progress.message(line)
+        status = trial.status if trial.status == "done" else f"error ({trial.error})"
+        if trial.status == "error" and attempt < self.plan.retries:
+            status += f", retrying ({attempt + 1}/{self.plan.retries})"
+        self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s)
+        return trial
 
     async def summarize(self, ps: PlannedSuite) -> None:
         writer = self.writer
@@ -857,9 +1010,9 @@ class _Run:
             wall0 = time.perf_counter()
             trial = await self._attempt(ps, index, attempt)
             self.writer.add_trial(ps.name, trial)
-            for part in self._unmerged:  # after the record: see recover_parts
+            for part in self.unmerged:  # after the record: see recover_parts
                 self._merge_capture(part)
-            self._unmerged.clear()
+            self.unmerged.clear()
             status = trial.status if trial.status == "done" else f"error ({trial.error})"
             if trial.status == "error" and attempt + 1 < attempts:
                 status += f", retrying ({attempt + 1}/{plan.retries})"
@@ -902,7 +1055,7 @@ class _Run:
                          status="error", error=_describe(exc))
         finally:
             if own is not None:
-                self._unmerged.append(own.part)
+                self.unmerged.append(own.part)
                 await self.disconnect(own, merge=False)
 
     async def _run_connection(self) -> _Connection:
@@ -923,6 +1076,9 @@ class _Run:
 
     async def close(self) -> None:
         conn, self.conn = self.conn, None
+        pool, self.pool = self.pool, None
+        if pool is not None:  # a worker busy with a trial nobody will commit finishes it alone
+            pool.shutdown(wait=False, cancel_futures=True)
         if conn is not None:
             await self.disconnect(conn)
 
@@ -952,10 +1108,10 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         writer = _LoopClockWriter(plan.out_dir, _new_record(plan))
     atomic_write_bytes(writer.artifact_path(RUNNER_FILE),
                        (json.dumps(plan.runner_info, indent=1) + "\n").encode())
-    loop = asyncio.get_running_loop()
-    t_loop0 = loop.time()
+    t_run0 = writer.elapsed_s()
     printer = ProgressPrinter(progress, plan.total_trials(),
-                              robot_clock=(lambda: loop.time() - t_loop0) if plan.fake else None)
+                              robot_clock=(lambda: writer.elapsed_s() - t_run0) if plan.fake
+                              else None)
     for ps in plan.suites:
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     run = _Run(plan, writer, printer,

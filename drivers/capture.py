@@ -34,6 +34,7 @@ __all__ = [
     "ReplayCommand",
     "read_capture",
     "replay_capture",
+    "shift_capture",
 ]
 
 #: Records buffered before a write.
@@ -167,6 +168,44 @@ class CaptureWriter:
         finally:
             self._fh.close()
             self._fh = None
+
+
+def shift_capture(src: IO[bytes], dst: IO[bytes], offset_s: float) -> int:
+    """Copy the records of ``src`` to ``dst`` with ``offset_s`` added to each ``t_s``: a capture
+    made on another clock (a trial measured in a worker) moved onto the run's. Lines as
+    :class:`CaptureWriter` writes them are rewritten as text, as it would have written them;
+    others go through ``json``; a line that is not a record is copied unchanged. Returns the
+    lines copied."""
+    lines = 0
+    out: list[bytes] = []
+    for line in src:
+        lines += 1
+        if line.startswith(b'{"t_s": '):
+            end = line.find(b",", 8)
+            try:
+                t = float(line[8:end]) + offset_s
+            except ValueError:
+                t = math.nan
+            if _FAST_T_MIN_S <= t < _FAST_T_MAX_S:
+                out.append(b'{"t_s": ' + _seconds_text(t).encode() + line[end:])
+            else:
+                out.append(_shifted(line, offset_s))
+        elif line.strip():
+            out.append(_shifted(line, offset_s))
+        if len(out) >= BATCH_RECORDS:
+            dst.write(b"".join(out))
+            out.clear()
+    dst.write(b"".join(out))
+    return lines
+
+
+def _shifted(line: bytes, offset_s: float) -> bytes:
+    try:
+        obj = json.loads(line)
+        obj["t_s"] = round(float(obj["t_s"]) + offset_s, 9)
+    except (ValueError, TypeError, KeyError):
+        return line if line.endswith(b"\n") else line + b"\n"
+    return json.dumps(obj).encode() + b"\n"
 
 
 def _record(obj: Any, path: str, line: int) -> CaptureRecord:

@@ -53,7 +53,9 @@ class _VirtualSelector(selectors.BaseSelector):
         return self._real.modify(fileobj, events, data)
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
-        if timeout is None:  # nothing scheduled: only real I/O (or another thread) can wake us
+        if timeout is None or (timeout > 0 and self._loop.external_jobs):
+            # nothing scheduled, or work in an executor (real time) that the clock must wait
+            # for: only real I/O or another thread can wake us
             return self._real.select(None)
         if self._registered > 1:
             events = self._real.select(0)
@@ -80,7 +82,22 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
 
     def __init__(self, start_s: float = 0.0) -> None:
         self._virtual_now = start_s
+        self.external_jobs = 0
+        """Executor jobs under way: the clock does not jump while one runs."""
         super().__init__(_VirtualSelector(selectors.DefaultSelector(), self))
+
+    def run_in_executor(  # type: ignore[override]  # same behaviour, a looser signature
+            self, executor: Any, func: Callable[..., T], *args: Any) -> asyncio.Future[T]:
+        """As asyncio's, but work in an executor (a thread, another process) runs in real
+        time: while it is under way the virtual clock waits for it instead of jumping to the
+        next timer (a timeout would otherwise fire before the work could finish)."""
+        future = super().run_in_executor(executor, func, *args)
+        self.external_jobs += 1
+        future.add_done_callback(self._external_done)
+        return future
+
+    def _external_done(self, _future: asyncio.Future[Any]) -> None:
+        self.external_jobs -= 1
 
     def time(self) -> float:
         """Virtual seconds."""

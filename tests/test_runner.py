@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import importlib
 import io
+import itertools
 import json
 import math
 import os
@@ -278,7 +279,8 @@ def test_trial_error_ends_the_suite_and_the_run_goes_on(tmp_path: Path) -> None:
 def test_retries_measure_an_errored_trial_again(tmp_path: Path) -> None:
     TinySuite.fail_once = {1}
     out = tmp_path / "run"
-    outcome = run(RunOptions(suites=["tiny"], config=write_config(tmp_path), out=out, retries=1))
+    outcome = run(RunOptions(suites=["tiny"], config=write_config(tmp_path), out=out, retries=1,
+                             workers=1))  # fail_once lives in this process
     assert outcome.exit_status == EXIT_PASS
     suite = load_record(out / "results.json").suites["tiny"]
     assert [t.status for t in suite.trials] == ["done"] * 3
@@ -461,7 +463,7 @@ def test_resume_refuses_changed_inputs(tmp_path: Path) -> None:
     out = tmp_path / "r"
     TinySuite.interrupt_at = 1
     with pytest.raises(KeyboardInterrupt):
-        run(RunOptions(suites=["tiny"], config=config, out=out))
+        run(RunOptions(suites=["tiny"], config=config, out=out, workers=1))
     TinySuite.interrupt_at = None
     with pytest.raises(ArmbenchError, match="--seed"):
         run(RunOptions(resume=out, seed=5))
@@ -476,7 +478,8 @@ def test_ctrl_c_exits_130_and_resume_completes(
     _register_cli(monkeypatch)
     out = tmp_path / "r"
     TinySuite.interrupt_at = 2
-    args = ["run", "tiny", "--config", str(write_config(tmp_path)), "--out", str(out)]
+    args = ["run", "tiny", "--config", str(write_config(tmp_path)), "--out", str(out),
+            "--workers", "1"]  # interrupt_at lives in this process
     assert bench.cli.main(args) == EXIT_INTERRUPTED
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1]
@@ -769,3 +772,34 @@ def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
                                   out=tmp_path / "r"), progress=None, emulator_factory=Probe())
     assert outcome.exit_status == EXIT_PASS
     assert seen == [VirtualTimeLoop]
+
+
+def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> None:
+    """``fake://`` trials measured by two worker processes (``bench.workers``): committed in
+    index order, each starting where the previous ended on the run clock, the capture one stream
+    on that clock holding every trial's frames; the figures agree with the same trials measured
+    in turn on one loop (to 1e-3: there a trial's timing can shift by a fraction of a master
+    loop, see docs/runner.md)."""
+    config = write_config(tmp_path, trials=4)
+    runs = {}
+    for workers in (2, 1):
+        out = tmp_path / f"w{workers}"
+        outcome = run(RunOptions(suites=["tiny"], config=config, out=out, workers=workers,
+                                 seed=3))
+        assert outcome.exit_status == EXIT_PASS
+        runs[workers] = load_record(out / "results.json")
+    trials = runs[2].suites["tiny"].trials
+    assert [t.index for t in trials] == [0, 1, 2, 3]
+    for a, b in itertools.pairwise(trials):
+        assert b.started_s == pytest.approx(a.started_s + a.duration_s, abs=1e-9)
+    capture = list(read_capture(tmp_path / "w2" / "capture.jsonl"))
+    times = [r.t_s for r in capture]
+    assert times == sorted(times)
+    assert times[0] >= trials[0].started_s and times[-1] <= trials[-1].ended_s + 1e-6
+    for t in trials:  # frames of every trial, inside its span
+        assert sum(t.started_s <= x <= t.ended_s + 1e-6 for x in times) > 50
+    assert not list((tmp_path / "w2").glob(".capture.part*"))
+    assert measurements(runs[2]).keys() == measurements(runs[1]).keys()
+    for key, (value, outcome_) in measurements(runs[2]).items():
+        assert outcome_ == measurements(runs[1])[key][1], key
+        assert value == pytest.approx(measurements(runs[1])[key][0], rel=1e-3, abs=1e-3), key

@@ -1,16 +1,17 @@
 """Soak (issue 7): an hour of simulated motion over ``fake://`` on virtual time — Cartesian paths
 streamed with ``follow_path`` and coordinated joint moves to seeded random targets, every frame
-captured to a file — with the memory sampled every simulated minute: ``tracemalloc``'s current
-size (Python allocations since the soak started) and ``resource.getrusage`` max RSS.
+captured to a file — with the memory sampled every simulated minute: Python's allocated blocks
+(``sys.getallocatedblocks``) and ``resource.getrusage`` max RSS.
 
-Asserted: after a warm-up, neither grows beyond a fixed bound (tracemalloc ≤ warm-up + 5 MB, max
+Asserted: after a warm-up, neither grows beyond a fixed bound (≤ warm-up + 50 000 blocks, max
 RSS ≤ warm-up + 30 MB) while the capture on disk grows by ~2.3 MB per simulated minute (~140 MB
 an hour): the frames go to the file, not to memory. No frame is dropped, no move re-sent.
 
-``tracemalloc`` makes the process ~6× slower, so the hour costs ~10 min of CPU here: it is marked
-``slow`` (``pytest -m "not slow"`` leaves it out). ``test_soak_short`` runs the same loop for two
-simulated minutes in the default run. Both print the memory at the start, after the warm-up and at
-the end, the CPU and wall time, and the capture's size (``-s``); figures in docs/reliability.md.
+``test_soak_short`` runs the same loop for two simulated minutes with ``tracemalloc`` on (bytes,
+≤ warm-up + 5 MB; tracing makes it ~6× slower, too dear for the hour). The hour is marked
+``slow`` (``pytest -m "not slow"`` leaves it out) but is part of the default run. Both print the
+memory at the start, after the warm-up and at the end, the CPU and wall time, and the capture's
+size (``-s``); figures in docs/reliability.md.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import contextlib
 import random
 import resource
 import signal
+import sys
 import time
 import tracemalloc
 from collections.abc import Awaitable, Iterator
@@ -37,6 +39,9 @@ T = TypeVar("T")
 MB = 1024 * 1024
 TRACEMALLOC_GROWTH_MAX = 5 * MB
 """Allowed growth of tracemalloc's current size after the warm-up (bytes)."""
+BLOCKS_GROWTH_MAX = 50_000
+"""Allowed growth of ``sys.getallocatedblocks()`` after the warm-up: a leak of one object per
+reply would add ~1.5 million in the hour."""
 MAX_RSS_GROWTH_MAX_KB = 30 * 1024
 """Allowed growth of the max RSS after the warm-up (KiB, as ``ru_maxrss`` on Linux)."""
 CENTRE_M = (0.38, 0.0, 0.80)
@@ -93,9 +98,14 @@ async def within(aw: Awaitable[T], timeout_s: float) -> T:
         return await aw
 
 
-def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9) -> SoakReport:
-    """Move for ``duration_s`` simulated seconds, sampling memory every ``sample_s``."""
+def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9, *,
+         traced: bool = True) -> SoakReport:
+    """Move for ``duration_s`` simulated seconds, sampling memory every ``sample_s``: Python's
+    allocations by ``tracemalloc`` (bytes) when ``traced``, else ``sys.getallocatedblocks()``
+    (blocks; no tracing cost)."""
     samples: list[Sample] = []
+    python_memory = (lambda: tracemalloc.get_traced_memory()[0]) if traced else (
+        sys.getallocatedblocks)
 
     async def main() -> SoakReport:
         loop = asyncio.get_running_loop()
@@ -105,7 +115,7 @@ def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9) -> So
 
             def sample() -> None:
                 samples.append(Sample(
-                    loop.time() - t0, tracemalloc.get_traced_memory()[0],
+                    loop.time() - t0, python_memory(),
                     resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
                     capture.stat().st_size if capture.exists() else 0, arm.frames_received))
 
@@ -139,17 +149,21 @@ def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9) -> So
         return SoakReport(samples, 0.0, 0.0, *counters, moves=moves, capture_lines=lines)
 
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    tracemalloc.start()
+    if traced:
+        tracemalloc.start()
     try:
         report = run_virtual(main())
     finally:
-        tracemalloc.stop()
+        if traced:
+            tracemalloc.stop()
     return SoakReport(**{**report.__dict__, "cpu_s": time.process_time() - cpu0,
                          "wall_s": time.perf_counter() - wall0})
 
 
-def check(report: SoakReport, warmup_s: float, duration_s: float, sample_s: float) -> str:
-    """The assertions of both soaks; returns the summary printed with ``-s``."""
+def check(report: SoakReport, warmup_s: float, duration_s: float, sample_s: float, *,
+          traced: bool = True) -> str:
+    """The assertions of both soaks; returns the summary printed with ``-s``. Python memory is
+    tracemalloc's bytes (``traced``) or allocated blocks."""
     samples = report.samples
     assert samples[-1].t_s >= duration_s
     assert len(samples) >= duration_s / sample_s
@@ -157,36 +171,40 @@ def check(report: SoakReport, warmup_s: float, duration_s: float, sample_s: floa
     after = [s for s in samples if s.t_s >= warm.t_s]
     end = samples[-1]
     worst = max(s.traced for s in after)
-    assert worst <= warm.traced + TRACEMALLOC_GROWTH_MAX, (warm.traced, worst)
+    bound = TRACEMALLOC_GROWTH_MAX if traced else BLOCKS_GROWTH_MAX
+    assert worst <= warm.traced + bound, (warm.traced, worst)
     assert end.max_rss_kb <= warm.max_rss_kb + MAX_RSS_GROWTH_MAX_KB, (warm.max_rss_kb,
                                                                        end.max_rss_kb)
-    # Frames go to disk: the capture grows with the frames while traced memory does not.
+    # Frames go to disk: the capture grows with the frames while Python memory does not.
     frames = end.frames - warm.frames
     assert frames >= 300 * (end.t_s - warm.t_s)  # ~420 replies per simulated second
     assert end.capture_bytes - warm.capture_bytes >= 40 * frames  # a JSON line per frame
     assert report.capture_lines >= report.frames_received + report.commands_sent
     assert report.frames_dropped == 0 and report.resends == 0
     first = samples[0]
+    scale, unit = (MB, "MB traced") if traced else (1000, "k blocks")
     lines = [f"soak of {end.t_s / 60:.1f} simulated min: {report.moves} moves, "
              f"{report.frames_received} frames in, {report.commands_sent} commands out",
              f"  CPU {report.cpu_s:.1f} s, wall {report.wall_s:.1f} s "
-             f"({end.t_s / report.cpu_s:.1f} simulated s per CPU s, tracemalloc on)",
-             "  t_sim      traced MB   max RSS MB   capture MB"]
-    lines += [f"  {s.t_s:7.0f} s  {s.traced / MB:9.2f}   {s.max_rss_kb / 1024:10.1f}   "
+             f"({end.t_s / report.cpu_s:.1f} simulated s per CPU s, "
+             f"{'tracemalloc on' if traced else 'no tracing'})",
+             f"  t_sim      {unit:>10}   max RSS MB   capture MB"]
+    lines += [f"  {s.t_s:7.0f} s  {s.traced / scale:10.2f}   {s.max_rss_kb / 1024:10.1f}   "
               f"{s.capture_bytes / MB:10.1f}" for s in samples]
-    lines.append(f"  start {first.traced / MB:.2f} MB traced / {first.max_rss_kb / 1024:.1f} MB "
-                 f"max RSS; after warm-up ({warm.t_s:.0f} s) {warm.traced / MB:.2f} / "
-                 f"{warm.max_rss_kb / 1024:.1f}; end {end.traced / MB:.2f} / "
-                 f"{end.max_rss_kb / 1024:.1f}; worst traced after warm-up {worst / MB:.2f} MB")
+    lines.append(f"  start {first.traced / scale:.2f} {unit} / {first.max_rss_kb / 1024:.1f} MB "
+                 f"max RSS; after warm-up ({warm.t_s:.0f} s) {warm.traced / scale:.2f} / "
+                 f"{warm.max_rss_kb / 1024:.1f}; end {end.traced / scale:.2f} / "
+                 f"{end.max_rss_kb / 1024:.1f}; worst after warm-up {worst / scale:.2f} {unit}")
     return "\n".join(lines)
 
 
 @pytest.mark.slow
 def test_soak_hour(tmp_path: Path) -> None:
-    """An hour of simulated motion, memory sampled every simulated minute, warm-up 5 minutes."""
+    """An hour of simulated motion, memory sampled every simulated minute (allocated blocks and
+    max RSS: tracing would make the hour ~6x dearer), warm-up 5 minutes."""
     with cpu_guard(3600.0):
-        report = soak(3600.0, 60.0, tmp_path / "soak.jsonl")
-    print("\n" + check(report, warmup_s=300.0, duration_s=3600.0, sample_s=60.0))
+        report = soak(3600.0, 60.0, tmp_path / "soak.jsonl", traced=False)
+    print("\n" + check(report, warmup_s=300.0, duration_s=3600.0, sample_s=60.0, traced=False))
 
 
 def test_soak_short(tmp_path: Path) -> None:

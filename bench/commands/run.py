@@ -2,7 +2,7 @@
 
 ``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
 [--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
-[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N]``
+[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N]``
 
 Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
 failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
@@ -56,6 +56,9 @@ def register(sub: Any) -> None:
                        help="commands that cut and restore the arm's power (a relay script)")
     power.add_argument("--power-manual", action="store_true",
                        help="ask the operator to switch the power and wait for Enter")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes measuring fake:// trials at once (default: [bench] workers, "
+                        "else one per CPU, at most 2; 1: in turn on one loop)")
     p.add_argument("--retries", type=int, default=None, metavar="N",
                    help="measure a trial that ended in error up to N more times (default: "
                         "[bench] retries, else 0)")
@@ -68,7 +71,8 @@ def _run(args: argparse.Namespace) -> int:
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
-        power_manual=args.power_manual, retries=args.retries)
+        power_manual=args.power_manual, retries=args.retries,
+        workers=args.workers)
     outcome = run_sync(options, progress=sys.stderr)
     _summary(outcome)
     return outcome.exit_status
