@@ -941,6 +941,7 @@ class _Run:
         tasks = [asyncio.ensure_future(measure(index)) for index in todo]
         try:
             for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
+                await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
                 results = await task
                 if k and self.plan.settle_s > 0:
                     self.writer_clock.advance(self.plan.settle_s)
