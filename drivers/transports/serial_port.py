@@ -18,10 +18,8 @@ from typing import Any
 import serial
 import serial_asyncio_fast
 
-from drivers.errors import PortLostError
 from drivers.settings import SerialSettings
-from drivers.transports.base import READ_CHUNK, Transport
-from drivers.transports.tcp import close_writer
+from drivers.transports.streams import StreamTransport
 
 __all__ = ["OPEN_TIMEOUT_S", "SerialTransport", "pyserial_settings"]
 
@@ -47,84 +45,41 @@ def pyserial_settings(settings: SerialSettings) -> dict[str, Any]:
     }
 
 
-class SerialTransport(Transport):
+class SerialTransport(StreamTransport):
     """A local serial device. EOF, EIO (a pty whose other end closed) or a vanished USB device
     while open is a :class:`PortLostError`."""
 
     scheme = ""
+    eof_reason = "device closed (end of file)"
 
     def __init__(self, port: str, serial: SerialSettings, *,
                  open_timeout_s: float = OPEN_TIMEOUT_S) -> None:
         super().__init__(port, serial)
         self.open_timeout_s = open_timeout_s
         """Seconds :meth:`open` waits for the device."""
-        self._reader: asyncio.StreamReader | None = None
-        self._writer: asyncio.StreamWriter | None = None
-        self._lost_reason: str | None = None
 
-    @property
-    def is_open(self) -> bool:
-        return self._writer is not None and self._lost_reason is None
-
-    async def open(self) -> None:
-        if self._writer is not None:
-            raise self._error("transport is already open")
+    async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         try:
             async with asyncio.timeout(self.open_timeout_s):
-                reader, writer = await serial_asyncio_fast.open_serial_connection(
+                return await serial_asyncio_fast.open_serial_connection(
                     loop=asyncio.get_running_loop(), url=self.port,
                     **pyserial_settings(self.serial))
         except TimeoutError:
             raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
         except _OPEN_ERRORS as exc:  # serial.SerialException is an OSError
             raise self._error(f"cannot open: {exc}") from exc
-        self._reader, self._writer = reader, writer
-        self._lost_reason = None
 
-    async def read(self) -> bytes:
-        reader = self._reader
-        if reader is None:
-            raise self._not_open()
-        if self._lost_reason is not None:
-            raise self._lost(self._lost_reason)
-        try:
-            data = await reader.read(READ_CHUNK)
-        except OSError as exc:
-            raise self._mark_lost(f"device lost: {exc}") from exc
-        if not data:
-            if self._reader is None:
-                raise self._not_open()
-            raise self._mark_lost("device closed (end of file)")
-        self.bytes_in += len(data)
-        return data
+    def _loss(self, exc: OSError) -> str:
+        return f"device lost: {exc}"
 
-    async def write(self, data: bytes) -> None:
-        reader, writer = self._reader, self._writer
-        if reader is None or writer is None:
-            raise self._not_open()
-        if self._lost_reason is not None:
-            raise self._lost(self._lost_reason)
+    def _gone(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> str | None:
         exc = reader.exception()
         if exc is not None:
-            raise self._mark_lost(f"device lost: {exc}")
+            return f"device lost: {exc}"
         if writer.is_closing():  # the transport closes itself on a read/write error
-            raise self._mark_lost("device lost")
-        try:
-            writer.write(data)
-            await writer.drain()
-        except OSError as err:
-            raise self._mark_lost(f"device lost: {err}") from err
-        if writer.is_closing():  # pyserial-asyncio drops writes to a failed port silently
-            raise self._mark_lost("device lost while writing")
-        self.bytes_out += len(data)
+            return "device lost"
+        return None
 
-    async def close(self) -> None:
-        writer = self._writer
-        self._reader = self._writer = None
-        if writer is not None:
-            await close_writer(writer)
-
-    def _mark_lost(self, reason: str) -> PortLostError:
-        if self._lost_reason is None:
-            self._lost_reason = reason
-        return self._lost(self._lost_reason)
+    def _after_write(self, writer: asyncio.StreamWriter) -> str | None:
+        # pyserial-asyncio drops writes to a failed port silently
+        return "device lost while writing" if writer.is_closing() else None
