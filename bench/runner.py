@@ -926,27 +926,30 @@ class _Run:
         pool = self.pool
         attempts = self.plan.retries + 1
 
-        async def measure(index: int) -> list[tuple[JobResult, float]]:
-            """Every attempt of trial ``index`` (until one is done), with its wall seconds."""
+        async def measure(index: int) -> list[JobResult]:
+            """Every attempt of trial ``index`` (until one is done)."""
             results = []
             for attempt in range(attempts):
-                wall0 = time.perf_counter()
                 result: JobResult = await loop.run_in_executor(
                     pool, run_job, self._job(ps, index, attempt))
-                results.append((result, time.perf_counter() - wall0))
+                results.append(result)
                 if result.trial.status == "done":
                     break
             return results
 
         tasks = [asyncio.ensure_future(measure(index)) for index in todo]
+        last_commit = time.perf_counter()
         try:
             for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
                 await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
                 results = await task
                 if k and self.plan.settle_s > 0:
                     self.writer_clock.advance(self.plan.settle_s)
-                for attempt, (result, wall_s) in enumerate(results):
-                    trial = self._commit(ps, index, attempt, result, wall_s)
+                for attempt, result in enumerate(results):
+                    # wall time per commit: what the progress estimate needs (throughput)
+                    now = time.perf_counter()
+                    trial = self._commit(ps, index, attempt, result, now - last_commit)
+                    last_commit = now
                 if trial.status == "error":
                     return trial
             return None
