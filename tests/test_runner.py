@@ -777,9 +777,8 @@ def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
 def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> None:
     """``fake://`` trials measured by two worker processes (``bench.workers``): committed in
     index order, each starting where the previous ended on the run clock, the capture one stream
-    on that clock holding every trial's frames; the figures agree with the same trials measured
-    in turn on one loop (to 1e-3: there a trial's timing can shift by a fraction of a master
-    loop, see docs/runner.md)."""
+    on that clock holding every trial's frames; the same figures and trial times as the same
+    trials measured in turn on one loop."""
     config = write_config(tmp_path, trials=4)
     runs = {}
     for workers in (2, 1):
@@ -802,4 +801,6 @@ def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> Non
     assert measurements(runs[2]).keys() == measurements(runs[1]).keys()
     for key, (value, outcome_) in measurements(runs[2]).items():
         assert outcome_ == measurements(runs[1])[key][1], key
-        assert value == pytest.approx(measurements(runs[1])[key][0], rel=1e-3, abs=1e-3), key
+        assert value == pytest.approx(measurements(runs[1])[key][0], rel=1e-9, abs=1e-12), key
+    assert [x for t in trials for x in (t.started_s, t.duration_s)] == pytest.approx(
+        [x for t in runs[1].suites["tiny"].trials for x in (t.started_s, t.duration_s)], abs=1e-9)
