@@ -916,7 +916,7 @@ class _Run:
     async def _run_parallel(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
         """Measure ``todo`` in worker processes, commit them in order (as :meth:`run_trial`
         would, each attempt on the run clock); the trial that stopped the suite, or None."""
-        from bench.workers import run_job, worker_init
+        from bench.workers import JobResult, run_job, worker_init
 
         loop = asyncio.get_running_loop()
         if self.pool is None:
@@ -930,8 +930,16 @@ class _Run:
             """Every attempt of trial ``index`` (until one is done)."""
             results = []
             for attempt in range(attempts):
-                result: JobResult = await loop.run_in_executor(
-                    pool, run_job, self._job(ps, index, attempt))
+                try:
+                    result: JobResult = await loop.run_in_executor(
+                        pool, run_job, self._job(ps, index, attempt))
+                except Exception as exc:  # the worker itself failed (killed, a result unsent)
+                    if isinstance(exc, concurrent.futures.BrokenExecutor):
+                        self._drop_pool()
+                    log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
+                    result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
+                                             status="error", error=f"worker: {_describe(exc)}"),
+                                       (), ())
                 results.append(result)
                 if result.trial.status == "done":
                     break
@@ -1078,11 +1086,16 @@ class _Run:
             raise RunAborted(f"cannot connect to {self.plan.port}: {exc}") from exc
         return self.conn
 
+    def _drop_pool(self) -> None:
+        """Let the worker processes go (a busy one finishes its trial alone); the next parallel
+        suite starts new ones."""
+        pool, self.pool = self.pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
     async def close(self) -> None:
         conn, self.conn = self.conn, None
-        pool, self.pool = self.pool, None
-        if pool is not None:  # a worker busy with a trial nobody will commit finishes it alone
-            pool.shutdown(wait=False, cancel_futures=True)
+        self._drop_pool()
         if conn is not None:
             await self.disconnect(conn)
 

@@ -105,6 +105,19 @@ class TinySuite(Suite):
         return out
 
 
+class DyingWorkerSuite(TinySuite):
+    """``dying``: trial 1 ends the process measuring it (a worker killed by the OOM killer, say)
+    when ``ARMBENCH_TEST_DIE`` is set in its environment; never in the test process itself."""
+
+    name = "dying"
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        if index == 1 and os.environ.get("ARMBENCH_TEST_DIE") == str(os.getppid()):
+            os._exit(3)
+        return await super().run_trial(ctx, index, trial_params)
+
+
 class BrokenSuite(TinySuite):
     """``broken``: trial 1 loses the port (a driver error), every time."""
 
@@ -121,6 +134,7 @@ class BrokenSuite(TinySuite):
 def _tiny_registered(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     monkeypatch.setitem(SUITES, "tiny", f"{__name__}:TinySuite")
     monkeypatch.setitem(SUITES, "broken", f"{__name__}:BrokenSuite")
+    monkeypatch.setitem(SUITES, "dying", f"{__name__}:DyingWorkerSuite")
     TinySuite.fail_once = set()
     TinySuite.interrupt_at = None
     yield
@@ -804,3 +818,21 @@ def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> Non
         assert value == pytest.approx(measurements(runs[1])[key][0], rel=1e-9, abs=1e-12), key
     assert [x for t in trials for x in (t.started_s, t.duration_s)] == pytest.approx(
         [x for t in runs[1].suites["tiny"].trials for x in (t.started_s, t.duration_s)], abs=1e-9)
+
+
+def test_a_worker_that_dies_is_a_trial_error_and_the_run_goes_on(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker process killed mid-trial: that trial is in error (the suite stops, as for any
+    trial error), the trials before it stay in the record, and the next suite runs on new
+    workers."""
+    monkeypatch.setenv("ARMBENCH_TEST_DIE", str(os.getpid()))
+    out = tmp_path / "run"
+    outcome = run(RunOptions(suites=["dying", "tiny"], config=write_config(tmp_path), out=out,
+                             workers=2))
+    assert outcome.exit_status == EXIT_ERROR
+    record = load_record(out / "results.json")
+    dying = record.suites["dying"]
+    assert dying.status == "error" and dying.error is not None and "worker" in dying.error
+    assert [(t.index, t.status) for t in dying.trials] == [(0, "done"), (1, "error")]
+    assert record.suites["tiny"].status == "done"
+    assert [t.status for t in record.suites["tiny"].trials] == ["done"] * 3
