@@ -113,18 +113,6 @@ def _fmt(value: float | None, signed: bool = False) -> str:
     return f"{value:+.4g}" if signed else f"{value:.4g}"
 
 
-def _result(row: ComparisonRow) -> str:
-    """``REGRESSED``; ``improved`` when better by more than the tolerance; else ``ok``."""
-    if row.status != "compared":
-        return row.status
-    if row.regressed:
-        return "REGRESSED"
-    if row.better is None or row.change_abs is None or row.tolerance is None:
-        return "ok"
-    gain = -row.change_abs if row.better == "lower" else row.change_abs
-    return "improved" if gain > row.tolerance else "ok"
-
-
 def format_comparison(comparison: Comparison, *, run_id: str | None = None) -> str:
     """A plain-text table of ``comparison`` for a terminal (``armbench compare A B``).
 
@@ -136,7 +124,7 @@ def format_comparison(comparison: Comparison, *, run_id: str | None = None) -> s
     header = ("metric", "unit", "baseline", "value", "change", "change %", "tolerance", "result")
     lines = [
         (r.name, r.unit, _fmt(r.baseline), _fmt(r.value), _fmt(r.change_abs, signed=True),
-         _fmt(r.change_pct, signed=True), _fmt(r.tolerance), _result(r))
+         _fmt(r.change_pct, signed=True), _fmt(r.tolerance), r.result)
         for r in comparison.rows
     ]
     widths = [max(len(row[i]) for row in (header, *lines)) for i in range(len(header))]

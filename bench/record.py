@@ -465,6 +465,19 @@ class ComparisonRow:
     better: Better | None
     regressed: bool
 
+    @property
+    def result(self) -> str:
+        """The row's word, as ``armbench compare`` and the report show it: ``REGRESSED``,
+        ``improved`` (better by more than the tolerance), ``ok``, ``new`` or ``missing``."""
+        if self.status != "compared":
+            return self.status
+        if self.regressed:
+            return "REGRESSED"
+        if self.better is None or self.change_abs is None or self.tolerance is None:
+            return "ok"
+        gain = -self.change_abs if self.better == "lower" else self.change_abs
+        return "improved" if gain > self.tolerance else "ok"
+
     def to_json(self) -> dict[str, Any]:
         """The JSON object of this row."""
         return {
@@ -691,6 +704,17 @@ class RunRecord:
                     yield suite, trial, m
             for m in suite.measurements:
                 yield suite, None, m
+
+    @property
+    def end_s(self) -> float:
+        """The latest run time (s) the record mentions: where a resumed run's clock continues."""
+        times = [0.0]
+        for s in self.suites.values():
+            times.append(s.started_s)
+            if s.ended_s is not None:
+                times.append(s.ended_s)
+            times.extend(t.ended_s for t in (*s.trials, *s.superseded_trials))
+        return max(times)
 
     def suite_measurements(self) -> dict[str, Measurement]:
         """The suite-level measurements of all suites, by name (names are unique in a record)."""
@@ -989,7 +1013,7 @@ class RecordWriter:
                                               "another run directory")
         self.record = record
         self._trial_text: dict[int, tuple[Trial, _JsonText]] = {}
-        self._base_s = _record_end_s(record)
+        self._base_s = record.end_s
         self._t0 = time.monotonic()
         self.write()
 
@@ -1137,14 +1161,3 @@ class RecordWriter:
         """Store the baseline comparison in the record and write it."""
         self.record.baseline = comparison
         self.write()
-
-
-def _record_end_s(record: RunRecord) -> float:
-    """The latest run time (s) the record mentions: where a resumed run's clock continues."""
-    times = [0.0]
-    for s in record.suites.values():
-        times.append(s.started_s)
-        if s.ended_s is not None:
-            times.append(s.ended_s)
-        times.extend(t.ended_s for t in (*s.trials, *s.superseded_trials))
-    return max(times)

@@ -646,7 +646,7 @@ class _LoopClockWriter(RecordWriter):
                  overwrite: bool = False) -> None:
         self._loop = asyncio.get_running_loop()
         self._loop_t0 = self._loop.time()
-        self._start_s = _latest_time(record)
+        self._start_s = record.end_s
         super().__init__(out_dir, record, filename=filename, overwrite=overwrite)
 
     def elapsed_s(self) -> float:
@@ -656,16 +656,6 @@ class _LoopClockWriter(RecordWriter):
         """Move the run clock by ``dt_s`` (s) of robot time spent elsewhere: a trial measured
         in a worker process on its own loop."""
         self._start_s += dt_s
-
-
-def _latest_time(record: RunRecord) -> float:
-    times = [0.0]
-    for s in record.suites.values():
-        times.append(s.started_s)
-        if s.ended_s is not None:
-            times.append(s.ended_s)
-        times.extend(t.ended_s for t in (*s.trials, *s.superseded_trials))
-    return max(times)
 
 
 _JOB_PART = re.compile(

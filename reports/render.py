@@ -66,7 +66,6 @@ __all__ = [
     "KNOWN_SUITES",
     "REPORT_FILE",
     "build_report_html",
-    "comparison_result",
     "render_report",
     "suite_verdict",
 ]
@@ -366,19 +365,6 @@ class _Figures:
 # --------------------------------------------------------------------------------------------
 
 
-def comparison_result(row: ComparisonRow) -> str:
-    """The result word of a comparison row, as ``armbench compare`` prints it: ``REGRESSED``,
-    ``improved`` (better by more than the tolerance), ``ok``, ``new`` or ``missing``."""
-    if row.status != "compared":
-        return row.status
-    if row.regressed:
-        return "REGRESSED"
-    if row.better is None or row.change_abs is None or row.tolerance is None:
-        return "ok"
-    gain = -row.change_abs if row.better == "lower" else row.change_abs
-    return "improved" if gain > row.tolerance else "ok"
-
-
 def suite_verdict(record: RunRecord, name: str) -> str:
     """A suite's own verdict, with the run's precedence: ``error``, ``incomplete`` (also a
     planned suite that never started), ``fail``, ``regression`` (one of its metrics regressed),
@@ -470,7 +456,7 @@ def _with_comparison(row: MeasurementRow, cmp: ComparisonRow) -> MeasurementRow:
         change_pct=("-" if cmp.change_pct is None
                     else f"{format_number(cmp.change_pct, signed=True)} %"),
         tolerance=format_value(cmp.tolerance, unit),
-        result=comparison_result(cmp),
+        result=cmp.result,
     )
 
 
@@ -1135,16 +1121,6 @@ def _traffic(capture: Path, out_dir: Path, figs: _Figures) -> TrafficView | None
 # --------------------------------------------------------------------------------------------
 
 
-def _run_time(record: RunRecord) -> float:
-    times = [0.0]
-    for s in record.suites.values():
-        times.append(s.started_s)
-        if s.ended_s is not None:
-            times.append(s.ended_s)
-        times.extend(t.ended_s for t in (*s.trials, *s.superseded_trials))
-    return max(times)
-
-
 def build_report_html(record: RunRecord, *, capture: Path | None = None,
                       out_dir: Path | None = None, source: str = RESULTS_FILE) -> str:
     """The report page of ``record`` as HTML text. ``capture`` is a traffic capture to summarise
@@ -1195,7 +1171,7 @@ def build_report_html(record: RunRecord, *, capture: Path | None = None,
                                  ensure_ascii=False),
         faults=_faults(record),
         suites=list(views.values()),
-        run_time=format_duration(_run_time(record)),
+        run_time=format_duration(record.end_s),
         robot_time=format_duration(robot_s),
         baseline=baseline,
         baseline_counts=None if baseline is None else {
