@@ -909,27 +909,52 @@ class _Run:
         from bench.workers import JobResult, run_job, worker_init
 
         loop = asyncio.get_running_loop()
-        if self.pool is None:
-            self.pool = concurrent.futures.ProcessPoolExecutor(
-                self.plan.workers, mp_context=multiprocessing.get_context("spawn"),
-                initializer=worker_init, initargs=(os.getpid(),))
-        pool = self.pool
         attempts = self.plan.retries + 1
+        in_flight = asyncio.Semaphore(self.plan.workers)  # the pool's queue stays short
+
+        def new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+            return concurrent.futures.ProcessPoolExecutor(
+                workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=worker_init, initargs=(os.getpid(),))
+
+        async def shared(job: TrialJob) -> JobResult:
+            if self.pool is None:
+                self.pool = new_pool(self.plan.workers)
+            pool = self.pool
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            except concurrent.futures.BrokenExecutor:
+                if self.pool is pool:
+                    self._drop_pool()
+                raise
+            return result
+
+        async def alone(job: TrialJob) -> JobResult:
+            """In a process of its own: a dying worker breaks the whole pool, failing the
+            trials beside it too; measured alone, only the trial that kills its process fails."""
+            pool = new_pool(1)
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            finally:
+                pool.shutdown(wait=False)
+            return result
 
         async def measure(index: int) -> list[JobResult]:
             """Every attempt of trial ``index`` (until one is done)."""
             results = []
             for attempt in range(attempts):
-                try:
-                    result: JobResult = await loop.run_in_executor(
-                        pool, run_job, self._job(ps, index, attempt))
-                except Exception as exc:  # the worker itself failed (killed, a result unsent)
-                    if isinstance(exc, concurrent.futures.BrokenExecutor):
-                        self._drop_pool()
-                    log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
-                    result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
-                                             status="error", error=f"worker: {_describe(exc)}"),
-                                       (), ())
+                job = self._job(ps, index, attempt)
+                async with in_flight:
+                    try:
+                        try:
+                            result = await shared(job)
+                        except concurrent.futures.BrokenExecutor:
+                            result = await alone(job)
+                    except Exception as exc:  # the worker itself failed (killed, result unsent)
+                        log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
+                        result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
+                                                 status="error",
+                                                 error=f"worker: {_describe(exc)}"), (), ())
                 results.append(result)
                 if result.trial.status == "done":
                     break
