@@ -15,7 +15,7 @@ from drivers.errors import ArmbenchError
 from drivers.settings import load_settings
 from fakes.arm import ArmEmulator
 from fakes.faults import faults_from_settings, load_faults
-from fakes.serve import PtyServer, TcpServer, parse_host_port
+from fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from fakes.settings import emulator_settings
 
 __all__ = ["register"]
@@ -61,7 +61,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"armbench emulate: WARNING: serving on {host_port[0]}, reachable from the network",
               file=sys.stderr, flush=True)
     arm = ArmEmulator(robot, settings, faults)
-    asyncio.run(_serve(arm, args, host_port))
+    with asyncio.Runner(loop_factory=real_time_loop) as runner:
+        runner.run(_serve(arm, args, host_port))
     return 0
 
 

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
+import math
 import os
 import random
 import select
@@ -147,14 +149,18 @@ def serve_pty(timeout_s: float = 15.0) -> Iterator[str]:
             proc.wait()
 
 
-async def _reply_rate(port: str, seconds: float, settings: RobotSettings) -> float:
-    """Replies per second decoded from ``port`` over ``seconds`` (after a short warm-up)."""
+async def _reply_rate(port: str, seconds: float, settings: RobotSettings) -> tuple[float, float]:
+    """Replies per second decoded from ``port`` over ``seconds`` (after a short warm-up), and
+    the longest gap (s) between two replies as the client received them."""
     async with Arm.connect(port, settings) as arm:
         loop = asyncio.get_running_loop()
         await asyncio.sleep(0.2)
         n0, t0 = arm.frames_received, loop.time()
-        await asyncio.sleep(seconds)
-        return (arm.frames_received - n0) / (loop.time() - t0)
+        with arm.record_states() as states:
+            await asyncio.sleep(seconds)
+        rate = (arm.frames_received - n0) / (loop.time() - t0)
+        times = [t0] + [s.t_s for s in states]
+        return rate, max(b - a for a, b in itertools.pairwise(times))
 
 
 # --- figures ------------------------------------------------------------------------------------
@@ -199,18 +205,25 @@ def run(options: PerfOptions) -> list[Figure]:
     bound = reply_rate_bound(robot.serial, emu)
     seconds = 1.0 if options.quick else 2.0
     runs = 1 if options.quick else min(options.repeats, 2)
-    best = 0.0
+    best, best_gap = 0.0, math.inf
     with serve_pty() as path:
         for _ in range(runs):
-            best = max(best, asyncio.run(_reply_rate(path, seconds, robot)))
+            rate, gap = asyncio.run(_reply_rate(path, seconds, robot))
+            best, best_gap = max(best, rate), min(best_gap, gap)
     figures.append(Figure(
         "driver.pty_reply_rate", best, "replies/s", bound, best / bound,
         note=f"armbench emulate --pty, {seconds:g} s; bound = min(line "
              f"{robot.serial.baudrate / (robot.serial.bits_per_byte * REPLY_LEN):.1f}/s, loop "
              f"{1 / loop_period_s(emu):.1f}/s); target ratio 0.9"))
+    two_loops_ms = 2e3 * period_s
+    figures.append(Figure(
+        "driver.pty_max_gap_ms", best_gap * 1e3, "ms", two_loops_ms,
+        best_gap * 1e3 / two_loops_ms,
+        note="the emulator serving in real time: longest gap between two replies of armbench "
+             "emulate --pty as the driver received them; bound = two firmware loop periods"))
 
     if options.port is not None:
-        rate = asyncio.run(_reply_rate(options.port, seconds, robot))
+        rate, _gap = asyncio.run(_reply_rate(options.port, seconds, robot))
         figures.append(Figure(
             "driver.port_reply_rate", rate, "replies/s", bound, rate / bound,
             note=f"{options.port}, {seconds:g} s; bound as driver.pty_reply_rate (the firmware "
