@@ -1003,11 +1003,17 @@ class _Run:
             self._merge_capture(part, start - result.trial.started_s)
         for line in result.messages:
             self.progress.message(line)
+        self._show_attempt(ps, index, attempt, trial, wall_s)
+        return trial
+
+    def _show_attempt(self, ps: PlannedSuite, index: int, attempt: int, trial: Trial,
+                      wall_s: float) -> None:
+        """The progress line of a recorded attempt: done, or its error and whether it is
+        retried."""
         status = trial.status if trial.status == "done" else f"error ({trial.error})"
         if trial.status == "error" and attempt < self.plan.retries:
             status += f", retrying ({attempt + 1}/{self.plan.retries})"
         self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s)
-        return trial
 
     async def summarize(self, ps: PlannedSuite) -> None:
         writer = self.writer
@@ -1040,11 +1046,7 @@ class _Run:
             for part in self.unmerged:  # after the record: see recover_parts
                 self._merge_capture(part)
             self.unmerged.clear()
-            status = trial.status if trial.status == "done" else f"error ({trial.error})"
-            if trial.status == "error" and attempt + 1 < attempts:
-                status += f", retrying ({attempt + 1}/{plan.retries})"
-            self.progress.trial(ps.name, index + 1, len(ps.trials), status,
-                                time.perf_counter() - wall0)
+            self._show_attempt(ps, index, attempt, trial, time.perf_counter() - wall0)
             if trial.status == "done":
                 break
         assert trial is not None

@@ -16,6 +16,7 @@ A worker runs :func:`run_job`: the same ``_Run._attempt`` the sequential path ru
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import ctypes
 import os
@@ -75,8 +76,6 @@ class _JobClock:
 
     @staticmethod
     def elapsed_s() -> float:
-        import asyncio
-
         return asyncio.get_running_loop().time()
 
 

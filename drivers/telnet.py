@@ -82,6 +82,7 @@ __all__ = [
     "Signature",
     "Subnegotiation",
     "TelnetCodec",
+    "coalesce",
     "escape",
     "unescape",
 ]
@@ -290,6 +291,22 @@ class ProtocolViolation:
 Event = (Data | Command | OptionEnabled | OptionDisabled | OptionRefused | OptionDeclined
          | Subnegotiation | ComPortReply | ComPortRequest | Signature | LineState | ModemState
          | FlowControl | ProtocolViolation)
+
+
+def coalesce(events: Iterable[Event]) -> list[Event]:
+    """``events`` with adjacent :class:`Data` joined and empty ones dropped: where a stream is
+    cut into chunks changes only how its payload is split into ``Data`` events, so two feedings
+    of the same bytes give equal lists after this."""
+    out: list[Event] = []
+    for e in events:
+        if isinstance(e, Data):
+            if not e.data:
+                continue
+            if out and isinstance(out[-1], Data):
+                out[-1] = Data(out[-1].data + e.data)
+                continue
+        out.append(e)
+    return out
 
 
 def escape(data: bytes) -> bytes:

@@ -103,7 +103,7 @@ class Board:
         """Bring the joint to ``t_s`` (never backwards) and store EEPROM records it produced."""
         model = self.model
         assert model is not None
-        tick = round((t_s - self.t0) * 1e9) // NS_PER_CYCLE
+        tick = self.tick(t_s)
         if tick > model.tick:
             model.advance(tick)
         if model.transitions:

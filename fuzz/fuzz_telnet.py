@@ -28,7 +28,7 @@ Run: ``python fuzz/fuzz_telnet.py -max_total_time=60 -rss_limit_mb=512 fuzz/corp
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 
 import atheris
 from _harness import fuzz_main, split  # first: puts the checkout on sys.path
@@ -49,6 +49,7 @@ with atheris.instrument_imports(include=["drivers"]):
         Signature,
         Subnegotiation,
         TelnetCodec,
+        coalesce,
     )
 
 MAX_CHUNKS = 15
@@ -77,17 +78,6 @@ def make_codec(setup: int) -> tuple[TelnetCodec, bytes]:
             codec.disable_local(option)
             codec.disable_remote(option)
     return codec, codec.data_to_send()
-
-
-def merged(events: Iterable[Event]) -> list[Event]:
-    """Events with adjacent ``Data`` joined (chunking may cut a payload run anywhere)."""
-    out: list[Event] = []
-    for e in events:
-        if isinstance(e, Data) and out and isinstance(out[-1], Data):
-            out[-1] = Data(out[-1].data + e.data)
-        else:
-            out.append(e)
-    return out
 
 
 def feed(setup: int, chunks: Sequence[bytes]) -> tuple[TelnetCodec, list[Event], bytes]:
@@ -169,7 +159,7 @@ def test_one_input(data: bytes) -> None:
     if not sizes:
         sizes = [1]  # byte by byte: the harshest split
     cut, cut_events, cut_out = feed(setup, split(wire, sizes))
-    assert merged(cut_events) == merged(whole_events), "chunking changed the events"
+    assert coalesce(cut_events) == coalesce(whole_events), "chunking changed the events"
     assert cut_out == whole_out, "chunking changed the bytes sent"
     assert cut.violations == whole.violations
     for option in _WATCHED:

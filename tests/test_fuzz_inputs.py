@@ -52,6 +52,7 @@ from drivers.telnet import (
     ProtocolViolation,
     Side,
     TelnetCodec,
+    coalesce,
 )
 from fakes.faults import FAULT_KINDS, Fault, parse_faults
 from fakes.settings import emulator_settings
@@ -223,16 +224,6 @@ def _codec(role: str, accept: int, requests: int) -> TelnetCodec:
     return codec
 
 
-def _merged(events: Iterable[Event]) -> list[Event]:
-    out: list[Event] = []
-    for e in events:
-        if isinstance(e, Data) and out and isinstance(out[-1], Data):
-            out[-1] = Data(out[-1].data + e.data)
-        else:
-            out.append(e)
-    return out
-
-
 @FAST
 @given(st.lists(_WIRE_TOKENS, max_size=30).map(b"".join), st.sampled_from(["client", "server"]),
        st.integers(0, 3), st.integers(0, 2), st.lists(st.integers(1, 20), min_size=1, max_size=5))
@@ -257,7 +248,7 @@ def test_telnet_any_role_and_state_bounded_and_chunking_invariant(
         cut_out += cut.data_to_send()
         pos += size
         k += 1
-    assert _merged(cut_events) == _merged(whole_events)
+    assert coalesce(cut_events) == coalesce(whole_events)
     assert cut_out == whole_out
     for option in (BINARY, ECHO, SGA, COM_PORT_OPTION, 24, 255):
         for side in _SIDES:

@@ -41,6 +41,7 @@ from drivers.telnet import (
     Signature,
     Subnegotiation,
     TelnetCodec,
+    coalesce,
     escape,
     unescape,
 )
@@ -51,17 +52,6 @@ SER2NET_GREETING = bytes([IAC, WILL, SGA, IAC, DO, SGA, IAC, WILL, ECHO, IAC, DO
 
 
 SIDES: tuple[Side, ...] = ("local", "remote")
-
-
-def merged(events: Iterable[Event]) -> list[Event]:
-    """Events with adjacent Data merged, so differently split streams compare equal."""
-    out: list[Event] = []
-    for e in events:
-        if isinstance(e, Data) and out and isinstance(out[-1], Data):
-            out[-1] = Data(out[-1].data + e.data)
-        elif not (isinstance(e, Data) and not e.data):
-            out.append(e)
-    return out
 
 
 def data_of(events: Iterable[Event]) -> bytes:
@@ -389,7 +379,7 @@ def test_split_anywhere_gives_the_same_output(stream: bytes, cuts: list[int],
         split_events: list[Event] = []
         for chunk in chunks:
             split_events += split.receive_data(chunk)
-        assert merged(split_events) == merged(whole_events)
+        assert coalesce(split_events) == coalesce(whole_events)
         assert split.data_to_send() == whole_out
         assert split.violations == whole.violations
         for opt in (BINARY, ECHO, SGA, COM_PORT_OPTION, 24):
