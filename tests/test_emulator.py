@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+import random
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
@@ -16,12 +17,13 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from smbus2 import i2c_msg
 
 from drivers.protocol import Command, FrameError, Framer, Reply
 from drivers.settings import RobotSettings
 from fakes.arm import ArmEmulator, ArmStats
 from fakes.faults import Fault, parse_faults
-from fakes.i2c import transaction_bits
+from fakes.i2c import REG_STATUS, I2CBus, transaction_bits
 from fakes.settings import emulator_settings
 from fakes.vclock import run_virtual
 
@@ -513,3 +515,88 @@ def test_ground_truth_beside_each_reply_includes_backlash() -> None:
         assert math.isfinite(sample.t_s)
 
     emulate(body, effects={"backlash_rad": 0.002})
+
+
+def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
+    """Everything observable of a random session (commands at random duties, board resets, power
+    cuts, stalls, STATUS reads by a second bus master), with ``emulator.fused_bus`` on or off."""
+    rng = random.Random(seed)
+    calls = [0]
+
+    async def body(arm: ArmEmulator, host: Host) -> dict[str, Any]:
+        stalled = [False] * 4
+        seen: list[bytes] = []
+        for _ in range(30):
+            action = rng.random()
+            if action < 0.55:
+                q = [rng.uniform(lo, up) for lo, up in zip(LOWER, UPPER, strict=True)]
+                host.send(q, [rng.randint(0, 99) for _ in range(4)] if rng.random() < 0.3
+                          else rng.choice((99, 90, 50, 1)))
+            elif action < 0.65:
+                arm.reset_board(rng.randint(1, 4))
+            elif action < 0.72:
+                arm.power_off()
+                await asyncio.sleep(rng.uniform(0.0, 0.3))
+                arm.power_on()
+            elif action < 0.85:
+                j = rng.randint(1, 4)
+                stalled[j - 1] = not stalled[j - 1]
+                arm.set_stalled(j, stalled[j - 1])
+            else:  # a second master points a slave at STATUS, later reads where it points
+                address = arm.slave_address(rng.randint(2, 4))
+                read = i2c_msg.read(address, 2)
+                try:
+                    arm.bus.i2c_rdwr(i2c_msg.write(address, [REG_STATUS]))
+                    await asyncio.sleep(rng.uniform(0.0, 0.05))
+                    arm.bus.i2c_rdwr(read)
+                except OSError:
+                    continue
+                seen.append(bytes(read))
+            await asyncio.sleep(rng.uniform(0.0, 0.5))
+        models = [None if b.model is None else (
+            b.model.counter, b.model.motor_steps, b.model.pulses, b.model.steps_taken,
+            b.model.steps_missed, b.model.steps_blocked, b.model.spurious_counts)
+            for b in arm.boards]
+        return {
+            "replies": list(host.replies), "errors": [e.raw for e in host.errors],
+            "truth": list(arm.truth), "stats": arm.stats(), "bus": arm.bus.stats,
+            "eeprom": [(bytes(e._cells), list(e._wear), e.record_writes) for e in arm.eeproms],
+            "models": models, "bad_writes": [s.bad_writes for s in arm.slaves],
+            "truth_now": arm.true_angles_rad(), "seen": seen, "rdwr_calls": calls[0],
+        }
+
+    rdwr = I2CBus.i2c_rdwr
+
+    def counted(bus: I2CBus, *msgs: i2c_msg) -> None:
+        calls[0] += 1
+        rdwr(bus, *msgs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(I2CBus, "i2c_rdwr", counted)
+        # a blocking firmware says nothing before its first command
+        return emulate(body, fused_bus=fused, ready=settings.get("uart_receive") != "blocking",
+                       **settings)  # type: ignore[no-any-return]
+
+
+@pytest.mark.parametrize(("seed", "settings"), [
+    (1, {}), (2, {}), (3, {}), (4, {"i2c_hz": 400_000}),
+    (7, {"uart_receive": "blocking"}),
+    (6, {"effects": {"miss_probability": 0.05, "miss_above_duty": 40, "backlash_rad": 0.003,
+                     "noise_rate_hz": 20.0}}),
+])
+def test_fused_bus_loops_are_the_bus_loops(seed: int, settings: dict[str, Any]) -> None:
+    """``emulator.fused_bus`` runs a steady loop's six transactions as their known outcome: the
+    replies (bytes and times), ground truth, counters, EEPROM and joints must be the same as with
+    every transaction going through ``I2CBus.i2c_rdwr``, and the fast path must have been taken."""
+    fused = _fused_trace(True, seed, **settings)
+    plain = _fused_trace(False, seed, **settings)
+    fused_calls, plain_calls = fused.pop("rdwr_calls"), plain.pop("rdwr_calls")
+    assert plain_calls == plain["bus"].transactions
+    if settings.get("uart_receive") == "blocking":  # every loop has a new command: none fused
+        assert len(plain["replies"]) > 10
+        assert fused_calls == plain_calls
+    else:
+        assert len(plain["replies"]) > 1000
+        assert fused_calls < plain_calls / 3  # most loops were steady: the fused path was taken
+    for key in plain:
+        assert fused[key] == plain[key], key
