@@ -257,15 +257,23 @@ class Framer:
         """Bytes held while waiting for the rest of a frame (never more than one frame)."""
         return len(self._buf)
 
-    def feed(self, data: bytes) -> list[Event]:
-        """Add bytes from the wire; return the frames and errors they complete, in stream order."""
+    def one_reply(self, data: bytes) -> Reply | None:
+        """The reply ``data`` is, if it is exactly one valid reply and nothing is buffered (how
+        a fake:// or a quiet line delivers them): counted as :meth:`feed` would. Otherwise None,
+        and nothing is consumed: :meth:`feed` the chunk."""
         if self._one is not None and not self._buf and len(data) == REPLY_LEN:
-            # one whole reply in one chunk: how a fake:// or a quiet line delivers them
             m = self._one(data)
             if m is not None:
                 a, b, c, d = m.groups()
                 self.frames += 1
-                return [_new(Reply, (int(a), int(b), int(c), int(d)))]
+                return _new(Reply, (int(a), int(b), int(c), int(d)))
+        return None
+
+    def feed(self, data: bytes) -> list[Event]:
+        """Add bytes from the wire; return the frames and errors they complete, in stream order."""
+        one = self.one_reply(data)
+        if one is not None:
+            return [one]
         buf = self._buf + data if self._buf else bytes(data)
         end = buf.rfind(b"#") + 1
         events: list[Event] = []

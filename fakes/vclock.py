@@ -84,6 +84,16 @@ class _VirtualSelector(selectors.BaseSelector):
         return self._real.get_map()
 
 
+#: The attributes asyncio's ``Handle`` and ``TimerHandle`` have (CPython 3.11 to 3.13): where they
+#: are exactly these, :meth:`VirtualTimeLoop.call_at` fills them itself instead of running the two
+#: ``__init__`` (a call to ``loop.get_debug()`` and a traceback check each), once per reply.
+_HANDLE_SLOTS = frozenset(("_callback", "_args", "_cancelled", "_loop", "_source_traceback",
+                           "_repr", "__weakref__", "_context", "_scheduled", "_when"))
+_FAST_HANDLES = (frozenset(asyncio.Handle.__slots__) | frozenset(asyncio.TimerHandle.__slots__)
+                 == _HANDLE_SLOTS)
+_new_object = object.__new__
+
+
 class _OrderedTimerHandle(asyncio.TimerHandle):
     """A timer that runs after every timer scheduled before it for the same time. asyncio's heap
     orders timers by time only, so equal times run in an order that depends on whatever else is
@@ -94,9 +104,9 @@ class _OrderedTimerHandle(asyncio.TimerHandle):
     _seq: int
 
     def __lt__(self, other: object) -> bool:
-        if isinstance(other, _OrderedTimerHandle):
+        if type(other) is _OrderedTimerHandle:
             when, other_when = self._when, other._when  # type: ignore[attr-defined]
-            return bool(when < other_when or (when == other_when and self._seq < other._seq))
+            return when < other_when or (when == other_when and self._seq < other._seq)
         return super().__lt__(other)  # type: ignore[operator]
 
 
@@ -133,16 +143,30 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         """As asyncio's, with timers for the same time run in the order they were scheduled
         (:class:`_OrderedTimerHandle`)."""
         base: Any = self
-        if base._debug:
-            return super().call_at(when, callback, *args, context=context)
         if when is None:
             raise TypeError("when cannot be None")
         base._check_closed()
-        timer = _OrderedTimerHandle(when, callback, args, self, context)
+        timer: Any
+        if base._debug:  # asyncio's checks, and handles that keep their creation traceback
+            base._check_thread()
+            base._check_callback(callback, "call_at")
+            timer = _OrderedTimerHandle(when, callback, args, self, context)
+        elif _FAST_HANDLES:  # what the two __init__ do when the loop is not in debug mode
+            timer = _new_object(_OrderedTimerHandle)
+            timer._callback = callback
+            timer._args = args
+            timer._cancelled = False
+            timer._loop = self
+            timer._source_traceback = None
+            timer._repr = None
+            timer._context = contextvars.copy_context() if context is None else context
+            timer._when = when
+        else:
+            timer = _OrderedTimerHandle(when, callback, args, self, context)
         timer._seq = self._timer_seq = self._timer_seq + 1
         heapq.heappush(base._scheduled, timer)
-        timer._scheduled = True  # type: ignore[attr-defined]
-        return timer
+        timer._scheduled = True
+        return timer  # type: ignore[no-any-return]
 
     def _run_once(self) -> None:
         """One iteration, as asyncio's (same order of callbacks, same selector call), minus

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import math
 import os
@@ -782,3 +783,21 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
             await within(arm.move_joints(HOME, 99), 10.0)
 
     asyncio.run(within(body(), TEST_S))
+
+
+def test_one_reply_short_path_gives_the_general_paths_states() -> None:
+    """A chunk that is one reply takes the driver's short path unless a capture or a state
+    recorder is open; both paths must give the same states, counters and move results."""
+
+    async def session(general: bool) -> tuple[Any, ...]:
+        async with Arm.connect("fake://?seed=5") as arm:
+            recorder = arm.record_states() if general else contextlib.nullcontext([])
+            with recorder as states:
+                arrived = await arm.move_joints((0.3, -0.2, 0.4, 0.1), 80)
+                await arm.wait_state(lambda s: s.seq >= arrived.seq + 25)
+            assert bool(states) == general
+            if general:
+                assert states[-1] == arm.state
+            return arrived, arm.state, arm.frames_received, arm.frames_dropped
+
+    assert run_virtual(session(general=False)) == run_virtual(session(general=True))

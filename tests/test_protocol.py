@@ -272,3 +272,22 @@ def test_valid_frames_in_noise_are_all_recovered(pairs: list[tuple[bytes, Reply]
     events = feed_all(framer, [stream[i:i + chunk] for i in range(0, len(stream), chunk)])
     assert frames_only(events) == [r for _, r in pairs]
     assert framer.frames == len(pairs)
+
+
+@given(st.one_of(replies.map(Reply.encode), st.binary(max_size=40)), st.binary(max_size=30))
+def test_one_reply_is_feed_for_one_whole_reply_and_consumes_nothing_else(
+        data: bytes, before: bytes) -> None:
+    """``Framer.one_reply`` (the driver's short path) gives what ``feed`` gives for a chunk that
+    is exactly one reply with nothing buffered, and None, consuming nothing, for anything else."""
+    fast, plain = Framer("reply"), Framer("reply")
+    fast.feed(before)
+    plain.feed(before)
+    one = fast.one_reply(data)
+    if one is None:
+        assert fast.frames == plain.frames and fast.buffered == plain.buffered
+        assert fast.feed(data) == plain.feed(data)
+    else:
+        assert not plain.buffered and len(data) == REPLY_LEN
+        assert plain.feed(data) == [one]
+        assert fast.frames == plain.frames
+    assert Framer("command").one_reply(Reply(1, 2, 3, 4).encode()) is None

@@ -1,0 +1,77 @@
+"""The virtual-time event loop: clock jumps, timer order, and its own timer handles."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from fakes import vclock
+from fakes.vclock import VirtualTimeLoop, run_virtual
+
+
+def test_an_hour_of_sleep_passes_at_once() -> None:
+    async def main() -> float:
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        await asyncio.sleep(3600.0)
+        return loop.time() - t0
+
+    wall = time.perf_counter()
+    assert run_virtual(main) == 3600.0
+    assert time.perf_counter() - wall < 60.0  # virtual, not real: any machine passes this
+
+
+def test_equal_time_timers_run_in_the_order_they_were_scheduled() -> None:
+    async def main() -> list[int]:
+        loop = asyncio.get_running_loop()
+        seen: list[int] = []
+        for k in range(200):  # cancelled and earlier timers shuffle asyncio's heap
+            loop.call_at(loop.time() + 0.5 + (k % 7) * 1e-3, seen.append, -1).cancel()
+        for k in range(50):
+            loop.call_at(loop.time() + 1.0, seen.append, k)
+        await asyncio.sleep(2.0)
+        return seen
+
+    assert run_virtual(main) == list(range(50))
+
+
+def test_timer_handles_are_what_asyncio_would_build() -> None:
+    """``call_at`` fills the handles' attributes itself (no ``__init__``); they must hold what
+    asyncio's own constructor gives, and cancel, compare and print as asyncio's do."""
+    assert vclock._FAST_HANDLES  # this CPython has the expected slots: the fast path is tested
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        fired: list[str] = []
+        timer = loop.call_at(loop.time() + 1.0, fired.append, "a")
+        reference = asyncio.TimerHandle(timer.when(), fired.append, ("a",), loop,
+                                        timer._context)  # type: ignore[attr-defined]
+        for name in vclock._HANDLE_SLOTS - {"__weakref__", "_scheduled"}:
+            assert getattr(timer, name) == getattr(reference, name), name
+        assert timer._scheduled  # type: ignore[attr-defined]
+        assert repr(timer).startswith("<_OrderedTimerHandle when=")
+        doomed = loop.call_at(loop.time() + 0.5, fired.append, "cancelled")
+        doomed.cancel()
+        assert doomed.cancelled()
+        later = loop.call_later(2.0, fired.append, "b")
+        assert timer < later and not later < timer
+        await asyncio.sleep(3.0)
+        assert fired == ["a", "b"]
+
+    run_virtual(main)
+
+
+def test_debug_mode_keeps_the_order_of_equal_time_timers() -> None:
+    """Debug mode builds the handles with asyncio's constructor (creation tracebacks), still
+    ordered."""
+
+    async def main() -> list[int]:
+        loop = asyncio.get_running_loop()
+        seen: list[int] = []
+        for k in range(5):
+            loop.call_at(loop.time() + 1.0, seen.append, k)
+        await asyncio.sleep(1.5)
+        return seen
+
+    with asyncio.Runner(loop_factory=VirtualTimeLoop, debug=True) as runner:
+        assert runner.run(main()) == [0, 1, 2, 3, 4]
