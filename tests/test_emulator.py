@@ -600,3 +600,25 @@ def test_fused_bus_loops_are_the_bus_loops(seed: int, settings: dict[str, Any]) 
         assert fused_calls < plain_calls / 3  # most loops were steady: the fused path was taken
     for key in plain:
         assert fused[key] == plain[key], key
+
+
+def test_perf_workloads_and_figures() -> None:
+    """``armbench perf --only emulator``'s plumbing on its quick run, and the behaviour behind
+    its figures: at 9600 baud each print waits for the line, so there are about 11× fewer loops
+    (cost follows events), at the rate the line sets."""
+    from bench.perf import PerfOptions
+    from bench.perf import emulator as perf_emulator
+
+    _, fast_loops = run_virtual(perf_emulator._emulate(5.0, moving=True))
+    _, slow_loops = run_virtual(perf_emulator._emulate(5.0, moving=True,
+                                                       baudrate=perf_emulator.SLOW_BAUD))
+    assert fast_loops == pytest.approx(5.0 / loop_period_s(), rel=0.02)
+    slow_period_s = 25 * 10 / perf_emulator.SLOW_BAUD  # each print waits for the line
+    assert slow_loops == pytest.approx(5.0 / slow_period_s, rel=0.02)
+    figures = {f.name: f for f in perf_emulator.run(PerfOptions(quick=True, repeats=1))}
+    assert set(figures) == {"emulator.realtime_factor", "emulator.loop_cost",
+                            "emulator.idle_realtime_factor", "emulator.slow_line_realtime_factor",
+                            "emulator.cycle_loop_factor"}
+    cost = figures["emulator.loop_cost"]
+    assert cost.bound is not None and cost.ratio == pytest.approx(cost.value / cost.bound)
+    assert all(f.value > 0 for f in figures.values())
