@@ -10,6 +10,7 @@ import pytest
 
 from drivers.errors import ArmbenchError
 from drivers.settings import RobotSettings, SettingsError, load_settings
+from fakes.settings import emulator_settings
 
 
 def test_defaults_match_the_documented_assumptions() -> None:
@@ -88,3 +89,14 @@ def test_missing_and_broken_files(tmp_path: Path) -> None:
     bad.write_text("[geometry\n")
     with pytest.raises(SettingsError, match="not valid TOML"):
         load_settings(bad)
+
+
+def test_emulator_fused_bus_is_a_boolean(tmp_path: Path) -> None:
+    f = tmp_path / "robot.toml"
+    f.write_text("[emulator]\nfused_bus = false\n")
+    assert emulator_settings(load_settings(f)).fused_bus is False
+    assert emulator_settings(RobotSettings()).fused_bus is True
+    f.write_text("[emulator]\nfused_bus = 1\n")
+    with pytest.raises(SettingsError) as info:
+        emulator_settings(load_settings(f))
+    assert info.value.field == "emulator.fused_bus" and "true or false" in str(info.value)
