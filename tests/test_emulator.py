@@ -616,7 +616,8 @@ def test_perf_workloads_and_figures() -> None:
     slow_period_s = 25 * 10 / perf_emulator.SLOW_BAUD  # each print waits for the line
     assert slow_loops == pytest.approx(5.0 / slow_period_s, rel=0.02)
     figures = {f.name: f for f in perf_emulator.run(PerfOptions(quick=True, repeats=1))}
-    assert set(figures) == {"emulator.realtime_factor", "emulator.loop_cost",
+    assert set(figures) == {"emulator.realtime_factor", "emulator.bus_realtime_factor",
+                            "emulator.loop_cost",
                             "emulator.idle_realtime_factor", "emulator.slow_line_realtime_factor",
                             "emulator.cycle_loop_factor"}
     cost = figures["emulator.loop_cost"]

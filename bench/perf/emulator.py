@@ -4,6 +4,8 @@ The workload is the emulator alone with default settings (115200 baud, 100 kHz I
 the arm moving at full duty between two far-apart poses (every joint moving most of the time), and
 every main loop and reply frame the firmware would produce. The bound of ``emulator.loop_cost`` is
 one bare ``asyncio.sleep`` on the same virtual-time loop, measured in the same run.
+``emulator.bus_realtime_factor`` is the same workload with ``emulator.fused_bus = false`` (every
+transaction of every loop through the bus, see ``docs/emulator.md``), beside the default.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from drivers.protocol import Command
 from drivers.settings import RobotSettings, SerialSettings
 from fakes.arm import ArmEmulator
 from fakes.joint import CYCLE_S
+from fakes.settings import emulator_settings
 from fakes.vclock import run_virtual
 
 __all__ = ["run"]
@@ -25,9 +28,11 @@ POSES = ([1.2, 0.9, -1.2, 1.5], [-1.2, -0.6, 0.8, -0.4])
 SLOW_BAUD = 9600
 
 
-async def _emulate(sim_s: float, moving: bool, baudrate: int = 115200) -> tuple[float, int]:
+async def _emulate(sim_s: float, moving: bool, baudrate: int = 115200,
+                   fused_bus: bool = True) -> tuple[float, int]:
     """Wall seconds and main loops for ``sim_s`` simulated seconds."""
-    arm = ArmEmulator(RobotSettings(serial=SerialSettings(baudrate=baudrate)))
+    robot = RobotSettings(serial=SerialSettings(baudrate=baudrate))
+    arm = ArmEmulator(robot, emulator_settings(robot, fused_bus=fused_bus))
     arm.attach_host(lambda data: None)
     await arm.start()
     wall = time.perf_counter()
@@ -80,10 +85,12 @@ def run(options: PerfOptions) -> list[Figure]:
     best_factor = best_idle = best_cycle = 0.0
     cycle_s = 2.0 if options.quick else 5.0
     best_loop = best_sleep = float("inf")
-    best_slow = 0.0
+    best_slow = best_unfused = 0.0
     for _ in range(repeats):  # interleaved, best of each: a busy machine only ever slows a run
         wall, loops = run_virtual(_emulate(sim_s, moving=True))
         best_factor = max(best_factor, sim_s / wall)
+        unfused_wall, _ = run_virtual(_emulate(sim_s, moving=True, fused_bus=False))
+        best_unfused = max(best_unfused, sim_s / unfused_wall)
         slow_wall, _ = run_virtual(_emulate(sim_s, moving=True, baudrate=SLOW_BAUD))
         best_slow = max(best_slow, sim_s / slow_wall)
         best_loop = min(best_loop, wall / loops)
@@ -96,6 +103,9 @@ def run(options: PerfOptions) -> list[Figure]:
                note="four boards, full duty, 115200 baud, 100 kHz I²C, virtual time"),
         Figure("emulator.loop_cost", best_loop * 1e6, "µs/loop", best_sleep * 1e6,
                best_loop / best_sleep, note="bound: one bare virtual-time asyncio.sleep"),
+        Figure("emulator.bus_realtime_factor", best_unfused, "sim s/wall s",
+               note="same with emulator.fused_bus = false: every I²C transaction of every loop "
+                    "through I2CBus.i2c_rdwr"),
         Figure("emulator.idle_realtime_factor", best_idle, "sim s/wall s",
                note="same, arm holding still: cost follows events, not 80 µs cycles"),
         Figure("emulator.slow_line_realtime_factor", best_slow, "sim s/wall s",
