@@ -730,8 +730,7 @@ class Arm:
         framer = self._framer
         if self._capture is None and not self._recorders:
             one = framer.one_reply(data)
-            if one is not None:  # a chunk that is one reply (fake://, a quiet line): the rest
-                # of this method for that case
+            if one is not None:  # what follows does for a chunk that is exactly one reply
                 self._synced = True
                 self._seq = seq = self._seq + 1
                 self.frames_received += 1

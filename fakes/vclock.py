@@ -146,12 +146,11 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         if when is None:
             raise TypeError("when cannot be None")
         base._check_closed()
-        timer: Any
-        if base._debug:  # asyncio's checks, and handles that keep their creation traceback
+        if base._debug:  # asyncio's checks; its constructor keeps the creation traceback
             base._check_thread()
             base._check_callback(callback, "call_at")
-            timer = _OrderedTimerHandle(when, callback, args, self, context)
-        elif _FAST_HANDLES:  # what the two __init__ do when the loop is not in debug mode
+        timer: Any
+        if _FAST_HANDLES and not base._debug:  # what the two __init__ do then
             timer = _new_object(_OrderedTimerHandle)
             timer._callback = callback
             timer._args = args

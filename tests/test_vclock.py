@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import time
 
 from fakes import vclock
 from fakes.vclock import VirtualTimeLoop, run_virtual
@@ -16,9 +15,7 @@ def test_an_hour_of_sleep_passes_at_once() -> None:
         await asyncio.sleep(3600.0)
         return loop.time() - t0
 
-    wall = time.perf_counter()
-    assert run_virtual(main) == 3600.0
-    assert time.perf_counter() - wall < 60.0  # virtual, not real: any machine passes this
+    assert run_virtual(main) == 3600.0  # (on a real clock this test would take the hour)
 
 
 def test_equal_time_timers_run_in_the_order_they_were_scheduled() -> None:
