@@ -48,6 +48,7 @@ from drivers.kinematics import JointLimitError, KinematicsError, UnreachableErro
 from drivers.motion import joint_times_s, line
 from drivers.protocol import Command, Framer, Reply
 from drivers.settings import RobotSettings
+from fakes.settings import EmulatorSettings
 from fakes.vclock import run_virtual
 
 T = TypeVar("T")
@@ -801,3 +802,24 @@ def test_one_reply_short_path_gives_the_general_paths_states() -> None:
             return arrived, arm.state, arm.frames_received, arm.frames_dropped
 
     assert run_virtual(session(general=False)) == run_virtual(session(general=True))
+
+
+def test_perf_driver_figures() -> None:
+    """``armbench perf --only driver``'s quick run, on a real pty to a real ``armbench emulate``:
+    every figure present, bounds and ratios consistent, the pty stream at the firmware's rate."""
+    from bench.perf import PerfOptions
+    from bench.perf import driver as perf_driver
+
+    figures = {f.name: f for f in perf_driver.run(PerfOptions(quick=True, repeats=1))}
+    assert set(figures) == {
+        "driver.fake_realtime_factor", "driver.fake_roundtrips", "driver.fake_roundtrip_p50_ms",
+        "driver.fake_roundtrip_p99_ms", "driver.pty_reply_rate", "driver.pty_max_gap_ms",
+        "driver.host_timer_late_ms"}
+    for f in figures.values():
+        assert f.value >= 0 and math.isfinite(f.value), f
+        if f.bound is not None:
+            assert f.ratio == pytest.approx(f.value / f.bound), f
+    period_ms = perf_driver.loop_period_s(EmulatorSettings()) * 1e3
+    assert figures["driver.host_timer_late_ms"].bound == pytest.approx(period_ms)
+    assert figures["driver.pty_max_gap_ms"].value >= period_ms * 0.9  # at least one loop apart
+    assert figures["driver.pty_reply_rate"].ratio > 0.5  # replies flow at the firmware's pace

@@ -15,6 +15,11 @@
   1 / loop period)``, the loop period being the emulated master's I²C traffic per loop (three
   4-byte reference writes and three 2-byte position reads at ``i2c_hz``, from
   :func:`fakes.i2c.transaction_bits`) plus ``loop_overhead_s`` of :class:`EmulatorSettings`.
+* ``driver.host_timer_late_ms`` — the latest wake-up of a bare ``select()`` sleep at the loop
+  period, over as long as the pty run, in this process: the scheduling delay the host imposes on
+  any process that keeps a schedule. A server delayed d ms leaves a gap of one loop period + d,
+  so on a host where this exceeds one loop period ``driver.pty_max_gap_ms`` cannot meet its bound
+  whatever the emulator does.
 * ``driver.port_reply_rate`` — with ``--port``: the same against the user's hardware, bounded by
   the line rate and the loop period the emulator assumes for the firmware.
 """
@@ -46,7 +51,7 @@ from fakes.i2c import transaction_bits
 from fakes.settings import EmulatorSettings, emulator_settings
 from fakes.vclock import run_virtual
 
-__all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty"]
+__all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty", "timer_lateness_s"]
 
 #: Poses the realtime benchmark moves between at duty 99 (rad, within the default limits).
 POSES = ((0.5, 0.4, 0.6, 0.8), (-0.5, -0.3, -0.6, -0.2))
@@ -163,6 +168,22 @@ async def _reply_rate(port: str, seconds: float, settings: RobotSettings) -> tup
         return rate, max(b - a for a, b in itertools.pairwise(times))
 
 
+def timer_lateness_s(seconds: float, period_s: float) -> float:
+    """The latest a bare ``select()`` sleep woke after its deadline, sleeping every
+    ``period_s`` for ``seconds`` of real time: the scheduling delay the host imposes on any
+    process that keeps a schedule, the emulator serving a pty included."""
+    deadline = time.monotonic() + period_s
+    end = deadline + seconds
+    worst = 0.0
+    while deadline < end:
+        wait_s = deadline - time.monotonic()
+        if wait_s > 0:
+            select.select([], [], [], wait_s)
+        worst = max(worst, time.monotonic() - deadline)
+        deadline += period_s
+    return worst
+
+
 # --- figures ------------------------------------------------------------------------------------
 
 def run(options: PerfOptions) -> list[Figure]:
@@ -216,11 +237,17 @@ def run(options: PerfOptions) -> list[Figure]:
              f"{robot.serial.baudrate / (robot.serial.bits_per_byte * REPLY_LEN):.1f}/s, loop "
              f"{1 / loop_period_s(emu):.1f}/s); target ratio 0.9"))
     two_loops_ms = 2e3 * period_s
+    late_s = timer_lateness_s(seconds, period_s)
     figures.append(Figure(
         "driver.pty_max_gap_ms", best_gap * 1e3, "ms", two_loops_ms,
         best_gap * 1e3 / two_loops_ms,
         note="the emulator serving in real time: longest gap between two replies of armbench "
              "emulate --pty as the driver received them; bound = two firmware loop periods"))
+    figures.append(Figure(
+        "driver.host_timer_late_ms", late_s * 1e3, "ms", period_s * 1e3, late_s / period_s,
+        note=f"what the host allows: the latest wake-up of a bare select() sleep every loop "
+             f"period for {seconds:g} s, in this process; a pty gap exceeds one loop period by "
+             f"at least any such delay of the server's (bound = one loop period)"))
 
     if options.port is not None:
         rate, _gap = asyncio.run(_reply_rate(options.port, seconds, robot))
