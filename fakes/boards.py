@@ -465,11 +465,13 @@ class MasterBoard(Board):
         t0, counts_per_rad = self.t0, self._counts_per_rad
         s2, s3, s4 = slaves
         rdwr, read_available, write = bus.i2c_rdwr, uart.read_available, uart.write
-        # the steady loop's traffic (see below): each transaction's START and its bytes, as
-        # I2CBus.i2c_rdwr adds them up, so both give the very same times
+        # the steady loop's traffic (see below), from these very messages: each transaction's
+        # bytes as I2CBus.i2c_rdwr adds them up (so both give the same times), and its counts
         bit_s, stats = bus.bit_s, bus.stats
-        write_s = (9 * 4 + 10) * bit_s
-        read_s = (9 * 2 + 10) * bit_s
+        write_s = (9 * ref_msgs[0].len + 10) * bit_s
+        read_s = (9 * pos_msgs[0].len + 10) * bit_s
+        steady_transactions = len(ref_msgs) + len(pos_msgs)
+        steady_bytes = sum(m.len for m in ref_msgs) + sum(m.len for m in pos_msgs)
         fused = settings.fused_bus
         written = [b.raw for b in ref_bufs]  # what each reference write carries
         while True:
@@ -500,8 +502,8 @@ class MasterBoard(Board):
                 # register. So they are run as that, at the very times i2c_rdwr gives them
                 # (same sums), without the bus's message decoding and handler dispatch, which
                 # were half of a loop's cost. tests/test_emulator.py checks both ways agree.
-                stats.transactions += 6
-                stats.bytes += 18
+                stats.transactions += steady_transactions
+                stats.bytes += steady_bytes
                 now = clock.now + bit_s + write_s + bit_s + write_s + bit_s + write_s + bit_s
                 now += read_s
                 positions[0] = s2.read_position(now)
