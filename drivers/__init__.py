@@ -4,7 +4,21 @@ The driver (``drivers.arm``) is imported lazily on first use of its names, so th
 which shares the codec and the robot model, never imports the driver.
 """
 
-from drivers.errors import ArmbenchError, PortLostError, TransportError
+from drivers.errors import (
+    ArmbenchError,
+    DriverClosedError,
+    DriverError,
+    FrameValueError,
+    InvalidTargetError,
+    JointRangeError,
+    MoveInterruptedError,
+    MoveTimeoutError,
+    PortLostError,
+    ProtocolError,
+    ReplyTimeoutError,
+    TransportError,
+    WaitTimeoutError,
+)
 from drivers.kinematics import (
     BRANCHES,
     IKSolution,
@@ -26,8 +40,6 @@ from drivers.protocol import (
     Command,
     FrameError,
     Framer,
-    FrameValueError,
-    ProtocolError,
     Reply,
     rad_to_ticks,
     ticks_to_rad,
@@ -40,28 +52,38 @@ from drivers.settings import (
     SettingsError,
     load_settings,
 )
+from drivers.state import JointState
 
 __all__ = [
     "BRANCHES",
     "ArmbenchError",
     "Command",
+    "DriverClosedError",
+    "DriverError",
     "FrameError",
     "FrameValueError",
     "Framer",
     "Geometry",
     "IKSolution",
+    "InvalidTargetError",
     "JointLimitError",
+    "JointRangeError",
     "JointSettings",
+    "JointState",
     "KinematicsError",
     "LimitViolation",
+    "MoveInterruptedError",
+    "MoveTimeoutError",
     "PortLostError",
     "ProtocolError",
     "Reply",
+    "ReplyTimeoutError",
     "RobotSettings",
     "SerialSettings",
     "SettingsError",
     "TransportError",
     "UnreachableError",
+    "WaitTimeoutError",
     "dh_parameters",
     "dh_to_protocol",
     "fk",
@@ -76,9 +98,7 @@ __all__ = [
     "wrap_protocol",
 ]
 
-_DRIVER_NAMES = ("Arm", "JointState", "PathRun", "ReconnectPolicy", "DriverError",
-                 "DriverClosedError", "ReplyTimeoutError", "WaitTimeoutError", "MoveTimeoutError",
-                 "MoveInterruptedError", "InvalidTargetError", "JointRangeError")
+_DRIVER_NAMES = ("Arm", "PathRun", "ReconnectPolicy")
 __all__ += list(_DRIVER_NAMES)
 
 

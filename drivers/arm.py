@@ -25,13 +25,24 @@ from collections.abc import Callable, Generator, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from types import TracebackType
-from typing import Any, Final, Literal, NamedTuple, Protocol
+from typing import Any, Final, Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from drivers.capture import CaptureWriter, frame_text, replay_capture
-from drivers.errors import ArmbenchError, PortLostError, TransportError
+from drivers.errors import (
+    DriverClosedError,
+    DriverError,
+    InvalidTargetError,
+    JointRangeError,
+    MoveInterruptedError,
+    MoveTimeoutError,
+    PortLostError,
+    ReplyTimeoutError,
+    TransportError,
+    WaitTimeoutError,
+)
 from drivers.kinematics import ik_best, tcp_position
 from drivers.motion import (
     CYCLE_S,
@@ -60,6 +71,7 @@ from drivers.protocol import (
 )
 from drivers.protocol import Framer as _Framer
 from drivers.settings import RobotSettings
+from drivers.state import GroundTruth, JointState
 from drivers.transports import Transport, open_transport
 
 __all__ = [
@@ -120,139 +132,6 @@ _new = tuple.__new__
 Vec4 = tuple[float, float, float, float]
 Duties = tuple[int, int, int, int]
 FloatArray = npt.NDArray[np.float64]
-
-
-# --------------------------------------------------------------------------------------------
-# State and errors
-
-
-class JointState(NamedTuple):
-    """One reply of the arm.
-
-    ``t_s``: loop time of its arrival (seconds); ``q_rad``: joint angles in the protocol
-    convention, each mapped into its joint's window (so negative angles come back negative);
-    ``ticks``: the raw wire values; ``seq``: its number since the driver connected (1, 2, ...),
-    so a consumer can tell how many replies it has not seen.
-    """
-
-    t_s: float
-    q_rad: Vec4
-    ticks: tuple[int, int, int, int]
-    seq: int
-
-    def tcp_m(self, settings: RobotSettings) -> tuple[float, float, float]:
-        """TCP position (m, base frame) by forward kinematics."""
-        p = tcp_position(self.q_rad, settings)
-        return float(p[0]), float(p[1]), float(p[2])
-
-
-class GroundTruth(Protocol):
-    """What an emulator reports beside each reply (``fakes.boards.TruthSample``): the real joint
-    angles (``true_rad``) and the firmware's belief (``firmware_rad``) at ``t_s``."""
-
-    @property
-    def t_s(self) -> float: ...
-
-    @property
-    def true_rad(self) -> tuple[float, float, float, float]: ...
-
-    @property
-    def firmware_rad(self) -> tuple[float, float, float, float]: ...
-
-
-def _fmt_q(q: Sequence[float]) -> str:
-    return "(" + ", ".join(f"{v:+.4f}" for v in q) + ") rad"
-
-
-class DriverError(ArmbenchError):
-    """Base of the driver's own errors."""
-
-
-class DriverClosedError(DriverError):
-    """The arm was used after :meth:`Arm.close` (or before it was opened)."""
-
-    def __init__(self, port: str) -> None:
-        super().__init__(f"{port}: the arm connection is closed")
-        self.port = port
-
-
-class ReplyTimeoutError(DriverError, TimeoutError):
-    """No valid reply arrived within ``timeout_s`` while waiting; ``last_state`` is the newest
-    state received before (None if none ever arrived)."""
-
-    def __init__(self, port: str, timeout_s: float, last_state: JointState | None) -> None:
-        last = (f"last reply at t = {last_state.t_s:.3f} s: {_fmt_q(last_state.q_rad)}"
-                if last_state is not None else "no reply ever received")
-        super().__init__(f"{port}: no valid reply within {timeout_s:g} s ({last})")
-        self.port = port
-        self.timeout_s = timeout_s
-        self.last_state = last_state
-
-
-class WaitTimeoutError(DriverError, TimeoutError):
-    """:meth:`Arm.wait_state` gave up after ``timeout_s``; ``last_state`` is the newest state."""
-
-    def __init__(self, what: str, timeout_s: float, last_state: JointState | None) -> None:
-        last = _fmt_q(last_state.q_rad) if last_state is not None else "no state"
-        super().__init__(f"{what} not done within {timeout_s:g} s (last state {last})")
-        self.timeout_s = timeout_s
-        self.last_state = last_state
-
-
-class MoveTimeoutError(WaitTimeoutError):
-    """A move did not arrive within ``timeout_s``; carries the ``target_rad`` (as put on the
-    wire), the ``tolerance_rad`` per joint and the ``last_state``."""
-
-    def __init__(self, target_rad: Sequence[float], tolerance_rad: Sequence[float],
-                 timeout_s: float, last_state: JointState | None) -> None:
-        self.target_rad: Vec4 = (float(target_rad[0]), float(target_rad[1]),
-                                 float(target_rad[2]), float(target_rad[3]))
-        self.tolerance_rad = tuple(tolerance_rad)
-        what = f"move to {_fmt_q(self.target_rad)}"
-        if last_state is not None:
-            off = [f"j{i + 1} {q - t:+.4f}" for i, (q, t, tol) in enumerate(
-                zip(last_state.q_rad, self.target_rad, self.tolerance_rad, strict=True))
-                if abs(q - t) > tol]
-            what += " (still off: " + ", ".join(off) + " rad)"
-        super().__init__(what, timeout_s, last_state)
-
-
-class MoveInterruptedError(DriverError):
-    """A move was superseded by a newer command (another move, ``stop()``) before arriving."""
-
-    def __init__(self, target_rad: Sequence[float], last_state: JointState | None) -> None:
-        super().__init__(f"move to {_fmt_q(target_rad)} superseded by a newer command")
-        self.target_rad = tuple(target_rad)
-        self.last_state = last_state
-
-
-class InvalidTargetError(DriverError, ValueError):
-    """A target, duty or option refused before anything was sent; ``joint`` is 1-based (None
-    when the whole value is wrong), ``field`` names what is wrong."""
-
-    def __init__(self, joint: int | None, field: str, value: object, reason: str) -> None:
-        where = f"joint {joint} {field}" if joint is not None else field
-        super().__init__(f"{where}: {value!r} {reason}")
-        self.joint = joint
-        self.field = field
-        self.value = value
-        self.reason = reason
-
-
-class JointRangeError(InvalidTargetError):
-    """A joint target outside its limits: names the joint (1-based and by name), the value and
-    the violated limit (rad, protocol convention); nothing was sent."""
-
-    def __init__(self, joint: int, joint_name: str, value_rad: float, limit_rad: float,
-                 bound: Literal["lower", "upper"]) -> None:
-        side = "below the lower" if bound == "lower" else "above the upper"
-        super().__init__(joint, "target", value_rad,
-                         f"rad ({math.degrees(value_rad):.2f}°) is {side} limit of {joint_name}, "
-                         f"{limit_rad:.6f} rad ({math.degrees(limit_rad):.2f}°)")
-        self.joint_name = joint_name
-        self.value_rad = value_rad
-        self.limit_rad = limit_rad
-        self.bound = bound
 
 
 # --------------------------------------------------------------------------------------------

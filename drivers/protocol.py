@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal, NamedTuple
 
-from drivers.errors import ArmbenchError
+from drivers.errors import FrameValueError, ProtocolError
 
 __all__ = [
     "COMMAND_LEN",
@@ -55,22 +55,6 @@ JOINTS: Final = 4
 REPLY_LEN: Final = 25
 COMMAND_LEN: Final = 37
 TWO_PI: Final = 2.0 * math.pi
-
-
-class ProtocolError(ArmbenchError, ValueError):
-    """Base of the codec's errors."""
-
-
-class FrameValueError(ProtocolError):
-    """A value cannot be put on the wire; names the joint (1-based) and the value."""
-
-    def __init__(self, joint: int | None, field: str, value: object, reason: str) -> None:
-        where = f"joint {joint} {field}" if joint is not None else field
-        super().__init__(f"{where}: {value!r} {reason}")
-        self.joint = joint
-        self.field = field
-        self.value = value
-        self.reason = reason
 
 
 def rad_to_ticks(q_rad: float, joint: int | None = None) -> int:
@@ -172,7 +156,8 @@ class Command:
         0..99 and a wrong number of joints.
         """
         _check_count("positions", q_rad)
-        duties = [duty] * JOINTS if isinstance(duty, int) else list(duty)
+        # values of any type: checked one by one below, with an error naming the joint
+        duties: list[object] = [duty] * JOINTS if isinstance(duty, int) else list(duty)
         _check_count("duties", duties)
         ticks = tuple(rad_to_ticks(q, i) for i, q in enumerate(q_rad, 1))
         d = tuple(_check_duty(v, i) for i, v in enumerate(duties, 1))

@@ -157,6 +157,17 @@ def _clone(bits: np.random.PCG64 | None) -> np.random.PCG64 | None:
     return twin
 
 
+#: The attributes :meth:`JointModel.__copy__` copies: all but the ``Final`` ones (``_CONSTANTS``,
+#: set from the joint settings by the constructor). Together they are the class's ``__slots__``, so
+#: an attribute added to the model and not named here fails at once.
+_FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_miss_bits",
+           "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
+           "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
+           "transitions", "pulses", "steps_taken", "steps_missed", "steps_blocked",
+           "spurious_counts", "iterations")
+_CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
+
+
 class JointModel:
     """One joint board's control loop, encoder, Hall sensor and drive, event-driven.
 
@@ -168,9 +179,12 @@ class JointModel:
     (≥ 0) makes the physical effects reproducible.
     """
 
+    __slots__ = _FIELDS + _CONSTANTS
+
     def __init__(self, joint: JointSettings, *, effects: PhysicalEffects | None = None,
                  seed: int = 0, deadband_counts: int = 1, motor_steps: int = 0,
                  counter: int | None = None, tick: int = 0) -> None:
+        self._joint = joint
         cps = joint.counts_per_step
         self._num, self._den = cps.numerator, cps.denominator
         self._steps_per_rad = joint.steps_per_rad
@@ -304,15 +318,30 @@ class JointModel:
         out, self.transitions = self.transitions, []
         return out
 
+    def __copy__(self) -> JointModel:
+        """A twin in the same state, sharing the mutable parts (run, bit generators, transitions):
+        attribute by attribute, as a compiled build has no instance dictionary to copy."""
+        twin = JointModel(self._joint, motor_steps=self._s)
+        for name in _FIELDS:
+            setattr(twin, name, getattr(self, name))
+        return twin
+
+    def __deepcopy__(self, memo: dict[int, object]) -> JointModel:
+        """An independent twin in the same state: its own run, bit generators and transitions
+        (the joint settings and effects, immutable, are shared)."""
+        twin = copy.copy(self)
+        twin.transitions = list(self.transitions)
+        twin._run = None if self._run is None else replace(self._run)
+        twin._miss_bits = _clone(self._miss_bits)
+        twin._noise_bits = _clone(self._noise_bits)
+        return twin
+
     def next_event_tick(self) -> int | None:
         """First tick at which ``motion`` will have changed or homing completed, assuming no new
         reference; None if nothing is pending (idle, or pushing against a limit or stall forever).
         """
-        probe = copy.copy(self)  # every other attribute is immutable
-        probe.transitions = []
-        probe._run = None if self._run is None else replace(self._run)
-        probe._miss_bits = _clone(self._miss_bits)
-        probe._noise_bits = _clone(self._noise_bits)
+        probe = copy.deepcopy(self)
+        probe.transitions = []  # the first one it records is the answer
         return probe._run_until(_FOREVER, probe=True)
 
     # --- inputs ------------------------------------------------------------------------------
