@@ -1,8 +1,14 @@
 """Host side of armbench: the protocol codec, the robot model, kinematics and the asyncio driver.
 
 The driver (``drivers.arm``) is imported lazily on first use of its names, so that the emulator,
-which shares the codec and the robot model, never imports the driver.
+which shares the codec and the robot model, never imports the driver. Before anything else the
+package chooses the build of its hot modules (``drivers.compiled``): compiled, or their source.
 """
+
+from drivers.compiled import choose_build
+
+choose_build()
+
 
 from drivers.errors import (
     ArmbenchError,

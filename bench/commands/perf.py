@@ -7,6 +7,7 @@ import json
 from typing import Any
 
 from bench.perf import PerfOptions, run_benchmarks
+from drivers.compiled import build
 
 __all__ = ["register"]
 
@@ -16,7 +17,8 @@ def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
         "perf", help="measure codec, emulator and driver throughput",
         description="Measure armbench's throughput figures; targets are set on their ratios.")
-    p.add_argument("--json", action="store_true", help='print {"figures": [...]} on one line')
+    p.add_argument("--json", action="store_true",
+                   help='print {"build": ..., "figures": [...]} on one line')
     p.add_argument("--only", action="append", default=[], metavar="PREFIX",
                    help="only figures whose name starts with PREFIX (repeatable), e.g. codec")
     p.add_argument("--port", default=None, help="also measure against this port (your hardware)")
@@ -29,8 +31,9 @@ def _run(args: argparse.Namespace) -> int:
     opts = PerfOptions(port=args.port, repeats=max(1, args.repeats), quick=args.quick)
     figures = run_benchmarks(opts, args.only)
     if args.json:
-        print(json.dumps({"figures": [f.to_json() for f in figures]}))
+        print(json.dumps({"build": build(), "figures": [f.to_json() for f in figures]}))
         return 0
+    print(f"build of the hot modules: {build()}")
     for f in figures:
         extra = ""
         if f.bound is not None and f.ratio is not None:
