@@ -59,10 +59,8 @@ from drivers.protocol import (
     COMMAND_LEN,
     JOINTS,
     MAX_DUTY,
-    MAX_TICKS,
     REPLY_LEN,
-    TICKS_PER_RAD,
-    TWO_PI,
+    AngleDecoder,
     Command,
     FrameError,
     Reply,
@@ -302,45 +300,6 @@ class _Waiter:
             self.future.set_result(None)
 
 
-def _angle_decoder(lower_rad: Sequence[float],
-                   upper_rad: Sequence[float]) -> Callable[[Reply], Vec4]:
-    """``reply.angles_rad(lower_rad, upper_rad)``, bit for bit, without four calls per reply.
-
-    :func:`~drivers.protocol.ticks_to_rad` subtracts ``2π · k`` with ``k = ceil((ticks / 10 000
-    − mid − π) / 2π)``: a monotonic step function of the ticks that takes at most three values on
-    0..MAX_TICKS. So ``k`` is its value at 0 plus one for each threshold (found once, by
-    bisection on that very expression) the ticks have reached."""
-
-    def k_of(ticks: int, mid: float) -> int:
-        return math.ceil((ticks / TICKS_PER_RAD - mid - math.pi) / TWO_PI)
-
-    steps: list[tuple[int, int, int]] = []
-    for lo, up in zip(lower_rad, upper_rad, strict=True):
-        mid = 0.5 * (lo + up)
-        k0 = k_of(0, mid)
-        thresholds = [MAX_TICKS + 1, MAX_TICKS + 1]
-        for n in range(k_of(MAX_TICKS, mid) - k0):  # the first ticks with k >= k0 + n + 1
-            a, b = 0, MAX_TICKS
-            while a < b:
-                m = (a + b) // 2
-                if k_of(m, mid) > k0 + n:
-                    b = m
-                else:
-                    a = m + 1
-            thresholds[n] = a
-        steps.append((k0, thresholds[0], thresholds[1]))
-    (k1, a1, b1), (k2, a2, b2), (k3, a3, b3), (k4, a4, b4) = steps
-
-    def decode(reply: Reply) -> Vec4:
-        t1, t2, t3, t4 = reply
-        return (t1 / TICKS_PER_RAD - TWO_PI * (k1 + (t1 >= a1) + (t1 >= b1)),
-                t2 / TICKS_PER_RAD - TWO_PI * (k2 + (t2 >= a2) + (t2 >= b2)),
-                t3 / TICKS_PER_RAD - TWO_PI * (k3 + (t3 >= a3) + (t3 >= b3)),
-                t4 / TICKS_PER_RAD - TWO_PI * (k4 + (t4 >= a4) + (t4 >= b4)))
-
-    return decode
-
-
 def _consume(task: asyncio.Task[Any]) -> None:
     if not task.cancelled():
         exc = task.exception()
@@ -388,7 +347,7 @@ class Arm:
         self._framer = _Framer("reply")
         self._lower = self.settings.lower_rad
         self._upper = self.settings.upper_rad
-        self._decode = _angle_decoder(self._lower, self._upper)
+        self._decode = AngleDecoder(self._lower, self._upper)
         self._default_tol: Vec4 = tuple(  # type: ignore[assignment]
             max(DEFAULT_TOLERANCE_RAD, 1.5 / j.counts_per_rad + 1e-4)
             for j in self.settings.joints)

@@ -37,6 +37,7 @@ __all__ = [
     "MAX_TICKS",
     "REPLY_LEN",
     "TICKS_PER_RAD",
+    "AngleDecoder",
     "Command",
     "FrameError",
     "FrameValueError",
@@ -70,6 +71,57 @@ def ticks_to_rad(ticks: int, lower_rad: float = 0.0, upper_rad: float = TWO_PI) 
     q = ticks / TICKS_PER_RAD
     mid = 0.5 * (lower_rad + upper_rad)
     return q - TWO_PI * math.ceil((q - mid - math.pi) / TWO_PI)
+
+
+class AngleDecoder:
+    """Decodes replies of one arm: ``reply.angles_rad(lower_rad, upper_rad)``, bit for bit, in one
+    call per reply (the driver makes one per reply, hundreds a second).
+
+    :func:`ticks_to_rad` subtracts ``2π · k`` with ``k = ceil((ticks / 10 000 − mid − π) / 2π)``:
+    a monotonic step function of the ticks that takes at most three values on 0..MAX_TICKS. So
+    ``k`` is its value at 0 plus one for each threshold (found here once per joint, by bisection
+    on that very expression) the ticks have reached.
+    """
+
+    __slots__ = ("_a1", "_a2", "_a3", "_a4", "_b1", "_b2", "_b3", "_b4",
+                 "_k1", "_k2", "_k3", "_k4")
+
+    def __init__(self, lower_rad: Sequence[float], upper_rad: Sequence[float]) -> None:
+        _check_count("lower_rad", lower_rad)
+        _check_count("upper_rad", upper_rad)
+        steps = [_k_steps(0.5 * (lo + up)) for lo, up in zip(lower_rad, upper_rad, strict=True)]
+        (self._k1, self._a1, self._b1), (self._k2, self._a2, self._b2) = steps[0], steps[1]
+        (self._k3, self._a3, self._b3), (self._k4, self._a4, self._b4) = steps[2], steps[3]
+
+    def __call__(self, reply: Reply) -> tuple[float, float, float, float]:
+        """The reply's joint angles (rad), each in its joint's window."""
+        t1, t2, t3, t4 = reply
+        return (t1 / TICKS_PER_RAD - TWO_PI * (self._k1 + (t1 >= self._a1) + (t1 >= self._b1)),
+                t2 / TICKS_PER_RAD - TWO_PI * (self._k2 + (t2 >= self._a2) + (t2 >= self._b2)),
+                t3 / TICKS_PER_RAD - TWO_PI * (self._k3 + (t3 >= self._a3) + (t3 >= self._b3)),
+                t4 / TICKS_PER_RAD - TWO_PI * (self._k4 + (t4 >= self._a4) + (t4 >= self._b4)))
+
+
+def _k_of(ticks: int, mid: float) -> int:
+    """:func:`ticks_to_rad`'s number of turns to subtract."""
+    return math.ceil((ticks / TICKS_PER_RAD - mid - math.pi) / TWO_PI)
+
+
+def _k_steps(mid: float) -> tuple[int, int, int]:
+    """``k`` at tick 0 and the first ticks where it has grown by one and by two (``MAX_TICKS +
+    1`` where it never does)."""
+    k0 = _k_of(0, mid)
+    thresholds = [MAX_TICKS + 1, MAX_TICKS + 1]
+    for n in range(_k_of(MAX_TICKS, mid) - k0):  # the first ticks with k >= k0 + n + 1
+        a, b = 0, MAX_TICKS
+        while a < b:
+            m = (a + b) // 2
+            if _k_of(m, mid) > k0 + n:
+                b = m
+            else:
+                a = m + 1
+        thresholds[n] = a
+    return k0, thresholds[0], thresholds[1]
 
 
 def _check_duty(value: object, joint: int) -> int:

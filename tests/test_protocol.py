@@ -13,6 +13,8 @@ from drivers.protocol import (
     COMMAND_LEN,
     MAX_TICKS,
     REPLY_LEN,
+    TICKS_PER_RAD,
+    AngleDecoder,
     Command,
     FrameError,
     Framer,
@@ -291,3 +293,31 @@ def test_one_reply_is_feed_for_one_whole_reply_and_consumes_nothing_else(
         assert plain.feed(data) == [one]
         assert fast.frames == plain.frames
     assert Framer("command").one_reply(Reply(1, 2, 3, 4).encode()) is None
+
+
+# --- the driver's decoder -------------------------------------------------------------------------
+
+def test_angle_decoder_is_angles_rad_on_every_tick_of_the_default_arm() -> None:
+    """Bit for bit, on all 62 833 wire values of each joint (its thresholds included)."""
+    decode = AngleDecoder(DEFAULT.lower_rad, DEFAULT.upper_rad)
+    for t in range(MAX_TICKS + 1):
+        reply = Reply(t, t, t, t)
+        assert decode(reply) == reply.angles_rad(DEFAULT.lower_rad, DEFAULT.upper_rad), t
+
+
+@given(st.lists(st.tuples(st.floats(-20, 20), st.floats(0, 2 * math.pi)), min_size=4, max_size=4),
+       st.lists(st.integers(0, MAX_TICKS), min_size=4, max_size=4))
+def test_angle_decoder_is_angles_rad_in_any_window(windows: list[tuple[float, float]],
+                                                   ticks: list[int]) -> None:
+    lower = [lo for lo, _ in windows]
+    upper = [lo + width for lo, width in windows]
+    decode = AngleDecoder(lower, upper)
+    reply = Reply(*ticks)
+    assert decode(reply) == reply.angles_rad(lower, upper)
+    for k, t in enumerate(ticks):  # and at the window's edge, where k steps
+        mid = 0.5 * (lower[k] + upper[k])
+        edge = max(0, min(MAX_TICKS, math.floor((mid + math.pi) % (2 * math.pi) * TICKS_PER_RAD)))
+        for e in (edge - 1, edge, edge + 1):
+            if 0 <= e <= MAX_TICKS:
+                probe = Reply(*(e if i == k else t for i, t in enumerate(ticks)))
+                assert decode(probe) == probe.angles_rad(lower, upper)
