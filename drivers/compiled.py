@@ -32,7 +32,10 @@ __all__ = [
     "PURE_ENV",
     "build",
     "choose_build",
+    "module_source",
+    "pure_requested",
     "source_digest",
+    "why_source",
 ]
 
 #: The hot modules, compiled together as one group.
