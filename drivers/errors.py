@@ -49,12 +49,9 @@ class PortLostError(TransportError):
     """The port went away while open (USB unplugged, TCP reset, pty closed, emulator killed)."""
 
 
-class ProtocolError(ArmbenchError, ValueError):
-    """Base of the codec's errors."""
-
-
-class FrameValueError(ProtocolError):
-    """A value cannot be put on the wire; names the joint (1-based) and the value."""
+class _RefusedValue(Exception):
+    """The message and attributes of a refused value: the ``joint`` (1-based, None when the whole
+    value is wrong), the ``field``, the ``value`` and the ``reason``."""
 
     def __init__(self, joint: int | None, field: str, value: object, reason: str) -> None:
         where = f"joint {joint} {field}" if joint is not None else field
@@ -63,6 +60,14 @@ class FrameValueError(ProtocolError):
         self.field = field
         self.value = value
         self.reason = reason
+
+
+class ProtocolError(ArmbenchError, ValueError):
+    """Base of the codec's errors."""
+
+
+class FrameValueError(_RefusedValue, ProtocolError):
+    """A value cannot be put on the wire; names the joint (1-based) and the value."""
 
 
 def format_q_rad(q: Sequence[float]) -> str:
@@ -132,17 +137,9 @@ class MoveInterruptedError(DriverError):
         self.last_state = last_state
 
 
-class InvalidTargetError(DriverError, ValueError):
+class InvalidTargetError(_RefusedValue, DriverError, ValueError):
     """A target, duty or option refused before anything was sent; ``joint`` is 1-based (None
     when the whole value is wrong), ``field`` names what is wrong."""
-
-    def __init__(self, joint: int | None, field: str, value: object, reason: str) -> None:
-        where = f"joint {joint} {field}" if joint is not None else field
-        super().__init__(f"{where}: {value!r} {reason}")
-        self.joint = joint
-        self.field = field
-        self.value = value
-        self.reason = reason
 
 
 class JointRangeError(InvalidTargetError):
