@@ -160,7 +160,7 @@ def _clone(bits: np.random.PCG64 | None) -> np.random.PCG64 | None:
 #: The attributes :meth:`JointModel.__copy__` copies: all but the ``Final`` ones (``_CONSTANTS``,
 #: set from the joint settings by the constructor). Together they are the class's ``__slots__``, so
 #: an attribute added to the model and not named here fails at once (in the source build: the
-#: compiled one would add it silently, and tests/test_compiled.py compare the two).
+#: compiled one would add it silently, and tests/test_compiled.py compares the two).
 _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_miss_bits",
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
