@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+import drivers
 from drivers.compiled import (
     COMPILED_MODULES,
     DIGESTS_FILE,
@@ -23,15 +24,26 @@ from drivers.compiled import (
 )
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
+#: Where this process imports armbench from (the checkout, or an environment's site-packages as
+#: tox installs it): the subprocesses below import the same copy, whatever their working directory.
+SRC = Path(drivers.__file__).resolve().parent.parent
+
+
+def _env(pure: bool | None = None) -> dict[str, str]:
+    """This environment, importing from ``SRC``; with ``pure`` set or unset
+    ``ARMBENCH_PURE_PYTHON`` (None: as it is here)."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, (str(SRC), env.get("PYTHONPATH"))))
+    if pure is not None:
+        env.pop(PURE_ENV, None)
+        if pure:
+            env[PURE_ENV] = "1"
+    return env
 
 
 def _run_trace(pure: bool) -> dict[str, object]:
     """``tests/build_trace.py`` in a fresh interpreter, with or without ``ARMBENCH_PURE_PYTHON``."""
-    env = {k: v for k, v in os.environ.items() if k != PURE_ENV}
-    if pure:
-        env[PURE_ENV] = "1"
-    done = subprocess.run([sys.executable, str(HERE / "build_trace.py")], env=env, cwd=ROOT,
+    done = subprocess.run([sys.executable, str(HERE / "build_trace.py")], env=_env(pure), cwd=SRC,
                           capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr
     trace: dict[str, object] = json.loads(done.stdout)
@@ -63,8 +75,8 @@ def test_pure_python_is_chosen_by_the_environment() -> None:
             "from drivers.compiled import build, COMPILED_MODULES; "
             "print(build()); print(all(sys.modules[m].__file__.endswith('.py') "
             "for m in COMPILED_MODULES))")
-    out = subprocess.run([sys.executable, "-c", code], env={**os.environ, PURE_ENV: "1"},
-                         cwd=ROOT, capture_output=True, text=True, timeout=60, check=True)
+    out = subprocess.run([sys.executable, "-c", code], env=_env(pure=True),
+                         cwd=SRC, capture_output=True, text=True, timeout=60, check=True)
     chosen, all_source = out.stdout.split("\n")[:2]
     assert all_source == "True"
     assert chosen in (f"source ({PURE_ENV} is set)", "source (not compiled)")
@@ -73,8 +85,8 @@ def test_pure_python_is_chosen_by_the_environment() -> None:
 def test_perf_names_the_build_it_measured() -> None:
     """A figure means little without the build behind it: ``armbench perf`` states it."""
     out = subprocess.run([sys.executable, "-m", "bench", "perf", "--only", "codec.decode",
-                          "--quick", "--repeats", "1", "--json"], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120, check=True)
+                          "--quick", "--repeats", "1", "--json"], env=_env(), cwd=SRC,
+                         capture_output=True, text=True, timeout=120, check=True)
     result = json.loads(out.stdout)
     assert result["build"] == build()
     assert [f["name"] for f in result["figures"]] == ["codec.decode_replies"]
@@ -86,7 +98,7 @@ def _tree(tmp_path: Path, compiled: list[str]) -> Path:
     for name in COMPILED_MODULES:
         target = module_source(name, tmp_path)
         target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_bytes(module_source(name, ROOT).read_bytes())
+        target.write_bytes(module_source(name, SRC).read_bytes())
         if name in compiled:
             target.with_suffix(importlib.machinery.EXTENSION_SUFFIXES[0]).write_bytes(b"")
     digests = {m: source_digest(module_source(m, tmp_path)) for m in COMPILED_MODULES}
