@@ -53,7 +53,9 @@ class BuildExt(build_ext):
     def run(self) -> None:
         super().run()
         outputs = [Path(p) for p in self.get_outputs()]
-        if not outputs or not all(p.exists() for p in outputs):
+        if not outputs:  # nothing was to be compiled (said above)
+            return
+        if not all(p.exists() for p in outputs):
             _say("some extensions were not built: the package will run its Python source")
             return
         digests = {m: _compiled["source_digest"](_compiled["module_source"](m, ROOT))

@@ -5,9 +5,9 @@ which shares the codec and the robot model, never imports the driver. Before any
 package chooses the build of its hot modules (``drivers.compiled``): compiled, or their source.
 """
 
-from drivers.compiled import choose_build
+from drivers.compiled import build
 
-choose_build()
+build()
 
 
 from drivers.errors import (

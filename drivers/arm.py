@@ -43,7 +43,7 @@ from drivers.errors import (
     TransportError,
     WaitTimeoutError,
 )
-from drivers.kinematics import ik_best, tcp_position
+from drivers.kinematics import Vec4, ik_best, tcp_position
 from drivers.motion import (
     CYCLE_S,
     Path,
@@ -127,7 +127,6 @@ _PROGRESS_RAD: Final = 1e-4
 
 _new = tuple.__new__
 
-Vec4 = tuple[float, float, float, float]
 Duties = tuple[int, int, int, int]
 FloatArray = npt.NDArray[np.float64]
 

@@ -4,7 +4,7 @@ The modules in :data:`COMPILED_MODULES` carry the per-reply work of the emulator
 ``setup.py`` compiles them with mypyc when it can (``docs/performance.md``) and records the SHA-256
 of each source it compiled. Python would import an extension module before its ``.py``, so a
 compiled module whose source has changed since (an editable install being worked on) would run
-the old code. :func:`choose_build` therefore loads the Python source of every one of them when any
+the old code. :func:`build` therefore loads the Python source of every one of them when any
 source differs from what was compiled, when the build is partial, or when
 ``ARMBENCH_PURE_PYTHON`` is set: all or none, as compiled modules call each other natively.
 
@@ -31,7 +31,6 @@ __all__ = [
     "DIGESTS_FILE",
     "PURE_ENV",
     "build",
-    "choose_build",
     "module_source",
     "pure_requested",
     "source_digest",
@@ -65,12 +64,10 @@ def module_source(name: str, root: Path = _ROOT) -> Path:
     return root.joinpath(*name.split(".")).with_suffix(".py")
 
 
-def _extension(source: Path) -> Path | None:
-    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        candidate = source.with_suffix(suffix)
-        if candidate.exists():
-            return candidate
-    return None
+def _is_compiled(source: Path) -> bool:
+    """Whether an extension module lies beside ``source``."""
+    return any(source.with_suffix(suffix).exists()
+               for suffix in importlib.machinery.EXTENSION_SUFFIXES)
 
 
 def pure_requested() -> bool:
@@ -81,22 +78,20 @@ def pure_requested() -> bool:
 def why_source(root: Path = _ROOT, modules: Sequence[str] = COMPILED_MODULES) -> str | None:
     """Why the compiled modules under ``root`` must not run (None: they may), or ``""`` when
     none was compiled."""
-    sources = [module_source(m, root) for m in modules]
-    compiled = [s for s in sources if _extension(s) is not None]
-    if not compiled:
+    sources = {m: module_source(m, root) for m in modules}
+    missing = [m for m, source in sources.items() if not _is_compiled(source)]
+    if len(missing) == len(sources):
         return ""
     if pure_requested():
         return f"{PURE_ENV} is set"
-    if len(compiled) != len(sources):
-        missing = sorted(set(modules) - {m for m, s in zip(modules, sources, strict=True)
-                                         if s in compiled})
+    if missing:
         return f"partial build: {', '.join(missing)} not compiled"
     try:
         digests = json.loads((root / "drivers" / DIGESTS_FILE).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return f"no record of the compiled sources (drivers/{DIGESTS_FILE})"
-    changed = [str(s.relative_to(root)) for m, s in zip(modules, sources, strict=True)
-               if digests.get(m) != source_digest(s)]
+    changed = [str(source.relative_to(root)) for m, source in sources.items()
+               if digests.get(m) != source_digest(source)]
     if changed:
         return f"{', '.join(changed)} changed since compiled"
     return None
@@ -116,28 +111,22 @@ class _SourceFinder(importlib.abc.MetaPathFinder):
         return importlib.util.spec_from_file_location(fullname, source)
 
 
-def choose_build() -> str:
-    """Decide once per process, before any hot module is imported (both packages call this
-    first), which build runs; returns :func:`build`."""
+def build() -> str:
+    """The build running in this process: ``compiled (mypyc)`` or ``source (why)``. Decided at the
+    first call, which both packages make before importing any hot module."""
     global _build
     if _build is not None:
         return _build
     reason = why_source()
     if reason is None:
         _build = "compiled (mypyc)"
-        return _build
-    if reason:
+    elif not reason:
+        _build = "source (not compiled)"
+    else:
         sys.meta_path.insert(0, _SourceFinder({m: module_source(m) for m in COMPILED_MODULES}))
         if not pure_requested():
             warnings.warn(f"armbench: running the Python source of its compiled modules "
                           f"({reason}); rebuild with `python3 -m pip install -e .` for speed",
                           RuntimeWarning, stacklevel=2)
         _build = f"source ({reason})"
-    else:
-        _build = "source (not compiled)"
     return _build
-
-
-def build() -> str:
-    """The build running in this process: ``compiled (mypyc)`` or ``source (why)``."""
-    return choose_build()

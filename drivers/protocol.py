@@ -68,9 +68,7 @@ def rad_to_ticks(q_rad: float, joint: int | None = None) -> int:
 
 def ticks_to_rad(ticks: int, lower_rad: float = 0.0, upper_rad: float = TWO_PI) -> float:
     """Angle in radians of wire ticks, mapped into the window centred on the joint's limits."""
-    q = ticks / TICKS_PER_RAD
-    mid = 0.5 * (lower_rad + upper_rad)
-    return q - TWO_PI * math.ceil((q - mid - math.pi) / TWO_PI)
+    return ticks / TICKS_PER_RAD - TWO_PI * _k_of(ticks, 0.5 * (lower_rad + upper_rad))
 
 
 class AngleDecoder:
@@ -103,7 +101,8 @@ class AngleDecoder:
 
 
 def _k_of(ticks: int, mid: float) -> int:
-    """:func:`ticks_to_rad`'s number of turns to subtract."""
+    """The whole turns :func:`ticks_to_rad` subtracts to bring ``ticks`` into the window centred
+    on ``mid`` (rad)."""
     return math.ceil((ticks / TICKS_PER_RAD - mid - math.pi) / TWO_PI)
 
 

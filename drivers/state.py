@@ -5,12 +5,10 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
-from drivers.kinematics import tcp_position
+from drivers.kinematics import Vec4, tcp_position
 from drivers.settings import RobotSettings
 
 __all__ = ["GroundTruth", "JointState"]
-
-Vec4 = tuple[float, float, float, float]
 
 
 class JointState(NamedTuple):

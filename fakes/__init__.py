@@ -4,6 +4,6 @@ Before anything else the package chooses the build of its hot modules (``drivers
 compiled, or their source.
 """
 
-from drivers.compiled import choose_build
+from drivers.compiled import build
 
-choose_build()
+build()
