@@ -24,7 +24,8 @@ from drivers.errors import ArmbenchError
 from drivers.protocol import Framer
 from fakes.arm import ArmEmulator
 
-__all__ = ["FrameLogger", "PtyServer", "TcpServer", "parse_host_port", "real_time_loop"]
+__all__ = ["FrameLogger", "LinkError", "PtyServer", "TcpServer", "claim_link", "parse_host_port",
+           "real_time_loop", "release_link"]
 
 log = logging.getLogger("armbench.emulator")
 
@@ -68,6 +69,51 @@ class FrameLogger:
                 log.debug("arm -> host %r", event)
 
 
+#: Where the kernel puts pseudo-terminal slaves: a symlink into it is one an emulator made.
+PTY_DEVICE_DIR = "/dev/pts/"
+
+
+class LinkError(ArmbenchError):
+    """``--link PATH`` cannot be made without destroying something that is not ours."""
+
+
+def _is_own_link(path: Path) -> bool:
+    """A symlink to a pty slave (live or gone) is the kind an earlier emulator left there."""
+    return path.is_symlink() and os.readlink(path).startswith(PTY_DEVICE_DIR)
+
+
+def claim_link(link: Path, device: str) -> None:
+    """Make ``link`` a symlink to ``device``, replacing only an emulator's earlier pty link.
+
+    Anything else at ``link`` (a file, a device node such as the real arm's ``/dev/ttyUSB0``, a
+    directory, another symlink) is refused with :class:`LinkError` and left as it is; the swap is
+    atomic, so no moment exists where ``link`` points nowhere or at something half-made.
+    """
+    if not link.parent.is_dir():
+        raise LinkError(f"--link {link}: folder {link.parent} does not exist")
+    if os.path.lexists(link) and not _is_own_link(link):
+        raise LinkError(f"--link {link}: something is already there (not an emulator's pty "
+                        f"link); refusing to replace it")
+    staging = link.with_name(f".{link.name}.{os.getpid()}.armbench-link")
+    try:
+        os.symlink(device, staging)
+        if os.path.lexists(link) and not _is_own_link(link):  # appeared meanwhile
+            raise LinkError(f"--link {link}: something appeared there; refusing to replace it")
+        os.replace(staging, link)
+    except OSError as exc:
+        raise LinkError(f"--link {link}: cannot make the link ({exc.strerror or exc})") from exc
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(staging)
+
+
+def release_link(link: Path, device: str) -> None:
+    """Remove ``link`` if it is still the symlink to ``device`` this server made, else leave it."""
+    with contextlib.suppress(OSError):
+        if link.is_symlink() and os.readlink(link) == device:
+            link.unlink()
+
+
 class PtyServer:
     """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
 
@@ -89,9 +135,13 @@ class PtyServer:
         os.set_blocking(self._master_fd, False)
         self.path = os.ttyname(self._slave_fd)
         if self.link is not None:
-            with contextlib.suppress(FileNotFoundError):
-                self.link.unlink()
-            self.link.symlink_to(self.path)
+            try:
+                claim_link(self.link, self.path)
+            except LinkError:
+                os.close(self._master_fd)
+                os.close(self._slave_fd)
+                self._master_fd = self._slave_fd = -1
+                raise
         loop = asyncio.get_running_loop()
         loop.add_reader(self._master_fd, self._readable)
         self.arm.attach_host(self._write)
@@ -127,8 +177,8 @@ class PtyServer:
             os.close(self._master_fd)
             os.close(self._slave_fd)
             self._master_fd = self._slave_fd = -1
-        if self.link is not None and self.link.is_symlink():
-            self.link.unlink()
+        if self.link is not None:
+            release_link(self.link, self.path)
 
 
 class TcpServer:
