@@ -1,26 +1,30 @@
 """Build: the project's metadata is in pyproject.toml; this adds the hot modules compiled by mypyc.
 
-The modules named in ``drivers/compiled.py`` are compiled when mypyc (a build requirement) and a C
-compiler are at hand and ``ARMBENCH_PURE_PYTHON`` is not set; otherwise, or if compiling fails,
-the package installs as plain Python and runs the same source, slower. Beside the extensions the
-build writes ``drivers/_compiled.json``, the SHA-256 of each source compiled, so that the package
-can tell a compiled module from one whose source has changed since (see ``docs/performance.md``).
+A regular (wheel) build compiles the modules named in ``armbench/hot_modules.py`` when mypyc (a
+build requirement) and a C compiler are at hand, as black's release wheels are built: each compiled
+module sits beside its source in the installed package and Python imports it first. Nothing chooses
+a build at import time. An editable install never compiles (it runs the source being edited), and
+``ARMBENCH_PURE_PYTHON=1`` at build time installs plain Python; see ``docs/performance.md``.
 """
 
 from __future__ import annotations
 
-import json
+import os
 import runpy
 import sys
 from pathlib import Path
 from typing import Any
 
 from setuptools import setup
-from setuptools.command.build_ext import build_ext
 
 ROOT = Path(__file__).resolve().parent
-_compiled: dict[str, Any] = runpy.run_path(str(ROOT / "drivers" / "compiled.py"))
-MODULES: tuple[str, ...] = _compiled["COMPILED_MODULES"]
+HOT_MODULES: tuple[str, ...] = runpy.run_path(str(ROOT / "armbench" / "hot_modules.py"))[
+    "HOT_MODULES"]
+PURE_ENV = "ARMBENCH_PURE_PYTHON"
+#: mypyc's shared library of the group, inside the package: ``armbench/hot__mypyc.*.so``.
+GROUP = "armbench.hot"
+#: setup.py commands that build a wheel or extensions; metadata and editable builds compile nothing.
+_BUILDING = {"bdist_wheel", "build", "build_ext", "install"}
 
 
 def _say(message: str) -> None:
@@ -28,43 +32,26 @@ def _say(message: str) -> None:
 
 
 def _extensions() -> list[Any]:
-    if _compiled["pure_requested"]():
-        _say(f"{_compiled['PURE_ENV']} is set: plain Python, nothing compiled")
+    if not _BUILDING & set(sys.argv[1:]):
+        return []
+    if os.environ.get(PURE_ENV, "") not in ("", "0"):
+        _say(f"{PURE_ENV} is set: plain Python, nothing compiled")
         return []
     try:
         from mypyc.build import mypycify
     except ImportError:
         _say("mypyc is not installed: plain Python, nothing compiled")
         return []
-    sources = [str(_compiled["module_source"](m, Path(".")).as_posix()) for m in MODULES]
+    sources = [m.replace(".", "/") + ".py" for m in HOT_MODULES]
     try:
-        extensions: list[Any] = mypycify(sources, opt_level="3")
+        extensions: list[Any] = mypycify(sources, opt_level="3", group_name=GROUP)
     except (Exception, SystemExit) as exc:  # mypy reports type errors by exiting
         _say(f"mypyc could not compile {sources} ({exc!r}): plain Python")
         return []
     for ext in extensions:
-        ext.optional = True  # no C compiler: skip, and the package runs its Python source
+        ext.optional = True  # no C compiler: the package runs its Python source
+    _say(f"compiling {', '.join(HOT_MODULES)} with mypyc")
     return extensions
 
 
-class BuildExt(build_ext):
-    """``build_ext`` that records the digests of the sources once every extension is built."""
-
-    def run(self) -> None:
-        super().run()
-        outputs = [Path(p) for p in self.get_outputs()]
-        if not outputs:  # nothing was to be compiled (said above)
-            return
-        if not all(p.exists() for p in outputs):
-            _say("some extensions were not built: the package will run its Python source")
-            return
-        digests = {m: _compiled["source_digest"](_compiled["module_source"](m, ROOT))
-                   for m in MODULES}
-        base = ROOT if self.inplace else Path(self.build_lib)
-        target = base / "drivers" / _compiled["DIGESTS_FILE"]
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n", encoding="utf-8")
-        _say(f"compiled {', '.join(MODULES)} with mypyc")
-
-
-setup(ext_modules=_extensions(), cmdclass={"build_ext": BuildExt})
+setup(ext_modules=_extensions())

@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from bench.limits import LimitsConfig
-from bench.record import (
+from armbench.bench.limits import LimitsConfig
+from armbench.bench.record import (
     Comparison,
     ComparisonRow,
     Measurement,
@@ -23,7 +23,7 @@ from bench.record import (
     RunRecord,
     load_record,
 )
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
     "BaselineError",

@@ -1,4 +1,4 @@
-"""The ``armbench`` command line: one module per subcommand under ``bench.commands``."""
+"""The ``armbench`` command line: one module per subcommand under ``armbench.bench.commands``."""
 
 from __future__ import annotations
 
@@ -8,21 +8,21 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["COMMAND_MODULES", "main"]
 
 #: Each module exposes ``register(subparsers)``, which adds its parser and sets ``func``.
 COMMAND_MODULES: tuple[str, ...] = (
-    "bench.commands.run",
-    "bench.commands.kinematics",
-    "bench.commands.perf",
-    "bench.commands.emulate",
-    "bench.commands.monitor",
-    "bench.commands.move",
-    "bench.commands.i2c",
-    "bench.commands.report",
-    "bench.commands.compare",
+    "armbench.bench.commands.run",
+    "armbench.bench.commands.kinematics",
+    "armbench.bench.commands.perf",
+    "armbench.bench.commands.emulate",
+    "armbench.bench.commands.monitor",
+    "armbench.bench.commands.move",
+    "armbench.bench.commands.i2c",
+    "armbench.bench.commands.report",
+    "armbench.bench.commands.compare",
 )
 
 

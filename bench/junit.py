@@ -19,7 +19,13 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from bench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord, atomic_write_bytes
+from armbench.bench.record import (
+    ComparisonRow,
+    Measurement,
+    RunRecord,
+    SuiteRecord,
+    atomic_write_bytes,
+)
 
 __all__ = ["to_junit", "write_junit"]
 

@@ -6,7 +6,7 @@ with no matching limit is reported but not judged. The same file holds the regre
 used against a baseline run and the raw ``[bench]`` / ``[suites.<name>]`` parameter tables read by
 the suites. The format and the matching rules are documented in ``docs/record.md``.
 
-Errors in the file raise :class:`~drivers.settings.SettingsError` naming the dotted field.
+Errors in the file raise :class:`~armbench.drivers.settings.SettingsError` naming the dotted field.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.settings import SettingsError
+from armbench.drivers.settings import SettingsError
 
 __all__ = [
     "DEFAULT_TOLERANCE_PCT",

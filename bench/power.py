@@ -1,6 +1,6 @@
 """Power switches: how the bench cuts and restores the arm's power (start-up recovery tests).
 
-Three implementations of :class:`~bench.suites.base.PowerSwitch`:
+Three implementations of :class:`~armbench.bench.suites.base.PowerSwitch`:
 
 - :class:`EmulatorPower` — ``fake://``: the emulator's own power control (instantaneous, on the
   loop's clock, so on virtual time);
@@ -24,7 +24,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import IO, Any, Protocol
 
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
     "DEFAULT_COMMAND_TIMEOUT_S",
@@ -55,8 +55,10 @@ class _EmulatorLike(Protocol):
 class EmulatorPower:
     """The power control of the ``fake://`` emulator.
 
-    ``source`` is the :class:`~fakes.arm.ArmEmulator` itself, or anything with an ``emulator``
-    attribute (an :class:`~drivers.arm.Arm` or a fake transport), resolved at each switch, so the
+    ``source`` is the :class:`~armbench.fakes.arm.ArmEmulator` itself, or anything with an
+    ``emulator``
+    attribute (an :class:`~armbench.drivers.arm.Arm` or a fake transport), resolved at each switch,
+    so the
     switch follows the arm to a new emulator after a reconnection.
     """
 

@@ -30,9 +30,9 @@ from datetime import time as time_of_day
 from pathlib import Path, PurePath
 from typing import Any, Literal, get_args
 
-from bench.limits import Limit, LimitsConfig
-from drivers.errors import ArmbenchError
-from drivers.settings import RobotSettings, SettingsError
+from armbench.bench.limits import Limit, LimitsConfig
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = [
     "PAPER_REFERENCE",
@@ -437,7 +437,7 @@ class SuiteRecord:
 
 
 # --------------------------------------------------------------------------------------------
-# Baseline comparison (the data; bench.baseline computes it)
+# Baseline comparison (the data; armbench.bench.baseline computes it)
 # --------------------------------------------------------------------------------------------
 
 

@@ -12,7 +12,8 @@ Order of work:
    parameters (``Suite.params``), each suite's plan, the robot settings, the fault file, the
    baseline (readable, same record schema, same limits spec), the port's scheme, the tracker
    plug-in, the power switch, the run directory (or the record to resume). Any problem raises an
-   :class:`~drivers.errors.ArmbenchError` naming the field: the CLI prints one line and exits 2.
+   :class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI prints one line and
+   exits 2.
 2. :func:`execute` runs each planned suite: ``begin_suite``, then every trial the record does not
    have yet (``completed_trials``), each written to disk the moment it ends (``add_trial``), then
    ``summarize`` and ``end_suite``; then the baseline comparison, ``junit.xml`` and
@@ -53,10 +54,10 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, Any, Literal
 from urllib.parse import parse_qs, urlsplit
 
-from bench.baseline import BaselineError, compare, load_baseline
-from bench.limits import LimitsConfig, load_limits
-from bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, EmulatorPower, ManualPower
-from bench.record import (
+from armbench.bench.baseline import BaselineError, compare, load_baseline
+from armbench.bench.limits import LimitsConfig, load_limits
+from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, EmulatorPower, ManualPower
+from armbench.bench.record import (
     RESULTS_FILE,
     RecordError,
     RecordWriter,
@@ -69,19 +70,19 @@ from bench.record import (
     new_run_id,
     path_inside,
 )
-from bench.suites import Suite, SuiteContext, load_suite, suite_names
-from bench.suites.base import PoseSource, PowerSwitch
-from bench.truth import EmulatorTruth, aclose_source, aopen_source, load_tracker
-from drivers.capture import shift_capture
-from drivers.errors import ArmbenchError, TransportError
-from drivers.settings import RobotSettings, SettingsError, load_settings
-from drivers.transports import scheme_of, transport_class
+from armbench.bench.suites import Suite, SuiteContext, load_suite, suite_names
+from armbench.bench.suites.base import PoseSource, PowerSwitch
+from armbench.bench.truth import EmulatorTruth, aclose_source, aopen_source, load_tracker
+from armbench.drivers.capture import shift_capture
+from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
+from armbench.drivers.transports import scheme_of, transport_class
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
-    from bench.workers import JobResult, TrialJob
-    from fakes.arm import ArmEmulator
-    from fakes.faults import Fault
-    from fakes.settings import EmulatorSettings
+    from armbench.bench.workers import JobResult, TrialJob
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.faults import Fault
+    from armbench.fakes.settings import EmulatorSettings
 
 __all__ = [
     "CAPTURE_FILE",
@@ -234,7 +235,7 @@ class BenchPlan:
     run_id: str
     runner_info: dict[str, Any] = field(default_factory=dict)
     workers: int = 1
-    """Processes measuring ``fake://`` trials at once (``bench.workers``)."""
+    """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
@@ -333,7 +334,7 @@ def _load_runner_info(directory: Path) -> dict[str, Any]:
 def prepare(options: RunOptions) -> BenchPlan:
     """Validate ``options`` and everything they name, without touching the arm.
 
-    Raises an :class:`~drivers.errors.ArmbenchError` (``SettingsError``, ``RecordError``,
+    Raises an :class:`~armbench.drivers.errors.ArmbenchError` (``SettingsError``, ``RecordError``,
     ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
     whose message names the offending field or file.
     """
@@ -371,7 +372,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     url_seed: int | None = None
     url_faults: list[Fault] = []
     if fake:
-        from drivers.transports.fake import parse_fake_url
+        from armbench.drivers.transports.fake import parse_fake_url
 
         _, url_seed, url_faults = parse_fake_url(port)  # validates the query
         query = parse_qs(urlsplit(port).query)
@@ -391,7 +392,7 @@ def prepare(options: RunOptions) -> BenchPlan:
             raise SettingsError("spec_version", config.spec_version,
                                 f"differs from the run's {env.limits_spec_version!r}")
         seed = env.seed if env.seed is not None else 0
-        from fakes.faults import parse_faults
+        from armbench.fakes.faults import parse_faults
 
         faults = parse_faults(env.faults, "environment.faults") if env.faults else []
         refs = info.get("suites") or {}
@@ -413,7 +414,7 @@ def prepare(options: RunOptions) -> BenchPlan:
             if not fake:
                 raise ArmbenchError(f"--faults: faults are injected into the emulator; the port "
                                     f"{port!r} is not fake://")
-            from fakes.faults import load_faults
+            from armbench.fakes.faults import load_faults
 
             faults += load_faults(options.faults)
         suite_refs = list(options.suites) or suite_names()
@@ -448,7 +449,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     if not isinstance(tracker_params, Mapping):
         raise SettingsError("bench.tracker", tracker_params, "is not a table")
     if fake:
-        from fakes.settings import emulator_settings
+        from armbench.fakes.settings import emulator_settings
 
         emulator_settings(settings, seed=0)  # the [emulator] table, checked now
 
@@ -660,7 +661,7 @@ class _LoopClockWriter(RecordWriter):
 
 _JOB_PART = re.compile(
     r"\.capture\.part\d+-job-(?P<suite>.+)-(?P<index>\d+)-(?P<attempt>\d+)\.jsonl")
-"""A worker's capture part (``bench.workers.job_part_tag``)."""
+"""A worker's capture part (``armbench.bench.workers.job_part_tag``)."""
 
 
 def _first_capture_time(part: Path) -> float | None:
@@ -674,7 +675,7 @@ def _first_capture_time(part: Path) -> float | None:
 
 def _default_emulator(robot: RobotSettings, settings: EmulatorSettings,
                       faults: Sequence[Fault]) -> ArmEmulator:
-    from fakes.arm import ArmEmulator
+    from armbench.fakes.arm import ArmEmulator
 
     return ArmEmulator(robot, settings, faults)
 
@@ -716,13 +717,13 @@ class _Run:
         """Capture parts of trials not yet in the record (merged once they are)."""
         self.last_arm: Any = None
         self.pool: Any = None
-        """The worker processes of parallel trials (``bench.workers``), once started."""
+        """The worker processes of parallel trials (``armbench.bench.workers``), once started."""
 
     # -- connections ---------------------------------------------------------------------
 
     async def connect(self, emulator_seed: int) -> _Connection:
-        from drivers.arm import Arm
-        from drivers.capture import CaptureWriter
+        from armbench.drivers.arm import Arm
+        from armbench.drivers.capture import CaptureWriter
 
         plan = self.plan
         self._parts += 1
@@ -730,8 +731,8 @@ class _Run:
         emulator = None
         transport = None
         if plan.fake:
-            from drivers.transports.fake import FakeTransport
-            from fakes.settings import emulator_settings
+            from armbench.drivers.transports.fake import FakeTransport
+            from armbench.fakes.settings import emulator_settings
 
             emulator = self.emulator_factory(
                 plan.settings, emulator_settings(plan.settings, seed=emulator_seed), plan.faults)
@@ -781,7 +782,7 @@ class _Run:
                     for t in s.trials}
         for part in parts:
             job = _JOB_PART.fullmatch(part.name)
-            if job is not None:  # a worker's part: times from its own 0 (bench.workers)
+            if job is not None:  # a worker's part: times from its own 0 (armbench.bench.workers)
                 trial = recorded.get((job["suite"], int(job["index"])))
                 if trial is not None:
                     self._merge_capture(part, trial.started_s)
@@ -873,7 +874,7 @@ class _Run:
             return
         await self.summarize(ps)
 
-    # -- parallel trials (bench.workers) -------------------------------------------------
+    # -- parallel trials (armbench.bench.workers) -------------------------------------------------
 
     def parallel(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
         """Whether the trials of ``ps`` go to worker processes: ``fake://`` with trial isolation
@@ -884,7 +885,7 @@ class _Run:
                 and self.emulator_factory is _default_emulator and plan.tracker is None
                 and plan.power is None and isinstance(self.writer, _LoopClockWriter)):
             return False
-        from fakes.vclock import VirtualTimeLoop
+        from armbench.fakes.vclock import VirtualTimeLoop
 
         if not isinstance(asyncio.get_running_loop(), VirtualTimeLoop):
             return False
@@ -897,7 +898,7 @@ class _Run:
         return True
 
     def _job(self, ps: PlannedSuite, index: int, attempt: int) -> TrialJob:
-        from bench.workers import TrialJob
+        from armbench.bench.workers import TrialJob
 
         plan = dataclasses.replace(self.plan, suites=[], resume=None, baseline=None,
                                    runner_info={})
@@ -906,7 +907,7 @@ class _Run:
     async def _run_parallel(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
         """Measure ``todo`` in worker processes, commit them in order (as :meth:`run_trial`
         would, each attempt on the run clock); the trial that stopped the suite, or None."""
-        from bench.workers import JobResult, run_job, worker_init
+        from armbench.bench.workers import JobResult, run_job, worker_init
 
         loop = asyncio.get_running_loop()
         attempts = self.plan.retries + 1
@@ -1019,7 +1020,7 @@ class _Run:
         writer = self.writer
         arm = self.last_arm
         if arm is None:
-            from drivers.arm import Arm
+            from armbench.drivers.arm import Arm
 
             arm = Arm(self.plan.port, self.plan.settings)  # never opened: summaries don't move
         ctx = self.context(ps, arm, None, derive_seed(self.plan.seed, ps.name, "summary"))
@@ -1194,7 +1195,7 @@ def write_reports(record: RunRecord, out_dir: Path) -> None:
     """``junit.xml`` and ``report.html`` of ``record`` in ``out_dir``. The HTML report comes from
     ``reports.render_report`` when that package is available; otherwise (or if it fails) a plain
     text summary wrapped in HTML is written, so the file always exists."""
-    from bench.junit import write_junit
+    from armbench.bench.junit import write_junit
 
     try:
         write_junit(record, path_inside(out_dir, JUNIT_FILE))
@@ -1202,7 +1203,7 @@ def write_reports(record: RunRecord, out_dir: Path) -> None:
         log.warning("junit.xml not written: %s", exc)
     report = path_inside(out_dir, REPORT_FILE)
     try:
-        from reports import render_report  # type: ignore[attr-defined, unused-ignore]
+        from armbench.reports import render_report  # type: ignore[attr-defined, unused-ignore]
 
         capture = out_dir / CAPTURE_FILE
         render_report(record, report, capture=capture if capture.exists() else None)
@@ -1242,7 +1243,7 @@ def text_summary(record: RunRecord) -> str:
                     lines.append(f"      fail  trial {t.index}: {m.name} = {m.value:.6g} "
                                  f"{m.unit}  (limit {m.limit.describe() if m.limit else '-'})")
     if record.baseline is not None:
-        from bench.baseline import format_comparison
+        from armbench.bench.baseline import format_comparison
 
         lines += ["", f"baseline {record.baseline.baseline_run_id}:",
                   format_comparison(record.baseline)]
@@ -1263,14 +1264,15 @@ async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
 
 def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
              emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
-    """Validate and run on a loop of the right kind: a virtual-time loop (``fakes.vclock``) for
+    """Validate and run on a loop of the right kind: a virtual-time loop
+    (``armbench.fakes.vclock``) for
     ``fake://``, ``asyncio.run`` otherwise. Ctrl-C returns the outcome of the record on disk with
     exit status 130."""
     plan = prepare(options)
     main = execute(plan, progress=progress, emulator_factory=emulator_factory)
     try:
         if plan.fake:
-            from fakes.vclock import run_virtual
+            from armbench.fakes.vclock import run_virtual
 
             return run_virtual(main)
         return asyncio.run(main)

@@ -1,10 +1,10 @@
 """Measurement sources: where a suite gets the TCP position an external instrument sees.
 
-:class:`~bench.suites.base.PoseSource` is the interface; here are its sources:
+:class:`~armbench.bench.suites.base.PoseSource` is the interface; here are its sources:
 
 - :class:`EmulatorTruth` — ``fake://``: the emulator's ground truth (the real joint angles,
   backlash and lost steps included, which the firmware's encoders do not see), through forward
-  kinematics (:func:`drivers.kinematics.tcp_position`);
+  kinematics (:func:`armbench.drivers.kinematics.tcp_position`);
 - a plug-in for hardware: ``--tracker package.module:Class`` loads a class implementing
   ``PoseSource`` (a laser tracker or camera driver), see :func:`load_tracker`;
 - ``None`` when there is neither: suites then record only the forward kinematics of the joints
@@ -18,10 +18,10 @@ import inspect
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from bench.suites.base import PoseSource
-from drivers.errors import ArmbenchError
-from drivers.kinematics import tcp_position
-from drivers.settings import RobotSettings
+from armbench.bench.suites.base import PoseSource
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.kinematics import tcp_position
+from armbench.drivers.settings import RobotSettings
 
 __all__ = ["EmulatorTruth", "TrackerError", "aclose_source", "aopen_source", "load_tracker"]
 
@@ -33,7 +33,8 @@ class TrackerError(ArmbenchError, ValueError):
 class EmulatorTruth:
     """Ground truth of the ``fake://`` emulator as a :class:`PoseSource`.
 
-    ``source`` is an :class:`~drivers.arm.Arm` or a fake transport (anything with an ``emulator``
+    ``source`` is an :class:`~armbench.drivers.arm.Arm` or a fake transport (anything with an
+    ``emulator``
     attribute, resolved at every call so a reconnection is followed), or the emulator itself.
     :meth:`true_joints_rad` are the real joint angles now (``emulator.true_angles_rad()``); when
     only a driver's ground-truth samples are available (``arm.ground_truth()``), the newest

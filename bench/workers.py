@@ -7,7 +7,7 @@ grid from its power-up, ``fakes/boards.py``), so a trial measured on a fresh vir
 another process gives the same figures as one measured in turn on the run's loop. The runner
 hands such trials to ``[bench] workers`` processes (default: one per CPU, at most two) and
 commits them in order: ``started_s`` on the run clock, ``results.json``, and the capture part
-merged with its times moved onto the run clock (:func:`drivers.capture.merge_capture`).
+merged with its times moved onto the run clock (:func:`armbench.drivers.capture.merge_capture`).
 
 A worker runs :func:`run_job`: the same ``_Run._attempt`` the sequential path runs, on a
 ``VirtualTimeLoop`` starting at 0, with a stand-in for the record writer (the worker never writes
@@ -28,10 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, cast
 
-from bench.record import Trial, path_inside
+from armbench.bench.record import Trial, path_inside
 
 if TYPE_CHECKING:
-    from bench.runner import BenchPlan, PlannedSuite
+    from armbench.bench.runner import BenchPlan, PlannedSuite
 
 __all__ = ["JobResult", "TrialJob", "job_part_tag", "run_job", "worker_init"]
 
@@ -113,13 +113,13 @@ def worker_init(parent: int) -> None:
 
 def run_job(job: TrialJob) -> JobResult:
     """Measure one trial attempt on a fresh virtual-time loop (runs in a worker process)."""
-    from fakes.vclock import run_virtual
+    from armbench.fakes.vclock import run_virtual
 
     return run_virtual(_run_job(job))
 
 
 async def _run_job(job: TrialJob) -> JobResult:
-    from bench.runner import _default_emulator, _Run
+    from armbench.bench.runner import _default_emulator, _Run
 
     messages = _Messages()
     run = _Run(job.plan, cast(Any, _JobClock(job.plan.out_dir)), cast(Any, messages),

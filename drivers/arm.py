@@ -8,7 +8,8 @@
         await arm.move_to((0.45, 0.0, 0.55))
         run = await arm.follow_path(line((0.45, -0.05, 0.55), (0.45, 0.05, 0.55)), speed_m_s=0.02)
 
-One reader task per connection feeds a :class:`~drivers.protocol.Framer`; the newest reply is
+One reader task per connection feeds a :class:`~armbench.drivers.protocol.Framer`; the newest reply
+is
 ``arm.state``. Every wait reads time from the running loop and waits with asyncio only, so the
 same code runs in real time on hardware and on virtual time against ``fake://``.
 The policies (resend, tolerance, timeouts, coordinated duty quantisation, streaming, reconnect,
@@ -30,8 +31,8 @@ from typing import Any, Final, Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from drivers.capture import CaptureWriter, frame_text, replay_capture
-from drivers.errors import (
+from armbench.drivers.capture import CaptureWriter, frame_text, replay_capture
+from armbench.drivers.errors import (
     DriverClosedError,
     DriverError,
     InvalidTargetError,
@@ -43,8 +44,8 @@ from drivers.errors import (
     TransportError,
     WaitTimeoutError,
 )
-from drivers.kinematics import Vec4, ik_best, tcp_position
-from drivers.motion import (
+from armbench.drivers.kinematics import Vec4, ik_best, tcp_position
+from armbench.drivers.motion import (
     CYCLE_S,
     Path,
     PathError,
@@ -55,7 +56,7 @@ from drivers.motion import (
     polyline,
     segment_duties,
 )
-from drivers.protocol import (
+from armbench.drivers.protocol import (
     COMMAND_LEN,
     JOINTS,
     MAX_DUTY,
@@ -67,10 +68,10 @@ from drivers.protocol import (
     rad_to_ticks,
     ticks_to_rad,
 )
-from drivers.protocol import Framer as _Framer
-from drivers.settings import RobotSettings
-from drivers.state import GroundTruth, JointState
-from drivers.transports import Transport, open_transport
+from armbench.drivers.protocol import Framer as _Framer
+from armbench.drivers.settings import RobotSettings
+from armbench.drivers.state import GroundTruth, JointState
+from armbench.drivers.transports import Transport, open_transport
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -95,6 +96,7 @@ __all__ = [
     "SentWaypoint",
     "StateStream",
     "WaitTimeoutError",
+    "connect",
 ]
 
 log = logging.getLogger("armbench.driver")
@@ -397,8 +399,9 @@ class Arm:
 
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
         longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
-        receives every frame in and out (see :mod:`drivers.capture`), times counted from the
-        opening; or a :class:`~drivers.capture.CaptureWriter` with a time origin of the
+        receives every frame in and out (see :mod:`armbench.drivers.capture`), times counted from
+        the
+        opening; or a :class:`~armbench.drivers.capture.CaptureWriter` with a time origin of the
         caller's, which the connection uses and closes. ``reconnect``: True or a
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
@@ -412,7 +415,7 @@ class Arm:
     async def open(self) -> None:
         """Open the transport, start the reader and wait for the first valid reply.
 
-        Raises :class:`~drivers.errors.TransportError` if the port cannot be opened and
+        Raises :class:`~armbench.drivers.errors.TransportError` if the port cannot be opened and
         :class:`ReplyTimeoutError` if no valid reply arrives within ``connect_timeout_s``;
         either way everything opened is closed again.
         """
@@ -969,7 +972,7 @@ class Arm:
         Everything is checked before anything is sent: NaN/inf and targets outside the joint
         limits raise :class:`InvalidTargetError` / :class:`JointRangeError`. With ``coordinated``
         the joint with the longest way runs at ``duty`` and the others slower so that all arrive
-        together (see :func:`drivers.motion.coordinated_duties`).
+        together (see :func:`armbench.drivers.motion.coordinated_duties`).
 
         With ``wait`` (default) returns the first state within ``tolerance_rad`` (default
         :meth:`default_tolerance_rad`) of the target as put on the wire; raises
@@ -1092,8 +1095,8 @@ class Arm:
 
         IK picks ``branch`` if given, else the solution within the limits closest to the current
         joint state; an unreachable target raises
-        :class:`~drivers.kinematics.UnreachableError`, one outside the limits
-        :class:`~drivers.kinematics.JointLimitError`, before anything is sent. Then as
+        :class:`~armbench.drivers.kinematics.UnreachableError`, one outside the limits
+        :class:`~armbench.drivers.kinematics.JointLimitError`, before anything is sent. Then as
         :meth:`move_joints`.
         """
         sol = ik_best(xyz_m, self.settings, roll=roll_rad, branch=branch, near=self.state.q_rad)
@@ -1109,7 +1112,8 @@ class Arm:
         solutions on one branch (``branch``, else the one closest to the current state).
 
         Raises the kinematics errors for an unreachable or out-of-limits waypoint and
-        :class:`~drivers.motion.PathError` if the IK jumps between neighbouring waypoints."""
+        :class:`~armbench.drivers.motion.PathError` if the IK jumps between neighbouring
+        waypoints."""
         p = path if isinstance(path, Path) else polyline(list(np.asarray(path, dtype=np.float64)))
         pts = p.waypoints(spacing_m)
         first = ik_best(pts[0], self.settings, roll=roll_rad, branch=branch,
@@ -1133,7 +1137,8 @@ class Arm:
                           lookahead_s: float = LOOKAHEAD_S,
                           tolerance_rad: float | Sequence[float] | None = None,
                           timeout_s: float | None = None) -> PathRun:
-        """Move the TCP along ``path`` (a :class:`~drivers.motion.Path` or a sequence of points,
+        """Move the TCP along ``path`` (a :class:`~armbench.drivers.motion.Path` or a sequence of
+        points,
         metres) at ``speed_m_s`` with tool roll ``roll_rad``.
 
         The path is cut into waypoints at most ``spacing_m`` apart (corners kept), solved by IK on
@@ -1291,3 +1296,7 @@ def _corners(pts: FloatArray) -> set[int]:
         if math.acos(max(-1.0, min(1.0, c))) > CORNER_RAD:
             out.add(k)
     return out
+
+
+#: ``armbench.connect(port, ...)``: the same as :meth:`Arm.connect`.
+connect = Arm.connect

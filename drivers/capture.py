@@ -22,8 +22,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any, Final, Literal, NamedTuple
 
-from drivers.errors import ArmbenchError
-from drivers.protocol import Command, Framer
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.protocol import Command, Framer
 
 __all__ = [
     "BATCH_INTERVAL_S",

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
-    from drivers.state import JointState
+    from armbench.drivers.state import JointState
 
 __all__ = [
     "ArmbenchError",

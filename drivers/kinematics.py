@@ -7,7 +7,7 @@ Conventions (derivation and the paper's errata in ``docs/kinematics.md``):
   angles radians.
 * *DH angles* ``theta`` are the θ_i of that table; *protocol angles* ``q`` are what the serial
   protocol carries (zero = "all joints looking up, joint 1 to the front"). They are related per
-  joint by ``theta = sign * q + offset_rad`` (``drivers.settings.JointSettings``).
+  joint by ``theta = sign * q + offset_rad`` (``armbench.drivers.settings.JointSettings``).
 * The TCP is the origin of frame 4: ``d4`` along the tool axis ``z4 = z3``, which lies in the arm
   plane perpendicular to the forearm ``a3``. Joint 4 is a pure roll about ``z4``: the TCP position
   does not depend on it, and it is the only free orientation parameter (the tool-axis direction
@@ -28,8 +28,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from drivers.errors import ArmbenchError
-from drivers.settings import Geometry, RobotSettings
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import Geometry, RobotSettings
 
 __all__ = [
     "BRANCHES",
@@ -232,7 +232,8 @@ def dh_to_protocol(theta: npt.ArrayLike, settings: RobotSettings, *,
 
 def wrap_protocol(q: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
     """Protocol angles (rad) moved by multiples of 2π into ``(mid - π, mid + π]`` per joint,
-    ``mid`` being the middle of the joint's limits (the window ``drivers.protocol`` decodes into);
+    ``mid`` being the middle of the joint's limits (the window ``armbench.drivers.protocol``
+    decodes into);
     an angle within the limits stays unchanged."""
     arr = _joint_array(q, "q")
     mid = np.array([(j.lower_rad + j.upper_rad) / 2 for j in settings.joints], dtype=np.float64)

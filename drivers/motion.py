@@ -1,6 +1,7 @@
 """Motion planning on the host: speed law (12), coordinated duties, Cartesian paths, run records.
 
-Pure functions and small value types, no I/O and no clocks; :mod:`drivers.arm` uses them to turn a
+Pure functions and small value types, no I/O and no clocks; :mod:`armbench.drivers.arm` uses them
+to turn a
 move or a path into commands.
 
 Speed law (12) of the paper: a joint moving at PWM duty ``v`` (1..99) makes one motor step every
@@ -24,9 +25,9 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from drivers.errors import ArmbenchError
-from drivers.protocol import MAX_DUTY
-from drivers.settings import RobotSettings
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings
 
 __all__ = [
     "CYCLE_S",

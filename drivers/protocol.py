@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal, NamedTuple
 
-from drivers.errors import FrameValueError, ProtocolError
+from armbench.drivers.errors import FrameValueError, ProtocolError
 
 __all__ = [
     "COMMAND_LEN",

@@ -17,7 +17,7 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
     "DEFAULT_JOINTS",

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from typing import NamedTuple, Protocol
 
-from drivers.kinematics import Vec4, tcp_position
-from drivers.settings import RobotSettings
+from armbench.drivers.kinematics import Vec4, tcp_position
+from armbench.drivers.settings import RobotSettings
 
 __all__ = ["GroundTruth", "JointState"]
 
@@ -32,7 +32,8 @@ class JointState(NamedTuple):
 
 
 class GroundTruth(Protocol):
-    """What an emulator reports beside each reply (``fakes.boards.TruthSample``): the real joint
+    """What an emulator reports beside each reply (``armbench.fakes.boards.TruthSample``): the real
+    joint
     angles (``true_rad``) and the firmware's belief (``firmware_rad``) at ``t_s``."""
 
     @property

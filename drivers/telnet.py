@@ -1,7 +1,8 @@
 """Sans-I/O telnet (RFC 854/855) and RFC 2217 COM-PORT-OPTION codec.
 
 Bytes in, events out; bytes to send queued for the caller. No sockets, no clocks, no tasks: the
-asyncio RFC 2217 client (:mod:`drivers.transports.rfc2217`) and the tests drive the same object,
+asyncio RFC 2217 client (:mod:`armbench.drivers.transports.rfc2217`) and the tests drive the same
+object,
 in the style of h11::
 
     codec = TelnetCodec()
@@ -167,7 +168,7 @@ class ComPort:
     LINE_DATA_READY: Final = 0x01
 
 
-#: SET-PARITY value of each :class:`~drivers.settings.SerialSettings` parity letter.
+#: SET-PARITY value of each :class:`~armbench.drivers.settings.SerialSettings` parity letter.
 PARITY_CODES: Final[dict[str, int]] = {"N": 1, "O": 2, "E": 3, "M": 4, "S": 5}
 #: SET-STOPSIZE value of each stop-bit count.
 STOPSIZE_CODES: Final[dict[float, int]] = {1: 1, 2: 2, 1.5: 3}

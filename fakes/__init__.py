@@ -1,9 +1,4 @@
 """The emulated arm: the firmware's four boards, their bus, UART and servers, and virtual time.
 
-Before anything else the package chooses the build of its hot modules (``drivers.compiled``):
-compiled, or their source.
+Light on purpose: importing it imports none of its modules.
 """
-
-from drivers.compiled import build
-
-build()

@@ -14,13 +14,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from drivers.settings import RobotSettings
-from fakes.boards import Board, MasterBoard, SlaveBoard, TruthSample
-from fakes.eeprom import RATED_CYCLES, Eeprom
-from fakes.faults import Fault, FaultInjector
-from fakes.i2c import BusClock, I2CBus
-from fakes.settings import EmulatorSettings, emulator_settings
-from fakes.uart import Uart
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.boards import Board, MasterBoard, SlaveBoard, TruthSample
+from armbench.fakes.eeprom import RATED_CYCLES, Eeprom
+from armbench.fakes.faults import Fault, FaultInjector
+from armbench.fakes.i2c import BusClock, I2CBus
+from armbench.fakes.settings import EmulatorSettings, emulator_settings
+from armbench.fakes.uart import Uart
 
 __all__ = ["ArmEmulator", "ArmStats"]
 

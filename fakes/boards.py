@@ -24,10 +24,10 @@ from typing import NamedTuple
 
 from smbus2 import i2c_msg
 
-from drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
-from drivers.settings import JointSettings
-from fakes.eeprom import Eeprom
-from fakes.i2c import (
+from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
+from armbench.drivers.settings import JointSettings
+from armbench.fakes.eeprom import Eeprom
+from armbench.fakes.i2c import (
     I2C_M_RD,
     REG_POSITION,
     REG_REFERENCE,
@@ -36,9 +36,9 @@ from fakes.i2c import (
     BusClock,
     I2CBus,
 )
-from fakes.joint import CYCLE_S, JointModel
-from fakes.settings import EmulatorSettings
-from fakes.uart import Uart
+from armbench.fakes.joint import CYCLE_S, JointModel
+from armbench.fakes.settings import EmulatorSettings
+from armbench.fakes.uart import Uart
 
 __all__ = ["Board", "MasterBoard", "SlaveBoard", "TruthSample"]
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Literal, Protocol, get_args
 
-from drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = ["FAULT_KINDS", "Fault", "FaultInjector", "faults_from_settings", "load_faults",
            "parse_faults"]

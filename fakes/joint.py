@@ -35,8 +35,8 @@ from typing import Final, Literal, NamedTuple
 
 import numpy as np
 
-from drivers.protocol import MAX_DUTY
-from drivers.settings import JointSettings
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import JointSettings
 
 __all__ = [
     "CYCLE_S",

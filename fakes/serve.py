@@ -20,9 +20,9 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.errors import ArmbenchError
-from drivers.protocol import Framer
-from fakes.arm import ArmEmulator
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.protocol import Framer
+from armbench.fakes.arm import ArmEmulator
 
 __all__ = ["FrameLogger", "LinkError", "PtyServer", "TcpServer", "claim_link", "parse_host_port",
            "real_time_loop", "release_link"]

@@ -11,8 +11,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Literal
 
-from drivers.settings import RobotSettings, SettingsError
-from fakes.joint import CYCLE_S, PhysicalEffects
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.fakes.joint import CYCLE_S, PhysicalEffects
 
 __all__ = ["CYCLE_S", "EmulatorSettings", "PhysicalEffects", "emulator_settings"]
 

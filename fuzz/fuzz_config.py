@@ -41,12 +41,12 @@ from _harness import fuzz_main  # first: puts the checkout on sys.path
 with atheris.instrument_imports(include=["tomllib", "drivers", "fakes"]):
     import tomllib
 
-    from drivers.protocol import Command
-    from drivers.settings import RobotSettings, SettingsError
-    from fakes.arm import ArmEmulator
-    from fakes.faults import Fault, faults_from_settings
-    from fakes.settings import EmulatorSettings, emulator_settings
-    from fakes.vclock import run_virtual
+    from armbench.drivers.protocol import Command
+    from armbench.drivers.settings import RobotSettings, SettingsError
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.faults import Fault, faults_from_settings
+    from armbench.fakes.settings import EmulatorSettings, emulator_settings
+    from armbench.fakes.vclock import run_virtual
 
 #: Anything the emulator would allocate per unit beyond this is reported instead of run.
 MAX_ALLOCATION = 1 << 20

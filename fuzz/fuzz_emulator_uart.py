@@ -1,6 +1,7 @@
 """atheris harness: arbitrary bytes on the emulated master's UART, then one valid command.
 
-Each input runs a fresh ``ArmEmulator`` on a fresh virtual-time loop (``fakes.vclock``), so a
+Each input runs a fresh ``ArmEmulator`` on a fresh virtual-time loop (``armbench.fakes.vclock``),
+so a
 crash reproduces from the input alone; about 0.2 s of robot time, a few ms of wall time.
 
 Input layout (``atheris.FuzzedDataProvider``: integers from the end, bytes from the front)::
@@ -37,11 +38,11 @@ import atheris
 from _harness import fuzz_main  # first: puts the checkout on sys.path
 
 with atheris.instrument_imports(include=["drivers", "fakes"]):
-    from drivers.protocol import Command
-    from drivers.settings import RobotSettings
-    from fakes.arm import ArmEmulator
-    from fakes.settings import EmulatorSettings, emulator_settings
-    from fakes.vclock import run_virtual
+    from armbench.drivers.protocol import Command
+    from armbench.drivers.settings import RobotSettings
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.settings import EmulatorSettings, emulator_settings
+    from armbench.fakes.vclock import run_virtual
 
 MAX_BYTES = 1024
 MAX_PAIRS = 15

@@ -1,4 +1,5 @@
-"""atheris harness: ``drivers.protocol.Framer`` (both kinds) on arbitrary bytes in arbitrary chunks.
+"""atheris harness: ``armbench.drivers.protocol.Framer`` (both kinds) on arbitrary bytes in
+arbitrary chunks.
 
 Input layout (``atheris.FuzzedDataProvider`` takes integers from the end, bytes from the front)::
 
@@ -27,7 +28,7 @@ import atheris
 from _harness import fuzz_main, split  # first: puts the checkout on sys.path
 
 with atheris.instrument_imports(include=["drivers"]):
-    from drivers.protocol import (
+    from armbench.drivers.protocol import (
         COMMAND_LEN,
         REPLY_LEN,
         Command,

@@ -1,4 +1,5 @@
-"""atheris harness: ``drivers.telnet.TelnetCodec`` (client and server role) on arbitrary wire bytes.
+"""atheris harness: ``armbench.drivers.telnet.TelnetCodec`` (client and server role) on arbitrary
+wire bytes.
 
 Input layout (``atheris.FuzzedDataProvider``: integers from the end, bytes from the front)::
 
@@ -34,7 +35,7 @@ import atheris
 from _harness import fuzz_main, split  # first: puts the checkout on sys.path
 
 with atheris.instrument_imports(include=["drivers"]):
-    from drivers.telnet import (
+    from armbench.drivers.telnet import (
         BINARY,
         COM_PORT_OPTION,
         ECHO,

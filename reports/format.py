@@ -11,7 +11,7 @@ from pathlib import Path
 
 import jinja2
 
-from bench.record import Measurement
+from armbench.bench.record import Measurement
 
 __all__ = [
     "CSP",

@@ -16,7 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import quote
 
-from bench.record import (
+from armbench.bench.record import (
     RESULTS_FILE,
     Measurement,
     RecordError,
@@ -24,9 +24,9 @@ from bench.record import (
     atomic_write_bytes,
     load_record,
 )
-from reports import plots
-from reports.format import format_value, jinja_environment
-from reports.render import REPORT_FILE
+from armbench.reports import plots
+from armbench.reports.format import format_value, jinja_environment
+from armbench.reports.render import REPORT_FILE
 
 __all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
 

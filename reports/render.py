@@ -4,7 +4,8 @@ Data flows one way: the report reads ``results.json`` (and ``capture.jsonl`` bes
 run captured its traffic) and nothing else; it never talks to a robot, a driver or the emulator.
 What each section shows is described in ``docs/reports.md``.
 
-The page is one file with no network access: CSS inline, plots inline as SVG (``reports.plots``),
+The page is one file with no network access: CSS inline, plots inline as SVG
+(``armbench.reports.plots``),
 a Content-Security-Policy that forbids fetching anything and running any script, every piece of
 record text HTML-escaped by the templates (Jinja2 autoescaping; record text never reaches an SVG).
 Sections render from whatever the record holds: a suite absent from the record is left out, an
@@ -29,7 +30,7 @@ import numpy.typing as npt
 from markupsafe import Markup
 from matplotlib.figure import Figure
 
-from bench.metrics import (
+from armbench.bench.metrics import (
     MetricsInputError,
     cube_corners,
     iso_cube_poses,
@@ -38,7 +39,7 @@ from bench.metrics import (
     pose_repeatability,
     square_yz,
 )
-from bench.record import (
+from armbench.bench.record import (
     PAPER_REFERENCE,
     RESULTS_FILE,
     ComparisonRow,
@@ -49,9 +50,9 @@ from bench.record import (
     atomic_write_bytes,
     load_record,
 )
-from reports import plots
-from reports.capture import CAPTURE_FILE, CaptureLine, summarize_capture
-from reports.format import (
+from armbench.reports import plots
+from armbench.reports.capture import CAPTURE_FILE, CaptureLine, summarize_capture
+from armbench.reports.format import (
     OUTCOME_MARKS,
     format_duration,
     format_number,
@@ -134,7 +135,7 @@ def _params_text(params: Mapping[str, Any]) -> str:
 
 @dataclass(frozen=True, slots=True)
 class FigureView:
-    """An inline SVG plot (trusted markup from :mod:`reports.plots`) and its caption."""
+    """An inline SVG plot (trusted markup from :mod:`armbench.reports.plots`) and its caption."""
 
     svg: Markup
     caption: str

@@ -16,12 +16,12 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from drivers.arm import Arm
-from drivers.compiled import build
-from drivers.protocol import Command
-from drivers.settings import load_settings
-from fakes.arm import ArmEmulator
-from fakes.vclock import run_virtual
+from armbench.drivers.arm import Arm
+from armbench.drivers.protocol import Command
+from armbench.drivers.settings import load_settings
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.vclock import run_virtual
+from armbench.hot_modules import build_name
 
 SETTINGS = """
 [emulator]
@@ -95,9 +95,9 @@ async def _blocking_session(settings: Path) -> dict[str, Any]:
 
 def trace() -> dict[str, Any]:
     """The sessions' trace (JSON types only), with the build that ran them."""
-    out: dict[str, Any] = {"build": build(), "modules": {
+    out: dict[str, Any] = {"build": build_name(), "modules": {
         name: Path(sys.modules[name].__file__ or "").name
-        for name in ("drivers.protocol", "fakes.boards", "fakes.joint")}}
+        for name in ("armbench.drivers.protocol", "armbench.fakes.boards", "armbench.fakes.joint")}}
     with tempfile.TemporaryDirectory() as tmp:
         for receive, fused, i2c_hz, faults in (("polling", "true", 100_000, ""),
                                                ("polling", "false", 400_000, FAULTS),

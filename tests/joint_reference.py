@@ -1,4 +1,5 @@
-"""Cycle-by-cycle reference of one joint board's control loop, the oracle of ``fakes.joint``.
+"""Cycle-by-cycle reference of one joint board's control loop, the oracle of
+``armbench.fakes.joint``.
 
 Deliberately naive: one Python iteration per 80 µs control cycle, the counter kept incrementally
 as the firmware's encoder interrupt would, no physical effects. Same time convention as the model:
@@ -9,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-from drivers.settings import JointSettings
-from fakes.joint import Motion, PwmState, Transition
+from armbench.drivers.settings import JointSettings
+from armbench.fakes.joint import Motion, PwmState, Transition
 
 
 class ReferenceJoint:

@@ -1,6 +1,7 @@
 """One driver test suite over three links, no mocks:
 
-* ``fake``: ``fake://``, the emulator in-process on virtual time (``fakes.vclock.run_virtual``);
+* ``fake``: ``fake://``, the emulator in-process on virtual time
+(``armbench.fakes.vclock.run_virtual``);
 * ``pty``: a real pseudo-terminal served by ``armbench emulate --pty`` in a subprocess (real time);
 * ``tcp``: a TCP socket served by ``armbench emulate --tcp 127.0.0.1:PORT`` (real time).
 
@@ -29,10 +30,10 @@ import numpy as np
 import pytest
 from netutil import free_port
 
-from bench.commands import i2c as i2c_cmd
-from bench.commands import monitor as monitor_cmd
-from bench.commands import move as move_cmd
-from drivers.arm import (
+from armbench.bench.commands import i2c as i2c_cmd
+from armbench.bench.commands import monitor as monitor_cmd
+from armbench.bench.commands import move as move_cmd
+from armbench.drivers.arm import (
     Arm,
     DriverClosedError,
     InvalidTargetError,
@@ -43,13 +44,18 @@ from drivers.arm import (
     ReplyTimeoutError,
     WaitTimeoutError,
 )
-from drivers.errors import ArmbenchError, PortLostError, TransportError
-from drivers.kinematics import JointLimitError, KinematicsError, UnreachableError, tcp_position
-from drivers.motion import joint_times_s, line
-from drivers.protocol import Command, Framer, Reply
-from drivers.settings import RobotSettings
-from fakes.settings import EmulatorSettings
-from fakes.vclock import run_virtual
+from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
+from armbench.drivers.kinematics import (
+    JointLimitError,
+    KinematicsError,
+    UnreachableError,
+    tcp_position,
+)
+from armbench.drivers.motion import joint_times_s, line
+from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.settings import EmulatorSettings
+from armbench.fakes.vclock import run_virtual
 
 T = TypeVar("T")
 ROOT = Path(__file__).resolve().parents[1]
@@ -95,7 +101,7 @@ class EmulatorProcess:
         log = (self.log_dir / f"emulate-{self.kind}-{os.getpid()}-{id(self)}-{self.starts}.log")
         with log.open("w") as err:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "bench", "emulate", *where], cwd=ROOT,
+                [sys.executable, "-m", "armbench", "emulate", *where], cwd=ROOT,
                 stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None
         ready, _, _ = select.select([self.proc.stdout], [], [], 15.0)
@@ -750,9 +756,9 @@ def test_cli_i2c_scan(capsys: pytest.CaptureFixture[str]) -> None:
 
 _MAIN = """
 import sys
-from bench import cli
-if "bench.commands.move" not in cli.COMMAND_MODULES:
-    cli.COMMAND_MODULES += ("bench.commands.move",)
+from armbench.bench import cli
+if "armbench.bench.commands.move" not in cli.COMMAND_MODULES:
+    cli.COMMAND_MODULES += ("armbench.bench.commands.move",)
 sys.exit(cli.main(sys.argv[1:]))
 """
 
@@ -807,8 +813,8 @@ def test_one_reply_short_path_gives_the_general_paths_states() -> None:
 def test_perf_driver_figures() -> None:
     """``armbench perf --only driver``'s quick run, on a real pty to a real ``armbench emulate``:
     every figure present, bounds and ratios consistent, the pty stream at the firmware's rate."""
-    from bench.perf import PerfOptions
-    from bench.perf import driver as perf_driver
+    from armbench.bench.perf import PerfOptions
+    from armbench.bench.perf import driver as perf_driver
 
     figures = {f.name: f for f in perf_driver.run(PerfOptions(quick=True, repeats=1))}
     assert set(figures) == {

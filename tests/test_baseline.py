@@ -1,4 +1,5 @@
-"""bench.baseline: regressions in both directions, tolerances, new/missing metrics, errors."""
+"""armbench.bench.baseline: regressions in both directions, tolerances, new/missing metrics,
+errors."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.baseline import (
+from armbench.bench.baseline import (
     BaselineError,
     Comparison,
     ComparisonRow,
@@ -17,8 +18,8 @@ from bench.baseline import (
     format_comparison,
     load_baseline,
 )
-from bench.limits import SPEC_VERSION, LimitsConfig, Tolerance, parse_limits
-from bench.record import (
+from armbench.bench.limits import SPEC_VERSION, LimitsConfig, Tolerance, parse_limits
+from armbench.bench.record import (
     Better,
     Environment,
     Measurement,
@@ -28,7 +29,7 @@ from bench.record import (
     judge,
     load_record,
 )
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

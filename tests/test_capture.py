@@ -11,16 +11,16 @@ from typing import TypeVar
 
 import pytest
 
-from drivers.arm import Arm, JointState
-from drivers.capture import (
+from armbench.drivers.arm import Arm, JointState
+from armbench.drivers.capture import (
     CaptureError,
     CaptureRecord,
     CaptureWriter,
     read_capture,
     replay_capture,
 )
-from drivers.protocol import Command
-from fakes.vclock import run_virtual
+from armbench.drivers.protocol import Command
+from armbench.fakes.vclock import run_virtual
 
 T = TypeVar("T")
 COMMAND = Command.from_rad([0.1, 0.2, -0.3, 0.4], 50).encode().decode()

@@ -1,4 +1,5 @@
-"""``armbench fk`` / ``armbench ik`` through ``bench.cli.main``: output, exit status, errors."""
+"""``armbench fk`` / ``armbench ik`` through ``armbench.bench.cli.main``: output, exit status,
+errors."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bench.cli import main
-from drivers.kinematics import fk_dh, tcp_position
-from drivers.settings import RobotSettings
+from armbench.bench.cli import main
+from armbench.drivers.kinematics import fk_dh, tcp_position
+from armbench.drivers.settings import RobotSettings
 
 DEFAULT = RobotSettings()
 NUMBER = re.compile(r"[-+]?\d+\.\d+")

@@ -17,15 +17,15 @@ from pathlib import Path
 import pytest
 import serial
 
-from bench.cli import main
-from drivers.protocol import Command, Framer, Reply
+from armbench.bench.cli import main
+from armbench.drivers.protocol import Command, Framer, Reply
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def start(*args: str) -> tuple[subprocess.Popen[str], str]:
     """Start ``armbench emulate ARGS`` and return it with the address it printed."""
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "emulate", *args], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -144,8 +144,8 @@ def test_tcp_listener_stays_and_a_stalled_client_is_dropped() -> None:
     does) stays past the timeout; one that neither writes nor reads is disconnected. Real sockets
     on a real-time loop; the client that stalls has a tiny receive buffer so the server's send
     buffer fills within seconds."""
-    from fakes.arm import ArmEmulator
-    from fakes.serve import TcpServer
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.serve import TcpServer
 
     async def main() -> None:
         server = TcpServer(ArmEmulator(), idle_timeout_s=0.3, stalled_buffer_bytes=2048)

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.cli import main
-from fakes.serve import LinkError, claim_link, release_link
+from armbench.bench.cli import main
+from armbench.fakes.serve import LinkError, claim_link, release_link
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,9 +101,9 @@ def test_cli_refuses_with_one_line_and_status_2(tmp_path: Path, kind: str,
 def test_cli_in_a_process_keeps_the_file(tmp_path: Path) -> None:
     link = tmp_path / "notes.txt"
     _file(link)
-    proc = subprocess.run([sys.executable, "-m", "bench", "emulate", "--pty", "--link", str(link),
-                           "--duration", "0.1"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=60)
+    proc = subprocess.run([sys.executable, "-m", "armbench", "emulate", "--pty", "--link",
+                           str(link), "--duration", "0.1"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert "refusing" in proc.stderr and "Traceback" not in proc.stderr
     assert link.read_text(encoding="utf-8") == "a user's notes\n"

@@ -1,6 +1,7 @@
 """The emulated firmware as a whole: Algorithm 1/2 over I²C, UART timing, EEPROM, recovery, faults.
 
-Everything runs on virtual time (``fakes.vclock``); each test drives the arm like a host would,
+Everything runs on virtual time (``armbench.fakes.vclock``); each test drives the arm like a host
+would,
 through ``host_write`` and the reply stream, and checks against ground truth.
 """
 
@@ -19,13 +20,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from smbus2 import i2c_msg
 
-from drivers.protocol import Command, FrameError, Framer, Reply
-from drivers.settings import RobotSettings
-from fakes.arm import ArmEmulator, ArmStats
-from fakes.faults import Fault, parse_faults
-from fakes.i2c import REG_STATUS, I2CBus, transaction_bits
-from fakes.settings import emulator_settings
-from fakes.vclock import run_virtual
+from armbench.drivers.protocol import Command, FrameError, Framer, Reply
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.arm import ArmEmulator, ArmStats
+from armbench.fakes.faults import Fault, parse_faults
+from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
+from armbench.fakes.settings import emulator_settings
+from armbench.fakes.vclock import run_virtual
 
 ROBOT = RobotSettings()
 LOWER, UPPER = ROBOT.lower_rad, ROBOT.upper_rad
@@ -433,7 +434,7 @@ def test_same_faults_and_seed_reproduce_the_same_run() -> None:
 
 
 def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> None:
-    from drivers.transports.fake import parse_fake_url
+    from armbench.drivers.transports.fake import parse_fake_url
 
     robot = tmp_path / "robot.toml"
     robot.write_text('[[faults]]\nkind = "power_cut"\nat_s = 2.0\n')
@@ -454,7 +455,7 @@ def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> N
     ({"kind": "uart_drop", "at_s": 1, "colour": "red"}, "faults[0].colour"),
 ])
 def test_bad_fault_entries_name_the_field(item: dict[str, Any], field: str) -> None:
-    from drivers.settings import SettingsError
+    from armbench.drivers.settings import SettingsError
 
     with pytest.raises(SettingsError) as info:
         parse_faults([item])
@@ -606,8 +607,8 @@ def test_perf_workloads_and_figures() -> None:
     """``armbench perf --only emulator``'s plumbing on its quick run, and the behaviour behind
     its figures: at 9600 baud each print waits for the line, so there are about 11× fewer loops
     (cost follows events), at the rate the line sets."""
-    from bench.perf import PerfOptions
-    from bench.perf import emulator as perf_emulator
+    from armbench.bench.perf import PerfOptions
+    from armbench.bench.perf import emulator as perf_emulator
 
     _, fast_loops = run_virtual(perf_emulator._emulate(5.0, moving=True))
     _, slow_loops = run_virtual(perf_emulator._emulate(5.0, moving=True,

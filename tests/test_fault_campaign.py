@@ -105,18 +105,18 @@ from typing import Any, TypeVar
 import pytest
 from netutil import free_port, listening
 
-from bench.record import load_record
-from bench.runner import RunOptions, run_bench
-from drivers.arm import (
+from armbench.bench.record import load_record
+from armbench.bench.runner import RunOptions, run_bench
+from armbench.drivers.arm import (
     Arm,
     JointState,
     MoveTimeoutError,
     ReconnectPolicy,
     ReplyTimeoutError,
 )
-from drivers.capture import read_capture
-from drivers.errors import PortLostError
-from fakes.vclock import VirtualTimeLoop
+from armbench.drivers.capture import read_capture
+from armbench.drivers.errors import PortLostError
+from armbench.fakes.vclock import VirtualTimeLoop
 
 T = TypeVar("T")
 ROOT = Path(__file__).resolve().parents[1]
@@ -376,7 +376,7 @@ def test_driver_under_fault(case: DriverCase, tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-# A short accuracy run under each fault kind (bench.runner, fake://)
+# A short accuracy run under each fault kind (armbench.bench.runner, fake://)
 
 SMALL_ACCURACY = """\
 spec_version = "armbench-limits/1"
@@ -558,7 +558,7 @@ KILL_MOMENTS = 5
 
 
 def _bench(*args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=ROOT, text=True,
+    return subprocess.run([sys.executable, "-m", "armbench", *args], cwd=ROOT, text=True,
                           capture_output=True, timeout=timeout_s, check=False)
 
 
@@ -600,7 +600,7 @@ def test_kill_9_then_resume(moment: int, reference_run: Reference, tmp_path: Pat
     rng = random.Random(KILL_SEED + moment)
     delay = rng.uniform(0.05, 1.0) * reference_run.wall_s
     out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "run", "accuracy", "--config",
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "run", "accuracy", "--config",
                              str(reference_run.config), "--out", str(out), "--seed", "5"],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(delay)
@@ -653,14 +653,14 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
     out = tmp_path / "run"
     wrapper = (
         "import os, signal, sys\n"
-        "import bench.record as record\n"
+        "import armbench.bench.record as record\n"
         "add = record.RecordWriter.add_trial\n"
         "def add_trial(self, name, trial):\n"
         "    if trial.index == 2:\n"
         "        os.kill(os.getpid(), signal.SIGKILL)\n"
         "    return add(self, name, trial)\n"
         "record.RecordWriter.add_trial = add_trial\n"
-        "from bench.cli import main\n"
+        "from armbench.bench.cli import main\n"
         "sys.exit(main(sys.argv[1:]))\n")
     killed = subprocess.run([sys.executable, "-c", wrapper, "run", "accuracy", "--config",
                              str(reference_run.config), "--out", str(out), "--seed", "5"],
@@ -679,7 +679,7 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
 
 
 class Emulator:
-    """``python -m bench emulate --pty --link PATH`` or ``--tcp 127.0.0.1:PORT`` in a subprocess,
+    """``python -m armbench emulate --pty --link PATH`` or ``--tcp 127.0.0.1:PORT`` in a subprocess,
     restartable on the same link or port."""
 
     def __init__(self, tmp: Path, kind: str, extra: Sequence[str] = ()) -> None:
@@ -698,7 +698,7 @@ class Emulator:
         where = (["--pty", "--link", str(self.link)] if self.kind == "pty"
                  else ["--tcp", f"127.0.0.1:{self.tcp_port}"])
         with self.log.open("a") as err:
-            self.proc = subprocess.Popen([sys.executable, "-m", "bench", "emulate", *where,
+            self.proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", *where,
                                           *self.extra],
                                          cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None

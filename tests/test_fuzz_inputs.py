@@ -24,7 +24,7 @@ from typing import Any
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from drivers.protocol import (
+from armbench.drivers.protocol import (
     COMMAND_LEN,
     REPLY_LEN,
     Command,
@@ -33,8 +33,8 @@ from drivers.protocol import (
     Framer,
     Reply,
 )
-from drivers.settings import RobotSettings, SettingsError
-from drivers.telnet import (
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
     DO,
@@ -54,8 +54,8 @@ from drivers.telnet import (
     TelnetCodec,
     coalesce,
 )
-from fakes.faults import FAULT_KINDS, Fault, parse_faults
-from fakes.settings import emulator_settings
+from armbench.fakes.faults import FAULT_KINDS, Fault, parse_faults
+from armbench.fakes.settings import emulator_settings
 
 FAST = settings(max_examples=100, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])

@@ -16,12 +16,12 @@ import tomllib
 
 import pytest
 
-from drivers.protocol import Command
-from drivers.settings import RobotSettings, SettingsError
-from fakes.arm import ArmEmulator
-from fakes.faults import Fault, faults_from_settings
-from fakes.settings import EmulatorSettings, emulator_settings
-from fakes.vclock import run_virtual
+from armbench.drivers.protocol import Command
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.faults import Fault, faults_from_settings
+from armbench.fakes.settings import EmulatorSettings, emulator_settings
+from armbench.fakes.vclock import run_virtual
 
 DID_NOT_RAISE = pytest.fail.Exception  # what pytest.raises raises when nothing was raised
 

@@ -13,8 +13,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from joint_reference import ReferenceJoint
 
-from drivers.settings import DEFAULT_JOINTS, JointSettings
-from fakes.joint import (
+from armbench.drivers.settings import DEFAULT_JOINTS, JointSettings
+from armbench.fakes.joint import (
     CYCLE_S,
     JointModel,
     PhysicalEffects,

@@ -1,13 +1,13 @@
-"""bench.junit: the XML parses back, failures/errors/skips land where CI expects them."""
+"""armbench.bench.junit: the XML parses back, failures/errors/skips land where CI expects them."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from bench.junit import to_junit, write_junit
-from bench.limits import SPEC_VERSION, parse_limits
-from bench.record import (
+from armbench.bench.junit import to_junit, write_junit
+from armbench.bench.limits import SPEC_VERSION, parse_limits
+from armbench.bench.record import (
     Environment,
     RecordWriter,
     RunRecord,

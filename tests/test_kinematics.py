@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import ArmbenchError
-from drivers.kinematics import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.kinematics import (
     BRANCHES,
     IKSolution,
     JointLimitError,
@@ -29,7 +29,7 @@ from drivers.kinematics import (
     tcp_position,
     wrap_protocol,
 )
-from drivers.settings import Geometry, RobotSettings
+from armbench.drivers.settings import Geometry, RobotSettings
 
 REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "fk_vectors.json"
 DEFAULT = RobotSettings()

@@ -13,16 +13,25 @@ def _modules_after(statement: str) -> set[str]:
 
 
 def test_emulator_does_not_import_the_driver() -> None:
-    mods = _modules_after("import fakes.arm, fakes.serve")
-    assert "drivers.arm" not in mods
-    assert not any(m.startswith(("bench", "reports")) for m in mods)
+    mods = _modules_after("import armbench.fakes.arm, armbench.fakes.serve")
+    assert "armbench.drivers.arm" not in mods
+    assert not any(m.startswith(("armbench.bench", "armbench.reports")) for m in mods)
 
 
 def test_driver_does_not_import_bench_reports_or_the_emulator() -> None:
-    mods = _modules_after("import drivers.arm")
-    assert not any(m.startswith(("bench", "reports", "fakes")) for m in mods)
+    mods = _modules_after("import armbench.drivers.arm")
+    assert not any(m.startswith(("armbench.bench", "armbench.reports", "armbench.fakes"))
+                   for m in mods)
+
+
+def test_the_packages_import_nothing_by_themselves() -> None:
+    """``armbench`` and the packages the emulator and the driver share are light: importing them
+    imports no driver, no numpy and no emulator module."""
+    mods = _modules_after("import armbench, armbench.drivers, armbench.fakes, armbench.bench")
+    assert not any(m.startswith(("armbench.drivers.arm", "armbench.fakes.", "numpy"))
+                   for m in mods), sorted(mods)
 
 
 def test_driver_names_are_exported_lazily() -> None:
-    mods = _modules_after("import drivers; drivers.Arm")
-    assert "drivers.arm" in mods
+    mods = _modules_after("import armbench; armbench.Arm; armbench.connect")
+    assert "armbench.drivers.arm" in mods

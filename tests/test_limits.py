@@ -1,4 +1,4 @@
-"""bench.limits: the limits file format, errors naming the field, wildcard precedence."""
+"""armbench.bench.limits: the limits file format, errors naming the field, wildcard precedence."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bench.limits import (
+from armbench.bench.limits import (
     DEFAULT_TOLERANCE_PCT,
     SPEC_VERSION,
     Limit,
@@ -20,8 +20,8 @@ from bench.limits import (
     load_limits,
     parse_limits,
 )
-from drivers.errors import ArmbenchError
-from drivers.settings import SettingsError
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import SettingsError
 
 EXAMPLE = """
 spec_version = "armbench-limits/1"

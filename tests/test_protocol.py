@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.protocol import (
+from armbench.drivers.protocol import (
     COMMAND_LEN,
     MAX_TICKS,
     REPLY_LEN,
@@ -24,7 +24,7 @@ from drivers.protocol import (
     rad_to_ticks,
     ticks_to_rad,
 )
-from drivers.settings import RobotSettings
+from armbench.drivers.settings import RobotSettings
 
 DEFAULT = RobotSettings()
 ticks = st.integers(0, MAX_TICKS)

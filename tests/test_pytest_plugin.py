@@ -9,25 +9,27 @@ from pathlib import Path
 
 import pytest
 
-import bench.pytest_plugin  # noqa: F401  (imported here so the inner sessions find it)
-from bench.record import load_record
+# Imported here, not first by an inner session: pytester drops the modules an inner session
+# imported, and numpy (which the driver imports) cannot be imported twice in one process.
+from armbench.bench.record import load_record
 
 pytest_plugins = ["pytester"]
 
 
 def plugin() -> list[str]:
-    """``-p bench.pytest_plugin`` unless the installed ``pytest11`` entry point loads it already
+    """``-p armbench.bench.pytest_plugin`` unless the installed ``pytest11`` entry point loads it
+    already
     (registering the module twice under two names is an error)."""
-    installed = any(ep.value == "bench.pytest_plugin"
+    installed = any(ep.value == "armbench.bench.pytest_plugin"
                     for ep in importlib.metadata.entry_points(group="pytest11"))
-    return [] if installed else ["-p", "bench.pytest_plugin"]
+    return [] if installed else ["-p", "armbench.bench.pytest_plugin"]
 
 USER_TESTS = '''
 import asyncio
 
 import pytest
 
-from fakes.vclock import VirtualTimeLoop
+from armbench.fakes.vclock import VirtualTimeLoop
 
 
 async def test_joint1_reaches_its_target(arm, record_measurement, bench_record):
@@ -55,7 +57,7 @@ async def test_assertion_failure_is_a_done_trial(arm):
 
 
 async def test_driver_error_is_an_error_trial(arm):
-    from drivers.errors import PortLostError
+    from armbench.drivers.errors import PortLostError
 
     raise PortLostError(arm.port, "cable pulled (test)")
 
@@ -156,8 +158,8 @@ def test_large(record_measurement):
 
 def test_unit_mismatch(record_measurement):
     import pytest
-    from bench.limits import Limit
-    from bench.record import RecordError
+    from armbench.bench.limits import Limit
+    from armbench.bench.record import RecordError
     with pytest.raises(RecordError, match="unit"):
         record_measurement("lab.c", 1.0, "mm", limit=Limit("lab.c", "s", high=1.0))
     with pytest.raises(RecordError, match="twice"):
@@ -180,8 +182,8 @@ def test_unit_mismatch(record_measurement):
 
 
 def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
-    from bench.pytest_plugin import BenchTrial
-    from bench.record import RecordError
+    from armbench.bench.pytest_bench import BenchTrial
+    from armbench.bench.record import RecordError
 
     trial = BenchTrial(index=0, nodeid="t", test_name="t", limits=None, started_s=0.0)
     for bad in ((3.0, 1.0), {"hi": 1.0}, (None, None), 5.0, (None, float("nan"))):

@@ -1,4 +1,5 @@
-"""bench.record: judging, the record schema, atomic writes, path safety, resume, fixtures."""
+"""armbench.bench.record: judging, the record schema, atomic writes, path safety, resume,
+fixtures."""
 
 from __future__ import annotations
 
@@ -15,8 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bench.limits import SPEC_VERSION, Limit, LimitsConfig, parse_limits
-from bench.record import (
+from armbench.bench.limits import SPEC_VERSION, Limit, LimitsConfig, parse_limits
+from armbench.bench.record import (
     RESULTS_FILE,
     SCHEMA,
     Environment,
@@ -35,8 +36,8 @@ from bench.record import (
     run_directory,
     validate_record,
 )
-from drivers.errors import ArmbenchError
-from drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 FIXTURES = Path(__file__).parent / "fixtures"
 RECORDS = FIXTURES / "records"

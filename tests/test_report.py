@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from bench import cli
-from bench.perf import PerfOptions
-from bench.record import (
+from armbench.bench import cli
+from armbench.bench.perf import PerfOptions
+from armbench.bench.record import (
     Environment,
     Measurement,
     RunRecord,
@@ -22,7 +22,7 @@ from bench.record import (
     Trial,
     load_record,
 )
-from reports import (
+from armbench.reports import (
     CSP,
     VERDICT_MARKS,
     build_report_html,
@@ -31,7 +31,7 @@ from reports import (
     render_index,
     render_report,
 )
-from reports.capture import summarize_capture
+from armbench.reports.capture import summarize_capture
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 FIXTURES = ("passing", "failing", "regressed", "interrupted")
@@ -470,7 +470,7 @@ def test_capture_summary_is_bounded_and_tolerant(tmp_path: Path) -> None:
 
 
 def test_bad_record_raises_a_record_error(tmp_path: Path) -> None:
-    from bench.record import RecordError
+    from armbench.bench.record import RecordError
 
     bad = tmp_path / "results.json"
     bad.write_text('{"schema": "armbench-run/0"}')
@@ -541,8 +541,9 @@ def test_index_of_an_empty_directory(tmp_path: Path) -> None:
 
 @pytest.fixture()
 def commands(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``report`` and ``compare`` registered (whether or not bench.cli lists them yet)."""
-    modules = (*cli.COMMAND_MODULES, "bench.commands.report", "bench.commands.compare")
+    """``report`` and ``compare`` registered (whether or not armbench.bench.cli lists them yet)."""
+    modules = (*cli.COMMAND_MODULES, "armbench.bench.commands.report",
+               "armbench.bench.commands.compare")
     monkeypatch.setattr(cli, "COMMAND_MODULES", tuple(dict.fromkeys(modules)))
 
 
@@ -599,7 +600,7 @@ def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 
 def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
-    from bench.perf import report as perf_report
+    from armbench.bench.perf import report as perf_report
 
     # the figures' plumbing on a tiny run; armbench perf measures the real workload
     monkeypatch.setattr(perf_report, "_QUICK", {"samples_per_run": 200, "cycles": 2,
@@ -615,7 +616,7 @@ def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_big_run_keeps_raw_data_out_of_the_page(tmp_path: Path) -> None:
-    from bench.perf.report import big_run_record
+    from armbench.bench.perf.report import big_run_record
 
     record = big_run_record(samples_per_run=5_000, cycles=2, startup_trials=2)
     record.suites = {"accuracy": record.suites["accuracy"]}  # the long series are here

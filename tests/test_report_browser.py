@@ -25,7 +25,7 @@ from typing import Any
 
 import pytest
 
-from reports import render_index, render_report
+from armbench.reports import render_index, render_report
 
 CHROMIUM = shutil.which("chromium") or next(
     (p for p in ("/usr/bin/chromium", "/usr/bin/chromium-browser") if os.path.exists(p)), None)

@@ -21,11 +21,11 @@ from typing import Any, ClassVar
 
 import pytest
 
-import bench.cli
-import bench.suites
-from bench.power import CommandPower, EmulatorPower, ManualPower, PowerError
-from bench.record import Measurement, Trial, load_record
-from bench.runner import (
+import armbench.bench.cli
+import armbench.bench.suites
+from armbench.bench.power import CommandPower, EmulatorPower, ManualPower, PowerError
+from armbench.bench.record import Measurement, Trial, load_record
+from armbench.bench.runner import (
     EXIT_ERROR,
     EXIT_FAIL,
     EXIT_INTERRUPTED,
@@ -37,13 +37,13 @@ from bench.runner import (
     run_bench,
     run_sync,
 )
-from bench.suites import SUITES, Suite, SuiteContext, UnknownSuiteError, load_suite
-from bench.truth import EmulatorTruth, TrackerError, load_tracker
-from drivers.capture import read_capture
-from drivers.errors import ArmbenchError, PortLostError
-from drivers.kinematics import tcp_position
-from drivers.settings import RobotSettings
-from fakes.vclock import run_virtual
+from armbench.bench.suites import SUITES, Suite, SuiteContext, UnknownSuiteError, load_suite
+from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
+from armbench.drivers.capture import read_capture
+from armbench.drivers.errors import ArmbenchError, PortLostError
+from armbench.drivers.kinematics import tcp_position
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.vclock import run_virtual
 
 # --------------------------------------------------------------------------------------------
 # A tiny suite: move joint 1 to a planned angle (plus a seeded random offset), measure
@@ -63,7 +63,7 @@ class TinySuite(Suite):
         return {"trials": 3, "duty": 90}
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
-        from drivers.settings import SettingsError
+        from armbench.drivers.settings import SettingsError
 
         if not isinstance(params["trials"], int) or params["trials"] < 1:
             raise SettingsError("suites.tiny.trials", params["trials"], "must be >= 1")
@@ -174,7 +174,7 @@ class Emulators(list[Any]):
     """An emulator factory that keeps every emulator it builds."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from fakes.arm import ArmEmulator
+        from armbench.fakes.arm import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)
@@ -314,8 +314,8 @@ def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> No
 async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     """A port that is not fake:// runs in real time with one reconnecting connection: here the
     emulator served on a TCP socket, as ``armbench emulate --tcp`` does for a remote robot."""
-    from fakes.arm import ArmEmulator
-    from fakes.serve import TcpServer
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.serve import TcpServer
 
     server = TcpServer(ArmEmulator())
     host, port = await server.start()
@@ -405,7 +405,7 @@ def test_cli_validation_error_is_one_line_and_status_2(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
     _register_cli(monkeypatch)
-    status = bench.cli.main(["run", "tiny", "--config", str(write_config(tmp_path)),
+    status = armbench.bench.cli.main(["run", "tiny", "--config", str(write_config(tmp_path)),
                              "--out", str(tmp_path / "r"), "--port", "warp://x"])
     assert status == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -494,13 +494,13 @@ def test_ctrl_c_exits_130_and_resume_completes(
     TinySuite.interrupt_at = 2
     args = ["run", "tiny", "--config", str(write_config(tmp_path)), "--out", str(out),
             "--workers", "1"]  # interrupt_at lives in this process
-    assert bench.cli.main(args) == EXIT_INTERRUPTED
+    assert armbench.bench.cli.main(args) == EXIT_INTERRUPTED
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1]
     assert record.verdict == "incomplete"
     assert "--resume" in capsys.readouterr().out
     TinySuite.interrupt_at = None
-    assert bench.cli.main(["run", "--resume", str(out)]) == EXIT_PASS
+    assert armbench.bench.cli.main(["run", "--resume", str(out)]) == EXIT_PASS
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1, 2]
     assert record.verdict == "pass"
@@ -516,9 +516,10 @@ def test_regression_gate_fails_on_an_injected_fault(
     _register_cli(monkeypatch)
     config = str(write_config(tmp_path))
     clean = tmp_path / "clean"
-    assert bench.cli.main(["run", "tiny", "--config", config, "--out", str(clean)]) == EXIT_PASS
+    assert armbench.bench.cli.main(["run", "tiny", "--config", config,
+                                   "--out", str(clean)]) == EXIT_PASS
     same = tmp_path / "same"
-    assert bench.cli.main(["run", "tiny", "--config", config, "--out", str(same),
+    assert armbench.bench.cli.main(["run", "tiny", "--config", config, "--out", str(same),
                            "--baseline", str(clean / "results.json")]) == EXIT_PASS
     assert not load_record(same / "results.json").baseline.regressed  # type: ignore[union-attr]
 
@@ -526,7 +527,7 @@ def test_regression_gate_fails_on_an_injected_fault(
     faults.write_text('[[faults]]\nkind = "stall"\njoint = 1\nat_s = 0.02\nduration_s = 0.3\n')
     worse = tmp_path / "worse"
     capsys.readouterr()
-    status = bench.cli.main(["run", "tiny", "--config", config, "--out", str(worse),
+    status = armbench.bench.cli.main(["run", "tiny", "--config", config, "--out", str(worse),
                              "--faults", str(faults), "--baseline", str(clean / "results.json")])
     printed = capsys.readouterr().out
     assert status == EXIT_FAIL, printed
@@ -540,8 +541,8 @@ def test_regression_gate_fails_on_an_injected_fault(
 
 
 def test_default_config_is_valid_and_names_real_metrics() -> None:
-    from bench.limits import load_limits
-    from bench.runner import DEFAULT_CONFIG
+    from armbench.bench.limits import load_limits
+    from armbench.bench.runner import DEFAULT_CONFIG
 
     config = load_limits(DEFAULT_CONFIG)
     assert config.limits, "the default limits file judges something"
@@ -556,7 +557,7 @@ def test_default_config_shows_each_suites_current_defaults() -> None:
     """The commented ``[suites.<name>]`` tables must stay equal to ``default_params``."""
     import tomllib
 
-    from bench.runner import DEFAULT_CONFIG
+    from armbench.bench.runner import DEFAULT_CONFIG
 
     tables: dict[str, list[str]] = {}
     current: list[str] | None = None
@@ -766,14 +767,14 @@ def test_progress_printer_rewrites_its_line_on_a_terminal() -> None:
 
 
 def _register_cli(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Make ``armbench run`` available even before the lead registers it in bench.cli."""
-    if "bench.commands.run" not in bench.cli.COMMAND_MODULES:
-        monkeypatch.setattr(bench.cli, "COMMAND_MODULES",
-                            (*bench.cli.COMMAND_MODULES, "bench.commands.run"))
+    """Make ``armbench run`` available even before the lead registers it in armbench.bench.cli."""
+    if "armbench.bench.commands.run" not in armbench.bench.cli.COMMAND_MODULES:
+        monkeypatch.setattr(armbench.bench.cli, "COMMAND_MODULES",
+                            (*armbench.bench.cli.COMMAND_MODULES, "armbench.bench.commands.run"))
 
 
 def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
-    from fakes.vclock import VirtualTimeLoop
+    from armbench.fakes.vclock import VirtualTimeLoop
 
     seen: list[type] = []
 
@@ -789,7 +790,8 @@ def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
 
 
 def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> None:
-    """``fake://`` trials measured by two worker processes (``bench.workers``): committed in
+    """``fake://`` trials measured by two worker processes (``armbench.bench.workers``): committed
+    in
     index order, each starting where the previous ended on the run clock, the capture one stream
     on that clock holding every trial's frames; the same figures and trial times as the same
     trials measured in turn on one loop."""

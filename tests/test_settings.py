@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from drivers.errors import ArmbenchError
-from drivers.settings import RobotSettings, SettingsError, load_settings
-from fakes.settings import emulator_settings
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
+from armbench.fakes.settings import emulator_settings
 
 
 def test_defaults_match_the_documented_assumptions() -> None:

@@ -1,9 +1,11 @@
 """The bench suites end to end: accuracy, repeatability and start-up recovery.
 
-Each suite runs against the emulator over ``fake://`` on virtual time (``fakes.vclock``) with small
+Each suite runs against the emulator over ``fake://`` on virtual time (``armbench.fakes.vclock``)
+with small
 parameters, through the same calls the runner makes (``params`` → ``plan`` → ``run_trial`` per
 trial → ``summarize``). Checks: every trial is measured, the figures are present and plausible,
-and each suite-level figure equals what the metric functions of ``bench.metrics`` give on the
+and each suite-level figure equals what the metric functions of ``armbench.bench.metrics`` give on
+the
 trial samples stored in the record. One accuracy run goes over a real pty to
 ``armbench emulate --pty`` in real time.
 """
@@ -24,8 +26,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bench.limits import LimitsConfig
-from bench.metrics import (
+from armbench.bench.limits import LimitsConfig
+from armbench.bench.metrics import (
     distance_characteristics,
     error_summary,
     iso_cube_poses,
@@ -34,25 +36,25 @@ from bench.metrics import (
     pose_repeatability,
     square_yz,
 )
-from bench.power import EmulatorPower
-from bench.record import Measurement, Trial
-from bench.suites._common import duty_for_speed_pct, fk_m, speed_pct_for_duty
-from bench.suites.accuracy import AccuracySuite, path_figures
-from bench.suites.base import Suite, SuiteContext
-from bench.suites.repeatability import POSE_NAMES, RepeatabilitySuite, speed_label
-from bench.suites.startup_recovery import (
+from armbench.bench.power import EmulatorPower
+from armbench.bench.record import Measurement, Trial
+from armbench.bench.suites._common import duty_for_speed_pct, fk_m, speed_pct_for_duty
+from armbench.bench.suites.accuracy import AccuracySuite, path_figures
+from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.repeatability import POSE_NAMES, RepeatabilitySuite, speed_label
+from armbench.bench.suites.startup_recovery import (
     ATMEGA328P_EEPROM_CYCLES,
     CONDITIONS,
     StartupRecoverySuite,
     eeprom_life_years,
     parse_condition,
 )
-from bench.truth import EmulatorTruth
-from drivers.arm import Arm
-from drivers.kinematics import ik
-from drivers.settings import RobotSettings, SettingsError
-from fakes.eeprom import RATED_CYCLES
-from fakes.vclock import run_virtual
+from armbench.bench.truth import EmulatorTruth
+from armbench.drivers.arm import Arm
+from armbench.drivers.kinematics import ik
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.fakes.eeprom import RATED_CYCLES
+from armbench.fakes.vclock import run_virtual
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = RobotSettings()
@@ -399,7 +401,7 @@ def test_startup_without_power_switch_skips_the_cuts() -> None:
 @pytest.fixture
 def pty_port(tmp_path: Path) -> Any:
     log = (tmp_path / "emulate.log").open("w")
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "emulate", "--pty"], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=log, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.telnet import (
+from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
     DO,

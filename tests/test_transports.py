@@ -19,9 +19,9 @@ from typing import TypeVar
 import pytest
 from netutil import free_port, listening
 
-from drivers.errors import PortLostError, TransportError
-from drivers.settings import SerialSettings
-from drivers.telnet import (
+from armbench.drivers.errors import PortLostError, TransportError
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
     PARITY_CODES,
@@ -32,16 +32,16 @@ from drivers.telnet import (
     Data,
     TelnetCodec,
 )
-from drivers.transports import (
+from armbench.drivers.transports import (
     TRANSPORTS,
     Transport,
     open_transport,
     scheme_of,
     transport_class,
 )
-from drivers.transports.rfc2217 import Rfc2217Transport
-from drivers.transports.serial_port import SerialTransport
-from drivers.transports.tcp import TcpTransport
+from armbench.drivers.transports.rfc2217 import Rfc2217Transport
+from armbench.drivers.transports.serial_port import SerialTransport
+from armbench.drivers.transports.tcp import TcpTransport
 
 T = TypeVar("T")
 STEP_S = 3.0
@@ -93,7 +93,7 @@ def test_scheme_selection() -> None:
     assert transport_class("/dev/pts/3") is SerialTransport
     assert transport_class("socket://127.0.0.1:7000") is TcpTransport
     assert transport_class("rfc2217://localhost:2217") is Rfc2217Transport
-    assert TRANSPORTS["fake"] == "drivers.transports.fake:FakeTransport"
+    assert TRANSPORTS["fake"] == "armbench.drivers.transports.fake:FakeTransport"
     t = open_transport("socket://127.0.0.1:7000", SerialSettings())
     assert isinstance(t, TcpTransport) and not t.is_open
     assert (t.host, t.tcp_port, t.bytes_in, t.bytes_out) == ("127.0.0.1", 7000, 0, 0)

@@ -1,6 +1,6 @@
 """``armbench compare A B``: the suite-level metrics of run B against baseline run A.
 
-Prints the metric-by-metric table of :func:`bench.baseline.format_comparison` (or JSON with
+Prints the metric-by-metric table of :func:`armbench.bench.baseline.format_comparison` (or JSON with
 ``--json``). Exit status: 1 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
 record cannot be used (missing, invalid, another schema or limits spec, a changed unit).
 Tolerances come from ``--limits bench.toml`` (``[regression]``), else 10 % for every metric.
@@ -13,9 +13,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from bench.baseline import compare, format_comparison, load_baseline
-from bench.limits import LimitsConfig, load_limits
-from bench.record import RESULTS_FILE, load_record
+from armbench.bench.baseline import compare, format_comparison, load_baseline
+from armbench.bench.limits import LimitsConfig, load_limits
+from armbench.bench.record import RESULTS_FILE, load_record
 
 __all__ = ["register"]
 

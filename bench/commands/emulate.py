@@ -11,12 +11,12 @@ import signal
 import sys
 from typing import Any
 
-from drivers.errors import ArmbenchError
-from drivers.settings import load_settings
-from fakes.arm import ArmEmulator
-from fakes.faults import faults_from_settings, load_faults
-from fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
-from fakes.settings import emulator_settings
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import load_settings
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.faults import faults_from_settings, load_faults
+from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
+from armbench.fakes.settings import emulator_settings
 
 __all__ = ["register"]
 

@@ -22,10 +22,10 @@ from typing import Any, Protocol
 
 from smbus2 import i2c_msg
 
-from bench.commands.monitor import run_on_port
-from drivers.errors import ArmbenchError
-from drivers.settings import RobotSettings, load_settings
-from drivers.transports import open_transport, scheme_of
+from armbench.bench.commands.monitor import run_on_port
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.transports import open_transport, scheme_of
 
 __all__ = ["REG_WHO_AM_I", "ScanResult", "register", "scan_bus"]
 

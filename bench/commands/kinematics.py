@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.kinematics import (
+from armbench.drivers.kinematics import (
     IKSolution,
     KinematicsError,
     dh_to_protocol,
@@ -23,7 +23,7 @@ from drivers.kinematics import (
     ik,
     protocol_to_dh,
 )
-from drivers.settings import RobotSettings, load_settings
+from armbench.drivers.settings import RobotSettings, load_settings
 
 __all__ = ["register"]
 

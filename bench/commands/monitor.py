@@ -18,9 +18,9 @@ from collections import deque
 from collections.abc import Coroutine
 from typing import Any, TextIO, TypeVar
 
-from drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
-from drivers.settings import RobotSettings, load_settings
-from drivers.transports import scheme_of
+from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
+from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.transports import scheme_of
 
 __all__ = ["DEFAULT_FAKE_DURATION_S", "monitor", "register", "run_on_port"]
 
@@ -35,7 +35,7 @@ RATE_WINDOW_S = 1.0
 def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
     """Run ``main`` on virtual time for ``fake://`` (the emulator in-process), else in real time."""
     if scheme_of(port) == "fake":
-        from fakes.vclock import run_virtual  # the CLI may use fakes; the driver may not
+        from armbench.fakes.vclock import run_virtual  # the CLI may use fakes; the driver may not
 
         return run_virtual(main)
     return asyncio.run(main)
@@ -68,7 +68,7 @@ def _run(args: argparse.Namespace) -> int:
     if duration is None and scheme_of(args.port) == "fake":
         duration = DEFAULT_FAKE_DURATION_S
     if duration is not None and not (math.isfinite(duration) and duration > 0):
-        from drivers.arm import InvalidTargetError
+        from armbench.drivers.arm import InvalidTargetError
 
         raise InvalidTargetError(None, "--duration", duration, "must be > 0")
     return run_on_port(args.port, monitor(args.port, settings, json_lines=args.json,

@@ -16,11 +16,11 @@ import re
 import sys
 from typing import Any
 
-from bench.commands.monitor import run_on_port
-from drivers.arm import Arm, InvalidTargetError, JointState
-from drivers.kinematics import BRANCHES
-from drivers.protocol import MAX_DUTY
-from drivers.settings import load_settings
+from armbench.bench.commands.monitor import run_on_port
+from armbench.drivers.arm import Arm, InvalidTargetError, JointState
+from armbench.drivers.kinematics import BRANCHES
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import load_settings
 
 __all__ = ["register"]
 

@@ -6,8 +6,8 @@ import argparse
 import json
 from typing import Any
 
-from bench.perf import PerfOptions, run_benchmarks
-from drivers.compiled import build
+from armbench.bench.perf import PerfOptions, run_benchmarks
+from armbench.hot_modules import build_name
 
 __all__ = ["register"]
 
@@ -31,9 +31,9 @@ def _run(args: argparse.Namespace) -> int:
     opts = PerfOptions(port=args.port, repeats=max(1, args.repeats), quick=args.quick)
     figures = run_benchmarks(opts, args.only)
     if args.json:
-        print(json.dumps({"build": build(), "figures": [f.to_json() for f in figures]}))
+        print(json.dumps({"build": build_name(), "figures": [f.to_json() for f in figures]}))
         return 0
-    print(f"build of the hot modules: {build()}")
+    print(f"build of the hot modules: {build_name()}")
     for f in figures:
         extra = ""
         if f.bound is not None and f.ratio is not None:

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bench.record import RESULTS_FILE
-from drivers.errors import ArmbenchError
+from armbench.bench.record import RESULTS_FILE
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
 
@@ -35,7 +35,7 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from reports import REPORT_FILE, render_index, render_report
+    from armbench.reports import REPORT_FILE, render_index, render_report
 
     if not args.dirs and args.index is None:
         print("armbench report: error: give run directories, --index RUNS_DIR, or both",

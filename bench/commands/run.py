@@ -15,8 +15,8 @@ import argparse
 import sys
 from typing import Any
 
-from bench.runner import RunOptions, RunOutcome, run_sync
-from bench.suites import SUITES
+from armbench.bench.runner import RunOptions, RunOutcome, run_sync
+from armbench.bench.suites import SUITES
 
 __all__ = ["register"]
 

@@ -1,4 +1,4 @@
-"""Shared input checks and small geometry helpers of ``bench.metrics`` (private).
+"""Shared input checks and small geometry helpers of ``armbench.bench.metrics`` (private).
 
 Every public metric takes positions in metres (the project's length unit) and reports millimetres;
 the conversion happens in one place, :data:`MM_PER_M`.
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from drivers.errors import ArmbenchError
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
     "MM_PER_M",

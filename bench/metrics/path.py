@@ -15,7 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bench.metrics._common import MM_PER_M, FloatArray, MetricsInputError, as_point, as_points
+from armbench.bench.metrics._common import (
+    MM_PER_M,
+    FloatArray,
+    MetricsInputError,
+    as_point,
+    as_points,
+)
 
 __all__ = [
     "AxisErrorStats",

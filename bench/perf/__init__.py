@@ -1,4 +1,5 @@
-"""Benchmarks behind ``armbench perf``: each module under ``bench.perf`` yields named figures.
+"""Benchmarks behind ``armbench perf``: each module under ``armbench.bench.perf`` yields named
+figures.
 
 Figure names are stable across versions so CI can track them; a figure's ``bound`` is a
 reference rate measured in the same run (the ratio ``value / bound`` is what targets are set on).
@@ -16,11 +17,11 @@ __all__ = ["BENCHMARK_MODULES", "Figure", "PerfOptions", "best_rate", "run_bench
 
 #: Each module exposes ``run(options) -> list[Figure]``.
 BENCHMARK_MODULES: tuple[str, ...] = (
-    "bench.perf.codec",
-    "bench.perf.emulator",
-    "bench.perf.transports",
-    "bench.perf.driver",
-    "bench.perf.report",
+    "armbench.bench.perf.codec",
+    "armbench.bench.perf.emulator",
+    "armbench.bench.perf.transports",
+    "armbench.bench.perf.driver",
+    "armbench.bench.perf.report",
 )
 
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 import random
 
-from bench.perf import Figure, PerfOptions, best_rate
-from drivers.protocol import Command, Framer, Reply
+from armbench.bench.perf import Figure, PerfOptions, best_rate
+from armbench.drivers.protocol import Command, Framer, Reply
 
 __all__ = ["reply_stream", "run"]
 

@@ -14,7 +14,8 @@
   (a subprocess, real time) over ~2 s. ``bound = min(baud / (bits per byte × 25 bytes),
   1 / loop period)``, the loop period being the emulated master's I²C traffic per loop (three
   4-byte reference writes and three 2-byte position reads at ``i2c_hz``, from
-  :func:`fakes.i2c.transaction_bits`) plus ``loop_overhead_s`` of :class:`EmulatorSettings`.
+  :func:`armbench.fakes.i2c.transaction_bits`) plus ``loop_overhead_s`` of
+  :class:`EmulatorSettings`.
 * ``driver.host_timer_late_ms`` — the latest wake-up of a bare ``select()`` sleep at the loop
   period, over as long as the pty run, in this process: the scheduling delay the host imposes on
   any process that keeps a schedule. A server delayed d ms leaves a gap of one loop period + d,
@@ -42,14 +43,14 @@ from pathlib import Path
 
 from smbus2 import i2c_msg
 
-from bench.perf import Figure, PerfOptions
-from drivers.arm import Arm
-from drivers.protocol import REPLY_LEN, Command
-from drivers.settings import RobotSettings, SerialSettings
-from drivers.transports.fake import FakeTransport
-from fakes.i2c import transaction_bits
-from fakes.settings import EmulatorSettings, emulator_settings
-from fakes.vclock import run_virtual
+from armbench.bench.perf import Figure, PerfOptions
+from armbench.drivers.arm import Arm
+from armbench.drivers.protocol import REPLY_LEN, Command
+from armbench.drivers.settings import RobotSettings, SerialSettings
+from armbench.drivers.transports.fake import FakeTransport
+from armbench.fakes.i2c import transaction_bits
+from armbench.fakes.settings import EmulatorSettings, emulator_settings
+from armbench.fakes.vclock import run_virtual
 
 __all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty", "timer_lateness_s"]
 
@@ -136,7 +137,7 @@ def serve_pty(timeout_s: float = 15.0) -> Iterator[str]:
     """``armbench emulate --pty`` in a subprocess; yields the pty device it printed."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_ROOT), env.get("PYTHONPATH")) if p)
-    proc = subprocess.Popen([sys.executable, "-m", "bench", "emulate", "--pty"],
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
     try:
         assert proc.stdout is not None

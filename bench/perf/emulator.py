@@ -13,13 +13,13 @@ from __future__ import annotations
 import asyncio
 import time
 
-from bench.perf import Figure, PerfOptions
-from drivers.protocol import Command
-from drivers.settings import RobotSettings, SerialSettings
-from fakes.arm import ArmEmulator
-from fakes.joint import CYCLE_S
-from fakes.settings import emulator_settings
-from fakes.vclock import run_virtual
+from armbench.bench.perf import Figure, PerfOptions
+from armbench.drivers.protocol import Command
+from armbench.drivers.settings import RobotSettings, SerialSettings
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.joint import CYCLE_S
+from armbench.fakes.settings import emulator_settings
+from armbench.fakes.vclock import run_virtual
 
 __all__ = ["run"]
 

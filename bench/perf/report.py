@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from bench.limits import LimitsConfig, parse_limits
-from bench.metrics import (
+from armbench.bench.limits import LimitsConfig, parse_limits
+from armbench.bench.metrics import (
     error_summary,
     iso_cube_poses,
     path_errors,
@@ -32,8 +32,8 @@ from bench.metrics import (
     square_yz,
     tracking_errors,
 )
-from bench.perf import Figure, PerfOptions
-from bench.record import (
+from armbench.bench.perf import Figure, PerfOptions
+from armbench.bench.record import (
     Environment,
     Measurement,
     RecordWriter,
@@ -42,7 +42,7 @@ from bench.record import (
     Trial,
     judge,
 )
-from drivers.settings import RobotSettings
+from armbench.drivers.settings import RobotSettings
 
 __all__ = ["RENDER_BOUND_S", "SIZE_BOUND_BYTES", "big_run_record", "run", "write_big_run"]
 
@@ -232,7 +232,7 @@ _QUICK = {"samples_per_run": 1_000, "cycles": 5, "startup_trials": 5, "capture_r
 
 def run(options: PerfOptions) -> list[Figure]:
     """Measure the ``report.*`` figures (``--quick``: a smaller run, one cold render)."""
-    from reports import render_report
+    from armbench.reports import render_report
 
     repeats = 1 if options.quick else max(1, min(options.repeats, 3))
     workload = "small run (--quick), cold" if options.quick else (

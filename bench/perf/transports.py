@@ -29,8 +29,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from bench.perf import Figure, PerfOptions
-from drivers.protocol import Command, Reply
+from armbench.bench.perf import Figure, PerfOptions
+from armbench.drivers.protocol import Command, Reply
 
 __all__ = ["PACKAGES", "Measurement", "echo_pty", "measure_bare", "measure_package", "run"]
 

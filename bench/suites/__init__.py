@@ -3,15 +3,15 @@
 :data:`SUITES` maps each suite's command-line name to ``"module:Class"``; the module is imported
 only when the suite is loaded, so a broken or slow suite module costs nothing to the others.
 Besides a registered name, :func:`load_suite` accepts a ``"package.module:Class"`` of any
-:class:`~bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite).
+:class:`~armbench.bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite).
 """
 
 from __future__ import annotations
 
 import importlib
 
-from bench.suites.base import PoseSource, PowerSwitch, Progress, Suite, SuiteContext
-from drivers.errors import ArmbenchError
+from armbench.bench.suites.base import PoseSource, PowerSwitch, Progress, Suite, SuiteContext
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
     "SUITES",
@@ -30,9 +30,9 @@ __all__ = [
 
 #: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order.
 SUITES: dict[str, str] = {
-    "accuracy": "bench.suites.accuracy:AccuracySuite",
-    "repeatability": "bench.suites.repeatability:RepeatabilitySuite",
-    "startup-recovery": "bench.suites.startup_recovery:StartupRecoverySuite",
+    "accuracy": "armbench.bench.suites.accuracy:AccuracySuite",
+    "repeatability": "armbench.bench.suites.repeatability:RepeatabilitySuite",
+    "startup-recovery": "armbench.bench.suites.startup_recovery:StartupRecoverySuite",
 }
 
 

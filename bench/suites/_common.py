@@ -23,17 +23,22 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from bench.record import Better, Measurement, Trial
-from bench.suites.base import SuiteContext
-from drivers.arm import DriverClosedError
-from drivers.errors import ArmbenchError
-from drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
-from drivers.motion import MAX_PERIOD_CYCLES, MIN_PERIOD_CYCLES, duty_for_step_rate, step_rate
-from drivers.protocol import MAX_DUTY
-from drivers.settings import RobotSettings, SettingsError
+from armbench.bench.record import Better, Measurement, Trial
+from armbench.bench.suites.base import SuiteContext
+from armbench.drivers.arm import DriverClosedError
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
+from armbench.drivers.motion import (
+    MAX_PERIOD_CYCLES,
+    MIN_PERIOD_CYCLES,
+    duty_for_step_rate,
+    step_rate,
+)
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 if TYPE_CHECKING:
-    from drivers.arm import Arm, JointState
+    from armbench.drivers.arm import Arm, JointState
 
 __all__ = [
     "MEASUREMENT_ERRORS",

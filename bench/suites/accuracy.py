@@ -14,7 +14,8 @@ arm, emulator seed and drift:
 The reply stream is sampled throughout each lap (one sample per ``sample_period_s``): the reported
 joints, the reported TCP (forward kinematics of them, as the paper did) and, when the bench has a
 reference instrument (``ctx.truth``), the true TCP. Errors are distances to the nearest point of
-the reference square (:func:`bench.metrics.path_errors`); figures in mm. See ``docs/suites.md``.
+the reference square (:func:`armbench.bench.metrics.path_errors`); figures in mm. See
+``docs/suites.md``.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from bench.metrics import MM_PER_M, error_summary, path_errors, sample_polyline, square_yz
-from bench.record import PAPER_REFERENCE, Measurement, Trial
-from bench.suites._common import (
+from armbench.bench.metrics import MM_PER_M, error_summary, path_errors, sample_polyline, square_yz
+from armbench.bench.record import PAPER_REFERENCE, Measurement, Trial
+from armbench.bench.suites._common import (
     FloatArray,
     Measurements,
     StateRecorder,
@@ -40,9 +41,9 @@ from bench.suites._common import (
     loop_time,
     settled_state,
 )
-from bench.suites.base import Suite, SuiteContext
-from drivers.protocol import MAX_DUTY
-from drivers.settings import RobotSettings, SettingsError
+from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = ["STYLES", "AccuracySuite", "path_figures"]
 

@@ -19,12 +19,12 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
-from bench.limits import LimitsConfig
-from bench.record import Better, Measurement, Trial, judge
-from drivers.settings import RobotSettings
+from armbench.bench.limits import LimitsConfig
+from armbench.bench.record import Better, Measurement, Trial, judge
+from armbench.drivers.settings import RobotSettings
 
 if TYPE_CHECKING:
-    from drivers.arm import Arm
+    from armbench.drivers.arm import Arm
 
 __all__ = ["PoseSource", "PowerSwitch", "Progress", "Suite", "SuiteContext"]
 
@@ -97,7 +97,7 @@ class Suite(abc.ABC):
 
     def params(self, settings: RobotSettings, configured: Mapping[str, Any]) -> dict[str, Any]:
         """Defaults overridden by the config's ``[suites.<name>]`` table; unknown keys refused."""
-        from drivers.settings import SettingsError
+        from armbench.drivers.settings import SettingsError
 
         params = self.default_params(settings)
         for key, value in configured.items():

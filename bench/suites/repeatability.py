@@ -2,8 +2,10 @@
 
 Test cube (``cube_centre_m``, ``cube_side_m``) in the reachable workspace; P1 at its centre and
 P2..P5 on the diagonal plane ``plane`` at 10 % of the diagonal from its corners
-(:func:`bench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the rated
-joint speed; law (12) maps it to a duty, see :func:`bench.suites._common.duty_for_speed_pct`):
+(:func:`armbench.bench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the
+rated
+joint speed; law (12) maps it to a duty, see
+:func:`armbench.bench.suites._common.duty_for_speed_pct`):
 
 * ``pose`` trials, one per cycle (``cycles``, ISO: 30): P1 → P5 → P4 → P3 → P2, each pose
   reached through an approach point ``approach_offset_m`` away from it, so every pose is entered
@@ -31,7 +33,7 @@ from typing import Any, Final
 
 import numpy as np
 
-from bench.metrics import (
+from armbench.bench.metrics import (
     CUBE_PLANES,
     MM_PER_M,
     MetricsInputError,
@@ -42,8 +44,8 @@ from bench.metrics import (
     pose_accuracy,
     pose_repeatability,
 )
-from bench.record import Measurement, Trial
-from bench.suites._common import (
+from armbench.bench.record import Measurement, Trial
+from armbench.bench.suites._common import (
     FloatArray,
     Measurements,
     StateRecorder,
@@ -58,8 +60,8 @@ from bench.suites._common import (
     pos_list,
     settled_state,
 )
-from bench.suites.base import Suite, SuiteContext
-from drivers.settings import RobotSettings, SettingsError
+from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = [
     "CYCLE_ORDER",

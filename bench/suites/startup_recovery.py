@@ -39,9 +39,9 @@ from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
-from bench.metrics import iso_cube_poses, square_yz
-from bench.record import Measurement, Trial
-from bench.suites._common import (
+from armbench.bench.metrics import iso_cube_poses, square_yz
+from armbench.bench.record import Measurement, Trial
+from armbench.bench.suites._common import (
     Measurements,
     TruthProbe,
     check_bool,
@@ -54,16 +54,20 @@ from bench.suites._common import (
     rad_list,
     settled_state,
 )
-from bench.suites.accuracy import DEFAULT_CENTRE_M, DEFAULT_SIDE_M
-from bench.suites.base import Suite, SuiteContext
-from bench.suites.repeatability import CYCLE_ORDER, DEFAULT_CUBE_CENTRE_M, DEFAULT_CUBE_SIDE_M
-from drivers.arm import ReplyTimeoutError, WaitTimeoutError
-from drivers.motion import coordinated_duties, joint_times_s
-from drivers.protocol import MAX_DUTY
-from drivers.settings import RobotSettings, SettingsError
+from armbench.bench.suites.accuracy import DEFAULT_CENTRE_M, DEFAULT_SIDE_M
+from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.repeatability import (
+    CYCLE_ORDER,
+    DEFAULT_CUBE_CENTRE_M,
+    DEFAULT_CUBE_SIDE_M,
+)
+from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
+from armbench.drivers.motion import coordinated_duties, joint_times_s
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 if TYPE_CHECKING:
-    from drivers.arm import JointState
+    from armbench.drivers.arm import JointState
 
 __all__ = [
     "ATMEGA328P_EEPROM_CYCLES",

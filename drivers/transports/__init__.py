@@ -3,12 +3,12 @@
 ===============================  ==============================================================
 port string                      transport
 ===============================  ==============================================================
-``/dev/ttyUSB0``, ``COM3``,      :class:`~drivers.transports.serial_port.SerialTransport`
+``/dev/ttyUSB0``, ``COM3``,      :class:`~armbench.drivers.transports.serial_port.SerialTransport`
 ``/dev/pts/7`` (no scheme)       (a local serial port, via pyserial-asyncio-fast)
-``socket://HOST:PORT``           :class:`~drivers.transports.tcp.TcpTransport` (raw TCP)
-``rfc2217://HOST:PORT``          :class:`~drivers.transports.rfc2217.Rfc2217Transport`
+``socket://HOST:PORT``           :class:`~armbench.drivers.transports.tcp.TcpTransport` (raw TCP)
+``rfc2217://HOST:PORT``          :class:`~armbench.drivers.transports.rfc2217.Rfc2217Transport`
                                  (telnet COM-PORT-OPTION, e.g. ser2net)
-``fake://...``                   ``drivers.transports.fake:FakeTransport`` (in-process)
+``fake://...``                   ``armbench.drivers.transports.fake:FakeTransport`` (in-process)
 ===============================  ==============================================================
 
 :data:`TRANSPORTS` maps each URL scheme to ``"module:Class"``; the module is imported only when a
@@ -20,9 +20,9 @@ from __future__ import annotations
 import importlib
 import re
 
-from drivers.errors import TransportError
-from drivers.settings import SerialSettings
-from drivers.transports.base import READ_CHUNK, Transport
+from armbench.drivers.errors import TransportError
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.transports.base import READ_CHUNK, Transport
 
 __all__ = [
     "READ_CHUNK",
@@ -35,13 +35,13 @@ __all__ = [
 ]
 
 #: Transport of port strings without a ``scheme://`` prefix (device names).
-SERIAL_TRANSPORT = "drivers.transports.serial_port:SerialTransport"
+SERIAL_TRANSPORT = "armbench.drivers.transports.serial_port:SerialTransport"
 
 #: URL scheme → ``"module:Class"`` of its transport, imported lazily.
 TRANSPORTS: dict[str, str] = {
-    "socket": "drivers.transports.tcp:TcpTransport",
-    "rfc2217": "drivers.transports.rfc2217:Rfc2217Transport",
-    "fake": "drivers.transports.fake:FakeTransport",
+    "socket": "armbench.drivers.transports.tcp:TcpTransport",
+    "rfc2217": "armbench.drivers.transports.rfc2217:Rfc2217Transport",
+    "fake": "armbench.drivers.transports.fake:FakeTransport",
 }
 
 _SCHEME_RE = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*)://")

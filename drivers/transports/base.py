@@ -13,8 +13,8 @@ import abc
 from types import TracebackType
 from typing import Self
 
-from drivers.errors import PortLostError, TransportError
-from drivers.settings import SerialSettings
+from armbench.drivers.errors import PortLostError, TransportError
+from armbench.drivers.settings import SerialSettings
 
 __all__ = ["READ_CHUNK", "Transport"]
 
@@ -28,8 +28,10 @@ class Transport(abc.ABC):
     Life cycle: construct (no I/O) → :meth:`open` → any number of :meth:`read`/:meth:`write` →
     :meth:`close`. Also an async context manager that opens and closes.
 
-    Errors: :class:`~drivers.errors.TransportError` (naming the port) when the port cannot be
-    opened or configured or is used while not open; :class:`~drivers.errors.PortLostError` when
+    Errors: :class:`~armbench.drivers.errors.TransportError` (naming the port) when the port cannot
+    be
+    opened or configured or is used while not open; :class:`~armbench.drivers.errors.PortLostError`
+    when
     the port or its peer goes away while open (EOF, reset, EIO on a pty whose other end closed,
     server killed). After a loss every read/write raises ``PortLostError`` again and
     :meth:`close` still works.

@@ -2,7 +2,8 @@
 
 ``fake://?seed=3&faults=faults.toml&settings=robot.toml``: the emulator is built from the robot
 settings file (defaults without one), its ``[emulator]`` table, the fault list and the seed. On a
-virtual-time loop (``fakes.vclock``) minutes of robot time pass in seconds; on a real loop it runs
+virtual-time loop (``armbench.fakes.vclock``) minutes of robot time pass in seconds; on a real loop
+it runs
 in real time. The emulator is exposed as ``transport.emulator`` for its side channels: ground truth
 and power control (what a laser tracker and a relay give on a real bench).
 """
@@ -13,12 +14,12 @@ import asyncio
 from collections.abc import Callable
 from urllib.parse import parse_qs, urlsplit
 
-from drivers.errors import ArmbenchError
-from drivers.settings import RobotSettings, SerialSettings, load_settings
-from drivers.transports.base import Transport
-from fakes.arm import ArmEmulator
-from fakes.faults import Fault, faults_from_settings, load_faults
-from fakes.settings import emulator_settings
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.transports.base import Transport
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.faults import Fault, faults_from_settings, load_faults
+from armbench.fakes.settings import emulator_settings
 
 __all__ = ["FakeTransport", "parse_fake_url"]
 
@@ -49,7 +50,8 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
 
 
 class FakeTransport(Transport):
-    """A transport whose other end is an :class:`~fakes.arm.ArmEmulator` on the same loop."""
+    """A transport whose other end is an :class:`~armbench.fakes.arm.ArmEmulator` on the same
+    loop."""
 
     scheme = "fake"
 

@@ -3,13 +3,16 @@ COM-PORT-OPTION server such as ser2net (``accepter: telnet(rfc2217),tcp,PORT``).
 
 Opening connects over TCP, negotiates BINARY and SUPPRESS-GO-AHEAD both ways and our
 COM-PORT-OPTION, sets baud rate, data bits, parity and stop bits from
-:class:`~drivers.settings.SerialSettings`, and waits for the server to acknowledge each setting.
-It fails with a :class:`~drivers.errors.TransportError` naming the port when the server refuses
+:class:`~armbench.drivers.settings.SerialSettings`, and waits for the server to acknowledge each
+setting.
+It fails with a :class:`~armbench.drivers.errors.TransportError` naming the port when the server
+refuses
 COM-PORT-OPTION (a plain telnet server), does not answer within ``negotiation_timeout_s``, or
 acknowledges a different value than asked. Modem control (SET-CONTROL: DTR, RTS, flow control) is
 never required: servers on ptys and cheap bridges refuse or ignore it, so it is not sent.
 
-All the protocol work is done by the sans-I/O :class:`~drivers.telnet.TelnetCodec`; this module
+All the protocol work is done by the sans-I/O :class:`~armbench.drivers.telnet.TelnetCodec`; this
+module
 only moves bytes. One background task reads the socket, feeds the codec, answers the server's
 negotiation and buffers payload for :meth:`Rfc2217Transport.read` (at most ``max_buffer_bytes``;
 beyond that it stops reading and TCP pushes back). FLOWCONTROL-SUSPEND from the server makes
@@ -22,9 +25,9 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from drivers.errors import PortLostError
-from drivers.settings import SerialSettings
-from drivers.telnet import (
+from armbench.drivers.errors import PortLostError
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
     PARITY_CODES,
@@ -44,8 +47,8 @@ from drivers.telnet import (
     Signature,
     TelnetCodec,
 )
-from drivers.transports.base import READ_CHUNK, Transport
-from drivers.transports.tcp import CONNECT_TIMEOUT_S, close_writer, parse_host_port
+from armbench.drivers.transports.base import READ_CHUNK, Transport
+from armbench.drivers.transports.tcp import CONNECT_TIMEOUT_S, close_writer, parse_host_port
 
 __all__ = ["CLIENT_SIGNATURE", "NEGOTIATION_TIMEOUT_S", "Rfc2217Transport"]
 

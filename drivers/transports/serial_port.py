@@ -3,7 +3,7 @@ pyserial-asyncio-fast.
 
 pyserial-asyncio-fast was chosen over pyserial-asyncio 0.6 on measured figures (see
 ``docs/transports.md`` and ``bench/perf/transports.py``). The port is opened with the baud rate,
-data bits, parity and stop bits of :class:`~drivers.settings.SerialSettings`; modem-control
+data bits, parity and stop bits of :class:`~armbench.drivers.settings.SerialSettings`; modem-control
 ioctls that a pty does not support are ignored by pyserial. A Linux pty keeps baud rate and stop
 bits but forces 8 data bits without parity, and glibc then reports the second ``tcsetattr``
 pyserial makes as EINVAL: on a pty use 8N1/8N2 (any baud rate); real UARTs take every setting.
@@ -18,8 +18,8 @@ from typing import Any
 import serial
 import serial_asyncio_fast
 
-from drivers.settings import SerialSettings
-from drivers.transports.streams import StreamTransport
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.transports.streams import StreamTransport
 
 __all__ = ["OPEN_TIMEOUT_S", "SerialTransport", "pyserial_settings"]
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 import abc
 import asyncio
 
-from drivers.errors import PortLostError
-from drivers.settings import SerialSettings
-from drivers.transports.base import READ_CHUNK, Transport
+from armbench.drivers.errors import PortLostError
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.transports.base import READ_CHUNK, Transport
 
 __all__ = ["CLOSE_TIMEOUT_S", "StreamTransport", "close_writer"]
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import asyncio
 import urllib.parse
 
-from drivers.errors import TransportError
-from drivers.settings import SerialSettings
-from drivers.transports.streams import CLOSE_TIMEOUT_S, StreamTransport, close_writer
+from armbench.drivers.errors import TransportError
+from armbench.drivers.settings import SerialSettings
+from armbench.drivers.transports.streams import CLOSE_TIMEOUT_S, StreamTransport, close_writer
 
 __all__ = [
     "CLOSE_TIMEOUT_S",

@@ -1,8 +1,8 @@
-"""``python -m bench`` is the ``armbench`` command."""
+"""``python -m armbench`` is the ``armbench`` command."""
 
 import sys
 
-from bench.cli import main
+from armbench.bench.cli import main
 
 if __name__ == "__main__":  # not when a worker process imports it (bench/workers.py)
     sys.exit(main())

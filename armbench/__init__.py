@@ -1,0 +1,74 @@
+"""armbench: a hardware-in-the-loop test bench for the Igus RoboLink 4-DoF arm and its firmware.
+
+The public API: :class:`Arm` and :func:`connect` (the asyncio driver), the typed errors and the
+version. The driver's names load on first use, so that importing the emulator
+(``armbench.fakes``) never imports the driver.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from armbench.drivers.errors import (
+    ArmbenchError,
+    DriverClosedError,
+    DriverError,
+    FrameValueError,
+    InvalidTargetError,
+    JointRangeError,
+    MoveInterruptedError,
+    MoveTimeoutError,
+    PortLostError,
+    ProtocolError,
+    ReplyTimeoutError,
+    TransportError,
+    WaitTimeoutError,
+)
+
+if TYPE_CHECKING:
+    from armbench.drivers.arm import Arm, PathRun, ReconnectPolicy
+    from armbench.drivers.settings import RobotSettings
+    from armbench.drivers.state import JointState
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Arm",
+    "ArmbenchError",
+    "DriverClosedError",
+    "DriverError",
+    "FrameValueError",
+    "InvalidTargetError",
+    "JointRangeError",
+    "JointState",
+    "MoveInterruptedError",
+    "MoveTimeoutError",
+    "PathRun",
+    "PortLostError",
+    "ProtocolError",
+    "ReconnectPolicy",
+    "ReplyTimeoutError",
+    "RobotSettings",
+    "TransportError",
+    "WaitTimeoutError",
+    "__version__",
+    "connect",
+]
+
+_LAZY = {
+    "Arm": "armbench.drivers.arm",
+    "PathRun": "armbench.drivers.arm",
+    "ReconnectPolicy": "armbench.drivers.arm",
+    "connect": "armbench.drivers.arm",
+    "RobotSettings": "armbench.drivers.settings",
+    "JointState": "armbench.drivers.state",
+}
+
+
+def __getattr__(name: str) -> object:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'armbench' has no attribute {name!r}")
+    from importlib import import_module
+
+    return getattr(import_module(module), name)
