@@ -21,9 +21,6 @@ HERE = Path(__file__).resolve().parent
 #: Where this process imports armbench from (the checkout, or an environment's site-packages).
 SRC = Path(armbench.__file__).resolve().parent.parent
 ROOT = HERE.parent
-#: What a wheel build reads from the checkout.
-BUILD_INPUTS = ("armbench", "bench", "drivers", "fakes", "reports", "pyproject.toml", "setup.py",
-                "README.md")
 
 
 def _env(path: Path) -> dict[str, str]:
@@ -43,27 +40,12 @@ def _run_trace(path: Path) -> dict[str, object]:
 
 
 @pytest.fixture(scope="module")
-def compiled_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The installed tree of a wheel built with mypyc from a copy of the checkout."""
+def compiled_tree(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The installed tree of the wheel, as pip lays it out in site-packages."""
     if shutil.which(os.environ.get("CC", "cc")) is None:
         pytest.skip("no C compiler: a wheel build installs plain Python")
-    work = tmp_path_factory.mktemp("wheel")
-    copy = work / "src"
-    copy.mkdir()
-    for name in BUILD_INPUTS:
-        source = ROOT / name
-        if source.is_dir():
-            shutil.copytree(source, copy / name, symlinks=True,
-                            ignore=shutil.ignore_patterns("__pycache__", "*.so"))
-        else:
-            shutil.copy2(source, copy / name)
-    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
-                            "-w", str(work / "dist"), str(copy)],
-                           capture_output=True, text=True, timeout=900, check=False)
-    assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
-    (wheel,) = (work / "dist").glob("armbench-*.whl")
-    tree = work / "installed"
-    with zipfile.ZipFile(wheel) as z:
+    tree = tmp_path_factory.mktemp("installed")
+    with zipfile.ZipFile(armbench_wheel) as z:
         z.extractall(tree)
     return tree
 
