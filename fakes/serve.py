@@ -38,8 +38,10 @@ STALLED_BUFFER_BYTES = 64 * 1024
 #: Kernel send buffer of a client's socket (the reply stream is ~11 kB/s at 115200 baud).
 SEND_BUFFER_BYTES = 16 * 1024
 #: Bytes kept for a client that does not read; replies beyond are dropped, as on a serial line
-#: nobody reads (memory stays bounded).
-MAX_BUFFER_BYTES = 1024 * 1024
+#: nobody reads (memory stays bounded: some 20 s of the reply stream at 115200 baud).
+MAX_BUFFER_BYTES = 256 * 1024
+#: Longest wait for a silent client's session to end when a newcomer takes the arm from it.
+TAKE_OVER_WAIT_S = 5.0
 
 
 def real_time_loop() -> asyncio.AbstractEventLoop:
@@ -182,7 +184,14 @@ class PtyServer:
 
 
 class TcpServer:
-    """The arm on a TCP port, one client at a time; more clients are turned away."""
+    """The arm on a TCP port, one client at a time.
+
+    A second client is refused with a line saying why, unless the connected one has sent nothing
+    for ``idle_timeout_s``: then the newcomer takes the arm and the silent one is told so and
+    disconnected (a listener such as ``armbench monitor`` keeps the arm until someone else asks
+    for it). A silent client that does not read either is dropped once its replies back up past
+    ``stalled_buffer_bytes``; what waits for one client is bounded by :data:`MAX_BUFFER_BYTES`.
+    """
 
     def __init__(self, arm: ArmEmulator, host: str = "127.0.0.1", port: int = 0,
                  idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
@@ -196,8 +205,14 @@ class TcpServer:
         """Reply bytes dropped because the client did not read them."""
         self._server: asyncio.Server | None = None
         self._client: asyncio.StreamWriter | None = None
+        self._client_peer = ""
+        self._last_input_s = 0.0
+        self._slot_free = asyncio.Event()
+        self._slot_free.set()
         self.clients_served = 0
         self.clients_refused = 0
+        self.clients_taken_over = 0
+        """Silent clients disconnected because another one asked for the arm."""
         self.on_client: Callable[[str], None] | None = None
 
     async def start(self) -> tuple[str, int]:
@@ -210,23 +225,66 @@ class TcpServer:
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         peer = str(writer.get_extra_info("peername"))
-        if self._client is not None:
-            self.clients_refused += 1
-            log.warning("refusing %s: another client is connected", peer)
-            writer.close()
+        if not await self._take_slot(peer, writer):
             return
         self._client = writer
+        self._client_peer = peer
+        self._last_input_s = asyncio.get_running_loop().time()
         self.clients_served += 1
         log.info("client %s connected", peer)
         if self.on_client is not None:
             self.on_client(peer)
-        frames = FrameLogger()
+        try:
+            await self._session(peer, reader, writer)
+        finally:
+            self.arm.detach_host()
+            self._client = None
+            writer.close()
+            with contextlib.suppress(ConnectionError, OSError):
+                await writer.wait_closed()
+            log.info("client %s left", peer)
+            self._slot_free.set()
 
+    async def _take_slot(self, peer: str, writer: asyncio.StreamWriter) -> bool:
+        """Free slot: take it. Busy with a client silent for the idle timeout: disconnect that
+        one and take it. Busy otherwise: tell ``writer`` why and refuse."""
+        current = self._client
+        if current is not None:
+            silent_s = asyncio.get_running_loop().time() - self._last_input_s
+            if silent_s < self.idle_timeout_s:
+                self.clients_refused += 1
+                log.warning("refusing %s: client %s is connected", peer, self._client_peer)
+                await _say_and_close(writer, f"busy: another client ({self._client_peer}) has the "
+                                             f"arm; it frees after {self.idle_timeout_s:g} s "
+                                             f"without input from that client")
+                return False
+            self.clients_taken_over += 1
+            log.warning("client %s silent for %.0f s: %s takes the arm", self._client_peer,
+                        silent_s, peer)
+            current.write(_line(f"disconnected: no input for {silent_s:.0f} s and another "
+                                f"client ({peer}) asked for the arm"))
+            current.close()
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(TAKE_OVER_WAIT_S):
+                    await self._slot_free.wait()  # its session has detached from the arm
+            if self._client is not None:  # another newcomer was faster
+                self.clients_refused += 1
+                await _say_and_close(writer, f"busy: another client ({self._client_peer}) has "
+                                             f"just taken the arm")
+                return False
+        self._slot_free.clear()
+        return True
+
+    async def _session(self, peer: str, reader: asyncio.StreamReader,
+                       writer: asyncio.StreamWriter) -> None:
+        """Relay bytes both ways until the client leaves, stalls or is taken over."""
+        frames = FrameLogger()
         transport = writer.transport
         sock = transport.get_extra_info("socket")
         if sock is not None:  # ~1.5 s of replies in the kernel: a client that stops reading shows
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+        loop = asyncio.get_running_loop()
 
         def sink(data: bytes) -> None:
             frames.sent(data)
@@ -249,19 +307,13 @@ class TcpServer:
                     raise
                 if not data:
                     break
+                self._last_input_s = loop.time()
                 frames.received(data)
                 self.arm.host_write(data)
         except TimeoutError:
             log.warning("client %s idle for %.0f s: disconnected", peer, self.idle_timeout_s)
         except (ConnectionError, OSError) as exc:
             log.info("client %s: %s", peer, exc)
-        finally:
-            self.arm.detach_host()
-            self._client = None
-            writer.close()
-            with contextlib.suppress(ConnectionError, OSError):
-                await writer.wait_closed()
-            log.info("client %s left", peer)
 
     async def close(self) -> None:
         """Stop listening, drop the client, power the arm down."""
@@ -273,6 +325,20 @@ class TcpServer:
             self._server = None
         self.arm.detach_host()
         await self.arm.close()
+
+
+def _line(text: str) -> bytes:
+    """A message to a client, on a line of its own (no ``$``, so no framer takes it for a frame)."""
+    return f"\r\narmbench emulate: {text}\r\n".encode("ascii", "replace")
+
+
+async def _say_and_close(writer: asyncio.StreamWriter, text: str) -> None:
+    with contextlib.suppress(ConnectionError, OSError):
+        writer.write(_line(text))
+        await writer.drain()
+    writer.close()
+    with contextlib.suppress(ConnectionError, OSError):
+        await writer.wait_closed()
 
 
 def parse_host_port(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:

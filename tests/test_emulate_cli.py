@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -19,6 +19,8 @@ import serial
 
 from armbench.bench.cli import main
 from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.serve import TcpServer, real_time_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,7 +29,7 @@ def start(*args: str) -> tuple[subprocess.Popen[str], str]:
     """Start ``armbench emulate ARGS`` and return it with the address it printed."""
     proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
+    assert proc.stdout is not None and proc.stderr is not None
     line = proc.stdout.readline()
     m = re.search(r"serving the arm on (\S+)", line)
     if m is None:
@@ -110,7 +112,9 @@ def test_tcp_with_a_plain_socket_one_client_at_a_time() -> None:
             assert len(replies(read_for(read, 0.5))) > 50
             with socket.create_connection((host, int(port)), timeout=2) as other:
                 other.settimeout(2)
-                assert other.recv(100) == b""  # turned away while the first is connected
+                told = b"".join(iter(lambda: other.recv(4096), b""))  # until it closes
+                # turned away while the first is connected, with a line saying why (issue 20)
+                assert b"armbench emulate: busy: another client" in told and not replies(told)
             sock.sendall(Command.from_rad([0.0, 0.0, 0.0, 0.01], 99).encode())
             assert abs(replies(read_for(read, 1.0))[-1].j4 - 100) <= 2
         time.sleep(0.2)
@@ -178,3 +182,68 @@ def test_tcp_listener_stays_and_a_stalled_client_is_dropped() -> None:
             await server.close()
 
     asyncio.run(main())
+
+
+def _tcp_server_test(body: Callable[[TcpServer, str, int], Awaitable[None]],
+                     idle_timeout_s: float) -> None:
+    """Run ``body(server, host, port)`` against a real TCP server on a real-time loop."""
+    async def main() -> None:
+        server = TcpServer(ArmEmulator(), idle_timeout_s=idle_timeout_s)
+        host, port = await server.start()
+        try:
+            await body(server, host, port)
+        finally:
+            await server.close()
+
+    with asyncio.Runner(loop_factory=real_time_loop) as runner:
+        runner.run(main())
+
+
+async def _read_until(reader: asyncio.StreamReader, needle: bytes, timeout_s: float) -> bytes:
+    data = b""
+    async with asyncio.timeout(timeout_s):
+        while needle not in data:
+            chunk = await reader.read(4096)
+            if not chunk:
+                break
+            data += chunk
+    return data
+
+
+def test_tcp_a_silent_client_that_does_not_read_gives_the_arm_to_the_next() -> None:
+    """Issue 20: a client that neither reads nor sends held the only slot for good (its replies
+    pile up in its own kernel, unseen by the server). Now the next client takes the arm once the
+    silent one has sent nothing for the idle timeout, and the silent one is told why."""
+    async def body(server: TcpServer, host: str, port: int) -> None:
+        silent_r, silent_w = await asyncio.open_connection(host, port)
+        silent_w.transport.pause_reading()  # type: ignore[attr-defined]  # a socket transport
+        await asyncio.sleep(0.8)  # past the idle timeout
+        reader, writer = await asyncio.open_connection(host, port)
+        writer.write(Command.from_rad([0.01, 0.0, 0.0, 0.0], 99).encode())
+        got = await _read_until(reader, b"#", 3.0)
+        assert replies(got), got[:200]
+        assert server.clients_taken_over == 1 and server.clients_refused == 0
+        silent_w.transport.resume_reading()  # type: ignore[attr-defined]
+        told = await _read_until(silent_r, b"asked for the arm", 3.0)
+        assert b"armbench emulate: disconnected: no input for" in told
+        writer.close()
+        silent_w.close()
+
+    _tcp_server_test(body, idle_timeout_s=0.5)
+
+
+def test_tcp_a_refused_client_is_told_why() -> None:
+    """A second client while the first one is active: refused with a line saying why (it read
+    as "no valid reply within 3 s" before)."""
+    async def body(server: TcpServer, host: str, port: int) -> None:
+        _, first = await asyncio.open_connection(host, port)
+        first.write(Command.from_rad([0.0, 0.0, 0.0, 0.0], 0).encode())
+        await asyncio.sleep(0.1)
+        second_r, _ = await asyncio.open_connection(host, port)
+        told = await _read_until(second_r, b"\n", 3.0)
+        told += await second_r.read()
+        assert b"armbench emulate: busy: another client" in told
+        assert server.clients_refused == 1 and server.clients_taken_over == 0
+        first.close()
+
+    _tcp_server_test(body, idle_timeout_s=30.0)
