@@ -16,13 +16,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ArmbenchError",
+    "CoordinatorUnreachableError",
     "DriverClosedError",
     "DriverError",
     "FrameValueError",
     "InvalidTargetError",
     "JointRangeError",
+    "LabgridError",
     "MoveInterruptedError",
     "MoveTimeoutError",
+    "NoSerialResourceError",
+    "PlaceLockedError",
+    "PlaceUnknownError",
     "PortLostError",
     "ProtocolError",
     "ReplyTimeoutError",
@@ -47,6 +52,30 @@ class TransportError(ArmbenchError, OSError):
 
 class PortLostError(TransportError):
     """The port went away while open (USB unplugged, TCP reset, pty closed, emulator killed)."""
+
+
+class LabgridError(TransportError):
+    """A ``labgrid://`` place could not be had; subclasses say why."""
+
+
+class CoordinatorUnreachableError(LabgridError):
+    """The labgrid coordinator did not answer."""
+
+
+class PlaceUnknownError(LabgridError):
+    """No place of that name in the lab."""
+
+
+class PlaceLockedError(LabgridError):
+    """The place is acquired by someone else; ``owner`` is labgrid's ``host/user`` of the holder."""
+
+    def __init__(self, port: str, reason: str, owner: str) -> None:
+        super().__init__(port, reason)
+        self.owner = owner
+
+
+class NoSerialResourceError(LabgridError):
+    """The place has no (available) ``NetworkSerialPort``: no arm to talk to."""
 
 
 class _RefusedValue(Exception):

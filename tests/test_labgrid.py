@@ -1,0 +1,239 @@
+"""``labgrid://PLACE`` against a real lab on loopback: a labgrid coordinator and exporter started
+here, the exporter serving two ``armbench emulate --pty`` arms through ser2net (RFC 2217), places
+made with ``labgrid-client``. Nothing is mocked."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from netutil import free_port
+
+from armbench.drivers.arm import Arm
+from armbench.drivers.errors import (
+    CoordinatorUnreachableError,
+    NoSerialResourceError,
+    PlaceLockedError,
+    PlaceUnknownError,
+    TransportError,
+)
+from armbench.drivers.transports.labgrid import parse_labgrid_url
+
+pytest.importorskip("labgrid", reason="an optional extra: pip install 'armbench[labgrid]'")
+if shutil.which("ser2net") is None and not os.path.exists("/usr/sbin/ser2net"):
+    pytest.skip("ser2net not installed (Debian package 'ser2net'): the exporter serves the arms "
+                "with it", allow_module_level=True)
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+ARMS = ("arm-a", "arm-b")
+
+
+def _tool(name: str) -> str:
+    found = shutil.which(name, path=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
+    assert found is not None, f"{name} is installed with labgrid"
+    return found
+
+
+@dataclass
+class Lab:
+    """A coordinator on loopback, an exporter serving the arms, the places made for them."""
+
+    coordinator: str
+    folder: Path
+
+    def client(self, *args: str, user: str = "") -> subprocess.CompletedProcess[str]:
+        env = dict(os.environ, LG_COORDINATOR=self.coordinator)
+        if user:
+            env["LG_USERNAME"] = user
+        return subprocess.run([_tool("labgrid-client"), *args], env=env, capture_output=True,
+                              text=True, timeout=60, check=False)
+
+    def port(self, place: str) -> str:
+        return f"labgrid://{place}?coordinator={self.coordinator}"
+
+
+def _wait(condition: object, what: str, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"{what} within {timeout_s:g} s"
+        time.sleep(0.2)
+
+
+def _accepts(tcp_port: int) -> bool:
+    """Something accepts connections on 127.0.0.1:``tcp_port`` (gRPC listens on IPv6 too, which
+    ``netutil.listening`` does not read)."""
+    try:
+        socket.create_connection(("127.0.0.1", tcp_port), timeout=1).close()
+    except OSError:
+        return False
+    return True
+
+
+def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
+    for proc in reversed(procs):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+    for proc in reversed(procs):
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
+    folder = tmp_path_factory.mktemp("lab")
+    procs: list[subprocess.Popen[bytes]] = []
+    try:
+        port = free_port()
+        coordinator = f"127.0.0.1:{port}"
+        procs.append(subprocess.Popen([_tool("labgrid-coordinator"), "--listen", coordinator],
+                                      cwd=folder, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+        _wait(lambda: _accepts(port), "the coordinator listens")
+        config = []
+        for name in ARMS:
+            emulator = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
+                                        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+            procs.append(emulator)
+            assert emulator.stdout is not None
+            device = emulator.stdout.readline().decode().split(" on ")[-1].strip()
+            # the exporter takes devices under /dev only: the pty itself, not a link to it
+            assert device.startswith("/dev/pts/"), device
+            config.append(f"{name}:\n  RawSerialPort:\n    port: {device}\n    speed: 115200\n")
+        (folder / "exporter.yaml").write_text("".join(config), encoding="utf-8")
+        procs.append(subprocess.Popen([_tool("labgrid-exporter"), "--coordinator", coordinator,
+                                       "--name", "bench-pc", "--hostname", "127.0.0.1",
+                                       str(folder / "exporter.yaml")], cwd=folder,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        the_lab = Lab(coordinator, folder)
+        _wait(lambda: all(f"bench-pc/{name}/NetworkSerialPort" in the_lab.client(
+            "resources").stdout for name in ARMS), "the exporter publishes both serial ports")
+        for name in ARMS:
+            for args in (("create",), ("add-match", f"bench-pc/{name}/NetworkSerialPort")):
+                done = the_lab.client("-p", name, *args)
+                assert done.returncode == 0, done.stderr
+        assert the_lab.client("-p", "empty", "create").returncode == 0  # a place with no arm
+        yield the_lab
+    finally:
+        _stop(procs)
+
+
+def _acquired_by(lab: Lab, place: str) -> str:
+    out = lab.client("-p", place, "show").stdout
+    for line in out.splitlines():
+        if line.strip().startswith("acquired:"):
+            holder = line.split(":", 1)[1].strip()
+            return "" if holder == "None" else holder
+    return ""
+
+
+def test_url_and_coordinator(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("LG_COORDINATOR", raising=False)
+    assert parse_labgrid_url("labgrid://arm-a") == ("arm-a", "127.0.0.1:20408")
+    monkeypatch.setenv("LG_COORDINATOR", "lab.example:5000")
+    assert parse_labgrid_url("labgrid://arm-a") == ("arm-a", "lab.example:5000")
+    assert parse_labgrid_url("labgrid://arm-a?coordinator=10.0.0.2") == ("arm-a", "10.0.0.2:20408")
+    with pytest.raises(TransportError, match="unknown query parameter 'seed'"):
+        parse_labgrid_url("labgrid://arm-a?seed=1")
+    with pytest.raises(TransportError, match="not a labgrid://PLACE"):
+        parse_labgrid_url("labgrid://")
+
+
+async def _move(port: str) -> float:
+    async with Arm.connect(port, connect_timeout_s=10.0) as arm:
+        state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
+        return float(state.q_rad[0])
+
+
+def test_a_place_is_acquired_used_and_released(lab: Lab) -> None:
+    port = lab.port("arm-a")
+
+    async def main() -> None:
+        async with Arm.connect(port, connect_timeout_s=10.0) as arm:
+            assert _acquired_by(lab, "arm-a") != ""  # held for the run
+            state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
+            assert abs(state.q_rad[0] - 0.05) < 2e-4
+
+    asyncio.run(main())
+    assert _acquired_by(lab, "arm-a") == ""  # released when the run ended
+
+
+def test_two_places_at_once(lab: Lab) -> None:
+    async def main() -> list[float]:
+        return list(await asyncio.gather(*(_move(lab.port(name)) for name in ARMS)))
+
+    assert all(abs(q - 0.05) < 2e-4 for q in asyncio.run(main()))
+    assert [_acquired_by(lab, name) for name in ARMS] == ["", ""]
+
+
+def test_a_place_locked_by_someone_else_is_refused_with_the_owner(lab: Lab) -> None:
+    assert lab.client("-p", "arm-b", "acquire", user="alice").returncode == 0
+    try:
+        with pytest.raises(PlaceLockedError, match="alice") as caught:
+            asyncio.run(_move(lab.port("arm-b")))
+        assert caught.value.owner.endswith("/alice")
+    finally:
+        assert lab.client("-p", "arm-b", "release", user="alice").returncode == 0
+
+
+def test_an_unknown_place_and_a_place_without_an_arm(lab: Lab) -> None:
+    with pytest.raises(PlaceUnknownError, match=r"no place 'arm-z'.*arm-a, arm-b"):
+        asyncio.run(_move(lab.port("arm-z")))
+    with pytest.raises(NoSerialResourceError, match="'empty' has no NetworkSerialPort"):
+        asyncio.run(_move(lab.port("empty")))
+    assert _acquired_by(lab, "empty") == ""  # nothing stays acquired after the error
+
+
+def test_an_unreachable_coordinator() -> None:
+    port = f"labgrid://arm-a?coordinator=127.0.0.1:{free_port()}"
+    with pytest.raises(CoordinatorUnreachableError, match="did not answer"):
+        asyncio.run(_move(port))
+
+
+def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:
+    done = subprocess.run([sys.executable, "-m", "armbench", "move", "--port", lab.port("arm-a"),
+                           "0.02", "0", "0", "0"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert _acquired_by(lab, "arm-a") == ""
+    locked = lab.client("-p", "arm-a", "acquire", user="bob")
+    assert locked.returncode == 0
+    try:
+        refused = subprocess.run([sys.executable, "-m", "armbench", "monitor", "--port",
+                                  lab.port("arm-a")], cwd=ROOT, capture_output=True, text=True,
+                                 timeout=120, check=False)
+        assert refused.returncode == 2
+        assert "acquired by" in refused.stderr and "bob" in refused.stderr
+        assert len(refused.stderr.strip().splitlines()) == 1
+    finally:
+        lab.client("-p", "arm-a", "release", user="bob")
+
+
+def test_ctrl_c_releases_the_place(lab: Lab) -> None:
+    monitor = subprocess.Popen([sys.executable, "-m", "armbench", "monitor", "--port",
+                                lab.port("arm-b")], cwd=ROOT, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    try:
+        _wait(lambda: _acquired_by(lab, "arm-b") != "", "monitor acquires the place")
+        time.sleep(1.0)  # streaming
+        monitor.send_signal(signal.SIGINT)
+        _, err = monitor.communicate(timeout=30)
+        assert "Traceback" not in err, err
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+            monitor.wait()
+    assert _acquired_by(lab, "arm-b") == ""
