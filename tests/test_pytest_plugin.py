@@ -18,11 +18,14 @@ pytest_plugins = ["pytester"]
 
 def plugin() -> list[str]:
     """``-p armbench.bench.pytest_plugin`` unless the installed ``pytest11`` entry point loads it
-    already
-    (registering the module twice under two names is an error)."""
+    already (registering the module twice under two names is an error); and labgrid's plugin
+    (installed with the labgrid extra) kept out of the users' sessions, as a user without a lab
+    would. The sessions run in processes of their own, as a user's do (in-process, pytester
+    would drop what a session imported, and numpy cannot be imported twice in one process)."""
     installed = any(ep.value == "armbench.bench.pytest_plugin"
                     for ep in importlib.metadata.entry_points(group="pytest11"))
-    return [] if installed else ["-p", "armbench.bench.pytest_plugin"]
+    ours = [] if installed else ["-p", "armbench.bench.pytest_plugin"]
+    return ["-p", "no:labgrid", *ours]
 
 USER_TESTS = '''
 import asyncio
@@ -86,7 +89,7 @@ def user_tests(pytester: pytest.Pytester) -> pytest.Pytester:
 
 def test_user_bench_tests_land_in_the_record(user_tests: pytest.Pytester) -> None:
     out = user_tests.path / "record"
-    result = user_tests.runpytest(*plugin(), "--arm-port", "fake://",
+    result = user_tests.runpytest_subprocess(*plugin(), "--arm-port", "fake://",
                                   "--arm-record", str(out))
     result.assert_outcomes(passed=3, failed=3, skipped=1)
     result.stdout.fnmatch_lines(["*lab.j1.error_mrad2 = * mrad (limit <= 1 mrad)*"])
@@ -138,7 +141,7 @@ def test_user_bench_tests_land_in_the_record(user_tests: pytest.Pytester) -> Non
 
 
 def test_without_a_record_measurements_still_fail_tests(user_tests: pytest.Pytester) -> None:
-    result = user_tests.runpytest(*plugin(), "-k", "strict or target")
+    result = user_tests.runpytest_subprocess(*plugin(), "-k", "strict or target")
     result.assert_outcomes(passed=1, failed=1)
     assert not (user_tests.path / "results.json").exists()
 
@@ -167,7 +170,7 @@ def test_unit_mismatch(record_measurement):
         record_measurement("lab.a_mm", 1.0, "mm")
 ''')
     out = pytester.path / "rec"
-    result = pytester.runpytest(*plugin(), "--arm-config", "lab.toml",
+    result = pytester.runpytest_subprocess(*plugin(), "--arm-config", "lab.toml",
                                 "--arm-record", str(out))
     result.assert_outcomes(passed=2, failed=1)
     record = load_record(out / "results.json")
@@ -176,7 +179,7 @@ def test_unit_mismatch(record_measurement):
     assert outcomes["lab.a_mm"] == "pass" and outcomes["lab.b_mm"] == "fail"
     assert record.verdict == "fail"
     # A second session into the same directory is refused, not overwritten.
-    again = pytester.runpytest(*plugin(), "--arm-record", str(out))
+    again = pytester.runpytest_subprocess(*plugin(), "--arm-record", str(out))
     assert again.ret == pytest.ExitCode.USAGE_ERROR
     again.stderr.fnmatch_lines(["*already holds a run record*"])
 
