@@ -164,9 +164,9 @@ def test_send_and_moves_share_the_slack(joint: int, bound: str) -> None:
        st.integers(1, 99))
 def test_an_accepted_target_never_aims_past_a_limit(q: tuple[float, float, float, float],
                                                      duty: int) -> None:
-    """Whatever the slack lets through, the command put on the wire aims inside the limits and
-    is itself accepted by ``send``; it is within one and a half ticks of the target (half a tick
-    of rounding, one of the nudge)."""
+    """Whatever the slack lets through, the command put on the wire aims inside the limits, is
+    within one and a half ticks of the target (half a tick of rounding, one of the nudge) and is
+    accepted by ``send``, as is a raw command built from a target within the limits."""
     target = check_target(q, SETTINGS)
     cmd = wire_command(target, (duty,) * 4, SETTINGS)
     wire = cmd.angles_rad(LOWER, UPPER)
@@ -174,7 +174,8 @@ def test_an_accepted_target_never_aims_past_a_limit(q: tuple[float, float, float
         assert lo - 1e-12 <= w <= hi + 1e-12
         assert abs(w - t) <= 1.5 * TICK_RAD + 1e-12
     check_command(cmd, SETTINGS)
-    assert check_command(Command.from_rad(target, duty), SETTINGS) is None
+    inside = [min(max(t, lo), hi) for t, lo, hi in zip(target, LOWER, UPPER, strict=True)]
+    check_command(Command.from_rad(inside, duty), SETTINGS)  # a raw command built on a limit
 
 
 # --- the arrival tracker -------------------------------------------------------------------------
