@@ -186,8 +186,7 @@ class Arm(ArmLink):
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
         longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
         receives every frame in and out (see :mod:`armbench.drivers.capture`), times counted from
-        the
-        opening; or a :class:`~armbench.drivers.capture.CaptureWriter` with a time origin of the
+        the opening; or a :class:`~armbench.drivers.capture.CaptureWriter` with a time origin of the
         caller's, which the connection uses and closes. ``reconnect``: True or a
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
