@@ -310,9 +310,9 @@ async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> Async
     transport = None
     emulator = None
     if scheme_of(port) == "fake":
-        from armbench.drivers.transports.fake import FakeTransport, parse_fake_url
         from armbench.fakes.arm import ArmEmulator
         from armbench.fakes.settings import emulator_settings
+        from armbench.fakes.transport import FakeTransport, parse_fake_url
 
         _, seed, faults = parse_fake_url(port)
         overrides = {"seed": seed} if seed is not None else {}

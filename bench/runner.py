@@ -372,7 +372,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     url_seed: int | None = None
     url_faults: list[Fault] = []
     if fake:
-        from armbench.drivers.transports.fake import parse_fake_url
+        from armbench.fakes.transport import parse_fake_url
 
         _, url_seed, url_faults = parse_fake_url(port)  # validates the query
         query = parse_qs(urlsplit(port).query)
@@ -731,8 +731,8 @@ class _Run:
         emulator = None
         transport = None
         if plan.fake:
-            from armbench.drivers.transports.fake import FakeTransport
             from armbench.fakes.settings import emulator_settings
+            from armbench.fakes.transport import FakeTransport
 
             emulator = self.emulator_factory(
                 plan.settings, emulator_settings(plan.settings, seed=emulator_seed), plan.faults)

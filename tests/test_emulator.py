@@ -434,7 +434,7 @@ def test_same_faults_and_seed_reproduce_the_same_run() -> None:
 
 
 def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> None:
-    from armbench.drivers.transports.fake import parse_fake_url
+    from armbench.fakes.transport import parse_fake_url
 
     robot = tmp_path / "robot.toml"
     robot.write_text('[[faults]]\nkind = "power_cut"\nat_s = 2.0\n')

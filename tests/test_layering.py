@@ -13,7 +13,8 @@ def _modules_after(statement: str) -> set[str]:
 
 
 def test_emulator_does_not_import_the_driver() -> None:
-    mods = _modules_after("import armbench.fakes.arm, armbench.fakes.serve")
+    mods = _modules_after("import armbench.fakes.arm, armbench.fakes.serve, "
+                          "armbench.fakes.transport")
     assert "armbench.drivers.arm" not in mods
     assert not any(m.startswith(("armbench.bench", "armbench.reports")) for m in mods)
 
@@ -35,3 +36,14 @@ def test_the_packages_import_nothing_by_themselves() -> None:
 def test_driver_names_are_exported_lazily() -> None:
     mods = _modules_after("import armbench; armbench.Arm; armbench.connect")
     assert "armbench.drivers.arm" in mods
+
+
+def test_the_driver_reaches_the_fake_transport_only_by_name() -> None:
+    """Choosing and opening transports other than ``fake://`` imports nothing of the emulator;
+    ``fake://`` imports it through the registry's name."""
+    mods = _modules_after("from armbench.drivers.transports import open_transport as o; "
+                          "o('socket://127.0.0.1:9'); o('rfc2217://127.0.0.1:9'); o('/dev/null')")
+    assert not any(m.startswith("armbench.fakes") for m in mods), sorted(mods)
+    mods = _modules_after("from armbench.drivers.transports import open_transport as o; "
+                          "o('fake://')")
+    assert "armbench.fakes.transport" in mods

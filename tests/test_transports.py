@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.metadata
 import os
 import shutil
 import socket
 import struct
 import subprocess
 import termios
+import tomllib
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,8 +35,10 @@ from armbench.drivers.telnet import (
     TelnetCodec,
 )
 from armbench.drivers.transports import (
+    ENTRY_POINT_GROUP,
     TRANSPORTS,
     Transport,
+    known_transports,
     open_transport,
     scheme_of,
     transport_class,
@@ -93,7 +97,7 @@ def test_scheme_selection() -> None:
     assert transport_class("/dev/pts/3") is SerialTransport
     assert transport_class("socket://127.0.0.1:7000") is TcpTransport
     assert transport_class("rfc2217://localhost:2217") is Rfc2217Transport
-    assert TRANSPORTS["fake"] == "armbench.drivers.transports.fake:FakeTransport"
+    assert TRANSPORTS["fake"] == "armbench.fakes.transport:FakeTransport"
     t = open_transport("socket://127.0.0.1:7000", SerialSettings())
     assert isinstance(t, TcpTransport) and not t.is_open
     assert (t.host, t.tcp_port, t.bytes_in, t.bytes_out) == ("127.0.0.1", 7000, 0, 0)
@@ -104,6 +108,87 @@ def test_unknown_scheme_is_named() -> None:
     with pytest.raises(TransportError, match="bogus://") as info:
         open_transport("bogus://somewhere", SerialSettings())
     assert info.value.port == "bogus://somewhere"
+
+
+class EchoTransport(Transport):
+    """A third-party transport as another distribution would register it: writes come back as
+    reads (in memory)."""
+
+    scheme = "echo"
+
+    def __init__(self, port: str, serial: SerialSettings) -> None:
+        super().__init__(port, serial)
+        self._open = False
+        self._buf = bytearray()
+
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    async def open(self) -> None:
+        self._open = True
+
+    async def read(self) -> bytes:
+        data, self._buf = bytes(self._buf), bytearray()
+        self.bytes_in += len(data)
+        return data
+
+    async def write(self, data: bytes) -> None:
+        self._buf += data
+        self.bytes_out += len(data)
+
+    async def close(self) -> None:
+        self._open = False
+
+
+def _registered(monkeypatch: pytest.MonkeyPatch, **schemes: str) -> None:
+    """Installed metadata as if another distribution declared ``schemes`` as entry points of
+    ``armbench.transports`` (mocked: installing a distribution into the test environment is not
+    an option here)."""
+    eps = [importlib.metadata.EntryPoint(name, value, ENTRY_POINT_GROUP)
+           for name, value in schemes.items()]
+    real = importlib.metadata.entry_points
+
+    def entry_points(**params: str) -> object:
+        if params.get("group") == ENTRY_POINT_GROUP:
+            return eps
+        return real(**params)
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+
+
+async def test_a_third_party_scheme_is_found_through_its_entry_point(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    _registered(monkeypatch, echo=f"{__name__}:EchoTransport",
+                socket="elsewhere.module:NotTcp")
+    assert transport_class("echo://anything") is EchoTransport
+    assert transport_class("socket://127.0.0.1:7000") is TcpTransport  # built-ins win
+    assert known_transports()["echo"] == f"{__name__}:EchoTransport"
+    async with open_transport("ECHO://x") as t:
+        await t.write(b"$00000,00000,00000,00000#")
+        assert await t.read() == b"$00000,00000,00000,00000#"
+    with pytest.raises(TransportError, match=r"known: echo://, fake://, rfc2217://, socket://"):
+        open_transport("bogus://somewhere")
+
+
+def test_a_broken_entry_point_is_a_transport_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    _registered(monkeypatch, gone="no_such_module_anywhere:Transport",
+                notone=f"{__name__}:within")
+    with pytest.raises(TransportError, match="no_such_module_anywhere") as info:
+        open_transport("gone://x")
+    assert info.value.port == "gone://x"
+    with pytest.raises(TransportError, match="is not a Transport class"):
+        open_transport("notone://x")
+
+
+def test_the_builtin_schemes_are_registered_in_code_and_as_entry_points() -> None:
+    """The source tree's pyproject declares the same schemes the code table holds (the installed
+    metadata may be older: the code table is what a checkout runs with)."""
+    project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    declared = project["project"]["entry-points"][ENTRY_POINT_GROUP]
+    assert declared == TRANSPORTS
+    for scheme in TRANSPORTS:
+        assert transport_class(f"{scheme}://h:1").scheme == scheme
 
 
 @pytest.mark.parametrize("port", ["socket://127.0.0.1", "socket://:7000", "rfc2217://h:99999",

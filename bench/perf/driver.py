@@ -47,9 +47,9 @@ from armbench.bench.perf import Figure, PerfOptions
 from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import REPLY_LEN, Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
-from armbench.drivers.transports.fake import FakeTransport
 from armbench.fakes.i2c import transaction_bits
 from armbench.fakes.settings import EmulatorSettings, emulator_settings
+from armbench.fakes.transport import FakeTransport
 from armbench.fakes.vclock import run_virtual
 
 __all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty", "timer_lateness_s"]

@@ -1,4 +1,4 @@
-"""Sans-I/O telnet (RFC 854/855) and RFC 2217 COM-PORT-OPTION codec.
+"""Sans-I/O telnet (RFC 854/855) codec, RFC 2217 aware (:mod:`.comport`); events in :mod:`.events`.
 
 Bytes in, events out; bytes to send queued for the caller. No sockets, no clocks, no tasks: the
 asyncio RFC 2217 client (:mod:`armbench.drivers.transports.rfc2217`) and the tests drive the same
@@ -37,15 +37,33 @@ misuse of the API (a baud rate that does not fit in 32 bits, ...) raises :class:
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Final
+
+from armbench.drivers.telnet.comport import (
+    COM_PORT_OPTION,
+    ComPortOptions,
+    check_byte,
+    decode_com_port,
+)
+from armbench.drivers.telnet.events import (
+    Command,
+    Data,
+    Event,
+    OptionDeclined,
+    OptionDisabled,
+    OptionEnabled,
+    OptionRefused,
+    ProtocolViolation,
+    Role,
+    Side,
+    Subnegotiation,
+)
 
 __all__ = [
     "AO",
     "AYT",
     "BINARY",
     "BRK",
-    "COM_PORT_OPTION",
     "DM",
     "DO",
     "DONT",
@@ -57,33 +75,12 @@ __all__ = [
     "IP",
     "MAX_SUBNEGOTIATION",
     "NOP",
-    "PARITY_CODES",
     "SB",
     "SE",
     "SGA",
-    "STOPSIZE_CODES",
     "WILL",
     "WONT",
-    "ComPort",
-    "ComPortReply",
-    "ComPortRequest",
-    "Command",
-    "Data",
-    "Event",
-    "FlowControl",
-    "LineState",
-    "ModemState",
-    "OptionDeclined",
-    "OptionDisabled",
-    "OptionEnabled",
-    "OptionRefused",
-    "ProtocolViolation",
-    "Role",
-    "Side",
-    "Signature",
-    "Subnegotiation",
     "TelnetCodec",
-    "coalesce",
     "escape",
     "unescape",
 ]
@@ -110,7 +107,6 @@ IAC: Final = 255
 BINARY: Final = 0
 ECHO: Final = 1
 SGA: Final = 3
-COM_PORT_OPTION: Final = 44
 
 MAX_SUBNEGOTIATION: Final = 1024
 """Longest subnegotiation payload kept, in bytes; longer ones are dropped and reported."""
@@ -121,193 +117,6 @@ _IAC_B: Final = b"\xff"
 _NAMES: Final = {SE: "SE", NOP: "NOP", DM: "DM", BRK: "BRK", IP: "IP", AO: "AO", AYT: "AYT",
                  EC: "EC", EL: "EL", GA: "GA", SB: "SB", WILL: "WILL", WONT: "WONT", DO: "DO",
                  DONT: "DONT", IAC: "IAC"}
-
-
-class ComPort:
-    """RFC 2217 COM-PORT-OPTION command codes as sent by the client (the server adds 100)."""
-
-    SIGNATURE: Final = 0
-    SET_BAUDRATE: Final = 1
-    SET_DATASIZE: Final = 2
-    SET_PARITY: Final = 3
-    SET_STOPSIZE: Final = 4
-    SET_CONTROL: Final = 5
-    NOTIFY_LINESTATE: Final = 6
-    NOTIFY_MODEMSTATE: Final = 7
-    FLOWCONTROL_SUSPEND: Final = 8
-    FLOWCONTROL_RESUME: Final = 9
-    SET_LINESTATE_MASK: Final = 10
-    SET_MODEMSTATE_MASK: Final = 11
-    PURGE_DATA: Final = 12
-    SERVER_OFFSET: Final = 100
-
-    # SET-CONTROL values (a few; see RFC 2217 for the full table)
-    CONTROL_QUERY_FLOW: Final = 0
-    CONTROL_NO_FLOW: Final = 1
-    CONTROL_BREAK_ON: Final = 5
-    CONTROL_BREAK_OFF: Final = 6
-    CONTROL_DTR_ON: Final = 8
-    CONTROL_DTR_OFF: Final = 9
-    CONTROL_RTS_ON: Final = 11
-    CONTROL_RTS_OFF: Final = 12
-
-    # NOTIFY-MODEMSTATE bits
-    MODEM_CD: Final = 0x80
-    MODEM_RI: Final = 0x40
-    MODEM_DSR: Final = 0x20
-    MODEM_CTS: Final = 0x10
-
-    # NOTIFY-LINESTATE bits
-    LINE_TIMEOUT: Final = 0x80
-    LINE_TSRE: Final = 0x40
-    LINE_THRE: Final = 0x20
-    LINE_BREAK: Final = 0x10
-    LINE_FRAMING_ERROR: Final = 0x08
-    LINE_PARITY_ERROR: Final = 0x04
-    LINE_OVERRUN_ERROR: Final = 0x02
-    LINE_DATA_READY: Final = 0x01
-
-
-#: SET-PARITY value of each :class:`~armbench.drivers.settings.SerialSettings` parity letter.
-PARITY_CODES: Final[dict[str, int]] = {"N": 1, "O": 2, "E": 3, "M": 4, "S": 5}
-#: SET-STOPSIZE value of each stop-bit count.
-STOPSIZE_CODES: Final[dict[float, int]] = {1: 1, 2: 2, 1.5: 3}
-
-Side = Literal["local", "remote"]
-"""``local``: an option in effect on our side (we send WILL/WONT, the peer DO/DONT);
-``remote``: on the peer's side (the peer sends WILL/WONT, we DO/DONT)."""
-Role = Literal["client", "server"]
-
-
-# --- events -------------------------------------------------------------------------------------
-@dataclass(frozen=True, slots=True)
-class Data:
-    """Payload bytes from the peer, already unescaped."""
-
-    data: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class Command:
-    """A telnet command other than negotiation (NOP, BRK, IP, AYT, GA, DM, ...)."""
-
-    code: int
-
-
-@dataclass(frozen=True, slots=True)
-class OptionEnabled:
-    """An option is now in effect on ``side``."""
-
-    option: int
-    side: Side
-
-
-@dataclass(frozen=True, slots=True)
-class OptionDisabled:
-    """An option that was in effect on ``side`` is no longer."""
-
-    option: int
-    side: Side
-
-
-@dataclass(frozen=True, slots=True)
-class OptionRefused:
-    """The peer refused our request to enable ``option`` on ``side``."""
-
-    option: int
-    side: Side
-
-
-@dataclass(frozen=True, slots=True)
-class OptionDeclined:
-    """We refused the peer's offer or request for ``option`` on ``side`` (not in our accept set)."""
-
-    option: int
-    side: Side
-
-
-@dataclass(frozen=True, slots=True)
-class Subnegotiation:
-    """A complete ``IAC SB option ... IAC SE`` for an option this codec does not decode."""
-
-    option: int
-    payload: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class ComPortReply:
-    """A server's answer to a COM-PORT setting (client role).
-
-    ``command`` is the client command it answers (``ComPort.SET_BAUDRATE`` = 1, ...), ``value``
-    the setting now in effect (baud rate in bit/s for SET-BAUDRATE, else the RFC 2217 code).
-    """
-
-    command: int
-    value: int
-
-
-@dataclass(frozen=True, slots=True)
-class ComPortRequest:
-    """A client's COM-PORT setting request (server role); ``value`` 0 asks for the current one."""
-
-    command: int
-    value: int
-
-
-@dataclass(frozen=True, slots=True)
-class Signature:
-    """COM-PORT SIGNATURE text; empty is a request for the peer's signature."""
-
-    text: bytes
-
-
-@dataclass(frozen=True, slots=True)
-class LineState:
-    """NOTIFY-LINESTATE: the line-state bits (``ComPort.LINE_*``)."""
-
-    state: int
-
-
-@dataclass(frozen=True, slots=True)
-class ModemState:
-    """NOTIFY-MODEMSTATE: the modem-state bits (``ComPort.MODEM_*`` in the upper nibble)."""
-
-    state: int
-
-
-@dataclass(frozen=True, slots=True)
-class FlowControl:
-    """FLOWCONTROL-SUSPEND (``suspended``) or FLOWCONTROL-RESUME from the peer."""
-
-    suspended: bool
-
-
-@dataclass(frozen=True, slots=True)
-class ProtocolViolation:
-    """Malformed or out-of-protocol input; reported, counted and otherwise ignored."""
-
-    reason: str
-
-
-Event = (Data | Command | OptionEnabled | OptionDisabled | OptionRefused | OptionDeclined
-         | Subnegotiation | ComPortReply | ComPortRequest | Signature | LineState | ModemState
-         | FlowControl | ProtocolViolation)
-
-
-def coalesce(events: Iterable[Event]) -> list[Event]:
-    """``events`` with adjacent :class:`Data` joined and empty ones dropped: where a stream is
-    cut into chunks changes only how its payload is split into ``Data`` events, so two feedings
-    of the same bytes give equal lists after this."""
-    out: list[Event] = []
-    for e in events:
-        if isinstance(e, Data):
-            if not e.data:
-                continue
-            if out and isinstance(out[-1], Data):
-                out[-1] = Data(out[-1].data + e.data)
-                continue
-        out.append(e)
-    return out
 
 
 def escape(data: bytes) -> bytes:
@@ -342,7 +151,7 @@ _STATE_NAMES: Final = ("no", "yes", "wantno", "wantyes")
 _DEFAULT_ACCEPT: Final = (BINARY, SGA, COM_PORT_OPTION)
 
 
-class TelnetCodec:
+class TelnetCodec(ComPortOptions):
     """One side of a telnet connection, RFC 2217 aware; no I/O.
 
     ``role`` decides the direction of COM-PORT codes (a ``client`` sends 1..12 and receives
@@ -419,74 +228,30 @@ class TelnetCodec:
 
     def send_subnegotiation(self, option: int, payload: bytes) -> None:
         """Queue ``IAC SB option payload IAC SE`` with 0xFF in ``payload`` doubled."""
-        _check_byte("option", option)
+        check_byte("option", option)
         self._out += bytes((IAC, SB, option)) + escape(bytes(payload)) + bytes((IAC, SE))
 
     def enable_local(self, option: int) -> bool:
         """Ask to enable ``option`` on our side (WILL); False when nothing had to be sent."""
-        _check_byte("option", option)
+        check_byte("option", option)
         self.accept_local.add(option)
         return self._request(self._q_local, option, True, WILL, WONT)
 
     def disable_local(self, option: int) -> bool:
         """Ask to disable ``option`` on our side (WONT); False when nothing had to be sent."""
-        _check_byte("option", option)
+        check_byte("option", option)
         return self._request(self._q_local, option, False, WILL, WONT)
 
     def enable_remote(self, option: int) -> bool:
         """Ask the peer to enable ``option`` (DO); False when nothing had to be sent."""
-        _check_byte("option", option)
+        check_byte("option", option)
         self.accept_remote.add(option)
         return self._request(self._q_remote, option, True, DO, DONT)
 
     def disable_remote(self, option: int) -> bool:
         """Ask the peer to disable ``option`` (DONT); False when nothing had to be sent."""
-        _check_byte("option", option)
+        check_byte("option", option)
         return self._request(self._q_remote, option, False, DO, DONT)
-
-    # --- RFC 2217 output ------------------------------------------------------------------------
-    def send_com_port(self, command: int, value: bytes = b"") -> None:
-        """Queue a COM-PORT-OPTION message; ``command`` is the client code, 100 is added in the
-        server role."""
-        if not 0 <= command <= ComPort.PURGE_DATA:
-            raise ValueError(f"COM-PORT command: {command} is not 0..12")
-        code = command + (ComPort.SERVER_OFFSET if self.role == "server" else 0)
-        self.send_subnegotiation(COM_PORT_OPTION, bytes((code,)) + bytes(value))
-
-    def set_baudrate(self, baud: int) -> None:
-        """Queue SET-BAUDRATE (bit/s; 0 queries). In the server role: the reply."""
-        if not 0 <= baud <= 0xFFFF_FFFF:
-            raise ValueError(f"baud rate: {baud} does not fit in 32 bits")
-        self.send_com_port(ComPort.SET_BAUDRATE, baud.to_bytes(4, "big"))
-
-    def set_datasize(self, bits: int) -> None:
-        """Queue SET-DATASIZE (5..8 data bits; 0 queries)."""
-        if bits not in (0, 5, 6, 7, 8):
-            raise ValueError(f"data size: {bits} is not 5..8 (or 0 to query)")
-        self.send_com_port(ComPort.SET_DATASIZE, bytes((bits,)))
-
-    def set_parity(self, parity: str | int) -> None:
-        """Queue SET-PARITY from a letter N/O/E/M/S or an RFC 2217 code (0 queries)."""
-        code = PARITY_CODES.get(parity) if isinstance(parity, str) else parity
-        if code is None or not 0 <= code <= 5:
-            raise ValueError(f"parity: {parity!r} is not one of N, O, E, M, S")
-        self.send_com_port(ComPort.SET_PARITY, bytes((code,)))
-
-    def set_stopsize(self, stopbits: float) -> None:
-        """Queue SET-STOPSIZE for 1, 1.5 or 2 stop bits (0 queries)."""
-        code = 0 if stopbits == 0 else STOPSIZE_CODES.get(stopbits)
-        if code is None:
-            raise ValueError(f"stop bits: {stopbits!r} is not 1, 1.5 or 2")
-        self.send_com_port(ComPort.SET_STOPSIZE, bytes((code,)))
-
-    def set_control(self, value: int) -> None:
-        """Queue SET-CONTROL (flow control, BREAK, DTR, RTS; ``ComPort.CONTROL_*``)."""
-        _check_byte("control value", value)
-        self.send_com_port(ComPort.SET_CONTROL, bytes((value,)))
-
-    def flowcontrol(self, suspend: bool) -> None:
-        """Queue FLOWCONTROL-SUSPEND (True) or FLOWCONTROL-RESUME (False)."""
-        self.send_com_port(ComPort.FLOWCONTROL_SUSPEND if suspend else ComPort.FLOWCONTROL_RESUME)
 
     # --- input ----------------------------------------------------------------------------------
     def receive_data(self, data: bytes) -> list[Event]:
@@ -690,38 +455,11 @@ class TelnetCodec:
         if option != COM_PORT_OPTION:
             events.append(Subnegotiation(option, payload))
             return
-        if not payload:
-            self._violation(events, "empty COM-PORT-OPTION subnegotiation")
-            return
-        code, value = payload[0], payload[1:]
-        offset = ComPort.SERVER_OFFSET if self.role == "client" else 0
-        command = code - offset
-        if not 0 <= command <= ComPort.PURGE_DATA:
-            self._violation(events, f"COM-PORT-OPTION command {code} is not expected by a "
-                                    f"{self.role}")
-            return
-        if command == ComPort.SIGNATURE:
-            events.append(Signature(value))
-        elif command in (ComPort.FLOWCONTROL_SUSPEND, ComPort.FLOWCONTROL_RESUME):
-            if value:
-                self._violation(events, f"COM-PORT-OPTION command {code} has {len(value)} "
-                                        "unexpected value bytes")
-            events.append(FlowControl(command == ComPort.FLOWCONTROL_SUSPEND))
-        else:
-            size = 4 if command == ComPort.SET_BAUDRATE else 1
-            if len(value) != size:
-                self._violation(events, f"COM-PORT-OPTION command {code} has {len(value)} value "
-                                        f"bytes, expected {size}")
-                return
-            number = int.from_bytes(value, "big")
-            if command == ComPort.NOTIFY_LINESTATE:
-                events.append(LineState(number))
-            elif command == ComPort.NOTIFY_MODEMSTATE:
-                events.append(ModemState(number))
-            elif self.role == "client":
-                events.append(ComPortReply(command, number))
+        for event in decode_com_port(payload, self.role):
+            if isinstance(event, ProtocolViolation):
+                self._violation(events, event.reason)
             else:
-                events.append(ComPortRequest(command, number))
+                events.append(event)
 
 
 def _flush(pending: bytearray, events: list[Event]) -> None:
@@ -732,8 +470,3 @@ def _flush(pending: bytearray, events: list[Event]) -> None:
 
 def _name(code: int) -> str:
     return _NAMES.get(code, str(code))
-
-
-def _check_byte(what: str, value: int) -> None:
-    if not 0 <= value <= 255:
-        raise ValueError(f"{what}: {value} is not a byte (0..255)")

@@ -1,11 +1,14 @@
 """``fake://`` — the firmware emulator in this process, on the running event loop.
 
+It lives with the emulator and is registered by name (the scheme ``fake``, see
+:mod:`armbench.drivers.transports`): the driver reaches it through the registry and never imports
+it.
+
 ``fake://?seed=3&faults=faults.toml&settings=robot.toml``: the emulator is built from the robot
 settings file (defaults without one), its ``[emulator]`` table, the fault list and the seed. On a
 virtual-time loop (``armbench.fakes.vclock``) minutes of robot time pass in seconds; on a real loop
-it runs
-in real time. The emulator is exposed as ``transport.emulator`` for its side channels: ground truth
-and power control (what a laser tracker and a relay give on a real bench).
+it runs in real time. The emulator is exposed as ``transport.emulator`` for its side channels:
+ground truth and power control (what a laser tracker and a relay give on a real bench).
 """
 
 from __future__ import annotations
