@@ -26,7 +26,7 @@ from armbench.bench.record import (
 )
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.render import REPORT_FILE
+from armbench.reports.page import REPORT_FILE
 
 __all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
 

@@ -15,22 +15,29 @@ downsampled for drawing (:func:`decimate`, :func:`envelope`); the raw data stays
 
 from __future__ import annotations
 
-import io
 import math
-import re
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, cast
 
-import matplotlib
 import numpy as np
-import numpy.typing as npt
-from markupsafe import Markup, escape
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+
+from armbench.reports.plotting import (
+    COLOURS,
+    LINESTYLES,
+    MARKERS,
+    FloatArray,
+    decimate,
+    envelope,
+    legend,
+    new_figure,
+    plot_style,
+    safe_label,
+    to_svg,
+)
 
 __all__ = [
     "ErrorPanel",
@@ -53,184 +60,6 @@ __all__ = [
     "traffic_plot",
     "trend_plots",
 ]
-
-FloatArray = npt.NDArray[np.float64]
-
-#: Points drawn per line at most; longer series are downsampled.
-MAX_LINE_POINTS = 1200
-#: Buckets of the min/max envelope of a time series (two points each).
-ENVELOPE_BUCKETS = 600
-
-#: Colour-blind-safe palette (Okabe & Ito); lines also differ in style and markers in shape.
-COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000",
-           "#999999")
-LINESTYLES = ("-", "--", "-.", ":")
-MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*")
-
-_RC: dict[str, Any] = {
-    "svg.fonttype": "none",          # text stays text: small, selectable, escaped by matplotlib
-    "svg.hashsalt": "armbench-report",  # deterministic ids (prefixed per plot by to_svg)
-    "font.family": "sans-serif",
-    "font.sans-serif": ["DejaVu Sans"],
-    "font.size": 8.5,
-    "axes.titlesize": 9.5,
-    "axes.labelsize": 8.5,
-    "legend.fontsize": 7.5,
-    "legend.frameon": False,
-    "text.usetex": False,
-    "text.parse_math": False,        # a '$' is a dollar, never math text
-    "axes.grid": True,
-    "grid.alpha": 0.35,
-    "grid.linewidth": 0.5,
-    "axes.spines.top": False,
-    "axes.spines.right": False,
-    "path.simplify": True,
-    "lines.linewidth": 1.0,
-    "axes.titley": 1.02,             # fixed title position: no costly automatic placement
-    "axes.titlepad": 3.0,
-    "axes.formatter.use_mathtext": False,
-}
-
-_LABEL_BAD = re.compile(r"[^A-Za-z0-9 _.,:;%#()+=§/×·–|-]")
-
-
-def safe_label(text: str, limit: int = 48) -> str:
-    """``text`` with anything but letters, digits and plain punctuation replaced by ``?``,
-    shortened to ``limit`` characters: for plot labels (defence in depth; labels are the
-    report's own words)."""
-    cleaned = _LABEL_BAD.sub("?", text)
-    return cleaned if len(cleaned) <= limit else cleaned[: limit - 1] + "…"
-
-
-@contextmanager
-def _style() -> Iterator[None]:
-    with matplotlib.rc_context(cast(Any, _RC)):
-        yield
-
-
-class _LeanFigure(Figure):
-    """A figure whose axes get at most five ticks a side: each tick is five artists, and
-    creating and drawing them is most of matplotlib's time here."""
-
-    def add_subplot(self, *args: Any, **kwargs: Any) -> Any:
-        ax = super().add_subplot(*args, **kwargs)
-        ax.locator_params(nbins=5)
-        return ax
-
-
-def _legend(ax: Any, **kwargs: Any) -> None:
-    """A legend when the axes have labelled artists (matplotlib warns otherwise)."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(**kwargs)
-
-
-def _figure(width_in: float, height_in: float, *, left: float = 0.08, right: float = 0.98,
-            bottom: float = 0.15, top: float = 0.9, wspace: float = 0.25,
-            hspace: float = 0.3) -> Figure:
-    """A figure with fixed margins (fractions of the figure). A layout engine would fit them
-    automatically but costs most of the rendering time; the plots here are few and known."""
-    fig = _LeanFigure(figsize=(width_in, height_in))
-    fig.subplots_adjust(left=left, right=right, bottom=bottom, top=top, wspace=wspace,
-                        hspace=hspace)
-    return fig
-
-
-# --------------------------------------------------------------------------------------------
-# SVG
-# --------------------------------------------------------------------------------------------
-
-_PROLOG_END = re.compile(r"<svg\b")
-_ROOT = re.compile(r"<svg\b[^>]*>")
-_VIEWBOX = re.compile(r'viewBox="([^"]*)"')
-_STYLE_DEFS = re.compile(r"<defs>\s*<style[^>]*>.*?</style>\s*</defs>", re.DOTALL)
-_REF = re.compile(r'(?:href="#|url\(#)([^")]+)')
-_ID = re.compile(r' id="([^"]*)"')
-_PATH_D = re.compile(r' d="([^"]*)"')
-_LONG_NUMBER = re.compile(r"(-?\d+\.\d{2})\d+")
-_COORD_ATTR = re.compile(r' (x|y|width|height)="(-?\d+\.\d{2})\d*"')
-
-
-def _short_path(match: re.Match[str]) -> str:
-    d = _LONG_NUMBER.sub(r"\1", " ".join(match.group(1).split()))
-    return f' d="{d}"'
-
-
-def to_svg(fig: Figure, fid: str, title: str) -> Markup:
-    """``fig`` as an inline ``<svg>`` element: scalable (``viewBox``, no fixed size), labelled for
-    screen readers with ``title`` (escaped), ids prefixed with ``fid`` so several plots can share a
-    page, coordinates to 0.01 pt, no URL and no script."""
-    buf = io.StringIO()
-    with _style():
-        fig.savefig(buf, format="svg",
-                    metadata={"Date": None, "Creator": None, "Format": None, "Type": None})
-    text = buf.getvalue()
-    start = _PROLOG_END.search(text)
-    if start is None:  # pragma: no cover - matplotlib always writes an <svg> root
-        raise RuntimeError("matplotlib wrote no <svg> element")
-    text = text[start.start():]
-    root = _ROOT.match(text)
-    assert root is not None
-    box = _VIEWBOX.search(root.group(0))
-    view_box = box.group(1) if box else "0 0 100 100"
-    new_root = (f'<svg class="plot" viewBox="{view_box}" role="img" '
-                f'aria-label="{escape(title)}" preserveAspectRatio="xMidYMid meet">')
-    text = new_root + text[root.end():]
-    text = _STYLE_DEFS.sub("", text, count=1)
-    text = text.replace("xlink:href=", "href=")
-    referenced = set(_REF.findall(text))
-
-    def rename(match: re.Match[str]) -> str:
-        name = match.group(1)
-        return f' id="{fid}-{name}"' if name in referenced else ""
-
-    text = _ID.sub(rename, text)
-    text = re.sub(r'(href="#|url\(#)([^")]+)', lambda m: f"{m.group(1)}{fid}-{m.group(2)}", text)
-    text = _PATH_D.sub(_short_path, text)
-    text = _COORD_ATTR.sub(r' \1="\2"', text)
-    text = re.sub(r">\s+<", "><", text).strip()
-    lowered = text.lower()
-    if "<script" in lowered or "http:" in lowered or "https:" in lowered or " on" in _attr_names(
-            text):
-        raise RuntimeError("refusing an SVG with a script or a URL")  # pragma: no cover
-    return Markup(text)
-
-
-def _attr_names(text: str) -> str:
-    """Every attribute name (with a leading space) of the SVG's tags, for the on* check."""
-    return " ".join(" " + name.lower() for name in re.findall(r"\s([A-Za-z_:][-\w:.]*)=", text))
-
-
-# --------------------------------------------------------------------------------------------
-# Downsampling
-# --------------------------------------------------------------------------------------------
-
-
-def decimate(points: FloatArray, max_points: int = MAX_LINE_POINTS) -> FloatArray:
-    """Evenly spaced rows of ``points`` (first and last kept), at most ``max_points``."""
-    n = len(points)
-    if n <= max_points:
-        return points
-    idx = np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
-    return points[idx]
-
-
-def envelope(t: FloatArray, y: FloatArray,
-             buckets: int = ENVELOPE_BUCKETS) -> tuple[FloatArray, FloatArray]:
-    """A min/max envelope of the series ``y(t)``: per bucket of consecutive samples its lowest and
-    highest point, in time order. Peaks survive, unlike with plain decimation."""
-    n = len(y)
-    if n <= 2 * buckets:
-        return t, y
-    size = math.ceil(n / buckets)
-    pad = size * buckets - n
-    yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(buckets, size)
-    valid = ~np.all(np.isnan(yp), axis=1)
-    lo = np.nanargmin(np.where(np.isnan(yp), np.inf, yp), axis=1)
-    hi = np.nanargmax(np.where(np.isnan(yp), -np.inf, yp), axis=1)
-    base = np.arange(buckets) * size
-    idx = np.concatenate([(base + lo)[valid], (base + hi)[valid]])
-    idx = np.unique(np.clip(idx, 0, n - 1))
-    return t[idx], y[idx]
 
 
 # --------------------------------------------------------------------------------------------
@@ -259,8 +88,8 @@ class PathPanel:
 def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figure:
     """Fig. 11: the attained paths in the YZ plane against the reference square (corners
     ``(4, 3)`` mm, drawn closed and dashed), one subplot per panel."""
-    with _style():
-        fig = _figure(7.2, 3.6 if len(panels) > 1 else 4.2, bottom=0.13, top=0.92)
+    with plot_style():
+        fig = new_figure(7.2, 3.6 if len(panels) > 1 else 4.2, bottom=0.13, top=0.92)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False)[0]
         for ax, panel in zip(axes, panels, strict=False):
             if square_mm is not None:
@@ -280,7 +109,7 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
             ax.set_xlabel("y (mm)")
             ax.set_ylabel("z (mm)")
             ax.set_aspect("equal", adjustable="datalim")
-            _legend(ax, loc="center", fontsize=6.5)
+            legend(ax, loc="center", fontsize=6.5)
     return fig
 
 
@@ -306,8 +135,8 @@ def error_over_time(panels: Sequence[ErrorPanel], paper_mm: float | None,
                     ylabel: str = "path error (mm)") -> Figure:
     """Fig. 12: error over time per run, with armbench's mean (dotted) and the paper's mean
     (``paper_mm``, dashed) drawn across each subplot; shared y axis so the panels compare."""
-    with _style():
-        fig = _figure(7.2, 2.9, bottom=0.16, top=0.9, wspace=0.08)
+    with plot_style():
+        fig = new_figure(7.2, 2.9, bottom=0.16, top=0.9, wspace=0.08)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False, sharey=True)[0]
         top = 0.0
         for ax, panel in zip(axes, panels, strict=False):
@@ -325,7 +154,7 @@ def error_over_time(panels: Sequence[ErrorPanel], paper_mm: float | None,
                            label=safe_label(f"armbench mean {panel.mean_mm:.2f} mm"))
             ax.set_title(safe_label(panel.title))
             ax.set_xlabel("time in trial (s)")
-            _legend(ax, loc="upper right", fontsize=6.5, ncols=2)
+            legend(ax, loc="upper right", fontsize=6.5, ncols=2)
         # head room above the data for the legend
         top = max(top, paper_mm or 0.0, *(p.mean_mm or 0.0 for p in panels))
         axes[0].set_ylim(0, 1.45 * top if top > 0 else 1.0)
@@ -347,8 +176,8 @@ def cube_projections(corners_mm: FloatArray | None, poses: Sequence[tuple[str, F
     in three projections (top XY, side XZ, front YZ), with the attained barycentres."""
     views = (("top (x-y)", 0, 1), ("side (x-z)", 0, 2), ("front (y-z)", 1, 2))
     names = "xyz"
-    with _style():
-        fig = _figure(7.2, 2.8, bottom=0.27, top=0.9, wspace=0.4)
+    with plot_style():
+        fig = new_figure(7.2, 2.8, bottom=0.27, top=0.9, wspace=0.4)
         axes = fig.subplots(1, 3, squeeze=False)[0]
         for ax, (title, a, b) in zip(axes, views, strict=True):
             if corners_mm is not None:
@@ -412,9 +241,9 @@ def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z") -> Figure:
     cols = min(5, max(1, len(poses)))
     rows = max(1, math.ceil(len(poses) / cols))
     a, b = plane.split("-")
-    with _style():
+    with plot_style():
         height = 1.75 * rows + 0.6
-        fig = _figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.07,
+        fig = new_figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.07,
                       wspace=0.45, hspace=0.55)
         axes = fig.subplots(rows, cols, squeeze=False)
         for k, ax in enumerate(axes.flat):
@@ -471,8 +300,8 @@ def startup_plots(points: Sequence[StartupPoint], time_limit_s: float | None,
     """Left: the recovery-time distribution as an empirical CDF (share of trials ready within t;
     trials that did not recover are crosses at their time-out). Right: the position error after
     recovery per trial (failed trials hatched), with the limits dashed."""
-    with _style():
-        fig = _figure(7.2, 2.7, bottom=0.17, top=0.9, wspace=0.3)
+    with plot_style():
+        fig = new_figure(7.2, 2.7, bottom=0.17, top=0.9, wspace=0.3)
         left, right = fig.subplots(1, 2, squeeze=False)[0]
         times = [(p.recovery_s, p.recovered) for p in points if p.recovery_s is not None]
         if times:
@@ -496,7 +325,7 @@ def startup_plots(points: Sequence[StartupPoint], time_limit_s: float | None,
         left.set_xlabel("recovery time (s)")
         left.set_ylabel("trials ready within t (%)")
         left.set_title("recovery-time distribution")
-        _legend(left, loc="best")
+        legend(left, loc="best")
 
         errs = [(p.label, p.error_mm, p.recovered) for p in points if p.error_mm is not None]
         if errs:
@@ -518,7 +347,7 @@ def startup_plots(points: Sequence[StartupPoint], time_limit_s: float | None,
         if error_limit_mm is not None:
             right.axhline(error_limit_mm, color="black", linestyle="--", linewidth=1.0,
                           label=f"limit {error_limit_mm:g} mm")
-            _legend(right, loc="best")
+            legend(right, loc="best")
         right.set_xlabel("trial (hatched: failed)")
         right.xaxis.grid(False)
         right.set_ylabel("position error (mm)")
@@ -535,8 +364,8 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
                  errors: FloatArray, resyncs: FloatArray, bin_s: float) -> Figure:
     """Frames per second in each direction over the capture (bins of ``bin_s`` starting at
     ``t_s``), and below the framing errors and resynchronisations per bin."""
-    with _style():
-        fig = _figure(7.2, 3.3, bottom=0.14, top=0.91, hspace=0.15)
+    with plot_style():
+        fig = new_figure(7.2, 3.3, bottom=0.14, top=0.91, hspace=0.15)
         top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1), squeeze=False)[:, 0]
         edges = np.append(t_s, t_s[-1] + bin_s) if len(t_s) else t_s
         if len(t_s):
@@ -551,13 +380,13 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
                         markersize=3.5, color="black", label="resyncs")
         top.set_ylabel("frames/s")
         top.set_ylim(bottom=0)
-        _legend(top, loc="lower right", ncols=2)
+        legend(top, loc="lower right", ncols=2)
         top.set_title(safe_label(f"frame rate (bins of {bin_s:g} s)"))
         bottom.set_ylabel("per bin")
         bottom.set_xlabel("capture time (s)")
         bottom.set_ylim(bottom=0)
         bottom.yaxis.set_major_locator(MaxNLocator(3, integer=True))
-        _legend(bottom, loc="upper right", ncols=2)
+        legend(bottom, loc="upper right", ncols=2)
     return fig
 
 
@@ -582,8 +411,8 @@ class TrendPanel:
 def trend_plots(panels: Sequence[TrendPanel]) -> Figure:
     """Key metrics across runs in creation order, one subplot each; values outside their limits
     are drawn as crosses (not colour alone)."""
-    with _style():
-        fig = _figure(7.2, 2.5, bottom=0.18, top=0.88, wspace=0.35)
+    with plot_style():
+        fig = new_figure(7.2, 2.5, bottom=0.18, top=0.88, wspace=0.35)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False)[0]
         for ax, p in zip(axes, panels, strict=False):
             pts = [(r, v, f) for r, v, f in zip(p.runs, p.values, p.failed, strict=True)
@@ -606,7 +435,7 @@ def trend_plots(panels: Sequence[TrendPanel]) -> Figure:
             ax.set_ylabel(safe_label(p.unit))
             ax.xaxis.set_major_locator(MaxNLocator(6, integer=True))
             if pts or p.limit is not None:
-                _legend(ax, loc="best", fontsize=6.5)
+                legend(ax, loc="best", fontsize=6.5)
             else:
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center",
                         va="center")

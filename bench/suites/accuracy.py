@@ -42,6 +42,7 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 
@@ -50,10 +51,6 @@ __all__ = ["STYLES", "AccuracySuite", "path_figures"]
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ("paper", "coordinated")
 
-#: Default square: centre (m) in front of the arm, elbow up, every edge point ≥ 3° inside the
-#: joint limits on the ``front-up`` branch; side (m).
-DEFAULT_CENTRE_M: Final = (0.38, 0.0, 0.80)
-DEFAULT_SIDE_M: Final = 0.15
 
 
 def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) -> dict[str, float]:
@@ -133,8 +130,8 @@ class AccuracySuite(Suite):
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: a 0.15 m square centred at (0.38, 0, 0.80) m, 3 laps per style."""
         return {
-            "centre_m": list(DEFAULT_CENTRE_M),
-            "side_m": DEFAULT_SIDE_M,
+            "centre_m": list(DEFAULT_SQUARE_CENTRE_M),
+            "side_m": DEFAULT_SQUARE_SIDE_M,
             "duty": MAX_DUTY,
             "speed_m_s": 0.05,
             "spacing_m": 0.005,

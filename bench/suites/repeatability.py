@@ -61,6 +61,12 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.workspace import (
+    CYCLE_ORDER,
+    DEFAULT_CUBE_CENTRE_M,
+    DEFAULT_CUBE_SIDE_M,
+    POSE_NAMES,
+)
 from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = [
@@ -74,17 +80,9 @@ __all__ = [
     "vap_figures",
 ]
 
-#: Names of the five ISO poses, rows 0..4 of ``iso_cube_poses``.
-POSE_NAMES: Final = ("P1", "P2", "P3", "P4", "P5")
-#: ISO 9283's cycle order.
-CYCLE_ORDER: Final = ("P1", "P5", "P4", "P3", "P2")
 #: Directions of travel into a pose for vAP: along +x, +y, +z of the base frame.
 VAP_DIRECTIONS: Final = (("+x", (1.0, 0.0, 0.0)), ("+y", (0.0, 1.0, 0.0)),
                          ("+z", (0.0, 0.0, 1.0)))
-#: Default test cube: centre (m) and side (m), chosen so every pose and approach point is ≥ 9°
-#: inside the joint limits on the front-up branch.
-DEFAULT_CUBE_CENTRE_M: Final = (0.35, 0.0, 0.82)
-DEFAULT_CUBE_SIDE_M: Final = 0.10
 #: The path of the AT/RT trials runs between these two poses (the distance pair of ISO too).
 PATH_POSES: Final = ("P2", "P4")
 #: Fraction of the path line at each end where AT/RT are not evaluated (start/stop transients and

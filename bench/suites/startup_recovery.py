@@ -33,13 +33,11 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Final
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armbench.bench.metrics import iso_cube_poses, square_yz
 from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
     Measurements,
@@ -48,20 +46,32 @@ from armbench.bench.suites._common import (
     check_int,
     check_number,
     eeprom_counters,
-    emulator_of,
     guarded_trial,
     loop_time,
     rad_list,
     settled_state,
 )
-from armbench.bench.suites.accuracy import DEFAULT_CENTRE_M, DEFAULT_SIDE_M
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.bench.suites.repeatability import (
-    CYCLE_ORDER,
-    DEFAULT_CUBE_CENTRE_M,
-    DEFAULT_CUBE_SIDE_M,
+from armbench.bench.suites.eeprom_wear import (
+    ATMEGA328P_EEPROM_CYCLES,
+    eeprom_life_years,
+    measure_wear,
+    wear_measurements,
 )
-from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
+from armbench.bench.suites.startup_conditions import (
+    CONDITIONS,
+    Condition,
+    band,
+    parse_condition,
+    signed_range,
+    targets,
+)
+from armbench.bench.suites.startup_watch import (
+    await_recovery,
+    motion_at,
+    rescue,
+    stalled_joints,
+)
 from armbench.drivers.motion import coordinated_duties, joint_times_s
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
@@ -77,85 +87,6 @@ __all__ = [
     "eeprom_life_years",
     "parse_condition",
 ]
-
-#: ATmega328P data sheet: rated EEPROM write/erase cycles per cell.
-ATMEGA328P_EEPROM_CYCLES: Final = 100_000
-
-#: Every condition, in the default order (each occurs twice in the default 20 trials).
-CONDITIONS: Final = (
-    "stopped-near", "stopped-far",
-    "cw-away-near", "cw-away-far", "cw-toward-near", "cw-toward-far",
-    "ccw-away-near", "ccw-away-far", "ccw-toward-near", "ccw-toward-far",
-)
-
-#: Two replies whose joints differ by no more than this (rad, 1.5 wire ticks) show a still arm.
-STILL_RAD: Final = 1.5e-4
-#: Keep a joint this far (rad) inside its limits when placing it.
-LIMIT_MARGIN_RAD: Final = 0.02
-#: Interval (s) of the recovery trace kept in the samples.
-TRACE_PERIOD_S: Final = 0.1
-#: Motion at the cut is read over this window of replies (s): at duty ≥ 10 a moving joint
-#: covers more than ``STILL_RAD`` in it.
-MOTION_WINDOW_S: Final = 0.05
-
-
-@dataclass(frozen=True, slots=True)
-class Condition:
-    """A parsed condition: ``motion`` (``stopped``, ``cw``, ``ccw``), ``relation`` to the Hall
-    sensor (``away``, ``toward``, or None when stopped) and ``zone`` (``near``, ``far``)."""
-
-    name: str
-    motion: str
-    relation: str | None
-    zone: str
-
-    @property
-    def moving(self) -> bool:
-        """Whether the cut happens during a motion."""
-        return self.motion != "stopped"
-
-    @property
-    def expected_to_recover(self) -> bool:
-        """What §5.2's procedure predicts: every case but a motion towards the Hall sensor."""
-        return self.relation != "toward"
-
-
-def parse_condition(name: str) -> Condition:
-    """``"cw-away-near"`` → Condition; raises ValueError for an unknown name."""
-    parts = name.split("-")
-    if len(parts) == 2 and parts[0] == "stopped" and parts[1] in ("near", "far"):
-        return Condition(name, "stopped", None, parts[1])
-    if (len(parts) == 3 and parts[0] in ("cw", "ccw") and parts[1] in ("away", "toward")
-            and parts[2] in ("near", "far")):
-        return Condition(name, parts[0], parts[1], parts[2])
-    raise ValueError(f"unknown condition {name!r} (known: {', '.join(CONDITIONS)})")
-
-
-def eeprom_life_years(wear_per_hour: float, hours_per_year: float,
-                      rated_cycles: int = ATMEGA328P_EEPROM_CYCLES) -> float:
-    """Years until the most-worn EEPROM cell reaches ``rated_cycles``, wearing ``wear_per_hour``
-    writes per hour of use and used ``hours_per_year`` hours a year (∞ for no wear)."""
-    if wear_per_hour <= 0:
-        return math.inf
-    return rated_cycles / (wear_per_hour * hours_per_year)
-
-
-def _band(params: Mapping[str, Any], zone: str) -> tuple[float, float]:
-    lo, hi = params[f"{zone}_band_rad"]
-    return float(lo), float(hi)
-
-
-def _signed_range(settings: RobotSettings, joint: int, lo: float, hi: float,
-                  side: int) -> tuple[float, float]:
-    """The band ``[lo, hi]`` (rad, distance from the Hall angle) on ``side`` (+1/−1) of joint
-    ``joint`` (0-based), clipped inside its limits; returned as (near end, far end)."""
-    j = settings.joints[joint]
-    hall = j.hall_rad
-    limit = (j.upper_rad if side > 0 else j.lower_rad) - side * LIMIT_MARGIN_RAD
-    room = abs(limit - hall)
-    near, far = min(lo, room), min(hi, room)
-    return hall + side * near, hall + side * far
-
 
 class StartupRecoverySuite(Suite):
     """Power cuts in every condition of §5.2, and the EEPROM wear (see module doc)."""
@@ -231,7 +162,7 @@ class StartupRecoverySuite(Suite):
         for zone in ("near", "far"):
             for j in sorted(joints):
                 for side in (1, -1):
-                    a, b = _signed_range(settings, int(j) - 1, *_band(params, zone), side)
+                    a, b = signed_range(settings, int(j) - 1, *band(params, zone), side)
                     if abs(b - a) < 0.02:
                         raise SettingsError(f"{w}.{zone}_band_rad", params[f"{zone}_band_rad"],
                                             f"leaves joint {j} less than 0.02 rad of room on "
@@ -258,7 +189,7 @@ class StartupRecoverySuite(Suite):
             duration = float(trial_params["duration_s"])
             ctx.progress(f"startup-recovery: EEPROM wear over {duration:g} s of typical use")
             return await guarded_trial(ctx, index, trial_params,
-                                       lambda samples: self._wear(ctx, duration, samples),
+                                       lambda samples: measure_wear(ctx, duration, samples),
                                        timeout_s=3.0 * duration + 300.0)
         condition = parse_condition(str(trial_params["condition"]))
         ctx.progress(f"startup-recovery: cut {trial_params.get('cut', index)} "
@@ -271,29 +202,6 @@ class StartupRecoverySuite(Suite):
                                    timeout_s=timeout_s)
 
     # --- one power cut --------------------------------------------------------------------------
-
-    def _targets(self, ctx: SuiteContext, condition: Condition,
-                 joints: Sequence[int]) -> tuple[list[float], list[float]]:
-        """Start and end joint angles (rad) of the condition's motion (equal when stopped):
-        the test joints in the condition's band and side, the others at their Hall angle."""
-        p = ctx.params
-        rng = ctx.rng
-        start = [j.hall_rad for j in ctx.settings.joints]
-        end = list(start)
-        lo, hi = _band(p, condition.zone)
-        for j in (int(v) - 1 for v in joints):
-            if not condition.moving:
-                side = rng.choice((1, -1))
-                a, b = _signed_range(ctx.settings, j, lo, hi, side)
-                start[j] = end[j] = rng.uniform(min(a, b), max(a, b))
-                continue
-            # CW counts up. Away from the Hall sensor: CW on the + side, CCW on the − side.
-            up = condition.motion == "cw"
-            side = 1 if up == (condition.relation == "away") else -1
-            near, far = _signed_range(ctx.settings, j, lo, hi, side)
-            going_out = condition.relation == "away"
-            start[j], end[j] = (near, far) if going_out else (far, near)
-        return start, end
 
     async def _cut(self, ctx: SuiteContext, condition: Condition, joints: Sequence[int],
                    samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
@@ -313,7 +221,7 @@ class StartupRecoverySuite(Suite):
             return samples, []
         probe = TruthProbe(ctx)
         duty = int(p["duty"])
-        start, end = self._targets(ctx, condition, joints)
+        start, end = targets(ctx, condition, joints)
         await arm.move_joints(start, duty, coordinated=True)
         await settled_state(arm, 0.2)
         counters0 = eeprom_counters(arm)
@@ -332,7 +240,7 @@ class StartupRecoverySuite(Suite):
                 log("dwell", position_rad=rad_list(start), dwell_s=round(dwell, 4))
                 await asyncio.sleep(dwell)
             before = arm.state
-            motion = _motion_at(list(recent), before)
+            motion = motion_at(list(recent), before)
         cut_true = probe.joints()
         await ctx.power.power_off()
         t_cut = loop_time()
@@ -366,10 +274,10 @@ class StartupRecoverySuite(Suite):
             e = max(abs(a - b) for a, b in zip(state.q_rad, fixed, strict=True))
             return e, e <= tol_rad, "expected_rad"
 
-        result = await _await_recovery(arm, t_on, error, float(p["recovery_timeout_s"]),
+        result = await await_recovery(arm, t_on, error, float(p["recovery_timeout_s"]),
                                        float(p["still_s"]), log)
         counters1 = eeprom_counters(arm)
-        stalled = _stalled_joints(arm)
+        stalled = stalled_joints(arm)
         recovered = result.recovered_s is not None
         failure = None if recovered else ("no_reply" if result.first_reply_s is None
                                           else "position")
@@ -403,100 +311,7 @@ class StartupRecoverySuite(Suite):
                    "writes", better="lower",
                    description="EEPROM record writes of all joints during the trial")
         if not recovered and bool(p["rescue"]):
-            await self._rescue(ctx, log)
-        return samples, ms.items
-
-    async def _rescue(self, ctx: SuiteContext, log: Callable[..., Any]) -> None:
-        """After a failed recovery: re-reference the arm so the campaign can go on. On the
-        emulator: power off, blank EEPROMs (the firmware then takes the motor position as its
-        counter, what an operator re-referencing the joints by hand achieves), power on. On
-        hardware: nothing can be done from here; the next trial errors if the arm is unusable."""
-        emu = emulator_of(ctx.arm)
-        if emu is None or ctx.power is None:
-            log("rescue", done=False, reason="operator must re-reference the arm")
-            return
-        await ctx.power.power_off()
-        for eeprom in getattr(emu, "eeproms", ()):
-            eeprom.erase()
-        await asyncio.sleep(float(ctx.params["off_s"]))
-        await ctx.power.power_on()
-        t = loop_time()
-        try:
-            await ctx.arm.wait_state(lambda s: s.t_s >= t, timeout_s=5.0)
-            await settled_state(ctx.arm, 0.1)
-        except (ReplyTimeoutError, WaitTimeoutError) as exc:
-            # The failure was measured; the next trial will find the arm unusable and error.
-            log("rescue", done=False, reason=f"the arm did not come back: {exc}")
-            return
-        log("rescue", done=True, q_rad=rad_list(ctx.arm.state.q_rad))
-
-    # --- EEPROM wear ----------------------------------------------------------------------------
-
-    async def _wear(self, ctx: SuiteContext, duration_s: float,
-                    samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
-                                                            list[Measurement]]:
-        """Typical use for ``duration_s`` (s), half in each of two phases (at least one round
-        each): ``ptp``, the ISO pose cycle (approach from above, duty 99, 0.3 s dwell) on the
-        repeatability suite's default cube; ``streaming``, coordinated laps (0.05 m/s) of the
-        accuracy suite's default square. EEPROM counters are read around each phase."""
-        arm = ctx.arm
-        t0 = loop_time()
-        if eeprom_counters(arm) is None:
-            samples.append({"t_s": 0.0, "event": "skipped",
-                            "reason": "EEPROM writes are not observable on this port"})
-            return samples, []
-        poses = iso_cube_poses(DEFAULT_CUBE_CENTRE_M, DEFAULT_CUBE_SIDE_M)
-        corners = square_yz(DEFAULT_CENTRE_M, DEFAULT_SIDE_M)
-        names = ("P1", "P2", "P3", "P4", "P5")
-
-        async def ptp() -> None:
-            for name in CYCLE_ORDER:
-                target = poses[names.index(name)]
-                await arm.move_to(target + np.array([0.0, 0.0, 0.02]), branch="front-up")
-                await arm.move_to(target, branch="front-up")
-                await asyncio.sleep(0.3)
-
-        async def streaming() -> None:
-            await arm.follow_path([*corners, corners[0]], speed_m_s=0.05, branch="front-up")
-
-        hours_per_year = float(ctx.params["use_hours_per_year"])
-        ms = Measurements(ctx)
-        total_writes = [0, 0, 0, 0]
-        total_wear = [0, 0, 0, 0]
-        total_s = 0.0
-        for phase, body, start in (("ptp", ptp, poses[0]), ("streaming", streaming, corners[0])):
-            await arm.move_to(start, branch="front-up", coordinated=True)
-            before = eeprom_counters(arm)
-            t_phase = loop_time()
-            rounds = 0
-            while rounds == 0 or loop_time() - t_phase < duration_s / 2.0:
-                await body()
-                rounds += 1
-            elapsed = loop_time() - t_phase
-            after = eeprom_counters(arm)
-            assert before is not None and after is not None
-            writes = [b - a for a, b in zip(before[0], after[0], strict=True)]
-            wear = [b - a for a, b in zip(before[1], after[1], strict=True)]
-            total_writes = [a + b for a, b in zip(total_writes, writes, strict=False)]
-            total_wear = [a + b for a, b in zip(total_wear, wear, strict=False)]
-            total_s += elapsed
-            writes_h = max(writes) * 3600.0 / elapsed
-            samples.append({"t_s": round(loop_time() - t0, 6), "event": "wear_phase",
-                            "phase": phase, "rounds": rounds, "elapsed_s": round(elapsed, 6),
-                            "record_writes": writes, "max_cell_wear": wear,
-                            "writes_per_hour": writes_h})
-            ms.add(f"startup.{phase}.eeprom_writes_per_hour", writes_h, "writes/h",
-                   better="lower", description=f"EEPROM record writes per hour of {phase} "
-                                               "motion, busiest joint")
-        writes_h = max(total_writes) * 3600.0 / total_s
-        wear_h = max(total_wear) * 3600.0 / total_s
-        years = eeprom_life_years(wear_h, hours_per_year)
-        samples.append({"t_s": round(loop_time() - t0, 6), "event": "wear",
-                        "elapsed_s": round(total_s, 6), "record_writes": total_writes,
-                        "max_cell_wear": total_wear, "writes_per_hour": writes_h,
-                        "cell_wear_per_hour": wear_h,
-                        "life_years": None if math.isinf(years) else years})
-        _wear_measurements(ms, writes_h, wear_h, years, hours_per_year)
+            await rescue(ctx, log)
         return samples, ms.items
 
     # --- summary --------------------------------------------------------------------------------
@@ -558,24 +373,13 @@ class StartupRecoverySuite(Suite):
                                        "busiest joint")
                 elif s.get("event") == "wear":
                     years = s["life_years"]
-                    _wear_measurements(ms, float(s["writes_per_hour"]),
+                    wear_measurements(ms, float(s["writes_per_hour"]),
                                        float(s["cell_wear_per_hour"]),
                                        math.inf if years is None else float(years),
                                        hours_per_year)
         return ms.items
 
 
-def _wear_measurements(ms: Measurements, writes_h: float, wear_h: float, years: float,
-                       hours_per_year: float) -> None:
-    ms.add("startup.eeprom_writes_per_hour", writes_h, "writes/h", better="lower",
-           description="EEPROM record writes per hour of typical use, busiest joint")
-    ms.add("startup.eeprom_cell_wear_per_hour", wear_h, "writes/h", better="lower",
-           description="writes per hour of typical use to the most-worn EEPROM cell")
-    ms.add("startup.eeprom_life_years", years, "years", better="higher",
-           description="years until the most-worn cell reaches the ATmega328P's 100 000 "
-                       "rated cycles at the configured hours of use per year")
-    ms.add("startup.eeprom_life_hours", years * hours_per_year, "h", better="higher",
-           description="hours of typical use until the most-worn cell reaches 100 000 cycles")
 
 
 def _outcome(trial: Trial) -> Mapping[str, Any] | None:
@@ -585,87 +389,3 @@ def _outcome(trial: Trial) -> Mapping[str, Any] | None:
     return None
 
 
-def _motion_at(recent: Sequence[JointState], last: JointState) -> list[str]:
-    """Each joint's motion (``stopped``, ``cw``, ``ccw``) over the last ``MOTION_WINDOW_S`` of
-    replies before ``last``."""
-    earlier = [s for s in recent if s.t_s <= last.t_s - MOTION_WINDOW_S]
-    if not earlier:
-        return ["stopped"] * len(last.q_rad)
-    ref = earlier[-1]
-    out = []
-    for a, b in zip(ref.q_rad, last.q_rad, strict=True):
-        d = b - a
-        out.append("stopped" if abs(d) <= STILL_RAD else "cw" if d > 0 else "ccw")
-    return out
-
-
-def _stalled_joints(arm: Any) -> list[int] | None:
-    """Joints (1-based) whose start-up recovery is stuck at a hard limit (emulator only)."""
-    emu = emulator_of(arm)
-    if emu is None:
-        return None
-    out = []
-    for k, board in enumerate(getattr(emu, "boards", ())):
-        model = getattr(board, "model", None)
-        if model is not None and getattr(model, "homing_failed", False):
-            out.append(k + 1)
-    return out
-
-
-@dataclass(slots=True)
-class _Recovery:
-    first_reply_s: float | None = None
-    recovered_s: float | None = None
-    error_rad: float | None = None
-    compared_with: str | None = None
-    last: JointState | None = None
-
-
-async def _await_recovery(arm: Any, t_on: float,
-                          error: Callable[[JointState], tuple[float, bool, str]],
-                          timeout_s: float, still_s: float,
-                          log: Callable[..., Any]) -> _Recovery:
-    """Watch the replies after power-on (loop time ``t_on``) until the arm has been within
-    tolerance and still for ``still_s`` or ``timeout_s`` has passed. Silence is expected while a
-    joint 1 recovery runs (the master starts its loop afterwards), so reply timeouts are waited
-    through; a lost port raises."""
-    loop = asyncio.get_running_loop()
-    deadline = t_on + timeout_s
-    out = _Recovery()
-    seen = arm.state.seq
-    window: JointState | None = None
-    last_trace = -math.inf
-    while True:
-        remaining = deadline - loop.time()
-        if remaining <= 0:
-            break
-        try:
-            state = await arm.wait_state(lambda s, seen=seen: s.seq > seen, timeout_s=remaining)
-        except WaitTimeoutError:
-            break
-        except ReplyTimeoutError:
-            continue
-        seen = state.seq
-        if state.t_s < t_on:
-            continue
-        e, within, what = error(state)
-        out.last, out.error_rad, out.compared_with = state, e, what
-        if out.first_reply_s is None:
-            out.first_reply_s = round(state.t_s - t_on, 6)
-            log(event="ready", first_reply_s=out.first_reply_s, q_rad=rad_list(state.q_rad))
-        if state.t_s - last_trace >= TRACE_PERIOD_S:
-            last_trace = state.t_s
-            log(event="position_check", q_rad=rad_list(state.q_rad),
-                error_mrad=round(e * 1e3, 4), within=within)
-        if not within:
-            window = None
-            continue
-        if window is None or max(abs(a - b) for a, b in zip(state.q_rad, window.q_rad,
-                                                            strict=True)) > STILL_RAD:
-            window = state
-        if state.t_s - window.t_s >= still_s:
-            out.recovered_s = round(window.t_s - t_on, 6)
-            log(event="recovered", recovery_s=out.recovered_s, error_mrad=round(e * 1e3, 4))
-            return out
-    log(event="timeout", after_s=round(loop.time() - t_on, 6))
-    return out
