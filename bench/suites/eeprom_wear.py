@@ -14,6 +14,7 @@ from armbench.bench.metrics import iso_cube_poses, square_yz
 from armbench.bench.record import Measurement
 from armbench.bench.suites._common import Measurements, eeprom_counters, loop_time
 from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.contract import SAMPLE, STARTUP
 from armbench.bench.suites.workspace import (
     CYCLE_ORDER,
     DEFAULT_CUBE_CENTRE_M,
@@ -49,7 +50,7 @@ async def measure_wear(ctx: SuiteContext, duration_s: float,
     arm = ctx.arm
     t0 = loop_time()
     if eeprom_counters(arm) is None:
-        samples.append({"t_s": 0.0, "event": "skipped",
+        samples.append({SAMPLE.t: 0.0, SAMPLE.event: STARTUP.ev_skipped,
                         "reason": "EEPROM writes are not observable on this port"})
         return samples, []
     poses = iso_cube_poses(DEFAULT_CUBE_CENTRE_M, DEFAULT_CUBE_SIDE_M)
@@ -87,17 +88,17 @@ async def measure_wear(ctx: SuiteContext, duration_s: float,
         total_wear = [a + b for a, b in zip(total_wear, wear, strict=False)]
         total_s += elapsed
         writes_h = max(writes) * 3600.0 / elapsed
-        samples.append({"t_s": round(loop_time() - t0, 6), "event": "wear_phase",
+        samples.append({SAMPLE.t: round(loop_time() - t0, 6), SAMPLE.event: STARTUP.ev_wear_phase,
                         "phase": phase, "rounds": rounds, "elapsed_s": round(elapsed, 6),
                         "record_writes": writes, "max_cell_wear": wear,
                         "writes_per_hour": writes_h})
-        ms.add(f"startup.{phase}.eeprom_writes_per_hour", writes_h, "writes/h",
+        ms.add(STARTUP.phase_writes(phase), writes_h, "writes/h",
                better="lower", description=f"EEPROM record writes per hour of {phase} "
                                            "motion, busiest joint")
     writes_h = max(total_writes) * 3600.0 / total_s
     wear_h = max(total_wear) * 3600.0 / total_s
     years = eeprom_life_years(wear_h, hours_per_year)
-    samples.append({"t_s": round(loop_time() - t0, 6), "event": "wear",
+    samples.append({SAMPLE.t: round(loop_time() - t0, 6), SAMPLE.event: STARTUP.ev_wear,
                     "elapsed_s": round(total_s, 6), "record_writes": total_writes,
                     "max_cell_wear": total_wear, "writes_per_hour": writes_h,
                     "cell_wear_per_hour": wear_h,
@@ -108,14 +109,14 @@ async def measure_wear(ctx: SuiteContext, duration_s: float,
 
 def wear_measurements(ms: Measurements, writes_h: float, wear_h: float, years: float,
                        hours_per_year: float) -> None:
-    ms.add("startup.eeprom_writes_per_hour", writes_h, "writes/h", better="lower",
+    ms.add(STARTUP.eeprom_writes_per_hour, writes_h, "writes/h", better="lower",
            description="EEPROM record writes per hour of typical use, busiest joint")
-    ms.add("startup.eeprom_cell_wear_per_hour", wear_h, "writes/h", better="lower",
+    ms.add(STARTUP.eeprom_cell_wear_per_hour, wear_h, "writes/h", better="lower",
            description="writes per hour of typical use to the most-worn EEPROM cell")
-    ms.add("startup.eeprom_life_years", years, "years", better="higher",
+    ms.add(STARTUP.eeprom_life_years, years, "years", better="higher",
            description="years until the most-worn cell reaches the ATmega328P's 100 000 "
                        "rated cycles at the configured hours of use per year")
-    ms.add("startup.eeprom_life_hours", years * hours_per_year, "h", better="higher",
+    ms.add(STARTUP.eeprom_life_hours, years * hours_per_year, "h", better="higher",
            description="hours of typical use until the most-worn cell reaches 100 000 cycles")
 
 

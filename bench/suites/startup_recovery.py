@@ -34,7 +34,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 
@@ -52,6 +52,7 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.contract import SAMPLE, STARTUP
 from armbench.bench.suites.eeprom_wear import (
     ATMEGA328P_EEPROM_CYCLES,
     eeprom_life_years,
@@ -76,6 +77,8 @@ from armbench.drivers.motion import coordinated_duties, joint_times_s
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 
+S: Final = STARTUP
+
 if TYPE_CHECKING:
     from armbench.drivers.arm import JointState
 
@@ -91,7 +94,7 @@ __all__ = [
 class StartupRecoverySuite(Suite):
     """Power cuts in every condition of §5.2, and the EEPROM wear (see module doc)."""
 
-    name = "startup-recovery"
+    name = S.suite
     version = "1"
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
@@ -174,31 +177,31 @@ class StartupRecoverySuite(Suite):
         conditions = list(params["conditions"])
         sets = [list(g) for g in params["joint_sets"]]
         out: list[dict[str, Any]] = [
-            {"kind": "cut", "condition": conditions[i % len(conditions)],
-             "joints": sets[(i // len(conditions)) % len(sets)], "cut": i}
+            {S.kind: S.cut_kind, S.condition: conditions[i % len(conditions)],
+             S.joints: sets[(i // len(conditions)) % len(sets)], S.cut: i}
             for i in range(int(params["trials"]))]
         if float(params["wear_duration_s"]) > 0:
-            out.append({"kind": "wear", "duration_s": float(params["wear_duration_s"])})
+            out.append({S.kind: S.wear_kind, S.duration: float(params["wear_duration_s"])})
         return out
 
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:
         """One power cut (``kind="cut"``) or the wear measurement (``kind="wear"``)."""
         p = ctx.params
-        if trial_params.get("kind") == "wear":
-            duration = float(trial_params["duration_s"])
-            ctx.progress(f"startup-recovery: EEPROM wear over {duration:g} s of typical use")
+        if trial_params.get(S.kind) == S.wear_kind:
+            duration = float(trial_params[S.duration])
+            ctx.progress(f"{S.suite}: EEPROM wear over {duration:g} s of typical use")
             return await guarded_trial(ctx, index, trial_params,
                                        lambda samples: measure_wear(ctx, duration, samples),
                                        timeout_s=3.0 * duration + 300.0)
-        condition = parse_condition(str(trial_params["condition"]))
-        ctx.progress(f"startup-recovery: cut {trial_params.get('cut', index)} "
+        condition = parse_condition(str(trial_params[S.condition]))
+        ctx.progress(f"{S.suite}: cut {trial_params.get(S.cut, index)} "
                      f"({condition.name})")
         # Generous: a manual power switch waits for the operator twice per cut.
         timeout_s = 600.0 + 3.0 * float(p["recovery_timeout_s"]) + float(p["off_s"])
         return await guarded_trial(ctx, index, trial_params,
                                    lambda samples: self._cut(ctx, condition,
-                                                             trial_params["joints"], samples),
+                                                             trial_params[S.joints], samples),
                                    timeout_s=timeout_s)
 
     # --- one power cut --------------------------------------------------------------------------
@@ -212,12 +215,12 @@ class StartupRecoverySuite(Suite):
         t0 = loop_time()
 
         def log(event: str, **data: Any) -> dict[str, Any]:
-            s = {"t_s": round(loop_time() - t0, 6), "event": event, **data}
+            s = {SAMPLE.t: round(loop_time() - t0, 6), SAMPLE.event: event, **data}
             samples.append(s)
             return s
 
         if ctx.power is None:
-            log("skipped", reason="no power switch configured (ctx.power is None)")
+            log(S.ev_skipped, reason="no power switch configured (ctx.power is None)")
             return samples, []
         probe = TruthProbe(ctx)
         duty = int(p["duty"])
@@ -244,14 +247,14 @@ class StartupRecoverySuite(Suite):
         cut_true = probe.joints()
         await ctx.power.power_off()
         t_cut = loop_time()
-        log("fault", kind="power_cut", condition=condition.name,
+        log(S.ev_fault, kind="power_cut", condition=condition.name,
             reported_q_rad=rad_list(before.q_rad),
             true_q_rad=None if cut_true is None else rad_list(cut_true), motion=motion,
             cut_fraction=None if cut_fraction is None else round(cut_fraction, 4))
         await asyncio.sleep(float(p["off_s"]))
         await ctx.power.power_on()
         t_on = loop_time()
-        log("power_restore", off_s=round(t_on - t_cut, 6))
+        log(S.ev_power_restore, off_s=round(t_on - t_cut, 6))
 
         # What the reported joints should say once recovered.
         hall = [j.hall_rad for j in ctx.settings.joints]
@@ -281,33 +284,34 @@ class StartupRecoverySuite(Suite):
         recovered = result.recovered_s is not None
         failure = None if recovered else ("no_reply" if result.first_reply_s is None
                                           else "position")
-        log("outcome", recovered=recovered, failure=failure, condition=condition.name,
+        log(S.ev_outcome, **{S.f_recovered: recovered, S.f_failure: failure,
+                             S.condition: condition.name, S.f_expected:
+                             condition.expected_to_recover, S.f_recovery: result.recovered_s},
             joints=list(joints),
             motion=motion, toward_hall=condition.relation == "toward", zone=condition.zone,
-            expected_to_recover=condition.expected_to_recover,
             cut_true_q_rad=None if cut_true is None else rad_list(cut_true),
             cut_reported_q_rad=rad_list(before.q_rad),
             final_q_rad=None if result.last is None else rad_list(result.last.q_rad),
             compared_with=result.compared_with,
-            **{"error_mm" if result.compared_with == "truth_m" else "error_mrad":
+            **{S.f_error_mm if result.compared_with == "truth_m" else S.f_error_mrad:
                None if result.error_rad is None else round(result.error_rad * 1e3, 4)},
-            recovery_s=result.recovered_s, first_reply_s=result.first_reply_s,
+            first_reply_s=result.first_reply_s,
             stalled_joints=stalled)
         ms = Measurements(ctx)
-        ms.add("startup.recovered", 1.0 if recovered else 0.0, "bool", better="higher",
+        ms.add(S.recovered, 1.0 if recovered else 0.0, "bool", better="higher",
                description="the arm replied with its true position after the power cut")
-        ms.add("startup.recovery_time_s", result.recovered_s, "s",
+        ms.add(S.recovery_time, result.recovered_s, "s",
                description="power-on to the first reply of the final within-tolerance window")
-        ms.add("startup.first_reply_s", result.first_reply_s, "s",
+        ms.add(S.first_reply, result.first_reply_s, "s",
                description="power-on to the first reply")
         if result.error_rad is not None and result.compared_with != "truth_m":
-            ms.add("startup.position_error_mrad", result.error_rad * 1e3, "mrad",
+            ms.add(S.position_error_mrad, result.error_rad * 1e3, "mrad",
                    description="largest joint error of the final reply against the reference")
         if result.error_rad is not None and result.compared_with == "truth_m":
-            ms.add("startup.position_error_mm", result.error_rad * 1e3, "mm",
+            ms.add(S.position_error_mm, result.error_rad * 1e3, "mm",
                    description="TCP error of the final reply against the tracker")
         if counters0 is not None and counters1 is not None:
-            ms.add("startup.eeprom_writes", float(sum(counters1[0]) - sum(counters0[0])),
+            ms.add(S.eeprom_writes, float(sum(counters1[0]) - sum(counters0[0])),
                    "writes", better="lower",
                    description="EEPROM record writes of all joints during the trial")
         if not recovered and bool(p["rescue"]):
@@ -321,57 +325,57 @@ class StartupRecoverySuite(Suite):
         EEPROM writes per cut and the wear projection."""
         ms = Measurements(ctx)
         outcomes = [(t, _outcome(t)) for t in trials
-                    if t.status == "done" and t.params.get("kind") == "cut"]
+                    if t.status == "done" and t.params.get(S.kind) == S.cut_kind]
         measured = [(t, o) for t, o in outcomes if o is not None]
-        ms.add("startup.trials_measured", float(len(measured)), "",
+        ms.add(S.trials_measured, float(len(measured)), "",
                description="power cuts carried out and judged")
         if measured:
-            ok = [o for _, o in measured if o["recovered"]]
-            ms.add("startup.success_rate_pct", 100.0 * len(ok) / len(measured), "%",
+            ok = [o for _, o in measured if o[S.f_recovered]]
+            ms.add(S.success_rate, 100.0 * len(ok) / len(measured), "%",
                    better="higher", description="power cuts after which the arm recovered")
-            expected = [o for _, o in measured if o["expected_to_recover"]]
+            expected = [o for _, o in measured if o[S.f_expected]]
             if expected:
-                good = [o for o in expected if o["recovered"]]
-                ms.add("startup.expected_success_rate_pct", 100.0 * len(good) / len(expected),
+                good = [o for o in expected if o[S.f_recovered]]
+                ms.add(S.expected_success_rate, 100.0 * len(good) / len(expected),
                        "%", better="higher",
                        description="recoveries among the cuts §5.2 can handle (not towards the "
                                    "Hall sensor)")
-            times = [float(o["recovery_s"]) for o in ok if o["recovery_s"] is not None]
+            times = [float(o[S.f_recovery]) for o in ok if o[S.f_recovery] is not None]
             if times:
-                ms.add("startup.recovery_time_max_s", max(times), "s",
+                ms.add(S.recovery_time_max, max(times), "s",
                        description="slowest recovery")
-                ms.add("startup.recovery_time_mean_s", float(np.mean(times)), "s",
+                ms.add(S.recovery_time_mean, float(np.mean(times)), "s",
                        description="mean recovery time")
-            errors = [float(o["error_mrad"]) for _, o in measured
-                      if o.get("error_mrad") is not None]
+            errors = [float(o[S.f_error_mrad]) for _, o in measured
+                      if o.get(S.f_error_mrad) is not None]
             if errors:
-                ms.add("startup.position_error_max_mrad", max(errors), "mrad",
+                ms.add(S.position_error_max, max(errors), "mrad",
                        description="largest joint error after a cut (failed recoveries too)")
-            ok_errors = [float(o["error_mrad"]) for o in ok if o.get("error_mrad") is not None]
+            ok_errors = [float(o[S.f_error_mrad]) for o in ok if o.get(S.f_error_mrad) is not None]
             if ok_errors:
-                ms.add("startup.recovered_position_error_max_mrad", max(ok_errors), "mrad",
+                ms.add(S.recovered_position_error_max, max(ok_errors), "mrad",
                        description="largest joint error after a successful recovery")
-            for name in dict.fromkeys(str(o["condition"]) for _, o in measured):
-                group = [o for _, o in measured if o["condition"] == name]
-                rate = 100.0 * sum(1 for o in group if o["recovered"]) / len(group)
-                ms.add(f"startup.{name}.success_rate_pct", rate, "%", better="higher",
+            for name in dict.fromkeys(str(o[S.condition]) for _, o in measured):
+                group = [o for _, o in measured if o[S.condition] == name]
+                rate = 100.0 * sum(1 for o in group if o[S.f_recovered]) / len(group)
+                ms.add(S.condition_rate(name), rate, "%", better="higher",
                        description=f"recoveries after cuts in condition {name}")
             writes = [m.value for t, _ in measured for m in t.measurements
-                      if m.name == "startup.eeprom_writes"]
+                      if m.name == S.eeprom_writes]
             if writes:
-                ms.add("startup.eeprom_writes_per_cut", float(np.mean(writes)), "writes",
+                ms.add(S.eeprom_writes_per_cut, float(np.mean(writes)), "writes",
                        better="lower", description="mean EEPROM record writes per cut trial")
         hours_per_year = float(ctx.params["use_hours_per_year"])
         for t in trials:
-            if t.status != "done" or t.params.get("kind") != "wear":
+            if t.status != "done" or t.params.get(S.kind) != S.wear_kind:
                 continue
             for s in t.samples:
-                if s.get("event") == "wear_phase":
-                    ms.add(f"startup.{s['phase']}.eeprom_writes_per_hour",
+                if s.get(SAMPLE.event) == S.ev_wear_phase:
+                    ms.add(S.phase_writes(s["phase"]),
                            float(s["writes_per_hour"]), "writes/h", better="lower",
                            description=f"EEPROM record writes per hour of {s['phase']} motion, "
                                        "busiest joint")
-                elif s.get("event") == "wear":
+                elif s.get(SAMPLE.event) == S.ev_wear:
                     years = s["life_years"]
                     wear_measurements(ms, float(s["writes_per_hour"]),
                                        float(s["cell_wear_per_hour"]),
@@ -384,7 +388,7 @@ class StartupRecoverySuite(Suite):
 
 def _outcome(trial: Trial) -> Mapping[str, Any] | None:
     for s in trial.samples:
-        if s.get("event") == "outcome":
+        if s.get(SAMPLE.event) == S.ev_outcome:
             return s
     return None
 

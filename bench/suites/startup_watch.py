@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
 from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.contract import STARTUP
 from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
 
 if TYPE_CHECKING:
@@ -96,10 +97,11 @@ async def await_recovery(arm: Any, t_on: float,
         out.last, out.error_rad, out.compared_with = state, e, what
         if out.first_reply_s is None:
             out.first_reply_s = round(state.t_s - t_on, 6)
-            log(event="ready", first_reply_s=out.first_reply_s, q_rad=rad_list(state.q_rad))
+            log(event=STARTUP.ev_ready, first_reply_s=out.first_reply_s,
+                q_rad=rad_list(state.q_rad))
         if state.t_s - last_trace >= TRACE_PERIOD_S:
             last_trace = state.t_s
-            log(event="position_check", q_rad=rad_list(state.q_rad),
+            log(event=STARTUP.ev_position_check, q_rad=rad_list(state.q_rad),
                 error_mrad=round(e * 1e3, 4), within=within)
         if not within:
             window = None
@@ -109,9 +111,10 @@ async def await_recovery(arm: Any, t_on: float,
             window = state
         if state.t_s - window.t_s >= still_s:
             out.recovered_s = round(window.t_s - t_on, 6)
-            log(event="recovered", recovery_s=out.recovered_s, error_mrad=round(e * 1e3, 4))
+            log(event=STARTUP.ev_recovered, recovery_s=out.recovered_s,
+                error_mrad=round(e * 1e3, 4))
             return out
-    log(event="timeout", after_s=round(loop.time() - t_on, 6))
+    log(event=STARTUP.ev_timeout, after_s=round(loop.time() - t_on, 6))
     return out
 
 
@@ -122,7 +125,7 @@ async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:
     hardware: nothing can be done from here; the next trial errors if the arm is unusable."""
     emu = emulator_of(ctx.arm)
     if emu is None or ctx.power is None:
-        log("rescue", done=False, reason="operator must re-reference the arm")
+        log(STARTUP.ev_rescue, done=False, reason="operator must re-reference the arm")
         return
     await ctx.power.power_off()
     for eeprom in getattr(emu, "eeproms", ()):
@@ -135,7 +138,7 @@ async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:
         await settled_state(ctx.arm, 0.1)
     except (ReplyTimeoutError, WaitTimeoutError) as exc:
         # The failure was measured; the next trial will find the arm unusable and error.
-        log("rescue", done=False, reason=f"the arm did not come back: {exc}")
+        log(STARTUP.ev_rescue, done=False, reason=f"the arm did not come back: {exc}")
         return
-    log("rescue", done=True, q_rad=rad_list(ctx.arm.state.q_rad))
+    log(STARTUP.ev_rescue, done=True, q_rad=rad_list(ctx.arm.state.q_rad))
 
