@@ -4,137 +4,91 @@ Data flows one way: the report reads ``results.json`` (and ``capture.jsonl`` bes
 run captured its traffic) and nothing else; it never talks to a robot, a driver or the emulator.
 What each section shows is described in ``docs/reports.md``.
 
-The page is one file with no network access: CSS inline, plots inline as SVG
-(``armbench.reports.plots``),
-a Content-Security-Policy that forbids fetching anything and running any script, every piece of
+The answer comes first: the verdict, the scorecard (each suite's headline figures, from the suite
+contract) and the first plot fit the first screen of a laptop; then one section per suite, chosen
+by the suite's name (:data:`SECTIONS`; a generic one for any other suite), each leading with its
+plots, then a short table, its per-metric tables folded.
+
+The page is one file with no network access: CSS inline, plots inline as SVG, a
+Content-Security-Policy that forbids fetching anything and running any script, every piece of
 record text HTML-escaped by the templates (Jinja2 autoescaping; record text never reaches an SVG).
-Sections render from whatever the record holds: a suite absent from the record is left out, an
-interrupted or errored run still renders, an unknown suite gets a generic section.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 from armbench.bench.record import (
     RESULTS_FILE,
     RunRecord,
+    SuiteRecord,
     atomic_write_bytes,
     load_record,
 )
+from armbench.bench.suites.contract import STARTUP
 from armbench.reports.capture import CAPTURE_FILE
-from armbench.reports.format import (
-    format_duration,
-    jinja_environment,
-)
-from armbench.reports.sections.accuracy import accuracy_section
-from armbench.reports.sections.repeatability import repeatability_section
-from armbench.reports.sections.startup_recovery import startup_section
+from armbench.reports.environment import environment_rows, fault_rows, settings_summary
+from armbench.reports.format import format_duration, jinja_environment
+from armbench.reports.scorecard import HEADLINES, score_rows
+from armbench.reports.sections import accuracy, generic, repeatability, startup_recovery
 from armbench.reports.sections.traffic import traffic_section
-from armbench.reports.summary import (
-    missing_row,
-    not_started_view,
-    suite_view,
-    verdict_reasons,
-)
-from armbench.reports.views import (
-    FaultRow,
-    Figures,
-    MeasurementRow,
-    SuiteView,
-    num,
-    text,
-)
+from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
+from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
 
-__all__ = ["KNOWN_SUITES", "REPORT_FILE", "build_report_html", "render_report"]
+__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report",
+           "suite_sections"]
 
 #: The report's file name inside a run directory.
 REPORT_FILE = "report.html"
-#: Suites with a section of their own; any other suite gets a generic one.
-KNOWN_SUITES = ("accuracy", "repeatability", "startup")
 
-# --------------------------------------------------------------------------------------------
-# Environment
-# --------------------------------------------------------------------------------------------
-
-
-def _environment(record: RunRecord) -> list[tuple[str, str]]:
-    env = record.environment
-    limits = "-" if env.config_path is None else env.config_path
-    if env.limits_spec_version:
-        limits += f" ({env.limits_spec_version})"
-    return [
-        ("run id", record.run_id),
-        ("created (UTC)", record.created),
-        ("resumed", ", ".join(record.resumed) or "never"),
-        ("armbench version", env.armbench_version),
-        ("git revision", env.git_revision),
-        ("port", env.port or "-"),
-        ("seed", "-" if env.seed is None else str(env.seed)),
-        ("limits file", limits),
-        ("Python", env.python),
-        ("platform", env.platform),
-    ]
+SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
+#: The section of each suite the report knows, by the suite's name; any other suite gets
+#: :func:`armbench.reports.sections.generic.build`.
+SECTIONS: Mapping[str, SectionBuilder] = {
+    accuracy.SUITE: accuracy.build,
+    repeatability.SUITE: repeatability.build,
+    startup_recovery.SUITE: startup_recovery.build,
+}
 
 
-def _settings_summary(settings: Mapping[str, Any]) -> list[tuple[str, str]]:
-    out: list[tuple[str, str]] = []
-    for key, value in settings.items():
-        if key == "geometry" and isinstance(value, Mapping):
-            parts = []
-            for k, v in value.items():
-                n = num(v)
-                if n is not None and k.endswith("_m"):
-                    parts.append(f"{k[:-2]} {n * 1000:g} mm")
-                else:
-                    parts.append(f"{k} {text(v, 30)}")
-            out.append(("geometry", ", ".join(parts)))
-        elif key == "serial" and isinstance(value, Mapping):
-            baud, bits = value.get("baudrate"), value.get("bytesize")
-            parity, stop = value.get("parity"), value.get("stopbits")
-            out.append(("serial", f"{text(baud)} baud, {text(bits)}{text(parity)}"
-                                  f"{text(stop)}"))
-        elif key == "joints" and isinstance(value, Mapping):
-            for jname, j in value.items():
-                if not isinstance(j, Mapping):
-                    out.append((f"joint {jname}", text(j)))
-                    continue
-                lo, hi = num(j.get("lower_deg")), num(j.get("upper_deg"))
-                gear, micro = num(j.get("gear_ratio")), num(j.get("microsteps"))
-                addr = j.get("i2c_address")
-                bits = []
-                if lo is not None and hi is not None:
-                    bits.append(f"{lo:.4g}° … {hi:.4g}°")
-                if gear is not None:
-                    bits.append(f"gear {gear:g}:1")
-                if micro is not None:
-                    bits.append(f"{micro:g} microsteps")
-                if isinstance(addr, int) and not isinstance(addr, bool):
-                    bits.append(f"I²C 0x{addr:02x}")
-                else:
-                    bits.append("I²C master")
-                out.append((f"joint {jname}", ", ".join(bits)))
-        else:
-            out.append((str(key), text(value, 120)))
-    return out
+def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
+                                                              list[SectionView],
+                                                              list[MeasurementRow]]:
+    """The summary view of every planned or recorded suite, the section of every recorded one
+    (scorecard included) and the baseline's rows of suites not in this run."""
+    cmp_rows = {} if record.baseline is None else {r.name: r for r in record.baseline.rows}
+    views: dict[str, SuiteView] = {}
+    order = list(dict.fromkeys([*record.planned_suites, *record.suites]))
+    for i, name in enumerate(order):
+        suite = record.suites.get(name)
+        key = f"suite-{i + 1}"
+        views[name] = (not_started_view(record, name, key) if suite is None
+                       else suite_view(record, suite, key, cmp_rows))
+    orphans: list[MeasurementRow] = []
+    if record.baseline is not None:
+        prefixes = {STARTUP.prefix: STARTUP.suite}
+        for r in record.baseline.rows:
+            if r.status != "missing":
+                continue
+            head = r.name.split(".", 1)[0]
+            owner = views.get(prefixes.get(head, head))
+            (owner.rows if owner is not None else orphans).append(missing_row(r))
+    sections = []
+    for name, suite in record.suites.items():
+        builder = SECTIONS.get(name, generic.build)
+        section = builder(record, suite, views[name], figs)
+        section.scorecard = score_rows(record, suite, HEADLINES.get(name), cmp_rows)
+        sections.append(section)
+    return list(views.values()), sections, orphans
 
 
-def _faults(record: RunRecord) -> list[FaultRow]:
-    rows = []
-    for f in record.environment.faults:
-        details = ", ".join(f"{k}={text(v, 80)}" for k, v in f.items()
-                            if k != "kind" and v is not None)
-        rows.append(FaultRow(kind=text(f.get("kind", "?"), 80), details=details or "-"))
-    return rows
-
-
-# --------------------------------------------------------------------------------------------
-# The page
-# --------------------------------------------------------------------------------------------
+def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:
+    """The first plot of the page, shown again beside the scorecard."""
+    first = next((s.figures[0] for s in sections if s.figures), None)
+    return None if first is None else figs.copy(first)
 
 
 def build_report_html(record: RunRecord, *, capture: Path | None = None,
@@ -142,51 +96,27 @@ def build_report_html(record: RunRecord, *, capture: Path | None = None,
     """The report page of ``record`` as HTML text. ``capture`` is a traffic capture to summarise
     (linked relative to ``out_dir``, where the page will be written)."""
     figs = Figures()
-    cmp_rows = {} if record.baseline is None else {r.name: r for r in record.baseline.rows}
-    views: dict[str, SuiteView] = {}
-    order = list(dict.fromkeys([*record.planned_suites, *record.suites]))
-    for i, name in enumerate(order):
-        key = f"suite-{i + 1}"
-        suite = record.suites.get(name)
-        views[name] = (not_started_view(record, name, key) if suite is None
-                       else suite_view(record, suite, key, cmp_rows))
-    orphans: list[MeasurementRow] = []
-    if record.baseline is not None:
-        for r in record.baseline.rows:
-            if r.status != "missing":
-                continue
-            owner = views.get(r.name.split(".", 1)[0])
-            if owner is not None:
-                owner.rows.append(missing_row(r))
-            else:
-                orphans.append(missing_row(r))
-
-    accuracy = repeatability = startup = None
-    if "accuracy" in record.suites:
-        accuracy = accuracy_section(record, record.suites["accuracy"], views["accuracy"], figs)
-    if "repeatability" in record.suites:
-        repeatability = repeatability_section(record.suites["repeatability"],
-                                              views["repeatability"], figs)
-    if "startup" in record.suites:
-        startup = startup_section(record.suites["startup"], views["startup"], figs)
+    suites, sections, orphans = suite_sections(record, figs)
     traffic = None
     if capture is not None and capture.is_file():
         traffic = traffic_section(capture, out_dir or capture.parent, figs)
-    others = [v for name, v in views.items()
-              if name not in KNOWN_SUITES and name in record.suites]
+    lead = _lead(sections, figs)
+    if lead is None and traffic is not None and traffic.figures:
+        lead = figs.copy(traffic.figures[0])
     robot_s = sum(t.duration_s for s in record.suites.values() for t in s.trials)
     baseline = record.baseline
-    template = jinja_environment().get_template("report.html.j2")
-    return template.render(
+    return jinja_environment().get_template("report.html.j2").render(
         record=record,
         verdict=record.verdict,
         reasons=verdict_reasons(record),
-        environment=_environment(record),
-        settings=_settings_summary(record.environment.settings),
+        environment=environment_rows(record),
+        settings=settings_summary(record.environment.settings),
         settings_json=json.dumps(dict(record.environment.settings), indent=1,
                                  ensure_ascii=False),
-        faults=_faults(record),
-        suites=list(views.values()),
+        faults=fault_rows(record),
+        suites=suites,
+        sections=sections,
+        lead=lead,
         run_time=format_duration(record.end_s),
         robot_time=format_duration(robot_s),
         baseline=baseline,
@@ -196,11 +126,7 @@ def build_report_html(record: RunRecord, *, capture: Path | None = None,
             "new": sum(r.status == "new" for r in baseline.rows),
             "missing": sum(r.status == "missing" for r in baseline.rows)},
         orphans=orphans,
-        accuracy=accuracy,
-        repeatability=repeatability,
-        startup=startup,
         traffic=traffic,
-        others=others,
         source=source,
     )
 
@@ -230,4 +156,3 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, html.encode("utf-8"))
     return out
-

@@ -42,16 +42,19 @@ from armbench.reports.plotting import (
 __all__ = [
     "ErrorPanel",
     "ErrorRun",
+    "PairPanel",
     "PathPanel",
     "PathRun",
     "PoseScatter",
     "ScatterGroup",
     "StartupPoint",
     "TrendPanel",
+    "compare_bars",
     "cube_projections",
     "decimate",
     "envelope",
     "error_over_time",
+    "outcomes_by_condition",
     "paths_yz",
     "pose_scatter",
     "safe_label",
@@ -296,7 +299,7 @@ class StartupPoint:
 
 
 def startup_plots(points: Sequence[StartupPoint], time_limit_s: float | None,
-                  error_limit_mm: float | None) -> Figure:
+                  error_limit_mm: float | None, error_unit: str = "mm") -> Figure:
     """Left: the recovery-time distribution as an empirical CDF (share of trials ready within t;
     trials that did not recover are crosses at their time-out). Right: the position error after
     recovery per trial (failed trials hatched), with the limits dashed."""
@@ -346,12 +349,72 @@ def startup_plots(points: Sequence[StartupPoint], time_limit_s: float | None,
                 right.yaxis.set_minor_formatter(NullFormatter())
         if error_limit_mm is not None:
             right.axhline(error_limit_mm, color="black", linestyle="--", linewidth=1.0,
-                          label=f"limit {error_limit_mm:g} mm")
+                          label=safe_label(f"limit {error_limit_mm:g} {error_unit}"))
             legend(right, loc="best")
         right.set_xlabel("trial (hatched: failed)")
         right.xaxis.grid(False)
-        right.set_ylabel("position error (mm)")
+        right.set_ylabel(safe_label(f"position error ({error_unit})"))
         right.set_title("position error after recovery")
+    return fig
+
+
+def outcomes_by_condition(conditions: Sequence[str], recovered: Sequence[int],
+                          failed: Sequence[int]) -> Figure:
+    """Horizontal stacked bars, one per condition: trials recovered (solid) and not recovered
+    (hatched, so the outcome never rests on colour alone)."""
+    with plot_style():
+        height = 0.8 + 0.22 * max(1, len(conditions))
+        fig = new_figure(7.2, height, left=0.2, bottom=0.5 / height, top=1 - 0.3 / height)
+        ax = fig.add_subplot(1, 1, 1)
+        y = np.arange(len(conditions))
+        ax.barh(y, recovered, color=COLOURS[0], label="recovered")
+        ax.barh(y, failed, left=recovered, color=COLOURS[1], hatch="///", edgecolor="black",
+                linewidth=0.4, label="not recovered")
+        ax.set_yticks(y, [safe_label(c, 24) for c in conditions])
+        ax.invert_yaxis()
+        ax.yaxis.grid(False)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.set_xlabel("power cuts")
+        ax.set_title("outcome by condition at the cut")
+        legend(ax, loc="lower right", ncols=2)
+    return fig
+
+
+@dataclass(frozen=True, slots=True)
+class PairPanel:
+    """One metric in two runs for :func:`compare_bars`: ``a`` (baseline) and ``b``, in
+    ``unit``; ``limit`` dashed."""
+
+    title: str
+    unit: str
+    a: float | None
+    b: float | None
+    limit: float | None = None
+
+
+def compare_bars(panels: Sequence[PairPanel], labels: tuple[str, str]) -> Figure:
+    """Each metric as a pair of bars, run A (hatched) beside run B, one small panel each."""
+    cols = min(4, max(1, len(panels)))
+    rows = max(1, math.ceil(len(panels) / cols))
+    with plot_style():
+        height = 1.9 * rows + 0.3
+        fig = new_figure(7.2, height, left=0.07, bottom=0.35 / height, top=1 - 0.35 / height,
+                         wspace=0.6, hspace=0.8)
+        axes = fig.subplots(rows, cols, squeeze=False)
+        for k, ax in enumerate(axes.flat):
+            if k >= len(panels):
+                ax.set_visible(False)
+                continue
+            p = panels[k]
+            values = [0.0 if v is None else v for v in (p.a, p.b)]
+            bars = ax.bar([0, 1], values, color=[COLOURS[7], COLOURS[0]], width=0.6)
+            bars[0].set_hatch("///")
+            ax.set_xticks([0, 1], [safe_label(labels[0], 10), safe_label(labels[1], 10)])
+            if p.limit is not None:
+                ax.axhline(p.limit, color="black", linestyle="--", linewidth=1.0)
+            ax.xaxis.grid(False)
+            ax.set_title(safe_label(p.title, 34), fontsize=7.5)
+            ax.set_ylabel(safe_label(p.unit or "value", 12))
     return fig
 
 
@@ -408,11 +471,13 @@ class TrendPanel:
     limit: float | None = None
 
 
-def trend_plots(panels: Sequence[TrendPanel]) -> Figure:
+def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
+                height_in: float = 2.5) -> Figure:
     """Key metrics across runs in creation order, one subplot each; values outside their limits
     are drawn as crosses (not colour alone)."""
     with plot_style():
-        fig = new_figure(7.2, 2.5, bottom=0.18, top=0.88, wspace=0.35)
+        fig = new_figure(width_in, height_in, left=0.08 * 7.2 / width_in, bottom=0.2,
+                         top=0.86, wspace=0.35)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False)[0]
         for ax, p in zip(axes, panels, strict=False):
             pts = [(r, v, f) for r, v, f in zip(p.runs, p.values, p.failed, strict=True)

@@ -72,6 +72,8 @@ _RC: dict[str, Any] = {
     "axes.titley": 1.02,             # fixed title position: no costly automatic placement
     "axes.titlepad": 3.0,
     "axes.formatter.use_mathtext": False,
+    "axes.formatter.useoffset": False,  # no "1e-13" offset label over the title
+    "axes.formatter.limits": (-99, 99),  # plain numbers on the axes, never scientific
 }
 
 _LABEL_BAD = re.compile(r"[^A-Za-z0-9 _.,:;%#()+=§/×·–|-]")

@@ -105,16 +105,16 @@ def measurement_row(m: Measurement, trial: Trial | None,
     row = MeasurementRow(
         name=m.name, description=m.description,
         trial="" if trial is None else f"trial {trial.index}",
-        value=format_number(m.value), unit=m.unit,
+        value=format_number(m.value, unit=m.unit), unit=m.unit,
         limit="-" if m.limit is None else m.limit.describe(),
-        margin=format_number(margin(m), signed=True), outcome=m.outcome,
+        margin=format_number(margin(m), signed=True, unit=m.unit), outcome=m.outcome,
     )
     if cmp is None:
         return row
-    return _with_comparison(row, cmp)
+    return with_comparison(row, cmp)
 
 
-def _with_comparison(row: MeasurementRow, cmp: ComparisonRow) -> MeasurementRow:
+def with_comparison(row: MeasurementRow, cmp: ComparisonRow) -> MeasurementRow:
     unit = cmp.unit
     return MeasurementRow(
         name=row.name, description=row.description, trial=row.trial, value=row.value,
@@ -132,7 +132,7 @@ def missing_row(cmp: ComparisonRow) -> MeasurementRow:
     row = MeasurementRow(name=cmp.name, description="in the baseline, not in this run",
                          trial="", value="-", unit=cmp.unit, limit="-", margin="-",
                          outcome="unjudged")
-    return _with_comparison(row, cmp)
+    return with_comparison(row, cmp)
 
 
 def _trial_metrics(suite: SuiteRecord) -> list[TrialMetricRow]:
@@ -150,11 +150,14 @@ def _trial_metrics(suite: SuiteRecord) -> list[TrialMetricRow]:
         outcome = ("fail" if "fail" in outcomes else
                    "pass" if outcomes == {"pass"} else "unjudged")
         shown = ", ".join(f"#{i}" for i in failed[:12]) + (" …" if len(failed) > 12 else "")
+        unit = items[0][1].unit
         rows.append(TrialMetricRow(
-            name=name, unit=items[0][1].unit, limit=limits[0] if limits else "-",
-            n=len(items), minimum=format_number(min(values)),
-            mean=format_number(statistics.fmean(values)), maximum=format_number(max(values)),
-            worst_margin=format_number(min(margins), signed=True) if margins else "-",
+            name=name, unit=unit, limit=limits[0] if limits else "-",
+            n=len(items), minimum=format_number(min(values), unit=unit),
+            mean=format_number(statistics.fmean(values), unit=unit),
+            maximum=format_number(max(values), unit=unit),
+            worst_margin=(format_number(min(margins), signed=True, unit=unit) if margins
+                          else "-"),
             failed=len(failed), failed_trials=shown, outcome=outcome,
         ))
     return rows

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -68,6 +69,7 @@ class FigureView:
 
     svg: Markup
     caption: str
+    title: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,8 +162,47 @@ class Figures:
     def __init__(self) -> None:
         self.count = 0
 
-    def make(self, fig: Figure, title: str, caption: str) -> FigureView:
+    def make(self, fig: Figure, title: str, caption: str, alt: str = "") -> FigureView:
+        """The inline SVG of ``fig``; its text alternative (``aria-label``) is ``title`` and,
+        when given, ``alt``: the figures the plot shows, in words."""
         self.count += 1
-        return FigureView(plots.to_svg(fig, f"f{self.count}", title), caption)
+        label = f"{title}. {alt}" if alt else title
+        return FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
+
+    def copy(self, figure: FigureView) -> FigureView:
+        """The same plot once more on the page (the lead plot), its ids renamed."""
+        self.count += 1
+        svg = re.sub(r'(id="|href="#|url\(#)f\d+-', rf"\g<1>f{self.count}-", str(figure.svg))
+        return FigureView(Markup(svg), figure.caption, figure.title)
 
 
+@dataclass(frozen=True, slots=True)
+class ScoreRow:
+    """A headline figure in the scorecard: value, limit, margin and outcome as recorded, the
+    change against the baseline and its direction in a word (``worse``, ``better``, ``same``),
+    and the paper's figure."""
+
+    label: str
+    metric: str
+    value: str
+    limit: str
+    margin: str
+    outcome: str
+    change: str = ""
+    direction: str = ""
+    paper: str = ""
+
+
+@dataclass(slots=True)
+class SectionView:
+    """One suite's section: its template (``sections/<name>.html.j2``), its html id and title,
+    the plots it leads with, and the suite-specific view its template reads (``body``)."""
+
+    key: str
+    template: str
+    title: str
+    suite: SuiteView
+    figures: list[FigureView]
+    body: Any = None
+    notes: list[str] = field(default_factory=list)
+    scorecard: list[ScoreRow] = field(default_factory=list)

@@ -1,60 +1,59 @@
-"""The accuracy section: the paper's square path (§7, Figs. 11 and 12)."""
+"""The accuracy section: the paper's square path (§7), its Fig. 11 (paths in the YZ plane) and
+Fig. 12 (error over time), armbench's two styles against the paper's figure.
+
+Names come from the suite contract (:data:`armbench.bench.suites.contract.ACCURACY`); every figure
+in the tables is the one the record holds. The error series drawn in Fig. 12 are computed from the
+samples (the record keeps only their summaries).
+"""
 
 from __future__ import annotations
 
 import math
-import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from armbench.bench.metrics import (
-    MetricsInputError,
-    path_errors,
-    square_yz,
-)
-from armbench.bench.record import (
-    PAPER_REFERENCE,
-    RunRecord,
-    SuiteRecord,
-    Trial,
-)
+from armbench.bench.metrics import MetricsInputError, path_errors, square_yz
+from armbench.bench.record import RunRecord, SuiteRecord, Trial
+from armbench.bench.suites.contract import ACCURACY, SAMPLE
 from armbench.reports import plots
-from armbench.reports.format import (
-    format_duration,
-    format_number,
-)
+from armbench.reports.format import format_duration, format_value
 from armbench.reports.views import (
     Figures,
     FigureView,
     FloatArray,
+    SectionView,
     SuiteView,
     num,
     text,
     vec3,
 )
 
-_MODE_TITLES = {"paper": "paper-style (joint-interpolated corners)",
-                "coordinated": "coordinated (Cartesian interpolation)",
-                "other": "other modes"}
+__all__ = ["SUITE", "AccuracyView", "LapRow", "PaperRow", "build"]
+
+SUITE = ACCURACY.suite
+#: How each style is called on the page.
+STYLE_TITLES: Mapping[str, str] = {
+    ACCURACY.paper: "paper-style (corners only, joint-interpolated)",
+    ACCURACY.coordinated: "coordinated (Cartesian streaming)",
+}
 
 
 @dataclass(frozen=True, slots=True)
-class AccuracyRunRow:
-    """One accuracy trial, with the figures the report computed from its samples."""
+class LapRow:
+    """One lap (trial), with the figures the record holds for it."""
 
     index: int
-    mode: str
-    run: str
-    speed: str
+    style: str
+    lap: str
     samples: int
-    duration: str
+    lap_time: str
     mean: str
     rms: str
     maximum: str
-    report_error: str
+    belief: str
     true_mean: str
     status: str
 
@@ -70,203 +69,162 @@ class PaperRow:
 
 @dataclass(frozen=True, slots=True)
 class AccuracyView:
-    suite: SuiteView
-    figures: list[FigureView]
-    runs: list[AccuracyRunRow]
+    laps: list[LapRow]
     paper: list[PaperRow]
     paper_mm: str
-    has_true: bool
-    notes: list[str]
-
-
-# --------------------------------------------------------------------------------------------
-# Accuracy
-# --------------------------------------------------------------------------------------------
 
 
 @dataclass(slots=True)
-class _AccRun:
+class _Lap:
     trial: Trial
-    mode: str
+    style: str
     t: FloatArray
     reported: FloatArray
     true: FloatArray  # NaN rows where a sample has no true position
     errors: FloatArray | None = None
-    true_errors: FloatArray | None = None
-    tracking: FloatArray | None = None
+    belief: FloatArray | None = None
 
 
-def _fast_series(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArray,
-                                                                  FloatArray] | None:
-    """t, reported, true of well-formed samples in one numpy pass (the usual case), or None
-    when any sample is irregular (then :func:`_slow_series` checks each one)."""
-    try:
-        t = np.array([s["t_s"] for s in samples], dtype=np.float64)
-        rep = np.array([s["reported_m"] for s in samples], dtype=np.float64)
-        trues = [s.get("true_m") for s in samples]
-        if all(v is None for v in trues):
-            tru = np.full_like(rep, np.nan)
-        else:
-            tru = np.array(trues, dtype=np.float64)
-    except (KeyError, TypeError, ValueError):
-        return None
-    if (t.shape != (len(samples),) or rep.shape != (len(samples), 3) or tru.shape != rep.shape
-            or not np.isfinite(t).all() or not np.isfinite(rep).all()
-            or not np.isfinite(tru).all()
-            or any(isinstance(s["t_s"], bool) for s in samples)):
-        return None
-    return t, rep, tru
-
-
-def _slow_series(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArray,
-                                                                  FloatArray]:
+def _series(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Times, reported and true positions (m) of the well-formed samples."""
     nan3 = (math.nan, math.nan, math.nan)
     t: list[float] = []
     rep: list[tuple[float, float, float]] = []
     tru: list[tuple[float, float, float]] = []
     for s in samples:
-        ts, r = num(s.get("t_s")), vec3(s.get("reported_m"))
+        ts, r = num(s.get(SAMPLE.t)), vec3(s.get(SAMPLE.reported))
         if ts is None or r is None:
             continue
         t.append(ts)
         rep.append(r)
-        tru.append(vec3(s.get("true_m")) or nan3)
+        tru.append(vec3(s.get(SAMPLE.true)) or nan3)
     return (np.array(t, dtype=np.float64), np.array(rep, dtype=np.float64).reshape(-1, 3),
             np.array(tru, dtype=np.float64).reshape(-1, 3))
 
 
-def _accuracy_runs(suite: SuiteRecord) -> list[_AccRun]:
-    runs = []
+def _laps(suite: SuiteRecord, corners: FloatArray | None, notes: list[str]) -> list[_Lap]:
+    laps = []
     for trial in suite.trials:
-        if not trial.samples:
+        style = trial.params.get(ACCURACY.style)
+        if not trial.samples or style not in STYLE_TITLES:
             continue
-        series = _fast_series(trial.samples) or _slow_series(trial.samples)
-        t, rep, tru = series
+        t, rep, tru = _series(trial.samples)
         if not len(rep):
             continue
-        mode = trial.params.get("mode")
-        runs.append(_AccRun(trial, mode if mode in ("paper", "coordinated") else "other",
-                            t, rep, tru))
-    return runs
+        lap = _Lap(trial, str(style), t, rep, tru)
+        has = ~np.isnan(tru[:, 0])
+        if has.any():
+            lap.belief = np.linalg.norm(rep[has] - tru[has], axis=1) * 1000.0
+        if corners is not None:
+            try:
+                lap.errors = path_errors(rep, corners, closed=True).euclidean_mm
+            except MetricsInputError as exc:  # pragma: no cover - inputs are checked above
+                notes.append(f"trial {trial.index}: {exc}")
+        laps.append(lap)
+    return laps
 
 
-def _square(params: Mapping[str, Any]) -> FloatArray | None:
-    centre, side = vec3(params.get("centre_m")), num(params.get("side_m"))
-    if centre is None or side is None or side <= 0:
-        return None
-    return square_yz(centre, side)
+def _lap_label(lap: _Lap) -> str:
+    """``lap 2`` (record text never reaches a plot: a lap that is not a number is named by its
+    trial)."""
+    n = num(lap.trial.params.get(ACCURACY.lap))
+    return f"lap {n:g}" if n is not None else f"trial {lap.trial.index}"
 
 
-def accuracy_section(record: RunRecord, suite: SuiteRecord, view: SuiteView,
-              figs: Figures) -> AccuracyView:
-    paper_mm = record.reference.get("paper_mean_error_mm",
-                                    PAPER_REFERENCE["paper_mean_error_mm"])
-    runs = _accuracy_runs(suite)
-    corners = _square(suite.params)
+def _recorded(ms: Sequence[Any], name: str) -> float | None:
+    return next((m.value for m in ms if m.name == name), None)
+
+
+def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
+             paper_mm: float | None, figs: Figures) -> list[FigureView]:
+    styles = [s for s in STYLE_TITLES if any(lap.style == s for lap in laps)]
+    if not laps:
+        return []
+    recorded = suite.measurements
+    out = [figs.make(
+        plots.paths_yz([plots.PathPanel(STYLE_TITLES[s], [
+            plots.PathRun(_lap_label(lap), lap.reported * 1000.0)
+            for lap in laps if lap.style == s])
+            for s in styles], None if corners is None else corners * 1000.0),
+        "Fig. 11: paths in the YZ plane against the reference square",
+        "The reference square dashed, the reported path of each lap (forward kinematics of the "
+        "reported joints, as the paper measured) solid; one panel per style, like the paper's "
+        "Fig. 11.",
+        "; ".join(f"{STYLE_TITLES[s]}: mean distance to the square "
+                  f"{format_value(_recorded(recorded, ACCURACY.metric(s, ACCURACY.mean)), 'mm')}"
+                  for s in styles))]
+    if corners is not None and any(lap.errors is not None for lap in laps):
+        out.append(figs.make(
+            plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
+                plots.ErrorRun(_lap_label(lap), lap.t, lap.errors)
+                for lap in laps if lap.style == s and lap.errors is not None],
+                _recorded(recorded, ACCURACY.metric(s, ACCURACY.mean))) for s in styles],
+                paper_mm),
+            "Fig. 12: path error over time",
+            "Distance of the reported position to the reference square over each lap, like the "
+            "paper's Fig. 12; the paper's mean dashed, armbench's recorded mean of each style "
+            "dotted. Long laps are drawn as a min/max envelope.",
+            f"paper's mean {format_value(paper_mm, 'mm')}"))
+    if any(lap.belief is not None for lap in laps):
+        out.append(figs.make(
+            plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
+                plots.ErrorRun(_lap_label(lap), lap.t[~np.isnan(lap.true[:, 0])], lap.belief)
+                for lap in laps if lap.style == s and lap.belief is not None],
+                _recorded(recorded, ACCURACY.metric(s, ACCURACY.belief_mean)))
+                for s in styles], None, "reported - true (mm)"),
+            "Reported against true position (twin check)",
+            "Distance between the position the firmware reports and the true one (reference "
+            "instrument, or the emulator's truth) over each lap; the recorded mean dotted.",
+            "; ".join(f"{STYLE_TITLES[s]}: mean "
+                      + format_value(_recorded(recorded, ACCURACY.metric(s, ACCURACY.belief_mean)),
+                                     "mm") for s in styles)))
+    return out
+
+
+def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures) -> SectionView:
+    """The accuracy section of ``record``."""
+    paper_mm = record.reference.get(ACCURACY.paper_mean)
+    centre, side = vec3(suite.params.get(ACCURACY.centre)), num(suite.params.get(ACCURACY.side))
+    corners = None if centre is None or side is None or side <= 0 else square_yz(centre, side)
     notes: list[str] = []
     if corners is None:
-        notes.append("The suite parameters give no reference square (centre_m, side_m): the "
-                     "paths are drawn without it and path errors are not recomputed.")
-    for run in runs:
-        has = ~np.isnan(run.true[:, 0])
-        if has.any():
-            run.tracking = np.linalg.norm(run.reported[has] - run.true[has], axis=1) * 1000.0
-        if corners is None:
-            continue
-        try:
-            run.errors = path_errors(run.reported, corners, closed=True).euclidean_mm
-            if has.any():
-                run.true_errors = path_errors(run.true[has], corners, closed=True).euclidean_mm
-        except MetricsInputError as exc:  # pragma: no cover - inputs are checked above
-            notes.append(f"trial {run.trial.index}: {exc}")
-    has_true = any(r.tracking is not None for r in runs)
-    modes = [m for m in ("paper", "coordinated", "other") if any(r.mode == m for r in runs)]
-    recorded = {m.name: m for m in suite.measurements}
-
-    def mode_mean(mode: str) -> tuple[float | None, str]:
-        m = recorded.get(f"accuracy.{mode}.mean_mm")
-        if m is not None:
-            return m.value, "recorded"
-        means = [float(r.errors.mean()) for r in runs if r.mode == mode and r.errors is not None]
-        return (statistics.fmean(means), "computed from the samples") if means else (None, "")
-
-    figures: list[FigureView] = []
-    if runs:
-        panels = [plots.PathPanel(_MODE_TITLES[mode], [
-            plots.PathRun(f"trial {r.trial.index}", r.reported * 1000.0,
-                          None if r.tracking is None
-                          else r.true[~np.isnan(r.true[:, 0])] * 1000.0)
-            for r in runs if r.mode == mode]) for mode in modes]
-        figures.append(figs.make(
-            plots.paths_yz(panels, None if corners is None else corners * 1000.0),
-            "Path in the YZ plane against the reference square",
-            "Path in the YZ plane (like the paper's Fig. 11): the reference square dashed, the "
-            "reported path (forward kinematics of the reported joints) of each run solid"
-            + (", the true path dotted" if has_true else "") + "."))
-    if corners is not None and any(r.errors is not None for r in runs):
-        panels_e = [plots.ErrorPanel(_MODE_TITLES[mode], [
-            plots.ErrorRun(f"trial {r.trial.index}", r.t, r.errors)
-            for r in runs if r.mode == mode and r.errors is not None], mode_mean(mode)[0])
-            for mode in modes]
-        figures.append(figs.make(
-            plots.error_over_time(panels_e, paper_mm),
-            "Path error over time",
-            f"Euclidean distance of the reported position to the reference square over time "
-            f"(like the paper's Fig. 12); the paper's mean of {paper_mm:g} mm dashed, "
-            "armbench's mean of each mode dotted. Long runs are drawn as a min/max envelope."))
-    if has_true:
-        panels_t = []
-        for mode in modes:
-            rs = [r for r in runs if r.mode == mode and r.tracking is not None]
-            if not rs:
-                continue
-            allv = np.concatenate([r.tracking for r in rs if r.tracking is not None])
-            panels_t.append(plots.ErrorPanel(_MODE_TITLES[mode], [
-                plots.ErrorRun(f"trial {r.trial.index}", r.t[~np.isnan(r.true[:, 0])],
-                               r.tracking)
-                for r in rs if r.tracking is not None], float(allv.mean())))
-        figures.append(figs.make(
-            plots.error_over_time(panels_t, None, "reported - true (mm)"),
-            "Reported against true position",
-            "Distance between the reported position (what the robot says) and the true one "
-            "(external measurement, or the emulator's truth) over time; the mean dotted."))
-
+        notes.append(f"The suite parameters give no reference square ({ACCURACY.centre}, "
+                     f"{ACCURACY.side}): the paths are drawn without it.")
+    laps = _laps(suite, corners, notes)
     rows = []
-    for r in runs:
-        speed = num(r.trial.params.get("speed_pct"))
-        err = r.errors
-        rows.append(AccuracyRunRow(
-            index=r.trial.index, mode=text(r.trial.params.get("mode", "-"), 40),
-            run=text(r.trial.params.get("run", "-"), 20),
-            speed="-" if speed is None else f"{speed:g} %",
-            samples=len(r.reported), duration=format_duration(r.trial.duration_s),
-            mean=format_number(None if err is None else float(err.mean())),
-            rms=format_number(None if err is None else float(np.sqrt(np.mean(err * err)))),
-            maximum=format_number(None if err is None else float(err.max())),
-            report_error=format_number(None if r.tracking is None else float(r.tracking.mean())),
-            true_mean=format_number(None if r.true_errors is None
-                                    else float(r.true_errors.mean())),
-            status=r.trial.status))
+    for lap in laps:
+        ms = lap.trial.measurements
 
-    paper = [PaperRow("paper §7 (Fig. 12)", f"{format_number(paper_mm)} mm",
+        def fig(figure: str, ms: Sequence[Any] = ms, style: str = lap.style) -> str:
+            return format_value(_recorded(ms, ACCURACY.metric(style, figure)), "mm")
+
+        rows.append(LapRow(
+            index=lap.trial.index, style=STYLE_TITLES[lap.style],
+            lap=text(lap.trial.params.get(ACCURACY.lap, "-"), 20), samples=len(lap.reported),
+            lap_time=format_duration(_recorded(ms, ACCURACY.metric(lap.style,
+                                                                   ACCURACY.lap_time))),
+            mean=fig(ACCURACY.mean), rms=fig(ACCURACY.rms), maximum=fig(ACCURACY.max),
+            belief=fig(ACCURACY.belief_mean), true_mean=fig(ACCURACY.true_mean),
+            status=lap.trial.status))
+    paper = [PaperRow("paper §7 (Fig. 12)", format_value(paper_mm, "mm"),
                       "mean Euclidean error of the position from direct kinematics to the "
                       "square; joint moves at maximum speed, no path planning")]
-    for mode in ("paper", "coordinated"):
-        value, source = mode_mean(mode)
-        if value is None:
+    for style in STYLE_TITLES:
+        mean = _recorded(suite.measurements, ACCURACY.metric(style, ACCURACY.mean))
+        if mean is None:
             continue
-        n = sum(r.mode == mode for r in runs)
-        ratio = f"; {value / paper_mm:.2f} × the paper's" if paper_mm else ""
-        paper.append(PaperRow(f"armbench {_MODE_TITLES[mode]}", f"{format_number(value)} mm",
-                              f"mean over {n} run(s), {source}{ratio}"))
-        trues = [float(r.true_errors.mean()) for r in runs
-                 if r.mode == mode and r.true_errors is not None]
-        if trues:
-            style = "paper-style" if mode == "paper" else mode
-            paper.append(PaperRow(f"armbench {style}, true position",
-                                  f"{format_number(statistics.fmean(trues))} mm",
+        laps_n = _recorded(suite.measurements, ACCURACY.metric(style, ACCURACY.laps))
+        ratio = f"; {mean / paper_mm:.2f} × the paper's" if paper_mm else ""
+        paper.append(PaperRow(f"armbench {STYLE_TITLES[style]}", format_value(mean, "mm"),
+                              f"over {format_value(laps_n, '')} laps, reported position"
+                              f"{ratio}"))
+        true = _recorded(suite.measurements, ACCURACY.metric(style, ACCURACY.true_mean))
+        if true is not None:
+            paper.append(PaperRow(f"armbench {STYLE_TITLES[style]}, true position",
+                                  format_value(true, "mm"),
                                   "the same error measured on the true path"))
-    return AccuracyView(suite=view, figures=figures, runs=rows, paper=paper,
-                        paper_mm=format_number(paper_mm), has_true=has_true, notes=notes)
-
-
+    return SectionView(
+        key=SUITE, template="accuracy", title="Accuracy: the paper's square path", suite=view,
+        figures=_figures(laps, corners, suite, paper_mm, figs),
+        body=AccuracyView(laps=rows, paper=paper, paper_mm=format_value(paper_mm, "mm")),
+        notes=notes)
