@@ -237,10 +237,13 @@ class PoseScatter:
     groups: Sequence[ScatterGroup]
 
 
-def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z") -> Figure:
+def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z",
+                 min_reach_mm: float = 0.01) -> Figure:
     """Per pose, the attained positions around their barycentre (origin) with the RP circle of
     each speed: the outline of the RP sphere, inside which every projected point of the sphere
-    lies. Speeds differ by marker shape and line style as well as colour."""
+    lies. Speeds differ by marker shape and line style as well as colour. The axes span at least
+    ``±min_reach_mm``: a spread below the measurement's resolution is a point at the origin,
+    not a zoom into rounding noise."""
     cols = min(5, max(1, len(poses)))
     rows = max(1, math.ceil(len(poses) / cols))
     a, b = plane.split("-")
@@ -267,12 +270,13 @@ def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z") -> Figure:
                     ax.add_patch(Circle((0.0, 0.0), g.rp_mm, fill=False, edgecolor=colour,
                                         linestyle=LINESTYLES[i % 4], linewidth=0.9))
                     reach = max(reach, g.rp_mm)
-            reach = 1.12 * (reach or 1.0)
+            reach = 1.12 * max(reach, min_reach_mm)
             ax.set_xlim(-reach, reach)
             ax.set_ylim(-reach, reach)
             ax.set_aspect("equal")
-            ax.xaxis.set_major_locator(MaxNLocator(3, symmetric=True))
-            ax.yaxis.set_major_locator(MaxNLocator(3, symmetric=True))
+            for axis in (ax.xaxis, ax.yaxis):
+                axis.set_major_locator(MaxNLocator(3, symmetric=True))
+                axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
             ax.set_title(safe_label(pose.label, 16))
             ax.set_xlabel(f"Δ{a} (mm)")
             if k % cols == 0:
@@ -364,7 +368,7 @@ def outcomes_by_condition(conditions: Sequence[str], recovered: Sequence[int],
     (hatched, so the outcome never rests on colour alone)."""
     with plot_style():
         height = 0.8 + 0.22 * max(1, len(conditions))
-        fig = new_figure(7.2, height, left=0.2, bottom=0.5 / height, top=1 - 0.3 / height)
+        fig = new_figure(7.2, height, left=0.2, bottom=0.5 / height, top=1 - 0.35 / height)
         ax = fig.add_subplot(1, 1, 1)
         y = np.arange(len(conditions))
         ax.barh(y, recovered, color=COLOURS[0], label="recovered")
@@ -375,8 +379,7 @@ def outcomes_by_condition(conditions: Sequence[str], recovered: Sequence[int],
         ax.yaxis.grid(False)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("power cuts")
-        ax.set_title("outcome by condition at the cut")
-        legend(ax, loc="lower right", ncols=2)
+        legend(ax, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncols=2)
     return fig
 
 
@@ -499,6 +502,8 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
             ax.set_xlabel("run #")
             ax.set_ylabel(safe_label(p.unit))
             ax.xaxis.set_major_locator(MaxNLocator(6, integer=True))
+            if p.runs:
+                ax.set_xlim(min(p.runs) - 0.5, max(p.runs) + 0.5)
             if pts or p.limit is not None:
                 legend(ax, loc="best", fontsize=6.5)
             else:

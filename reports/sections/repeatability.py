@@ -181,7 +181,8 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
             "ISO 9283: attained positions around their barycentre",
             "Attained positions of each pose around their barycentre, projected on the YZ plane, "
             "one marker shape per speed; each circle is that speed's RP (ISO 9283: mean distance "
-            "to the barycentre + 3 standard deviations).", rp_text))
+            "to the barycentre + 3 standard deviations). A spread below the samples' resolution "
+            "(0.1 µm) is a point at the origin.", rp_text))
     return SectionView(
         key=SUITE, template="repeatability", title="Repeatability: ISO 9283 poses",
         suite=view, figures=figures, notes=notes,
