@@ -1,16 +1,11 @@
-"""The report's plots: matplotlib figures turned into small, self-contained inline SVG.
+"""The report's plots, one function each: the paper's Figs. 11 and 12, the ISO 9283 cube and
+scatter, the start-up recovery outcomes, the traffic, the trends of the index and the pairs of the
+comparison page.
 
 Every function here takes numbers (numpy arrays, in the units its name says) and labels the report
 code chose itself; no text from a record reaches a plot, and :func:`safe_label` filters the labels
-anyway (matplotlib escapes SVG text too; math text is switched off). :func:`to_svg` strips what an
-inline SVG in an HTML page must not carry: the XML prolog and DOCTYPE (with its URL), the
-namespace URLs, the fixed width/height (CSS sizes the plot: ``width: 100%``), the global ``<style>``
-block, and element ids that could clash between plots (the ids a plot refers to are prefixed, the
-others dropped).
-
-No pyplot: figures are plain :class:`matplotlib.figure.Figure` objects rendered by the SVG backend,
-so no GUI backend is ever chosen and the global pyplot state is never touched. Long series are
-downsampled for drawing (:func:`decimate`, :func:`envelope`); the raw data stays in the JSON.
+anyway (matplotlib escapes SVG text too; math text is switched off). The style, the SVG export
+(:func:`to_svg`) and the downsampling of long series live in :mod:`armbench.reports.plotting`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""The traffic section: what the capture of the serial line holds."""
+"""The traffic section: what the capture of the serial line holds (frames each way, framing
+errors and resyncs over time, an excerpt), from ``capture.jsonl`` beside the record."""
 
 from __future__ import annotations
 
@@ -9,17 +10,16 @@ from urllib.parse import quote
 
 from armbench.reports import plots
 from armbench.reports.capture import CaptureLine, summarize_capture
-from armbench.reports.format import (
-    format_duration,
-)
-from armbench.reports.views import (
-    Figures,
-    FigureView,
-)
+from armbench.reports.format import format_duration
+from armbench.reports.views import Figures, FigureView
+
+__all__ = ["TrafficView", "traffic_section"]
 
 
 @dataclass(frozen=True, slots=True)
 class TrafficView:
+    """What the traffic template shows."""
+
     figures: list[FigureView]
     href: str
     name: str
@@ -29,12 +29,6 @@ class TrafficView:
     head: list[CaptureLine]
     first_errors: list[CaptureLine]
     notes: list[str]
-
-
-
-# --------------------------------------------------------------------------------------------
-# Traffic
-# --------------------------------------------------------------------------------------------
 
 
 def _size(n: int) -> str:
