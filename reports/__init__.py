@@ -1,12 +1,14 @@
 """HTML reports of bench runs: one self-contained page per run (``render_report``) and an index
-over many runs with trends (``render_index``). They read ``results.json`` (and ``capture.jsonl``
+over many runs with trends (``render_index``), and the comparison of two runs
+(``render_compare``). They read ``results.json`` (and ``capture.jsonl``
 beside it) only; see ``docs/reports.md``."""
 
 from __future__ import annotations
 
+from armbench.reports.compare import render_compare
 from armbench.reports.format import CSP, VERDICT_MARKS, format_duration, format_number, format_value
 from armbench.reports.index import INDEX_FILE, render_index
-from armbench.reports.render import REPORT_FILE, build_report_html, render_report
+from armbench.reports.page import REPORT_FILE, build_report_html, render_report
 
 __all__ = [
     "CSP",
@@ -17,6 +19,7 @@ __all__ = [
     "format_duration",
     "format_number",
     "format_value",
+    "render_compare",
     "render_index",
     "render_report",
 ]

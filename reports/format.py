@@ -12,6 +12,7 @@ from pathlib import Path
 import jinja2
 
 from armbench.bench.record import Measurement
+from armbench.bench.suites.contract import resolution
 
 __all__ = [
     "CSP",
@@ -60,21 +61,30 @@ RESULT_MARKS: Mapping[str, tuple[str, str]] = {
 _TEMPLATES = Path(__file__).resolve().parent / "templates"
 
 
-def format_number(value: float | None, *, signed: bool = False) -> str:
-    """A figure for people: four significant digits (``12.39``, ``0.31``, ``100``), ``-`` for
-    None, ``+`` on positive changes when ``signed``. The report and ``armbench compare`` agree."""
+def format_number(value: float | None, *, signed: bool = False, unit: str = "") -> str:
+    """A figure for people: four significant digits (``12.39``, ``0.31``, ``100``), whole numbers
+    from 10 000 up with thousands separators (``33,499``), ``-`` for None, ``+`` on positive
+    changes when ``signed``. With a ``unit`` whose resolution is known (samples are rounded, see
+    :func:`armbench.bench.suites.contract.resolution`) no digit finer than that resolution is
+    printed, so a spread below it prints as ``0``, never as ``2.22e-13``. The report and
+    ``armbench compare`` agree."""
     if value is None:
         return "-"
     if not math.isfinite(value):
         return str(value)
+    step = resolution(unit)
+    if step is not None:
+        value = round(value, max(0, round(-math.log10(step))))
     if value == 0:
         value = 0.0  # no "-0"
+    if abs(value) >= 10_000:
+        return f"{value:+,.0f}" if signed else f"{value:,.0f}"
     return f"{value:+.4g}" if signed else f"{value:.4g}"
 
 
 def format_value(value: float | None, unit: str, *, signed: bool = False) -> str:
-    """``format_number`` followed by the unit (``"12.39 mm"``; ``"100 %"``)."""
-    text = format_number(value, signed=signed)
+    """``format_number`` (at the unit's resolution) followed by the unit (``"12.39 mm"``)."""
+    text = format_number(value, signed=signed, unit=unit)
     return f"{text} {unit}" if unit and value is not None else text
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -24,24 +23,23 @@ from armbench.bench.record import (
     atomic_write_bytes,
     load_record,
 )
+from armbench.bench.suites.contract import Headline
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.render import REPORT_FILE
+from armbench.reports.page import REPORT_FILE
+from armbench.reports.scorecard import HEADLINES, headline_measurement
+from armbench.reports.views import FigureView
 
 __all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
 
 #: The index's file name inside the runs directory.
 INDEX_FILE = "index.html"
-#: The key metrics of the index, in column order: (key, column title, unit).
-KEY_METRICS = (
-    ("coordinated_mean", "coordinated mean path error", "mm"),
-    ("paper_mean", "paper-style mean path error", "mm"),
-    ("worst_rp", "worst RP", "mm"),
-    ("recovery_rate", "start-up recovery rate", "%"),
-)
-#: Short column titles of the key metrics in the table.
-_COLUMNS = ("coordinated mean error", "paper-style mean error", "worst RP", "recovery rate")
-_RP = re.compile(r"repeatability\..*\.rp_mm")
+#: The index's key metrics: every suite's headline figures from the suite contract, in order:
+#: (suite, headline).
+KEY_METRICS: tuple[tuple[str, Headline], ...] = tuple(
+    (suite, h) for suite, headlines in HEADLINES.items() for h in headlines)
+#: Headlines per suite shown as table columns (all of them get a trend plot).
+TABLE_HEADLINES = 2
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,41 +81,15 @@ def _bound(m: Measurement) -> float | None:
     return m.limit.high if m.limit.high is not None else m.limit.low
 
 
-def key_metrics(record: RunRecord) -> dict[str, KeyMetric]:
-    """The index's key metrics of ``record`` (see :data:`KEY_METRICS`): suite-level figures when
-    the suite finished, else what its trials allow (a partial run still shows a trend point)."""
-    suite = record.suite_measurements()
-    out: dict[str, KeyMetric] = {}
-    for key, name in (("coordinated_mean", "accuracy.coordinated.mean_mm"),
-                      ("paper_mean", "accuracy.paper.mean_mm")):
-        m = suite.get(name)
-        if m is not None:
-            out[key] = KeyMetric(m.value, m.unit, m.outcome == "fail", _bound(m), name)
-        else:
-            acc = record.suites.get("accuracy")
-            vals = [] if acc is None else [x.value for t in acc.trials for x in t.measurements
-                                           if x.name == name]
-            out[key] = KeyMetric(sum(vals) / len(vals) if vals else None, "mm",
-                                 source="mean of the trials" if vals else "")
-    rps = [m for n, m in suite.items() if _RP.fullmatch(n)]
-    if rps:
-        worst = max(rps, key=lambda m: m.value)
-        out["worst_rp"] = KeyMetric(worst.value, worst.unit,
-                                    any(m.outcome == "fail" for m in rps), _bound(worst),
-                                    worst.name)
-    else:
-        out["worst_rp"] = KeyMetric(None, "mm")
-    rate = suite.get("startup.recovery_rate_pct")
-    if rate is not None:
-        out["recovery_rate"] = KeyMetric(rate.value, rate.unit, rate.outcome == "fail",
-                                         _bound(rate), rate.name)
-    else:
-        st = record.suites.get("startup")
-        flags = [] if st is None else [m.value for t in st.trials for m in t.measurements
-                                       if m.name == "startup.recovered"]
-        out["recovery_rate"] = KeyMetric(100.0 * sum(flags) / len(flags) if flags else None,
-                                         "%", failed=bool(flags) and min(flags) < 1,
-                                         source="from the trials" if flags else "")
+def key_metrics(record: RunRecord) -> list[KeyMetric]:
+    """The index's key metrics of ``record``, in :data:`KEY_METRICS` order: the recorded
+    suite-level figure of each headline (None when the run lacks it)."""
+    out = []
+    for suite_name, h in KEY_METRICS:
+        suite = record.suites.get(suite_name)
+        m = None if suite is None else headline_measurement(suite, h)
+        out.append(KeyMetric(None, "") if m is None else
+                   KeyMetric(m.value, m.unit, m.outcome == "fail", _bound(m), m.name))
     return out
 
 
@@ -173,33 +145,41 @@ def render_index(runs_dir: str | os.PathLike[str],
         report = d / REPORT_FILE
         if rec is None:
             rows.append(IndexRow(number, d.name, "-", "-", "unreadable", "-", "-",
-                                 [KeyMetric(None, unit) for _, _, unit in KEY_METRICS],
+                                 [KeyMetric(None, "") for _ in KEY_METRICS],
                                  _href(report, out.parent), report.is_file(), error))
             continue
-        km = key_metrics(rec)
         rows.append(IndexRow(
             number=number, directory=d.name, run_id=rec.run_id, created=_when(rec.created),
             verdict=rec.verdict, port=rec.environment.port or "-",
             suites=", ".join(rec.suites) or "-",
-            metrics=[km[key] for key, _, _ in KEY_METRICS],
+            metrics=key_metrics(rec),
             href=_href(report, out.parent), has_report=report.is_file()))
 
-    panels = []
-    for k, (key, title, unit) in enumerate(KEY_METRICS):
-        if key == "paper_mean":
-            continue  # in the table; the trend of the coordinated run is the one tracked
+    figures = []
+    for k, (suite_name, h) in enumerate(KEY_METRICS):
         values = [r.metrics[k] for r in rows]
+        if not any(m.value is not None for m in values):
+            continue
+        unit = next(m.unit for m in values if m.value is not None)
         limits = [m.limit for m in values if m.limit is not None]
-        panels.append(plots.TrendPanel(
-            title=title, unit=unit, runs=[r.number for r in rows],
+        panel = plots.TrendPanel(
+            title=h.label, unit=unit, runs=[r.number for r in rows],
             values=[m.value if m.value is not None and math.isfinite(m.value) else None
                     for m in values],
-            failed=[m.failed for m in values], limit=limits[-1] if limits else None))
-    figure = None
-    if rows:
-        figure = plots.to_svg(plots.trend_plots(panels), "t1", "Key metrics across runs")
+            failed=[m.failed for m in values], limit=limits[-1] if limits else None)
+        shown = [f"run {r.number}: {m.text}" for r, m in zip(rows, values, strict=True)
+                 if m.value is not None]
+        figures.append(FigureView(
+            plots.to_svg(plots.trend_plots([panel], 3.6, 2.3), f"t{k + 1}",
+                         f"{suite_name}: {h.label} across runs. " + "; ".join(shown)),
+            f"{suite_name}: {h.label}", h.label))
+    columns = [(s, h.label) for s, hs in HEADLINES.items() for h in hs[:TABLE_HEADLINES]]
+    shown_k = [k for k, (s, h) in enumerate(KEY_METRICS)
+               if (s, h.label) in columns]
+    for row in rows:
+        row.metrics[:] = [row.metrics[k] for k in shown_k]
     html = jinja_environment().get_template("index.html.j2").render(
-        rows=rows, columns=_COLUMNS, figure=figure,
+        rows=rows, columns=[label for _, label in columns], figures=figures,
         runs_dir=root.name or str(root))
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, html.encode("utf-8"))

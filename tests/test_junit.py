@@ -82,8 +82,8 @@ def test_failed_measurements_carry_value_and_limit(tmp_path: Path) -> None:
     record = load_record(RECORDS / "failing.json")
     value = record.suite_measurements()["accuracy.coordinated.mean_mm"].value
     assert f"{value:g} mm" in message
-    assert ("armbench.startup.trial3", "startup.recovered") in failures
-    assert ("armbench.startup.trial3", "startup.position_error_mm") in failures
+    assert ("armbench.startup-recovery.trial3", "startup.recovered") in failures
+    assert ("armbench.startup-recovery.trial3", "startup.position_error_mrad") in failures
     limit_failures = {k for k, f in failures.items() if f is not None and f.get("type") == "limit"}
     expected = {(f"armbench.{s.name}" + ("" if t is None else f".trial{t.index}"), m.name)
                 for s, t, m in record.iter_measurements() if m.outcome == "fail"}
@@ -98,12 +98,12 @@ def test_failed_measurements_carry_value_and_limit(tmp_path: Path) -> None:
 def test_errored_trials_and_unstarted_suites(tmp_path: Path) -> None:
     root = _write(tmp_path, "interrupted")
     _check_counts(root)
-    startup = _suite(root, "startup")
+    startup = _suite(root, "startup-recovery")
     errors = {(c.get("classname"), c.get("name")): c.find("error")
               for c in startup.findall("testcase") if c.find("error") is not None}
-    trial = errors[("armbench.startup.trial2", "trial")]
+    trial = errors[("armbench.startup-recovery.trial2", "trial")]
     assert trial is not None and "PortLostError" in trial.get("message", "")
-    suite = errors[("armbench.startup", "suite")]
+    suite = errors[("armbench.startup-recovery", "suite")]
     assert suite is not None and suite.get("type") == "suite_error"
     never = _suite(root, "repeatability")
     case = never.find("testcase/error")

@@ -428,17 +428,18 @@ def test_validate_refuses_other_schemas() -> None:
      "suites.accuracy.trials[1].measurements[0].value"),
     (lambda d: d["suites"]["accuracy"]["trials"][0].update(duration_s="long"),
      "suites.accuracy.trials[0].duration_s"),
-    (lambda d: d["suites"]["startup"].update(status="paused"), "suites.startup.status"),
-    (lambda d: d["suites"]["startup"]["measurements"][0].update(outcome="ok"),
-     "suites.startup.measurements[0].outcome"),
+    (lambda d: d["suites"]["startup-recovery"].update(status="paused"),
+     "suites.startup-recovery.status"),
+    (lambda d: d["suites"]["startup-recovery"]["measurements"][0].update(outcome="ok"),
+     "suites.startup-recovery.measurements[0].outcome"),
     (lambda d: d["suites"]["accuracy"]["trials"][0]["samples"].append(3),
      "suites.accuracy.trials[0].samples[48]"),
     (lambda d: d["suites"]["accuracy"]["trials"][0].update(status="error"),
      "suites.accuracy.trials[0]"),
     (lambda d: d["suites"]["accuracy"].update(name="other"), "suites.accuracy.name"),
     (lambda d: d.update(verdict="great"), "verdict"),
-    (lambda d: d["suites"]["startup"]["measurements"].append(
-        d["suites"]["accuracy"]["measurements"][0]), "suites.startup.measurements"),
+    (lambda d: d["suites"]["startup-recovery"]["measurements"].append(
+        d["suites"]["accuracy"]["measurements"][0]), "suites.startup-recovery.measurements"),
 ])
 def test_validate_names_the_bad_field(edit: Any, where: str) -> None:
     data = _valid()
@@ -534,9 +535,9 @@ def test_fixture_records_validate(name: str, verdict: str) -> None:
     rec = validate_record(raw)
     assert raw["verdict"] == rec.verdict == verdict
     assert rec.to_json() == raw
-    assert {"accuracy", "startup"} <= set(rec.suites)
+    assert {"accuracy", "startup-recovery"} <= set(rec.suites)
     acc = rec.suites["accuracy"]
-    assert {t.params["mode"] for t in acc.trials} == {"paper", "coordinated"}
+    assert {t.params["style"] for t in acc.trials} == {"paper", "coordinated"}
     assert set(acc.trials[0].samples[0]) == {"t_s", "reported_m", "true_m"}
 
 

@@ -22,6 +22,7 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
+from armbench.bench.suites.contract import STARTUP
 from armbench.reports import (
     CSP,
     VERDICT_MARKS,
@@ -32,12 +33,14 @@ from armbench.reports import (
     render_report,
 )
 from armbench.reports.capture import summarize_capture
+from armbench.reports.index import KEY_METRICS, key_metrics
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 FIXTURES = ("passing", "failing", "regressed", "interrupted")
-#: Plots per fixture: accuracy (path, error over time, reported vs true), repeatability (cube,
-#: scatter), start-up (one figure); the interrupted run never started repeatability.
-SVG_COUNT = {"passing": 6, "failing": 6, "regressed": 6, "interrupted": 4}
+#: Plots per fixture: the lead plot beside the scorecard, accuracy (paths, error over time,
+#: reported vs true), repeatability (cube, scatter), startup-recovery (outcomes by condition,
+#: times and errors); the interrupted run never started repeatability.
+SVG_COUNT = {"passing": 8, "failing": 8, "regressed": 8, "interrupted": 6}
 
 HOSTILE = ("<script>alert(1)</script>", '"><img src=x onerror=alert(1)>', "</svg><script>")
 
@@ -186,27 +189,26 @@ def test_every_measurement_with_its_value(pages: dict[str, tuple[str, Node]],
                                           name: str) -> None:
     record = load_record(RECORDS / f"{name}.json")
     _, doc = pages[name]
-    section = doc.by_id("measurements")
-    assert section is not None
-    rows = [cells(r) for r in rows_of(section)]
+    rows = [cells(r) for t in doc.iter("table") if "measurements" in t.classes()
+            for r in rows_of(t)]
     for suite in record.suites.values():
         for m in suite.measurements:
             match = [r for r in rows if r and r[0].startswith(m.name)]
             assert match, m.name
-            assert format_number(m.value) == match[0][1]
+            assert format_number(m.value, unit=m.unit) == match[0][1]
             assert (m.limit.describe() if m.limit else "-") in match[0]
         for t in suite.trials:
             for m in t.measurements:
                 assert [r for r in rows if r[:3] == [f"trial {t.index}", m.name + m.description,
-                                                     format_number(m.value)]], (t.index, m.name)
+                                                     format_number(m.value, unit=m.unit)]], (
+                    t.index, m.name)
 
 
 @pytest.mark.parametrize("name", FIXTURES)
 def test_failing_rows_carry_a_text_marker(pages: dict[str, tuple[str, Node]], name: str) -> None:
     record = load_record(RECORDS / f"{name}.json")
     _, doc = pages[name]
-    section = doc.by_id("measurements")
-    assert section is not None
+    section = doc
     failed = {m.name for _, _, m in record.iter_measurements() if m.outcome == "fail"}
     marked = 0
     for row in rows_of(section):
@@ -231,7 +233,7 @@ def test_accuracy_shows_the_paper_figure(pages: dict[str, tuple[str, Node]]) -> 
         assert "12.4 mm" in text
         record = load_record(RECORDS / f"{name}.json")
         ours = record.suite_measurements()["accuracy.coordinated.mean_mm"].value
-        assert f"{format_number(ours)} mm" in text
+        assert f"{format_number(ours, unit='mm')} mm" in text
         svg_labels = " ".join(s.attrs.get("aria-label") or "" for s in acc.iter("svg"))
         assert "YZ plane" in svg_labels and "over time" in svg_labels
         assert "Reported against true position" in svg_labels  # fixtures carry true_m
@@ -243,11 +245,10 @@ def test_baseline_change_shown_for_the_regressed_run(pages: dict[str, tuple[str,
     record = load_record(RECORDS / "regressed.json")
     assert record.baseline is not None and record.verdict == "regression"
     _, doc = pages["regressed"]
-    section = doc.by_id("measurements")
-    assert section is not None
-    header = [c for r in rows_of(section)[:1] for c in cells(r)]
+    tables = [t for t in doc.iter("table") if "measurements" in t.classes()]
+    header = [c for r in rows_of(tables[0])[:1] for c in cells(r)]
     assert {"baseline", "change", "change %", "tolerance", "vs baseline"} <= set(header)
-    rows = {cells(r)[0]: (r, cells(r)) for r in rows_of(section) if cells(r)}
+    rows = {cells(r)[0]: (r, cells(r)) for t in tables for r in rows_of(t) if cells(r)}
     for b in record.baseline.rows:
         key = next(k for k in rows if k.startswith(b.name))
         row, c = rows[key]
@@ -262,23 +263,22 @@ def test_baseline_change_shown_for_the_regressed_run(pages: dict[str, tuple[str,
 
 def test_passing_run_has_no_baseline_columns(pages: dict[str, tuple[str, Node]]) -> None:
     _, doc = pages["passing"]
-    section = doc.by_id("measurements")
-    assert section is not None
-    assert "vs baseline" not in section.text()
+    assert "vs baseline" not in doc.text()
     assert "No baseline was given" in doc.text()
 
 
 def test_failing_startup_trial_and_its_conditions(pages: dict[str, tuple[str, Node]]) -> None:
     _, doc = pages["failing"]
-    st = doc.by_id("startup")
+    st = doc.by_id("startup-recovery")
     assert st is not None
     rows = [(r, cells(r)) for r in rows_of(st)]
     lost = [(r, c) for r, c in rows if c and c[0] == "3"]
-    assert lost and "row-fail" in lost[0][0].classes() and "✘ lost_position" in lost[0][1]
+    assert lost and "row-fail" in lost[0][0].classes()
+    assert "✘ not recovered (position)" in lost[0][1]
     text = st.text()
-    assert "Failures and their conditions" in text
-    assert "fault slave_reset while moving, joint 3" in text
-    assert "startup.position_error_mm = 37.2 mm (limit <= 2 mm)" in text
+    assert "cuts that did not recover, with their conditions" in text
+    assert "condition cw-toward-far, joints [2, 3, 4]" in text
+    assert "startup.position_error_mrad = 37.2 mrad (limit <= 2 mrad)" in text
     assert "projected life" in text and "100,000" in text
     env = doc.by_id("environment")
     assert env is not None and "uart_corrupt" in env.text() and "probability=0.002" in env.text()
@@ -287,7 +287,7 @@ def test_failing_startup_trial_and_its_conditions(pages: dict[str, tuple[str, No
 def test_interrupted_run_renders_what_it_has(pages: dict[str, tuple[str, Node]]) -> None:
     _, doc = pages["interrupted"]
     assert doc.by_id("repeatability") is None  # never started: no section
-    assert doc.by_id("accuracy") is not None and doc.by_id("startup") is not None
+    assert doc.by_id("accuracy") is not None and doc.by_id("startup-recovery") is not None
     verdict = doc.by_id("verdict")
     assert verdict is not None
     assert "ERROR" in verdict.text()
@@ -297,7 +297,7 @@ def test_interrupted_run_renders_what_it_has(pages: dict[str, tuple[str, Node]])
     assert summary is not None
     rows = [cells(r) for r in rows_of(summary)]
     assert any(r[0] == "repeatability" and "not started" in r for r in rows)
-    st = doc.by_id("startup")
+    st = doc.by_id("startup-recovery")
     assert st is not None and "⚠ ERROR" in st.text()
 
 
@@ -328,29 +328,31 @@ def _hostile_record() -> RunRecord:
                       limits_spec_version=None, config_path=s1)
     bad = Measurement(s0, 1.5, s1, None, "unjudged", None, s2)
     record = RunRecord(run_id=s0, created=s1, environment=env,
-                       planned_suites=["accuracy", "repeatability", "startup", s0, s1])
+                       planned_suites=["accuracy", "repeatability", "startup-recovery", s0, s1])
     square = [[0.35, y, z] for y, z in ((-0.05, 0.4), (0.05, 0.4), (0.05, 0.5), (-0.05, 0.5))]
     record.suites["accuracy"] = SuiteRecord(
         name="accuracy", version=s0, status="done", ended_s=10.0,
         params={"centre_m": [0.35, 0.0, 0.45], "side_m": 0.1, s0: s1},
-        trials=[Trial(0, 0.0, 4.0, {"mode": s0, "run": s1},
+        trials=[Trial(0, 0.0, 4.0, {"style": "paper", "lap": s1},
                       [{"t_s": float(i), "reported_m": p, "true_m": p, s0: s2}
                        for i, p in enumerate(square)], [bad])],
         measurements=[Measurement("accuracy." + s0, 2.0, "mm", None, "unjudged", "lower", s1)])
     record.suites["repeatability"] = SuiteRecord(
         name="repeatability", version="1", status="done", ended_s=20.0,
         params={"cube_centre_m": [0.35, 0.0, 0.4], "cube_side_m": 0.2},
-        trials=[Trial(i, 10.0 + i, 1.0, {"speed_pct": s0, "cycle": i},
+        trials=[Trial(i, 10.0 + i, 1.0, {"kind": "pose", "speed_pct": 50, "cycle": s0},
                       [{"t_s": 0.1, "pose": pose, "commanded_m": [0.35, 0.0, 0.4],
                         "reported_m": [0.35, 0.0001 * i, 0.4]} for pose in (s0, s1, s2)])
                 for i in range(3)])
-    record.suites["startup"] = SuiteRecord(
-        name="startup", version="1", status="error", error=s1, ended_s=30.0,
-        trials=[Trial(0, 20.0, 2.0, {"fault": s0, "phase": s1, "joint": s2},
+    record.suites["startup-recovery"] = SuiteRecord(
+        name="startup-recovery", version="1", status="error", error=s1, ended_s=30.0,
+        trials=[Trial(0, 20.0, 2.0, {"kind": "cut", "condition": s0, "joints": s2},
                       [{"t_s": 0.5, "event": "fault", "kind": s0},
-                       {"t_s": 1.0, "event": "outcome", "outcome": s2, "eeprom_writes": 1}],
+                       {"t_s": 1.0, "event": "outcome", "recovered": False, "failure": s2,
+                        "condition": s0}],
                       [Measurement("startup.recovered", 0.0, "bool", None, "fail", "higher", s0)]),
-                Trial(1, 23.0, 1.0, {"fault": s1}, [], status="error", error=s0)])
+                Trial(1, 23.0, 1.0, {"kind": "cut", "condition": s1}, [], status="error",
+                      error=s0)])
     record.suites[s0] = SuiteRecord(
         name=s0, version=s1, status="done", ended_s=40.0, params={s2: s0},
         trials=[Trial(0, 30.0, 1.0, {s0: s1}, [{s1: s2}], [bad])],
@@ -518,15 +520,18 @@ def test_index_over_several_runs(runs_dir: Path) -> None:
     assert "⚠ ERROR" in body[3] and "? UNREADABLE" in body[4]
     passing = load_record(runs_dir / "b" / "results.json").suite_measurements()
     assert format_value(passing["accuracy.coordinated.mean_mm"].value, "mm") in body[0]
-    assert format_value(passing["startup.recovery_rate_pct"].value, "%") in body[0]
+    assert format_value(passing[STARTUP.success_rate].value, "%") in body[0]
     links = [a.attrs["href"] for a in table.iter("a")]
     assert links == ["b/report.html"]  # only the rendered one is linked
     assert "not rendered" in body[1][-1]
     svgs = list(doc.iter("svg"))
-    assert len(svgs) == 1
-    labels = svgs[0].text()
-    for title in ("coordinated mean path error", "worst RP", "start-up recovery rate"):
-        assert title in labels
+    held = [k for k in range(len(KEY_METRICS))
+            if any(key_metrics(load_record(runs_dir / d / "results.json"))[k].value is not None
+                   for d in "abcd")]
+    assert len(held) >= 6 and len(svgs) == len(held)  # a trend plot per headline figure held
+    labels = " ".join(s.text() + (s.attrs.get("aria-label") or "") for s in svgs)
+    for k in held:
+        assert KEY_METRICS[k][1].label in labels
 
 
 def test_index_of_an_empty_directory(tmp_path: Path) -> None:

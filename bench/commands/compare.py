@@ -4,6 +4,7 @@ Prints the metric-by-metric table of :func:`armbench.bench.baseline.format_compa
 ``--json``). Exit status: 1 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
 record cannot be used (missing, invalid, another schema or limits spec, a changed unit).
 Tolerances come from ``--limits bench.toml`` (``[regression]``), else 10 % for every metric.
+``--html OUT`` also writes the comparison as a page in the run report's style.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ def register(sub: Any) -> None:
                    help="limits file whose [regression] tolerances apply (default: 10 %% of "
                         "the baseline value for every metric)")
     p.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    p.add_argument("--html", metavar="OUT", default=None,
+                   help="also write the comparison as a self-contained HTML page to OUT")
     p.set_defaults(func=_run)
 
 
@@ -51,4 +54,8 @@ def _run(args: argparse.Namespace) -> int:
         print(json.dumps({"run_id": current.run_id, **comparison.to_json()}, indent=1))
     else:
         print(format_comparison(comparison, run_id=current.run_id))
+    if args.html is not None:
+        from armbench.reports.compare import render_compare
+
+        render_compare(baseline, current, comparison, args.html)
     return 1 if comparison.regressed else 0

@@ -42,6 +42,7 @@ from armbench.bench.record import (
     Trial,
     judge,
 )
+from armbench.bench.suites.contract import ACCURACY, REPEATABILITY, STARTUP
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["RENDER_BOUND_S", "SIZE_BOUND_BYTES", "big_run_record", "run", "write_big_run"]
@@ -61,8 +62,8 @@ _LIMITS: dict[str, Any] = {
         "repeatability.*.ap_mm": {"high": 10.0, "unit": "mm"},
         "startup.recovered": {"low": 1, "unit": "bool"},
         "startup.recovery_time_s": {"high": 10.0, "unit": "s"},
-        "startup.position_error_mm": {"high": 2.0, "unit": "mm"},
-        "startup.recovery_rate_pct": {"low": 100.0, "unit": "%"},
+        "startup.position_error_mrad": {"high": 2.0, "unit": "mrad"},
+        "startup.success_rate_pct": {"low": 100.0, "unit": "%"},
     },
 }
 _CENTRE = (0.35, 0.0, 0.45)
@@ -97,15 +98,16 @@ def _accuracy(cfg: LimitsConfig, rng: np.random.Generator, samples_per_run: int,
             report_err = error_summary(tracking_errors(reported, true))
             means[mode].append(summary.mean_mm)
             duration = float(t[-1])
-            suite.trials.append(Trial(index, now, duration, {"mode": mode, "run": run,
-                                                             "speed_pct": 50}, samples, [
-                judge(f"accuracy.{mode}.mean_mm", summary.mean_mm, "mm", cfg),
-                judge(f"accuracy.{mode}.max_mm", summary.max_mm, "mm", cfg),
-                judge(f"accuracy.{mode}.report_error_mm", report_err.mean_mm, "mm", cfg)]))
+            suite.trials.append(Trial(index, now, duration,
+                                      {ACCURACY.style: mode, ACCURACY.lap: run}, samples, [
+                judge(ACCURACY.metric(mode, ACCURACY.mean), summary.mean_mm, "mm", cfg),
+                judge(ACCURACY.metric(mode, ACCURACY.max), summary.max_mm, "mm", cfg),
+                judge(ACCURACY.metric(mode, ACCURACY.belief_mean), report_err.mean_mm, "mm",
+                      cfg)]))
             now += duration + 2.0
             index += 1
-    suite.measurements = [judge(f"accuracy.{mode}.mean_mm", float(np.mean(v)), "mm", cfg)
-                          for mode, v in means.items()]
+    suite.measurements = [judge(ACCURACY.metric(mode, ACCURACY.mean), float(np.mean(v)), "mm",
+                                cfg) for mode, v in means.items()]
     suite.ended_s = now
     return suite, now
 
@@ -129,8 +131,10 @@ def _repeatability(cfg: LimitsConfig, rng: np.random.Generator, cycles: int,
                 attained.setdefault((k, i), []).append(_r(reported))
                 samples.append({"t_s": round(cycle_time * (i + 1) / 5, 3), "pose": f"P{i + 1}",
                                 "commanded_m": _r(commanded), "reported_m": _r(reported)})
-            suite.trials.append(Trial(index, now, cycle_time, {"speed_pct": speed,
-                                                               "cycle": cycle}, samples,
+            suite.trials.append(Trial(index, now, cycle_time,
+                                      {REPEATABILITY.kind: REPEATABILITY.pose_kind,
+                                       REPEATABILITY.speed: speed, REPEATABILITY.cycle: cycle},
+                                      samples,
                                       [judge("repeatability.cycle_time_s", cycle_time, "s",
                                              cfg)]))
             now += cycle_time + 0.5
@@ -139,9 +143,11 @@ def _repeatability(cfg: LimitsConfig, rng: np.random.Generator, cycles: int,
     for k, speed in enumerate(speeds):
         for i, commanded in enumerate(poses):
             pts = np.array(attained[(k, i)])
-            name = f"repeatability.v{speed}.p{i + 1}"
-            ms.append(judge(f"{name}.ap_mm", pose_accuracy(pts, commanded).ap_p_mm, "mm", cfg))
-            ms.append(judge(f"{name}.rp_mm", pose_repeatability(pts).rp_mm, "mm", cfg))
+            pose = f"P{i + 1}"
+            ms.append(judge(REPEATABILITY.pose_metric(speed, pose, REPEATABILITY.ap),
+                            pose_accuracy(pts, commanded).ap_p_mm, "mm", cfg))
+            ms.append(judge(REPEATABILITY.pose_metric(speed, pose, REPEATABILITY.rp),
+                            pose_repeatability(pts).rp_mm, "mm", cfg))
     suite.measurements = ms
     suite.ended_s = now
     return suite, now
@@ -149,34 +155,36 @@ def _repeatability(cfg: LimitsConfig, rng: np.random.Generator, cycles: int,
 
 def _startup(cfg: LimitsConfig, rng: random.Random, trials: int,
              t0: float) -> tuple[SuiteRecord, float]:
-    suite = SuiteRecord(name="startup", version="1", started_s=t0, status="done",
-                        params={"timeout_s": 15.0})
+    S = STARTUP
+    suite = SuiteRecord(name=S.suite, version="1", started_s=t0, status="done",
+                        params={"recovery_timeout_s": 15.0})
     now = t0
     recovered = []
+    conditions = ("stopped-near", "cw-away-far", "ccw-toward-near")
     for index in range(trials):
-        fault = ("power_cut", "slave_reset", "i2c_bus_error")[index % 3]
+        condition = conditions[index % 3]
         ok = index != trials - 3
         rec_s = round(rng.uniform(1.0, 6.0), 2) if ok else 15.0
-        err_mm = round(rng.uniform(0.1, 0.9), 2) if ok else 31.0
+        err_mrad = round(rng.uniform(0.1, 0.9), 2) if ok else 31.0
         writes = rng.randint(0, 2)
         samples: list[dict[str, Any]] = [
-                   {"t_s": 0.0, "event": "start", "phase": "moving"},
-                   {"t_s": 1.0, "event": "fault", "kind": fault, "joint": 1 + index % 4},
-                   {"t_s": 1.0 + rec_s, "event": "ready" if ok else "timeout"},
-                   {"t_s": 1.5 + rec_s, "event": "outcome",
-                    "outcome": "recovered" if ok else "lost_position", "eeprom_writes": writes}]
-        suite.trials.append(Trial(index, now, 1.5 + rec_s,
-                                  {"fault": fault, "phase": "moving", "joint": 1 + index % 4},
-                                  samples, [
-            judge("startup.recovered", 1.0 if ok else 0.0, "bool", cfg, better="higher"),
-            judge("startup.recovery_time_s", rec_s, "s", cfg),
-            judge("startup.position_error_mm", err_mm, "mm", cfg),
-            judge("startup.eeprom_writes", writes, "writes", cfg, better="lower")]))
+            {"t_s": 1.0, "event": S.ev_fault, "kind": "power_cut", S.condition: condition},
+            {"t_s": 1.5, "event": S.ev_power_restore},
+            {"t_s": 1.5 + rec_s, "event": S.ev_recovered if ok else S.ev_timeout},
+            {"t_s": 1.6 + rec_s, "event": S.ev_outcome, S.f_recovered: ok,
+             S.f_failure: None if ok else "position", S.condition: condition,
+             S.f_recovery: rec_s if ok else None, S.f_error_mrad: err_mrad}]
+        suite.trials.append(Trial(index, now, 1.6 + rec_s,
+                                  {S.kind: S.cut_kind, S.condition: condition,
+                                   S.joints: [1, 2, 3, 4], S.cut: index}, samples, [
+            judge(S.recovered, 1.0 if ok else 0.0, "bool", cfg, better="higher"),
+            judge(S.recovery_time, rec_s, "s", cfg),
+            judge(S.position_error_mrad, err_mrad, "mrad", cfg),
+            judge(S.eeprom_writes, writes, "writes", cfg, better="lower")]))
         recovered.append(ok)
         now += 3.5 + rec_s
-    suite.measurements = [judge("startup.recovery_rate_pct",
-                                100.0 * sum(recovered) / len(recovered), "%", cfg,
-                                better="higher")]
+    suite.measurements = [judge(S.success_rate, 100.0 * sum(recovered) / len(recovered), "%",
+                                cfg, better="higher")]
     suite.ended_s = now
     return suite, now
 
@@ -192,7 +200,8 @@ def big_run_record(*, samples_per_run: int = 5_000, cycles: int = 30,
                       seed=seed, faults=(), limits_spec_version=cfg.spec_version,
                       config_path=cfg.path)
     record = RunRecord(run_id="20240601T000000Z-b16b16", created="2024-06-01T00:00:00+00:00",
-                       environment=env, planned_suites=["accuracy", "repeatability", "startup"])
+                       environment=env, planned_suites=[ACCURACY.suite, REPEATABILITY.suite,
+                                                       STARTUP.suite])
     acc, t = _accuracy(cfg, rng, samples_per_run, 0.0)
     rep, t = _repeatability(cfg, rng, cycles, t + 1.0)
     st, _ = _startup(cfg, random.Random(seed), startup_trials, t + 1.0)

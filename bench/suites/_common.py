@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from armbench.bench.record import Better, Measurement, Trial
 from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.contract import POS_DECIMALS, RAD_DECIMALS
 from armbench.drivers.arm import DriverClosedError
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
@@ -69,10 +70,6 @@ __all__ = [
 FloatArray = npt.NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 
-#: Decimal places of positions in samples (m): 0.1 µm, far below any error the bench reports.
-POS_DECIMALS: Final = 7
-#: Decimal places of joint angles in samples (rad): 1 µrad (the wire resolution is 100 µrad).
-RAD_DECIMALS: Final = 6
 
 #: What makes a trial unmeasurable (status ``"error"``) rather than a badly performing robot:
 #: the driver's and transports' errors (lost port, reply or move timeouts, refused targets) and

@@ -42,18 +42,16 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.contract import ACCURACY
+from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = ["STYLES", "AccuracySuite", "path_figures"]
 
 #: The two ways a lap is driven, in the order they alternate.
-STYLES: Final = ("paper", "coordinated")
+STYLES: Final = ACCURACY.styles
 
-#: Default square: centre (m) in front of the arm, elbow up, every edge point ≥ 3° inside the
-#: joint limits on the ``front-up`` branch; side (m).
-DEFAULT_CENTRE_M: Final = (0.38, 0.0, 0.80)
-DEFAULT_SIDE_M: Final = 0.15
 
 
 def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) -> dict[str, float]:
@@ -109,10 +107,10 @@ _DESCRIPTIONS: Final = {
 _SIGNED: Final = re.compile(r"(true_)?[xyz]_mean_mm")
 
 
-def _add_figures(ms: Measurements, prefix: str, figures: Mapping[str, float]) -> None:
+def _add_figures(ms: Measurements, style: str, figures: Mapping[str, float]) -> None:
     for key, value in figures.items():
         signed = _SIGNED.fullmatch(key) is not None
-        ms.add(f"{prefix}.{key}", value, "mm", undirected=signed,
+        ms.add(ACCURACY.metric(style, key), value, "mm", undirected=signed,
                description=_DESCRIPTIONS.get(key) or _axis_description(key))
 
 
@@ -127,14 +125,14 @@ def _axis_description(key: str) -> str:
 class AccuracySuite(Suite):
     """The square in the YZ plane: paper style against coordinated streaming (see module doc)."""
 
-    name = "accuracy"
+    name = ACCURACY.suite
     version = "1"
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: a 0.15 m square centred at (0.38, 0, 0.80) m, 3 laps per style."""
         return {
-            "centre_m": list(DEFAULT_CENTRE_M),
-            "side_m": DEFAULT_SIDE_M,
+            ACCURACY.centre: list(DEFAULT_SQUARE_CENTRE_M),
+            ACCURACY.side: DEFAULT_SQUARE_SIDE_M,
             "duty": MAX_DUTY,
             "speed_m_s": 0.05,
             "spacing_m": 0.005,
@@ -145,15 +143,15 @@ class AccuracySuite(Suite):
             "branch": "front-up",
             "roll_rad": 0.0,
             "styles": list(STYLES),
-            "paper_mean_error_mm": PAPER_REFERENCE["paper_mean_error_mm"],
+            ACCURACY.paper_mean: PAPER_REFERENCE[ACCURACY.paper_mean],
         }
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
         """Types and ranges of every parameter, and the whole square reachable on ``branch``."""
         where = f"suites.{self.name}"
-        centre = check_vec3(f"{where}.centre_m", params["centre_m"])
-        side = check_number(f"{where}.side_m", params["side_m"], low=0.0, low_open=True,
-                            high=0.5)
+        centre = check_vec3(f"{where}.{ACCURACY.centre}", params[ACCURACY.centre])
+        side = check_number(f"{where}.{ACCURACY.side}", params[ACCURACY.side], low=0.0,
+                            low_open=True, high=0.5)
         check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
         check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
         check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
@@ -161,7 +159,7 @@ class AccuracySuite(Suite):
         check_int(f"{where}.laps", params["laps"], low=1)
         check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
         check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
-        check_number(f"{where}.paper_mean_error_mm", params["paper_mean_error_mm"], low=0.0)
+        check_number(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], low=0.0)
         branch = check_branch(f"{where}.branch", params["branch"])
         roll = check_number(f"{where}.roll_rad", params["roll_rad"])
         styles = params["styles"]
@@ -170,22 +168,22 @@ class AccuracySuite(Suite):
             raise SettingsError(f"{where}.styles", styles,
                                 f"must list some of {', '.join(STYLES)}, each once")
         edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
-        check_reachable(f"{where}.centre_m", edge, settings, branch=branch, roll_rad=roll)
+        check_reachable(f"{where}.{ACCURACY.centre}", edge, settings, branch=branch, roll_rad=roll)
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 paper, lap 0 coordinated, lap 1 paper, ..."""
-        return [{"style": style, "lap": lap}
+        return [{ACCURACY.style: style, ACCURACY.lap: lap}
                 for lap in range(int(params["laps"])) for style in params["styles"]]
 
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:
         """Drive one lap in ``trial_params["style"]`` and measure its path errors."""
         p = ctx.params
-        style = str(trial_params["style"])
-        corners = square_yz(p["centre_m"], float(p["side_m"]))
-        perimeter = 4.0 * float(p["side_m"])
+        style = str(trial_params[ACCURACY.style])
+        corners = square_yz(p[ACCURACY.centre], float(p[ACCURACY.side]))
+        perimeter = 4.0 * float(p[ACCURACY.side])
         timeout_s = 120.0 + 4.0 * perimeter / float(p["speed_m_s"])
-        ctx.progress(f"accuracy: lap {trial_params['lap']} ({style})")
+        ctx.progress(f"{ACCURACY.suite}: lap {trial_params[ACCURACY.lap]} ({style})")
 
         async def body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
                                                                list[Measurement]]:
@@ -196,7 +194,7 @@ class AccuracySuite(Suite):
             await settled_state(arm, float(p["settle_s"]))
             t0 = loop_time()
             async with StateRecorder(ctx, t0, float(p["sample_period_s"]), into=samples):
-                if style == "paper":
+                if style == ACCURACY.paper:
                     for k in (1, 2, 3, 0):
                         await arm.move_to(corners[k], roll, branch=branch, duty=int(p["duty"]))
                 else:
@@ -205,8 +203,8 @@ class AccuracySuite(Suite):
                                           roll_rad=roll)
                 lap_s = loop_time() - t0
             ms = Measurements(ctx)
-            _add_figures(ms, f"accuracy.{style}", path_figures(samples, corners))
-            ms.add(f"accuracy.{style}.lap_time_s", lap_s, "s", undirected=True,
+            _add_figures(ms, style, path_figures(samples, corners))
+            ms.add(ACCURACY.metric(style, ACCURACY.lap_time), lap_s, "s", undirected=True,
                    description="time from the first command to the arrival back at the start")
             return samples, ms.items
 
@@ -216,25 +214,28 @@ class AccuracySuite(Suite):
         """Per style, the figures over the samples of all its done laps pooled; the improvement
         ratio paper mean / coordinated mean (reported and true)."""
         p = ctx.params
-        corners = square_yz(p["centre_m"], float(p["side_m"]))
+        corners = square_yz(p[ACCURACY.centre], float(p[ACCURACY.side]))
         ms = Measurements(ctx)
         figures: dict[str, dict[str, float]] = {}
         for style in STYLES:
-            done = [t for t in trials if t.status == "done" and t.params.get("style") == style]
+            done = [t for t in trials
+                    if t.status == "done" and t.params.get(ACCURACY.style) == style]
             pooled = [s for t in done for s in t.samples]
             if not pooled:
                 continue
             figures[style] = f = path_figures(pooled, corners)
-            _add_figures(ms, f"accuracy.{style}", f)
+            _add_figures(ms, style, f)
             laps = [m.value for t in done for m in t.measurements
-                    if m.name == f"accuracy.{style}.lap_time_s"]
+                    if m.name == ACCURACY.metric(style, ACCURACY.lap_time)]
             if laps:
-                ms.add(f"accuracy.{style}.lap_time_s", float(np.mean(laps)), "s",
+                ms.add(ACCURACY.metric(style, ACCURACY.lap_time), float(np.mean(laps)), "s",
                        undirected=True, description="mean lap time")
-            ms.add(f"accuracy.{style}.laps", float(len(done)), "", description="laps measured")
-        paper, coord = figures.get("paper", {}), figures.get("coordinated", {})
-        for key, name in (("mean_mm", "accuracy.improvement_ratio"),
-                          ("true_mean_mm", "accuracy.true_improvement_ratio")):
+            ms.add(ACCURACY.metric(style, ACCURACY.laps), float(len(done)), "",
+                   description="laps measured")
+        paper = figures.get(ACCURACY.paper, {})
+        coord = figures.get(ACCURACY.coordinated, {})
+        for key, name in ((ACCURACY.mean, ACCURACY.improvement),
+                          (ACCURACY.true_mean, ACCURACY.true_improvement)):
             if key in paper and coord.get(key, 0.0) > 0.0:
                 ms.add(name, paper[key] / coord[key], "", better="higher",
                        description=f"paper-style {key} / coordinated {key}")

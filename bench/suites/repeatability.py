@@ -61,7 +61,16 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.contract import REPEATABILITY, SAMPLE
+from armbench.bench.suites.workspace import (
+    CYCLE_ORDER,
+    DEFAULT_CUBE_CENTRE_M,
+    DEFAULT_CUBE_SIDE_M,
+    POSE_NAMES,
+)
 from armbench.drivers.settings import RobotSettings, SettingsError
+
+R: Final = REPEATABILITY
 
 __all__ = [
     "CYCLE_ORDER",
@@ -74,17 +83,9 @@ __all__ = [
     "vap_figures",
 ]
 
-#: Names of the five ISO poses, rows 0..4 of ``iso_cube_poses``.
-POSE_NAMES: Final = ("P1", "P2", "P3", "P4", "P5")
-#: ISO 9283's cycle order.
-CYCLE_ORDER: Final = ("P1", "P5", "P4", "P3", "P2")
 #: Directions of travel into a pose for vAP: along +x, +y, +z of the base frame.
 VAP_DIRECTIONS: Final = (("+x", (1.0, 0.0, 0.0)), ("+y", (0.0, 1.0, 0.0)),
                          ("+z", (0.0, 0.0, 1.0)))
-#: Default test cube: centre (m) and side (m), chosen so every pose and approach point is ≥ 9°
-#: inside the joint limits on the front-up branch.
-DEFAULT_CUBE_CENTRE_M: Final = (0.35, 0.0, 0.82)
-DEFAULT_CUBE_SIDE_M: Final = 0.10
 #: The path of the AT/RT trials runs between these two poses (the distance pair of ISO too).
 PATH_POSES: Final = ("P2", "P4")
 #: Fraction of the path line at each end where AT/RT are not evaluated (start/stop transients and
@@ -94,7 +95,7 @@ PATH_END_MARGIN: Final = 0.05
 
 def speed_label(speed_pct: float) -> str:
     """The name part of a speed: ``v100``, ``v50``, ``v10`` (``v12.5`` for fractions)."""
-    return f"v{speed_pct:g}"
+    return REPEATABILITY.speed_label(speed_pct)
 
 
 def _positions(samples: Sequence[Mapping[str, Any]], key: str) -> FloatArray | None:
@@ -179,18 +180,18 @@ def path_figures(paths: Sequence[Sequence[Mapping[str, Any]]], reference_m: Floa
 class RepeatabilitySuite(Suite):
     """ISO 9283 pose and path characteristics at three speeds (see module doc)."""
 
-    name = "repeatability"
+    name = REPEATABILITY.suite
     version = "1"
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: a 0.1 m cube at (0.35, 0, 0.82) m, ISO's 30 pose cycles and 10 path cycles
         at 100 / 50 / 10 % speed, 10 vAP cycles."""
         return {
-            "cube_centre_m": list(DEFAULT_CUBE_CENTRE_M),
-            "cube_side_m": DEFAULT_CUBE_SIDE_M,
-            "plane": "C1-C2-C7-C8",
+            REPEATABILITY.cube_centre: list(DEFAULT_CUBE_CENTRE_M),
+            REPEATABILITY.cube_side: DEFAULT_CUBE_SIDE_M,
+            REPEATABILITY.plane: "C1-C2-C7-C8",
             "cycles": 30,
-            "speeds_pct": [100, 50, 10],
+            REPEATABILITY.speeds: [100, 50, 10],
             "settle_s": 0.3,
             "approach_offset_m": [0.0, 0.0, 0.02],
             "vap_cycles": 10,
@@ -208,14 +209,14 @@ class RepeatabilitySuite(Suite):
         """Types and ranges of every parameter; every pose, approach point and the path line
         reachable on ``branch`` within the joint limits."""
         w = f"suites.{self.name}"
-        centre = check_vec3(f"{w}.cube_centre_m", params["cube_centre_m"])
-        side = check_number(f"{w}.cube_side_m", params["cube_side_m"], low=0.0, low_open=True,
+        centre = check_vec3(f"{w}.{R.cube_centre}", params[R.cube_centre])
+        side = check_number(f"{w}.{R.cube_side}", params[R.cube_side], low=0.0, low_open=True,
                             high=0.5)
-        plane = params["plane"]
+        plane = params[R.plane]
         if plane not in CUBE_PLANES:
             raise SettingsError(f"{w}.plane", plane, f"is not one of {', '.join(CUBE_PLANES)}")
         check_int(f"{w}.cycles", params["cycles"], low=1)
-        speeds = params["speeds_pct"]
+        speeds = params[R.speeds]
         if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
             raise SettingsError(f"{w}.speeds_pct", speeds, "is not a list of percentages")
         for v in speeds:
@@ -247,18 +248,18 @@ class RepeatabilitySuite(Suite):
             points += [p - vap_offset * np.asarray(e) for _, e in VAP_DIRECTIONS]
         a, b = poses[POSE_NAMES.index(PATH_POSES[0])], poses[POSE_NAMES.index(PATH_POSES[1])]
         points += list(np.linspace(a, b, 21))
-        check_reachable(f"{w}.cube_centre_m", points, settings, branch=branch, roll_rad=roll)
+        check_reachable(f"{w}.{R.cube_centre}", points, settings, branch=branch, roll_rad=roll)
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """Per speed: the pose cycles, then the vAP cycles, then the path cycles; each trial one
         cycle (``{"kind", "speed_pct", "duty", "cycle"}``)."""
         out: list[dict[str, Any]] = []
-        for v in params["speeds_pct"]:
+        for v in params[R.speeds]:
             pct = float(v)
             duty = duty_for_speed_pct(pct)
-            for kind, n in (("pose", params["cycles"]), ("vap", params["vap_cycles"]),
-                            ("path", params["path_cycles"])):
-                out += [{"kind": kind, "speed_pct": v, "duty": duty, "cycle": c}
+            for kind, n in ((R.pose_kind, params["cycles"]), (R.vap_kind, params["vap_cycles"]),
+                            (R.path_kind, params["path_cycles"])):
+                out += [{R.kind: kind, R.speed: v, R.duty: duty, R.cycle: c}
                         for c in range(int(n))]
         return out
 
@@ -266,14 +267,14 @@ class RepeatabilitySuite(Suite):
                         trial_params: Mapping[str, Any]) -> Trial:
         """One cycle of ``trial_params["kind"]`` at ``trial_params["speed_pct"]``."""
         p = ctx.params
-        kind = str(trial_params["kind"])
-        pct = float(trial_params["speed_pct"])
+        kind = str(trial_params[R.kind])
+        pct = float(trial_params[R.speed])
         duty = duty_for_speed_pct(pct)
-        poses = iso_cube_poses(p["cube_centre_m"], float(p["cube_side_m"]), str(p["plane"]))
+        poses = iso_cube_poses(p[R.cube_centre], float(p[R.cube_side]), str(p[R.plane]))
         branch, roll = str(p["branch"]), float(p["roll_rad"])
         settle_s = float(p["settle_s"])
         arm = ctx.arm
-        ctx.progress(f"repeatability: {kind} cycle {trial_params['cycle']} at {pct:g} % "
+        ctx.progress(f"{R.suite}: {kind} cycle {trial_params[R.cycle]} at {pct:g} % "
                      f"(duty {duty})")
 
         async def reach(target: FloatArray, via: FloatArray) -> None:
@@ -288,7 +289,7 @@ class RepeatabilitySuite(Suite):
             for name in CYCLE_ORDER:
                 target = poses[POSE_NAMES.index(name)]
                 await reach(target, target + offset)
-                rec.sample(await settled_state(arm, settle_s), kind="pose", pose=name,
+                rec.sample(await settled_state(arm, settle_s), kind=R.pose_kind, pose=name,
                            commanded_m=pos_list(target))
             return samples, _pose_error_measurements(ctx, samples)
 
@@ -301,7 +302,7 @@ class RepeatabilitySuite(Suite):
                 target = poses[POSE_NAMES.index(name)]
                 for direction, e in VAP_DIRECTIONS:
                     await reach(target, target - d * np.asarray(e))
-                    rec.sample(await settled_state(arm, settle_s), kind="vap", pose=name,
+                    rec.sample(await settled_state(arm, settle_s), kind=R.vap_kind, pose=name,
                                direction=direction, commanded_m=pos_list(target))
             return samples, _pose_error_measurements(ctx, samples)
 
@@ -314,7 +315,7 @@ class RepeatabilitySuite(Suite):
             speed = pct / 100.0 * float(p["path_speed_m_s"])
             t0 = loop_time()
             async with StateRecorder(ctx, t0, float(p["sample_period_s"]),
-                                     extra={"kind": "path"}, into=samples):
+                                     extra={SAMPLE.kind: R.path_kind}, into=samples):
                 run = await arm.follow_path([a, b], speed_m_s=speed,
                                             spacing_m=float(p["path_spacing_m"]), branch=branch,
                                             roll_rad=roll, max_duty=duty)
@@ -322,13 +323,13 @@ class RepeatabilitySuite(Suite):
             ref = path_reference(a, b, float(p["path_spacing_m"]))
             for prefix, key in (("", "reported_m"), ("true_", "true_m")):
                 f = path_figures([samples], ref, key)
-                ms.add(f"repeatability.path.{prefix}at_mm", f.get("at_mm"), "mm",
+                ms.add(f"{R.trial_path_prefix}.{prefix}{R.at}", f.get(R.at), "mm",
                        description="ISO 9283 path accuracy AT of this one path")
-            ms.add("repeatability.path.duration_s", run.duration_s, "s", undirected=True,
+            ms.add(f"{R.trial_path_prefix}.duration_s", run.duration_s, "s", undirected=True,
                    description="time from the first path command to the arrival at P4")
             return samples, ms.items
 
-        bodies = {"pose": pose_body, "vap": vap_body, "path": path_body}
+        bodies = {R.pose_kind: pose_body, R.vap_kind: vap_body, R.path_kind: path_body}
         if kind not in bodies:
             raise SettingsError("trial.kind", kind, "is not pose, vap or path")
         return await guarded_trial(ctx, index, trial_params, bodies[kind],
@@ -338,36 +339,36 @@ class RepeatabilitySuite(Suite):
     def _timeout_s(kind: str, pct: float, p: Mapping[str, Any]) -> float:
         """A generous bound (s) on one trial: the driver's own move timeouts fire first."""
         slow = 100.0 / pct
-        if kind == "path":
-            side = float(p["cube_side_m"])
+        if kind == R.path_kind:
+            side = float(p[R.cube_side])
             return 120.0 + 10.0 * side * math.sqrt(3.0) / (pct / 100.0 * float(p["path_speed_m_s"]))
-        moves = 10 if kind == "pose" else 6 * len(p["vap_poses"])
+        moves = 10 if kind == R.pose_kind else 6 * len(p["vap_poses"])
         return 120.0 + moves * (5.0 * slow + float(p["settle_s"]))
 
     def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
         """Per speed: AP/RP per pose, AD/RD between P2 and P4, vAP per pose, AT/RT of the path,
         from the reported positions and (``true_``) the true ones."""
         p = ctx.params
-        poses = iso_cube_poses(p["cube_centre_m"], float(p["cube_side_m"]), str(p["plane"]))
+        poses = iso_cube_poses(p[R.cube_centre], float(p[R.cube_side]), str(p[R.plane]))
         ms = Measurements(ctx)
         done = [t for t in trials if t.status == "done"]
         keys = (("", "reported_m"), ("true_", "true_m"))
-        for v in p["speeds_pct"]:
-            label = f"repeatability.{speed_label(float(v))}"
-            at_speed = [t for t in done if float(t.params.get("speed_pct", -1)) == float(v)]
-            pose_trials = [t for t in at_speed if t.params.get("kind") == "pose"]
+        for v in p[R.speeds]:
+            label = R.at_speed(float(v))
+            at_speed = [t for t in done if float(t.params.get(R.speed, -1)) == float(v)]
+            pose_trials = [t for t in at_speed if t.params.get(R.kind) == R.pose_kind]
             by_pose: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
             for t in pose_trials:
                 for s in t.samples:
-                    by_pose[str(s["pose"])].append(s)
+                    by_pose[str(s[SAMPLE.pose])].append(s)
             if pose_trials:
-                ms.add(f"{label}.cycles", float(len(pose_trials)), "",
+                ms.add(f"{label}.{R.cycles}", float(len(pose_trials)), "",
                        description="pose cycles measured")
             for name in POSE_NAMES:
                 cmd = poses[POSE_NAMES.index(name)]
                 for prefix, key in keys:
                     f = pose_figures(by_pose.get(name, []), cmd, key)
-                    _add(ms, f"{label}.{name.lower()}.{prefix}", f, "ISO 9283 pose")
+                    _add(ms, R.pose_metric(float(v), name, prefix), f, "ISO 9283 pose")
             # Distance P2-P4, paired by cycle (trials that sampled both).
             pairs = [(_one(t, "P2"), _one(t, "P4")) for t in pose_trials]
             complete = [(a, b) for a, b in pairs if a is not None and b is not None]
@@ -377,21 +378,22 @@ class RepeatabilitySuite(Suite):
                 f = distance_figures(a_s, b_s, poses[1], poses[3], key)
                 _add(ms, f"{label}.{prefix}", f, "ISO 9283 distance P2-P4")
             # Multi-directional variation.
-            vap = [s for t in at_speed if t.params.get("kind") == "vap" for s in t.samples]
+            vap = [s for t in at_speed if t.params.get(R.kind) == R.vap_kind for s in t.samples]
             for name in p["vap_poses"]:
-                groups = [[s for s in vap if s.get("pose") == name and s.get("direction") == d]
+                groups = [[s for s in vap
+                           if s.get(SAMPLE.pose) == name and s.get(SAMPLE.direction) == d]
                           for d, _ in VAP_DIRECTIONS]
                 groups = [g for g in groups if g]
                 for prefix, key in keys:
                     f = vap_figures(groups, key)
-                    _add(ms, f"{label}.{str(name).lower()}.{prefix}", f, "ISO 9283 vAP")
+                    _add(ms, R.pose_metric(float(v), str(name), prefix), f, "ISO 9283 vAP")
             # Path accuracy / repeatability.
-            paths = [list(t.samples) for t in at_speed if t.params.get("kind") == "path"]
+            paths = [list(t.samples) for t in at_speed if t.params.get(R.kind) == R.path_kind]
             if paths:
                 ref = path_reference(poses[1], poses[3], float(p["path_spacing_m"]))
                 for prefix, key in keys:
                     f = path_figures(paths, ref, key)
-                    _add(ms, f"{label}.path.{prefix}", f, "ISO 9283 path P2-P4")
+                    _add(ms, f"{R.path_prefix(float(v))}.{prefix}", f, "ISO 9283 path P2-P4")
         return ms.items
 
 
@@ -409,7 +411,7 @@ def _add(ms: Measurements, prefix: str, figures: Mapping[str, float], what: str)
 
 def _one(trial: Trial, pose: str) -> Mapping[str, Any] | None:
     for s in trial.samples:
-        if s.get("pose") == pose:
+        if s.get(SAMPLE.pose) == pose:
             return s
     return None
 
@@ -422,6 +424,6 @@ def _pose_error_measurements(ctx: SuiteContext,
         errs = [float(np.linalg.norm(np.subtract(s[key], s["commanded_m"]))) * MM_PER_M
                 for s in samples if key in s]
         if errs and len(errs) == len(samples):
-            ms.add(f"repeatability.cycle.{prefix}pose_error_max_mm", max(errs), "mm",
+            ms.add(f"{R.cycle_prefix}.{prefix}pose_error_max_mm", max(errs), "mm",
                    description="largest distance of a sampled pose to its commanded position")
     return ms.items

@@ -1,0 +1,333 @@
+"""What the suites and the report agree on, defined once: each suite's name, its metric names, its
+trial and suite parameters, the keys of its samples and events, and the headline figures the
+report leads with. The suites write records with these names; the report sections read them with
+the same names, so a rename on one side is a rename on both.
+
+Plain data and string builders only (no numpy, no driver): the report imports this module without
+reaching the driver.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+__all__ = [
+    "ACCURACY",
+    "POS_DECIMALS",
+    "RAD_DECIMALS",
+    "REPEATABILITY",
+    "SAMPLE",
+    "STARTUP",
+    "AccuracyNames",
+    "Headline",
+    "RepeatabilityNames",
+    "SampleKeys",
+    "StartupNames",
+    "resolution",
+]
+
+#: Decimal places of positions in samples (m): 0.1 µm, far below any error the bench reports.
+POS_DECIMALS: Final = 7
+#: Decimal places of joint angles in samples (rad): 1 µrad (the wire resolution is 100 µrad).
+RAD_DECIMALS: Final = 6
+
+#: The smallest step a figure in this unit can resolve, given the samples' rounding: a figure
+#: (a spread, a bias) below it is zero as far as the measurement can tell.
+_RESOLUTION: Final[dict[str, float]] = {
+    "m": 10.0 ** -POS_DECIMALS,
+    "mm": 10.0 ** -(POS_DECIMALS - 3),
+    "rad": 10.0 ** -RAD_DECIMALS,
+    "mrad": 10.0 ** -(RAD_DECIMALS - 3),
+    "s": 1e-6,
+}
+
+
+def resolution(unit: str) -> float | None:
+    """The resolution of a figure in ``unit`` (None for a unit with no known resolution)."""
+    return _RESOLUTION.get(unit)
+
+
+@dataclass(frozen=True, slots=True)
+class Headline:
+    """A headline figure of a suite: the metric's name (or, with ``worst_of``, the ``fnmatch``
+    pattern of the metrics whose worst value is shown), a label for people, whether higher is
+    worse, and the key of the paper's reference figure in the record's ``reference`` table where
+    the paper has one."""
+
+    label: str
+    metric: str
+    worst_of: bool = False
+    higher_is_worse: bool = True
+    paper: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SampleKeys:
+    """Keys of the samples every suite records (see ``bench/suites/_common.py``)."""
+
+    t: str = "t_s"
+    q: str = "q_rad"
+    reported: str = "reported_m"
+    true: str = "true_m"
+    commanded: str = "commanded_m"
+    kind: str = "kind"
+    pose: str = "pose"
+    direction: str = "direction"
+    event: str = "event"
+
+
+SAMPLE: Final = SampleKeys()
+
+
+@dataclass(frozen=True, slots=True)
+class AccuracyNames:
+    """The accuracy suite (the paper's square, §7)."""
+
+    suite: str = "accuracy"
+    styles: tuple[str, ...] = ("paper", "coordinated")
+    paper: str = "paper"
+    coordinated: str = "coordinated"
+    # trial parameters
+    style: str = "style"
+    lap: str = "lap"
+    # suite parameters; ``paper_mean`` is also the key of the paper's figure in a record's
+    # ``reference`` table
+    centre: str = "centre_m"
+    side: str = "side_m"
+    paper_mean: str = "paper_mean_error_mm"
+    # figures of a style (suffixes of its metric names)
+    mean: str = "mean_mm"
+    rms: str = "rms_mm"
+    max: str = "max_mm"
+    true_mean: str = "true_mean_mm"
+    belief_mean: str = "belief_mean_mm"
+    belief_max: str = "belief_max_mm"
+    lap_time: str = "lap_time_s"
+    laps: str = "laps"
+
+    def metric(self, style: str, figure: str) -> str:
+        """``accuracy.<style>.<figure>``."""
+        return f"{self.suite}.{style}.{figure}"
+
+    @property
+    def improvement(self) -> str:
+        """Paper-style mean over coordinated mean."""
+        return f"{self.suite}.improvement_ratio"
+
+    @property
+    def true_improvement(self) -> str:
+        return f"{self.suite}.true_improvement_ratio"
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        return (
+            Headline("paper-style mean path error", self.metric(self.paper, self.mean),
+                     paper=self.paper_mean),
+            Headline("coordinated mean path error", self.metric(self.coordinated, self.mean)),
+            Headline("coordinated max path error", self.metric(self.coordinated, self.max)),
+            Headline("improvement (paper-style / coordinated)", self.improvement,
+                     higher_is_worse=False),
+            Headline("worst firmware belief vs truth", f"{self.suite}.*.{self.belief_max}",
+                     worst_of=True),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class RepeatabilityNames:
+    """The repeatability suite (ISO 9283)."""
+
+    suite: str = "repeatability"
+    # trial parameters and their kinds
+    kind: str = "kind"
+    speed: str = "speed_pct"
+    duty: str = "duty"
+    cycle: str = "cycle"
+    pose_kind: str = "pose"
+    vap_kind: str = "vap"
+    path_kind: str = "path"
+    # suite parameters
+    cube_centre: str = "cube_centre_m"
+    cube_side: str = "cube_side_m"
+    plane: str = "plane"
+    speeds: str = "speeds_pct"
+    # figures
+    ap: str = "ap_mm"
+    rp: str = "rp_mm"
+    vap: str = "vap_mm"
+    at: str = "at_mm"
+    rt: str = "rt_mm"
+    rd: str = "rd_mm"
+    cycles: str = "cycles"
+
+    def speed_label(self, speed_pct: float) -> str:
+        """The name part of a speed: ``v100``, ``v50``, ``v10`` (``v12.5`` for fractions)."""
+        return f"v{speed_pct:g}"
+
+    def at_speed(self, speed_pct: float) -> str:
+        """``repeatability.v100``: the prefix of every figure at that speed."""
+        return f"{self.suite}.{self.speed_label(speed_pct)}"
+
+    def pose_metric(self, speed_pct: float, pose: str, figure: str) -> str:
+        """``repeatability.v100.p1.rp_mm``."""
+        return f"{self.at_speed(speed_pct)}.{pose.lower()}.{figure}"
+
+    def path_prefix(self, speed_pct: float) -> str:
+        return f"{self.at_speed(speed_pct)}.path"
+
+    @property
+    def cycle_prefix(self) -> str:
+        """Per-trial figures of one cycle: ``repeatability.cycle``."""
+        return f"{self.suite}.cycle"
+
+    @property
+    def trial_path_prefix(self) -> str:
+        """Per-trial figures of one path: ``repeatability.path``."""
+        return f"{self.suite}.path"
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        s = self.suite
+        return (
+            Headline("worst pose accuracy AP", f"{s}.v*.p?.{self.ap}", worst_of=True),
+            Headline("worst pose repeatability RP", f"{s}.v*.p?.{self.rp}", worst_of=True),
+            Headline("worst multi-directional vAP", f"{s}.v*.p?.{self.vap}", worst_of=True),
+            Headline("worst path accuracy AT", f"{s}.v*.path.{self.at}", worst_of=True),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class StartupNames:
+    """The startup-recovery suite (paper §5.2): power cuts and EEPROM wear."""
+
+    suite: str = "startup-recovery"
+    prefix: str = "startup"
+    # trial parameters and their kinds
+    kind: str = "kind"
+    cut_kind: str = "cut"
+    wear_kind: str = "wear"
+    condition: str = "condition"
+    joints: str = "joints"
+    cut: str = "cut"
+    duration: str = "duration_s"
+    # events (samples with an ``event`` key) and their fields
+    ev_fault: str = "fault"
+    ev_power_restore: str = "power_restore"
+    ev_ready: str = "ready"
+    ev_recovered: str = "recovered"
+    ev_timeout: str = "timeout"
+    ev_outcome: str = "outcome"
+    ev_position_check: str = "position_check"
+    ev_wear_phase: str = "wear_phase"
+    ev_wear: str = "wear"
+    ev_rescue: str = "rescue"
+    ev_skipped: str = "skipped"
+    f_recovered: str = "recovered"
+    f_failure: str = "failure"
+    f_recovery: str = "recovery_s"
+    f_expected: str = "expected_to_recover"
+    f_error_mrad: str = "error_mrad"
+    f_error_mm: str = "error_mm"
+
+    def metric(self, figure: str) -> str:
+        """``startup.<figure>`` (the metrics keep the short prefix of the limits files)."""
+        return f"{self.prefix}.{figure}"
+
+    def condition_rate(self, condition: str) -> str:
+        """``startup.<condition>.success_rate_pct``."""
+        return f"{self.prefix}.{condition}.success_rate_pct"
+
+    def phase_writes(self, phase: str) -> str:
+        """``startup.<phase>.eeprom_writes_per_hour``."""
+        return f"{self.prefix}.{phase}.eeprom_writes_per_hour"
+
+    # per trial
+    @property
+    def recovered(self) -> str:
+        return self.metric("recovered")
+
+    @property
+    def recovery_time(self) -> str:
+        return self.metric("recovery_time_s")
+
+    @property
+    def first_reply(self) -> str:
+        return self.metric("first_reply_s")
+
+    @property
+    def position_error_mrad(self) -> str:
+        return self.metric("position_error_mrad")
+
+    @property
+    def position_error_mm(self) -> str:
+        return self.metric("position_error_mm")
+
+    @property
+    def eeprom_writes(self) -> str:
+        return self.metric("eeprom_writes")
+
+    # per suite
+    @property
+    def trials_measured(self) -> str:
+        return self.metric("trials_measured")
+
+    @property
+    def success_rate(self) -> str:
+        return self.metric("success_rate_pct")
+
+    @property
+    def expected_success_rate(self) -> str:
+        return self.metric("expected_success_rate_pct")
+
+    @property
+    def recovery_time_max(self) -> str:
+        return self.metric("recovery_time_max_s")
+
+    @property
+    def recovery_time_mean(self) -> str:
+        return self.metric("recovery_time_mean_s")
+
+    @property
+    def position_error_max(self) -> str:
+        return self.metric("position_error_max_mrad")
+
+    @property
+    def recovered_position_error_max(self) -> str:
+        return self.metric("recovered_position_error_max_mrad")
+
+    @property
+    def eeprom_writes_per_cut(self) -> str:
+        return self.metric("eeprom_writes_per_cut")
+
+    @property
+    def eeprom_writes_per_hour(self) -> str:
+        return self.metric("eeprom_writes_per_hour")
+
+    @property
+    def eeprom_cell_wear_per_hour(self) -> str:
+        return self.metric("eeprom_cell_wear_per_hour")
+
+    @property
+    def eeprom_life_years(self) -> str:
+        return self.metric("eeprom_life_years")
+
+    @property
+    def eeprom_life_hours(self) -> str:
+        return self.metric("eeprom_life_hours")
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        return (
+            Headline("recovered after a power cut", self.success_rate, higher_is_worse=False),
+            Headline("recovered where §5.2 can", self.expected_success_rate,
+                     higher_is_worse=False),
+            Headline("slowest recovery", self.recovery_time_max),
+            Headline("worst error after a recovery", self.recovered_position_error_max),
+            Headline("EEPROM life at the configured use", self.eeprom_life_years,
+                     higher_is_worse=False),
+        )
+
+
+ACCURACY: Final = AccuracyNames()
+REPEATABILITY: Final = RepeatabilityNames()
+STARTUP: Final = StartupNames()

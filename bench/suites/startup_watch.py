@@ -1,0 +1,144 @@
+"""Watching a start-up recovery: the motion of each joint at the cut, the replies after power-on
+until the arm is back (within tolerance and still) or the time-out, and the rescue of an arm that
+did not come back. Time is the running loop's."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Final
+
+from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
+from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.contract import STARTUP
+from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
+
+if TYPE_CHECKING:
+    from armbench.drivers.arm import JointState
+
+__all__ = ["MOTION_WINDOW_S", "STILL_RAD", "TRACE_PERIOD_S", "Recovery", "await_recovery",
+           "motion_at", "rescue", "stalled_joints"]
+
+#: Two replies whose joints differ by no more than this (rad, 1.5 wire ticks) show a still arm.
+STILL_RAD: Final = 1.5e-4
+#: Interval (s) of the recovery trace kept in the samples.
+TRACE_PERIOD_S: Final = 0.1
+#: Motion at the cut is read over this window of replies (s): at duty ≥ 10 a moving joint
+#: covers more than ``STILL_RAD`` in it.
+MOTION_WINDOW_S: Final = 0.05
+
+
+def motion_at(recent: Sequence[JointState], last: JointState) -> list[str]:
+    """Each joint's motion (``stopped``, ``cw``, ``ccw``) over the last ``MOTION_WINDOW_S`` of
+    replies before ``last``."""
+    earlier = [s for s in recent if s.t_s <= last.t_s - MOTION_WINDOW_S]
+    if not earlier:
+        return ["stopped"] * len(last.q_rad)
+    ref = earlier[-1]
+    out = []
+    for a, b in zip(ref.q_rad, last.q_rad, strict=True):
+        d = b - a
+        out.append("stopped" if abs(d) <= STILL_RAD else "cw" if d > 0 else "ccw")
+    return out
+
+
+def stalled_joints(arm: Any) -> list[int] | None:
+    """Joints (1-based) whose start-up recovery is stuck at a hard limit (emulator only)."""
+    emu = emulator_of(arm)
+    if emu is None:
+        return None
+    out = []
+    for k, board in enumerate(getattr(emu, "boards", ())):
+        model = getattr(board, "model", None)
+        if model is not None and getattr(model, "homing_failed", False):
+            out.append(k + 1)
+    return out
+
+
+@dataclass(slots=True)
+class Recovery:
+    first_reply_s: float | None = None
+    recovered_s: float | None = None
+    error_rad: float | None = None
+    compared_with: str | None = None
+    last: JointState | None = None
+
+
+async def await_recovery(arm: Any, t_on: float,
+                          error: Callable[[JointState], tuple[float, bool, str]],
+                          timeout_s: float, still_s: float,
+                          log: Callable[..., Any]) -> Recovery:
+    """Watch the replies after power-on (loop time ``t_on``) until the arm has been within
+    tolerance and still for ``still_s`` or ``timeout_s`` has passed. Silence is expected while a
+    joint 1 recovery runs (the master starts its loop afterwards), so reply timeouts are waited
+    through; a lost port raises."""
+    loop = asyncio.get_running_loop()
+    deadline = t_on + timeout_s
+    out = Recovery()
+    seen = arm.state.seq
+    window: JointState | None = None
+    last_trace = -math.inf
+    while True:
+        remaining = deadline - loop.time()
+        if remaining <= 0:
+            break
+        try:
+            state = await arm.wait_state(lambda s, seen=seen: s.seq > seen, timeout_s=remaining)
+        except WaitTimeoutError:
+            break
+        except ReplyTimeoutError:
+            continue
+        seen = state.seq
+        if state.t_s < t_on:
+            continue
+        e, within, what = error(state)
+        out.last, out.error_rad, out.compared_with = state, e, what
+        if out.first_reply_s is None:
+            out.first_reply_s = round(state.t_s - t_on, 6)
+            log(event=STARTUP.ev_ready, first_reply_s=out.first_reply_s,
+                q_rad=rad_list(state.q_rad))
+        if state.t_s - last_trace >= TRACE_PERIOD_S:
+            last_trace = state.t_s
+            log(event=STARTUP.ev_position_check, q_rad=rad_list(state.q_rad),
+                error_mrad=round(e * 1e3, 4), within=within)
+        if not within:
+            window = None
+            continue
+        if window is None or max(abs(a - b) for a, b in zip(state.q_rad, window.q_rad,
+                                                            strict=True)) > STILL_RAD:
+            window = state
+        if state.t_s - window.t_s >= still_s:
+            out.recovered_s = round(window.t_s - t_on, 6)
+            log(event=STARTUP.ev_recovered, recovery_s=out.recovered_s,
+                error_mrad=round(e * 1e3, 4))
+            return out
+    log(event=STARTUP.ev_timeout, after_s=round(loop.time() - t_on, 6))
+    return out
+
+
+async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:
+    """After a failed recovery: re-reference the arm so the campaign can go on. On the
+    emulator: power off, blank EEPROMs (the firmware then takes the motor position as its
+    counter, what an operator re-referencing the joints by hand achieves), power on. On
+    hardware: nothing can be done from here; the next trial errors if the arm is unusable."""
+    emu = emulator_of(ctx.arm)
+    if emu is None or ctx.power is None:
+        log(STARTUP.ev_rescue, done=False, reason="operator must re-reference the arm")
+        return
+    await ctx.power.power_off()
+    for eeprom in getattr(emu, "eeproms", ()):
+        eeprom.erase()
+    await asyncio.sleep(float(ctx.params["off_s"]))
+    await ctx.power.power_on()
+    t = loop_time()
+    try:
+        await ctx.arm.wait_state(lambda s: s.t_s >= t, timeout_s=5.0)
+        await settled_state(ctx.arm, 0.1)
+    except (ReplyTimeoutError, WaitTimeoutError) as exc:
+        # The failure was measured; the next trial will find the arm unusable and error.
+        log(STARTUP.ev_rescue, done=False, reason=f"the arm did not come back: {exc}")
+        return
+    log(STARTUP.ev_rescue, done=True, q_rad=rad_list(ctx.arm.state.q_rad))
+

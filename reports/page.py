@@ -1,0 +1,158 @@
+"""The run report: one self-contained HTML page (``report.html``) from a run record.
+
+Data flows one way: the report reads ``results.json`` (and ``capture.jsonl`` beside it, when the
+run captured its traffic) and nothing else; it never talks to a robot, a driver or the emulator.
+What each section shows is described in ``docs/reports.md``.
+
+The answer comes first: the verdict, the scorecard (each suite's headline figures, from the suite
+contract) and the first plot fit the first screen of a laptop; then one section per suite, chosen
+by the suite's name (:data:`SECTIONS`; a generic one for any other suite), each leading with its
+plots, then a short table, its per-metric tables folded.
+
+The page is one file with no network access: CSS inline, plots inline as SVG, a
+Content-Security-Policy that forbids fetching anything and running any script, every piece of
+record text HTML-escaped by the templates (Jinja2 autoescaping; record text never reaches an SVG).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+
+from armbench.bench.record import (
+    RESULTS_FILE,
+    RunRecord,
+    SuiteRecord,
+    atomic_write_bytes,
+    load_record,
+)
+from armbench.bench.suites.contract import STARTUP
+from armbench.reports.capture import CAPTURE_FILE
+from armbench.reports.environment import environment_rows, fault_rows, settings_summary
+from armbench.reports.format import format_duration, jinja_environment
+from armbench.reports.scorecard import HEADLINES, score_rows
+from armbench.reports.sections import accuracy, generic, repeatability, startup_recovery
+from armbench.reports.sections.traffic import traffic_section
+from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
+from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
+
+__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report",
+           "suite_sections"]
+
+#: The report's file name inside a run directory.
+REPORT_FILE = "report.html"
+
+SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
+#: The section of each suite the report knows, by the suite's name; any other suite gets
+#: :func:`armbench.reports.sections.generic.build`.
+SECTIONS: Mapping[str, SectionBuilder] = {
+    accuracy.SUITE: accuracy.build,
+    repeatability.SUITE: repeatability.build,
+    startup_recovery.SUITE: startup_recovery.build,
+}
+
+
+def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
+                                                              list[SectionView],
+                                                              list[MeasurementRow]]:
+    """The summary view of every planned or recorded suite, the section of every recorded one
+    (scorecard included) and the baseline's rows of suites not in this run."""
+    cmp_rows = {} if record.baseline is None else {r.name: r for r in record.baseline.rows}
+    views: dict[str, SuiteView] = {}
+    order = list(dict.fromkeys([*record.planned_suites, *record.suites]))
+    for i, name in enumerate(order):
+        suite = record.suites.get(name)
+        key = f"suite-{i + 1}"
+        views[name] = (not_started_view(record, name, key) if suite is None
+                       else suite_view(record, suite, key, cmp_rows))
+    orphans: list[MeasurementRow] = []
+    if record.baseline is not None:
+        prefixes = {STARTUP.prefix: STARTUP.suite}
+        for r in record.baseline.rows:
+            if r.status != "missing":
+                continue
+            head = r.name.split(".", 1)[0]
+            owner = views.get(prefixes.get(head, head))
+            (owner.rows if owner is not None else orphans).append(missing_row(r))
+    sections = []
+    for name, suite in record.suites.items():
+        builder = SECTIONS.get(name, generic.build)
+        section = builder(record, suite, views[name], figs)
+        section.scorecard = score_rows(record, suite, HEADLINES.get(name), cmp_rows)
+        sections.append(section)
+    return list(views.values()), sections, orphans
+
+
+def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:
+    """The first plot of the page, shown again beside the scorecard."""
+    first = next((s.figures[0] for s in sections if s.figures), None)
+    return None if first is None else figs.copy(first)
+
+
+def build_report_html(record: RunRecord, *, capture: Path | None = None,
+                      out_dir: Path | None = None, source: str = RESULTS_FILE) -> str:
+    """The report page of ``record`` as HTML text. ``capture`` is a traffic capture to summarise
+    (linked relative to ``out_dir``, where the page will be written)."""
+    figs = Figures()
+    suites, sections, orphans = suite_sections(record, figs)
+    traffic = None
+    if capture is not None and capture.is_file():
+        traffic = traffic_section(capture, out_dir or capture.parent, figs)
+    lead = _lead(sections, figs)
+    if lead is None and traffic is not None and traffic.figures:
+        lead = figs.copy(traffic.figures[0])
+    robot_s = sum(t.duration_s for s in record.suites.values() for t in s.trials)
+    baseline = record.baseline
+    return jinja_environment().get_template("report.html.j2").render(
+        record=record,
+        verdict=record.verdict,
+        reasons=verdict_reasons(record),
+        environment=environment_rows(record),
+        settings=settings_summary(record.environment.settings),
+        settings_json=json.dumps(dict(record.environment.settings), indent=1,
+                                 ensure_ascii=False),
+        faults=fault_rows(record),
+        suites=suites,
+        sections=sections,
+        lead=lead,
+        run_time=format_duration(record.end_s),
+        robot_time=format_duration(robot_s),
+        baseline=baseline,
+        baseline_counts=None if baseline is None else {
+            "compared": sum(r.status == "compared" for r in baseline.rows),
+            "regressed": len(baseline.regressions),
+            "new": sum(r.status == "new" for r in baseline.rows),
+            "missing": sum(r.status == "missing" for r in baseline.rows)},
+        orphans=orphans,
+        traffic=traffic,
+        source=source,
+    )
+
+
+def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os.PathLike[str],
+                  *, capture: str | os.PathLike[str] | None = None) -> Path:
+    """Render the report of ``record`` (a :class:`RunRecord`, a ``results.json`` path or a run
+    directory) to ``out_path`` (written atomically); returns the path written.
+
+    The traffic section reads ``capture`` when given, else ``capture.jsonl`` beside the record
+    file if there is one. Raises ``RecordError`` for an unreadable or invalid record.
+    """
+    out = Path(out_path)
+    capture_path = None if capture is None else Path(capture)
+    source = "RunRecord"
+    if isinstance(record, RunRecord):
+        rec = record
+    else:
+        path = Path(record)
+        if path.is_dir():
+            path = path / RESULTS_FILE
+        rec = load_record(path)
+        source = path.name
+        if capture_path is None and (path.parent / CAPTURE_FILE).is_file():
+            capture_path = path.parent / CAPTURE_FILE
+    html = build_report_html(rec, capture=capture_path, out_dir=out.parent, source=source)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out, html.encode("utf-8"))
+    return out
