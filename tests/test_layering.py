@@ -35,3 +35,16 @@ def test_the_packages_import_nothing_by_themselves() -> None:
 def test_driver_names_are_exported_lazily() -> None:
     mods = _modules_after("import armbench; armbench.Arm; armbench.connect")
     assert "armbench.drivers.arm" in mods
+
+
+def test_the_runner_writes_records_and_renders_nothing() -> None:
+    """The runner imports no report code; ``bench.reporting`` (the run command's and the pytest
+    plugin's) imports it only when a report is written."""
+    mods = _modules_after("import armbench.bench.runner, armbench.bench.reporting")
+    assert not any(m.startswith("armbench.reports") for m in mods), sorted(mods)
+
+
+def test_the_worker_processes_import_nothing_of_the_runner() -> None:
+    """No cycle between the runner and its worker processes: ``bench.workers`` only runs jobs."""
+    mods = _modules_after("import armbench.bench.workers")
+    assert not any(m.startswith("armbench.bench.runner") for m in mods), sorted(mods)

@@ -25,6 +25,7 @@ import armbench.bench.cli
 import armbench.bench.suites
 from armbench.bench.power import CommandPower, EmulatorPower, ManualPower, PowerError
 from armbench.bench.record import Measurement, Trial, load_record
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
     EXIT_ERROR,
     EXIT_FAIL,
@@ -183,7 +184,10 @@ class Emulators(list[Any]):
 
 def run(options: RunOptions, emulators: Emulators | None = None,
         progress: io.StringIO | None = None) -> RunOutcome:
-    return run_virtual(run_bench(options, progress=progress, emulator_factory=emulators))
+    """Run as ``armbench run`` does: the runner writes the record, then its reports."""
+    outcome = run_virtual(run_bench(options, progress=progress, emulator_factory=emulators))
+    write_reports(outcome.record, outcome.out_dir)
+    return outcome
 
 
 def measurements(record: Any) -> dict[str, tuple[float, str]]:
@@ -455,6 +459,7 @@ def test_resume_after_cancellation_matches_an_uninterrupted_run(tmp_path: Path) 
     assert [t.index for t in partial.suites["tiny"].trials] == [0, 1, 2, 3]
     assert partial.suites["tiny"].status == "running"
     assert "interrupted" in stream.getvalue() and "--resume" in stream.getvalue()
+    write_reports(partial, out)  # as armbench run does with the record of an interrupted run
     assert (out / "junit.xml").exists() and (out / "report.html").exists()
 
     emulators = Emulators()
@@ -499,6 +504,8 @@ def test_ctrl_c_exits_130_and_resume_completes(
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1]
     assert record.verdict == "incomplete"
     assert "--resume" in capsys.readouterr().out
+    # the command renders the reports of the record the interrupted runner left
+    assert (out / "junit.xml").exists() and (out / "report.html").exists()
     TinySuite.interrupt_at = None
     assert armbench.bench.cli.main(["run", "--resume", str(out)]) == EXIT_PASS
     record = load_record(out / "results.json")

@@ -15,6 +15,7 @@ import argparse
 import sys
 from typing import Any
 
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, RunOutcome, run_sync
 from armbench.bench.suites import SUITES
 
@@ -74,6 +75,7 @@ def _run(args: argparse.Namespace) -> int:
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers)
     outcome = run_sync(options, progress=sys.stderr)
+    write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
     _summary(outcome)
     return outcome.exit_status
 
