@@ -83,8 +83,10 @@ def _run(args: argparse.Namespace) -> int:
 def _summary(outcome: RunOutcome) -> None:
     record = outcome.record
     out = sys.stdout
+    notes = ([outcome.error] if outcome.error else []) + [
+        f"warning: {w}" for w in outcome.warnings]
     print(f"run {record.run_id}: verdict {record.verdict}"
-          + (f" ({outcome.error})" if outcome.error else ""), file=out)
+          + (f" ({'; '.join(notes)})" if notes else ""), file=out)
     for suite in record.suites.values():
         for trial in suite.trials:
             if trial.status == "error":

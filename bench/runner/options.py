@@ -145,6 +145,8 @@ class BenchPlan:
     runner_info: dict[str, Any] = field(default_factory=dict)
     workers: int = 1
     """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
+    warnings: list[str] = field(default_factory=list)
+    """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
@@ -172,6 +174,8 @@ class RunOutcome:
     interrupted: bool = False
     error: str | None = None
     """Why the bench stopped early (connection lost for good, a baseline that cannot be used)."""
+    warnings: tuple[str, ...] = ()
+    """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
 
     @property
     def verdict(self) -> Verdict:

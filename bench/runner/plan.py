@@ -12,6 +12,8 @@ exits 2.
 
 from __future__ import annotations
 
+import fnmatch
+import itertools
 import json
 import math
 import os
@@ -21,14 +23,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import parse_qs, urlsplit
 
-from armbench.bench.baseline import BaselineError, load_baseline
+from armbench.bench.baseline import BaselineError, check_suite_versions, load_baseline, read_record
 from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
 from armbench.bench.record import (
     RESULTS_FILE,
     RecordError,
     RunRecord,
-    load_record,
     new_run_id,
     path_inside,
 )
@@ -45,12 +46,15 @@ from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.drivers.transports import scheme_of, transport_class
+from armbench.drivers.transports import open_transport, scheme_of, transport_class
 
 if TYPE_CHECKING:
     from armbench.fakes.faults import Fault
 
 __all__ = ["prepare"]
+
+#: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
+MAX_TRIALS = 10_000
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
                "power_timeout_s", "tracker", "workers"}
@@ -142,12 +146,14 @@ def _load_runner_info(directory: Path) -> dict[str, Any]:
 
 
 def _check_port(port: str) -> _Port:
-    """The port's scheme and transport, a serial device that exists, a ``fake://`` query."""
+    """The port's scheme and transport, its address (``socket://HOST:PORT`` with both), a serial
+    device that exists, a ``fake://`` query."""
     transport_class(port)  # unknown scheme or a transport that cannot be imported
     if scheme_of(port) is None and "/" in port and not Path(port).exists():
         raise TransportError(port, "no such serial device (is the arm plugged in? "
                                    "'python3 -m serial.tools.list_ports' lists the ports)")
     if scheme_of(port) != "fake":
+        open_transport(port)  # built, not opened: its constructor checks the address
         return _Port(port, fake=False)
     from armbench.drivers.transports.fake import parse_fake_url
 
@@ -266,14 +272,24 @@ def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
             configured = config.suite_params(ref)
         try:
             params = suite.params(inputs.settings, configured)
-            trials: list[Mapping[str, Any]] = [dict(t) for t in suite.plan(params)]
+            trials: list[Mapping[str, Any]] = [
+                dict(t) for t in itertools.islice(suite.plan(params), MAX_TRIALS + 1)]
         except ArmbenchError:
             raise
         except Exception as exc:  # a wrongly typed value the suite did not check itself
             raise SettingsError(f"suites.{suite.name}", configured,
                                 f"cannot be used: {type(exc).__name__}: {exc}") from exc
+        if len(trials) > MAX_TRIALS:
+            raise SettingsError(f"suites.{suite.name}", configured,
+                                f"plans more than {MAX_TRIALS} trials; at most {MAX_TRIALS} "
+                                "trials per suite")
         if resume is not None:
             rec = resume.suites.get(suite.name)
+            measured = 0 if rec is None else len({t.index for t in rec.completed_trials()})
+            if rec is not None and rec.status == "done" and measured < len(trials):
+                raise RecordError(f"suites.{suite.name}.status",
+                                  f"'done' with {measured} of {len(trials)} trials measured "
+                                  "(was the record edited?); start a new run")
             if rec is not None and rec.status != "done":
                 if rec.version != suite.version:
                     raise RecordError(f"suites.{suite.name}.version",
@@ -287,6 +303,29 @@ def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
     return planned
 
 
+def _check_limit_units(planned: Sequence[PlannedSuite], config: LimitsConfig) -> None:
+    """Every limit that judges a metric a suite declares (``Suite.metric_units``) is in that
+    metric's unit: a wrong unit is the file's mistake, found before trial 0 runs."""
+    for ps in planned:
+        for pattern, unit in ps.suite.metric_units.items():
+            applying = [config.limit_for(pattern)] + [
+                limit for limit in config.limits.values()
+                if fnmatch.fnmatchcase(limit.metric, pattern)]
+            for limit in applying:
+                if limit is not None and limit.unit != unit:
+                    raise SettingsError(f'limits."{limit.metric}".unit', limit.unit,
+                                        f"does not match the unit {unit!r} of the {ps.name} "
+                                        f"metrics {pattern}")
+
+
+def _warnings(config: LimitsConfig) -> list[str]:
+    """What the verdict must say beside pass or fail: a limits file that judges nothing."""
+    if config.limits:
+        return []
+    where = f"the limits file {config.path}" if config.path else "the run's limits"
+    return [f"{where} sets no limits: every measurement is unjudged"]
+
+
 def _load_checked_baseline(path: str | Path, config: LimitsConfig,
                            planned: Sequence[PlannedSuite]) -> RunRecord:
     """The baseline record, refused if its limits spec or a suite's version differs."""
@@ -295,12 +334,8 @@ def _load_checked_baseline(path: str | Path, config: LimitsConfig,
     if theirs is not None and theirs != config.spec_version:
         raise BaselineError(f"baseline {path}: limits spec version {theirs!r} "
                             f"differs from this run's {config.spec_version!r}")
-    for ps in planned:  # figures of another suite version measure something else
-        theirs_suite = baseline.suites.get(ps.name)
-        if theirs_suite is not None and theirs_suite.version != ps.suite.version:
-            raise BaselineError(f"baseline {path}: suites.{ps.name}.version "
-                                f"{theirs_suite.version!r} differs from this run's "
-                                f"{ps.suite.version!r}; measure a new baseline")
+    # figures of another suite version measure something else
+    check_suite_versions(baseline, {ps.name: ps.suite.version for ps in planned}, path)
     return baseline
 
 
@@ -349,7 +384,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     info: dict[str, Any] = {}
     if options.resume is not None:
         out_dir = _resume_target(options)
-        resume = load_record(path_inside(out_dir, RESULTS_FILE))
+        resume = read_record(path_inside(out_dir, RESULTS_FILE))
         info = _load_runner_info(out_dir)
     else:
         out_dir = Path(options.out) if options.out is not None else Path(options.runs_root)
@@ -367,6 +402,7 @@ def prepare(options: RunOptions) -> BenchPlan:
 
         emulator_settings(inputs.settings, seed=0)  # the [emulator] table, checked now
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
+    _check_limit_units(planned, inputs.config)
     baseline = (None if options.baseline is None
                 else _load_checked_baseline(options.baseline, inputs.config, planned))
     tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
@@ -392,4 +428,5 @@ def prepare(options: RunOptions) -> BenchPlan:
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
         connect_timeout_s=knobs.connect_timeout_s, settle_s=knobs.settle_s, power=power,
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
+        warnings=_warnings(inputs.config),
     )

@@ -37,6 +37,7 @@ class ProgressPrinter:
         self._t0 = time.perf_counter()
         self._durations: dict[str, list[float]] = {}
         self._remaining: dict[str, int] = {}
+        self._pending_s = 0.0
         self._open_line = False
         self.lines: list[str] = []
         """Every line shown (for tests and logs)."""
@@ -57,11 +58,17 @@ class ProgressPrinter:
             total += left * (sum(ds) / len(ds) if ds else overall)
         return total
 
-    def trial(self, suite: str, k: int, n: int, status: str, wall_s: float) -> None:
-        """Trial ``k`` (1-based) of ``n`` of ``suite`` ended with ``status``."""
-        self.done += 1
-        self._durations.setdefault(suite, []).append(wall_s)
-        self._remaining[suite] = max(0, self._remaining.get(suite, 1) - 1)
+    def trial(self, suite: str, k: int, n: int, status: str, wall_s: float, *,
+              retry: bool = False) -> None:
+        """Trial ``k`` (1-based) of ``n`` of ``suite`` ended with ``status``; with ``retry`` it
+        is measured again, so it is not counted as finished yet (its time is added to the
+        attempt that finishes it)."""
+        self._pending_s += wall_s
+        if not retry:
+            self.done += 1
+            self._durations.setdefault(suite, []).append(self._pending_s)
+            self._pending_s = 0.0
+            self._remaining[suite] = max(0, self._remaining.get(suite, 1) - 1)
         elapsed = time.perf_counter() - self._t0
         est = self.estimate_s()
         parts = [f"[{suite}] trial {k}/{n} {status}", f"run {self.done}/{self.total}",

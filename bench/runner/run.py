@@ -132,6 +132,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         runner.captures.recover(writer.record, writer.out_dir)
     printer.message(f"armbench run {plan.run_id}: {', '.join(s.name for s in plan.suites)} on "
                     f"{plan.port} -> {plan.out_dir}")
+    for warning in plan.warnings:
+        printer.message(f"warning: {warning}")
     error: str | None = None
     interrupted = False
     try:
@@ -164,8 +166,9 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                             f"armbench run --resume {plan.out_dir}")
     record = writer.record
     status = EXIT_ERROR if error is not None else exit_status(record.verdict)
-    printer.message(f"verdict: {record.verdict}" + (f" ({error})" if error else ""))
-    return RunOutcome(plan.out_dir, record, status, error=error)
+    notes = ([error] if error else []) + [f"warning: {w}" for w in plan.warnings]
+    printer.message(f"verdict: {record.verdict}" + (f" ({'; '.join(notes)})" if notes else ""))
+    return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings))
 
 
 async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
@@ -193,4 +196,4 @@ def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
             raise KeyboardInterrupt from None
         record = load_record(plan.out_dir / RESULTS_FILE)
         return RunOutcome(plan.out_dir, record, EXIT_INTERRUPTED, interrupted=True,
-                          error="interrupted")
+                          error="interrupted", warnings=tuple(plan.warnings))

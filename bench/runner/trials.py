@@ -301,9 +301,10 @@ class TrialRunner:
         """The progress line of a recorded attempt: done, or its error and whether it is
         retried."""
         status = trial.status if trial.status == "done" else f"error ({trial.error})"
-        if trial.status == "error" and attempt < self.plan.retries:
+        retry = trial.status == "error" and attempt < self.plan.retries
+        if retry:
             status += f", retrying ({attempt + 1}/{self.plan.retries})"
-        self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s)
+        self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s, retry=retry)
 
     async def summarize(self, ps: PlannedSuite) -> None:
         """``Suite.summarize`` over the suite's completed trials, and the suite's end."""
