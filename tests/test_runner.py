@@ -297,12 +297,17 @@ def test_trial_error_ends_the_suite_and_the_run_goes_on(tmp_path: Path) -> None:
 def test_retries_measure_an_errored_trial_again(tmp_path: Path) -> None:
     TinySuite.fail_once = {1}
     out = tmp_path / "run"
+    progress = io.StringIO()
     outcome = run(RunOptions(suites=["tiny"], config=write_config(tmp_path), out=out, retries=1,
-                             workers=1))  # fail_once lives in this process
+                             workers=1), progress=progress)  # fail_once lives in this process
     assert outcome.exit_status == EXIT_PASS
     suite = load_record(out / "results.json").suites["tiny"]
     assert [t.status for t in suite.trials] == ["done"] * 3
     assert [(t.index, t.status) for t in suite.superseded_trials] == [(1, "error")]
+    # the retried trial is counted once: "run 3/3" at the end, never "run 4/3"
+    counts = [line.split("run ")[1].split()[0] for line in progress.getvalue().splitlines()
+              if " trial " in line and "run " in line]
+    assert counts == ["1/3", "1/3", "2/3", "3/3"], counts
 
 
 def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> None:
