@@ -12,6 +12,7 @@ never regressions. Trial-level measurements are not compared: trial *i* of one r
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 from armbench.bench.limits import LimitsConfig
@@ -29,10 +30,15 @@ __all__ = [
     "BaselineError",
     "Comparison",
     "ComparisonRow",
+    "check_suite_versions",
     "compare",
     "format_comparison",
     "load_baseline",
+    "read_record",
 ]
+
+#: What a record nested beyond the JSON parser's depth is called (it is no run record).
+TOO_DEEP = "is nested too deeply to be a run record"
 
 
 class BaselineError(ArmbenchError, ValueError):
@@ -40,13 +46,33 @@ class BaselineError(ArmbenchError, ValueError):
     unit changed."""
 
 
+def read_record(path: str | Path) -> RunRecord:
+    """:func:`~armbench.bench.record.load_record`, with a file nested beyond the JSON parser's
+    depth refused as a :class:`RecordError` naming it (instead of a ``RecursionError``)."""
+    try:
+        return load_record(path)
+    except RecursionError:
+        raise RecordError(str(path), TOO_DEEP) from None
+
+
 def load_baseline(path: str | Path) -> RunRecord:
     """Read a baseline ``results.json``; any problem (missing, other schema, invalid field)
     raises :class:`BaselineError` naming the file."""
     try:
-        return load_record(path)
+        return read_record(path)
     except RecordError as exc:
         raise BaselineError(f"baseline {exc}") from None
+
+
+def check_suite_versions(baseline: RunRecord, versions: Mapping[str, str],
+                         name: str | Path) -> None:
+    """Refuse a baseline whose figures of a suite come from another version of it (they measure
+    something else): ``versions`` maps this run's suites to their versions."""
+    for suite, version in versions.items():
+        theirs = baseline.suites.get(suite)
+        if theirs is not None and theirs.version != version:
+            raise BaselineError(f"baseline {name}: suites.{suite}.version {theirs.version!r} "
+                                f"differs from this run's {version!r}; measure a new baseline")
 
 
 def compare(record: RunRecord, baseline: RunRecord,
@@ -56,7 +82,8 @@ def compare(record: RunRecord, baseline: RunRecord,
     Tolerances come from ``config`` (defaults when None). The direction of a metric is the
     current measurement's ``better``. Raises :class:`BaselineError` when the records are of
     different schemas or were judged under different limits spec versions, or when a metric's
-    unit differs between them. Store the result with ``writer.set_baseline(...)``.
+    unit or a suite's version differs between them.
+    Store the result with ``writer.set_baseline(...)``.
     """
     cfg = config or LimitsConfig()
     if baseline.schema != record.schema:
@@ -68,6 +95,8 @@ def compare(record: RunRecord, baseline: RunRecord,
         raise BaselineError(f"baseline {baseline.run_id}: limits spec version {theirs!r} differs "
                             f"from this run's {sorted(ours - {theirs})[0]!r}; measure a new "
                             "baseline")
+    check_suite_versions(baseline, {n: s.version for n, s in record.suites.items()},
+                         baseline.run_id)
     current = record.suite_measurements()
     before = baseline.suite_measurements()
     rows = [_row(m, before.get(name), cfg) for name, m in current.items()]

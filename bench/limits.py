@@ -15,13 +15,12 @@ import copy
 import functools
 import math
 import re
-import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.settings import SettingsError, read_toml
 
 __all__ = [
     "DEFAULT_TOLERANCE_PCT",
@@ -172,15 +171,7 @@ def best_match(patterns: Iterable[str], metric: str) -> str | None:
 def load_limits(path: str | Path) -> LimitsConfig:
     """Load and validate a limits file (TOML); errors raise ``SettingsError`` naming the field."""
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise SettingsError("limits file", str(p), "does not exist") from None
-    except IsADirectoryError:
-        raise SettingsError("limits file", str(p), "is a directory") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SettingsError("limits file", str(p), f"is not valid TOML: {exc}") from None
+    data = read_toml(p, "limits file")
     return parse_limits(data, path=str(p))
 
 

@@ -117,7 +117,7 @@ class BenchSession:
         suite = writer.suite(SUITE_NAME)
         if suite.status == "running":
             writer.end_suite(SUITE_NAME, summarize(suite.trials, self.limits))
-        from armbench.bench.runner import write_reports
+        from armbench.bench.reporting import write_reports
 
         write_reports(writer.record, writer.out_dir)
 

@@ -27,6 +27,7 @@ __all__ = [
     "SerialSettings",
     "SettingsError",
     "load_settings",
+    "read_toml",
 ]
 
 JOINT_COUNT = 4
@@ -183,15 +184,28 @@ def load_settings(path: str | Path | None = None) -> RobotSettings:
     """Load robot settings from a TOML file (defaults when ``path`` is None)."""
     if path is None:
         return RobotSettings()
+    return RobotSettings.from_mapping(read_toml(path, "settings"))
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The TOML file at ``path`` as a table; anything that keeps it from being one (missing, a
+    directory, unreadable, not UTF-8, not TOML) raises :class:`SettingsError` naming ``what`` and
+    the path, in one line."""
     p = Path(path)
     try:
         with p.open("rb") as fh:
-            data = tomllib.load(fh)
+            return tomllib.load(fh)
     except FileNotFoundError:
-        raise SettingsError("settings", str(p), "does not exist") from None
+        raise SettingsError(what, str(p), "does not exist") from None
+    except IsADirectoryError:
+        raise SettingsError(what, str(p), "is a directory, not a TOML file") from None
+    except OSError as exc:
+        raise SettingsError(what, str(p), f"cannot be read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SettingsError(what, str(p), f"is not UTF-8 text: {exc.reason} at byte "
+                                          f"{exc.start}") from None
     except tomllib.TOMLDecodeError as exc:
-        raise SettingsError("settings", str(p), f"is not valid TOML: {exc}") from None
-    return RobotSettings.from_mapping(data)
+        raise SettingsError(what, str(p), f"is not valid TOML: {exc}") from None
 
 
 _JOINT_KEYS_DEG = {"lower_deg": "lower_rad", "upper_deg": "upper_rad", "offset_deg": "offset_rad",

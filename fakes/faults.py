@@ -30,13 +30,12 @@ import asyncio
 import errno
 import itertools
 import random
-import tomllib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Literal, Protocol, get_args
 
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings, SettingsError, read_toml
 
 __all__ = ["FAULT_KINDS", "Fault", "FaultInjector", "faults_from_settings", "load_faults",
            "parse_faults"]
@@ -128,17 +127,20 @@ def _whole(value: object, low: int, high: int) -> bool:
 
 
 def load_faults(path: str | Path) -> list[Fault]:
-    """Faults from a TOML file of ``[[faults]]`` tables."""
+    """Faults from a TOML file of ``[[faults]]`` tables. Any other table or key is refused (a
+    misspelt ``[[faultz]]``, a limits file given by mistake), and so is a file with no fault:
+    either would run with no faults injected and pass."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError:
-        raise SettingsError("faults", str(p), "does not exist") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SettingsError("faults", str(p), f"is not valid TOML: {exc}") from None
+    data = read_toml(p, "faults")
+    for key in data:
+        if key != "faults":
+            raise SettingsError(f"faults file {p}", key, "is not a table of a faults file "
+                                                         "(it holds [[faults]] tables only)")
     items = data.get("faults", [])
     if not isinstance(items, list):
         raise SettingsError("faults", items, "must be an array of tables ([[faults]])")
+    if not items:
+        raise SettingsError("faults", str(p), "holds no [[faults]] table: nothing to inject")
     return parse_faults(items)
 
 

@@ -15,13 +15,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import quote
 
+from armbench.bench.baseline import read_record
 from armbench.bench.record import (
     RESULTS_FILE,
     Measurement,
     RecordError,
     RunRecord,
     atomic_write_bytes,
-    load_record,
 )
 from armbench.bench.suites.contract import Headline
 from armbench.reports import plots
@@ -133,7 +133,7 @@ def render_index(runs_dir: str | os.PathLike[str],
         if not results.is_file():
             continue
         try:
-            record = load_record(results)
+            record = read_record(results)
         except RecordError as exc:
             loaded.append(((2, 0.0, d.name), d.name, d, None, str(exc)))
             continue

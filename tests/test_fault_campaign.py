@@ -106,6 +106,7 @@ import pytest
 from netutil import free_port, listening
 
 from armbench.bench.record import load_record
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.drivers.arm import (
     Arm,
@@ -438,6 +439,7 @@ def test_accuracy_run_under_fault(case: RunCase, tmp_path: Path) -> None:
                          faults=faults_file(tmp_path, case.faults))
     with cpu_guard(30.0) as fired:
         outcome = run_at(MATRIX_T0_S, within(run_bench(options, progress=io.StringIO()), 300.0))
+    write_reports(outcome.record, out)  # as armbench run does once the record is on disk
     assert not fired[0], "the run livelocked"
     record = load_record(out / "results.json")  # the record on disk is valid
     assert record.verdict == outcome.record.verdict

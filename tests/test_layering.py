@@ -47,3 +47,16 @@ def test_the_driver_reaches_the_fake_transport_only_by_name() -> None:
     mods = _modules_after("from armbench.drivers.transports import open_transport as o; "
                           "o('fake://')")
     assert "armbench.fakes.transport" in mods
+
+
+def test_the_runner_writes_records_and_renders_nothing() -> None:
+    """The runner imports no report code; ``bench.reporting`` (the run command's and the pytest
+    plugin's) imports it only when a report is written."""
+    mods = _modules_after("import armbench.bench.runner, armbench.bench.reporting")
+    assert not any(m.startswith("armbench.reports") for m in mods), sorted(mods)
+
+
+def test_the_worker_processes_import_nothing_of_the_runner() -> None:
+    """No cycle between the runner and its worker processes: ``bench.workers`` only runs jobs."""
+    mods = _modules_after("import armbench.bench.workers")
+    assert not any(m.startswith("armbench.bench.runner") for m in mods), sorted(mods)

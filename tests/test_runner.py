@@ -25,6 +25,7 @@ import armbench.bench.cli
 import armbench.bench.suites
 from armbench.bench.power import CommandPower, EmulatorPower, ManualPower, PowerError
 from armbench.bench.record import Measurement, Trial, load_record
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
     EXIT_ERROR,
     EXIT_FAIL,
@@ -183,7 +184,10 @@ class Emulators(list[Any]):
 
 def run(options: RunOptions, emulators: Emulators | None = None,
         progress: io.StringIO | None = None) -> RunOutcome:
-    return run_virtual(run_bench(options, progress=progress, emulator_factory=emulators))
+    """Run as ``armbench run`` does: the runner writes the record, then its reports."""
+    outcome = run_virtual(run_bench(options, progress=progress, emulator_factory=emulators))
+    write_reports(outcome.record, outcome.out_dir)
+    return outcome
 
 
 def measurements(record: Any) -> dict[str, tuple[float, str]]:
@@ -293,12 +297,17 @@ def test_trial_error_ends_the_suite_and_the_run_goes_on(tmp_path: Path) -> None:
 def test_retries_measure_an_errored_trial_again(tmp_path: Path) -> None:
     TinySuite.fail_once = {1}
     out = tmp_path / "run"
+    progress = io.StringIO()
     outcome = run(RunOptions(suites=["tiny"], config=write_config(tmp_path), out=out, retries=1,
-                             workers=1))  # fail_once lives in this process
+                             workers=1), progress=progress)  # fail_once lives in this process
     assert outcome.exit_status == EXIT_PASS
     suite = load_record(out / "results.json").suites["tiny"]
     assert [t.status for t in suite.trials] == ["done"] * 3
     assert [(t.index, t.status) for t in suite.superseded_trials] == [(1, "error")]
+    # the retried trial is counted once: "run 3/3" at the end, never "run 4/3"
+    counts = [line.split("run ")[1].split()[0] for line in progress.getvalue().splitlines()
+              if " trial " in line and "run " in line]
+    assert counts == ["1/3", "1/3", "2/3", "3/3"], counts
 
 
 def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> None:
@@ -455,6 +464,7 @@ def test_resume_after_cancellation_matches_an_uninterrupted_run(tmp_path: Path) 
     assert [t.index for t in partial.suites["tiny"].trials] == [0, 1, 2, 3]
     assert partial.suites["tiny"].status == "running"
     assert "interrupted" in stream.getvalue() and "--resume" in stream.getvalue()
+    write_reports(partial, out)  # as armbench run does with the record of an interrupted run
     assert (out / "junit.xml").exists() and (out / "report.html").exists()
 
     emulators = Emulators()
@@ -499,6 +509,8 @@ def test_ctrl_c_exits_130_and_resume_completes(
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1]
     assert record.verdict == "incomplete"
     assert "--resume" in capsys.readouterr().out
+    # the command renders the reports of the record the interrupted runner left
+    assert (out / "junit.xml").exists() and (out / "report.html").exists()
     TinySuite.interrupt_at = None
     assert armbench.bench.cli.main(["run", "--resume", str(out)]) == EXIT_PASS
     record = load_record(out / "results.json")

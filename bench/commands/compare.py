@@ -2,7 +2,8 @@
 
 Prints the metric-by-metric table of :func:`armbench.bench.baseline.format_comparison` (or JSON with
 ``--json``). Exit status: 1 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
-record cannot be used (missing, invalid, another schema or limits spec, a changed unit).
+record cannot be used (missing, invalid, another schema, limits spec or suite version, a changed
+unit, or a run B that measured none of the baseline's metrics).
 Tolerances come from ``--limits bench.toml`` (``[regression]``), else 10 % for every metric.
 ``--html OUT`` also writes the comparison as a page in the run report's style.
 """
@@ -14,9 +15,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.baseline import compare, format_comparison, load_baseline
+from armbench.bench.baseline import compare, format_comparison, load_baseline, read_record
 from armbench.bench.limits import LimitsConfig, load_limits
-from armbench.bench.record import RESULTS_FILE, load_record
+from armbench.bench.record import RESULTS_FILE
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
 
@@ -48,8 +50,13 @@ def _results(name: str) -> Path:
 def _run(args: argparse.Namespace) -> int:
     config = LimitsConfig() if args.limits is None else load_limits(args.limits)
     baseline = load_baseline(_results(args.baseline))
-    current = load_record(_results(args.current))
+    current = read_record(_results(args.current))
     comparison = compare(current, baseline, config)
+    compared = sum(r.status == "compared" for r in comparison.rows)
+    missing = sum(r.status == "missing" for r in comparison.rows)
+    if not compared and missing:
+        raise ArmbenchError(f"run {current.run_id} measured none of the baseline's suite-level "
+                            f"metrics (0 compared, {missing} missing): nothing to judge")
     if args.json:
         print(json.dumps({"run_id": current.run_id, **comparison.to_json()}, indent=1))
     else:

@@ -7,12 +7,13 @@ import asyncio
 import contextlib
 import ipaddress
 import logging
+import math
 import signal
 import sys
 from typing import Any
 
 from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import load_settings
+from armbench.drivers.settings import SettingsError, load_settings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.faults import faults_from_settings, load_faults
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
@@ -46,7 +47,15 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_run)
 
 
+def _seconds(option: str, value: float | None) -> None:
+    """A duration option: None, or a finite number of seconds above 0."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise SettingsError(option, value, "must be a finite number of seconds > 0")
+
+
 def _run(args: argparse.Namespace) -> int:
+    _seconds("--duration", args.duration)
+    _seconds("--idle-timeout", args.idle_timeout)
     robot = load_settings(args.settings)
     overrides = {"seed": args.seed} if args.seed is not None else {}
     settings = emulator_settings(robot, **overrides)
@@ -89,7 +98,11 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
         print(f"armbench emulate: serving the arm on {path}{link}", flush=True)
     else:
         server = TcpServer(arm, *host_port, idle_timeout_s=args.idle_timeout)
-        host, port = await server.start()
+        try:
+            host, port = await server.start()
+        except OSError as exc:  # the port is taken, the address is not this machine's, ...
+            raise ArmbenchError(f"--tcp: cannot serve on {args.tcp}: "
+                                f"{exc.strerror or exc}") from None
         print(f"armbench emulate: serving the arm on socket://{host}:{port}", flush=True)
     try:
         with contextlib.suppress(TimeoutError):

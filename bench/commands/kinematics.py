@@ -23,9 +23,13 @@ from armbench.drivers.kinematics import (
     ik,
     protocol_to_dh,
 )
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 
 __all__ = ["register"]
+
+#: The longest gripper ``--d4`` accepts (m): the tool points out of the flange, and a gripper
+#: half as long as the arm itself (about 0.9 m) is already far beyond the RoboLink's payload.
+MAX_GRIPPER_OFFSET_M = 0.5
 
 #: What argparse should take for a negative number rather than an option: also ``-1e-3``.
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
@@ -84,6 +88,9 @@ def register(sub: Any) -> None:
 def _settings(args: argparse.Namespace) -> RobotSettings:
     settings = load_settings(args.settings)
     if args.d4 is not None:
+        if not 0.0 <= args.d4 <= MAX_GRIPPER_OFFSET_M:  # NaN fails too
+            raise SettingsError("--d4", args.d4, f"must be a gripper offset d4_m of "
+                                                 f"0..{MAX_GRIPPER_OFFSET_M:g} m")
         settings = settings.with_d4(args.d4)
     return settings
 

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.baseline import TOO_DEEP
 from armbench.bench.record import RESULTS_FILE
 from armbench.drivers.errors import ArmbenchError
 
@@ -49,6 +50,10 @@ def _run(args: argparse.Namespace) -> int:
             out = render_report(results, results.parent / REPORT_FILE)
         except ArmbenchError as exc:
             print(f"armbench report: error: {exc}", file=sys.stderr)
+            status = 2
+            continue
+        except RecursionError:
+            print(f"armbench report: error: {results}: {TOO_DEEP}", file=sys.stderr)
             status = 2
             continue
         print(out)

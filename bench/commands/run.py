@@ -15,6 +15,7 @@ import argparse
 import sys
 from typing import Any
 
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, RunOutcome, run_sync
 from armbench.bench.suites import SUITES
 
@@ -74,6 +75,7 @@ def _run(args: argparse.Namespace) -> int:
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers)
     outcome = run_sync(options, progress=sys.stderr)
+    write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
     _summary(outcome)
     return outcome.exit_status
 
@@ -81,8 +83,10 @@ def _run(args: argparse.Namespace) -> int:
 def _summary(outcome: RunOutcome) -> None:
     record = outcome.record
     out = sys.stdout
+    notes = ([outcome.error] if outcome.error else []) + [
+        f"warning: {w}" for w in outcome.warnings]
     print(f"run {record.run_id}: verdict {record.verdict}"
-          + (f" ({outcome.error})" if outcome.error else ""), file=out)
+          + (f" ({'; '.join(notes)})" if notes else ""), file=out)
     for suite in record.suites.values():
         for trial in suite.trials:
             if trial.status == "error":

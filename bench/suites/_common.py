@@ -130,6 +130,10 @@ assert (MIN_PERIOD_CYCLES, MAX_PERIOD_CYCLES) == (2, 100)  # the mapping above r
 # --------------------------------------------------------------------------------------------
 # Parameter checks (raise SettingsError naming ``suites.<suite>.<key>``)
 
+#: The most laps or cycles a suite parameter may ask for: a bound on a run's length, checked
+#: before anything moves (200 laps of the accuracy suite take about 45 min of robot time).
+MAX_REPEATS = 1000
+
 
 def check_number(where: str, value: object, *, low: float | None = None,
                  high: float | None = None, low_open: bool = False) -> float:

@@ -22,13 +22,14 @@ from __future__ import annotations
 
 import re
 from collections.abc import Mapping, Sequence
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 import numpy as np
 
 from armbench.bench.metrics import MM_PER_M, error_summary, path_errors, sample_polyline, square_yz
 from armbench.bench.record import PAPER_REFERENCE, Measurement, Trial
 from armbench.bench.suites._common import (
+    MAX_REPEATS,
     FloatArray,
     Measurements,
     StateRecorder,
@@ -127,6 +128,9 @@ class AccuracySuite(Suite):
 
     name = ACCURACY.suite
     version = "1"
+    metric_units: ClassVar[Mapping[str, str]] = {
+        "accuracy.*_mm": "mm", "accuracy.*.lap_time_s": "s", "accuracy.*.laps": "",
+        "accuracy.*_ratio": ""}
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: a 0.15 m square centred at (0.38, 0, 0.80) m, 3 laps per style."""
@@ -156,7 +160,7 @@ class AccuracySuite(Suite):
         check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
         check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
         check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
-        check_int(f"{where}.laps", params["laps"], low=1)
+        check_int(f"{where}.laps", params["laps"], low=1, high=MAX_REPEATS)
         check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
         check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
         check_number(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], low=0.0)

@@ -17,7 +17,7 @@ import abc
 import random
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from armbench.bench.limits import LimitsConfig
 from armbench.bench.record import Better, Measurement, Trial, judge
@@ -90,6 +90,10 @@ class Suite(abc.ABC):
     """The suite's name on the command line and in the record (``accuracy``, ...)."""
     version: str = "1"
     """Bumped when the suite's procedure changes (a baseline of another version is refused)."""
+    metric_units: ClassVar[Mapping[str, str]] = {}
+    """The unit of each metric the suite records, by ``fnmatch`` pattern of its name: the runner
+    checks the limits file against them before any motion (undeclared metrics are checked when
+    judged)."""
 
     @abc.abstractmethod
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from typing import Any, Final
+from typing import Any, ClassVar, Final
 
 import numpy as np
 
@@ -46,6 +46,7 @@ from armbench.bench.metrics import (
 )
 from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
+    MAX_REPEATS,
     FloatArray,
     Measurements,
     StateRecorder,
@@ -182,6 +183,8 @@ class RepeatabilitySuite(Suite):
 
     name = REPEATABILITY.suite
     version = "1"
+    metric_units: ClassVar[Mapping[str, str]] = {
+        "repeatability.*_mm": "mm", "repeatability.*_s": "s", "repeatability.*.cycles": ""}
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: a 0.1 m cube at (0.35, 0, 0.82) m, ISO's 30 pose cycles and 10 path cycles
@@ -215,7 +218,7 @@ class RepeatabilitySuite(Suite):
         plane = params[R.plane]
         if plane not in CUBE_PLANES:
             raise SettingsError(f"{w}.plane", plane, f"is not one of {', '.join(CUBE_PLANES)}")
-        check_int(f"{w}.cycles", params["cycles"], low=1)
+        check_int(f"{w}.cycles", params["cycles"], low=1, high=MAX_REPEATS)
         speeds = params[R.speeds]
         if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
             raise SettingsError(f"{w}.speeds_pct", speeds, "is not a list of percentages")
@@ -225,7 +228,7 @@ class RepeatabilitySuite(Suite):
             raise SettingsError(f"{w}.speeds_pct", speeds, "lists a speed twice")
         check_number(f"{w}.settle_s", params["settle_s"], low=0.0, high=60.0)
         approach = check_vec3(f"{w}.approach_offset_m", params["approach_offset_m"])
-        check_int(f"{w}.vap_cycles", params["vap_cycles"], low=0)
+        check_int(f"{w}.vap_cycles", params["vap_cycles"], low=0, high=MAX_REPEATS)
         vap_poses = params["vap_poses"]
         if (isinstance(vap_poses, (str, bytes)) or not isinstance(vap_poses, Sequence)
                 or any(p not in POSE_NAMES for p in vap_poses)
@@ -234,7 +237,7 @@ class RepeatabilitySuite(Suite):
                                 f"must list some of {', '.join(POSE_NAMES)}, each once")
         vap_offset = check_number(f"{w}.vap_offset_m", params["vap_offset_m"], low=0.0,
                                   low_open=True, high=0.1)
-        check_int(f"{w}.path_cycles", params["path_cycles"], low=0)
+        check_int(f"{w}.path_cycles", params["path_cycles"], low=0, high=MAX_REPEATS)
         check_number(f"{w}.path_speed_m_s", params["path_speed_m_s"], low=0.0, low_open=True,
                      high=1.0)
         check_number(f"{w}.path_spacing_m", params["path_spacing_m"], low=0.0005, high=0.05)

@@ -34,12 +34,13 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, ClassVar, Final
 
 import numpy as np
 
 from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
+    MAX_REPEATS,
     Measurements,
     TruthProbe,
     check_bool,
@@ -96,6 +97,12 @@ class StartupRecoverySuite(Suite):
 
     name = S.suite
     version = "1"
+    metric_units: ClassVar[Mapping[str, str]] = {
+        S.metric("*_pct"): "%", S.metric("*_s"): "s", S.metric("*_mrad"): "mrad",
+        S.metric("*_mm"): "mm", S.recovered: "bool", S.trials_measured: "",
+        S.metric("*_per_hour"): "writes/h", S.eeprom_writes: "writes",
+        S.eeprom_writes_per_cut: "writes", S.eeprom_life_years: "years",
+        S.eeprom_life_hours: "h"}
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """Defaults: 20 cuts (each condition once with all four joints moving, once with joints
@@ -122,7 +129,7 @@ class StartupRecoverySuite(Suite):
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
         """Types and ranges; every condition known; bands within the joints' room."""
         w = f"suites.{self.name}"
-        check_int(f"{w}.trials", params["trials"], low=0)
+        check_int(f"{w}.trials", params["trials"], low=0, high=MAX_REPEATS)
         conditions = params["conditions"]
         if (isinstance(conditions, (str, bytes)) or not isinstance(conditions, Sequence)
                 or not conditions):

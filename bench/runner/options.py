@@ -1,0 +1,188 @@
+"""What ``armbench run`` is asked (:class:`RunOptions`), what ``prepare`` makes of it
+(:class:`BenchPlan`), what a run leaves (:class:`RunOutcome`), and the runner's constants: file
+names of a run directory, exit statuses, seeds."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from armbench.bench.limits import LimitsConfig
+from armbench.bench.record import RESULTS_FILE, RunRecord, Verdict
+from armbench.bench.suites import Suite
+from armbench.bench.suites.base import PoseSource, PowerSwitch
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings
+
+if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.faults import Fault
+    from armbench.fakes.settings import EmulatorSettings
+
+__all__ = [
+    "CAPTURE_FILE", "DEFAULT_CONFIG", "EXIT_ERROR", "EXIT_FAIL", "EXIT_INTERRUPTED", "EXIT_PASS",
+    "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan", "EmulatorFactory", "Isolation",
+    "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome", "derive_seed", "exit_status",
+]
+
+#: The limits file used when ``--config`` is not given (shipped with the package).
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "default_bench.toml"
+#: Files of a run directory besides ``results.json``.
+JUNIT_FILE = "junit.xml"
+REPORT_FILE = "report.html"
+CAPTURE_FILE = "capture.jsonl"
+#: How the run was invoked (suite references, files), read back by ``--resume``.
+RUNNER_FILE = "runner.json"
+
+EXIT_PASS = 0
+EXIT_FAIL = 1
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+_EXIT_BY_VERDICT: dict[Verdict, int] = {
+    "pass": EXIT_PASS, "fail": EXIT_FAIL, "regression": EXIT_FAIL,
+    "error": EXIT_ERROR, "incomplete": EXIT_ERROR,
+}
+
+Isolation = Literal["trial", "run"]
+
+EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault]"],
+                           "ArmEmulator"]
+"""Builds the ``fake://`` emulator of a connection (tests pass one to watch the emulators)."""
+
+
+def exit_status(verdict: Verdict) -> int:
+    """The exit status of a run with this verdict: 0 pass, 1 fail or regression, 2 error or
+    incomplete."""
+    return _EXIT_BY_VERDICT[verdict]
+
+
+def derive_seed(seed: int, *labels: object) -> int:
+    """A seed for one part of the run (a trial, an emulator), stable across processes and Python
+    versions: the top 26 bits of SHA-256 of the base seed and the labels (< 2**26: small enough
+    for any seed field, e.g. the emulator's boards derive ``31 * seed + board`` from it)."""
+    text = json.dumps([seed, *[str(x) for x in labels]])
+    return int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "big") >> (64 - 26)
+
+
+class RunAborted(ArmbenchError):
+    """The bench stopped before the end (the arm cannot be reached); the record on disk keeps
+    every finished trial and a ``--resume`` continues."""
+
+
+@dataclass(slots=True)
+class RunOptions:
+    """What ``armbench run`` was asked to do (all optional; see ``docs/runner.md``)."""
+
+    suites: Sequence[str] = ()
+    """Suite names or ``module:Class`` references; empty: every registered suite."""
+    port: str | None = None
+    """The arm's port; None: ``fake://`` (or the recorded port when resuming)."""
+    config: str | Path | None = None
+    """Limits file (``bench.toml``); None: the packaged ``bench/default_bench.toml``."""
+    out: str | Path | None = None
+    """Run directory; None: ``<runs_root>/<run id>``."""
+    runs_root: str | Path = "runs"
+    baseline: str | Path | None = None
+    resume: str | Path | None = None
+    seed: int | None = None
+    settings: str | Path | None = None
+    faults: str | Path | None = None
+    tracker: str | None = None
+    power_command: tuple[str, str] | None = None
+    power_manual: bool = False
+    retries: int | None = None
+    """Extra attempts for a trial that ends in error; None: ``[bench] retries`` or 0."""
+    workers: int | None = None
+    """Processes measuring ``fake://`` trials at once; None: ``[bench] workers`` or one per CPU
+    (at most 2)."""
+
+
+@dataclass(slots=True)
+class PlannedSuite:
+    """One suite of the plan: its reference (CLI name or ``module:Class``), instance, validated
+    parameters and trial plan."""
+
+    ref: str
+    suite: Suite
+    params: dict[str, Any]
+    trials: list[Mapping[str, Any]]
+
+    @property
+    def name(self) -> str:
+        """The suite's name in the record."""
+        return self.suite.name
+
+
+@dataclass(slots=True)
+class BenchPlan:
+    """Everything :func:`~armbench.bench.runner.plan.prepare` validated; the runner only runs
+    it."""
+
+    port: str
+    fake: bool
+    settings: RobotSettings
+    settings_path: str | None
+    config: LimitsConfig
+    seed: int
+    faults: list[Fault]
+    suites: list[PlannedSuite]
+    out_dir: Path
+    resume: RunRecord | None
+    baseline: RunRecord | None
+    retries: int
+    isolation: Isolation
+    reply_timeout_s: float
+    connect_timeout_s: float
+    settle_s: float
+    power: PowerSwitch | None
+    tracker: PoseSource | None
+    run_id: str
+    runner_info: dict[str, Any] = field(default_factory=dict)
+    workers: int = 1
+    """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
+    warnings: list[str] = field(default_factory=list)
+    """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
+
+    def total_trials(self) -> int:
+        """Trials still to measure (done trials of a resumed record excluded)."""
+        total = 0
+        for s in self.suites:
+            total += len(self.remaining_trials(s))
+        return total
+
+    def remaining_trials(self, s: PlannedSuite) -> list[int]:
+        """Indices of suite ``s`` still to measure."""
+        rec = None if self.resume is None else self.resume.suites.get(s.name)
+        if rec is not None and rec.status == "done":
+            return []
+        done = set() if rec is None else {t.index for t in rec.completed_trials()}
+        return [i for i in range(len(s.trials)) if i not in done]
+
+
+@dataclass(slots=True)
+class RunOutcome:
+    """What a run left: the directory, the record, its verdict and the exit status."""
+
+    out_dir: Path
+    record: RunRecord
+    exit_status: int
+    interrupted: bool = False
+    error: str | None = None
+    """Why the bench stopped early (connection lost for good, a baseline that cannot be used)."""
+    warnings: tuple[str, ...] = ()
+    """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
+
+    @property
+    def verdict(self) -> Verdict:
+        """The record's verdict."""
+        return self.record.verdict
+
+    @property
+    def results_path(self) -> Path:
+        """``results.json`` of the run."""
+        return self.out_dir / RESULTS_FILE

@@ -1,0 +1,241 @@
+"""Parallel execution: trials on ``fake://`` measured in worker processes, several at once.
+
+With ``isolation = "trial"`` each trial on the emulator is self-contained: a freshly built and
+powered emulator seeded from (seed, suite, index, attempt), its own connection and capture part.
+Nothing of it depends on the absolute loop time (the emulator's clock is put on a nanosecond
+grid from its power-up, ``fakes/boards.py``), so a trial measured on a fresh virtual-time loop in
+another process gives the same figures as one measured in turn on the run's loop.
+:class:`ParallelTrials` hands such trials to ``[bench] workers`` processes (default: one per CPU,
+at most two; the process machinery is ``armbench.bench.workers``) and commits them in order:
+``started_s`` on the run clock, ``results.json``, and the capture part merged with its times
+moved onto the run clock.
+
+A worker runs :meth:`TrialJob.measure`: the same :meth:`TrialAttempts.attempt` the sequential
+path runs, on a ``VirtualTimeLoop`` starting at 0, with a stand-in for the record writer (the
+worker never writes ``results.json``) and the trial's progress messages collected for the parent
+to print.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import dataclasses
+import logging
+import multiprocessing
+import os
+import pickle
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path, PurePath
+
+from armbench.bench.record import Trial, path_inside
+from armbench.bench.runner.capture import job_part_tag
+from armbench.bench.runner.options import BenchPlan, PlannedSuite
+from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
+from armbench.bench.workers import run_job, worker_init
+
+__all__ = ["JobResult", "ParallelTrials", "TrialJob"]
+
+log = logging.getLogger("armbench.runner")
+
+
+@dataclass(frozen=True, slots=True)
+class JobResult:
+    """What a worker sends back: the trial on the worker's clock (``started_s`` from its loop's
+    0), its capture parts (times on the same clock) and its progress messages."""
+
+    trial: Trial
+    parts: tuple[Path, ...]
+    messages: tuple[str, ...]
+
+
+class _JobClock:
+    """What :class:`TrialAttempts` needs of a record writer inside a worker: the run directory
+    for artifacts and a clock (the worker's loop time: the parent moves the trial onto the run
+    clock)."""
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = out_dir
+
+    def artifact_path(self, name: str | PurePath) -> Path:
+        return path_inside(self.out_dir, name)
+
+    @staticmethod
+    def elapsed_s() -> float:
+        return asyncio.get_running_loop().time()
+
+
+class _Messages:
+    """Collects the progress lines a trial prints."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    def message(self, text: str) -> None:
+        self.lines.append(text)
+
+
+@dataclass(frozen=True, slots=True)
+class TrialJob:
+    """One attempt of one trial, sent to a worker (pickled)."""
+
+    plan: BenchPlan
+    """The run's plan, without what a worker does not need (records, power, tracker)."""
+    suite: PlannedSuite
+    index: int
+    attempt: int
+
+    async def measure(self) -> JobResult:
+        """Measure the attempt on the running loop (a worker's fresh virtual-time loop)."""
+        messages = _Messages()
+        attempts = TrialAttempts(self.plan, _JobClock(self.plan.out_dir), messages,
+                                 default_emulator,
+                                 part_tag=job_part_tag(self.suite.name, self.index, self.attempt))
+        trial = await attempts.attempt(self.suite, self.index, self.attempt)
+        return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
+
+
+def _new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    return concurrent.futures.ProcessPoolExecutor(
+        workers, mp_context=multiprocessing.get_context("spawn"),
+        initializer=worker_init, initargs=(os.getpid(),))
+
+
+class ParallelTrials:
+    """The trials of a suite measured in worker processes and committed in order, as
+    :meth:`TrialRunner.run_trial` would, each attempt on the run clock."""
+
+    def __init__(self, runner: TrialRunner) -> None:
+        self.runner = runner
+        self.pool: concurrent.futures.ProcessPoolExecutor | None = None
+        """The worker processes, once started."""
+
+    def usable(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
+        """Whether the trials of ``ps`` go to worker processes: ``fake://`` with trial isolation
+        and the built-in emulator, more than one worker and trial, on a virtual-time loop (the
+        run clock is moved by each trial's duration), and a plan that can be sent."""
+        runner = self.runner
+        plan = runner.plan
+        if not (plan.fake and plan.isolation == "trial" and plan.workers > 1 and len(todo) > 1
+                and runner.attempts.emulator_factory is default_emulator
+                and plan.tracker is None and plan.power is None):
+            return False
+        from armbench.fakes.vclock import VirtualTimeLoop
+
+        if not isinstance(asyncio.get_running_loop(), VirtualTimeLoop):
+            return False
+        try:
+            pickle.dumps(self._job(ps, todo[0], 0))
+        except Exception as exc:  # a user's suite that cannot be sent: measured in turn
+            log.info("suite %s: trials measured in turn (%s cannot be sent to a worker: %s)",
+                     ps.name, type(exc).__name__, exc)
+            return False
+        return True
+
+    def _job(self, ps: PlannedSuite, index: int, attempt: int) -> TrialJob:
+        plan = dataclasses.replace(self.runner.plan, suites=[], resume=None, baseline=None,
+                                   runner_info={})
+        return TrialJob(plan, ps, index, attempt)
+
+    async def run(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
+        """Measure ``todo`` in worker processes, commit them in order; the trial that stopped
+        the suite, or None."""
+        runner = self.runner
+        loop = asyncio.get_running_loop()
+        attempts = runner.plan.retries + 1
+        in_flight = asyncio.Semaphore(runner.plan.workers)  # the pool's queue stays short
+
+        async def shared(job: TrialJob) -> JobResult:
+            if self.pool is None:
+                self.pool = _new_pool(runner.plan.workers)
+            pool = self.pool
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            except concurrent.futures.BrokenExecutor:
+                if self.pool is pool:
+                    self.close()
+                raise
+            return result
+
+        async def alone(job: TrialJob) -> JobResult:
+            """In a process of its own: a dying worker breaks the whole pool, failing the
+            trials beside it too; measured alone, only the trial that kills its process fails."""
+            pool = _new_pool(1)
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            finally:
+                pool.shutdown(wait=False)
+            return result
+
+        async def measure(index: int) -> list[JobResult]:
+            """Every attempt of trial ``index`` (until one is done)."""
+            results = []
+            for attempt in range(attempts):
+                job = self._job(ps, index, attempt)
+                async with in_flight:
+                    try:
+                        try:
+                            result = await shared(job)
+                        except concurrent.futures.BrokenExecutor:
+                            result = await alone(job)
+                    except Exception as exc:  # the worker itself failed (killed, result unsent)
+                        log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
+                        result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
+                                                 status="error",
+                                                 error=f"worker: {describe(exc)}"), (), ())
+                results.append(result)
+                if result.trial.status == "done":
+                    break
+            return results
+
+        tasks = [asyncio.ensure_future(measure(index)) for index in todo]
+        last_commit = time.perf_counter()
+        try:
+            for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
+                await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
+                results = await task
+                if k and runner.plan.settle_s > 0:
+                    runner.writer.advance(runner.plan.settle_s)
+                for attempt, result in enumerate(results):
+                    # wall time per commit: what the progress estimate needs (throughput)
+                    now = time.perf_counter()
+                    trial = self._commit(ps, index, attempt, result, now - last_commit)
+                    last_commit = now
+                if trial.status == "error":
+                    return trial
+            return None
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.jsonl"):
+                with contextlib.suppress(OSError):  # parts of trials never committed
+                    path.unlink()
+
+    def _commit(self, ps: PlannedSuite, index: int, attempt: int, result: JobResult,
+                wall_s: float) -> Trial:
+        """One attempt measured by a worker, into the record as :meth:`TrialRunner.run_trial`
+        does: it starts on the run clock now and moves it by its duration; its capture is
+        merged with its times moved onto the run clock."""
+        runner = self.runner
+        clock = runner.writer
+        start = clock.elapsed_s()
+        trial = dataclasses.replace(result.trial, started_s=start)
+        clock.advance(trial.duration_s)
+        runner.writer.add_trial(ps.name, trial)
+        for part in result.parts:
+            runner.captures.merge(part, start - result.trial.started_s)
+        for line in result.messages:
+            runner.progress.message(line)
+        runner.show_attempt(ps, index, attempt, trial, wall_s)
+        return trial
+
+    def close(self) -> None:
+        """Let the worker processes go (a busy one finishes its trial alone); the next parallel
+        suite starts new ones."""
+        pool, self.pool = self.pool, None
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)

@@ -1,0 +1,432 @@
+"""Planning and validation: :func:`prepare` checks *everything* a run reads before the arm is
+touched and before the run directory exists, and returns the :class:`BenchPlan` the runner
+executes.
+
+Checked, in order: the run directory (or the record to resume), the port's scheme, the robot
+settings, the limits file, the seed, the fault file, the ``[bench]`` table, each suite's
+parameters (``Suite.params``) and plan, the baseline (readable, same record schema, same limits
+spec, same suite versions), the tracker plug-in and the power switch. Any problem raises an
+:class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI prints one line and
+exits 2.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import itertools
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+from urllib.parse import parse_qs, urlsplit
+
+from armbench.bench.baseline import BaselineError, check_suite_versions, load_baseline, read_record
+from armbench.bench.limits import LimitsConfig, load_limits
+from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
+from armbench.bench.record import (
+    RESULTS_FILE,
+    RecordError,
+    RunRecord,
+    new_run_id,
+    path_inside,
+)
+from armbench.bench.runner.options import (
+    DEFAULT_CONFIG,
+    RUNNER_FILE,
+    BenchPlan,
+    Isolation,
+    PlannedSuite,
+    RunOptions,
+)
+from armbench.bench.suites import load_suite, suite_names
+from armbench.bench.suites.base import PowerSwitch
+from armbench.bench.truth import load_tracker
+from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
+from armbench.drivers.transports import open_transport, scheme_of, transport_class
+
+if TYPE_CHECKING:
+    from armbench.fakes.faults import Fault
+
+__all__ = ["prepare"]
+
+#: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
+MAX_TRIALS = 10_000
+
+_BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
+               "power_timeout_s", "tracker", "workers"}
+
+
+@dataclass(slots=True)
+class _Port:
+    """The validated port and what a ``fake://`` URL carries in its query."""
+
+    port: str
+    fake: bool
+    url_settings: str | None = None
+    url_seed: int | None = None
+    url_faults: tuple[Fault, ...] = ()
+
+
+@dataclass(slots=True)
+class _Inputs:
+    """What the files of the run say: settings, limits, seed, faults and the suites asked for."""
+
+    settings: RobotSettings
+    settings_path: str | None
+    config: LimitsConfig
+    seed: int
+    faults: list[Fault]
+    suite_refs: list[str]
+
+
+@dataclass(slots=True)
+class _BenchKnobs:
+    """The ``[bench]`` table with the command line's overrides, checked."""
+
+    retries: int
+    workers: int
+    isolation: Isolation
+    reply_timeout_s: float
+    connect_timeout_s: float
+    settle_s: float
+    power_timeout_s: float
+    tracker_params: Mapping[str, Any]
+
+
+def _number(where: str, value: object, *, low: float, strict: bool) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SettingsError(where, value, "is not a finite number")
+    if value < low or (strict and value == low):
+        raise SettingsError(where, value, f"must be {'>' if strict else '>='} {low:g}")
+    return float(value)
+
+
+def _integer(where: str, value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise SettingsError(where, value, "must be a whole number >= 0")
+    return value
+
+
+def json_equal(a: object, b: object) -> bool:
+    """Whether two values are the same once written as JSON (tuples and lists alike)."""
+    def norm(x: object) -> object:
+        return cast(object, json.loads(json.dumps(x, default=_plain, sort_keys=True)))
+
+    try:
+        return bool(norm(a) == norm(b))
+    except (TypeError, ValueError):
+        return False
+
+
+def _plain(obj: object) -> object:
+    tolist = getattr(obj, "tolist", None)
+    if callable(tolist):
+        return cast(object, tolist())
+    isoformat = getattr(obj, "isoformat", None)
+    if callable(isoformat):
+        return cast(object, isoformat())
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _load_runner_info(directory: Path) -> dict[str, Any]:
+    path = directory / RUNNER_FILE
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise RecordError(str(path), f"cannot be read: {exc}") from None
+    if not isinstance(data, dict):
+        raise RecordError(str(path), "is not a JSON object")
+    return data
+
+
+def _check_port(port: str) -> _Port:
+    """The port's scheme and transport, its address (``socket://HOST:PORT`` with both), a serial
+    device that exists, a ``fake://`` query."""
+    transport_class(port)  # unknown scheme or a transport that cannot be imported
+    if scheme_of(port) is None and "/" in port and not Path(port).exists():
+        raise TransportError(port, "no such serial device (is the arm plugged in? "
+                                   "'python3 -m serial.tools.list_ports' lists the ports)")
+    if scheme_of(port) != "fake":
+        open_transport(port)  # built, not opened: its constructor checks the address
+        return _Port(port, fake=False)
+    from armbench.fakes.transport import parse_fake_url
+
+    _, url_seed, url_faults = parse_fake_url(port)  # validates the query
+    query = parse_qs(urlsplit(port).query)
+    return _Port(port, True, query["settings"][-1] if "settings" in query else None, url_seed,
+                 tuple(url_faults))
+
+
+def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], port: _Port) -> _Inputs:
+    """The settings, limits, seed, faults and suites of the run being resumed, unchanged."""
+    env = resume.environment
+    settings_path = info.get("settings") or port.url_settings
+    settings = load_settings(settings_path) if settings_path else RobotSettings()
+    if not json_equal(settings.to_mapping(), env.settings):
+        raise SettingsError("settings", settings_path or "defaults",
+                            "differ from the settings the run began with; start a new run")
+    config_path = info.get("config") or env.config_path
+    config = load_limits(config_path) if config_path else LimitsConfig()
+    if env.limits_spec_version is not None and config.spec_version != env.limits_spec_version:
+        raise SettingsError("spec_version", config.spec_version,
+                            f"differs from the run's {env.limits_spec_version!r}")
+    seed = env.seed if env.seed is not None else 0
+    from armbench.fakes.faults import parse_faults
+
+    faults = parse_faults(env.faults, "environment.faults") if env.faults else []
+    refs = info.get("suites") or {}
+    suite_refs = [refs.get(name, name) if isinstance(refs, dict) else name
+                  for name in resume.planned_suites]
+    return _Inputs(settings, settings_path, config, seed, faults, suite_refs)
+
+
+def _new_inputs(options: RunOptions, port: _Port) -> _Inputs:
+    """The settings, limits, seed, faults and suites a new run is given."""
+    if options.settings is not None and port.url_settings is not None:
+        raise ArmbenchError("--settings: the port already names a settings file; give one")
+    settings_path = str(options.settings) if options.settings is not None else port.url_settings
+    settings = load_settings(settings_path) if settings_path else RobotSettings()
+    config_file = Path(options.config) if options.config is not None else DEFAULT_CONFIG
+    config = load_limits(config_file)
+    if options.seed is not None:
+        seed = _integer("--seed", options.seed)
+    else:
+        seed = port.url_seed if port.url_seed is not None else 0
+    faults = list(port.url_faults)
+    if options.faults is not None:
+        if not port.fake:
+            raise ArmbenchError(f"--faults: faults are injected into the emulator; the port "
+                                f"{port.port!r} is not fake://")
+        from armbench.fakes.faults import load_faults
+
+        faults += load_faults(options.faults)
+    suite_refs = list(options.suites) or suite_names()
+    if len(set(suite_refs)) != len(suite_refs):
+        raise ArmbenchError(f"SUITE: a suite is named twice in {suite_refs}")
+    return _Inputs(settings, settings_path, config, seed, faults, suite_refs)
+
+
+def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _BenchKnobs:
+    """The ``[bench]`` table (unknown keys refused) with ``--retries`` and ``--workers``."""
+    bench = config.bench_params()
+    for key, value in bench.items():
+        if key not in _BENCH_KEYS:
+            raise SettingsError(f"bench.{key}", value, "is not a bench parameter (known: "
+                                f"{', '.join(sorted(_BENCH_KEYS))})")
+    retries = _integer("bench.retries", bench.get("retries", 0))
+    if options.retries is not None:
+        retries = _integer("--retries", options.retries)
+    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)))
+    if options.workers is not None:
+        workers = _integer("--workers", options.workers)
+    if workers < 1:
+        raise SettingsError("--workers" if options.workers is not None else "bench.workers",
+                            workers, "must be at least 1")
+    isolation = bench.get("isolation", "trial" if fake else "run")
+    if isolation not in ("trial", "run"):
+        raise SettingsError("bench.isolation", isolation, "must be 'trial' or 'run'")
+    if isolation == "trial" and not fake:
+        raise SettingsError("bench.isolation", isolation,
+                            "'trial' (a fresh emulator per trial) needs a fake:// port")
+    tracker_params = bench.get("tracker", {})
+    if not isinstance(tracker_params, Mapping):
+        raise SettingsError("bench.tracker", tracker_params, "is not a table")
+    return _BenchKnobs(
+        retries=retries, workers=workers, isolation=isolation,
+        reply_timeout_s=_number("bench.reply_timeout_s", bench.get("reply_timeout_s", 0.5),
+                                low=0, strict=True),
+        connect_timeout_s=_number("bench.connect_timeout_s",
+                                  bench.get("connect_timeout_s", 3.0), low=0, strict=True),
+        settle_s=_number("bench.settle_s", bench.get("settle_s", 0.0), low=0, strict=False),
+        power_timeout_s=_number("bench.power_timeout_s",
+                                bench.get("power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
+                                low=0, strict=True),
+        tracker_params=tracker_params)
+
+
+def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
+                 resume: RunRecord | None) -> list[PlannedSuite]:
+    """Each suite loaded, its parameters validated and its trials planned; a resumed suite must
+    be of the recorded version with the recorded parameters."""
+    config = inputs.config
+    planned: list[PlannedSuite] = []
+    names: dict[str, str] = {}
+    for ref in suite_refs:
+        suite = load_suite(ref)
+        if suite.name in names:
+            raise ArmbenchError(f"SUITE: {ref!r} and {names[suite.name]!r} are both suite "
+                                f"{suite.name!r}")
+        names[suite.name] = ref
+        configured = config.suite_params(suite.name)
+        if ref != suite.name and ref in config.suites:
+            if suite.name in config.suites:
+                raise SettingsError(f"suites.{ref}", config.suite_params(ref),
+                                    f"and [suites.{suite.name}] both configure suite "
+                                    f"{suite.name!r}; keep one")
+            configured = config.suite_params(ref)
+        try:
+            params = suite.params(inputs.settings, configured)
+            trials: list[Mapping[str, Any]] = [
+                dict(t) for t in itertools.islice(suite.plan(params), MAX_TRIALS + 1)]
+        except ArmbenchError:
+            raise
+        except Exception as exc:  # a wrongly typed value the suite did not check itself
+            raise SettingsError(f"suites.{suite.name}", configured,
+                                f"cannot be used: {type(exc).__name__}: {exc}") from exc
+        if len(trials) > MAX_TRIALS:
+            raise SettingsError(f"suites.{suite.name}", configured,
+                                f"plans more than {MAX_TRIALS} trials; at most {MAX_TRIALS} "
+                                "trials per suite")
+        if resume is not None:
+            rec = resume.suites.get(suite.name)
+            measured = 0 if rec is None else len({t.index for t in rec.completed_trials()})
+            if rec is not None and rec.status == "done" and measured < len(trials):
+                raise RecordError(f"suites.{suite.name}.status",
+                                  f"'done' with {measured} of {len(trials)} trials measured "
+                                  "(was the record edited?); start a new run")
+            if rec is not None and rec.status != "done":
+                if rec.version != suite.version:
+                    raise RecordError(f"suites.{suite.name}.version",
+                                      f"recorded {rec.version!r}, this armbench has "
+                                      f"{suite.version!r}; start a new run")
+                if not json_equal(rec.params, params):
+                    raise RecordError(f"suites.{suite.name}.params",
+                                      "differ from the recorded ones (was the limits file "
+                                      "changed?); start a new run")
+        planned.append(PlannedSuite(ref, suite, params, trials))
+    return planned
+
+
+def _check_limit_units(planned: Sequence[PlannedSuite], config: LimitsConfig) -> None:
+    """Every limit that judges a metric a suite declares (``Suite.metric_units``) is in that
+    metric's unit: a wrong unit is the file's mistake, found before trial 0 runs."""
+    for ps in planned:
+        for pattern, unit in ps.suite.metric_units.items():
+            applying = [config.limit_for(pattern)] + [
+                limit for limit in config.limits.values()
+                if fnmatch.fnmatchcase(limit.metric, pattern)]
+            for limit in applying:
+                if limit is not None and limit.unit != unit:
+                    raise SettingsError(f'limits."{limit.metric}".unit', limit.unit,
+                                        f"does not match the unit {unit!r} of the {ps.name} "
+                                        f"metrics {pattern}")
+
+
+def _warnings(config: LimitsConfig) -> list[str]:
+    """What the verdict must say beside pass or fail: a limits file that judges nothing."""
+    if config.limits:
+        return []
+    where = f"the limits file {config.path}" if config.path else "the run's limits"
+    return [f"{where} sets no limits: every measurement is unjudged"]
+
+
+def _load_checked_baseline(path: str | Path, config: LimitsConfig,
+                           planned: Sequence[PlannedSuite]) -> RunRecord:
+    """The baseline record, refused if its limits spec or a suite's version differs."""
+    baseline = load_baseline(path)
+    theirs = baseline.environment.limits_spec_version
+    if theirs is not None and theirs != config.spec_version:
+        raise BaselineError(f"baseline {path}: limits spec version {theirs!r} "
+                            f"differs from this run's {config.spec_version!r}")
+    # figures of another suite version measure something else
+    check_suite_versions(baseline, {ps.name: ps.suite.version for ps in planned}, path)
+    return baseline
+
+
+def _power_switch(options: RunOptions, fake: bool, timeout_s: float) -> PowerSwitch | None:
+    """The power switch asked for on hardware (checked), None for the bench's own."""
+    if options.power_command is not None and options.power_manual:
+        raise ArmbenchError("--power-command and --power-manual: choose one")
+    if fake and (options.power_command is not None or options.power_manual):
+        raise ArmbenchError("--power-command/--power-manual: on fake:// the bench switches the "
+                            "emulator's power itself")
+    if options.power_command is not None:
+        off, on = options.power_command
+        command_power = CommandPower(off, on, timeout_s=timeout_s)
+        command_power.check()
+        return command_power
+    if options.power_manual:
+        return ManualPower()
+    return None
+
+
+def _resume_target(options: RunOptions) -> Path:
+    """The directory of the run ``--resume`` continues; the options it forbids refused."""
+    assert options.resume is not None
+    resume_dir = Path(options.resume)
+    for flag, given in (("SUITE", bool(options.suites)), ("--config", options.config),
+                        ("--seed", options.seed is not None),
+                        ("--settings", options.settings), ("--faults", options.faults)):
+        if given:
+            raise ArmbenchError(f"--resume: {flag} comes from the run being resumed and "
+                                "cannot be given again")
+    if options.out is not None and Path(options.out).resolve() != resume_dir.resolve():
+        raise ArmbenchError("--out: a resumed run continues in its own directory "
+                            f"({resume_dir}); leave --out out")
+    return resume_dir
+
+
+def prepare(options: RunOptions) -> BenchPlan:
+    """Validate ``options`` and everything they name, without touching the arm or creating the
+    run directory.
+
+    Raises an :class:`~armbench.drivers.errors.ArmbenchError` (``SettingsError``, ``RecordError``,
+    ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
+    whose message names the offending field or file.
+    """
+    resume: RunRecord | None = None
+    info: dict[str, Any] = {}
+    if options.resume is not None:
+        out_dir = _resume_target(options)
+        resume = read_record(path_inside(out_dir, RESULTS_FILE))
+        info = _load_runner_info(out_dir)
+    else:
+        out_dir = Path(options.out) if options.out is not None else Path(options.runs_root)
+        if options.out is not None and (out_dir / RESULTS_FILE).exists():
+            raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; resume "
+                                                           "it (--resume) or choose another --out")
+    env = None if resume is None else resume.environment
+    port = _check_port(options.port or (env.port if env is not None and env.port else None)
+                       or "fake://")
+    inputs = (_resumed_inputs(resume, info, port) if resume is not None
+              else _new_inputs(options, port))
+    knobs = _bench_knobs(inputs.config, options, port.fake)
+    if port.fake:
+        from armbench.fakes.settings import emulator_settings
+
+        emulator_settings(inputs.settings, seed=0)  # the [emulator] table, checked now
+    planned = _plan_suites(inputs.suite_refs, inputs, resume)
+    _check_limit_units(planned, inputs.config)
+    baseline = (None if options.baseline is None
+                else _load_checked_baseline(options.baseline, inputs.config, planned))
+    tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
+               if options.tracker else None)
+    power = _power_switch(options, port.fake, knobs.power_timeout_s)
+
+    run_id = resume.run_id if resume is not None else new_run_id()
+    if resume is None and options.out is None:
+        out_dir = Path(options.runs_root) / run_id
+    settings_path = inputs.settings_path
+    runner_info: dict[str, Any] = {
+        "suites": {s.name: s.ref for s in planned},
+        "settings": str(Path(settings_path).resolve()) if settings_path else None,
+        "config": str(Path(inputs.config.path).resolve()) if inputs.config.path else None,
+        "faults": str(Path(options.faults).resolve()) if options.faults is not None else None,
+    }
+    if resume is not None:
+        runner_info = {**info, "suites": runner_info["suites"]}
+    return BenchPlan(
+        port=port.port, fake=port.fake, settings=inputs.settings, settings_path=settings_path,
+        config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
+        out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
+        isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
+        connect_timeout_s=knobs.connect_timeout_s, settle_s=knobs.settle_s, power=power,
+        tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
+        warnings=_warnings(inputs.config),
+    )

@@ -1,0 +1,199 @@
+"""The runner behind ``armbench run``: :func:`execute` runs a prepared plan suite by suite,
+trial by trial, keeping ``results.json`` current, then compares with the baseline;
+:func:`run_sync` validates and runs on a loop of the right kind.
+
+::
+
+    outcome = run_sync(RunOptions(suites=["accuracy"], port="fake://", out="runs/x"))
+    outcome.exit_status            # 0 pass, 1 limit or regression failed, 2 could not run, 130
+
+Each planned suite: ``begin_suite``, then every trial the record does not have yet
+(``completed_trials``), each written to disk the moment it ends (``add_trial``), then
+``summarize`` and ``end_suite``. The runner writes the record; ``junit.xml`` and ``report.html``
+are written by whoever asked for the run (``armbench.bench.reporting``).
+
+On ``fake://`` (default ``isolation = "trial"``) every trial runs against a freshly powered
+emulator seeded from (seed, suite, trial index), so each trial is reproducible on its own and a
+resumed run measures exactly what an uninterrupted one would. On hardware one connection serves
+the whole run (reconnecting with back-off after a lost port).
+
+The run clock of the record (``started_s``, ``duration_s``, ...) is the event loop's: monotonic
+seconds on hardware, simulated seconds on ``fake://`` (where minutes of robot time take seconds).
+Semantics of errors, retries, cancellation and resume: ``docs/runner.md``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import json
+import sys
+from typing import IO
+
+from armbench.bench.baseline import BaselineError, compare
+from armbench.bench.record import (
+    RESULTS_FILE,
+    RunRecord,
+    Trial,
+    atomic_write_bytes,
+    capture_environment,
+    load_record,
+)
+from armbench.bench.runner.options import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    RUNNER_FILE,
+    BenchPlan,
+    EmulatorFactory,
+    PlannedSuite,
+    RunAborted,
+    RunOptions,
+    RunOutcome,
+    exit_status,
+)
+from armbench.bench.runner.parallel import ParallelTrials
+from armbench.bench.runner.plan import prepare
+from armbench.bench.runner.progress import ProgressPrinter
+from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
+from armbench.bench.truth import aclose_source, aopen_source
+
+__all__ = ["execute", "run_bench", "run_sync"]
+
+
+def _new_record(plan: BenchPlan) -> RunRecord:
+    env = capture_environment(port=plan.port, settings=plan.settings, seed=plan.seed,
+                              faults=[dataclasses.asdict(f) for f in plan.faults],
+                              limits=plan.config)
+    return RunRecord.new(env, [s.name for s in plan.suites], run_id=plan.run_id)
+
+
+async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedSuite) -> None:
+    """Every trial of ``ps`` the record lacks (in worker processes when it can), then its
+    summary; a trial that stays in error ends the suite."""
+    writer = runner.writer
+    name = ps.name
+    if writer.suite_done(name):
+        runner.progress.message(f"[{name}] done in the record, skipped")
+        return
+    writer.begin_suite(name, ps.suite.version, ps.params)
+    n = len(ps.trials)
+    done = {t.index for t in writer.completed_trials(name)}
+    todo = [i for i in range(n) if i not in done]
+    runner.progress.message(f"[{name}] {n} trial(s)" + (
+        f", {len(done)} already measured" if done else ""))
+    stopped: Trial | None = None
+    if parallel.usable(ps, todo):
+        stopped = await parallel.run(ps, todo)
+    else:
+        for k, index in enumerate(todo):
+            if k and runner.plan.settle_s > 0:
+                await asyncio.sleep(runner.plan.settle_s)
+            trial = await runner.run_trial(ps, index)
+            if trial.status == "error":
+                stopped = trial
+                break
+    if stopped is not None:
+        writer.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
+        runner.progress.message(f"[{name}] stopped: trial {stopped.index}: {stopped.error}")
+        return
+    await runner.summarize(ps)
+
+
+async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
+                  emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+    """Run a prepared plan (see the module docstring); returns the outcome.
+
+    Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
+    the record as it is on disk (every finished trial) and propagates
+    :class:`asyncio.CancelledError`.
+    """
+    if plan.resume is not None:
+        resumed = LoopClockWriter.resume(plan.out_dir)
+        assert isinstance(resumed, LoopClockWriter)
+        writer = resumed
+        for ps in plan.suites:  # planned suites may be re-checked, never changed
+            if ps.name not in writer.record.planned_suites:
+                writer.record.planned_suites.append(ps.name)
+    else:
+        plan.out_dir.mkdir(parents=True, exist_ok=True)
+        writer = LoopClockWriter(plan.out_dir, _new_record(plan))
+    atomic_write_bytes(writer.artifact_path(RUNNER_FILE),
+                       (json.dumps(plan.runner_info, indent=1) + "\n").encode())
+    t_run0 = writer.elapsed_s()
+    printer = ProgressPrinter(progress, plan.total_trials(),
+                              robot_clock=(lambda: writer.elapsed_s() - t_run0) if plan.fake
+                              else None)
+    for ps in plan.suites:
+        printer.plan(ps.name, len(plan.remaining_trials(ps)))
+    runner = TrialRunner(plan, writer, printer,
+                         emulator_factory if emulator_factory is not None else default_emulator)
+    parallel = ParallelTrials(runner)
+    if plan.resume is not None:
+        runner.captures.recover(writer.record, writer.out_dir)
+    printer.message(f"armbench run {plan.run_id}: {', '.join(s.name for s in plan.suites)} on "
+                    f"{plan.port} -> {plan.out_dir}")
+    for warning in plan.warnings:
+        printer.message(f"warning: {warning}")
+    error: str | None = None
+    interrupted = False
+    try:
+        if plan.tracker is not None:
+            await aopen_source(plan.tracker)
+        try:
+            for ps in plan.suites:
+                await _run_suite(runner, parallel, ps)
+        finally:
+            try:
+                parallel.close()
+                await runner.attempts.close()
+            finally:
+                if plan.tracker is not None:
+                    await aclose_source(plan.tracker)
+        if plan.baseline is not None:
+            try:
+                writer.set_baseline(compare(writer.record, plan.baseline, plan.config))
+            except BaselineError as exc:
+                error = f"baseline: {exc}"
+    except RunAborted as exc:
+        error = str(exc)
+    except (asyncio.CancelledError, KeyboardInterrupt):
+        interrupted = True
+        raise
+    finally:
+        printer.finish()
+        if interrupted:
+            printer.message(f"interrupted: the record keeps every finished trial; continue with "
+                            f"armbench run --resume {plan.out_dir}")
+    record = writer.record
+    status = EXIT_ERROR if error is not None else exit_status(record.verdict)
+    notes = ([error] if error else []) + [f"warning: {w}" for w in plan.warnings]
+    printer.message(f"verdict: {record.verdict}" + (f" ({'; '.join(notes)})" if notes else ""))
+    return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings))
+
+
+async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
+                    emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+    """Validate ``options`` (raising before any motion) and run them on the running loop."""
+    plan = prepare(options)
+    return await execute(plan, progress=progress, emulator_factory=emulator_factory)
+
+
+def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
+             emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+    """Validate and run on a loop of the right kind: a virtual-time loop
+    (``armbench.fakes.vclock``) for ``fake://``, ``asyncio.run`` otherwise. Ctrl-C returns the
+    outcome of the record on disk with exit status 130."""
+    plan = prepare(options)
+    main = execute(plan, progress=progress, emulator_factory=emulator_factory)
+    try:
+        if plan.fake:
+            from armbench.fakes.vclock import run_virtual
+
+            return run_virtual(main)
+        return asyncio.run(main)
+    except (KeyboardInterrupt, asyncio.CancelledError):
+        if not (plan.out_dir / RESULTS_FILE).exists():
+            raise KeyboardInterrupt from None
+        record = load_record(plan.out_dir / RESULTS_FILE)
+        return RunOutcome(plan.out_dir, record, EXIT_INTERRUPTED, interrupted=True,
+                          error="interrupted", warnings=tuple(plan.warnings))

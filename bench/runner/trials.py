@@ -1,0 +1,329 @@
+"""Trial execution: connections to the arm (a fresh emulator per trial on ``fake://``), one
+attempt of a trial (:class:`TrialAttempts`, also what a worker process runs), and the trials of a
+suite measured in turn and committed to the record (:class:`TrialRunner`)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import random
+import time
+from collections.abc import Sequence
+from pathlib import Path, PurePath
+from typing import TYPE_CHECKING, Protocol
+
+from armbench.bench.power import EmulatorPower
+from armbench.bench.record import RESULTS_FILE, RecordWriter, RunRecord, Trial
+from armbench.bench.runner.capture import CaptureParts
+from armbench.bench.runner.options import (
+    CAPTURE_FILE,
+    BenchPlan,
+    EmulatorFactory,
+    PlannedSuite,
+    RunAborted,
+    derive_seed,
+)
+from armbench.bench.runner.progress import ProgressPrinter
+from armbench.bench.suites import SuiteContext
+from armbench.bench.truth import EmulatorTruth
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings
+
+if TYPE_CHECKING:
+    from armbench.drivers.arm import Arm
+    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.faults import Fault
+    from armbench.fakes.settings import EmulatorSettings
+
+__all__ = ["Connection", "LoopClockWriter", "Messages", "RunClock", "TrialAttempts",
+           "TrialRunner", "default_emulator", "describe"]
+
+log = logging.getLogger("armbench.runner")
+
+#: What makes a trial unmeasurable without being a bug: the driver's and transports' errors, and
+#: plain timeouts and OS errors (the suites' own guard treats the same ones alike).
+MEASUREMENT_ERRORS = (ArmbenchError, TimeoutError, OSError)
+
+
+def describe(exc: BaseException) -> str:
+    """An exception as a trial's error text; one that is not a measurement error is a bug."""
+    if isinstance(exc, MEASUREMENT_ERRORS):
+        return f"{type(exc).__name__}: {exc}"
+    return f"bench bug: {type(exc).__name__}: {exc}"
+
+
+def default_emulator(robot: RobotSettings, settings: EmulatorSettings,
+                     faults: Sequence[Fault]) -> ArmEmulator:
+    """The built-in emulator of a ``fake://`` connection."""
+    from armbench.fakes.arm import ArmEmulator
+
+    return ArmEmulator(robot, settings, faults)
+
+
+class RunClock(Protocol):
+    """What an attempt needs of the record writer: the run directory and the run clock."""
+
+    def artifact_path(self, name: str | PurePath) -> Path:
+        """A path inside the run directory."""
+
+    def elapsed_s(self) -> float:
+        """Seconds on the run clock."""
+
+
+class Messages(Protocol):
+    """Where an attempt's progress lines go."""
+
+    def message(self, text: str) -> None:
+        """Show (or keep) one line."""
+
+
+class LoopClockWriter(RecordWriter):
+    """A :class:`RecordWriter` whose run clock is the event loop's (simulated seconds on
+    ``fake://``, monotonic seconds on hardware), continued across resumes."""
+
+    def __init__(self, out_dir: str | Path, record: RunRecord, *, filename: str = RESULTS_FILE,
+                 overwrite: bool = False) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._loop_t0 = self._loop.time()
+        self._start_s = record.end_s
+        super().__init__(out_dir, record, filename=filename, overwrite=overwrite)
+
+    def elapsed_s(self) -> float:
+        return self._start_s + self._loop.time() - self._loop_t0
+
+    def advance(self, dt_s: float) -> None:
+        """Move the run clock by ``dt_s`` (s) of robot time spent elsewhere: a trial measured
+        in a worker process on its own loop."""
+        self._start_s += dt_s
+
+
+@dataclasses.dataclass(slots=True)
+class Connection:
+    """One open arm (and its emulator on ``fake://``) with its capture part file."""
+
+    arm: Arm
+    emulator: ArmEmulator | None
+    part: Path
+
+
+class TrialAttempts:
+    """Measures attempts of trials: connects (a fresh emulator per trial with ``isolation =
+    "trial"``, else the run's connection, opened again when lost), builds the suite's context and
+    runs ``Suite.run_trial``. Capture parts of attempts are left in :attr:`unmerged` for the
+    caller to merge once the trial is in the record."""
+
+    def __init__(self, plan: BenchPlan, clock: RunClock, messages: Messages,
+                 emulator_factory: EmulatorFactory, *, part_tag: str = "") -> None:
+        self.plan = plan
+        self.clock = clock
+        self.messages = messages
+        self.emulator_factory = emulator_factory
+        self.conn: Connection | None = None
+        self.captures = CaptureParts(clock.artifact_path(CAPTURE_FILE))
+        self._parts = 0
+        self._part_tag = part_tag
+        self.unmerged: list[Path] = []
+        """Capture parts of trials not yet in the record (merged once they are)."""
+        self.last_arm: Arm | None = None
+
+    async def connect(self, emulator_seed: int) -> Connection:
+        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``)."""
+        from armbench.drivers.arm import Arm
+        from armbench.drivers.capture import CaptureWriter
+
+        plan = self.plan
+        self._parts += 1
+        part = self.clock.artifact_path(f".capture.part{self._parts}{self._part_tag}.jsonl")
+        emulator = None
+        transport = None
+        if plan.fake:
+            from armbench.fakes.settings import emulator_settings
+            from armbench.fakes.transport import FakeTransport
+
+            emulator = self.emulator_factory(
+                plan.settings, emulator_settings(plan.settings, seed=emulator_seed), plan.faults)
+            transport = FakeTransport(plan.port, plan.settings.serial, emulator)
+        capture: CaptureWriter | None = None
+        try:
+            # t_s on the run clock straight away: the part is appended to capture.jsonl as is
+            capture = CaptureWriter(part, asyncio.get_running_loop().time()
+                                    - self.clock.elapsed_s())
+            arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
+                              capture=capture, reconnect=not plan.fake,
+                              connect_timeout_s=plan.connect_timeout_s, transport=transport)
+            await arm.open()
+        except BaseException:
+            if capture is not None:
+                capture.close()
+            if emulator is not None:
+                with contextlib.suppress(Exception):
+                    await emulator.close()
+            self.captures.merge(part)
+            raise
+        self.last_arm = arm
+        return Connection(arm, emulator, part)
+
+    async def disconnect(self, conn: Connection, *, merge: bool = True) -> None:
+        """Close the arm (and its emulator); its capture part is merged now, or, with
+        ``merge=False``, by the caller once the trial it holds is in the record."""
+        try:
+            await conn.arm.close()
+        finally:
+            if conn.emulator is not None:
+                with contextlib.suppress(Exception):
+                    await conn.emulator.close()
+            if merge:
+                self.captures.merge(conn.part)
+
+    def context(self, ps: PlannedSuite, arm: Arm, emulator: ArmEmulator | None,
+                rng_seed: int) -> SuiteContext:
+        """What suite ``ps`` may use: the arm, the power switch and the measurement source (the
+        emulator's own on ``fake://`` unless the plan names others)."""
+        plan = self.plan
+        power = plan.power
+        truth = plan.tracker
+        if plan.fake:
+            source = emulator if emulator is not None else arm
+            if power is None:
+                power = EmulatorPower(source)
+            if truth is None:
+                truth = EmulatorTruth(source, plan.settings)
+
+        def artifacts(name: str) -> Path:
+            path = self.clock.artifact_path(Path(ps.name) / name)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            return path
+
+        def progress(message: str) -> None:
+            self.messages.message(f"[{ps.name}] {message}")
+
+        return SuiteContext(arm=arm, settings=plan.settings, limits=plan.config,
+                            params=ps.params, rng=random.Random(rng_seed), power=power,
+                            truth=truth, progress=progress, artifacts=artifacts)
+
+    async def attempt(self, ps: PlannedSuite, index: int, attempt: int) -> Trial:
+        """Measure trial ``index`` of ``ps`` once: the trial, or a trial in error (a lost arm
+        on hardware raises :class:`RunAborted`)."""
+        plan = self.plan
+        clock = self.clock
+        trial_params = ps.trials[index]
+        t0 = clock.elapsed_s()
+        own: Connection | None = None
+        try:
+            if plan.isolation == "trial":
+                own = await self.connect(derive_seed(plan.seed, "emulator", ps.name, index,
+                                                     attempt))
+                conn = own
+            else:
+                conn = await self._run_connection()
+            ctx = self.context(ps, conn.arm, conn.emulator, derive_seed(plan.seed, ps.name,
+                                                                        index))
+            result = await ps.suite.run_trial(ctx, index, trial_params)
+            if not isinstance(result, Trial):
+                raise TypeError(f"run_trial returned {type(result).__name__}, not a Trial")
+            if result.index != index:
+                raise ValueError(f"run_trial({index}) returned trial index {result.index}")
+            duration = max(0.0, clock.elapsed_s() - t0)
+            return dataclasses.replace(result, started_s=t0, duration_s=duration)
+        except RunAborted:
+            raise
+        except Exception as exc:
+            if not isinstance(exc, MEASUREMENT_ERRORS):
+                log.error("suite %s trial %d: %s", ps.name, index, describe(exc),
+                          exc_info=True)
+            return Trial(index, t0, max(0.0, clock.elapsed_s() - t0), params=trial_params,
+                         status="error", error=describe(exc))
+        finally:
+            if own is not None:
+                self.unmerged.append(own.part)
+                await self.disconnect(own, merge=False)
+
+    async def _run_connection(self) -> Connection:
+        """The run's connection (``isolation = "run"``), opened again when it was lost."""
+        conn = self.conn
+        if conn is not None and conn.arm.connected:
+            return conn
+        if conn is not None:
+            self.conn = None
+            await self.disconnect(conn)
+            self.messages.message("the arm connection was lost; connecting again")
+        try:
+            self.conn = await self.connect(derive_seed(self.plan.seed, "emulator", "run")
+                                           if self.plan.fake else 0)
+        except ArmbenchError as exc:
+            raise RunAborted(f"cannot connect to {self.plan.port}: {exc}") from exc
+        return self.conn
+
+    async def close(self) -> None:
+        """Close the run's connection, if open."""
+        conn, self.conn = self.conn, None
+        if conn is not None:
+            await self.disconnect(conn)
+
+
+class TrialRunner:
+    """The trials of a run measured in turn on the run's loop, each attempt written to the
+    record the moment it ends, then each suite's summary."""
+
+    def __init__(self, plan: BenchPlan, writer: LoopClockWriter, progress: ProgressPrinter,
+                 emulator_factory: EmulatorFactory) -> None:
+        self.plan = plan
+        self.writer = writer
+        self.progress = progress
+        self.attempts = TrialAttempts(plan, writer, progress, emulator_factory)
+
+    @property
+    def captures(self) -> CaptureParts:
+        """The run's ``capture.jsonl``."""
+        return self.attempts.captures
+
+    async def run_trial(self, ps: PlannedSuite, index: int) -> Trial:
+        """Measure trial ``index`` of ``ps`` (with its retries); the last attempt."""
+        attempts = self.plan.retries + 1
+        trial: Trial | None = None
+        for attempt in range(attempts):
+            wall0 = time.perf_counter()
+            trial = await self.attempts.attempt(ps, index, attempt)
+            self.writer.add_trial(ps.name, trial)
+            for part in self.attempts.unmerged:  # after the record: see CaptureParts.recover
+                self.captures.merge(part)
+            self.attempts.unmerged.clear()
+            self.show_attempt(ps, index, attempt, trial, time.perf_counter() - wall0)
+            if trial.status == "done":
+                break
+        assert trial is not None
+        return trial
+
+    def show_attempt(self, ps: PlannedSuite, index: int, attempt: int, trial: Trial,
+                     wall_s: float) -> None:
+        """The progress line of a recorded attempt: done, or its error and whether it is
+        retried."""
+        status = trial.status if trial.status == "done" else f"error ({trial.error})"
+        retry = trial.status == "error" and attempt < self.plan.retries
+        if retry:
+            status += f", retrying ({attempt + 1}/{self.plan.retries})"
+        self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s, retry=retry)
+
+    async def summarize(self, ps: PlannedSuite) -> None:
+        """``Suite.summarize`` over the suite's completed trials, and the suite's end."""
+        writer = self.writer
+        arm = self.attempts.last_arm
+        if arm is None:
+            from armbench.drivers.arm import Arm
+
+            arm = Arm(self.plan.port, self.plan.settings)  # never opened: summaries don't move
+        ctx = self.attempts.context(ps, arm, None, derive_seed(self.plan.seed, ps.name,
+                                                               "summary"))
+        try:
+            measurements = ps.suite.summarize(ctx, writer.completed_trials(ps.name))
+            writer.end_suite(ps.name, measurements)
+        except Exception as exc:
+            log.debug("summary of %s failed", ps.name, exc_info=True)
+            writer.end_suite(ps.name, error=f"summary: {describe(exc)}")
+            self.progress.message(f"[{ps.name}] summary failed: {describe(exc)}")
+            return
+        failed = [m.name for m in writer.suite(ps.name).measurements if m.outcome == "fail"]
+        self.progress.message(f"[{ps.name}] done: {len(measurements)} measurement(s)"
+                              + (f", {len(failed)} outside limits" if failed else ""))
