@@ -372,7 +372,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     url_seed: int | None = None
     url_faults: list[Fault] = []
     if fake:
-        from armbench.drivers.transports.fake import parse_fake_url
+        from armbench.drivers.transports.fake import apply_fake_query, parse_fake_url
 
         _, url_seed, url_faults = parse_fake_url(port)  # validates the query
         query = parse_qs(urlsplit(port).query)
@@ -383,6 +383,8 @@ def prepare(options: RunOptions) -> BenchPlan:
         assert env is not None
         settings_path = info.get("settings") or url_settings
         settings = load_settings(settings_path) if settings_path else RobotSettings()
+        if fake:  # fake://?profile=…&payload=… (armbench.drivers.transports.fake)
+            settings = apply_fake_query(port, settings)
         if not _json_equal(settings.to_mapping(), env.settings):
             raise SettingsError("settings", settings_path or "defaults",
                                 "differ from the settings the run began with; start a new run")
@@ -403,6 +405,8 @@ def prepare(options: RunOptions) -> BenchPlan:
             raise ArmbenchError("--settings: the port already names a settings file; give one")
         settings_path = str(options.settings) if options.settings is not None else url_settings
         settings = load_settings(settings_path) if settings_path else RobotSettings()
+        if fake:  # fake://?profile=…&payload=… (armbench.drivers.transports.fake)
+            settings = apply_fake_query(port, settings)
         config_file = Path(options.config) if options.config is not None else DEFAULT_CONFIG
         config = load_limits(config_file)
         if options.seed is not None:
