@@ -73,7 +73,13 @@ class EmulatorTruth:
         return None
 
     def true_position_m(self) -> tuple[float, float, float] | None:
-        """The real TCP position now (m, base frame), None without an emulator."""
+        """The real TCP position now (m, base frame), None without an emulator: the emulator's
+        own (its actual kinematics) when it gives one."""
+        emulator = self._emulator()
+        own = getattr(emulator, "true_position_m", None)
+        if self._settings is None and callable(own):
+            x, y, z = own()
+            return float(x), float(y), float(z)
         q = self.true_joints_rad()
         if q is None:
             return None

@@ -14,11 +14,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.boards import Board, MasterBoard, SlaveBoard, TruthSample
 from armbench.fakes.eeprom import RATED_CYCLES, Eeprom
 from armbench.fakes.faults import Fault, FaultInjector
 from armbench.fakes.i2c import BusClock, I2CBus
+from armbench.fakes.physics import Mechanism
 from armbench.fakes.settings import EmulatorSettings, emulator_settings
 from armbench.fakes.uart import Uart
 
@@ -70,6 +72,16 @@ class ArmEmulator:
         self.master = MasterBoard(self.robot.joints[0], self.settings, self.eeproms[0], self.bus,
                                   self.uart, self.slaves, steps[0])
         self.boards: list[Board] = [self.master, *self.slaves]
+        physics = self.settings.physics
+        self.mechanism = None if physics is None else Mechanism(physics, self.robot,
+                                                                self._link_angles_rad)
+        """The arm's physics (gravity, deflection; ``fakes/physics.py``); None when ideal."""
+        self.actual_settings = self.robot if self.mechanism is None else self.mechanism.actual
+        """The real arm's robot model (actual DH lengths and joint offsets): forward kinematics
+        of :meth:`true_angles_rad` with it is the true TCP; the firmware and the host use the
+        nominal ``robot``."""
+        for b in self.boards:
+            b.mechanism = self.mechanism
         self.truth: deque[TruthSample] = deque(maxlen=TRUTH_HISTORY)
         """Ground truth of each reply that reached the host (the newest last): ``truth[-1]``
         belongs to the newest reply the host has received."""
@@ -171,7 +183,20 @@ class ArmEmulator:
             if b.model is not None:
                 b.sync(t)
             out.append(b.true_rad())
+        if self.mechanism is not None:
+            return self.mechanism.true_rad(out)
         return tuple(out)
+
+    def true_position_m(self) -> tuple[float, float, float]:
+        """The real TCP position now (m, base frame): the true joints through the actual
+        kinematics."""
+        p = tcp_position(self.true_angles_rad(), self.actual_settings)
+        return float(p[0]), float(p[1]), float(p[2])
+
+    def _link_angles_rad(self) -> list[float]:
+        """The joints' link angles where they stand (no syncing: called from inside a joint's
+        event, gravity needs the others' angles as they are)."""
+        return [b.true_rad() for b in self.boards]
 
     def firmware_angles_rad(self) -> tuple[float | None, ...]:
         """What each board's encoder counter says now (``None`` without power)."""

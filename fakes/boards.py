@@ -20,7 +20,6 @@ import logging
 import math
 from collections.abc import Callable, Generator
 from ctypes import create_string_buffer
-from typing import NamedTuple
 
 from smbus2 import i2c_msg
 
@@ -37,6 +36,7 @@ from armbench.fakes.i2c import (
     I2CBus,
 )
 from armbench.fakes.joint import CYCLE_S, JointModel
+from armbench.fakes.physics import Mechanism, TruthSample
 from armbench.fakes.settings import EmulatorSettings
 from armbench.fakes.uart import Uart
 
@@ -59,19 +59,6 @@ NS_PER_CYCLE = round(CYCLE_S * 1e9)
 _new_tuple = tuple.__new__  # builds a NamedTuple without its Python-level __new__ (hot path)
 
 
-class TruthSample(NamedTuple):
-    """Ground truth beside one reply frame: what a laser tracker would have measured.
-
-    ``t_s`` is when the reply was printed; ``true_rad`` the real joint angles (protocol
-    convention) and ``firmware_rad`` what the firmware believed (its encoder counters), each taken
-    when the firmware sampled that joint for the reply.
-    """
-
-    t_s: float
-    true_rad: tuple[float, float, float, float]
-    firmware_rad: tuple[float, float, float, float]
-
-
 class Board:
     """One board: its joint, EEPROM and power. Subclasses add the main loop."""
 
@@ -91,6 +78,9 @@ class Board:
         self.reference: tuple[int, int] | None = None  # (wire ticks, duty) last applied
         self.last_truth_rad = motor_steps / joint.steps_per_rad
         self.last_firmware_rad = 0.0
+        self.last_motor_rad = self.last_truth_rad
+        self.mechanism: Mechanism | None = None
+        """The arm's physics (gravity, deflection, play side); None: the ideal mechanism."""
         self.stalled = False
         self._counts_per_rad = joint.counts_per_rad
 
@@ -129,15 +119,16 @@ class Board:
         there, the truth and the belief beside the report are recorded; wire ticks."""
         model = self.model
         assert model is not None
-        counter, self.last_truth_rad = model.sample(
+        counter, self.last_truth_rad, self.last_motor_rad = model.sample(
             round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)  # rad_to_ticks(q), inline: hot
 
     def true_rad(self) -> float:
-        """The real joint angle, radians (protocol convention)."""
+        """The joint angle after the gear play and stick-slip, radians (protocol convention;
+        the arm adds the deflection under load)."""
         if self.model is None:
-            return self._motor_steps / self.joint.steps_per_rad
+            return self.last_truth_rad
         return self.model.true_angle_rad()
 
     def apply_reference(self, t_s: float, ticks: int, duty: int) -> None:
@@ -176,10 +167,15 @@ class Board:
         record = self.eeprom.load()
         counter = record.counter if record is not None else round(
             self._motor_steps * self.joint.counts_per_step)
+        mechanism = self.mechanism
+        physics = None if mechanism is None else mechanism.physics
         self.model = JointModel(
             self.joint, effects=self.settings.effects, seed=self.settings.seed * 31 + self.number
             + 1000 * self.boots, deadband_counts=self.settings.deadband_counts,
-            motor_steps=self._motor_steps, counter=counter, tick=0)
+            motor_steps=self._motor_steps, counter=counter, tick=0,
+            physics=None if physics is None else physics.joints[self.number - 1],
+            load=None if mechanism is None else mechanism.load_of(self.number - 1),
+            noise_per_count=0.0 if physics is None else physics.noise_per_count)
         if self.stalled:
             self.model.stall(0, True)
         self.reference = None
@@ -317,7 +313,7 @@ class SlaveBoard(Board):
         self._pointer = REG_POSITION
         model = self.model
         assert model is not None
-        counter, self.last_truth_rad = model.sample(
+        counter, self.last_truth_rad, self.last_motor_rad = model.sample(
             round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         if model.transitions:
@@ -463,6 +459,7 @@ class MasterBoard(Board):
         model = self.model
         assert model is not None
         t0, counts_per_rad = self.t0, self._counts_per_rad
+        mechanism = self.mechanism
         s2, s3, s4 = slaves
         rdwr, read_available, write = bus.i2c_rdwr, uart.read_available, uart.write
         # the steady loop's traffic (see below), from these very messages: each transaction's
@@ -536,7 +533,8 @@ class MasterBoard(Board):
                     positions[k] = view[0] | view[1] << 8
             # Update current pose of joint 1 (sample_position, inline: hot)
             now = clock.now
-            counter, self.last_truth_rad = model.sample(round((now - t0) * 1e9) // NS_PER_CYCLE)
+            counter, self.last_truth_rad, self.last_motor_rad = model.sample(
+                round((now - t0) * 1e9) // NS_PER_CYCLE)
             self.last_firmware_rad = q = counter / counts_per_rad
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
@@ -550,7 +548,9 @@ class MasterBoard(Board):
                 now, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad,
                       s4.last_truth_rad),
                 (self.last_firmware_rad, s2.last_firmware_rad, s3.last_firmware_rad,
-                 s4.last_firmware_rad)))
+                 s4.last_firmware_rad),
+                (self.last_motor_rad, s2.last_motor_rad, s3.last_motor_rad, s4.last_motor_rad),
+                mechanism))
             clock.now = write(reply, now, sample)
             self.loops += 1
             if self.on_reply is not None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import copy
 import enum
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Final, Literal, NamedTuple
 
@@ -37,6 +38,7 @@ import numpy as np
 
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import JointSettings
+from armbench.fakes.physics import JointPhysics
 
 __all__ = [
     "CYCLE_S",
@@ -164,6 +166,7 @@ def _clone(bits: np.random.PCG64 | None) -> np.random.PCG64 | None:
 _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_miss_bits",
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
+           "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits", "_noise_p",
            "transitions", "pulses", "steps_taken", "steps_missed", "steps_blocked",
            "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
@@ -177,20 +180,26 @@ class JointModel:
     angle 0), ``counter`` the start value of the position counter in encoder counts (default: the
     encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the start time in control
     cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts. ``seed``
-    (≥ 0) makes the physical effects reproducible.
+    (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train and
+    link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m, positive
+    towards +q) as a function of its own link angle, read at each event (run planned, stop).
+    ``noise_per_count``: chance of a spurious ±1 count per encoder count.
     """
 
     __slots__ = _FIELDS + _CONSTANTS
 
     def __init__(self, joint: JointSettings, *, effects: PhysicalEffects | None = None,
                  seed: int = 0, deadband_counts: int = 1, motor_steps: int = 0,
-                 counter: int | None = None, tick: int = 0) -> None:
+                 counter: int | None = None, tick: int = 0, physics: JointPhysics | None = None,
+                 load: Callable[[float], float] | None = None,
+                 noise_per_count: float = 0.0) -> None:
         self._joint = joint
         cps = joint.counts_per_step
         self._num, self._den = cps.numerator, cps.denominator
         self._steps_per_rad = joint.steps_per_rad
-        #: Motor position of the Hall sensor, microsteps.
-        self.hall_step: Final = round(joint.hall_rad * joint.steps_per_rad)
+        hall_error = 0.0 if physics is None else physics.hall_error_rad
+        #: Motor position of the Hall sensor, microsteps (where it really is: ``hall_error_rad``).
+        self.hall_step: Final = round((joint.hall_rad + hall_error) * joint.steps_per_rad)
         #: Counter value the Hall sensor sets, encoder counts.
         self.hall_count: Final = round(joint.hall_rad * joint.counts_per_rad)
         #: Hard limits of the motor position, microsteps (inclusive).
@@ -203,12 +212,26 @@ class JointModel:
             raise ValueError(f"deadband_counts {deadband_counts} is negative")
         if seed < 0:
             raise ValueError(f"seed {seed} is negative")
+        if not 0.0 <= noise_per_count < 1.0:
+            raise ValueError(f"noise_per_count {noise_per_count!r} is not in [0, 1)")
         self._effects = effects if effects is not None else PhysicalEffects()
         self._deadband = deadband_counts
+        self._physics = physics
+        self._load = load
+        self._load_nm = 0.0
+        self._preload = 0  # side (±1) gravity holds the link on within the play; 0: play operator
+        self._stick = 0.0  # link behind the play's flank after a stop (stick-slip), microsteps
+        # chance of a spurious count per step that moves the shaft
+        self._noise_p = noise_per_count * self._num / self._den
         # one PCG64 stream per effect, None while the effect is off
-        self._miss_bits = np.random.PCG64([seed, 0]) if self._effects.miss_probability else None
-        self._noise_bits = np.random.PCG64([seed, 1]) if self._effects.noise_rate_hz else None
-        self._half_play = self._effects.backlash_rad * joint.steps_per_rad / 2.0
+        self._miss_bits = (np.random.PCG64([seed, 0])
+                           if self._effects.miss_probability or physics is not None else None)
+        self._noise_bits = (np.random.PCG64([seed, 1])
+                            if self._effects.noise_rate_hz or self._noise_p else None)
+        self._stick_bits = (np.random.PCG64([seed, 2])
+                            if physics is not None and physics.stick_rad else None)
+        backlash = self._effects.backlash_rad + (0.0 if physics is None else physics.backlash_rad)
+        self._half_play = backlash * joint.steps_per_rad / 2.0
 
         self._now = tick
         self._state = _STOP
@@ -311,8 +334,14 @@ class JointModel:
         return self._stalled
 
     def true_angle_rad(self) -> float:
-        """Ground-truth joint angle in radians, backlash included (what a laser tracker sees)."""
-        return (self._s - self._gap) / self._steps_per_rad
+        """Joint angle in radians after the gear play and stick-slip (what a laser tracker sees,
+        but for the link's deflection under load, which the arm adds)."""
+        return (self._s - self._gap - self._stick) / self._steps_per_rad
+
+    @property
+    def load_nm(self) -> float:
+        """The gravity torque on the joint at its last event (N·m, positive towards +q)."""
+        return self._load_nm
 
     def drain_transitions(self) -> list[Transition]:
         """The motion changes since the last call, oldest first (the board writes EEPROM)."""
@@ -335,6 +364,7 @@ class JointModel:
         twin._run = None if self._run is None else replace(self._run)
         twin._miss_bits = _clone(self._miss_bits)
         twin._noise_bits = _clone(self._noise_bits)
+        twin._stick_bits = _clone(self._stick_bits)
         return twin
 
     def next_event_tick(self) -> int | None:
@@ -353,10 +383,10 @@ class JointModel:
             raise ValueError(f"tick {tick} is before the model's time {self._now}")
         self.sample(tick)
 
-    def sample(self, tick: int) -> tuple[int, float]:
-        """The counter and :meth:`true_angle_rad` at ``tick``, or at the model's time if that is
-        later (never backwards): a board's position report and the truth beside it, advancing
-        and reading in one call (the boards make four per main loop)."""
+    def sample(self, tick: int) -> tuple[int, float, float]:
+        """The counter, :meth:`true_angle_rad` and the motor angle (rad) at ``tick``, or at the
+        model's time if that is later (never backwards): a board's position report and the truth
+        beside it, advancing and reading in one call (the boards make four per main loop)."""
         if tick > self._now:
             run = self._run
             if self._idle:
@@ -384,7 +414,7 @@ class JointModel:
                         run.done = done
                         self._s = run.s0 + run.direction * after
                         play = self._half_play
-                        if play:  # backlash
+                        if play and not self._preload:  # backlash as a play operator
                             gap = self._gap + run.direction * moved
                             self._gap = play if gap > play else -play if gap < -play else gap
                     self._now = tick
@@ -399,7 +429,9 @@ class JointModel:
             else:
                 self._run_until(tick, probe=False)
         s = self._s
-        return self._offset + s * self._num // self._den, (s - self._gap) / self._steps_per_rad
+        spr = self._steps_per_rad
+        return (self._offset + s * self._num // self._den, (s - self._gap - self._stick) / spr,
+                s / spr)
 
     def set_reference(self, tick: int, target_counts: int, duty: int) -> None:
         """New position (encoder counts) and velocity (duty 0..99) reference from tick on.
@@ -478,6 +510,7 @@ class JointModel:
                 if self._duty > 0 and err != 0:
                     self._state = _PWM_HIGH
                     self._dir = 1 if err > 0 else -1
+                    self._stick = 0.0
                     self._now += 1
                     self._record(self._now, self.counter)
                 elif probe:
@@ -498,6 +531,8 @@ class JointModel:
                 err = self._error()
                 if self._duty == 0 or err == 0:
                     self._state = _STOP
+                    if self._physics is not None:
+                        self._settle()
                     self._now += 1
                     self._record(self._now, self.counter)
                 else:
@@ -509,9 +544,49 @@ class JointModel:
                     return self._homed_tick
         return None
 
+    def _update_load(self) -> None:
+        """Read the gravity torque now; above the hold torque the link rests on the flank of the
+        play gravity pushes it to (a sign change crosses the play)."""
+        physics = self._physics
+        assert physics is not None
+        load = self._load
+        tau = 0.0 if load is None else load((self._s - self._gap) / self._steps_per_rad)
+        self._load_nm = tau
+        side = 1 if tau > physics.hold_nm else -1 if tau < -physics.hold_nm else 0
+        self._preload = side
+        if side:
+            self._gap = -side * self._half_play
+
+    def _settle(self) -> None:
+        """The motor stops: the link comes to rest on the play's loaded side, and, carried by its
+        momentum, up to a stick-slip band further on in the direction of travel (the band grows
+        with the approach speed)."""
+        physics = self._physics
+        assert physics is not None
+        self._update_load()
+        bits = self._stick_bits
+        if bits is not None and self._duty > 0:
+            band = physics.stick_band_rad(2.0 / (101 - self._duty)) * self._steps_per_rad
+            self._stick = -self._dir * band * float(np.random.Generator(bits).random())
+
+    def _miss_p(self, d: int, period: int) -> float:
+        """Chance that a pulse of a run towards ``d`` every ``period`` cycles is lost: the static
+        friction effect above its start duty, or the share the stepper cannot drive against the
+        load at this rate (``JointPhysics.loss_fraction``), whichever is larger."""
+        fx = self._effects
+        p = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
+        physics = self._physics
+        if physics is not None:
+            joint = self._joint
+            p = max(p, physics.loss_fraction(self._load_nm, d, joint.gear_ratio,
+                                             1.0 / (period * CYCLE_S), joint.steps_per_motor_rev))
+        return p
+
     def _plan(self, d: int) -> _Run:
         """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
         period = 101 - self._duty
+        if self._physics is not None:
+            self._update_load()
         limit = self.upper_steps if d > 0 else self.lower_steps
         if self._stalled or self._s == limit:
             return _Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
@@ -525,7 +600,9 @@ class JointModel:
         glitch = 0
         if self._noise_bits is not None:
             noise = np.random.Generator(self._noise_bits)
-            first = int(noise.geometric(min(1.0, self._effects.noise_rate_hz * period * CYCLE_S)))
+            rate_p = min(1.0, self._effects.noise_rate_hz * period * CYCLE_S)
+            p_step = rate_p if not self._noise_p else 1.0 - (1.0 - rate_p) * (1.0 - self._noise_p)
+            first = int(noise.geometric(min(1.0, p_step)))
             if first <= steps:
                 steps = first
                 glitch = 1 if noise.integers(2) else -1
@@ -534,9 +611,10 @@ class JointModel:
         if hall_at_end:
             offset_end = self.hall_count - self._encoder(self.hall_step)
         misses = 0
-        if self._miss_bits is not None and self._duty > self._effects.miss_above_duty:
-            misses = int(np.random.Generator(self._miss_bits).negative_binomial(
-                steps, 1.0 - self._effects.miss_probability))
+        if self._miss_bits is not None:
+            p = self._miss_p(d, period)
+            if p > 0.0:
+                misses = int(np.random.Generator(self._miss_bits).negative_binomial(steps, 1.0 - p))
         return _Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
                     offset_end, glitch, hall_at_end)
 
@@ -591,8 +669,9 @@ class JointModel:
         run.done = done
         self._s = run.s0 + run.direction * after
         self._offset = run.offset_after(done)
-        self._gap = min(self._half_play,
-                        max(-self._half_play, self._gap + run.direction * (after - before)))
+        if not self._preload:
+            self._gap = min(self._half_play,
+                            max(-self._half_play, self._gap + run.direction * (after - before)))
         if done == run.pulses:
             self.spurious_counts += abs(run.glitch)
             if run.hall_at_end and self._homing_dir:

@@ -1,7 +1,9 @@
 """Settings of the firmware emulator: the ``[emulator]`` table of a robot settings file.
 
 Every choice the paper leaves open is a field here, with the default the real firmware most
-plausibly has (see ``docs/emulator.md``).
+plausibly has (see ``docs/emulator.md``). ``profile`` picks the mechanism: ``physical`` (the
+default: the plausible arm of ``[emulator.physics]``, ``docs/robot-model.md``) or ``ideal``
+(rigid, play-free, exact: what tests of the firmware's exact behaviour use).
 """
 
 from __future__ import annotations
@@ -13,8 +15,10 @@ from typing import Any, Literal
 
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.joint import CYCLE_S, PhysicalEffects
+from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
 
-__all__ = ["CYCLE_S", "EmulatorSettings", "PhysicalEffects", "emulator_settings"]
+__all__ = ["CYCLE_S", "PROFILES", "ArmPhysics", "EmulatorSettings", "PhysicalEffects",
+           "emulator_settings", "with_emulator_overrides"]
 
 @dataclass(frozen=True, slots=True)
 class EmulatorSettings:
@@ -52,6 +56,11 @@ class EmulatorSettings:
     times, counters and EEPROM, at about half the cost per loop. False: every transaction goes
     through the bus, as the master's code would on a real ``smbus2.SMBus``."""
     effects: PhysicalEffects = field(default_factory=PhysicalEffects)
+    profile: Literal["physical", "ideal"] = "physical"
+    """``physical``: the mechanism of ``physics``; ``ideal``: none (rigid, play-free, exact)."""
+    physics: ArmPhysics | None = field(default_factory=ArmPhysics)
+    """The physical arm (``fakes/physics.py``, ``[emulator.physics]``); None in the ideal
+    profile."""
 
     @property
     def i2c_bit_s(self) -> float:
@@ -59,7 +68,8 @@ class EmulatorSettings:
         return 1.0 / self.i2c_hz
 
 
-_TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool}
+_TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
+                           "profile": str}
 
 
 def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSettings:
@@ -84,7 +94,21 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
             effects = PhysicalEffects(**effects_in)
         except ValueError as exc:
             raise SettingsError("emulator.effects", dict(effects_in), str(exc)) from None
-    known = {f.name for f in fields(EmulatorSettings)} - {"effects"}
+    physics_in = table.pop("physics", {})
+    if isinstance(physics_in, ArmPhysics):
+        physics: ArmPhysics | None = physics_in
+    elif physics_in is None:
+        physics = None
+    else:
+        if not isinstance(physics_in, Mapping):
+            raise SettingsError("emulator.physics", physics_in, "is not a table")
+        physics = arm_physics(physics_in)
+    profile = table.get("profile", "physical")
+    if profile not in PROFILES:
+        raise SettingsError("emulator.profile", profile, f"must be one of {', '.join(PROFILES)}")
+    if profile == "ideal":
+        physics = None
+    known = {f.name for f in fields(EmulatorSettings)} - {"effects", "physics"}
     for k, v in table.items():
         if k not in known:
             raise SettingsError(f"emulator.{k}", v, f"is not a known setting (known: "
@@ -97,9 +121,39 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
                 raise SettingsError(f"emulator.{k}", v, "is not true or false")
         else:
             _check_number(f"emulator.{k}", v)
-    s = replace(EmulatorSettings(), effects=effects, **table)
+    s = replace(EmulatorSettings(), effects=effects, physics=physics, **table)
     _validate(s)
     return s
+
+
+def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
+                            payload_kg: str | float | None = None) -> RobotSettings:
+    """``robot`` with its ``[emulator]`` table's ``profile`` and ``physics.payload_kg`` replaced
+    (the ``fake://?profile=…&payload=…`` query); each value checked, errors naming it."""
+    if profile is None and payload_kg is None:
+        return robot
+    section = robot.sections.get("emulator", {})
+    if not isinstance(section, Mapping):
+        raise SettingsError("emulator", section, "is not a table")
+    table: dict[str, Any] = dict(section)
+    if profile is not None:
+        if profile not in PROFILES:
+            raise SettingsError("profile", profile, f"must be one of {', '.join(PROFILES)}")
+        table["profile"] = profile
+    if payload_kg is not None:
+        try:
+            kg = float(payload_kg)
+        except ValueError:
+            raise SettingsError("payload", payload_kg, "is not a number of kg") from None
+        if not 0.0 <= kg <= 3.0:
+            raise SettingsError("payload", payload_kg, "must be 0..3 kg (the paper's maximum)")
+        physics = table.get("physics", {})
+        if not isinstance(physics, Mapping):
+            raise SettingsError("emulator.physics", physics, "is not a table")
+        table["physics"] = {**physics, "payload_kg": kg}
+    out = replace(robot, sections={**robot.sections, "emulator": table})
+    emulator_settings(out)  # validates the result
+    return out
 
 
 def _check_number(path: str, v: object) -> None:

@@ -4,8 +4,9 @@ It lives with the emulator and is registered by name (the scheme ``fake``, see
 :mod:`armbench.drivers.transports`): the driver reaches it through the registry and never imports
 it.
 
-``fake://?seed=3&faults=faults.toml&settings=robot.toml``: the emulator is built from the robot
-settings file (defaults without one), its ``[emulator]`` table, the fault list and the seed. On a
+``fake://?seed=3&faults=faults.toml&settings=robot.toml&profile=ideal&payload=1.5``: the emulator
+is built from the robot settings file (defaults without one), its ``[emulator]`` table
+(``profile`` and the payload in kg override it), the fault list and the seed. On a
 virtual-time loop (``armbench.fakes.vclock``) minutes of robot time pass in seconds; on a real loop
 it runs in real time. The emulator is exposed as ``transport.emulator`` for its side channels:
 ground truth and power control (what a laser tracker and a relay give on a real bench).
@@ -22,11 +23,11 @@ from armbench.drivers.settings import RobotSettings, SerialSettings, load_settin
 from armbench.drivers.transports.base import Transport
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.faults import Fault, faults_from_settings, load_faults
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.settings import emulator_settings, with_emulator_overrides
 
-__all__ = ["FakeTransport", "parse_fake_url"]
+__all__ = ["FakeTransport", "apply_fake_query", "parse_fake_url"]
 
-_KNOWN = {"seed", "faults", "settings"}
+_KNOWN = {"seed", "faults", "settings", "profile", "payload"}
 
 
 def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
@@ -40,6 +41,7 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
             raise ArmbenchError(f"{port}: unknown query parameter {key!r} "
                                 f"(known: {', '.join(sorted(_KNOWN))})")
     robot = load_settings(query["settings"][-1]) if "settings" in query else RobotSettings()
+    robot = apply_fake_query(port, robot)
     seed = None
     if "seed" in query:
         try:
@@ -50,6 +52,14 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
     if "faults" in query:
         faults += load_faults(query["faults"][-1])
     return robot, seed, faults
+
+
+def apply_fake_query(port: str, robot: RobotSettings) -> RobotSettings:
+    """``robot`` with the ``profile`` and ``payload`` (kg) of a ``fake://`` URL's query applied
+    to its ``[emulator]`` table."""
+    query = parse_qs(urlsplit(port).query, keep_blank_values=True)
+    return with_emulator_overrides(robot, profile=query.get("profile", [None])[-1],
+                                   payload_kg=query.get("payload", [None])[-1])
 
 
 class FakeTransport(Transport):

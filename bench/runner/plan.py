@@ -163,11 +163,21 @@ def _check_port(port: str) -> _Port:
                  tuple(url_faults))
 
 
+def _with_url_query(port: _Port, settings: RobotSettings) -> RobotSettings:
+    """``settings`` with a ``fake://`` URL's ``profile`` and ``payload`` applied."""
+    if not port.fake:
+        return settings
+    from armbench.fakes.transport import apply_fake_query
+
+    return apply_fake_query(port.port, settings)
+
+
 def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], port: _Port) -> _Inputs:
     """The settings, limits, seed, faults and suites of the run being resumed, unchanged."""
     env = resume.environment
     settings_path = info.get("settings") or port.url_settings
-    settings = load_settings(settings_path) if settings_path else RobotSettings()
+    settings = _with_url_query(port, load_settings(settings_path) if settings_path
+                               else RobotSettings())
     if not json_equal(settings.to_mapping(), env.settings):
         raise SettingsError("settings", settings_path or "defaults",
                             "differ from the settings the run began with; start a new run")
@@ -191,7 +201,8 @@ def _new_inputs(options: RunOptions, port: _Port) -> _Inputs:
     if options.settings is not None and port.url_settings is not None:
         raise ArmbenchError("--settings: the port already names a settings file; give one")
     settings_path = str(options.settings) if options.settings is not None else port.url_settings
-    settings = load_settings(settings_path) if settings_path else RobotSettings()
+    settings = _with_url_query(port, load_settings(settings_path) if settings_path
+                               else RobotSettings())
     config_file = Path(options.config) if options.config is not None else DEFAULT_CONFIG
     config = load_limits(config_file)
     if options.seed is not None:

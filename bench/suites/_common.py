@@ -257,13 +257,17 @@ class TruthProbe:
         """Whether a reference instrument exists."""
         return self._source is not None
 
-    def joints(self, state: JointState | None = None) -> tuple[float, ...] | None:
-        """True joint angles (rad) beside ``state`` (or now), if the instrument gives them."""
+    def joints(self, state: JointState | None = None, *,
+               motor: bool = False) -> tuple[float, ...] | None:
+        """True joint angles (rad) beside ``state`` (or now), if the instrument gives them; with
+        ``motor`` the motor shafts' angles where the emulator gives them (what the firmware's
+        counters should say: the link's play and deflection are beyond any encoder's view)."""
         if self._source is None:
             return None
         gt = self._matched(state)
         if gt is not None:
-            return tuple(float(v) for v in gt.true_rad)
+            side = getattr(gt, "motor_rad", None) if motor else None
+            return tuple(float(v) for v in (side if side is not None else gt.true_rad))
         q = self._source.true_joints_rad()
         return None if q is None else tuple(float(v) for v in q)
 
@@ -272,8 +276,9 @@ class TruthProbe:
         if self._source is None:
             return None
         gt = self._matched(state)
-        if gt is not None:
-            return fk_m(gt.true_rad, self._settings)
+        if gt is not None:  # the real arm's kinematics where the emulator has them
+            actual = getattr(emulator_of(self._arm), "actual_settings", None)
+            return fk_m(gt.true_rad, actual if actual is not None else self._settings)
         p = self._source.true_position_m()
         return None if p is None else (float(p[0]), float(p[1]), float(p[2]))
 

@@ -273,7 +273,7 @@ class StartupRecoverySuite(Suite):
         def error(state: JointState) -> tuple[float, bool, str]:
             """(error, within tolerance, what it was compared with) of ``state``."""
             if probe.available:
-                q = probe.joints(state)
+                q = probe.joints(state, motor=True)
                 if q is not None:
                     e = max(abs(a - b) for a, b in zip(state.q_rad, q, strict=True))
                     return e, e <= tol_rad, "truth_rad"
