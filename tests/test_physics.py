@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from armbench.drivers.transports.fake import parse_fake_url
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from joint_reference import ReferenceJoint
@@ -19,7 +20,6 @@ from test_joint_model import snapshot
 from armbench.drivers.kinematics import dh_parameters, tcp_position
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import DEFAULT_JOINTS, RobotSettings, SettingsError
-from armbench.drivers.transports.fake import parse_fake_url
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.joint import CYCLE_S, JointModel
 from armbench.fakes.physics import (
