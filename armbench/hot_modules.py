@@ -10,6 +10,8 @@ HOT_MODULES = (
     "armbench.fakes.boards",
     "armbench.fakes.i2c",
     "armbench.fakes.joint",
+    "armbench.fakes.physics",
+    "armbench.fakes.stepper",
     "armbench.fakes.uart",
 )
 

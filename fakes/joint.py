@@ -28,17 +28,29 @@ Conventions (``docs/emulator-joint.md`` has the full semantics):
 from __future__ import annotations
 
 import copy
-import enum
-import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
-from typing import Final, Literal, NamedTuple
+from dataclasses import replace
+from typing import Final
 
 import numpy as np
 
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import JointSettings
 from armbench.fakes.physics import JointPhysics
+from armbench.fakes.stepper import (
+    CYCLE_S,
+    FOREVER,
+    PWM_HIGH,
+    PWM_LOW,
+    STOP,
+    Motion,
+    PhysicalEffects,
+    PwmState,
+    Run,
+    Transition,
+    clone_bits,
+    step_period_ticks,
+)
 
 __all__ = [
     "CYCLE_S",
@@ -49,115 +61,6 @@ __all__ = [
     "Transition",
     "step_period_ticks",
 ]
-
-#: Seconds per control cycle (one tick): the firmware's 80 µs timer interrupt.
-CYCLE_S: Final = 80e-6
-
-#: Macro state the EEPROM logic stores (paper §5.2): stopped, moving CW, moving CCW.
-Motion = Literal["stopped", "cw", "ccw"]
-
-_FOREVER: Final = 1 << 62  # horizon of next_event_tick's look-ahead; never reached in practice
-
-
-class PwmState(enum.Enum):
-    """The states of the firmware's position-control state machine (paper Fig. 7)."""
-
-    STOP = "STOP"
-    PWM_HIGH = "PWM_HIGH"
-    PWM_LOW = "PWM_LOW"
-
-
-# The members as module constants: reading one off the Enum class costs ~0.1 µs, on the hot path.
-_STOP, _PWM_HIGH, _PWM_LOW = PwmState.STOP, PwmState.PWM_HIGH, PwmState.PWM_LOW
-
-
-class Transition(NamedTuple):
-    """A change of ``motion``: first tick it is observed, the new motion, the counter then."""
-
-    tick: int
-    motion: Motion
-    counter: int
-
-
-def step_period_ticks(duty: int) -> int:
-    """Control cycles between two steps of a moving joint at ``duty`` 1..99: ``101 − duty``.
-
-    Speed law (12): ``1e6 / (80 × (101 − v))`` steps per second.
-    """
-    if isinstance(duty, bool) or not isinstance(duty, int) or not 1 <= duty <= MAX_DUTY:
-        raise ValueError(f"duty {duty!r} is not a whole number 1..{MAX_DUTY}")
-    return 101 - duty
-
-
-@dataclass(frozen=True, slots=True)
-class PhysicalEffects:
-    """Physical imperfections of the drive train; all off by default.
-
-    ``miss_probability``: chance (0 ≤ p < 1) that a step pulse is lost (the shaft does not move),
-    applied only to pulses issued at a duty above ``miss_above_duty`` (the start duty: a stepper
-    with high static friction keeps up below its pull-in rate and loses steps above it).
-    ``backlash_rad``: play of the gear at the joint, radians; the joint lags the motor by up to
-    this much after a reversal (hysteresis width). The encoder is on the motor, so only
-    ``true_angle_rad`` sees it.
-    ``noise_rate_hz``: spurious ±1 encoder counts per second of stepping at the commanded step
-    rate (see ``docs/emulator-joint.md`` for how it is drawn).
-    """
-
-    miss_probability: float = 0.0
-    miss_above_duty: int = 0
-    backlash_rad: float = 0.0
-    noise_rate_hz: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.miss_probability < 1.0:
-            raise ValueError(f"miss_probability {self.miss_probability!r} is not in [0, 1)")
-        if not 0 <= self.miss_above_duty <= MAX_DUTY:
-            raise ValueError(f"miss_above_duty {self.miss_above_duty!r} is not in 0..{MAX_DUTY}")
-        if not 0.0 <= self.backlash_rad < math.inf:
-            raise ValueError(f"backlash_rad {self.backlash_rad!r} is not a finite angle ≥ 0")
-        if not 0.0 <= self.noise_rate_hz < math.inf:
-            raise ValueError(f"noise_rate_hz {self.noise_rate_hz!r} is not a finite rate ≥ 0")
-
-
-@dataclass(slots=True)
-class _Run:
-    """Pulses ``start, start + period, …`` in one direction with nothing special in between.
-
-    ``pulses`` is None for a blocked run (hard limit or stall fault): pulses forever, no step.
-    Otherwise the run issues ``pulses`` pulses of which ``steps`` move the shaft (the misses are
-    spread evenly, the last pulse always steps); ``offset_end`` is the counter offset after the
-    last pulse (Hall reset, spurious count), ``glitch`` the spurious count made with it.
-    """
-
-    start: int
-    period: int
-    direction: int
-    pulses: int | None
-    steps: int
-    s0: int
-    offset0: int
-    offset_end: int
-    glitch: int
-    hall_at_end: bool
-    done: int = 0
-
-    def steps_after(self, pulses: int) -> int:
-        """Shaft steps made by the first ``pulses`` pulses."""
-        return 0 if self.pulses is None else pulses * self.steps // self.pulses
-
-    def offset_after(self, pulses: int) -> int:
-        """Counter offset after the first ``pulses`` pulses."""
-        return self.offset_end if pulses == self.pulses else self.offset0
-
-
-def _clone(bits: np.random.PCG64 | None) -> np.random.PCG64 | None:
-    """An independent bit generator in the same state (cheaper than a deep copy)."""
-    if bits is None:
-        return None
-    twin = np.random.PCG64()
-    twin.state = bits.state
-    return twin
-
 
 #: The attributes :meth:`JointModel.__copy__` copies: all but the ``Final`` ones (``_CONSTANTS``,
 #: set from the joint settings by the constructor). Together they are the class's ``__slots__``, so
@@ -234,7 +137,7 @@ class JointModel:
         self._half_play = backlash * joint.steps_per_rad / 2.0
 
         self._now = tick
-        self._state = _STOP
+        self._state = STOP
         self._n = 0
         self._dir = 0
         self._s = motor_steps
@@ -245,7 +148,7 @@ class JointModel:
         self._homing_dir = 0
         self._homed_tick: int | None = None
         self._stalled = False
-        self._run: _Run | None = None
+        self._run: Run | None = None
         self._idle = False  # STOP with nothing to do: until an input, time passes and that is all
         self.transitions: list[Transition] = []
         """Motion changes not yet taken by :meth:`drain_transitions`, oldest first (the boards
@@ -293,7 +196,7 @@ class JointModel:
     @property
     def motion(self) -> Motion:
         """'stopped' in STOP, else the direction of the current movement ('cw' counts up)."""
-        if self._state is _STOP:
+        if self._state is STOP:
             return "stopped"
         return "cw" if self._dir > 0 else "ccw"
 
@@ -321,7 +224,7 @@ class JointModel:
     def at_limit(self) -> bool:
         """True while the machine drives into the hard limit the motor sits at."""
         limit = self.upper_steps if self._dir > 0 else self.lower_steps
-        return self._state is not _STOP and self._s == limit
+        return self._state is not STOP and self._s == limit
 
     @property
     def homing_failed(self) -> bool:
@@ -362,9 +265,9 @@ class JointModel:
         twin = copy.copy(self)
         twin.transitions = list(self.transitions)
         twin._run = None if self._run is None else replace(self._run)
-        twin._miss_bits = _clone(self._miss_bits)
-        twin._noise_bits = _clone(self._noise_bits)
-        twin._stick_bits = _clone(self._stick_bits)
+        twin._miss_bits = clone_bits(self._miss_bits)
+        twin._noise_bits = clone_bits(self._noise_bits)
+        twin._stick_bits = clone_bits(self._stick_bits)
         return twin
 
     def next_event_tick(self) -> int | None:
@@ -373,7 +276,7 @@ class JointModel:
         """
         probe = copy.deepcopy(self)
         probe.transitions = []  # the first one it records is the answer
-        return probe._run_until(_FOREVER, probe=True)
+        return probe._run_until(FOREVER, probe=True)
 
     # --- inputs ------------------------------------------------------------------------------
 
@@ -419,10 +322,10 @@ class JointModel:
                             self._gap = play if gap > play else -play if gap < -play else gap
                     self._now = tick
                     if lows >= period - 1:
-                        self._state = _PWM_HIGH
+                        self._state = PWM_HIGH
                         self._n = period - 1
                     else:
-                        self._state = _PWM_LOW
+                        self._state = PWM_LOW
                         self._n = lows
                 else:
                     self._run_until(tick, probe=False)
@@ -505,10 +408,10 @@ class JointModel:
                 if probe and run.pulses is None and run.direction == self._dir:
                     return None  # pushing against a limit or stall: nothing will change
                 self._execute(run, until)
-            elif self._state is _STOP:
+            elif self._state is STOP:
                 err = self._error()
                 if self._duty > 0 and err != 0:
-                    self._state = _PWM_HIGH
+                    self._state = PWM_HIGH
                     self._dir = 1 if err > 0 else -1
                     self._stick = 0.0
                     self._now += 1
@@ -518,19 +421,19 @@ class JointModel:
                 else:
                     self._now = until
                     self._idle = True
-            elif self._state is _PWM_LOW:
+            elif self._state is PWM_LOW:
                 wait = max(1, 100 - self._duty - self._n)
                 if self._now + wait <= until:
                     self._now += wait
                     self._n += wait
-                    self._state = _PWM_HIGH
+                    self._state = PWM_HIGH
                 else:
                     self._n += until - self._now
                     self._now = until
             else:
                 err = self._error()
                 if self._duty == 0 or err == 0:
-                    self._state = _STOP
+                    self._state = STOP
                     if self._physics is not None:
                         self._settle()
                     self._now += 1
@@ -582,14 +485,14 @@ class JointModel:
                                              1.0 / (period * CYCLE_S), joint.steps_per_motor_rev))
         return p
 
-    def _plan(self, d: int) -> _Run:
+    def _plan(self, d: int) -> Run:
         """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
         period = 101 - self._duty
         if self._physics is not None:
             self._update_load()
         limit = self.upper_steps if d > 0 else self.lower_steps
         if self._stalled or self._s == limit:
-            return _Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
+            return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
                         False)
         steps = d * (limit - self._s)
         hall = d * (self.hall_step - self._s)
@@ -615,7 +518,7 @@ class JointModel:
             p = self._miss_p(d, period)
             if p > 0.0:
                 misses = int(np.random.Generator(self._miss_bits).negative_binomial(steps, 1.0 - p))
-        return _Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
+        return Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
                     offset_end, glitch, hall_at_end)
 
     def _steps_to_deadband(self, d: int) -> int:
@@ -627,7 +530,7 @@ class JointModel:
         # continue while floor(s·c) ≥ base + deadband + 1
         return self._s + (-(base + self._deadband + 1) * self._den // self._num) + 1
 
-    def _execute(self, run: _Run, until: int) -> None:
+    def _execute(self, run: Run, until: int) -> None:
         """Apply the run's pulses before ``until`` and land on the state at ``until`` (or at the
         PWM_HIGH after the run's last pulse, which ends the run)."""
         period = run.period
@@ -645,13 +548,13 @@ class JointModel:
         self._now = end
         lows = end - 1 - last
         if lows >= period - 1:
-            self._state = _PWM_HIGH
+            self._state = PWM_HIGH
             self._n = period - 1
         else:
-            self._state = _PWM_LOW
+            self._state = PWM_LOW
             self._n = lows
 
-    def _pulse(self, run: _Run, done: int) -> None:
+    def _pulse(self, run: Run, done: int) -> None:
         """Apply pulses ``run.done`` .. ``done − 1`` of the run."""
         before = run.steps_after(run.done)
         after = run.steps_after(done)

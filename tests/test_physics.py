@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from armbench.drivers.transports.fake import parse_fake_url
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from joint_reference import ReferenceJoint
@@ -31,6 +30,7 @@ from armbench.fakes.physics import (
     Mechanism,
 )
 from armbench.fakes.settings import emulator_settings
+from armbench.fakes.transport import parse_fake_url
 from armbench.fakes.vclock import run_virtual
 
 G = 9.80665
