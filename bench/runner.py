@@ -58,6 +58,8 @@ from armbench.bench.baseline import BaselineError, compare, load_baseline
 from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, EmulatorPower, ManualPower
 from armbench.bench.record import (
+    CAPTURE_FILE,
+    REPORT_FILE,
     RESULTS_FILE,
     RecordError,
     RecordWriter,
@@ -116,8 +118,6 @@ log = logging.getLogger("armbench.runner")
 DEFAULT_CONFIG = Path(__file__).with_name("default_bench.toml")
 #: Files of a run directory besides ``results.json``.
 JUNIT_FILE = "junit.xml"
-REPORT_FILE = "report.html"
-CAPTURE_FILE = "capture.jsonl"
 #: How the run was invoked (suite references, files), read back by ``--resume``.
 RUNNER_FILE = "runner.json"
 #: Bytes per read when a connection's capture part is appended to ``capture.jsonl``.

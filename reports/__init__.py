@@ -4,9 +4,10 @@ beside it) only; see ``docs/reports.md``."""
 
 from __future__ import annotations
 
+from armbench.bench.record import REPORT_FILE
 from armbench.reports.format import CSP, VERDICT_MARKS, format_duration, format_number, format_value
 from armbench.reports.index import INDEX_FILE, render_index
-from armbench.reports.render import REPORT_FILE, build_report_html, render_report
+from armbench.reports.render import build_report_html, render_report
 
 __all__ = [
     "CSP",

@@ -22,10 +22,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CAPTURE_FILE", "MAX_RECORDS", "CaptureLine", "CaptureSummary", "summarize_capture"]
+__all__ = ["MAX_RECORDS", "CaptureLine", "CaptureSummary", "summarize_capture"]
 
-#: The capture's file name inside a run directory.
-CAPTURE_FILE = "capture.jsonl"
 #: Records analysed at most (the rest of a longer capture is counted as skipped).
 MAX_RECORDS = 2_000_000
 #: Bins of the frame-rate plot at most.

@@ -17,6 +17,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from armbench.bench.record import (
+    REPORT_FILE,
     RESULTS_FILE,
     Measurement,
     RecordError,
@@ -26,7 +27,6 @@ from armbench.bench.record import (
 )
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.render import REPORT_FILE
 
 __all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
 

@@ -33,10 +33,10 @@ from matplotlib.patches import Circle
 from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
 __all__ = [
+    "AttainedPath",
     "ErrorPanel",
     "ErrorRun",
     "PathPanel",
-    "PathRun",
     "PoseScatter",
     "ScatterGroup",
     "StartupPoint",
@@ -239,7 +239,7 @@ def envelope(t: FloatArray, y: FloatArray,
 
 
 @dataclass(frozen=True, slots=True)
-class PathRun:
+class AttainedPath:
     """One run's attained path: reported (forward kinematics of the reported joints) and, when the
     samples carry it, the true path (external measurement or emulator truth), ``(N, 3)`` in mm."""
 
@@ -253,7 +253,7 @@ class PathPanel:
     """One subplot of :func:`paths_yz`: a mode and its runs."""
 
     title: str
-    runs: Sequence[PathRun]
+    runs: Sequence[AttainedPath]
 
 
 def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figure:

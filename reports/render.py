@@ -40,7 +40,9 @@ from armbench.bench.metrics import (
     square_yz,
 )
 from armbench.bench.record import (
+    CAPTURE_FILE,
     PAPER_REFERENCE,
+    REPORT_FILE,
     RESULTS_FILE,
     ComparisonRow,
     Measurement,
@@ -51,7 +53,7 @@ from armbench.bench.record import (
     load_record,
 )
 from armbench.reports import plots
-from armbench.reports.capture import CAPTURE_FILE, CaptureLine, summarize_capture
+from armbench.reports.capture import CaptureLine, summarize_capture
 from armbench.reports.format import (
     OUTCOME_MARKS,
     format_duration,
@@ -71,8 +73,6 @@ __all__ = [
     "suite_verdict",
 ]
 
-#: The report's file name inside a run directory.
-REPORT_FILE = "report.html"
 #: Suites with a section of their own; any other suite gets a generic one.
 KNOWN_SUITES = ("accuracy", "repeatability", "startup")
 #: Rated write/erase cycles of an EEPROM cell of the joint boards' ATmega328P (datasheet:
@@ -724,7 +724,7 @@ def _accuracy(record: RunRecord, suite: SuiteRecord, view: SuiteView,
     figures: list[FigureView] = []
     if runs:
         panels = [plots.PathPanel(_MODE_TITLES[mode], [
-            plots.PathRun(f"trial {r.trial.index}", r.reported * 1000.0,
+            plots.AttainedPath(f"trial {r.trial.index}", r.reported * 1000.0,
                           None if r.tracking is None
                           else r.true[~np.isnan(r.true[:, 0])] * 1000.0)
             for r in runs if r.mode == mode]) for mode in modes]

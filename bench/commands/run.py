@@ -15,7 +15,8 @@ import argparse
 import sys
 from typing import Any
 
-from armbench.bench.runner import RunOptions, RunOutcome, run_sync
+from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
+from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.suites import SUITES
 
 __all__ = ["register"]
@@ -101,7 +102,7 @@ def _summary(outcome: RunOutcome) -> None:
         for row in record.baseline.regressions:
             print(f"  REGRESSED  {row.name}: {row.baseline:.6g} -> {row.value:.6g} {row.unit} "
                   f"(tolerance {row.tolerance:.3g})", file=out)
-    for name in ("results.json", "report.html", "junit.xml", "capture.jsonl"):
+    for name in (RESULTS_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE):
         path = outcome.out_dir / name
         if path.exists():
             print(f"  {name:<13} {path}", file=out)
