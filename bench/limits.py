@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import SettingsError
 
 __all__ = [
@@ -275,11 +276,12 @@ def _unknown(where: str, table: Mapping[str, Any], known: set[str]) -> None:
 
 
 def _number(where: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_real(value):
         raise SettingsError(where, value, "is not a number")
-    if not math.isfinite(value):
+    number = finite_float(value)
+    if number is None:
         raise SettingsError(where, value, "is not finite")
-    return float(value)
+    return number
 
 
 def _non_negative(where: str, value: object) -> float:

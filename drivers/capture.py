@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import IO, Any, Final, Literal, NamedTuple
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import Command, Framer
 
 __all__ = [
@@ -212,7 +213,8 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord:
     if not isinstance(obj, dict):
         raise CaptureError(path, line, "is not a JSON object")
     t, d, f, e = obj.get("t_s"), obj.get("dir"), obj.get("frame"), obj.get("error")
-    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+    t_s = finite_float(t)
+    if t_s is None:
         raise CaptureError(path, line, f"t_s {t!r} is not a finite number")
     if d not in ("in", "out"):
         raise CaptureError(path, line, f"dir {d!r} is not 'in' or 'out'")
@@ -220,7 +222,7 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord:
         raise CaptureError(path, line, f"frame {f!r} is not a string")
     if e is not None and not isinstance(e, str):
         raise CaptureError(path, line, f"error {e!r} is not a string or null")
-    return CaptureRecord(float(t), d, f, e)
+    return CaptureRecord(t_s, d, f, e)
 
 
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
