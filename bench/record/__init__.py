@@ -2,17 +2,19 @@
 
 One :class:`RunRecord` per run holds the environment, one :class:`SuiteRecord` per suite with its
 :class:`Trial` list (raw samples plus per-trial :class:`Measurement` s) and suite-level
-measurements, the baseline comparison and the verdict. :class:`RecordWriter` keeps the file
-current as trials finish, so an interrupted run loses nothing measured and can be resumed. The
-JSON schema (``armbench-run/1``) is documented field by field in ``docs/record.md``; readers
-ignore keys they do not know, so fields may be added without a new schema version.
+measurements, the baseline comparison and the verdict. :class:`RecordWriter` keeps it on disk
+as trials finish (a journal appended per trial, ``results.json`` rewritten per suite), so an
+interrupted run loses nothing measured and can be resumed. The JSON schema (``armbench-run/1``)
+is documented field by field in ``docs/record.md``; readers ignore keys they do not know, so
+fields may be added without a new schema version.
 
 Times: ``created``/``resumed`` are wall-clock ISO 8601 labels; every ``*_s`` field is seconds of
 run time on the monotonic clock (see :meth:`RecordWriter.elapsed_s`).
 
 Rooms: ``fields`` (vocabulary, errors, checked JSON access), ``model`` (measurements, trials,
 suites), ``comparison``, ``environment``, ``run`` (the record, loading it), ``files`` (names,
-paths, atomic writes), ``jsonformat`` (the JSON text), ``writer``.
+paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials appended between
+writes of ``results.json``, samples kept on disk), ``writer``.
 """
 
 from armbench.bench.record.comparison import Comparison, ComparisonRow
@@ -34,12 +36,14 @@ from armbench.bench.record.fields import (
 )
 from armbench.bench.record.files import (
     CAPTURE_FILE,
+    JOURNAL_FILE,
     REPORT_FILE,
     RESULTS_FILE,
     atomic_write_bytes,
     path_inside,
     run_directory,
 )
+from armbench.bench.record.journal import StoredSamples
 from armbench.bench.record.jsonformat import json_default
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial, default_better, judge
 from armbench.bench.record.run import (
@@ -53,6 +57,7 @@ from armbench.bench.record.writer import RecordWriter
 
 __all__ = [
     "CAPTURE_FILE",
+    "JOURNAL_FILE",
     "PAPER_REFERENCE",
     "REPORT_FILE",
     "RESULTS_FILE",
@@ -67,6 +72,7 @@ __all__ = [
     "RecordWriter",
     "RowStatus",
     "RunRecord",
+    "StoredSamples",
     "SuiteRecord",
     "SuiteStatus",
     "Trial",

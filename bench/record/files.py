@@ -6,21 +6,29 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+from collections.abc import Callable
 from pathlib import Path, PurePath
+from typing import BinaryIO
 
 from armbench.bench.record.fields import RecordError
 
 __all__ = [
     "CAPTURE_FILE",
+    "JOURNAL_FILE",
     "REPORT_FILE",
     "RESULTS_FILE",
+    "atomic_write",
     "atomic_write_bytes",
+    "fsync_directory",
     "path_inside",
     "run_directory",
 ]
 
 #: The record's file name inside a run directory.
 RESULTS_FILE = "results.json"
+#: The journal of the trials finished since ``results.json`` was last written, beside it
+#: (``armbench.bench.record.journal``).
+JOURNAL_FILE = "results.journal.jsonl"
 #: The HTML report beside it.
 REPORT_FILE = "report.html"
 #: The traffic capture (JSON Lines, ``armbench.drivers.capture``) beside it.
@@ -63,7 +71,8 @@ def run_directory(root: str | Path, run_name: str) -> Path:
         raise RecordError("run name", f"{target} exists and is not a directory") from None
     return target
 
-def _fsync_directory(directory: Path) -> None:
+
+def fsync_directory(directory: Path) -> None:
     """Make a rename in ``directory`` durable (POSIX; a no-op where a directory cannot be
     opened)."""
     try:
@@ -78,9 +87,15 @@ def _fsync_directory(directory: Path) -> None:
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Replace ``path`` with ``data`` atomically: a temporary file in the same directory is
-    written, fsync'ed and renamed over ``path`` (``os.replace``), then the directory is fsync'ed.
-    Readers see the old or the new content, never a mix; no temporary file is left behind."""
+    """Replace ``path`` with ``data`` atomically (see :func:`atomic_write`)."""
+    atomic_write(path, lambda fh: fh.write(data))
+
+
+def atomic_write(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
+    """Replace ``path`` atomically with what ``write`` writes to the file it is given: a
+    temporary file in the same directory is written, fsync'ed and renamed over ``path``
+    (``os.replace``), then the directory is fsync'ed. Readers see the old or the new content,
+    never a mix; no temporary file is left behind."""
     target = Path(path)
     tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
     try:
@@ -91,7 +106,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         raise RecordError(str(target), f"could not be written: {exc.strerror or exc}") from exc
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, target)
@@ -101,5 +116,5 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
         if isinstance(exc, OSError):
             raise RecordError(str(target), f"could not be written: {exc.strerror or exc}") from exc
         raise
-    _fsync_directory(target.parent)
+    fsync_directory(target.parent)
 

@@ -3,7 +3,7 @@ repetition with its raw samples) and a :class:`SuiteRecord` (one suite's trials 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, get_args
 
@@ -25,6 +25,7 @@ from armbench.bench.record.fields import (
     _opt_str,
     _str,
 )
+from armbench.bench.record.journal import StoredSamples
 from armbench.drivers.settings import SettingsError
 
 __all__ = ["Measurement", "SuiteRecord", "Trial", "default_better", "judge"]
@@ -168,7 +169,8 @@ class Trial:
         _choice(self.status, f"{where}.status", get_args(TrialStatus))
         if (self.status == "error") != (self.error is not None):
             raise RecordError(f"{where}.error", "is given exactly when status is 'error'")
-        object.__setattr__(self, "samples", tuple(self.samples))
+        if not isinstance(self.samples, StoredSamples):  # kept on disk, read when used
+            object.__setattr__(self, "samples", tuple(self.samples))
         object.__setattr__(self, "measurements", tuple(self.measurements))
         _unique_names(self.measurements, f"{where}.measurements")
 
@@ -238,8 +240,29 @@ class SuiteRecord:
         """The trials with status ``"done"``, by index (a resumed suite skips these)."""
         return [t for t in self.trials if t.status == "done"]
 
-    def to_json(self) -> dict[str, Any]:
-        """The JSON object of this suite."""
+    def holds(self, trial: Trial) -> bool:
+        """Whether this suite already holds ``trial`` (the same index, status, times and
+        error, current or superseded): a journal replayed over a record that has it."""
+        key = (trial.index, trial.status, trial.started_s, trial.duration_s, trial.error)
+        return any((t.index, t.status, t.started_s, t.duration_s, t.error) == key
+                   for t in (*self.trials, *self.superseded_trials))
+
+    def place(self, trial: Trial) -> None:
+        """Add a finished trial: one re-measuring an errored trial (same index) moves that one
+        to ``superseded_trials``; re-measuring a done trial is a RecordError."""
+        for i, old in enumerate(self.trials):
+            if old.index == trial.index:
+                if old.status == "done":
+                    raise RecordError(f"suites.{self.name}.trials[index {trial.index}]",
+                                      "is already measured")
+                self.superseded_trials.append(self.trials.pop(i))
+                break
+        self.trials.append(trial)
+        self.trials.sort(key=lambda t: t.index)
+
+    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> dict[str, Any]:
+        """The JSON object of this suite; ``trial_json`` makes each trial's (the writer leaves
+        a placeholder to stream the trial from disk)."""
         return {
             "name": self.name,
             "version": self.version,
@@ -249,8 +272,8 @@ class SuiteRecord:
             "ended_s": self.ended_s,
             "params": self.params,
             "measurements": [m.to_json() for m in self.measurements],
-            "trials": [t.to_json() for t in self.trials],
-            "superseded_trials": [t.to_json() for t in self.superseded_trials],
+            "trials": [trial_json(t) for t in self.trials],
+            "superseded_trials": [trial_json(t) for t in self.superseded_trials],
         }
 
     @classmethod

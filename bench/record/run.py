@@ -1,10 +1,11 @@
 """The whole run (:class:`RunRecord`, the content of ``results.json``), its verdict, and
-reading it back: :func:`validate_record` checks parsed JSON, :func:`load_record` a file."""
+reading it back: :func:`validate_record` checks parsed JSON, :func:`load_record` a file (with
+the journal of the trials finished since it was written)."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, get_args
@@ -21,9 +22,11 @@ from armbench.bench.record.fields import (
     _obj,
     _str,
 )
+from armbench.bench.record.journal import journal_path, read_journal
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial
 
-__all__ = ["PAPER_REFERENCE", "SCHEMA", "RunRecord", "load_record", "validate_record"]
+__all__ = ["PAPER_REFERENCE", "SCHEMA", "RunRecord", "load_record", "replay_journal",
+           "validate_record"]
 
 #: The schema identifier of the records this module writes and reads.
 SCHEMA = "armbench-run/1"
@@ -99,8 +102,9 @@ class RunRecord:
             return "regression"
         return "pass"
 
-    def to_json(self) -> dict[str, Any]:
-        """The JSON object of the record (the content of ``results.json``)."""
+    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> dict[str, Any]:
+        """The JSON object of the record (the content of ``results.json``); ``trial_json`` as in
+        :meth:`SuiteRecord.to_json`."""
         return {
             "schema": self.schema,
             "run_id": self.run_id,
@@ -111,7 +115,7 @@ class RunRecord:
             "environment": self.environment.to_json(),
             "planned_suites": list(self.planned_suites),
             "baseline": None if self.baseline is None else self.baseline.to_json(),
-            "suites": {name: s.to_json() for name, s in self.suites.items()},
+            "suites": {name: s.to_json(trial_json) for name, s in self.suites.items()},
         }
 
 
@@ -173,7 +177,30 @@ def load_record(path: str | Path) -> RunRecord:
     except OSError as exc:
         raise RecordError(str(p), f"cannot be read: {exc.strerror or exc}") from None
     try:
-        return validate_record(data)
+        record = validate_record(data)
     except RecordError as exc:
         raise RecordError(f"{p}: {exc.where}", exc.reason) from None
+    replay_journal(record, journal_path(p))
+    return record
+
+
+def replay_journal(record: RunRecord, path: Path) -> int:
+    """Add the trials of journal ``path`` (the trials a run finished after its ``results.json``
+    was last written) to ``record``, skipping those it already holds; returns how many were
+    added. Errors name the journal line."""
+    added = 0
+    for number, entry in read_journal(path):
+        where = f"{path}:{number}"
+        suite = record.suites.get(entry["suite"])
+        if suite is None:
+            raise RecordError(where, f"suite {entry['suite']!r} is not in the record")
+        trial = Trial.from_json(entry["trial"], f"{where}: trial")
+        if suite.holds(trial):
+            continue
+        try:
+            suite.place(trial)
+        except RecordError as exc:
+            raise RecordError(where, f"{exc.where}: {exc.reason}") from None
+        added += 1
+    return added
 

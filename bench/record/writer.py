@@ -1,4 +1,5 @@
-"""The writer that keeps ``results.json`` of a run current while the run goes on."""
+"""The writer that keeps the record of a run on disk while the run goes on: ``results.json`` at
+checkpoints, the trials in between appended to its journal (``armbench.bench.record.journal``)."""
 
 from __future__ import annotations
 
@@ -6,14 +7,16 @@ import contextlib
 import json
 import time
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from pathlib import Path, PurePath
-from typing import Any
+from typing import Any, BinaryIO, cast
 
 from armbench.bench.record.comparison import Comparison
 from armbench.bench.record.environment import utc_timestamp
 from armbench.bench.record.fields import RecordError
-from armbench.bench.record.files import RESULTS_FILE, atomic_write_bytes, path_inside
-from armbench.bench.record.jsonformat import _JsonText, _to_json_text
+from armbench.bench.record.files import RESULTS_FILE, atomic_write, path_inside
+from armbench.bench.record.journal import StoredSamples, append_line, journal_path
+from armbench.bench.record.jsonformat import Placeholder, _to_json_text, iter_encode, json_line
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial, _unique_names
 from armbench.bench.record.run import RunRecord, load_record
 
@@ -23,9 +26,13 @@ __all__ = ["RecordWriter"]
 class RecordWriter:
     """Keeps ``results.json`` of one run up to date in ``out_dir``.
 
-    The record is written when the writer is created, after every trial, at the end of every
-    suite and on :meth:`write`; each write is atomic, so the file on disk is always a complete,
-    valid record of everything measured so far. Typical use by a suite::
+    ``results.json`` is written when the writer is created, when a suite begins or ends, when the
+    baseline is set and on :meth:`write`, each time atomically and streamed trial by trial; a
+    trial that ends in between is appended to the journal beside it (one fsynced line), so
+    keeping a trial costs that trial's size, however many came before, and the files on disk
+    always hold everything measured so far (:func:`load_record` reads both). A kept trial's
+    samples stay on disk (:class:`StoredSamples`), so memory holds one trial's samples at a
+    time. Typical use by a suite::
 
         suite = writer.begin_suite("accuracy", version="1", params=params)
         done = {t.index for t in writer.completed_trials("accuracy")}
@@ -52,7 +59,7 @@ class RecordWriter:
             raise RecordError(str(self.path), "already holds a run record; resume it or choose "
                                               "another run directory")
         self.record = record
-        self._trial_text: dict[int, tuple[Trial, _JsonText]] = {}
+        self.journal = journal_path(self.path)
         self._base_s = record.end_s
         self._t0 = time.monotonic()
         self.write()
@@ -64,7 +71,7 @@ class RecordWriter:
         continue the run clock where the record stopped."""
         directory = Path(out_dir)
         path = path_inside(directory, filename)
-        record = load_record(path)
+        record = load_record(path)  # with the journal's trials
         for stale in directory.glob(f".{path.name}.*.tmp"):
             with contextlib.suppress(OSError):
                 stale.unlink()
@@ -82,26 +89,47 @@ class RecordWriter:
         return path_inside(self.out_dir, name)
 
     def write(self) -> Path:
-        """Write the record now (atomically); returns its path."""
-        doc = self.record.to_json()
-        for name, suite in self.record.suites.items():
-            for key, trials in (("trials", suite.trials),
-                                ("superseded_trials", suite.superseded_trials)):
-                doc["suites"][name][key] = [self._encoded(name, t) for t in trials]
-        text = _to_json_text(doc, str(self.path))
-        atomic_write_bytes(self.path, (text + "\n").encode("utf-8"))
-        return self.path
+        """Write ``results.json`` now (atomically, streamed trial by trial) and empty the
+        journal, whose trials it now holds; returns its path."""
+        placed: list[tuple[Trial, int, int]] = []
+        suite_of = {id(t): name for name, suite in self.record.suites.items()
+                    for t in (*suite.trials, *suite.superseded_trials)}
 
-    def _encoded(self, suite: str, trial: Trial) -> _JsonText:
-        """The JSON text of a trial, encoded once (trials are final once added)."""
-        cached = self._trial_text.get(id(trial))
-        if cached is not None and cached[0] is trial:
-            return cached[1]
-        # A trial sits at depth 4: record > suites > <suite> > trials > [trial].
-        text = _JsonText(_to_json_text(trial.to_json(),
-                                       f"suites.{suite}.trials[index {trial.index}]", level=4))
-        self._trial_text[id(trial)] = (trial, text)
-        return text
+        def trial_json(trial: Trial) -> Placeholder:
+            return Placeholder(trial)
+
+        def stream(fh: BinaryIO) -> None:
+            offset = 0
+            for piece in iter_encode(self.record.to_json(trial_json)):
+                if isinstance(piece, Placeholder):
+                    trial = cast(Trial, piece.item)
+                    text = _to_json_text(trial.to_json(), f"suites.{suite_of[id(trial)]}"
+                                         f".trials[index {trial.index}]", level=piece.level)
+                    placed.append((trial, offset, len(data := text.encode("utf-8"))))
+                else:
+                    data = piece.encode("utf-8")
+                fh.write(data)
+                offset += len(data)
+            fh.write(b"\n")
+
+        try:
+            atomic_write(self.path, stream)
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, RecordError):
+                raise
+            raise RecordError(str(self.path), f"cannot be stored as JSON: {exc}") from None
+        stored = {id(t): StoredSamples(self.path, offset, length, len(t.samples), entry=False)
+                  for t, offset, length in placed if t.samples}
+        for t, offset, length in placed:
+            if isinstance(t.samples, StoredSamples):
+                t.samples.move(self.path, offset, length, entry=False)
+        for suite in self.record.suites.values():
+            for trials in (suite.trials, suite.superseded_trials):
+                trials[:] = [t if isinstance(t.samples, StoredSamples) or id(t) not in stored
+                             else replace(t, samples=stored[id(t)]) for t in trials]
+        with contextlib.suppress(FileNotFoundError):
+            self.journal.unlink()
+        return self.path
 
     # -- suites --------------------------------------------------------------------------
 
@@ -153,25 +181,25 @@ class RecordWriter:
         return existing
 
     def add_trial(self, name: str, trial: Trial) -> None:
-        """Add a finished trial (done or errored) to suite ``name`` and write the record.
+        """Add a finished trial (done or errored) to suite ``name`` and keep it on disk.
 
         A trial re-measuring an errored one (same index) moves the old one to
-        ``superseded_trials``; re-measuring a done trial is an error.
+        ``superseded_trials``; re-measuring a done trial is an error. The trial is appended to
+        the journal (``results.json`` is rewritten at the suite's end); its samples are kept
+        there, not in memory.
         """
         suite = self.suite(name)
         if suite.status != "running":
             raise RecordError(f"suites.{name}", f"is {suite.status}; begin it before adding trials")
-        self._encoded(name, trial)
-        for i, old in enumerate(suite.trials):
-            if old.index == trial.index:
-                if old.status == "done":
-                    raise RecordError(f"suites.{name}.trials[index {trial.index}]",
-                                      "is already measured")
-                suite.superseded_trials.append(suite.trials.pop(i))
-                break
-        suite.trials.append(trial)
-        suite.trials.sort(key=lambda t: t.index)
-        self.write()
+        where = f"suites.{name}.trials[index {trial.index}]"
+        line = json_line({"suite": name, "trial": trial.to_json()}, where)
+        if any(old.index == trial.index and old.status == "done" for old in suite.trials):
+            raise RecordError(where, "is already measured")
+        offset, length = append_line(self.journal, line)
+        if trial.samples and not isinstance(trial.samples, StoredSamples):
+            trial = replace(trial, samples=StoredSamples(self.journal, offset, length,
+                                                         len(trial.samples), entry=True))
+        suite.place(trial)
 
     def end_suite(self, name: str, measurements: Iterable[Measurement] = (), *,
                   error: str | None = None, ended_s: float | None = None) -> None:
