@@ -68,6 +68,7 @@ from armbench.bench.record import (
     Verdict,
     atomic_write_bytes,
     capture_environment,
+    continued_clock_s,
     load_record,
     new_run_id,
     path_inside,
@@ -75,7 +76,7 @@ from armbench.bench.record import (
 from armbench.bench.suites import Suite, SuiteContext, load_suite, suite_names
 from armbench.bench.suites.base import PoseSource, PowerSwitch
 from armbench.bench.truth import EmulatorTruth, aclose_source, aopen_source, load_tracker
-from armbench.drivers.capture import shift_capture
+from armbench.drivers.capture import capture_options, merge_capture, shift_capture
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 from armbench.drivers.transports import scheme_of, transport_class
@@ -135,7 +136,7 @@ _EXIT_BY_VERDICT: dict[Verdict, int] = {
 
 Isolation = Literal["trial", "run"]
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
-               "power_timeout_s", "tracker", "workers"}
+               "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes"}
 
 EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault]"],
                            "ArmEmulator"]
@@ -192,6 +193,10 @@ class RunOptions:
     workers: int | None = None
     """Processes measuring ``fake://`` trials at once; None: ``[bench] workers`` or one per CPU
     (at most 2)."""
+    capture: bool | None = None
+    """Capture the traffic (``capture.jsonl``); None: ``[bench] capture`` or true."""
+    capture_max_mb: float | None = None
+    """The capture's size bound (MB); None: ``[bench] capture_max_bytes`` or unbounded."""
 
 
 @dataclass(slots=True)
@@ -236,6 +241,8 @@ class BenchPlan:
     runner_info: dict[str, Any] = field(default_factory=dict)
     workers: int = 1
     """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
+    capture: bool = True
+    capture_max_bytes: int | None = None
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
@@ -431,6 +438,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     if workers < 1:
         raise SettingsError("--workers" if options.workers is not None else "bench.workers",
                             workers, "must be at least 1")
+    capture, capture_max_bytes = capture_options(bench, options.capture, options.capture_max_mb)
     isolation = bench.get("isolation", "trial" if fake else "run")
     if isolation not in ("trial", "run"):
         raise SettingsError("bench.isolation", isolation, "must be 'trial' or 'run'")
@@ -538,6 +546,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         baseline=baseline, retries=retries, isolation=isolation,
         reply_timeout_s=reply_timeout_s, connect_timeout_s=connect_timeout_s, settle_s=settle_s,
         power=power, tracker=tracker, run_id=run_id, runner_info=runner_info, workers=workers,
+        capture=capture, capture_max_bytes=capture_max_bytes,
     )
 
 
@@ -647,7 +656,7 @@ class _LoopClockWriter(RecordWriter):
                  overwrite: bool = False) -> None:
         self._loop = asyncio.get_running_loop()
         self._loop_t0 = self._loop.time()
-        self._start_s = record.end_s
+        self._start_s = continued_clock_s(Path(out_dir), record)
         super().__init__(out_dir, record, filename=filename, overwrite=overwrite)
 
     def elapsed_s(self) -> float:
@@ -711,6 +720,7 @@ class _Run:
         self.emulator_factory = emulator_factory
         self.conn: _Connection | None = None
         self.capture = writer.artifact_path(CAPTURE_FILE)
+        self.capture_stopped = False
         self._parts = 0
         self._part_tag = part_tag
         self.unmerged: list[Path] = []
@@ -740,8 +750,10 @@ class _Run:
         capture: CaptureWriter | None = None
         try:
             # t_s on the run clock straight away: the part is appended to capture.jsonl as is
-            capture = CaptureWriter(part, asyncio.get_running_loop().time()
-                                    - self.writer.elapsed_s())
+            if plan.capture:
+                capture = CaptureWriter(part, asyncio.get_running_loop().time()
+                                        - self.writer.elapsed_s(),
+                                        max_bytes=plan.capture_max_bytes)
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=not plan.fake,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)
@@ -805,11 +817,18 @@ class _Run:
         if not part.exists():
             return
         try:
-            with part.open("rb") as src, self.capture.open("ab") as dst:
-                if offset_s:
-                    shift_capture(src, dst, offset_s)
-                else:
-                    shutil.copyfileobj(src, dst, _COPY_CHUNK)
+            if self.plan.capture_max_bytes is not None:
+                stopped = merge_capture(part, self.capture, offset_s, self.plan.capture_max_bytes)
+                if stopped and not self.capture_stopped:
+                    self.capture_stopped = True
+                    self.progress.message(f"capture stopped: {self.capture.name} reached its "
+                                          f"size bound of {self.plan.capture_max_bytes} bytes")
+            else:
+                with part.open("rb") as src, self.capture.open("ab") as dst:
+                    if offset_s:
+                        shift_capture(src, dst, offset_s)
+                    else:
+                        shutil.copyfileobj(src, dst, _COPY_CHUNK)
         except OSError as exc:
             log.warning("capture %s could not be merged into %s: %s", part, self.capture, exc)
             return

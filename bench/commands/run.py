@@ -2,7 +2,8 @@
 
 ``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
 [--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
-[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N]``
+[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
+[--capture-max-mb MB]``
 
 Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
 failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
@@ -63,6 +64,12 @@ def register(sub: Any) -> None:
     p.add_argument("--retries", type=int, default=None, metavar="N",
                    help="measure a trial that ended in error up to N more times (default: "
                         "[bench] retries, else 0)")
+    p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
+                   help="do not capture the traffic (default: [bench] capture, else capture)")
+    p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
+                   help="stop the capture (one event line says so) when capture.jsonl would "
+                        "exceed MB megabytes; the run goes on (default: [bench] "
+                        "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 
 
@@ -73,7 +80,7 @@ def _run(args: argparse.Namespace) -> int:
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
-        workers=args.workers)
+        workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb)
     outcome = run_sync(options, progress=sys.stderr)
     _summary(outcome)
     return outcome.exit_status

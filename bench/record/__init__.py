@@ -53,7 +53,7 @@ from armbench.bench.record.run import (
     load_record,
     validate_record,
 )
-from armbench.bench.record.writer import RecordWriter
+from armbench.bench.record.writer import RecordWriter, continued_clock_s
 
 __all__ = [
     "CAPTURE_FILE",
@@ -80,6 +80,7 @@ __all__ = [
     "Verdict",
     "atomic_write_bytes",
     "capture_environment",
+    "continued_clock_s",
     "default_better",
     "git_revision",
     "json_default",

@@ -14,13 +14,25 @@ from typing import Any, BinaryIO, cast
 from armbench.bench.record.comparison import Comparison
 from armbench.bench.record.environment import utc_timestamp
 from armbench.bench.record.fields import RecordError
-from armbench.bench.record.files import RESULTS_FILE, atomic_write, path_inside
+from armbench.bench.record.files import CAPTURE_FILE, RESULTS_FILE, atomic_write, path_inside
 from armbench.bench.record.journal import StoredSamples, append_line, journal_path
 from armbench.bench.record.jsonformat import Placeholder, _to_json_text, iter_encode, json_line
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial, _unique_names
 from armbench.bench.record.run import RunRecord, load_record
+from armbench.drivers.capture import capture_end_s
 
-__all__ = ["RecordWriter"]
+__all__ = ["RecordWriter", "continued_clock_s"]
+
+
+def continued_clock_s(out_dir: Path, record: RunRecord) -> float:
+    """The run time (s) a run continues from in ``out_dir``: the latest time its record or its
+    capture (``capture.jsonl`` and the parts of connections a kill left unmerged) mentions, so
+    that neither jumps back after a resume. A worker's parts (``-job-``) are on their own clock
+    and inside their recorded trials."""
+    captures = [out_dir / CAPTURE_FILE,
+                *(p for p in out_dir.glob(".capture.part*.jsonl") if "-job-" not in p.name)]
+    ends = [t for p in captures if (t := capture_end_s(p)) is not None]
+    return max([record.end_s, *ends])
 
 
 class RecordWriter:
@@ -60,7 +72,7 @@ class RecordWriter:
                                               "another run directory")
         self.record = record
         self.journal = journal_path(self.path)
-        self._base_s = record.end_s
+        self._base_s = continued_clock_s(self.out_dir, record)
         self._t0 = time.monotonic()
         self.write()
 
