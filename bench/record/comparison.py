@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, get_args
+from typing import get_args
 
 from armbench.bench.record.fields import (
     Better,
@@ -18,6 +18,7 @@ from armbench.bench.record.fields import (
     _opt_num,
     _str,
 )
+from armbench.bench.record.shapes import ComparisonJson, ComparisonRowJson
 
 __all__ = ["Comparison", "ComparisonRow"]
 
@@ -59,7 +60,7 @@ class ComparisonRow:
         gain = -self.change_abs if self.better == "lower" else self.change_abs
         return "improved" if gain > self.tolerance else "ok"
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ComparisonRowJson:
         """The JSON object of this row."""
         return {
             "name": self.name, "unit": self.unit, "status": self.status,
@@ -115,7 +116,7 @@ class Comparison:
         """The rows that regressed."""
         return [r for r in self.rows if r.regressed]
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> ComparisonJson:
         """The JSON object of this comparison (``record.baseline``)."""
         return {
             "baseline_run_id": self.baseline_run_id,

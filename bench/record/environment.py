@@ -15,6 +15,7 @@ from typing import Any
 
 from armbench.bench.limits import LimitsConfig
 from armbench.bench.record.fields import _get, _int, _list, _obj, _opt_str, _str
+from armbench.bench.record.shapes import EnvironmentJson
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["Environment", "capture_environment", "git_revision", "new_run_id", "utc_timestamp"]
@@ -45,7 +46,7 @@ class Environment:
     limits_spec_version: str | None
     config_path: str | None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> EnvironmentJson:
         """The JSON object of this environment."""
         return {
             "armbench_version": self.armbench_version,

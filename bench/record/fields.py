@@ -39,13 +39,13 @@ class RecordError(ArmbenchError, ValueError):
         self.reason = reason
 
 
-def _obj(value: object, where: str) -> Mapping[str, Any]:
+def _obj(value: object, where: str) -> Mapping[str, object]:
     if not isinstance(value, Mapping):
         raise RecordError(where, f"expected an object, got {type(value).__name__}")
     return value
 
 
-def _get(data: Mapping[str, Any], key: str, where: str) -> Any:
+def _get(data: Mapping[str, object], key: str, where: str) -> object:
     if key not in data:
         raise RecordError(f"{where}.{key}" if where else key, "missing")
     return data[key]
@@ -87,7 +87,7 @@ def _bool(value: object, where: str) -> bool:
     return value
 
 
-def _list(value: object, where: str) -> list[Any]:
+def _list(value: object, where: str) -> list[object]:
     if not isinstance(value, list):
         raise RecordError(where, f"expected a list, got {type(value).__name__}")
     return value

@@ -26,6 +26,7 @@ from armbench.bench.record.fields import (
     _str,
 )
 from armbench.bench.record.journal import StoredSamples
+from armbench.bench.record.shapes import MeasurementJson, SuiteJson, TrialJson
 from armbench.drivers.settings import SettingsError
 
 __all__ = ["Measurement", "SuiteRecord", "Trial", "default_better", "judge"]
@@ -64,7 +65,7 @@ class Measurement:
         _choice(self.outcome, f"{where}.outcome", get_args(Outcome))
         _choice(self.better, f"{where}.better", (*get_args(Better), None))
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> MeasurementJson:
         """The JSON object of this measurement."""
         return {
             "name": self.name,
@@ -179,7 +180,7 @@ class Trial:
         """Run time (s) at which the trial ended."""
         return self.started_s + self.duration_s
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> TrialJson:
         """The JSON object of this trial (samples last, as they are the bulk)."""
         return {
             "index": self.index,
@@ -196,9 +197,8 @@ class Trial:
     def from_json(cls, data: object, where: str) -> Trial:
         """Parse a trial object; ``where`` is its dotted path, for errors."""
         d = _obj(data, where)
-        samples = _list(_get(d, "samples", where), f"{where}.samples")
-        for i, s in enumerate(samples):
-            _obj(s, f"{where}.samples[{i}]")
+        samples = [_obj(s, f"{where}.samples[{i}]")
+                   for i, s in enumerate(_list(_get(d, "samples", where), f"{where}.samples"))]
         ms = _list(_get(d, "measurements", where), f"{where}.measurements")
         index = _int(_get(d, "index", where), f"{where}.index")
         started_s = _num(_get(d, "started_s", where), f"{where}.started_s")
@@ -260,7 +260,7 @@ class SuiteRecord:
         self.trials.append(trial)
         self.trials.sort(key=lambda t: t.index)
 
-    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> dict[str, Any]:
+    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> SuiteJson:
         """The JSON object of this suite; ``trial_json`` makes each trial's (the writer leaves
         a placeholder to stream the trial from disk)."""
         return {

@@ -8,7 +8,7 @@ import json
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, get_args
+from typing import get_args
 
 from armbench.bench.record.comparison import Comparison
 from armbench.bench.record.environment import Environment, new_run_id, utc_timestamp
@@ -24,6 +24,7 @@ from armbench.bench.record.fields import (
 )
 from armbench.bench.record.journal import journal_path, read_journal
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial
+from armbench.bench.record.shapes import RecordJson
 
 __all__ = ["PAPER_REFERENCE", "SCHEMA", "RunRecord", "load_record", "replay_journal",
            "validate_record"]
@@ -102,7 +103,7 @@ class RunRecord:
             return "regression"
         return "pass"
 
-    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> dict[str, Any]:
+    def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> RecordJson:
         """The JSON object of the record (the content of ``results.json``); ``trial_json`` as in
         :meth:`SuiteRecord.to_json`."""
         return {
