@@ -155,3 +155,21 @@ def test_a_resumed_run_clock_continues_after_its_capture(tmp_path: Path) -> None
     assert continued_clock_s(tmp_path, record) == 7.5      # the capture went on after the trial
     resumed = RecordWriter.resume(tmp_path)
     assert resumed.elapsed_s() >= 7.5
+
+
+def test_streamed_results_json_is_the_text_the_whole_record_encodes_to(tmp_path: Path) -> None:
+    """Streaming trial by trial from disk changes no byte of results.json."""
+    from armbench.bench.record.jsonformat import _encode
+
+    w = RecordWriter(tmp_path, _record(("acc", "rep")))
+    w.begin_suite("acc", "1", {"side_m": 0.1})
+    for i in range(3):
+        w.add_trial("acc", _trial(i, 30))
+    w.add_trial("acc", Trial(3, 3.0, 0.5, {}, [], status="error", error="PortLostError"))
+    w.add_trial("acc", Trial(3, 4.0, 0.5, {}, _samples(3, 5)))
+    w.end_suite("acc")
+    w.begin_suite("rep", "2")
+    w.add_trial("rep", _trial(0, 1))
+    w.write()
+    in_memory = load_record(w.path)                       # every sample in memory
+    assert w.path.read_text(encoding="utf-8") == _encode(in_memory.to_json()) + "\n"
