@@ -18,14 +18,16 @@ import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
+from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import SettingsError, read_toml
 
 __all__ = [
     "DEFAULT_TOLERANCE_PCT",
     "SPEC_VERSION",
     "Limit",
+    "LimitJson",
     "LimitsConfig",
     "Tolerance",
     "best_match",
@@ -46,6 +48,16 @@ _REGRESSION_KEYS = {"default_tolerance_pct", "metrics"}
 _TOLERANCE_KEYS = {"tolerance_pct", "tolerance_abs"}
 _NAME_RE = re.compile(r"[A-Za-z0-9_.*%-]+")
 
+
+
+class LimitJson(TypedDict):
+    """The JSON object of a :class:`Limit` (the ``limit`` field of a measurement in
+    ``results.json``)."""
+
+    metric: str
+    unit: str
+    low: float | None
+    high: float | None
 
 @dataclass(frozen=True, slots=True)
 class Limit:
@@ -75,7 +87,7 @@ class Limit:
             return f"<= {self.high:g} {self.unit}".rstrip()
         return f">= {self.low:g} {self.unit}".rstrip()
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> LimitJson:
         """The JSON object of this limit (the ``limit`` field of a measurement)."""
         return {"metric": self.metric, "unit": self.unit, "low": self.low, "high": self.high}
 
@@ -266,11 +278,12 @@ def _unknown(where: str, table: Mapping[str, Any], known: set[str]) -> None:
 
 
 def _number(where: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if not is_real(value):
         raise SettingsError(where, value, "is not a number")
-    if not math.isfinite(value):
+    number = finite_float(value)
+    if number is None:
         raise SettingsError(where, value, "is not finite")
-    return float(value)
+    return number
 
 
 def _non_negative(where: str, value: object) -> float:

@@ -7,7 +7,6 @@ installed; the options, the fixtures and the record are described there.
 from __future__ import annotations
 
 import asyncio
-import math
 import re
 from collections.abc import AsyncIterator, Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ from armbench.bench.record import (
     judge,
 )
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import scheme_of
 
@@ -205,8 +205,7 @@ class BenchTrial:
         """
         if any(m.name == name for m in self.measurements):
             raise RecordError(f"measurement {name!r}", f"recorded twice in {self.nodeid}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(
-                float(value)):
+        if finite_float(value) is None:
             raise RecordError(f"measurement {name!r}.value",
                               f"{value!r} is not a finite number")
         bound = _limit(name, unit, limit)
@@ -250,8 +249,7 @@ def _limit(name: str, unit: str, spec: LimitSpec) -> Limit | None:
         raise RecordError(f"measurement {name!r}.limit",
                           f"{spec!r} is not (low, high), {{'low': .., 'high': ..}} or a Limit")
     for bound in (low, high):
-        if bound is not None and (isinstance(bound, bool) or not isinstance(bound, (int, float))
-                                  or not math.isfinite(bound)):
+        if bound is not None and finite_float(bound) is None:
             raise RecordError(f"measurement {name!r}.limit", f"bound {bound!r} is not finite")
     if low is None and high is None:
         raise RecordError(f"measurement {name!r}.limit", "sets neither low nor high")

@@ -12,29 +12,45 @@ ASCII (non-ASCII bytes of a bad stretch as ``\\xNN``; at most its first 64 bytes
 framer's reason for a stretch that was not a valid frame, else ``null``. Records are buffered and
 written in batches (:data:`BATCH_RECORDS` records or :data:`BATCH_INTERVAL_S` seconds, whichever
 comes first) so memory stays bounded however long the capture runs.
+
+A capture may be bounded in size (``max_bytes``, ``[bench] capture_max_bytes``): the record that
+would cross the bound (less :data:`EVENT_RESERVE_BYTES`) is not written; one event line says the
+capture stopped, and nothing more is written (the run itself goes on)::
+
+    {"t_s": 81.25, "event": "capture stopped: the size bound of 1000000 bytes was reached"}
+
+Readers (:func:`read_capture`, the report) skip event lines.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any, Final, Literal, NamedTuple
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import Command, Framer
+from armbench.drivers.settings import SettingsError
 
 __all__ = [
     "BATCH_INTERVAL_S",
     "BATCH_RECORDS",
+    "EVENT_RESERVE_BYTES",
     "CaptureError",
     "CaptureRecord",
     "CaptureWriter",
     "ReplayCommand",
+    "capture_end_s",
+    "capture_options",
+    "capture_stopped",
+    "merge_capture",
     "read_capture",
     "replay_capture",
     "shift_capture",
+    "stop_event",
 ]
 
 #: Records buffered before a write.
@@ -43,6 +59,9 @@ BATCH_RECORDS: Final = 512
 BATCH_INTERVAL_S: Final = 1.0
 
 Direction = Literal["in", "out"]
+
+#: Bytes a bounded capture keeps free for its stop event (a longer line than any stop event).
+EVENT_RESERVE_BYTES: Final = 160
 
 
 class CaptureError(ArmbenchError, ValueError):
@@ -96,8 +115,14 @@ class CaptureWriter:
     and stored relative to ``t0_s``."""
 
     def __init__(self, path: str | Path, t0_s: float, *, batch_records: int = BATCH_RECORDS,
-                 batch_interval_s: float = BATCH_INTERVAL_S) -> None:
+                 batch_interval_s: float = BATCH_INTERVAL_S, max_bytes: int | None = None) -> None:
         self.path = Path(path)
+        self.max_bytes = max_bytes
+        """The size bound of the file (bytes, stop event included), None: unbounded."""
+        self.stopped = False
+        """Whether the bound was reached (the capture stopped)."""
+        self._size = 0
+        self._last_t_s = t0_s
         self.t0_s = t0_s
         self.batch_records = max(1, batch_records)
         self.batch_interval_s = batch_interval_s
@@ -145,6 +170,7 @@ class CaptureWriter:
 
     def _added(self, t_s: float) -> None:
         self.records += 1
+        self._last_t_s = t_s
         if len(self._buf) >= self.batch_records or t_s - self._last_flush >= self.batch_interval_s:
             self.flush(t_s)
 
@@ -152,12 +178,35 @@ class CaptureWriter:
         """Write the buffered records out now."""
         if self._fh is None or not self._buf:
             return
-        self._fh.write("\n".join(self._buf) + "\n")
+        text = "\n".join(self._buf) + "\n"
+        if (self.max_bytes is not None
+                and self._size + len(text) > self.max_bytes - EVENT_RESERVE_BYTES):
+            self._stop()
+            return
+        self._fh.write(text)
         self._fh.flush()
+        self._size += len(text)
         self._buf.clear()
         self.batches += 1
         if t_s is not None:
             self._last_flush = t_s
+
+    def _stop(self) -> None:
+        """Write the buffered records that fit within the bound, then the stop event; close."""
+        assert self._fh is not None and self.max_bytes is not None
+        fitting: list[str] = []
+        room = self.max_bytes - EVENT_RESERVE_BYTES - self._size
+        for line in self._buf:
+            if len(line) + 1 > room:
+                break
+            fitting.append(line + "\n")
+            room -= len(line) + 1
+        self._buf.clear()
+        self._fh.write("".join(fitting) + stop_event(round(self._last_t_s - self.t0_s, 9),
+                                                     self.max_bytes))
+        self._fh.close()
+        self._fh = None
+        self.stopped = True
 
     def close(self) -> None:
         """Flush and close (idempotent)."""
@@ -170,16 +219,18 @@ class CaptureWriter:
             self._fh = None
 
 
-def shift_capture(src: IO[bytes], dst: IO[bytes], offset_s: float) -> int:
+def shift_capture(src: IO[bytes], dst: IO[bytes], offset_s: float, *, room: int | None = None,
+                  max_bytes: int | None = None) -> int:
     """Copy the records of ``src`` to ``dst`` with ``offset_s`` added to each ``t_s``: a capture
     made on another clock (a trial measured in a worker) moved onto the run's. Lines as
     :class:`CaptureWriter` writes them are rewritten as text, as it would have written them;
     others go through ``json``; a line that is not a record is copied unchanged. Returns the
-    lines copied."""
+    lines copied, or -1 when ``room`` (bytes) ran out: the line that did not fit was replaced by
+    the stop event of the bound ``max_bytes``, and the rest was left out."""
     lines = 0
     out: list[bytes] = []
+    t = 0.0
     for line in src:
-        lines += 1
         if line.startswith(b'{"t_s": '):
             end = line.find(b",", 8)
             try:
@@ -187,11 +238,23 @@ def shift_capture(src: IO[bytes], dst: IO[bytes], offset_s: float) -> int:
             except ValueError:
                 t = math.nan
             if _FAST_T_MIN_S <= t < _FAST_T_MAX_S:
-                out.append(b'{"t_s": ' + _seconds_text(t).encode() + line[end:])
+                line = b'{"t_s": ' + _seconds_text(t).encode() + line[end:]
             else:
-                out.append(_shifted(line, offset_s))
+                line = _shifted(line, offset_s)
         elif line.strip():
-            out.append(_shifted(line, offset_s))
+            line = _shifted(line, offset_s)
+        else:
+            lines += 1
+            continue
+        if room is not None:
+            room -= len(line)
+            if room < 0:
+                event_t = round(t, 9) if math.isfinite(t) else 0.0
+                out.append(stop_event(event_t, max_bytes or 0).encode())
+                dst.write(b"".join(out))
+                return -1
+        lines += 1
+        out.append(line)
         if len(out) >= BATCH_RECORDS:
             dst.write(b"".join(out))
             out.clear()
@@ -208,11 +271,91 @@ def _shifted(line: bytes, offset_s: float) -> bytes:
     return json.dumps(obj).encode() + b"\n"
 
 
-def _record(obj: Any, path: str, line: int) -> CaptureRecord:
+def capture_options(bench: Mapping[str, object], enabled: bool | None = None,
+                    max_mb: float | None = None) -> tuple[bool, int | None]:
+    """Whether a run captures its traffic and the capture's size bound (bytes, None: unbounded),
+    from ``[bench] capture`` (default true) and ``capture_max_bytes`` (default none), overridden
+    by ``--no-capture`` (``enabled`` False) and ``--capture-max-mb``. SettingsError names the
+    offending value."""
+    capture = bench.get("capture", True)
+    if not isinstance(capture, bool):
+        raise SettingsError("bench.capture", capture, "must be true or false")
+    max_bytes = bench.get("capture_max_bytes")
+    if max_bytes is not None and (isinstance(max_bytes, bool) or not isinstance(max_bytes, int)
+                                  or max_bytes <= 0):
+        raise SettingsError("bench.capture_max_bytes", max_bytes,
+                            "must be a whole number of bytes > 0")
+    if enabled is not None:
+        capture = enabled
+    if max_mb is not None:
+        mb = finite_float(max_mb)
+        if mb is None or mb <= 0 or mb * 1e6 < 1:
+            raise SettingsError("--capture-max-mb", max_mb, "must be a finite number of MB > 0")
+        max_bytes = int(mb * 1e6)
+    return capture, max_bytes
+
+
+def stop_event(t_s: float, max_bytes: int) -> str:
+    """The event line that ends a capture stopped by its size bound (``t_s`` on its clock)."""
+    return json.dumps({"t_s": t_s, "event": f"capture stopped: the size bound of {max_bytes} "
+                                            "bytes was reached"}) + "\n"
+
+
+def _tail_lines(path: Path, size: int = 4096) -> list[bytes]:
+    """The complete lines in the last ``size`` bytes of ``path`` (none if it is missing)."""
+    try:
+        with path.open("rb") as fh:
+            fh.seek(0, 2)
+            end = fh.tell()
+            fh.seek(max(0, end - size))
+            data = fh.read()
+    except OSError:
+        return []
+    lines = data.split(b"\n")
+    return lines[1:-1] if end > size else lines[:-1]
+
+
+def capture_stopped(path: Path) -> bool:
+    """Whether the capture file ``path`` ends with the event of a stop at its size bound."""
+    tail = _tail_lines(path)
+    return bool(tail) and b'"event": "capture stopped' in tail[-1]
+
+
+def capture_end_s(path: Path) -> float | None:
+    """``t_s`` of the last record of capture ``path`` (None: no file or no readable record):
+    where a resumed run's clock continues at the earliest, so the capture never jumps back."""
+    for line in reversed(_tail_lines(path)):
+        try:
+            t = json.loads(line).get("t_s")
+        except (ValueError, AttributeError):
+            continue
+        t_s = finite_float(t)
+        if t_s is not None:
+            return t_s
+    return None
+
+
+def merge_capture(part: Path, capture: Path, offset_s: float = 0.0,
+                  max_bytes: int | None = None) -> bool:
+    """Append the capture ``part`` to ``capture`` with ``offset_s`` added to its times
+    (:func:`shift_capture`), within the size bound ``max_bytes`` of ``capture``: the line that
+    would cross it is replaced by the stop event, and nothing is appended to a capture that
+    stopped. Returns whether ``capture`` is stopped now."""
+    if max_bytes is not None and capture_stopped(capture):
+        return True
+    with part.open("rb") as src, capture.open("ab") as dst:
+        room = None if max_bytes is None else max_bytes - EVENT_RESERVE_BYTES - dst.tell()
+        return shift_capture(src, dst, offset_s, room=room, max_bytes=max_bytes) < 0
+
+
+def _record(obj: Any, path: str, line: int) -> CaptureRecord | None:
     if not isinstance(obj, dict):
         raise CaptureError(path, line, "is not a JSON object")
+    if "event" in obj and "dir" not in obj:
+        return None
     t, d, f, e = obj.get("t_s"), obj.get("dir"), obj.get("frame"), obj.get("error")
-    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+    t_s = finite_float(t)
+    if t_s is None:
         raise CaptureError(path, line, f"t_s {t!r} is not a finite number")
     if d not in ("in", "out"):
         raise CaptureError(path, line, f"dir {d!r} is not 'in' or 'out'")
@@ -220,11 +363,12 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord:
         raise CaptureError(path, line, f"frame {f!r} is not a string")
     if e is not None and not isinstance(e, str):
         raise CaptureError(path, line, f"error {e!r} is not a string or null")
-    return CaptureRecord(float(t), d, f, e)
+    return CaptureRecord(t_s, d, f, e)
 
 
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
-    """Every record of a capture file, in order (streamed: the file is not loaded whole)."""
+    """Every record of a capture file, in order (streamed: the file is not loaded whole); event
+    lines (a stop at the size bound) are skipped."""
     p = str(path)
     try:
         fh = Path(path).open(encoding="ascii")  # noqa: SIM115 - closed by the with below
@@ -238,7 +382,9 @@ def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
                 obj = json.loads(text)
             except ValueError as exc:
                 raise CaptureError(p, n, f"is not JSON: {exc}") from None
-            yield _record(obj, p, n)
+            record = _record(obj, p, n)
+            if record is not None:
+                yield record
 
 
 class ReplayCommand(NamedTuple):

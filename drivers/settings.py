@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.numbers import finite_float
 
 __all__ = [
     "DEFAULT_JOINTS",
@@ -243,7 +244,7 @@ def _number(path: str, value: object, *, integer: bool = False) -> float:
         raise SettingsError(path, value, "is not a number")
     if integer and not isinstance(value, int):
         raise SettingsError(path, value, "is not an integer")
-    if isinstance(value, float) and not math.isfinite(value):
+    if isinstance(value, float) and finite_float(value) is None:
         raise SettingsError(path, value, "is not finite")
     if abs(value) > _MAGNITUDE_LIMIT:
         raise SettingsError(path, value, f"is beyond ±{_MAGNITUDE_LIMIT:g}")

@@ -15,17 +15,15 @@ import json
 import math
 from array import array
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["CAPTURE_FILE", "MAX_RECORDS", "CaptureLine", "CaptureSummary", "summarize_capture"]
+__all__ = ["MAX_RECORDS", "CaptureLine", "CaptureSummary", "summarize_capture"]
 
-#: The capture's file name inside a run directory.
-CAPTURE_FILE = "capture.jsonl"
 #: Records analysed at most (the rest of a longer capture is counted as skipped).
 MAX_RECORDS = 2_000_000
 #: Bins of the frame-rate plot at most.
@@ -73,6 +71,8 @@ class CaptureSummary:
     resyncs_per_bin: FloatArray
     head: list[CaptureLine]
     first_errors: list[CaptureLine]
+    events: list[str] = field(default_factory=list)
+    """What the capture says of itself (``"capture stopped: ..."`` at its size bound)."""
 
 
 #: Lines parsed at a time: one C-level json.loads of a chunk as a JSON array, not one per line.
@@ -132,6 +132,7 @@ def summarize_capture(path: str | Path, *, max_records: int = MAX_RECORDS, head:
     first: list[CaptureLine] = []
     first_errors: list[CaptureLine] = []
     bad = 0
+    events: list[str] = []
     after_error = {"in": False, "out": False}
     with p.open("rb") as fh:
         number = 0
@@ -145,6 +146,9 @@ def summarize_capture(path: str | Path, *, max_records: int = MAX_RECORDS, head:
                     continue
                 if not isinstance(obj, dict):
                     bad += 1
+                    continue
+                if isinstance(obj.get("event"), str) and "dir" not in obj:
+                    events.append(obj["event"])
                     continue
                 t, d, frame, error = (obj.get("t_s"), obj.get("dir"), obj.get("frame"),
                                       obj.get("error"))
@@ -209,4 +213,5 @@ def summarize_capture(path: str | Path, *, max_records: int = MAX_RECORDS, head:
         resyncs_per_bin=per_bin(resync),
         head=first,
         first_errors=first_errors,
+        events=events,
     )

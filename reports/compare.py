@@ -81,7 +81,7 @@ def _paths(a: RunRecord, b: RunRecord, figs: Figures) -> FigureView | None:
             pts = [p for p in (vec3(s.get(SAMPLE.reported)) for s in trial.samples)
                    if p is not None]
             if pts:
-                runs.append(plots.PathRun(f"run {label}", np.array(pts) * 1000.0))
+                runs.append(plots.AttainedPath(f"run {label}", np.array(pts) * 1000.0))
         if runs:
             panels.append(plots.PathPanel(f"{style}: first lap of A and B", runs))
     if not panels:

@@ -17,6 +17,7 @@ from urllib.parse import quote
 
 from armbench.bench.baseline import read_record
 from armbench.bench.record import (
+    REPORT_FILE,
     RESULTS_FILE,
     Measurement,
     RecordError,
@@ -26,7 +27,6 @@ from armbench.bench.record import (
 from armbench.bench.suites.contract import Headline
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.page import REPORT_FILE
 from armbench.reports.scorecard import HEADLINES, headline_measurement
 from armbench.reports.views import FigureView
 

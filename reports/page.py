@@ -22,6 +22,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from armbench.bench.record import (
+    CAPTURE_FILE,
+    REPORT_FILE,
     RESULTS_FILE,
     RunRecord,
     SuiteRecord,
@@ -29,7 +31,6 @@ from armbench.bench.record import (
     load_record,
 )
 from armbench.bench.suites.contract import STARTUP
-from armbench.reports.capture import CAPTURE_FILE
 from armbench.reports.environment import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows
@@ -40,9 +41,6 @@ from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionV
 
 __all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report",
            "suite_sections"]
-
-#: The report's file name inside a run directory.
-REPORT_FILE = "report.html"
 
 SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
 #: The section of each suite the report knows, by the suite's name; any other suite gets

@@ -35,11 +35,11 @@ from armbench.reports.plotting import (
 )
 
 __all__ = [
+    "AttainedPath",
     "ErrorPanel",
     "ErrorRun",
     "PairPanel",
     "PathPanel",
-    "PathRun",
     "PoseScatter",
     "ScatterGroup",
     "StartupPoint",
@@ -66,7 +66,7 @@ __all__ = [
 
 
 @dataclass(frozen=True, slots=True)
-class PathRun:
+class AttainedPath:
     """One run's attained path: reported (forward kinematics of the reported joints) and, when the
     samples carry it, the true path (external measurement or emulator truth), ``(N, 3)`` in mm."""
 
@@ -80,7 +80,7 @@ class PathPanel:
     """One subplot of :func:`paths_yz`: a mode and its runs."""
 
     title: str
-    runs: Sequence[PathRun]
+    runs: Sequence[AttainedPath]
 
 
 def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figure:

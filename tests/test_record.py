@@ -18,6 +18,7 @@ import pytest
 
 from armbench.bench.limits import SPEC_VERSION, Limit, LimitsConfig, parse_limits
 from armbench.bench.record import (
+    JOURNAL_FILE,
     RESULTS_FILE,
     SCHEMA,
     Environment,
@@ -190,8 +191,10 @@ def test_record_on_disk_after_every_trial(tmp_path: Path) -> None:
         on_disk = load_record(tmp_path / RESULTS_FILE)
         assert [t.index for t in on_disk.suites["acc"].trials] == list(range(i + 1))
         assert on_disk.suites["acc"].status == "running"
-        assert _files(tmp_path) == [RESULTS_FILE]        # no temporary file left
+        # no temporary file left; the trials since the suite began are in the journal
+        assert _files(tmp_path) == sorted([RESULTS_FILE, JOURNAL_FILE])
     w.end_suite("acc", [judge("acc.mean_mm", 1.0, "mm", CONFIG)])
+    assert _files(tmp_path) == [RESULTS_FILE]            # results.json holds them all now
     final = load_record(w.path)
     assert final.suites["acc"].status == "done" and final.verdict == "pass"
     assert final.suites["acc"].params == {"side_m": 0.1}

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.baseline import TOO_DEEP
-from armbench.bench.record import RESULTS_FILE
+from armbench.bench.record import REPORT_FILE, RESULTS_FILE
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
@@ -36,7 +36,7 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from armbench.reports import REPORT_FILE, render_index, render_report
+    from armbench.reports import render_index, render_report
 
     if not args.dirs and args.index is None:
         print("armbench report: error: give run directories, --index RUNS_DIR, or both",

@@ -2,7 +2,8 @@
 
 ``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
 [--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
-[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N]``
+[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
+[--capture-max-mb MB]``
 
 Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
 failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
@@ -15,8 +16,9 @@ import argparse
 import sys
 from typing import Any
 
+from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.reporting import write_reports
-from armbench.bench.runner import RunOptions, RunOutcome, run_sync
+from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.suites import SUITES
 
 __all__ = ["register"]
@@ -63,6 +65,12 @@ def register(sub: Any) -> None:
     p.add_argument("--retries", type=int, default=None, metavar="N",
                    help="measure a trial that ended in error up to N more times (default: "
                         "[bench] retries, else 0)")
+    p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
+                   help="do not capture the traffic (default: [bench] capture, else capture)")
+    p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
+                   help="stop the capture (one event line says so) when capture.jsonl would "
+                        "exceed MB megabytes; the run goes on (default: [bench] "
+                        "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 
 
@@ -73,7 +81,7 @@ def _run(args: argparse.Namespace) -> int:
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
-        workers=args.workers)
+        workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb)
     outcome = run_sync(options, progress=sys.stderr)
     write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
     _summary(outcome)
@@ -105,7 +113,7 @@ def _summary(outcome: RunOutcome) -> None:
         for row in record.baseline.regressions:
             print(f"  REGRESSED  {row.name}: {row.baseline:.6g} -> {row.value:.6g} {row.unit} "
                   f"(tolerance {row.tolerance:.3g})", file=out)
-    for name in ("results.json", "report.html", "junit.xml", "capture.jsonl"):
+    for name in (RESULTS_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE):
         path = outcome.out_dir / name
         if path.exists():
             print(f"  {name:<13} {path}", file=out)

@@ -37,6 +37,7 @@ from armbench.bench.metrics.path import (
     project_to_polyline,
     sample_polyline,
     square_yz,
+    summarize_errors,
     tracking_errors,
 )
 
@@ -70,5 +71,6 @@ __all__ = [
     "resample_normal_planes",
     "sample_polyline",
     "square_yz",
+    "summarize_errors",
     "tracking_errors",
 ]

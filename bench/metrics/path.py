@@ -34,6 +34,7 @@ __all__ = [
     "project_to_polyline",
     "sample_polyline",
     "square_yz",
+    "summarize_errors",
     "tracking_errors",
 ]
 
@@ -275,7 +276,13 @@ def _axis_stats(e: FloatArray) -> AxisErrorStats:
 
 def error_summary(errors: PathErrors) -> PathErrorSummary:
     """Mean, RMS and max Euclidean error and per-axis statistics (mm) of ``errors`` (N >= 1)."""
-    e = errors.euclidean_mm
+    return summarize_errors(errors.error_mm, errors.euclidean_mm)
+
+
+def summarize_errors(error_mm: FloatArray, euclidean_mm: FloatArray) -> PathErrorSummary:
+    """:func:`error_summary` of the error series alone: ``error_mm`` ``(N, 3)`` and its lengths
+    ``euclidean_mm`` ``(N,)`` (a long run's errors pooled without their reference points)."""
+    e = euclidean_mm
     if len(e) == 0:
         raise MetricsInputError("errors: empty series")
     i = int(np.argmax(e))
@@ -285,7 +292,7 @@ def error_summary(errors: PathErrors) -> PathErrorSummary:
         max_mm=float(e[i]),
         max_index=i,
         n=len(e),
-        x=_axis_stats(errors.error_mm[:, 0]),
-        y=_axis_stats(errors.error_mm[:, 1]),
-        z=_axis_stats(errors.error_mm[:, 2]),
+        x=_axis_stats(error_mm[:, 0]),
+        y=_axis_stats(error_mm[:, 1]),
+        z=_axis_stats(error_mm[:, 2]),
     )

@@ -34,6 +34,7 @@ from armbench.bench.metrics import (
 )
 from armbench.bench.perf import Figure, PerfOptions
 from armbench.bench.record import (
+    CAPTURE_FILE,
     Environment,
     Measurement,
     RecordWriter,
@@ -230,7 +231,7 @@ def write_big_run(directory: str | Path, *, capture_records: int = 90_000,
                 lines.append({"t_s": round(t, 4), "dir": "in",
                               "frame": "$0x\\x81" if error else "$31416,31400,31420,31416#",
                               "error": error})
-        (out / "capture.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines),
+        (out / CAPTURE_FILE).write_text("".join(json.dumps(x) + "\n" for x in lines),
                                            encoding="ascii")
     return writer.path
 

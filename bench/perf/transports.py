@@ -32,7 +32,7 @@ from typing import Any
 from armbench.bench.perf import Figure, PerfOptions
 from armbench.drivers.protocol import Command, Reply
 
-__all__ = ["PACKAGES", "Measurement", "echo_pty", "measure_bare", "measure_package", "run"]
+__all__ = ["PACKAGES", "RoundTripRate", "echo_pty", "measure_bare", "measure_package", "run"]
 
 #: Figure suffix → module providing ``open_serial_connection``.
 PACKAGES: dict[str, str] = {"fast": "serial_asyncio_fast", "classic": "serial_asyncio"}
@@ -59,7 +59,7 @@ while True:
 
 
 @dataclass(frozen=True, slots=True)
-class Measurement:
+class RoundTripRate:
     """One timed run: round trips per second (wall clock) and CPU µs per round trip."""
 
     rate_per_s: float
@@ -98,7 +98,7 @@ async def _roundtrips(reader: asyncio.StreamReader, writer: asyncio.StreamWriter
             got += len(chunk)
 
 
-async def _measure_async(module: Any, path: str, count: int) -> Measurement:
+async def _measure_async(module: Any, path: str, count: int) -> RoundTripRate:
     loop = asyncio.get_running_loop()
     reader, writer = await module.open_serial_connection(loop=loop, url=path, baudrate=115200)
     try:
@@ -111,16 +111,16 @@ async def _measure_async(module: Any, path: str, count: int) -> Measurement:
         with contextlib.suppress(OSError, TimeoutError):
             async with asyncio.timeout(2.0):
                 await writer.wait_closed()
-    return Measurement(count / wall, cpu / count * 1e6)
+    return RoundTripRate(count / wall, cpu / count * 1e6)
 
 
-def measure_package(module_name: str, path: str, count: int) -> Measurement:
+def measure_package(module_name: str, path: str, count: int) -> RoundTripRate:
     """``count`` round trips through ``module_name.open_serial_connection`` on ``path``."""
     module = importlib.import_module(module_name)
     return asyncio.run(_measure_async(module, path, count))
 
 
-def measure_bare(path: str, count: int) -> Measurement:
+def measure_bare(path: str, count: int) -> RoundTripRate:
     """``count`` round trips with blocking ``os.write``/``os.read`` on ``path`` (the bound)."""
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
     try:
@@ -136,7 +136,7 @@ def measure_bare(path: str, count: int) -> Measurement:
             wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     finally:
         os.close(fd)
-    return Measurement(count / wall, cpu / count * 1e6)
+    return RoundTripRate(count / wall, cpu / count * 1e6)
 
 
 def _available(module_name: str) -> bool:
@@ -151,9 +151,9 @@ def run(options: PerfOptions) -> list[Figure]:
     """Measure ``transport.pty_roundtrips_fast`` and ``transport.pty_roundtrips_classic``."""
     count = 400 if options.quick else 3000
     names = [name for name, module in PACKAGES.items() if _available(module)]
-    best: dict[str, Measurement] = {}
+    best: dict[str, RoundTripRate] = {}
 
-    def keep(key: str, m: Measurement) -> None:
+    def keep(key: str, m: RoundTripRate) -> None:
         if key not in best or m.rate_per_s > best[key].rate_per_s:
             best[key] = m
 

@@ -10,10 +10,11 @@ import json
 import logging
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 from armbench.bench.record import RunRecord
-from armbench.drivers.capture import shift_capture
+from armbench.drivers.capture import merge_capture, shift_capture
 
 __all__ = ["CaptureParts", "job_part_tag"]
 
@@ -44,8 +45,14 @@ def _first_capture_time(part: Path) -> float | None:
 class CaptureParts:
     """Appends capture parts to the run's ``capture.jsonl`` (``capture``)."""
 
-    def __init__(self, capture: Path) -> None:
+    def __init__(self, capture: Path, max_bytes: int | None = None,
+                 say: Callable[[str], None] | None = None) -> None:
         self.capture = capture
+        self.max_bytes = max_bytes
+        """The capture's size bound (``[bench] capture_max_bytes``); None: unbounded."""
+        self.stopped = False
+        """Whether the capture reached its bound (said once through ``say``)."""
+        self._say = say
 
     def merge(self, part: Path, offset_s: float = 0.0) -> None:
         """Append a connection's capture to ``capture.jsonl``: written with ``t_s`` on the run
@@ -53,11 +60,19 @@ class CaptureParts:
         if not part.exists():
             return
         try:
-            with part.open("rb") as src, self.capture.open("ab") as dst:
-                if offset_s:
-                    shift_capture(src, dst, offset_s)
-                else:
-                    shutil.copyfileobj(src, dst, _COPY_CHUNK)
+            if self.max_bytes is not None:
+                stopped = merge_capture(part, self.capture, offset_s, self.max_bytes)
+                if stopped and not self.stopped:
+                    self.stopped = True
+                    if self._say is not None:
+                        self._say(f"capture stopped: {self.capture.name} reached its size bound "
+                                  f"of {self.max_bytes} bytes")
+            else:
+                with part.open("rb") as src, self.capture.open("ab") as dst:
+                    if offset_s:
+                        shift_capture(src, dst, offset_s)
+                    else:
+                        shutil.copyfileobj(src, dst, _COPY_CHUNK)
         except OSError as exc:
             log.warning("capture %s could not be merged into %s: %s", part, self.capture, exc)
             return

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import RESULTS_FILE, RunRecord, Verdict
+from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
 from armbench.drivers.errors import ArmbenchError
@@ -31,10 +31,9 @@ __all__ = [
 
 #: The limits file used when ``--config`` is not given (shipped with the package).
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "default_bench.toml"
-#: Files of a run directory besides ``results.json``.
+#: Files of a run directory besides ``results.json`` (``REPORT_FILE`` and ``CAPTURE_FILE``: the
+#: record's ``files``).
 JUNIT_FILE = "junit.xml"
-REPORT_FILE = "report.html"
-CAPTURE_FILE = "capture.jsonl"
 #: How the run was invoked (suite references, files), read back by ``--resume``.
 RUNNER_FILE = "runner.json"
 
@@ -97,6 +96,10 @@ class RunOptions:
     power_manual: bool = False
     retries: int | None = None
     """Extra attempts for a trial that ends in error; None: ``[bench] retries`` or 0."""
+    capture: bool | None = None
+    """Capture the traffic (``capture.jsonl``); None: ``[bench] capture`` or true."""
+    capture_max_mb: float | None = None
+    """The capture's size bound (MB); None: ``[bench] capture_max_bytes`` or unbounded."""
     workers: int | None = None
     """Processes measuring ``fake://`` trials at once; None: ``[bench] workers`` or one per CPU
     (at most 2)."""
@@ -145,6 +148,10 @@ class BenchPlan:
     runner_info: dict[str, Any] = field(default_factory=dict)
     workers: int = 1
     """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
+    capture: bool = True
+    """Whether the traffic is captured (``[bench] capture``, ``--no-capture``)."""
+    capture_max_bytes: int | None = None
+    """The capture's size bound in bytes; None: unbounded."""
     warnings: list[str] = field(default_factory=list)
     """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
 

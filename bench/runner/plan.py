@@ -44,6 +44,7 @@ from armbench.bench.runner.options import (
 from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
+from armbench.drivers.capture import capture_options
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 from armbench.drivers.transports import open_transport, scheme_of, transport_class
@@ -57,7 +58,7 @@ __all__ = ["prepare"]
 MAX_TRIALS = 10_000
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
-               "power_timeout_s", "tracker", "workers"}
+               "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes"}
 
 
 @dataclass(slots=True)
@@ -95,6 +96,8 @@ class _BenchKnobs:
     settle_s: float
     power_timeout_s: float
     tracker_params: Mapping[str, Any]
+    capture: bool
+    capture_max_bytes: int | None
 
 
 def _number(where: str, value: object, *, low: float, strict: bool) -> float:
@@ -248,8 +251,10 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
     tracker_params = bench.get("tracker", {})
     if not isinstance(tracker_params, Mapping):
         raise SettingsError("bench.tracker", tracker_params, "is not a table")
+    capture, capture_max_bytes = capture_options(bench, options.capture, options.capture_max_mb)
     return _BenchKnobs(
-        retries=retries, workers=workers, isolation=isolation,
+        retries=retries, workers=workers, isolation=isolation, capture=capture,
+        capture_max_bytes=capture_max_bytes,
         reply_timeout_s=_number("bench.reply_timeout_s", bench.get("reply_timeout_s", 0.5),
                                 low=0, strict=True),
         connect_timeout_s=_number("bench.connect_timeout_s",
@@ -439,5 +444,6 @@ def prepare(options: RunOptions) -> BenchPlan:
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
         connect_timeout_s=knobs.connect_timeout_s, settle_s=knobs.settle_s, power=power,
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
+        capture=knobs.capture, capture_max_bytes=knobs.capture_max_bytes,
         warnings=_warnings(inputs.config),
     )

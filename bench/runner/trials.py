@@ -15,7 +15,13 @@ from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Protocol
 
 from armbench.bench.power import EmulatorPower
-from armbench.bench.record import RESULTS_FILE, RecordWriter, RunRecord, Trial
+from armbench.bench.record import (
+    RESULTS_FILE,
+    RecordWriter,
+    RunRecord,
+    Trial,
+    continued_clock_s,
+)
 from armbench.bench.runner.capture import CaptureParts
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
@@ -87,7 +93,7 @@ class LoopClockWriter(RecordWriter):
                  overwrite: bool = False) -> None:
         self._loop = asyncio.get_running_loop()
         self._loop_t0 = self._loop.time()
-        self._start_s = record.end_s
+        self._start_s = continued_clock_s(Path(out_dir), record)
         super().__init__(out_dir, record, filename=filename, overwrite=overwrite)
 
     def elapsed_s(self) -> float:
@@ -121,7 +127,8 @@ class TrialAttempts:
         self.messages = messages
         self.emulator_factory = emulator_factory
         self.conn: Connection | None = None
-        self.captures = CaptureParts(clock.artifact_path(CAPTURE_FILE))
+        self.captures = CaptureParts(clock.artifact_path(CAPTURE_FILE), plan.capture_max_bytes,
+                                     messages.message)
         self._parts = 0
         self._part_tag = part_tag
         self.unmerged: list[Path] = []
@@ -148,8 +155,10 @@ class TrialAttempts:
         capture: CaptureWriter | None = None
         try:
             # t_s on the run clock straight away: the part is appended to capture.jsonl as is
-            capture = CaptureWriter(part, asyncio.get_running_loop().time()
-                                    - self.clock.elapsed_s())
+            if plan.capture:
+                capture = CaptureWriter(part, asyncio.get_running_loop().time()
+                                        - self.clock.elapsed_s(),
+                                        max_bytes=plan.capture_max_bytes)
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=not plan.fake,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)

@@ -35,6 +35,7 @@ from armbench.drivers.motion import (
     duty_for_step_rate,
     step_rate,
 )
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 
@@ -138,9 +139,9 @@ MAX_REPEATS = 1000
 def check_number(where: str, value: object, *, low: float | None = None,
                  high: float | None = None, low_open: bool = False) -> float:
     """A finite real number (booleans refused) within the bounds; returns it as a float."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    v = finite_float(value)
+    if v is None:
         raise SettingsError(where, value, "is not a finite number")
-    v = float(value)
     if low is not None and (v <= low if low_open else v < low):
         raise SettingsError(where, value, f"must be {'>' if low_open else '>='} {low:g}")
     if high is not None and v > high:

@@ -26,7 +26,15 @@ from typing import Any, ClassVar, Final
 
 import numpy as np
 
-from armbench.bench.metrics import MM_PER_M, error_summary, path_errors, sample_polyline, square_yz
+from armbench.bench.metrics import (
+    MM_PER_M,
+    error_summary,
+    path_errors,
+    sample_polyline,
+    square_yz,
+    summarize_errors,
+)
+from armbench.bench.metrics.path import PathErrorSummary
 from armbench.bench.record import PAPER_REFERENCE, Measurement, Trial
 from armbench.bench.suites._common import (
     MAX_REPEATS,
@@ -67,22 +75,65 @@ def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) ->
     """
     if not samples:
         return {}
+    return _figures(*_positions(samples), corners_m)
+
+
+def _positions(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArray | None]:
+    """The reported TCP positions ``(N, 3)`` (m) of ``samples`` and the true ones when every
+    sample has one, else None."""
+    reported = np.array([s["reported_m"] for s in samples], dtype=np.float64).reshape(-1, 3)
+    if not all("true_m" in s for s in samples):
+        return reported, None
+    return reported, np.array([s["true_m"] for s in samples], dtype=np.float64).reshape(-1, 3)
+
+
+def _pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, float]:
+    """:func:`path_figures` of the samples of ``trials`` pooled, read one trial at a time and
+    kept as error series only (a long run's samples are on disk, not in memory)."""
+    series: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {"": ([], []), "true_": ([], [])}
+    belief: list[FloatArray] = []
+    with_truth = True
+    for t in trials:
+        if not t.samples:
+            continue
+        reported, true = _positions(t.samples)
+        with_truth = with_truth and true is not None
+        for prefix, points in (("", reported), ("true_", true if with_truth else None)):
+            if points is not None:
+                e = path_errors(points, corners_m, closed=True)
+                series[prefix][0].append(e.error_mm)
+                series[prefix][1].append(e.euclidean_mm)
+        if with_truth and true is not None:
+            belief.append(np.linalg.norm(reported - true, axis=1) * MM_PER_M)
     out: dict[str, float] = {}
-    reported = np.array([s["reported_m"] for s in samples], dtype=np.float64)
-    _series(out, "", reported, corners_m)
-    if all("true_m" in s for s in samples):
-        true = np.array([s["true_m"] for s in samples], dtype=np.float64)
-        _series(out, "true_", true, corners_m)
-        belief = np.linalg.norm(reported - true, axis=1) * MM_PER_M
-        out["belief_mean_mm"] = float(belief.mean())
-        out["belief_rms_mm"] = float(np.sqrt(np.mean(belief * belief)))
-        out["belief_max_mm"] = float(belief.max())
+    if not series[""][0]:
+        return out
+    for prefix in ("", "true_") if with_truth else ("",):
+        error_mm, euclidean_mm = series[prefix]
+        _summary(out, prefix, summarize_errors(np.concatenate(error_mm),
+                                               np.concatenate(euclidean_mm)))
+    if with_truth:
+        _belief(out, np.concatenate(belief))
     return out
 
 
-def _series(out: dict[str, float], prefix: str, points_m: FloatArray,
-            corners_m: FloatArray) -> None:
-    s = error_summary(path_errors(points_m, corners_m, closed=True))
+def _figures(reported: FloatArray, true: FloatArray | None,
+             corners_m: FloatArray) -> dict[str, float]:
+    out: dict[str, float] = {}
+    _summary(out, "", error_summary(path_errors(reported, corners_m, closed=True)))
+    if true is not None:
+        _summary(out, "true_", error_summary(path_errors(true, corners_m, closed=True)))
+        _belief(out, np.linalg.norm(reported - true, axis=1) * MM_PER_M)
+    return out
+
+
+def _belief(out: dict[str, float], belief: FloatArray) -> None:
+    out["belief_mean_mm"] = float(belief.mean())
+    out["belief_rms_mm"] = float(np.sqrt(np.mean(belief * belief)))
+    out["belief_max_mm"] = float(belief.max())
+
+
+def _summary(out: dict[str, float], prefix: str, s: PathErrorSummary) -> None:
     out[f"{prefix}mean_mm"] = s.mean_mm
     out[f"{prefix}rms_mm"] = s.rms_mm
     out[f"{prefix}max_mm"] = s.max_mm
@@ -224,10 +275,10 @@ class AccuracySuite(Suite):
         for style in STYLES:
             done = [t for t in trials
                     if t.status == "done" and t.params.get(ACCURACY.style) == style]
-            pooled = [s for t in done for s in t.samples]
-            if not pooled:
+            f = _pooled_figures(done, corners)
+            if not f:
                 continue
-            figures[style] = f = path_figures(pooled, corners)
+            figures[style] = f
             _add_figures(ms, style, f)
             laps = [m.value for t in done for m in t.measurements
                     if m.name == ACCURACY.metric(style, ACCURACY.lap_time)]

@@ -143,7 +143,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
     recorded = suite.measurements
     out = [figs.make(
         plots.paths_yz([plots.PathPanel(STYLE_TITLES[s], [
-            plots.PathRun(_lap_label(lap), lap.reported * 1000.0)
+            plots.AttainedPath(_lap_label(lap), lap.reported * 1000.0)
             for lap in laps if lap.style == s])
             for s in styles], None if corners is None else corners * 1000.0),
         "Fig. 11: paths in the YZ plane against the reference square",
