@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import math
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path as FsPath
 from typing import Any, Final, Literal
@@ -56,6 +55,7 @@ from armbench.drivers.link import (
     ReconnectPolicy,
 )
 from armbench.drivers.motion import Path, coordinated_duties, joint_times_s
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.paths import CORNER_RAD as CORNER_RAD
 from armbench.drivers.paths import (
     LOOKAHEAD_S,
@@ -334,7 +334,7 @@ class Arm(ArmLink):
         else:
             duties = check_duties(duty)
         tol = self._tolerances(tolerance_rad)
-        if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s > 0):
+        if timeout_s is not None and not ((f := finite_float(timeout_s)) is not None and f > 0):
             raise InvalidTargetError(None, "timeout_s", timeout_s, "must be a number > 0")
         cmd = wire_command(target, duties, self.settings)
         goal = self._goal(cmd)
@@ -420,8 +420,7 @@ class Arm(ArmLink):
         its duty (at corners sharper than 10° the arm arrives first). Returns a
         :class:`PathRun` with every state received and every command sent.
         """
-        if not (isinstance(speed_m_s, (int, float)) and math.isfinite(speed_m_s)
-                and speed_m_s > 0):
+        if not ((f := finite_float(speed_m_s)) is not None and f > 0):
             raise InvalidTargetError(None, "speed_m_s", speed_m_s, "must be a number > 0")
         if not (isinstance(lookahead_s, (int, float)) and lookahead_s >= 0):
             raise InvalidTargetError(None, "lookahead_s", lookahead_s, "must be a number >= 0")

@@ -29,6 +29,7 @@ from armbench.drivers.errors import (
     ReplyTimeoutError,
     TransportError,
 )
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import COMMAND_LEN, Command, FrameError, Reply
 from armbench.drivers.replies import ReplyStream
 from armbench.drivers.settings import RobotSettings
@@ -64,7 +65,7 @@ class ReconnectPolicy:
     def __post_init__(self) -> None:
         for name in ("initial_delay_s", "max_delay_s"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if not ((f := finite_float(v)) is not None and f >= 0):
                 raise InvalidTargetError(None, f"reconnect.{name}", v, "must be a number >= 0")
         if not self.factor >= 1:
             raise InvalidTargetError(None, "reconnect.factor", self.factor, "must be >= 1")
@@ -112,7 +113,7 @@ class ArmLink:
         for name, v in (("reply_timeout_s", reply_timeout_s),
                         ("connect_timeout_s", connect_timeout_s),
                         ("resend_after_s", resend_after_s)):
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if not ((f := finite_float(v)) is not None and f > 0):
                 raise InvalidTargetError(None, name, v, "must be a number > 0")
         self.reply_timeout_s = float(reply_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)

@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from armbench.drivers.errors import InvalidTargetError, JointRangeError
 from armbench.drivers.kinematics import Vec4
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import (
     JOINTS,
     MAX_DUTY,
@@ -131,7 +132,7 @@ def tolerances(tolerance_rad: float | Sequence[float] | None, default: Vec4) -> 
     values = ([tolerance_rad] * JOINTS if isinstance(tolerance_rad, (int, float))
               else list(tolerance_rad))
     if len(values) != JOINTS or not all(
-            isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in values):
+            (f := finite_float(v)) is not None and f > 0 for v in values):
         raise InvalidTargetError(None, "tolerance_rad", tolerance_rad,
                                  "must be one or 4 finite numbers > 0")
     return (float(values[0]), float(values[1]), float(values[2]), float(values[3]))

@@ -8,11 +8,11 @@ default: the plausible arm of ``[emulator.physics]``, ``docs/robot-model.md``) o
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Literal
 
+from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.joint import CYCLE_S, PhysicalEffects
 from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
@@ -157,9 +157,10 @@ def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
 
 
 def _check_number(path: str, v: object) -> None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
+    if not is_real(v):
         raise SettingsError(path, v, "is not a finite number")
-    if (isinstance(v, float) and not math.isfinite(v)) or abs(v) > 1e12:
+    number = finite_float(v)
+    if number is None or abs(number) > 1e12:
         raise SettingsError(path, v, "is not a finite number within ±1e12")
 
 

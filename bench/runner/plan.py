@@ -15,7 +15,6 @@ from __future__ import annotations
 import fnmatch
 import itertools
 import json
-import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from armbench.bench.record import (
     RESULTS_FILE,
     RecordError,
     RunRecord,
+    json_default,
     new_run_id,
     path_inside,
 )
@@ -46,6 +46,7 @@ from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
 from armbench.drivers.capture import capture_options
 from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 from armbench.drivers.transports import open_transport, scheme_of, transport_class
 
@@ -101,11 +102,12 @@ class _BenchKnobs:
 
 
 def _number(where: str, value: object, *, low: float, strict: bool) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    number = finite_float(value)
+    if number is None:
         raise SettingsError(where, value, "is not a finite number")
-    if value < low or (strict and value == low):
+    if number < low or (strict and number == low):
         raise SettingsError(where, value, f"must be {'>' if strict else '>='} {low:g}")
-    return float(value)
+    return number
 
 
 def _integer(where: str, value: object) -> int:
@@ -117,22 +119,12 @@ def _integer(where: str, value: object) -> int:
 def json_equal(a: object, b: object) -> bool:
     """Whether two values are the same once written as JSON (tuples and lists alike)."""
     def norm(x: object) -> object:
-        return cast(object, json.loads(json.dumps(x, default=_plain, sort_keys=True)))
+        return cast(object, json.loads(json.dumps(x, default=json_default, sort_keys=True)))
 
     try:
         return bool(norm(a) == norm(b))
     except (TypeError, ValueError):
         return False
-
-
-def _plain(obj: object) -> object:
-    tolist = getattr(obj, "tolist", None)
-    if callable(tolist):
-        return cast(object, tolist())
-    isoformat = getattr(obj, "isoformat", None)
-    if callable(isoformat):
-        return cast(object, isoformat())
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
 def _load_runner_info(directory: Path) -> dict[str, Any]:
