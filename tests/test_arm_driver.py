@@ -798,9 +798,11 @@ def test_one_reply_short_path_gives_the_general_paths_states() -> None:
 
     async def session(general: bool) -> tuple[Any, ...]:
         async with Arm.connect("fake://?seed=5") as arm:
-            recorder = arm.record_states() if general else contextlib.nullcontext([])
+            recorder: contextlib.AbstractContextManager[list[JointState]] = (
+                arm.record_states() if general else contextlib.nullcontext([]))
             with recorder as states:
                 arrived = await arm.move_joints((0.3, -0.2, 0.4, 0.1), 80)
+                assert arrived is not None
                 await arm.wait_state(lambda s: s.seq >= arrived.seq + 25)
             assert bool(states) == general
             if general:
@@ -828,4 +830,5 @@ def test_perf_driver_figures() -> None:
     period_ms = perf_driver.loop_period_s(EmulatorSettings()) * 1e3
     assert figures["driver.host_timer_late_ms"].bound == pytest.approx(period_ms)
     assert figures["driver.pty_max_gap_ms"].value >= period_ms * 0.9  # at least one loop apart
-    assert figures["driver.pty_reply_rate"].ratio > 0.5  # replies flow at the firmware's pace
+    ratio = figures["driver.pty_reply_rate"].ratio
+    assert ratio is not None and ratio > 0.5  # replies flow at the firmware's pace

@@ -49,7 +49,7 @@ class Host:
         for e in self.framer.feed(data):
             if isinstance(e, Reply):
                 self.replies.append((t, e))
-            else:
+            elif isinstance(e, FrameError):
                 self.errors.append(e)
 
     def send(self, q_rad: list[float], duty: int | list[int] = 99) -> None:
@@ -576,8 +576,9 @@ def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(I2CBus, "i2c_rdwr", counted)
         # a blocking firmware says nothing before its first command
-        return emulate(body, fused_bus=fused, ready=settings.get("uart_receive") != "blocking",
-                       **settings)  # type: ignore[no-any-return]
+        result: dict[str, Any] = emulate(
+            body, fused_bus=fused, ready=settings.get("uart_receive") != "blocking", **settings)
+        return result
 
 
 @pytest.mark.parametrize(("seed", "settings"), [

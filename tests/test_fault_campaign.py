@@ -301,7 +301,7 @@ def _counter(arm: Arm, name: str) -> int:
     if name == "i2c_errors":
         return int(emulator.stats().i2c_errors)
     if name == "reboots":
-        return max(emulator.stats().boots) - 1
+        return int(max(emulator.stats().boots)) - 1
     return int(getattr(arm, name))
 
 

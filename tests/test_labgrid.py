@@ -155,6 +155,7 @@ def test_url_and_coordinator(monkeypatch: pytest.MonkeyPatch) -> None:
 async def _move(port: str) -> float:
     async with Arm.connect(port, connect_timeout_s=10.0) as arm:
         state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
+        assert state is not None
         return float(state.q_rad[0])
 
 
@@ -165,7 +166,7 @@ def test_a_place_is_acquired_used_and_released(lab: Lab) -> None:
         async with Arm.connect(port, connect_timeout_s=10.0) as arm:
             assert _acquired_by(lab, "arm-a") != ""  # held for the run
             state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
-            assert abs(state.q_rad[0] - 0.05) < 2e-4
+            assert state is not None and abs(state.q_rad[0] - 0.05) < 2e-4
 
     asyncio.run(main())
     assert _acquired_by(lab, "arm-a") == ""  # released when the run ended

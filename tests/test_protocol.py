@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import random
+from collections.abc import Sequence
 
 import pytest
 from hypothesis import given, settings
@@ -30,7 +31,7 @@ DEFAULT = RobotSettings()
 ticks = st.integers(0, MAX_TICKS)
 duties = st.integers(0, 99)
 replies = st.builds(Reply, ticks, ticks, ticks, ticks)
-commands = st.builds(lambda t, d: Command(tuple(t), tuple(d)),  # type: ignore[arg-type]
+commands = st.builds(lambda t, d: Command(tuple(t), tuple(d)),
                      st.lists(ticks, min_size=4, max_size=4),
                      st.lists(duties, min_size=4, max_size=4))
 
@@ -42,7 +43,7 @@ def feed_all(framer: Framer, chunks: list[bytes]) -> list[object]:
     return out
 
 
-def frames_only(events: list[object]) -> list[object]:
+def frames_only(events: Sequence[object]) -> list[object]:
     return [e for e in events if not isinstance(e, FrameError)]
 
 

@@ -104,8 +104,8 @@ def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9, *,
     allocations by ``tracemalloc`` (bytes) when ``traced``, else ``sys.getallocatedblocks()``
     (blocks; no tracing cost)."""
     samples: list[Sample] = []
-    python_memory = (lambda: tracemalloc.get_traced_memory()[0]) if traced else (
-        sys.getallocatedblocks)
+    def python_memory() -> int:
+        return tracemalloc.get_traced_memory()[0] if traced else sys.getallocatedblocks()
 
     async def main() -> SoakReport:
         loop = asyncio.get_running_loop()
