@@ -1,6 +1,6 @@
 """The report of real runs: every registered suite run on ``fake://`` through the real runner
-(``armbench run``'s own code path, which renders ``report.html``), then read as a user would: each
-suite in its own section, every column the suite fills filled, figures at the measurement's
+(``armbench run``'s own code path: the runner, then the reports the run command writes), then
+read as a user would: each suite in its own section, every column the suite fills filled, figures at the measurement's
 resolution; and in headless Chromium at 1 280 × 800 the verdict, the scorecard and a plot on the
 first screen, no sideways scroll, no console message; the same for the run index and the
 comparison page. Nothing here is mocked: the emulator stands in for the arm (that is what
@@ -20,6 +20,7 @@ from test_report import Node, cells, parse
 
 from armbench.bench import cli
 from armbench.bench.record import RunRecord, load_record
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import suite_names
 from armbench.bench.suites.contract import ACCURACY, REPEATABILITY, STARTUP
@@ -43,8 +44,10 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("runs")
     a = run_sync(RunOptions(out=root / "a", seed=0), progress=io.StringIO())
     assert a.record.suites and set(a.record.suites) == set(suite_names())
-    run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "b", seed=1,
-                        baseline=root / "a" / "results.json"), progress=io.StringIO())
+    write_reports(a.record, a.out_dir)  # as the run command does once the runner returned
+    b = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "b", seed=1,
+                            baseline=root / "a" / "results.json"), progress=io.StringIO())
+    write_reports(b.record, b.out_dir)
     return root
 
 
