@@ -1,10 +1,10 @@
 """The report of real runs: every registered suite run on ``fake://`` through the real runner
 (``armbench run``'s own code path: the runner, then the reports the run command writes), then
 read as a user would: each suite in its own section, every column the suite fills filled,
-figures at the measurement's resolution; and in headless Chromium at 1 280 × 800 the verdict, the scorecard and a plot on the
-first screen, no sideways scroll, no console message; the same for the run index and the
-comparison page. Nothing here is mocked: the emulator stands in for the arm (that is what
-``fake://`` is)."""
+figures at the measurement's resolution; and in headless Chromium at 1 280 × 800 the verdict,
+the scorecard and a plot on the first screen, no sideways scroll, no console message; the same
+for the run index and the comparison page. Nothing here is mocked: the emulator stands in for
+the arm (that is what ``fake://`` is)."""
 
 from __future__ import annotations
 
