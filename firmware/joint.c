@@ -130,7 +130,12 @@ void joint_init(void)
     target_counts = counter;
     motion = MOTION_STOPPED;
     if (state != MOTION_STOPPED) {     /* §5.2: powered off while moving: find the Hall */
-        home_dir = state == MOTION_CW ? -1 : 1;
+        if (ENC_PORT_IN & (1 << HALL_BIT)) {
+            joint_counter = HALL_COUNT;    /* already on it: the level says so */
+            target_counts = HALL_COUNT;
+        } else {
+            home_dir = state == MOTION_CW ? -1 : 1;
+        }
     }
     EICRA = (1 << ISC01) | (1 << ISC00) | (1 << ISC11) | (1 << ISC10);  /* rising edges */
     EIFR = (1 << INTF0) | (1 << INTF1);

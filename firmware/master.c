@@ -4,6 +4,7 @@
  * (docs/protocol.md); the I2C traffic is that of docs/i2c.md, every loop. */
 #if JOINT == 1
 #include <avr/interrupt.h>
+#include <avr/sleep.h>
 #include <util/atomic.h>
 #include <util/twi.h>
 
@@ -124,15 +125,33 @@ static uint8_t uart_poll(void)
     return got;
 }
 
-/* TWI master, polled. Returns 0 on a NAK, a bus error or a timeout. */
+/* TWI master. The CPU sleeps (idle) while a byte is on the wire: the TWI interrupt wakes it and
+ * masks itself (TWINT stays set for the code to see); the 80 us control interrupt wakes it too.
+ * Returns 0 on a NAK, a bus error or a timeout (20 ms without TWINT). */
+#define TWI_GO(extra) (TWCR = (1 << TWINT) | (1 << TWEN) | (1 << TWIE) | (extra))
+#define TWI_TIMEOUT_WAKEUPS 250
+
+ISR(TWI_vect)
+{
+    TWCR = TWCR & ~((1 << TWIE) | (1 << TWINT));   /* writing 0 to TWINT leaves it set */
+}
+
 static uint8_t twi_wait(void)
 {
-    uint16_t n = 0;
+    uint8_t n = 0;
+    cli();
     while (!(TWCR & (1 << TWINT))) {
-        if (++n == 0) {
+        if (++n == TWI_TIMEOUT_WAKEUPS) {
+            sei();
             return 0;
         }
+        sleep_enable();
+        sei();
+        sleep_cpu();
+        sleep_disable();
+        cli();
     }
+    sei();
     return 1;
 }
 
@@ -146,12 +165,12 @@ static void twi_stop(void)
 
 static uint8_t twi_start(uint8_t sla)
 {
-    TWCR = (1 << TWINT) | (1 << TWSTA) | (1 << TWEN);
+    TWI_GO(1 << TWSTA);
     if (!twi_wait() || (TW_STATUS != TW_START && TW_STATUS != TW_REP_START)) {
         return 0;
     }
     TWDR = sla;
-    TWCR = (1 << TWINT) | (1 << TWEN);
+    TWI_GO(0);
     if (!twi_wait()) {
         return 0;
     }
@@ -163,7 +182,7 @@ static uint8_t i2c_write(uint8_t addr, const uint8_t *data, uint8_t n)
     uint8_t ok = twi_start(addr << 1);
     for (uint8_t i = 0; ok && i < n; i++) {
         TWDR = data[i];
-        TWCR = (1 << TWINT) | (1 << TWEN);
+        TWI_GO(0);
         ok = twi_wait() && TW_STATUS == TW_MT_DATA_ACK;
     }
     twi_stop();
@@ -174,7 +193,7 @@ static uint8_t i2c_read(uint8_t addr, uint8_t *data, uint8_t n)
 {
     uint8_t ok = twi_start(addr << 1 | 1);
     for (uint8_t i = 0; ok && i < n; i++) {
-        TWCR = (1 << TWINT) | (1 << TWEN) | (i + 1 < n ? 1 << TWEA : 0);
+        TWI_GO(i + 1 < n ? 1 << TWEA : 0);
         ok = twi_wait();
         data[i] = TWDR;
     }
@@ -205,6 +224,7 @@ void role_setup(void)
     TWSR = 0;
     TWBR = (F_CPU / I2C_HZ - 16) / 2;
     TWCR = 1 << TWEN;
+    set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     while (joint_recovering()) {   /* §5.2: the master's loop starts once its joint is homed */
         joint_store_motion();

@@ -1,0 +1,504 @@
+/* armfw-harness: the reference firmware (or a lab's own, built for firmware/pins.h) on four
+ * simulated ATmega328P in lockstep (docs/firmware.md).
+ *
+ *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
+ *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
+ *
+ * FILE is an Intel hex or ELF image; LOWER/UPPER/HALL/MOTOR are microsteps (hard limits, Hall
+ * position, start position); NUM/DEN encoder counts per microstep; STATS the data address of the
+ * firmware's fw_stats (0: unknown). Joint 1's UART is served on a pty ("pty PATH" on stdout).
+ * Commands on stdin, one per line: "power off", "power on", "stats" (prints "stats {json}"),
+ * "quit". EEPROM contents survive a power cut and, with --eeprom-dir, the process.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/select.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <simavr/avr_eeprom.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_hex.h>
+
+#include "harness.h"
+
+harness_t H;
+
+static const char *eeprom_dir;
+static int max_speed;
+static double stop_after_s = -1.0;
+static uint64_t boot_cycles = F_CPU_HZ / 10;   /* 0.1 s, as emulator.boot_s */
+static uint32_t isr_vector_addr = 11 * 4;      /* TIMER1_COMPA_vect */
+static uint64_t lag_drops;
+
+static void no_sleep(avr_t *avr, avr_cycle_count_t how_long)
+{
+    (void)avr;
+    (void)how_long;   /* the harness paces time itself */
+}
+
+static void die(const char *what, const char *detail)
+{
+    fprintf(stderr, "armfw-harness: %s: %s\n", what, detail);
+    exit(2);
+}
+
+static void load_image(avr_t *avr, const char *path)
+{
+    size_t n = strlen(path);
+    if (n > 4 && strcmp(path + n - 4, ".elf") == 0) {
+        elf_firmware_t fw;
+        memset(&fw, 0, sizeof fw);
+        if (elf_read_firmware(path, &fw) != 0) {
+            die("cannot read ELF", path);
+        }
+        avr_load_firmware(avr, &fw);
+        return;
+    }
+    ihex_chunk_p chunks = NULL;
+    int count = read_ihex_chunks(path, &chunks);
+    if (count <= 0) {
+        die("cannot read Intel hex", path);
+    }
+    for (int i = 0; i < count; i++) {
+        if (chunks[i].baseaddr < 0x800000u) {
+            avr_loadcode(avr, chunks[i].data, chunks[i].size, chunks[i].baseaddr);
+        }
+    }
+    free_ihex_chunks(chunks);
+}
+
+static void eeprom_io(board_t *b, int set)
+{
+    avr_eeprom_desc_t d = {.ee = b->eeprom, .offset = 0, .size = EEPROM_BYTES};
+    avr_ioctl(b->avr, set ? AVR_IOCTL_EEPROM_SET : AVR_IOCTL_EEPROM_GET, &d);
+    if (!set && d.ee != b->eeprom) {
+        memcpy(b->eeprom, d.ee, EEPROM_BYTES);
+    }
+}
+
+static void eeprom_file(board_t *b, int save)
+{
+    if (!eeprom_dir) {
+        return;
+    }
+    char path[4096];
+    snprintf(path, sizeof path, "%s/joint%d.eep", eeprom_dir, b->index + 1);
+    FILE *f = fopen(path, save ? "wb" : "rb");
+    if (!f) {
+        return;
+    }
+    if (save) {
+        fwrite(b->eeprom, 1, EEPROM_BYTES, f);
+    } else if (fread(b->eeprom, 1, EEPROM_BYTES, f) != EEPROM_BYTES) {
+        memset(b->eeprom, 0xFF, EEPROM_BYTES);
+    }
+    fclose(f);
+}
+
+static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    uint8_t c = (uint8_t)value;
+    H.tx_bytes++;
+    if (c == '$') {
+        uint64_t t = H.boards[0].avr->cycle;
+        if (H.last_reply_at) {
+            uint64_t p = t - H.last_reply_at;
+            H.period_sum += p;
+            H.period_n++;
+            if (p > H.period_max) {
+                H.period_max = p;
+            }
+            if (H.period_min == 0 || p < H.period_min) {
+                H.period_min = p;
+            }
+        }
+        H.last_reply_at = t;
+    } else if (c == '#') {
+        H.replies++;
+    }
+    if (H.pty_fd >= 0 && write(H.pty_fd, &c, 1) < 0) {
+        /* nobody reading and the pty buffer full: the byte is lost, as on an unread line */
+    }
+}
+
+static void power_on_board(board_t *b)
+{
+    avr_t *avr = b->avr;
+    avr->cycle = H.now;
+    avr_reset(avr);
+    avr->sleep = no_sleep;
+    eeprom_io(b, 1);
+    twi_reset(b);
+    b->boot_at = H.now + boot_cycles;
+    b->powered = 1;
+    b->isr_timer.inside = 0;
+    joint_attach(b);
+}
+
+static void power_off_board(board_t *b)
+{
+    eeprom_io(b, 0);
+    eeprom_file(b, 1);
+    twi_reset(b);
+    b->powered = 0;
+}
+
+static void setup_board(board_t *b)
+{
+    b->avr = avr_make_mcu_by_name("atmega328p");
+    if (!b->avr) {
+        die("simavr has no core", "atmega328p");
+    }
+    avr_init(b->avr);
+    b->avr->frequency = F_CPU_HZ;
+    b->avr->log = 0;
+    load_image(b->avr, b->firmware);
+    b->avr->frequency = F_CPU_HZ;
+    memset(b->eeprom, 0xFF, EEPROM_BYTES);
+    eeprom_file(b, 0);
+    twi_attach(b);
+    if (b->index == 0) {
+        uint32_t flags = 0;
+        avr_ioctl(b->avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+        flags &= ~(uint32_t)AVR_UART_FLAG_STDIO;
+        avr_ioctl(b->avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+        avr_irq_register_notify(avr_io_getirq(b->avr, AVR_IOCTL_UART_GETIRQ('0'),
+                                              UART_IRQ_OUTPUT), uart_out, NULL);
+    }
+    power_on_board(b);
+}
+
+static int is_reti(avr_t *avr, avr_flashaddr_t pc)
+{
+    return avr->flash[pc] == 0x18 && avr->flash[pc + 1] == 0x95;
+}
+
+/* Run one core up to the global cycle `until`, timing its control interrupt. */
+static void run_board(board_t *b, uint64_t until)
+{
+    avr_t *avr = b->avr;
+    if (!b->powered || H.now < b->boot_at) {
+        avr->cycle = until;
+        return;
+    }
+    isr_stat_t *s = &b->isr_timer;
+    while (avr->cycle < until) {
+        if (avr->state == cpu_Sleeping && !avr_has_pending_interrupts(avr)) {
+            /* asleep: skip to its next timer, or to the end of the quantum, whichever is first
+             * (an interrupt the harness raises in between wakes it at the right cycle) */
+            avr_cycle_timer_slot_p t = avr->cycle_timers.timer;
+            if (!t || t->when >= until) {
+                avr->cycle = until;
+                break;
+            }
+            if (t->when > avr->cycle) {
+                avr->cycle = t->when;
+            }
+            avr_cycle_timer_process(avr);
+            continue;
+        }
+        if (avr->state == cpu_Sleeping) {
+            avr->state = cpu_Running;   /* an interrupt is pending: wake up */
+        }
+        avr_flashaddr_t pc = avr->pc;
+        if (avr->flash[pc] == 0x88 && avr->flash[pc + 1] == 0x95) {
+            /* SLEEP, done here: simavr's would run the clock on to the next timer in the same
+             * call, past interrupts the harness raises in between */
+            if (avr->data[0x53] & 0x01) {   /* SMCR.SE */
+                avr->state = cpu_Sleeping;
+            }
+            avr->pc += 2;
+            avr->cycle += 1;
+            continue;
+        }
+        int ending = s->inside && is_reti(avr, pc);
+        avr->run(avr);
+        if (ending) {
+            uint64_t d = avr->cycle - s->start;
+            s->inside = 0;
+            s->count++;
+            s->total += d;
+            if (d > s->worst) {
+                s->worst = d;
+            }
+        } else if (avr->pc == isr_vector_addr && pc != isr_vector_addr) {
+            s->inside = 1;
+            s->start = avr->cycle;
+        }
+        if (avr->state == cpu_Done || avr->state == cpu_Crashed) {
+            fprintf(stderr, "armfw-harness: joint %d stopped (state %d) at pc 0x%x\n",
+                    b->index + 1, avr->state, (unsigned)avr->pc);
+            b->powered = 0;
+            return;
+        }
+    }
+}
+
+static void uart_in(void)
+{
+    board_t *m = &H.boards[0];
+    if (H.rx_head == H.rx_tail || H.now < H.rx_next_at) {
+        return;
+    }
+    uint8_t c = H.rx_queue[H.rx_tail];
+    H.rx_tail = (H.rx_tail + 1) % sizeof H.rx_queue;
+    H.rx_next_at = H.now + F_CPU_HZ * 10ull / 115200ull;   /* one byte at 115200 8N1 */
+    if (!m->powered || H.now < m->boot_at) {
+        H.rx_lost_power++;   /* before Serial.begin(): lost */
+        return;
+    }
+    if (m->avr->data[0xC0] & 0x80) {
+        H.rx_overruns++;     /* the previous byte is still unread in UDR0 */
+    }
+    H.rx_bytes++;
+    avr_raise_irq(avr_io_getirq(m->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), c);
+}
+
+static void print_stats(double wall_s)
+{
+    double us = 1e6 / F_CPU_HZ;
+    printf("stats {\"sim_s\": %.6f, \"wall_s\": %.6f, \"lag_drops\": %llu, \"boards\": [",
+           (double)H.now / F_CPU_HZ, wall_s, (unsigned long long)lag_drops);
+    for (int i = 0; i < N_BOARDS; i++) {
+        board_t *b = &H.boards[i];
+        isr_stat_t *s = &b->isr_timer;
+        printf("%s{\"joint\": %d, \"powered\": %d, \"isr_count\": %llu, \"isr_worst_cycles\": %llu,"
+               " \"isr_mean_cycles\": %.1f, \"motor_steps\": %lld, \"steps\": %llu,"
+               " \"blocked\": %llu", i ? ", " : "", i + 1, b->powered,
+               (unsigned long long)s->count, (unsigned long long)s->worst,
+               s->count ? (double)s->total / s->count : 0.0, (long long)b->joint.motor_steps,
+               (unsigned long long)b->joint.steps, (unsigned long long)b->joint.blocked);
+        if (b->stats_addr) {
+            const uint8_t *d = b->avr->data + b->stats_addr;
+            printf(", \"fw\": {\"loops\": %lu, \"rx_overflows\": %u, \"bad_frames\": %u,"
+                   " \"i2c_errors\": %u, \"bad_writes\": %u}",
+                   (unsigned long)(d[0] | d[1] << 8 | (uint32_t)d[2] << 16 | (uint32_t)d[3] << 24),
+                   d[4] | d[5] << 8, d[6] | d[7] << 8, d[8] | d[9] << 8, d[10] | d[11] << 8);
+        }
+        printf("}");
+    }
+    printf("], \"uart\": {\"rx_bytes\": %llu, \"rx_overruns\": %llu, \"rx_lost_power\": %llu,"
+           " \"tx_bytes\": %llu, \"replies\": %llu, \"period_us_min\": %.1f,"
+           " \"period_us_mean\": %.1f, \"period_us_max\": %.1f},",
+           (unsigned long long)H.rx_bytes, (unsigned long long)H.rx_overruns,
+           (unsigned long long)H.rx_lost_power, (unsigned long long)H.tx_bytes,
+           (unsigned long long)H.replies, H.period_min * us,
+           H.period_n ? (double)H.period_sum / H.period_n * us : 0.0, H.period_max * us);
+    printf(" \"i2c\": {\"transactions\": %llu, \"naks\": %llu, \"us_min\": %.1f,"
+           " \"us_mean\": %.1f, \"us_max\": %.1f}}\n",
+           (unsigned long long)H.i2c_transactions, (unsigned long long)H.i2c_naks,
+           H.i2c_min * us, H.i2c_transactions ? (double)H.i2c_sum / H.i2c_transactions * us : 0.0,
+           H.i2c_max * us);
+    fflush(stdout);
+}
+
+static double wall_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int control(const char *line, double wall_s)
+{
+    if (strncmp(line, "power off", 9) == 0) {
+        for (int i = 0; i < N_BOARDS; i++) {
+            power_off_board(&H.boards[i]);
+        }
+    } else if (strncmp(line, "power on", 8) == 0) {
+        for (int i = 0; i < N_BOARDS; i++) {
+            if (!H.boards[i].powered) {
+                power_on_board(&H.boards[i]);
+            }
+        }
+    } else if (strncmp(line, "stats", 5) == 0) {
+        print_stats(wall_s);
+    } else if (strncmp(line, "quit", 4) == 0) {
+        return 0;
+    } else {
+        fprintf(stderr, "armfw-harness: unknown command: %s", line);
+    }
+    return 1;
+}
+
+/* Read the pty and the control input without blocking; 0 when told to quit. */
+static int poll_io(double wall_s)
+{
+    static char line[256];
+    static size_t line_len;
+    fd_set fds;
+    FD_ZERO(&fds);
+    FD_SET(0, &fds);
+    if (H.pty_fd >= 0) {
+        FD_SET(H.pty_fd, &fds);
+    }
+    struct timeval tv = {0, 0};
+    if (select((H.pty_fd > 0 ? H.pty_fd : 0) + 1, &fds, NULL, NULL, &tv) <= 0) {
+        return 1;
+    }
+    if (H.pty_fd >= 0 && FD_ISSET(H.pty_fd, &fds)) {
+        uint8_t buf[512];
+        ssize_t n = read(H.pty_fd, buf, sizeof buf);
+        for (ssize_t i = 0; i < n; i++) {
+            unsigned next = (H.rx_head + 1) % sizeof H.rx_queue;
+            if (next != H.rx_tail) {
+                H.rx_queue[H.rx_head] = buf[i];
+                H.rx_head = next;
+            }
+        }
+    }
+    if (FD_ISSET(0, &fds)) {
+        char c;
+        while (read(0, &c, 1) == 1) {
+            if (c == '\n' || line_len == sizeof line - 1) {
+                line[line_len] = 0;
+                line_len = 0;
+                if (!control(line, wall_s)) {
+                    return 0;
+                }
+                break;
+            }
+            line[line_len++] = c;
+        }
+        if (c != '\n' && line_len == 0) {
+            return 1;
+        }
+    }
+    return 1;
+}
+
+static void open_pty(void)
+{
+    H.pty_fd = posix_openpt(O_RDWR | O_NOCTTY);
+    if (H.pty_fd < 0 || grantpt(H.pty_fd) || unlockpt(H.pty_fd)) {
+        die("cannot open a pty", strerror(errno));
+    }
+    const char *name = ptsname(H.pty_fd);
+    int slave = open(name, O_RDWR | O_NOCTTY);   /* kept open: a client may close and reopen */
+    struct termios t;
+    tcgetattr(slave, &t);
+    cfmakeraw(&t);
+    tcsetattr(slave, TCSANOW, &t);
+    fcntl(H.pty_fd, F_SETFL, O_NONBLOCK);
+    printf("pty %s\n", name);
+    fflush(stdout);
+}
+
+static void parse_board(board_t *b, char *spec)
+{
+    char *fields[8] = {0};
+    int n = 0;
+    for (char *tok = strtok(spec, ","); tok && n < 8; tok = strtok(NULL, ",")) {
+        fields[n++] = tok;
+    }
+    if (n < 7) {
+        die("--board wants FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS]", spec);
+    }
+    b->firmware = fields[0];
+    b->joint.lower_steps = strtoll(fields[1], NULL, 0);
+    b->joint.upper_steps = strtoll(fields[2], NULL, 0);
+    b->joint.hall_step = strtoll(fields[3], NULL, 0);
+    b->joint.counts_num = (int32_t)strtol(fields[4], NULL, 0);
+    b->joint.counts_den = (int32_t)strtol(fields[5], NULL, 0);
+    b->joint.motor_steps = strtoll(fields[6], NULL, 0);
+    b->stats_addr = n > 7 ? (uint32_t)strtoul(fields[7], NULL, 0) : 0;
+    if (b->joint.counts_den <= 0 || b->joint.counts_num <= 0) {
+        die("encoder counts per step must be positive", fields[4]);
+    }
+}
+
+int main(int argc, char **argv)
+{
+    int boards = 0, pty = 0;
+    H.pty_fd = -1;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        const char *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (strcmp(a, "--pty") == 0) {
+            pty = 1;
+        } else if (strcmp(a, "--speed") == 0 && v) {
+            max_speed = strcmp(v, "max") == 0;
+            i++;
+        } else if (strcmp(a, "--seconds") == 0 && v) {
+            stop_after_s = atof(v);
+            i++;
+        } else if (strcmp(a, "--eeprom-dir") == 0 && v) {
+            eeprom_dir = v;
+            i++;
+        } else if (strcmp(a, "--boot-ms") == 0 && v) {
+            boot_cycles = (uint64_t)(atof(v) * F_CPU_HZ / 1000.0);
+            i++;
+        } else if (strcmp(a, "--isr-vector") == 0 && v) {
+            isr_vector_addr = (uint32_t)atoi(v) * 4;
+            i++;
+        } else if (strcmp(a, "--board") == 0 && v && boards < N_BOARDS) {
+            H.boards[boards].index = boards;
+            parse_board(&H.boards[boards], argv[++i]);
+            boards++;
+        } else {
+            die("unknown or incomplete option", a);
+        }
+    }
+    if (boards != N_BOARDS) {
+        die("four --board options are needed", "joint 1..4");
+    }
+    fcntl(0, F_SETFL, O_NONBLOCK);
+    if (pty) {
+        open_pty();
+    }
+    for (int i = 0; i < N_BOARDS; i++) {
+        setup_board(&H.boards[i]);
+    }
+    printf("ready\n");
+    fflush(stdout);
+    double wall0 = wall_now();
+    double pace0 = wall0;   /* wall time that simulated time 0 is paced against */
+    const uint64_t poll_every = F_CPU_HZ / 1000;   /* 1 ms of simulated time */
+    uint64_t next_poll = poll_every;
+    int running = 1;
+    while (running) {
+        uint64_t until = H.now + QUANTUM_CYCLES;
+        for (int i = 0; i < N_BOARDS; i++) {
+            joint_service(&H.boards[i], H.now);
+            run_board(&H.boards[i], until);
+        }
+        H.now = until;
+        twi_service(H.now);
+        uart_in();
+        if (H.now >= next_poll) {
+            next_poll += poll_every;
+            double wall = wall_now() - wall0;
+            running = poll_io(wall);
+            if (stop_after_s >= 0 && (double)H.now / F_CPU_HZ >= stop_after_s) {
+                print_stats(wall);
+                running = 0;
+            }
+            if (!max_speed) {
+                double ahead = (double)H.now / F_CPU_HZ - (wall_now() - pace0);
+                if (ahead > 0.0005) {
+                    struct timespec ts = {0, (long)(ahead * 1e9)};
+                    nanosleep(&ts, NULL);
+                } else if (ahead < -0.05) {   /* fell behind (busy machine): drop the lag */
+                    pace0 -= ahead;
+                    lag_drops++;
+                }
+            }
+        }
+    }
+    for (int i = 0; i < N_BOARDS; i++) {
+        if (H.boards[i].powered) {
+            eeprom_io(&H.boards[i], 0);
+            eeprom_file(&H.boards[i], 1);
+        }
+    }
+    return 0;
+}
