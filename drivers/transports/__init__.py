@@ -42,6 +42,7 @@ TRANSPORTS: dict[str, str] = {
     "socket": "armbench.drivers.transports.tcp:TcpTransport",
     "rfc2217": "armbench.drivers.transports.rfc2217:Rfc2217Transport",
     "fake": "armbench.drivers.transports.fake:FakeTransport",
+    "avr": "armbench.drivers.transports.avr:AvrTransport",
 }
 
 _SCHEME_RE = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*)://")

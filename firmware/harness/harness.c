@@ -2,6 +2,7 @@
  * simulated ATmega328P in lockstep (docs/firmware.md).
  *
  *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
+ *                 [--send TEXT] [--isr-vector N]
  *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
  *
  * FILE is an Intel hex or ELF image; LOWER/UPPER/HALL/MOTOR are microsteps (hard limits, Hall
@@ -256,9 +257,6 @@ static void uart_in(void)
         H.rx_lost_power++;   /* before Serial.begin(): lost */
         return;
     }
-    if (m->avr->data[0xC0] & 0x80) {
-        H.rx_overruns++;     /* the previous byte is still unread in UDR0 */
-    }
     H.rx_bytes++;
     avr_raise_irq(avr_io_getirq(m->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), c);
 }
@@ -286,10 +284,10 @@ static void print_stats(double wall_s)
         }
         printf("}");
     }
-    printf("], \"uart\": {\"rx_bytes\": %llu, \"rx_overruns\": %llu, \"rx_lost_power\": %llu,"
+    printf("], \"uart\": {\"rx_bytes\": %llu, \"rx_lost_power\": %llu,"
            " \"tx_bytes\": %llu, \"replies\": %llu, \"period_us_min\": %.1f,"
            " \"period_us_mean\": %.1f, \"period_us_max\": %.1f},",
-           (unsigned long long)H.rx_bytes, (unsigned long long)H.rx_overruns,
+           (unsigned long long)H.rx_bytes,
            (unsigned long long)H.rx_lost_power, (unsigned long long)H.tx_bytes,
            (unsigned long long)H.replies, H.period_min * us,
            H.period_n ? (double)H.period_sum / H.period_n * us : 0.0, H.period_max * us);
@@ -440,6 +438,12 @@ int main(int argc, char **argv)
         } else if (strcmp(a, "--isr-vector") == 0 && v) {
             isr_vector_addr = (uint32_t)atoi(v) * 4;
             i++;
+        } else if (strcmp(a, "--send") == 0 && v) {
+            for (const char *c = argv[++i]; *c; c++) {   /* bytes for joint 1's UART at boot */
+                H.rx_queue[H.rx_head] = (uint8_t)*c;
+                H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
+            }
+            H.rx_next_at = boot_cycles + F_CPU_HZ / 1000;
         } else if (strcmp(a, "--board") == 0 && v && boards < N_BOARDS) {
             H.boards[boards].index = boards;
             parse_board(&H.boards[boards], argv[++i]);
@@ -458,8 +462,7 @@ int main(int argc, char **argv)
     for (int i = 0; i < N_BOARDS; i++) {
         setup_board(&H.boards[i]);
     }
-    printf("ready\n");
-    fflush(stdout);
+    int announced = 0;   /* "ready" once the boards have booted: an arm powered before use */
     double wall0 = wall_now();
     double pace0 = wall0;   /* wall time that simulated time 0 is paced against */
     const uint64_t poll_every = F_CPU_HZ / 1000;   /* 1 ms of simulated time */
@@ -474,6 +477,11 @@ int main(int argc, char **argv)
         H.now = until;
         twi_service(H.now);
         uart_in();
+        if (!announced && H.now >= boot_cycles + F_CPU_HZ / 1000) {
+            announced = 1;
+            printf("ready\n");
+            fflush(stdout);
+        }
         if (H.now >= next_poll) {
             next_poll += poll_every;
             double wall = wall_now() - wall0;

@@ -67,7 +67,7 @@ typedef struct harness_t {
     uint8_t rx_queue[4096];
     unsigned rx_head, rx_tail;
     uint64_t rx_next_at;
-    uint64_t rx_bytes, rx_overruns, rx_lost_power;
+    uint64_t rx_bytes, rx_lost_power;
     uint64_t tx_bytes, replies;
     uint64_t last_reply_at, period_min, period_max, period_sum, period_n;
     /* I2C */
