@@ -183,15 +183,20 @@ void joint_set_reference(uint16_t ticks, uint8_t new_duty)
 
 uint16_t joint_position_ticks(void)
 {
+    /* called from the TWI interrupt, so 16x16->32 multiplies only (a few dozen cycles): with
+     * K = TICKS_PER_COUNT_Q31 = Kh * 2^16 + Kl, |c| * K / 2^16 = |c| * Kh + (|c| * Kl) / 2^16
+     * (ticks in Q15; the dropped bits are below 2^-15 ticks) */
     int32_t c;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         c = joint_counter;
     }
-    int64_t x = (int64_t)c * TICKS_PER_COUNT_Q31;
+    uint16_t ac = (uint16_t)(c < 0 ? -c : c);   /* |counter| < 2^16 within every joint's limits */
+    uint32_t q15 = (uint32_t)ac * (uint16_t)(TICKS_PER_COUNT_Q31 >> 16)
+        + (((uint32_t)ac * (uint16_t)(TICKS_PER_COUNT_Q31 & 0xFFFF)) >> 16);
     if (c < 0) {
-        x += TAU_TICKS_Q31;
+        q15 = TAU_TICKS_Q15 - q15;
     }
-    return (uint16_t)((x + ((int64_t)1 << 30)) >> 31);
+    return (uint16_t)((q15 + (1UL << 14)) >> 15);
 }
 
 uint8_t joint_status(void)

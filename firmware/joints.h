@@ -5,7 +5,7 @@
  *
  * Wire ticks <-> encoder counts are done in integers (no float on the AVR):
  *   counts -> ticks: floor(((counts / cpr) mod 2pi) * 1e4 + 0.5)
- *                    = ((counts * TICKS_PER_COUNT_Q31 [+ TAU_TICKS_Q31 if counts < 0]) + 2^30) >> 31
+ *                    = ([TAU_TICKS_Q15 -] |counts| * TICKS_PER_COUNT_Q31 / 2^16 + 2^14) >> 15
  *   ticks -> counts: round((ticks / 1e4 - (ticks >= WRAP_TICKS ? 2pi : 0)) * cpr)
  *                    = round(((ticks << 16) - [TAU_TICKS_Q16]) * COUNTS_PER_TICK_Q24 / 2^40)
  * cpr = counts per joint radian; WRAP_TICKS is the first wire value decoded as a negative angle
@@ -18,8 +18,8 @@
 #error "build with -DJOINT=1..4 (1 = master)"
 #endif
 
-#define TAU_TICKS_Q31 134930377045220LL   /* 2pi * 1e4 * 2^31 */
 #define TAU_TICKS_Q16 4117748323LL        /* 2pi * 1e4 * 2^16 */
+#define TAU_TICKS_Q15 2058874161UL        /* 2pi * 1e4 * 2^15 */
 
 #if JOINT == 1
 #define TICKS_PER_COUNT_Q31 1349303770UL

@@ -1,6 +1,8 @@
 /* Algorithm 2 (joints 2..4): answer the master on I2C with the register layout of docs/i2c.md.
  * The TWI interrupt takes the bytes; the main loop applies a new reference (held while the
- * start-up recovery runs), stores motion changes in the EEPROM and sleeps otherwise. */
+ * start-up recovery runs), stores motion changes in the EEPROM, keeps the position register
+ * current and sleeps otherwise. The TWI interrupt is kept short (no arithmetic): while it runs
+ * the encoder's A-edge interrupt waits, and channel B must still hold its level when it runs. */
 #if JOINT != 1
 #include <avr/interrupt.h>
 #include <avr/sleep.h>
@@ -16,6 +18,8 @@ static volatile uint8_t tx_len, tx_pos;
 static volatile uint16_t ref_ticks;
 static volatile uint8_t ref_duty;
 static volatile uint8_t ref_pending;
+static volatile uint16_t pos_ticks;   /* the counter in wire ticks, refreshed by the main loop
+                                         after every interrupt: the TWI ISR only copies it */
 
 static void take_write(void)
 {
@@ -68,7 +72,7 @@ ISR(TWI_vect)
             tx_buf[0] = 0xA0 | JOINT;
             tx_len = 1;
         } else {
-            uint16_t t = joint_position_ticks();
+            uint16_t t = pos_ticks;
             tx_buf[0] = t & 0xFF;
             tx_buf[1] = t >> 8;
             tx_len = 2;
@@ -98,7 +102,9 @@ void role_setup(void)
 
 void role_loop(void)
 {
+    uint16_t t = joint_position_ticks();
     cli();
+    pos_ticks = t;
     if (!ref_pending || joint_recovering()) {
         sleep_enable();
         sei();

@@ -2,7 +2,7 @@
  * simulated ATmega328P in lockstep (docs/firmware.md).
  *
  *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
- *                 [--send TEXT] [--isr-vector N]
+ *                 [--send TEXT] [--script FILE] [--reply-log FILE] [--isr-vector N]
  *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
  *
  * FILE is an Intel hex or ELF image; LOWER/UPPER/HALL/MOTOR are microsteps (hard limits, Hall
@@ -37,6 +37,46 @@ static double stop_after_s = -1.0;
 static uint64_t boot_cycles = F_CPU_HZ / 10;   /* 0.1 s, as emulator.boot_s */
 static uint32_t isr_vector_addr = 11 * 4;      /* TIMER1_COMPA_vect */
 static uint64_t lag_drops;
+
+/* --script FILE: "<seconds> <bytes>" lines, each put on joint 1's UART at that simulated time;
+ * --reply-log FILE: "<seconds> <reply>" for each reply frame (the time its '#' was written). */
+#define MAX_SCRIPT 256
+static struct {
+    uint64_t at;
+    char text[128];
+} script[MAX_SCRIPT];
+static int script_len, script_next;
+static FILE *reply_log;
+static char reply_buf[64];
+static unsigned reply_len;
+
+static void load_script(const char *path)
+{
+    FILE *f = fopen(path, "r");
+    if (!f) {
+        fprintf(stderr, "armfw-harness: cannot read script %s\n", path);
+        exit(2);
+    }
+    double t;
+    char text[128];
+    while (script_len < MAX_SCRIPT && fscanf(f, "%lf %127s", &t, text) == 2) {
+        script[script_len].at = (uint64_t)(t * F_CPU_HZ);
+        memcpy(script[script_len].text, text, sizeof text);
+        script_len++;
+    }
+    fclose(f);
+}
+
+static void script_due(void)
+{
+    while (script_next < script_len && script[script_next].at <= H.now) {
+        for (const char *c = script[script_next].text; *c; c++) {
+            H.rx_queue[H.rx_head] = (uint8_t)*c;
+            H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
+        }
+        script_next++;
+    }
+}
 
 static void no_sleep(avr_t *avr, avr_cycle_count_t how_long)
 {
@@ -126,6 +166,18 @@ static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
     } else if (c == '#') {
         H.replies++;
     }
+    if (reply_log) {
+        if (c == '$') {
+            reply_len = 0;
+        }
+        if (reply_len < sizeof reply_buf - 1) {
+            reply_buf[reply_len++] = (char)c;
+        }
+        if (c == '#') {
+            reply_buf[reply_len] = 0;
+            fprintf(reply_log, "%.7f %s\n", (double)H.boards[0].avr->cycle / F_CPU_HZ, reply_buf);
+        }
+    }
     if (H.pty_fd >= 0 && write(H.pty_fd, &c, 1) < 0) {
         /* nobody reading and the pty buffer full: the byte is lost, as on an unread line */
     }
@@ -141,7 +193,7 @@ static void power_on_board(board_t *b)
     twi_reset(b);
     b->boot_at = H.now + boot_cycles;
     b->powered = 1;
-    b->isr_timer.inside = 0;
+    b->isr_depth = 0;
     joint_attach(b);
 }
 
@@ -191,7 +243,6 @@ static void run_board(board_t *b, uint64_t until)
         avr->cycle = until;
         return;
     }
-    isr_stat_t *s = &b->isr_timer;
     while (avr->cycle < until) {
         if (avr->state == cpu_Sleeping && !avr_has_pending_interrupts(avr)) {
             /* asleep: skip to its next timer, or to the end of the quantum, whichever is first
@@ -221,19 +272,21 @@ static void run_board(board_t *b, uint64_t until)
             avr->cycle += 1;
             continue;
         }
-        int ending = s->inside && is_reti(avr, pc);
+        int ending = b->isr_depth > 0 && is_reti(avr, pc);
         avr->run(avr);
-        if (ending) {
+        if (ending) {   /* RETI: the innermost interrupt's time, from its vector to here */
+            isr_stat_t *s = &b->isr[b->isr_stack[--b->isr_depth]];
             uint64_t d = avr->cycle - s->start;
-            s->inside = 0;
             s->count++;
             s->total += d;
             if (d > s->worst) {
                 s->worst = d;
             }
-        } else if (avr->pc == isr_vector_addr && pc != isr_vector_addr) {
-            s->inside = 1;
-            s->start = avr->cycle;
+        } else if (avr->pc < 26 * 4 && avr->pc != pc + 2 && (avr->pc & 3) == 0 && avr->pc
+                   && b->isr_depth < 4) {   /* jumped onto a vector: an interrupt */
+            uint8_t v = (uint8_t)(avr->pc / 4);
+            b->isr_stack[b->isr_depth++] = v;
+            b->isr[v].start = avr->cycle;
         }
         if (avr->state == cpu_Done || avr->state == cpu_Crashed) {
             fprintf(stderr, "armfw-harness: joint %d stopped (state %d) at pc 0x%x\n",
@@ -268,13 +321,22 @@ static void print_stats(double wall_s)
            (double)H.now / F_CPU_HZ, wall_s, (unsigned long long)lag_drops);
     for (int i = 0; i < N_BOARDS; i++) {
         board_t *b = &H.boards[i];
-        isr_stat_t *s = &b->isr_timer;
+        isr_stat_t *s = &b->isr[isr_vector_addr / 4];
         printf("%s{\"joint\": %d, \"powered\": %d, \"isr_count\": %llu, \"isr_worst_cycles\": %llu,"
                " \"isr_mean_cycles\": %.1f, \"motor_steps\": %lld, \"steps\": %llu,"
-               " \"blocked\": %llu", i ? ", " : "", i + 1, b->powered,
+               " \"blocked\": %llu, \"vectors\": {", i ? ", " : "", i + 1, b->powered,
                (unsigned long long)s->count, (unsigned long long)s->worst,
                s->count ? (double)s->total / s->count : 0.0, (long long)b->joint.motor_steps,
                (unsigned long long)b->joint.steps, (unsigned long long)b->joint.blocked);
+        const char *sep = "";
+        for (int v = 1; v < 26; v++) {
+            if (b->isr[v].count) {
+                printf("%s\"%d\": [%llu, %llu]", sep, v, (unsigned long long)b->isr[v].count,
+                       (unsigned long long)b->isr[v].worst);
+                sep = ", ";
+            }
+        }
+        printf("}");
         if (b->stats_addr) {
             const uint8_t *d = b->avr->data + b->stats_addr;
             printf(", \"fw\": {\"loops\": %lu, \"rx_overflows\": %u, \"bad_frames\": %u,"
@@ -444,6 +506,13 @@ int main(int argc, char **argv)
                 H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
             }
             H.rx_next_at = boot_cycles + F_CPU_HZ / 1000;
+        } else if (strcmp(a, "--script") == 0 && v) {
+            load_script(argv[++i]);
+        } else if (strcmp(a, "--reply-log") == 0 && v) {
+            reply_log = fopen(argv[++i], "w");
+            if (!reply_log) {
+                die("cannot write", v);
+            }
         } else if (strcmp(a, "--board") == 0 && v && boards < N_BOARDS) {
             H.boards[boards].index = boards;
             parse_board(&H.boards[boards], argv[++i]);
@@ -476,6 +545,7 @@ int main(int argc, char **argv)
         }
         H.now = until;
         twi_service(H.now);
+        script_due();
         uart_in();
         if (!announced && H.now >= boot_cycles + F_CPU_HZ / 1000) {
             announced = 1;
@@ -501,6 +571,9 @@ int main(int argc, char **argv)
                 }
             }
         }
+    }
+    if (reply_log) {
+        fclose(reply_log);
     }
     for (int i = 0; i < N_BOARDS; i++) {
         if (H.boards[i].powered) {

@@ -54,7 +54,9 @@ typedef struct board_t {
     uint8_t eeprom[EEPROM_BYTES];
     joint_t joint;
     twi_t twi;
-    isr_stat_t isr_timer;
+    isr_stat_t isr[26];              /* per interrupt vector of the ATmega328P */
+    int isr_depth;
+    uint8_t isr_stack[4];
     uint32_t stats_addr;             /* data address of fw_stats, 0 if unknown */
 } board_t;
 
