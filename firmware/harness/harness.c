@@ -205,6 +205,34 @@ static void power_off_board(board_t *b)
     b->powered = 0;
 }
 
+/* simavr 1.6 completes an EEPROM write at once; the ATmega328P takes 3.3 ms per byte (data sheet,
+ * tWD_EEPROM), during which EECR.EEPE reads 1 and the next EEPROM access waits (avr-libc polls
+ * it). The harness keeps EEPE set for that long after each write. */
+#define R_EECR 0x3F
+#define EEPE_BIT 0x02
+#define EEPROM_WRITE_CYCLES (F_CPU_HZ / 1000 * 33 / 10)
+
+static void eecr_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    board_t *b = param;
+    /* a write starts on EEPE 0 -> 1 with EEMPE set; a read-modify-write of EECR while busy
+     * (SBI sees the EEPE this harness reports) starts nothing */
+    int starting = (v & EEPE_BIT) && !(avr->data[addr] & EEPE_BIT) && (avr->data[addr] & 0x04)
+        && avr->cycle >= b->eeprom_busy_until;
+    b->eecr_w.c(avr, addr, v, b->eecr_w.param);
+    avr->data[addr] &= (uint8_t)~EEPE_BIT;   /* busy is eeprom_busy_until's business alone */
+    if (starting) {
+        b->eeprom_busy_until = avr->cycle + EEPROM_WRITE_CYCLES;
+    }
+}
+
+static uint8_t eecr_read(avr_t *avr, avr_io_addr_t addr, void *param)
+{
+    board_t *b = param;
+    uint8_t v = b->eecr_r.c ? b->eecr_r.c(avr, addr, b->eecr_r.param) : avr->data[addr];
+    return avr->cycle < b->eeprom_busy_until ? (uint8_t)(v | EEPE_BIT) : (uint8_t)(v & ~EEPE_BIT);
+}
+
 static void setup_board(board_t *b)
 {
     b->avr = avr_make_mcu_by_name("atmega328p");
@@ -219,6 +247,14 @@ static void setup_board(board_t *b)
     memset(b->eeprom, 0xFF, EEPROM_BYTES);
     eeprom_file(b, 0);
     twi_attach(b);
+    b->eecr_w.c = b->avr->io[AVR_DATA_TO_IO(R_EECR)].w.c;
+    b->eecr_w.param = b->avr->io[AVR_DATA_TO_IO(R_EECR)].w.param;
+    b->eecr_r.c = b->avr->io[AVR_DATA_TO_IO(R_EECR)].r.c;
+    b->eecr_r.param = b->avr->io[AVR_DATA_TO_IO(R_EECR)].r.param;
+    b->avr->io[AVR_DATA_TO_IO(R_EECR)].w.c = eecr_write;
+    b->avr->io[AVR_DATA_TO_IO(R_EECR)].w.param = b;
+    b->avr->io[AVR_DATA_TO_IO(R_EECR)].r.c = eecr_read;
+    b->avr->io[AVR_DATA_TO_IO(R_EECR)].r.param = b;
     if (b->index == 0) {
         uint32_t flags = 0;
         avr_ioctl(b->avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
@@ -324,10 +360,11 @@ static void print_stats(double wall_s)
         isr_stat_t *s = &b->isr[isr_vector_addr / 4];
         printf("%s{\"joint\": %d, \"powered\": %d, \"isr_count\": %llu, \"isr_worst_cycles\": %llu,"
                " \"isr_mean_cycles\": %.1f, \"motor_steps\": %lld, \"steps\": %llu,"
-               " \"blocked\": %llu, \"vectors\": {", i ? ", " : "", i + 1, b->powered,
+               " \"blocked\": %llu, \"pc\": %u, \"vectors\": {", i ? ", " : "", i + 1, b->powered,
                (unsigned long long)s->count, (unsigned long long)s->worst,
                s->count ? (double)s->total / s->count : 0.0, (long long)b->joint.motor_steps,
-               (unsigned long long)b->joint.steps, (unsigned long long)b->joint.blocked);
+               (unsigned long long)b->joint.steps, (unsigned long long)b->joint.blocked,
+               (unsigned)b->avr->pc);
         const char *sep = "";
         for (int v = 1; v < 26; v++) {
             if (b->isr[v].count) {

@@ -7,6 +7,7 @@
 
 #include <simavr/sim_avr.h>
 #include <simavr/sim_interrupts.h>
+#include <simavr/sim_io.h>
 
 #define N_BOARDS 4
 #define F_CPU_HZ 16000000u
@@ -57,7 +58,16 @@ typedef struct board_t {
     isr_stat_t isr[26];              /* per interrupt vector of the ATmega328P */
     int isr_depth;
     uint8_t isr_stack[4];
-    uint32_t stats_addr;             /* data address of fw_stats, 0 if unknown */
+    uint32_t stats_addr;
+    uint64_t eeprom_busy_until;      /* cycle: EEPE reads 1 until then */
+    struct {
+        avr_io_write_t c;
+        void *param;
+    } eecr_w;
+    struct {
+        avr_io_read_t c;
+        void *param;
+    } eecr_r;             /* data address of fw_stats, 0 if unknown */
 } board_t;
 
 /* The bus and the harness's global state */
