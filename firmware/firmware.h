@@ -29,6 +29,8 @@ struct fw_stats {
 };
 extern struct fw_stats fw_stats;
 
+extern volatile int32_t joint_counter;
+
 void joint_init(void);
 void joint_store_motion(void);
 uint8_t joint_recovering(void);

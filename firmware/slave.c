@@ -102,9 +102,19 @@ void role_setup(void)
 
 void role_loop(void)
 {
-    uint16_t t = joint_position_ticks();
+    static int32_t last = -1;
+    int32_t c;
     cli();
-    pos_ticks = t;
+    c = joint_counter;
+    sei();
+    if (c != last) {   /* the conversion only when the counter moved */
+        uint16_t t = joint_position_ticks();
+        last = c;
+        cli();
+        pos_ticks = t;
+        sei();
+    }
+    cli();
     if (!ref_pending || joint_recovering()) {
         sleep_enable();
         sei();

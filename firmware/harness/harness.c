@@ -310,6 +310,7 @@ static void run_board(board_t *b, uint64_t until)
         }
         int ending = b->isr_depth > 0 && is_reti(avr, pc);
         avr->run(avr);
+        b->instructions++;
         if (ending) {   /* RETI: the innermost interrupt's time, from its vector to here */
             isr_stat_t *s = &b->isr[b->isr_stack[--b->isr_depth]];
             uint64_t d = avr->cycle - s->start;
@@ -360,11 +361,12 @@ static void print_stats(double wall_s)
         isr_stat_t *s = &b->isr[isr_vector_addr / 4];
         printf("%s{\"joint\": %d, \"powered\": %d, \"isr_count\": %llu, \"isr_worst_cycles\": %llu,"
                " \"isr_mean_cycles\": %.1f, \"motor_steps\": %lld, \"steps\": %llu,"
-               " \"blocked\": %llu, \"pc\": %u, \"vectors\": {", i ? ", " : "", i + 1, b->powered,
+               " \"blocked\": %llu, \"pc\": %u, \"instructions\": %llu, \"vectors\": {",
+               i ? ", " : "", i + 1, b->powered,
                (unsigned long long)s->count, (unsigned long long)s->worst,
                s->count ? (double)s->total / s->count : 0.0, (long long)b->joint.motor_steps,
                (unsigned long long)b->joint.steps, (unsigned long long)b->joint.blocked,
-               (unsigned)b->avr->pc);
+               (unsigned)b->avr->pc, (unsigned long long)b->instructions);
         const char *sep = "";
         for (int v = 1; v < 26; v++) {
             if (b->isr[v].count) {

@@ -59,6 +59,7 @@ typedef struct board_t {
     int isr_depth;
     uint8_t isr_stack[4];
     uint32_t stats_addr;
+    uint64_t instructions;           /* executed (a busy core costs the harness its time) */
     uint64_t eeprom_busy_until;      /* cycle: EEPE reads 1 until then */
     struct {
         avr_io_write_t c;
