@@ -184,14 +184,21 @@ class Harness:
     @classmethod
     async def start(cls, robot: RobotSettings, firmware: str | Path | None = None, *,
                     speed: str = "realtime", eeprom_dir: Path | None = None,
-                    harness: Path | None = None, boot_ms: float = 100.0) -> Harness:
-        """Build if needed, start the harness on a new pty and wait until the cores run."""
+                    harness: Path | None = None, boot_ms: float = 100.0,
+                    control: Path | None = None) -> Harness:
+        """Build if needed, start the harness on a new pty and wait until the cores run.
+        ``control``: a FIFO (made if missing) that takes the same commands as the harness's
+        stdin, e.g. ``echo power off > FIFO`` from a bench's power commands."""
         images = find_images(firmware)
         exe = harness if harness is not None else build() / HARNESS_NAME
         args = ["--pty", "--speed", speed, "--boot-ms", str(boot_ms)]
         if eeprom_dir is not None:
             eeprom_dir.mkdir(parents=True, exist_ok=True)
             args += ["--eeprom-dir", str(eeprom_dir)]
+        if control is not None:
+            if not control.exists():
+                os.mkfifo(control)
+            args += ["--control", str(control)]
         for spec in board_specs(robot, images):
             args += ["--board", spec]
         proc = await asyncio.create_subprocess_exec(

@@ -1,11 +1,13 @@
 """``avr://`` — the firmware in the loop: four simulated ATmega328P (simavr) on a pty.
 
-``avr://?firmware=DIR&settings=robot.toml&eeprom=DIR``: starts the harness of
+``avr://?firmware=DIR&settings=robot.toml&eeprom=DIR&control=FIFO``: starts the harness of
 :mod:`armbench.fakes.avr` (built on first use) in real time on a new pty, and talks to joint 1's
 UART there as to a serial port. ``firmware`` names a folder of ``joint1..4.elf/.hex`` or a path
 with ``{n}`` (default: the reference firmware of ``firmware/``); ``eeprom`` a folder keeping the
-boards' EEPROM across runs (default: none, a new arm). The harness is ``transport.harness`` for
-its side channels: power cut and restore, the firmware's own timing figures.
+boards' EEPROM across runs (default: none, a new arm); ``control`` a FIFO taking the harness's
+commands, so a bench can switch the power with ``--power-command "sh -c 'echo power off >
+FIFO'" "sh -c 'echo power on > FIFO'"``. The harness is ``transport.harness`` for its side
+channels: power cut and restore, the firmware's own timing figures.
 """
 
 from __future__ import annotations
@@ -21,11 +23,11 @@ from armbench.fakes.avr import FirmwareError, Harness
 
 __all__ = ["AvrTransport", "parse_avr_url"]
 
-_KNOWN = {"firmware", "settings", "eeprom"}
+_KNOWN = {"firmware", "settings", "eeprom", "control"}
 
 
-def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None]:
-    """Robot settings, firmware and EEPROM folder named by an ``avr://`` URL's query."""
+def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None, Path | None]:
+    """Robot settings, firmware, EEPROM folder and control FIFO named by an ``avr://`` URL."""
     parts = urlsplit(port)
     if parts.scheme.lower() != "avr":
         raise TransportError(port, "not an avr:// port")
@@ -37,7 +39,8 @@ def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None]:
     robot = load_settings(query["settings"][-1]) if "settings" in query else RobotSettings()
     firmware = query["firmware"][-1] if "firmware" in query else None
     eeprom = Path(query["eeprom"][-1]) if "eeprom" in query else None
-    return robot, firmware, eeprom
+    control = Path(query["control"][-1]) if "control" in query else None
+    return robot, firmware, eeprom, control
 
 
 class AvrTransport(SerialTransport):
@@ -51,9 +54,10 @@ class AvrTransport(SerialTransport):
         """The running harness (None before :meth:`open` and after :meth:`close`)."""
 
     async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
-        robot, firmware, eeprom = parse_avr_url(self.port)
+        robot, firmware, eeprom, control = parse_avr_url(self.port)
         try:
-            self.harness = await Harness.start(robot, firmware, eeprom_dir=eeprom)
+            self.harness = await Harness.start(robot, firmware, eeprom_dir=eeprom,
+                                               control=control)
         except FirmwareError as exc:
             raise self._error(str(exc)) from exc
         device = self.port

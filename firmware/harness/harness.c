@@ -3,13 +3,15 @@
  *
  *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
  *                 [--send TEXT] [--script FILE] [--reply-log FILE] [--isr-vector N]
+ *                 [--control FIFO]
  *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
  *
  * FILE is an Intel hex or ELF image; LOWER/UPPER/HALL/MOTOR are microsteps (hard limits, Hall
  * position, start position); NUM/DEN encoder counts per microstep; STATS the data address of the
  * firmware's fw_stats (0: unknown). Joint 1's UART is served on a pty ("pty PATH" on stdout).
- * Commands on stdin, one per line: "power off", "power on", "stats" (prints "stats {json}"),
- * "quit". EEPROM contents survive a power cut and, with --eeprom-dir, the process.
+ * Commands on stdin (or --control FIFO), one per line: "power off", "power on", "stats" (prints
+ * "stats {json}"), "quit"; the end of stdin quits too unless --seconds is given. EEPROM
+ * contents survive a power cut and, with --eeprom-dir, the process.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -429,19 +431,54 @@ static int control(const char *line, double wall_s)
     return 1;
 }
 
-/* Read the pty and the control input without blocking; 0 when told to quit. */
+typedef struct line_reader_t {
+    int fd;
+    char line[256];
+    size_t len;
+} line_reader_t;
+
+static line_reader_t control_in = {0, {0}, 0}, control_fifo = {-1, {0}, 0};
+
+/* Run the complete command lines readable on `r`; 0 when told to quit or, for stdin, when the
+ * parent closed it (no orphan harness) unless the run has a --seconds limit. */
+static int read_commands(line_reader_t *r, double wall_s)
+{
+    char buf[256];
+    ssize_t n = read(r->fd, buf, sizeof buf);
+    if (n == 0 && r == &control_in && stop_after_s < 0) {
+        return 0;
+    }
+    for (ssize_t i = 0; i < n; i++) {
+        if (buf[i] == '\n' || r->len == sizeof r->line - 1) {
+            r->line[r->len] = 0;
+            r->len = 0;
+            if (!control(r->line, wall_s)) {
+                return 0;
+            }
+        } else {
+            r->line[r->len++] = buf[i];
+        }
+    }
+    return 1;
+}
+
+/* Read the pty and the control inputs without blocking; 0 when told to quit. */
 static int poll_io(double wall_s)
 {
-    static char line[256];
-    static size_t line_len;
     fd_set fds;
     FD_ZERO(&fds);
     FD_SET(0, &fds);
+    int top = 0;
     if (H.pty_fd >= 0) {
         FD_SET(H.pty_fd, &fds);
+        top = H.pty_fd > top ? H.pty_fd : top;
+    }
+    if (control_fifo.fd >= 0) {
+        FD_SET(control_fifo.fd, &fds);
+        top = control_fifo.fd > top ? control_fifo.fd : top;
     }
     struct timeval tv = {0, 0};
-    if (select((H.pty_fd > 0 ? H.pty_fd : 0) + 1, &fds, NULL, NULL, &tv) <= 0) {
+    if (select(top + 1, &fds, NULL, NULL, &tv) <= 0) {
         return 1;
     }
     if (H.pty_fd >= 0 && FD_ISSET(H.pty_fd, &fds)) {
@@ -455,24 +492,11 @@ static int poll_io(double wall_s)
             }
         }
     }
-    if (FD_ISSET(0, &fds)) {
-        char c;
-        while (read(0, &c, 1) == 1) {
-            if (c == '\n' || line_len == sizeof line - 1) {
-                line[line_len] = 0;
-                line_len = 0;
-                if (!control(line, wall_s)) {
-                    return 0;
-                }
-                break;
-            }
-            line[line_len++] = c;
-        }
-        if (c != '\n' && line_len == 0) {
-            return 1;
-        }
+    if (control_fifo.fd >= 0 && FD_ISSET(control_fifo.fd, &fds)
+        && !read_commands(&control_fifo, wall_s)) {
+        return 0;
     }
-    return 1;
+    return !FD_ISSET(0, &fds) || read_commands(&control_in, wall_s);
 }
 
 static void open_pty(void)
@@ -545,6 +569,12 @@ int main(int argc, char **argv)
                 H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
             }
             H.rx_next_at = boot_cycles + F_CPU_HZ / 1000;
+        } else if (strcmp(a, "--control") == 0 && v) {
+            /* a FIFO taking the same commands as stdin (e.g. a bench's power commands) */
+            control_fifo.fd = open(argv[++i], O_RDWR | O_NONBLOCK);   /* RDWR: no EOF churn */
+            if (control_fifo.fd < 0) {
+                die("cannot open the control FIFO", v);
+            }
         } else if (strcmp(a, "--script") == 0 && v) {
             load_script(argv[++i]);
         } else if (strcmp(a, "--reply-log") == 0 && v) {
