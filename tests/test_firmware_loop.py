@@ -119,3 +119,17 @@ def test_differential_check_against_the_emulator() -> None:
     assert result.compared > 1500
     assert result.excess_counts == (0.0, 0.0, 0.0, 0.0), result
     assert firmware[-1][1] == emulator[-1][1]
+
+
+async def test_power_switched_through_the_control_fifo(tmp_path: Path) -> None:
+    """``avr://?control=FIFO``: the commands a bench's --power-command runs reach the harness."""
+    fifo = tmp_path / "power"
+    transport = open_transport(f"avr://?control={fifo}")
+    assert isinstance(transport, AvrTransport)
+    async with transport:
+        assert len(await replies_for(transport, 0.3)) > 10
+        subprocess.run(["sh", "-c", f"echo power off > {fifo}"], check=True, timeout=10)
+        await replies_for(transport, 0.2)  # what was on its way
+        assert await replies_for(transport, 0.5) == []
+        subprocess.run(["sh", "-c", f"echo power on > {fifo}"], check=True, timeout=10)
+        assert len(await replies_for(transport, 1.0)) > 10  # booted after 0.1 s
