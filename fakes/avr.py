@@ -47,7 +47,8 @@ DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev gcc"
 _AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-std=gnu11", "-Wall",
                "-Wextra", "-Werror")
 _AVR_SOURCES = ("main.c", "joint.c", "master.c", "slave.c")
-_HARNESS_SOURCES = ("harness/harness.c", "harness/twi_bus.c", "harness/joint.c")
+_HARNESS_SOURCES = ("harness/harness.c", "harness/twi_bus.c", "harness/joint.c",
+                    "harness/uart.c")
 HARNESS_NAME = "armfw-harness"
 
 

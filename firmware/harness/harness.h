@@ -4,6 +4,7 @@
 #define ARMFW_HARNESS_H
 
 #include <stdint.h>
+#include <stdio.h>
 
 #include <simavr/sim_avr.h>
 #include <simavr/sim_interrupts.h>
@@ -86,6 +87,8 @@ typedef struct harness_t {
     /* I2C */
     uint64_t i2c_transactions, i2c_naks, i2c_start_at, i2c_min, i2c_max, i2c_sum;
     uint64_t cycle_limit;
+    uint64_t lag_drops;              /* real-time pacing gave up a lag of more than 50 ms */
+    unsigned isr_vector;             /* the control interrupt's vector (11: TIMER1_COMPA) */
 } harness_t;
 
 extern harness_t H;
@@ -94,6 +97,14 @@ void twi_attach(board_t *b);
 void twi_reset(board_t *b);
 void twi_service(uint64_t now);
 int twi_busy(void);
+
+extern FILE *reply_log;
+
+void load_script(const char *path);
+void script_due(void);
+void uart_out(struct avr_irq_t *irq, uint32_t value, void *param);
+void uart_in(void);
+void print_stats(double wall_s);
 
 void joint_attach(board_t *b);
 void joint_service(board_t *b, uint64_t now);
