@@ -15,6 +15,7 @@ from typing import Any
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError, load_settings
 from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.avr_serve import serve_firmware
 from armbench.fakes.faults import faults_from_settings, load_faults
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from armbench.fakes.settings import emulator_settings
@@ -40,6 +41,10 @@ def register(sub: Any) -> None:
     p.add_argument("--settings", metavar="FILE", help="robot settings TOML ([emulator] table too)")
     p.add_argument("--faults", metavar="FILE", help="fault list TOML ([[faults]] tables)")
     p.add_argument("--seed", type=int, default=None, help="seed of the emulator's randomness")
+    p.add_argument("--firmware", metavar="DIR|PATH", default=None,
+                   help="serve compiled firmware on four simulated ATmega328P instead (a folder "
+                        "of joint1..4.elf/.hex, a path with {n}, or '' for the reference "
+                        "firmware; docs/firmware.md)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--idle-timeout", type=float, default=300.0, metavar="S",
@@ -69,6 +74,11 @@ def _run(args: argparse.Namespace) -> int:
                                 f"can reach it could move the arm (add --allow-remote to mean it)")
         print(f"armbench emulate: WARNING: serving on {host_port[0]}, reachable from the network",
               file=sys.stderr, flush=True)
+    if args.firmware is not None:
+        if args.faults or args.seed is not None:
+            raise ArmbenchError("--firmware: --faults and --seed apply to the Python emulator")
+        asyncio.run(serve_firmware(robot, args.firmware, args, host_port))
+        return 0
     arm = ArmEmulator(robot, settings, faults)
     with asyncio.Runner(loop_factory=real_time_loop) as runner:
         runner.run(_serve(arm, args, host_port))

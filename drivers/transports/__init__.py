@@ -59,6 +59,7 @@ TRANSPORTS: dict[str, str] = {
     "rfc2217": "armbench.drivers.transports.rfc2217:Rfc2217Transport",
     "fake": "armbench.fakes.transport:FakeTransport",
     "labgrid": "armbench.drivers.transports.labgrid:LabgridTransport",
+    "avr": "armbench.fakes.avr_transport:AvrTransport",
 }
 
 #: Entry-point group under which distributions register transports by scheme.

@@ -1,0 +1,34 @@
+"""``armbench firmware build``: compile the reference firmware and the simavr harness."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from armbench.fakes.avr import FIRMWARE_SOURCE, build
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``firmware`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "firmware", help="build the firmware in the loop (AVR images and simavr harness)",
+        description="Build the paper's firmware for the ATmega328P (joint1..4.elf/.hex) and the "
+                    "simavr harness that runs four of them, with the system toolchain (Debian: "
+                    "gcc-avr avr-libc simavr libsimavr-dev).")
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    b = actions.add_parser("build", help="compile into a cache folder (printed)")
+    b.add_argument("--source", type=Path, default=FIRMWARE_SOURCE, metavar="DIR",
+                   help="firmware sources (default: the checkout's firmware/)")
+    b.add_argument("--out", type=Path, default=None, metavar="DIR",
+                   help="output folder (default: ~/.cache/armbench/firmware/<digest>)")
+    b.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    b.set_defaults(func=_build)
+
+
+def _build(args: argparse.Namespace) -> int:
+    out = build(args.source, args.out, force=args.force)
+    print(out)
+    return 0

@@ -1,0 +1,250 @@
+"""Firmware in the loop: build the reference firmware and the simavr harness, run them.
+
+``firmware/`` holds the paper's firmware as AVR C (one source, ``-DJOINT=1..4``) and
+``firmware/harness/`` a C program on libsimavr that runs four ATmega328P in lockstep with the I²C
+bus, joints, pty and power control (``docs/firmware.md``). This module is their Python side:
+:func:`build` compiles both with the system toolchain into a cache folder, :func:`find_images`
+names the four images a ``firmware=`` value points to, :func:`board_specs` turns the robot
+settings into the harness's joint arguments and :class:`Harness` runs the harness process and
+talks to its control channel (power, statistics).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import JointSettings, RobotSettings
+
+__all__ = [
+    "DEBIAN_PACKAGES",
+    "FIRMWARE_SOURCE",
+    "FirmwareError",
+    "Harness",
+    "board_specs",
+    "build",
+    "cache_dir",
+    "find_images",
+    "stats_address",
+]
+
+#: Where the firmware and harness sources live (the checkout's ``firmware/``).
+FIRMWARE_SOURCE = Path(__file__).resolve().parents[1] / "firmware"
+
+#: Debian packages of the toolchain, named in the error when one is missing.
+DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev gcc"
+
+_AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-std=gnu11", "-Wall",
+               "-Wextra", "-Werror")
+_AVR_SOURCES = ("main.c", "joint.c", "master.c", "slave.c")
+_HARNESS_SOURCES = ("harness/harness.c", "harness/twi_bus.c", "harness/joint.c",
+                    "harness/uart.c")
+HARNESS_NAME = "armfw-harness"
+
+
+class FirmwareError(ArmbenchError):
+    """The firmware or the harness cannot be built, found or started."""
+
+
+def cache_dir() -> Path:
+    """``$XDG_CACHE_HOME/armbench/firmware`` (``~/.cache/...``): build output, never the source."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "armbench" / "firmware"
+
+
+def _source_digest(src: Path) -> str:
+    h = hashlib.sha256()
+    for path in sorted(src.rglob("*")):
+        if path.suffix in (".c", ".h") and path.is_file():
+            h.update(str(path.relative_to(src)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _require_toolchain() -> None:
+    missing = [tool for tool in ("avr-gcc", "avr-objcopy", "avr-nm", "cc")
+               if shutil.which(tool) is None]
+    if not Path("/usr/include/simavr/sim_avr.h").exists() and not _has_simavr_headers():
+        missing.append("simavr headers (sim_avr.h)")
+    if missing:
+        raise FirmwareError(f"cannot build the firmware: {', '.join(missing)} not found; "
+                            f"install the Debian packages: apt-get install {DEBIAN_PACKAGES}")
+
+
+def _has_simavr_headers() -> bool:
+    return any(Path(p, "simavr", "sim_avr.h").exists()
+               for p in os.environ.get("CPATH", "").split(os.pathsep) if p)
+
+
+def _run(cmd: Sequence[str], cwd: Path) -> None:
+    proc = subprocess.run(list(cmd), cwd=cwd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise FirmwareError(f"build failed: {' '.join(cmd)}\n{proc.stderr.strip()}")
+
+
+def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
+          force: bool = False) -> Path:
+    """Compile the four firmware images (``jointN.elf``/``.hex``) and the harness into
+    ``out`` (default: a folder of :func:`cache_dir` named by the sources' digest); returns it.
+    An up-to-date build is reused unless ``force``."""
+    if not (source / "firmware.h").is_file():
+        raise FirmwareError(f"{source}: no firmware sources here (firmware.h missing)")
+    _require_toolchain()
+    out = out if out is not None else cache_dir() / _source_digest(source)
+    done = out / ".complete"
+    if done.exists() and not force:
+        return out
+    out.mkdir(parents=True, exist_ok=True)
+    for joint in range(1, 5):
+        elf = out / f"joint{joint}.elf"
+        _run(["avr-gcc", *_AVR_CFLAGS, f"-DJOINT={joint}", "-o", str(elf), *_AVR_SOURCES],
+             source)
+        _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", str(elf),
+              str(out / f"joint{joint}.hex")], source)
+    _run(["cc", "-O2", "-std=gnu11", "-Wall", "-Wextra", "-Werror", "-o",
+          str(out / HARNESS_NAME), *_HARNESS_SOURCES, "-lsimavr"], source)
+    done.write_text("ok\n")
+    return out
+
+
+def find_images(firmware: str | Path | None) -> list[Path]:
+    """The four images (joint 1..4) that ``firmware`` names: a folder holding ``jointN.elf`` or
+    ``jointN.hex`` (the build's layout), a path with ``{n}`` for the joint number, or None or
+    ``""`` for the reference firmware (built if needed)."""
+    if firmware is None or str(firmware) == "":
+        folder = build()
+        return [folder / f"joint{n}.elf" for n in range(1, 5)]
+    text = str(firmware)
+    if "{n}" in text:
+        images = [Path(text.replace("{n}", str(n))) for n in range(1, 5)]
+    else:
+        folder = Path(text)
+        if not folder.is_dir():
+            raise FirmwareError(f"firmware {text!r}: not a folder of joint1..4 images and no "
+                                "'{n}' in the name (e.g. build/joint{n}.hex)")
+        images = []
+        for n in range(1, 5):
+            found = [folder / f"joint{n}{ext}" for ext in (".elf", ".hex")
+                     if (folder / f"joint{n}{ext}").is_file()]
+            if not found:
+                raise FirmwareError(f"firmware {text!r}: no joint{n}.elf or joint{n}.hex in it")
+            images.append(found[0])
+    for image in images:
+        if not image.is_file():
+            raise FirmwareError(f"firmware image {str(image)!r} does not exist")
+        if image.suffix not in (".elf", ".hex"):
+            raise FirmwareError(f"firmware image {str(image)!r}: not a .elf or .hex file")
+    return images
+
+
+def stats_address(image: Path) -> int:
+    """Data address of the firmware's ``fw_stats`` (0 when unknown: a .hex or no such symbol)."""
+    if image.suffix != ".elf" or shutil.which("avr-nm") is None:
+        return 0
+    out = subprocess.run(["avr-nm", str(image)], capture_output=True, text=True,
+                         check=False).stdout
+    m = re.search(r"^([0-9a-fA-F]+) [bBdD] fw_stats$", out, re.MULTILINE)
+    return int(m.group(1), 16) & 0xFFFF if m else 0
+
+
+def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:
+    per_rad = joint.steps_per_rad
+    c = joint.counts_per_step
+    return [round(joint.lower_rad * per_rad), round(joint.upper_rad * per_rad),
+            round(joint.hall_rad * per_rad), c.numerator, c.denominator, motor_steps]
+
+
+def board_specs(robot: RobotSettings, images: Sequence[Path],
+                motor_steps: Sequence[int] = (0, 0, 0, 0)) -> list[str]:
+    """The harness's four ``--board`` values: image, limits, Hall, encoder ratio, start position
+    (microsteps, as ``fakes/joint.py`` rounds them) and the ``fw_stats`` address."""
+    specs = []
+    for joint, image, steps in zip(robot.joints, images, motor_steps, strict=True):
+        fields = [str(image), *map(str, _joint_spec(joint, steps)), hex(stats_address(image))]
+        specs.append(",".join(fields))
+    return specs
+
+
+@dataclass
+class Harness:
+    """One running harness process: joint 1's UART on :attr:`pty`, control on its stdin."""
+
+    process: asyncio.subprocess.Process
+    pty: str
+
+    @classmethod
+    async def start(cls, robot: RobotSettings, firmware: str | Path | None = None, *,
+                    speed: str = "realtime", eeprom_dir: Path | None = None,
+                    harness: Path | None = None, boot_ms: float = 100.0,
+                    control: Path | None = None) -> Harness:
+        """Build if needed, start the harness on a new pty and wait until the cores run.
+        ``control``: a FIFO (made if missing) that takes the same commands as the harness's
+        stdin, e.g. ``echo power off > FIFO`` from a bench's power commands."""
+        images = find_images(firmware)
+        exe = harness if harness is not None else build() / HARNESS_NAME
+        args = ["--pty", "--speed", speed, "--boot-ms", str(boot_ms)]
+        if eeprom_dir is not None:
+            eeprom_dir.mkdir(parents=True, exist_ok=True)
+            args += ["--eeprom-dir", str(eeprom_dir)]
+        if control is not None:
+            if not control.exists():
+                os.mkfifo(control)
+            args += ["--control", str(control)]
+        for spec in board_specs(robot, images):
+            args += ["--board", spec]
+        proc = await asyncio.create_subprocess_exec(
+            str(exe), *args, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE)
+        assert proc.stdout is not None
+        pty = ""
+        while True:
+            line = (await proc.stdout.readline()).decode()
+            if not line:
+                await proc.wait()
+                raise FirmwareError(f"harness exited with status {proc.returncode} at start-up")
+            if line.startswith("pty "):
+                pty = line[4:].strip()
+            elif line.startswith("ready"):
+                return cls(proc, pty)
+
+    async def command(self, line: str) -> None:
+        """Send one control line (``power off``, ``power on``)."""
+        assert self.process.stdin is not None
+        self.process.stdin.write(line.encode() + b"\n")
+        await self.process.stdin.drain()
+
+    async def stats(self) -> dict[str, Any]:
+        """The harness's figures now (``docs/firmware.md``: ISR cycles, periods, I²C times)."""
+        await self.command("stats")
+        assert self.process.stdout is not None
+        while True:
+            line = (await self.process.stdout.readline()).decode()
+            if not line:
+                raise FirmwareError("harness exited")
+            if line.startswith("stats "):
+                result: dict[str, Any] = json.loads(line[6:])
+                return result
+
+    async def power(self, on: bool) -> None:
+        """Cut or restore the power of all four boards (EEPROM and motor positions survive)."""
+        await self.command("power on" if on else "power off")
+
+    async def stop(self) -> None:
+        """Quit the harness (its EEPROM files are written) and wait for it."""
+        if self.process.returncode is None:
+            try:
+                await self.command("quit")
+                async with asyncio.timeout(5.0):
+                    await self.process.wait()
+            except (TimeoutError, BrokenPipeError, ConnectionResetError):
+                self.process.kill()
+                await self.process.wait()

@@ -1,0 +1,133 @@
+"""Differential check: one command script on the Python emulator and on the compiled firmware.
+
+Both start powered at t = 0 and get the same command frames at the same simulated times: the
+emulator on a virtual-time loop, the firmware in the harness at full speed (``--script``,
+``--reply-log``), so neither side sees wall-clock noise. Each firmware reply is then checked
+against the emulator's replies within ``window_s`` (one loop period) of it: per joint the
+firmware's position must lie within the emulator's over that window, widened by ``tol_counts``
+encoder counts. :func:`compare` gives the worst excess per joint.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.avr import HARNESS_NAME, board_specs, build, find_images
+from armbench.fakes.settings import emulator_settings
+from armbench.fakes.vclock import run_virtual
+
+__all__ = ["DEFAULT_SCRIPT", "DiffResult", "compare", "run_emulator", "run_firmware"]
+
+Timed = list[tuple[float, Reply]]
+TICKS_TURN = 62832
+TICKS_HALF_TURN = TICKS_TURN // 2
+
+#: Moves at full, middle and low duty, a reversal and a hold: (time s, angles rad, duty).
+DEFAULT_SCRIPT: tuple[tuple[float, tuple[float, float, float, float], int], ...] = (
+    (0.30, (0.30, 0.20, -0.25, 0.40), 99),
+    (1.20, (-0.10, 0.35, 0.10, 0.20), 60),
+    (2.40, (0.05, 0.10, -0.05, 0.30), 20),
+    (3.60, (0.05, 0.10, -0.05, 0.30), 0),
+)
+
+
+def _frames(script: Sequence[tuple[float, Sequence[float], int]]) -> list[tuple[float, bytes]]:
+    return [(t, Command.from_rad(list(q), duty).encode()) for t, q, duty in script]
+
+
+def run_emulator(script: Sequence[tuple[float, Sequence[float], int]], until_s: float,
+                 robot: RobotSettings | None = None) -> Timed:
+    """The emulator's replies (time of their last byte, reply) for the script."""
+    robot = robot if robot is not None else RobotSettings()
+
+    async def main() -> Timed:
+        loop = asyncio.get_running_loop()
+        framer = Framer("reply")
+        out: Timed = []
+        arm = ArmEmulator(robot, emulator_settings(robot))
+        arm.attach_host(lambda data: out.extend(
+            (loop.time(), r) for r in framer.feed(data) if isinstance(r, Reply)))
+        await arm.start()
+        t0 = loop.time()
+        for t, frame in _frames(script):
+            await asyncio.sleep(t0 + t - loop.time())
+            arm.host_write(frame)
+        await asyncio.sleep(t0 + until_s - loop.time())
+        await arm.close()
+        return [(t - t0, r) for t, r in out]
+
+    return run_virtual(main)
+
+
+def run_firmware(script: Sequence[tuple[float, Sequence[float], int]], until_s: float,
+                 robot: RobotSettings | None = None, firmware: str | None = None) -> Timed:
+    """The firmware's replies (time its '#' was written, reply) for the script, from the
+    harness at full speed."""
+    robot = robot if robot is not None else RobotSettings()
+    exe = build() / HARNESS_NAME
+    with tempfile.TemporaryDirectory() as tmp:
+        script_file, log_file = Path(tmp, "script.txt"), Path(tmp, "replies.txt")
+        script_file.write_text("".join(f"{t:.6f} {frame.decode()}\n"
+                                       for t, frame in _frames(script)))
+        args = [str(exe), "--speed", "max", "--seconds", str(until_s), "--script",
+                str(script_file), "--reply-log", str(log_file)]
+        for spec in board_specs(robot, find_images(firmware)):
+            args += ["--board", spec]
+        subprocess.run(args, stdin=subprocess.DEVNULL, capture_output=True, check=True,
+                       timeout=600)
+        framer = Framer("reply")
+        out: Timed = []
+        for line in log_file.read_text().splitlines():
+            t, _, text = line.partition(" ")
+            out.extend((float(t), r) for r in framer.feed(text.encode()) if isinstance(r, Reply))
+        return out
+
+
+@dataclass(frozen=True)
+class DiffResult:
+    """Worst disagreement per joint, in encoder counts beyond the emulator's range over the
+    window, with the time it happened; and how many firmware replies were compared."""
+
+    excess_counts: tuple[float, float, float, float]
+    at_s: tuple[float, float, float, float]
+    compared: int
+
+
+def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None,
+            window_s: float = 3.2e-3, tol_counts: float = 0.0) -> DiffResult:
+    """Check each firmware reply against the emulator's within ``window_s`` of it."""
+    robot = robot if robot is not None else RobotSettings()
+    per_tick = [j.counts_per_rad / 1e4 for j in robot.joints]  # counts per wire tick
+    lo_i = 0
+    worst = [0.0] * 4
+    at = [0.0] * 4
+    compared = 0
+    for t, reply in firmware:
+        while lo_i < len(emulator) and emulator[lo_i][0] < t - window_s:
+            lo_i += 1
+        window = []
+        k = lo_i
+        while k < len(emulator) and emulator[k][0] <= t + window_s:
+            window.append(emulator[k][1])
+            k += 1
+        if not window:
+            continue
+        compared += 1
+        for j in range(4):
+            v = reply[j]   # compared on the circle: 62832 and 0 are neighbours
+            values = [v + (r[j] - v + TICKS_HALF_TURN) % TICKS_TURN - TICKS_HALF_TURN
+                      for r in window]
+            excess_ticks = max(min(values) - v, v - max(values), 0)
+            excess = excess_ticks * per_tick[j] - tol_counts
+            if excess > worst[j]:
+                worst[j], at[j] = excess, t
+    return DiffResult((worst[0], worst[1], worst[2], worst[3]), (at[0], at[1], at[2], at[3]),
+                      compared)

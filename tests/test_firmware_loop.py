@@ -1,0 +1,135 @@
+"""The firmware in the loop as the bench uses it: the ``avr://`` port in real time, power cut and
+start-up recovery (§5.2) across the harness's EEPROM, ``armbench emulate --firmware`` on TCP, and
+the differential check against the Python emulator. Real toolchain, real harness, real pty and
+socket; skipped only where avr-gcc/simavr are absent."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from test_firmware import needs_toolchain
+
+from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.drivers.transports import open_transport
+from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
+from armbench.fakes.avr_transport import AvrTransport
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = [needs_toolchain, pytest.mark.slow]
+
+
+async def replies_for(transport: AvrTransport, seconds: float) -> list[Reply]:
+    framer = Framer("reply")
+    out: list[Reply] = []
+    loop = asyncio.get_running_loop()
+    end = loop.time() + seconds
+    while loop.time() < end:
+        try:
+            async with asyncio.timeout(end - loop.time()):
+                data = await transport.read()
+        except TimeoutError:
+            break
+        out.extend(r for r in framer.feed(data) if isinstance(r, Reply))
+    return out
+
+
+async def test_avr_port_serves_the_firmware_in_real_time() -> None:
+    transport = open_transport("avr://")
+    assert isinstance(transport, AvrTransport)
+    async with transport:
+        await transport.write(Command.from_rad([0.05, -0.05, 0.05, -0.05], 99).encode())
+        replies = await replies_for(transport, 1.5)
+        assert transport.harness is not None
+        stats = await transport.harness.stats()
+    assert len(replies) > 100
+    assert all(min(abs(t - w), 62832 - abs(t - w)) <= 2  # deadband: 1 count
+               for t, w in zip(replies[-1], (500, 62332, 500, 62332), strict=True))
+    assert stats["uart"]["replies"] >= len(replies)
+    assert transport.harness is None  # closed with the transport
+
+
+async def test_power_cut_while_moving_recovers_at_the_hall(tmp_path: Path) -> None:
+    """§5.2: cut during a move, the EEPROM says 'moving CW'; at power-up each joint drives CCW
+    to its Hall sensor (0 rad) and the counter restarts there. The EEPROM kept in --eeprom-dir
+    survives the harness process too."""
+    transport = open_transport(f"avr://?eeprom={tmp_path}")
+    assert isinstance(transport, AvrTransport)
+    async with transport:
+        harness = transport.harness
+        assert harness is not None
+        await transport.write(Command.from_rad([0.6, 0.6, 0.6, 0.6], 99).encode())
+        moving = await replies_for(transport, 0.3)
+        assert moving[-1][0] > 500
+        await harness.power(False)
+        await asyncio.sleep(0.1)
+        await harness.power(True)
+        after: list[Reply] = []
+        for _ in range(30):  # recovery takes ~2 s of simulated time; a busy machine slows it
+            after += await replies_for(transport, 0.5)
+            if after and after[-1] == Reply(0, 0, 0, 0) and (await harness.stats())[
+                    "boards"][3]["motor_steps"] == 0:
+                break
+        stats = await harness.stats()
+    assert after[-1] == Reply(0, 0, 0, 0)
+    for board in stats["boards"]:
+        assert board["motor_steps"] == 0  # stopped on the Hall step
+    assert (tmp_path / "joint1.eep").read_bytes()[:5] == bytes((0, 0, 0, 0, 0))
+
+
+def test_emulate_firmware_on_tcp() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armbench", "emulate", "--firmware", "", "--tcp", "127.0.0.1:0"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        m = re.search(r"socket://([\d.]+):(\d+)", line)
+        assert m, line
+        with socket.create_connection((m.group(1), int(m.group(2))), timeout=5) as sock:
+            sock.sendall(Command.from_rad([0.01, 0.0, 0.0, 0.0], 99).encode())
+            time.sleep(1.0)
+            data = sock.recv(1 << 20)
+        framer = Framer("reply")
+        replies = [r for r in framer.feed(data) if isinstance(r, Reply)]
+        assert len(replies) > 100
+        assert abs(replies[-1][0] - 100) <= 2 and replies[-1][1:] == (0, 0, 0)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=20)
+    assert "stopped after" in out
+
+
+def test_differential_check_against_the_emulator() -> None:
+    """The same script on the emulator and on the firmware: every firmware reply lies within the
+    emulator's replies of the surrounding 6.5 ms (one loop period, 3.2 ms, plus one EEPROM byte
+    write, 3.3 ms: the emulator stalls for the last byte's write too, see docs/firmware.md),
+    widened by 10 counts; at rest they agree exactly."""
+    firmware = run_firmware(DEFAULT_SCRIPT, 5.0)
+    emulator = run_emulator(DEFAULT_SCRIPT, 5.0)
+    result = compare(firmware, emulator, window_s=6.5e-3, tol_counts=10.0)
+    assert result.compared > 1500
+    assert result.excess_counts == (0.0, 0.0, 0.0, 0.0), result
+    assert firmware[-1][1] == emulator[-1][1]
+
+
+async def test_power_switched_through_the_control_fifo(tmp_path: Path) -> None:
+    """``avr://?control=FIFO``: the commands a bench's --power-command runs reach the harness."""
+    fifo = tmp_path / "power"
+    transport = open_transport(f"avr://?control={fifo}")
+    assert isinstance(transport, AvrTransport)
+    async with transport:
+        assert len(await replies_for(transport, 0.3)) > 10
+        subprocess.run(["sh", "-c", f"echo power off > {fifo}"], check=True, timeout=10)
+        await replies_for(transport, 0.2)  # what was on its way
+        assert await replies_for(transport, 0.5) == []
+        subprocess.run(["sh", "-c", f"echo power on > {fifo}"], check=True, timeout=10)
+        assert len(await replies_for(transport, 1.0)) > 10  # booted after 0.1 s
