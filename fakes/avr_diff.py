@@ -21,7 +21,7 @@ from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.avr import HARNESS_NAME, board_specs, build, find_images
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.vclock import run_virtual
 
 __all__ = ["DEFAULT_SCRIPT", "DiffResult", "compare", "run_emulator", "run_firmware"]
@@ -45,8 +45,10 @@ def _frames(script: Sequence[tuple[float, Sequence[float], int]]) -> list[tuple[
 
 def run_emulator(script: Sequence[tuple[float, Sequence[float], int]], until_s: float,
                  robot: RobotSettings | None = None) -> Timed:
-    """The emulator's replies (time of their last byte, reply) for the script."""
-    robot = robot if robot is not None else RobotSettings()
+    """The emulator's replies (time of their last byte, reply) for the script; by default the
+    ``ideal`` profile (the firmware model alone: the harness's joints have no physics)."""
+    robot = robot if robot is not None else with_emulator_overrides(RobotSettings(),
+                                                                    profile="ideal")
 
     async def main() -> Timed:
         loop = asyncio.get_running_loop()
