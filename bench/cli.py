@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.i2c",
     "armbench.bench.commands.report",
     "armbench.bench.commands.compare",
+    "armbench.bench.commands.calibrate",
 )
 
 
