@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.report",
     "armbench.bench.commands.compare",
     "armbench.bench.commands.calibrate",
+    "armbench.bench.commands.twin_check",
 )
 
 

@@ -54,6 +54,9 @@ SIGMA_FLOOR_RAD: Final = 1e-7
 #: Relative standard error of the needed torque the pull-out fit divides by (the gravity torque is
 #: taken at the reported angle, which differs from the link's by the play and the Hall error).
 PULLOUT_MODEL_REL: Final = 0.01
+#: A parameter only bounded from below by the data is set this far above its bound when the prior
+#: lies below it: the twin then does not lose steps where the arm lost none.
+BOUND_MARGIN: Final = 1.2
 #: A speed run counts as lossy below this ratio of effective to commanded speed.
 LOSSY_RATIO: Final = 0.995
 _KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
@@ -381,10 +384,16 @@ def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
             estimates.append(ratio * factor)
             weights.append(1.0 / (sd * factor) ** 2)
         if len(estimates) < 1:
-            low = max(bounds) if bounds else None
-            why = ("no speed runs" if low is None else
-                   f"no steps lost at any duty: pull-out ≥ {low:.3g} N·m")
-            out.append(Fitted(key, p.pullout_nm, None, "N·m", False, why, p.pullout_nm))
+            if not bounds:
+                out.append(Fitted(key, p.pullout_nm, None, "N·m", False, "no speed runs",
+                                  p.pullout_nm))
+                continue
+            low = max(bounds)
+            value = max(p.pullout_nm, BOUND_MARGIN * low)
+            out.append(Fitted(key, value, None, "N·m", False,
+                              f"no steps lost at any duty: pull-out ≥ {low:.3g} N·m; set to "
+                              f"the larger of the prior and {BOUND_MARGIN:g} × that bound",
+                              p.pullout_nm, low))
             continue
         e, w = np.asarray(estimates), np.asarray(weights)
         mean = float((e * w).sum() / w.sum())

@@ -151,8 +151,9 @@ class Fitted:
 
     ``key``: its dotted path in the settings file (``emulator.physics.j2.backlash_deg``);
     ``value`` and ``sigma`` (one standard error) in ``unit``; ``identified``: whether the data
-    determined it (else ``value`` is the prior kept, and ``reason`` says why); ``evidence``: what
-    determined it.
+    determined it (else ``value`` is the prior kept, and ``reason`` says why); ``reason`` also
+    says what determined it. ``lower_bound``: what the data do say about a parameter they did not
+    determine (``value`` is then raised to be consistent with it, and written).
     """
 
     key: str
@@ -162,6 +163,12 @@ class Fitted:
     identified: bool
     reason: str
     prior: float | None = None
+    lower_bound: float | None = None
+
+    @property
+    def written(self) -> bool:
+        """Whether the settings file gets this value (identified, or raised to a bound)."""
+        return self.identified or self.lower_bound is not None
 
     def covers(self, truth: float, k: float = 2.0) -> bool:
         """Whether ``truth`` lies within ``k`` standard errors of the value (2: 95 %)."""

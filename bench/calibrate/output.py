@@ -64,7 +64,7 @@ def apply_fit(base: RobotSettings, fitted: Sequence[Fitted]) -> RobotSettings:
     emulator = data.setdefault("emulator", {})
     emulator["profile"] = "physical"
     for f in fitted:
-        if not (f.identified and f.key.startswith("emulator.")):
+        if not (f.written and f.key.startswith("emulator.")):
             continue
         parts = f.key.split(".")
         table = data
@@ -92,7 +92,7 @@ def _toml_value(value: Any) -> str:
             return "nan"
         if math.isinf(value):
             return "inf" if value > 0 else "-inf"
-        return repr(value)
+        return repr(float(value))
     if isinstance(value, str):
         return json.dumps(value)
     if isinstance(value, Mapping):
@@ -129,6 +129,8 @@ def toml_text(data: Mapping[str, Any], comments: Mapping[str, str] | None = None
 def _sigma_text(f: Fitted) -> str:
     if f.identified and f.sigma is not None:
         return f"fitted: ± {f.sigma:.3g} {f.unit} (1 σ); {f.reason}"
+    if f.lower_bound is not None:
+        return f"bounded: {f.reason}"
     return f"kept: {f.reason}"
 
 
