@@ -131,7 +131,7 @@ def observations_from_capture(data: CaptureData, settings: RobotSettings) -> Obs
         if len(window) == 0:
             continue
         moved = np.any(window != start, axis=1)
-        at_rest = i0 >= 3 and bool(np.all(q[i0 - 3:i0] == start))
+        at_rest = i0 >= 2 and bool(np.all(q[i0 - 2:i0] == start))
         if at_rest and moved.any():
             obs.latency_s.append(float(t[i0 + int(np.argmax(moved))] - tc))
         for j, spec in enumerate(settings.joints):

@@ -145,6 +145,9 @@ def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
               "See docs/calibration.md and the .html page beside this file.")
     if result.error:
         header += f"\nPARTIAL: {result.error}"
+    for f in result.fitted:
+        if not f.written and not f.key.startswith("timing."):
+            header += f"\nkept: {f.key} = {f.value:.6g} {f.unit} ({f.reason})"
     timing = [f for f in result.fitted if f.key.startswith("timing.") and f.identified]
     for f in timing:
         header += f"\n{f.key} = {f.value:.6g} {f.unit} ± {f.sigma:.2g} (measured)"
