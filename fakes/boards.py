@@ -83,7 +83,6 @@ class Board:
         """The arm's physics (gravity, deflection, play side); None: the ideal mechanism."""
         self.stalled = False
         self._counts_per_rad = joint.counts_per_rad
-        self._steps_per_rad = joint.steps_per_rad
 
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
@@ -120,10 +119,9 @@ class Board:
         there, the truth and the belief beside the report are recorded; wire ticks."""
         model = self.model
         assert model is not None
-        counter, self.last_truth_rad = model.sample(
+        counter, self.last_truth_rad, self.last_motor_rad = model.sample(
             round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
-        self.last_motor_rad = model.motor_steps / self._steps_per_rad
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)  # rad_to_ticks(q), inline: hot
 
     def true_rad(self) -> float:
@@ -315,10 +313,9 @@ class SlaveBoard(Board):
         self._pointer = REG_POSITION
         model = self.model
         assert model is not None
-        counter, self.last_truth_rad = model.sample(
+        counter, self.last_truth_rad, self.last_motor_rad = model.sample(
             round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
-        self.last_motor_rad = model.motor_steps / self._steps_per_rad
         if model.transitions:
             self.store_transitions()
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
@@ -461,7 +458,7 @@ class MasterBoard(Board):
         framer = self.framer
         model = self.model
         assert model is not None
-        t0, counts_per_rad, steps_per_rad = self.t0, self._counts_per_rad, self._steps_per_rad
+        t0, counts_per_rad = self.t0, self._counts_per_rad
         mechanism = self.mechanism
         s2, s3, s4 = slaves
         rdwr, read_available, write = bus.i2c_rdwr, uart.read_available, uart.write
@@ -536,9 +533,9 @@ class MasterBoard(Board):
                     positions[k] = view[0] | view[1] << 8
             # Update current pose of joint 1 (sample_position, inline: hot)
             now = clock.now
-            counter, self.last_truth_rad = model.sample(round((now - t0) * 1e9) // NS_PER_CYCLE)
+            counter, self.last_truth_rad, self.last_motor_rad = model.sample(
+                round((now - t0) * 1e9) // NS_PER_CYCLE)
             self.last_firmware_rad = q = counter / counts_per_rad
-            self.last_motor_rad = model.motor_steps / steps_per_rad
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
                 now += self.store_transitions() * eeprom_s

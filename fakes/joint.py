@@ -383,10 +383,10 @@ class JointModel:
             raise ValueError(f"tick {tick} is before the model's time {self._now}")
         self.sample(tick)
 
-    def sample(self, tick: int) -> tuple[int, float]:
-        """The counter and :meth:`true_angle_rad` at ``tick``, or at the model's time if that is
-        later (never backwards): a board's position report and the truth beside it, advancing
-        and reading in one call (the boards make four per main loop)."""
+    def sample(self, tick: int) -> tuple[int, float, float]:
+        """The counter, :meth:`true_angle_rad` and the motor angle (rad) at ``tick``, or at the
+        model's time if that is later (never backwards): a board's position report and the truth
+        beside it, advancing and reading in one call (the boards make four per main loop)."""
         if tick > self._now:
             run = self._run
             if self._idle:
@@ -429,8 +429,9 @@ class JointModel:
             else:
                 self._run_until(tick, probe=False)
         s = self._s
-        return (self._offset + s * self._num // self._den,
-                (s - self._gap - self._stick) / self._steps_per_rad)
+        spr = self._steps_per_rad
+        return (self._offset + s * self._num // self._den, (s - self._gap - self._stick) / spr,
+                s / spr)
 
     def set_reference(self, tick: int, target_counts: int, duty: int) -> None:
         """New position (encoder counts) and velocity (duty 0..99) reference from tick on.

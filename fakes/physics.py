@@ -167,10 +167,10 @@ DEFAULT_JOINT_PHYSICS: Final = (
                  pullout_nm=1.9, friction_nm=0.05, inertia_kgm2=3.0e-4, stick_rad=_deg(0.03),
                  offset_error_rad=_deg(0.05), hall_error_rad=_deg(0.02)),
     JointPhysics(mass_kg=4.5, com_fraction=0.55, stiffness_nm_per_rad=6000.0,
-                 backlash_rad=_deg(0.25), pullout_nm=1.3, friction_nm=0.05, inertia_kgm2=4.8e-4,
+                 backlash_rad=_deg(0.25), pullout_nm=1.5, friction_nm=0.05, inertia_kgm2=4.8e-4,
                  stick_rad=_deg(0.03), offset_error_rad=_deg(-0.15), hall_error_rad=_deg(-0.03)),
     JointPhysics(mass_kg=3.0, com_fraction=0.5, stiffness_nm_per_rad=4000.0,
-                 backlash_rad=_deg(0.3), pullout_nm=0.8, friction_nm=0.04, inertia_kgm2=2.5e-4,
+                 backlash_rad=_deg(0.3), pullout_nm=1.2, friction_nm=0.04, inertia_kgm2=2.5e-4,
                  stick_rad=_deg(0.03), offset_error_rad=_deg(0.2), hall_error_rad=_deg(0.025)),
     JointPhysics(mass_kg=0.5, com_fraction=0.5, stiffness_nm_per_rad=1500.0,
                  backlash_rad=_deg(0.4), pullout_nm=0.5, friction_nm=0.02, inertia_kgm2=1.0e-4,
@@ -215,7 +215,7 @@ class ArmPhysics:
 
     joints: tuple[JointPhysics, ...] = DEFAULT_JOINT_PHYSICS
     payload_kg: float = 0.0
-    noise_per_count: float = 2e-5
+    noise_per_count: float = 5e-5
     gravity_m_s2: float = 9.80665
     geometry_error: GeometryError = field(default_factory=lambda: GeometryError(
         d1_m=0.0006, d2_m=-0.0003, a2_m=0.0008, a3_m=-0.0005))
@@ -317,6 +317,15 @@ class Mechanism:
         self._payload_n = physics.payload_kg * g
         self._com = [p.com_fraction for p in physics.joints]
         self._k = [p.stiffness_nm_per_rad for p in physics.joints]
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when it models the same arm (truth samples compare by value)."""
+        if not isinstance(other, Mechanism):
+            return NotImplemented
+        return self.physics == other.physics and self.actual == other.actual
+
+    def __hash__(self) -> int:
+        return hash(self.physics)
 
     def gravity_nm(self, q_rad: Sequence[float]) -> list[float]:
         """Gravity torque (N·m) on each joint at protocol angles ``q_rad``, positive pushing

@@ -192,7 +192,7 @@ def tcp_emulator(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EmulatorP
 def link(request: pytest.FixtureRequest, tmp_path: Path) -> Link:
     kind: str = request.param
     if kind == "fake":
-        return Link("fake", "fake://", tmp=tmp_path)
+        return Link("fake", "fake://?profile=ideal", tmp=tmp_path)  # exact: truth = encoder
     emu: EmulatorProcess = request.getfixturevalue(f"{kind}_emulator")
     return Link(kind, emu.port, emu, tmp=tmp_path)
 
@@ -201,7 +201,7 @@ def fake_with_faults(tmp_path: Path, toml: str, name: str = "faults.toml") -> st
     """A ``fake://`` port whose emulator runs the fault list ``toml``."""
     path = tmp_path / name
     path.write_text(toml)
-    return f"fake://?faults={path}&seed=7"
+    return f"fake://?faults={path}&seed=7&profile=ideal"
 
 
 async def home(arm: Arm) -> JointState:

@@ -63,6 +63,7 @@ def emulate(body: Callable[[ArmEmulator, Host], Awaitable[Any]], **kwargs: Any) 
     """Run ``body(arm, host)`` on virtual time with a started emulator, once it has booted and
     replied (as a driver connects), unless ``ready=False``."""
     ready = kwargs.pop("ready", True)
+    kwargs.setdefault("profile", "ideal")  # the firmware's exact behaviour; physics: test_physics
     faults = kwargs.pop("faults", ())
     initial = kwargs.pop("initial_q_rad", None)
     robot = kwargs.pop("robot", ROBOT)
@@ -584,6 +585,7 @@ def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
     (7, {"uart_receive": "blocking"}),
     (6, {"effects": {"miss_probability": 0.05, "miss_above_duty": 40, "backlash_rad": 0.003,
                      "noise_rate_hz": 20.0}}),
+    (8, {"profile": "physical", "physics": {"payload_kg": 2.0}}),
 ])
 def test_fused_bus_loops_are_the_bus_loops(seed: int, settings: dict[str, Any]) -> None:
     """``emulator.fused_bus`` runs a steady loop's six transactions as their known outcome: the

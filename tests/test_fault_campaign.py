@@ -306,7 +306,7 @@ def _counter(arm: Arm, name: str) -> int:
 
 @pytest.mark.parametrize("case", DRIVER_CASES, ids=[c.name for c in DRIVER_CASES])
 def test_driver_under_fault(case: DriverCase, tmp_path: Path) -> None:
-    port = f"fake://?faults={faults_file(tmp_path, case.faults)}&seed=11"
+    port = f"fake://?faults={faults_file(tmp_path, case.faults)}&seed=11&profile=ideal"
 
     async def body() -> str:
         loop = asyncio.get_running_loop()

@@ -86,7 +86,7 @@ def user_tests(pytester: pytest.Pytester) -> pytest.Pytester:
 
 def test_user_bench_tests_land_in_the_record(user_tests: pytest.Pytester) -> None:
     out = user_tests.path / "record"
-    result = user_tests.runpytest(*plugin(), "--arm-port", "fake://",
+    result = user_tests.runpytest(*plugin(), "--arm-port", "fake://?profile=ideal",
                                   "--arm-record", str(out))
     result.assert_outcomes(passed=3, failed=3, skipped=1)
     result.stdout.fnmatch_lines(["*lab.j1.error_mrad2 = * mrad (limit <= 1 mrad)*"])
@@ -138,7 +138,8 @@ def test_user_bench_tests_land_in_the_record(user_tests: pytest.Pytester) -> Non
 
 
 def test_without_a_record_measurements_still_fail_tests(user_tests: pytest.Pytester) -> None:
-    result = user_tests.runpytest(*plugin(), "-k", "strict or target")
+    result = user_tests.runpytest(*plugin(), "--arm-port", "fake://?profile=ideal", "-k",
+                                  "strict or target")
     result.assert_outcomes(passed=1, failed=1)
     assert not (user_tests.path / "results.json").exists()
 

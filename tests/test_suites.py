@@ -77,13 +77,14 @@ async def _run(suite: Suite, params: Mapping[str, Any], arm: Arm, *, truth: bool
 
 
 def run_fake(suite: Suite, overrides: Mapping[str, Any], *, truth: bool = True,
-             power: bool = True) -> tuple[list[Trial], dict[str, Measurement], float]:
+             power: bool = True,
+             port: str = "fake://") -> tuple[list[Trial], dict[str, Measurement], float]:
     """Run ``suite`` with its defaults overridden by ``overrides`` on ``fake://`` (virtual time);
     returns the trials, the suite-level measurements by name and the robot time (s)."""
     params = suite.params(SETTINGS, overrides)
 
     async def main() -> tuple[list[Trial], list[Measurement], float]:
-        async with asyncio.timeout(ROBOT_S), Arm.connect("fake://") as arm:
+        async with asyncio.timeout(ROBOT_S), Arm.connect(port) as arm:
             return await _run(suite, params, arm, truth=truth, power=power)
 
     trials, ms, robot_s = run_virtual(main())
@@ -188,7 +189,7 @@ def test_an_unmeasurable_trial_is_an_error_not_a_crash() -> None:
 
 @pytest.fixture(scope="module")
 def accuracy_run() -> tuple[list[Trial], dict[str, Measurement], float]:
-    return run_fake(AccuracySuite(), {"laps": 1})
+    return run_fake(AccuracySuite(), {"laps": 1}, port="fake://?profile=ideal")  # exact truth
 
 
 def test_accuracy_coordinated_beats_the_paper_style(
