@@ -30,7 +30,7 @@ from armbench.bench.calibrate.model import Approach
 from armbench.bench.cli import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.physics import ArmPhysics
+from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics
 from armbench.fakes.vclock import run_virtual
 from tests.hidden_arms import check_recovery, draw_hidden, write_hidden
 
@@ -194,14 +194,14 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_calibrate_from_capture(capture: Path, tmp_path: Path) -> None:
     """The traffic shows the reply period, the latency and the speeds: joint 2 lifting at full
-    duty loses steps, so its pull-out torque is fitted (default arm: 1.3 N·m)."""
+    duty loses steps, so its pull-out torque is fitted (to the default arm's)."""
     result = calibrate_capture(capture, RobotSettings(), tmp_path / "r.toml")
     fitted = {f.key: f for f in result.fitted}
     assert fitted["timing.reply_period_s"].value == pytest.approx(0.00238, rel=0.05)
     assert fitted["timing.latency_s"].identified
     assert result.observations.speeds
     pull = fitted["emulator.physics.j2.pullout_nm"]
-    assert pull.identified and pull.covers(1.3)
+    assert pull.identified and pull.covers(DEFAULT_JOINT_PHYSICS[1].pullout_nm)
     assert not fitted["emulator.physics.j1.backlash_deg"].identified
     assert load_settings(tmp_path / "r.toml")
 

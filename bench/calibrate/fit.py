@@ -58,8 +58,12 @@ PULLOUT_MODEL_REL: Final = 0.01
 #: A parameter only bounded from below by the data is set this far above its bound when the prior
 #: lies below it: the twin then does not lose steps where the arm lost none.
 BOUND_MARGIN: Final = 1.2
-#: A speed run counts as lossy below this ratio of effective to commanded speed.
-LOSSY_RATIO: Final = 0.995
+#: A speed run bounds the pull-out torque from below at or above this ratio of effective to
+#: commanded speed (no step lost), and gives an estimate of it below ``LOSSY_RATIO`` (a loss the
+#: model's needed torque explains well); in between it is left out: a loss of a few per cent is
+#: within what an unmodelled event (a re-planned run, a spurious count) makes.
+LOSSLESS_RATIO: Final = 0.995
+LOSSY_RATIO: Final = 0.95
 _KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
 
 
@@ -392,8 +396,10 @@ def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
                                  spec.steps_per_motor_rev)
             factor = need * (1.0 + rate / p.corner_steps_per_s)
             ratio = run.ratio
-            if ratio >= LOSSY_RATIO or ratio <= 0.12:
+            if ratio >= LOSSLESS_RATIO:
                 bounds.append(factor)
+                continue
+            if ratio >= LOSSY_RATIO or ratio <= 0.12:
                 continue
             loss = 1.0 - ratio
             sd = max((1.0 - loss) * math.sqrt(loss / max(run.steps, 1.0)), 1e-4)
