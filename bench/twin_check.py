@@ -10,6 +10,10 @@ as a host would see it):
 * the TCP divergence where the capture has the truth beside its replies (a JSON Lines capture has
   none; reported as absent).
 
+A capture of several sessions (a run's capture holds one emulator per trial) is cut where the
+replies jump further than the joints can move, or fall silent; each session is replayed into a
+fresh twin from its own first pose.
+
 The verdict judges ``twin.jN.rms_counts`` against the limits of the bench config (``--config``,
 else the packaged ``default_bench.toml``): ``pass`` when every joint is within, else ``fail``.
 """
@@ -17,9 +21,10 @@ else the packaged ``default_bench.toml``): ``pass`` when every joint is within, 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -28,18 +33,28 @@ import numpy as np
 from armbench.bench.calibrate.capture import CaptureData
 from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.record import Measurement, judge
-from armbench.drivers.protocol import AngleDecoder, Framer, Reply
+from armbench.drivers.motion import joint_speed_rad_s
+from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.settings import emulator_settings
 
-__all__ = ["DEFAULT_CONFIG", "TwinCheck", "compare", "replay_twin", "twin_check"]
+__all__ = ["DEFAULT_CONFIG", "TwinCheck", "compare", "replay_twin", "sessions", "twin_check"]
 
 DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("default_bench.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
 #: default arrival tolerance.
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
 
+#: A reply further than this (rad) beyond what full speed allows since the previous one starts a
+#: new session (the capture of another emulator, or an arm moved by hand while off).
+JUMP_SLACK_RAD: Final = 0.005
+#: Longest stall of the master's loop between two replies (s): the EEPROM records of four joints
+#: changing state at once (4 × 5 bytes × 3.3 ms); a reply may show that much more motion.
+STALL_S: Final = 0.07
+#: A silence longer than this (s) starts a new session: a power cut, a new emulator (its boot
+#: takes 0.1 s); longer than any stall of the loop.
+SILENCE_S: Final = 0.09
 #: Times closer than this (s) count as the same instant: a capture stores them to the nanosecond.
 TIME_SLACK_S: Final = 1e-6
 
@@ -63,6 +78,7 @@ class TwinCheck:
     verdict: str
     twin_replies: list[tuple[float, Vec4]]
     tcp: dict[str, float] | None = None
+    sessions: int = 1
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -75,6 +91,7 @@ class TwinCheck:
                         "mean_dt_s": None if dt is None else float(dt.mean()),
                         "max_abs_dt_s": None if dt is None else float(np.abs(dt).max())},
             "tcp": self.tcp, "replies_compared": self.replies_compared,
+            "sessions": self.sessions,
             "measurements": [{"name": m.name, "value": m.value, "unit": m.unit,
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
@@ -169,11 +186,40 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         len(rows), measurements, verdict, list(twin))
 
 
+def sessions(data: CaptureData, settings: RobotSettings) -> list[CaptureData]:
+    """The capture cut where the arm it recorded was another one: a reply that jumps further
+    than the joints can move at full speed in the time since the previous one (and a stall of the
+    loop), or a silence longer than :data:`SILENCE_S` (a run's capture holds one emulator per
+    trial, each booting at its own pose). Sessions without commands are left out."""
+    t = np.asarray([r[0] for r in data.replies])
+    q = np.asarray([r[1] for r in data.replies])
+    if len(t) < 2:
+        return [data]
+    dt = np.diff(t)
+    speed = np.asarray([joint_speed_rad_s(MAX_DUTY, j.steps_per_rad) for j in settings.joints])
+    reach = 1.5 * speed * (dt[:, None] + STALL_S) + JUMP_SLACK_RAD
+    jump = np.abs(np.diff(q, axis=0)) > reach
+    cuts = [0, *(np.flatnonzero(jump.any(axis=1) | (dt > SILENCE_S)) + 1), len(t)]
+    out = []
+    for a, b in itertools.pairwise(cuts):
+        t0, t1 = t[a], (t[b] if b < len(t) else math.inf)
+        commands = [c for c in data.commands if t0 <= c[0] < t1]
+        if commands:
+            out.append(CaptureData(data.path, commands, data.replies[a:b], 0))
+    return out
+
+
 def twin_check(data: CaptureData, settings: RobotSettings,
                config: str | Path | None = None) -> TwinCheck:
-    """Replay on a virtual-time loop and compare (see the module doc)."""
+    """Replay each session on a virtual-time loop and compare (see the module doc)."""
     from armbench.fakes.vclock import run_virtual
 
     limits = load_limits(config if config is not None else DEFAULT_CONFIG)
-    twin = run_virtual(replay_twin(data, settings))
-    return compare(data, twin, settings, limits)
+    parts = sessions(data, settings)
+    twin: list[tuple[float, Vec4]] = []
+    for part in parts:
+        twin.extend(run_virtual(replay_twin(part, settings)))
+    merged = CaptureData(data.path, [c for p in parts for c in p.commands],
+                         [r for p in parts for r in p.replies], data.bad_in_frames)
+    result = compare(merged, twin, settings, limits)
+    return replace(result, sessions=len(parts))

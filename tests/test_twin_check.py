@@ -152,3 +152,23 @@ def test_calibrated_twins_several_arms(tmp_path: Path) -> None:
             assert f["calibrated"][j] <= 2.0 * f["floor"][j] + 3.0, (seed, f)
         arm = f["arm_path_mm"][0]
         assert abs(f["calibrated_path_mm"][0] - arm) <= 0.1 * arm, (seed, f)
+
+
+def test_run_capture_in_sessions(tmp_path: Path) -> None:
+    """A run's capture holds one emulator per trial: twin-check cuts it into sessions and
+    replays each into a fresh twin. The runner seeds each trial's emulator its own way (the
+    capture does not say how), so the default twin of the default arm matches within the random
+    draws: a few counts."""
+    config = tmp_path / "bench.toml"
+    config.write_text('spec_version = "armbench-limits/1"\n[suites.joints]\njoints = [1, 3]\n'
+                      "cycles = 2\ntargets_frac = [0.3, 0.7]\n")
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "armbench", "run", "joints", "--config",
+                           str(config), "--out", str(out), "--workers", "1"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    settings = RobotSettings()
+    result = twin_check(load_capture(out / "capture.jsonl", settings), settings)
+    assert result.sessions >= 2
+    assert result.verdict == "pass"
+    assert max(result.rms_counts) < 3.0, result.rms_counts
