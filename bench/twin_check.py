@@ -14,8 +14,9 @@ A capture of several sessions (a run's capture holds one emulator per trial) is 
 replies jump further than the joints can move, or fall silent; each session is replayed into a
 fresh twin from its own first pose.
 
-The verdict judges ``twin.jN.rms_counts`` against the limits of the bench config (``--config``,
-else the packaged ``default_bench.toml``): ``pass`` when every joint is within, else ``fail``.
+The verdict judges ``twin.jN.rms_counts`` against the limits of a bench config (``--config``,
+else the packaged ``twin_check.toml``: 3 counts): ``pass`` when every joint is within, else
+``fail``.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from armbench.fakes.settings import emulator_settings
 
 __all__ = ["DEFAULT_CONFIG", "TwinCheck", "compare", "replay_twin", "sessions", "twin_check"]
 
-DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("default_bench.toml")
+DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
 #: default arrival tolerance.
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4

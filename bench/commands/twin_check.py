@@ -32,7 +32,8 @@ def register(sub: Any) -> None:
     p.add_argument("--settings", metavar="FILE",
                    help="the twin's settings (e.g. the output of armbench calibrate)")
     p.add_argument("--config", metavar="FILE",
-                   help="bench config with the twin.* limits (default: the packaged one)")
+                   help="limits file with twin.* limits (default: the packaged twin_check.toml, "
+                        "RMS <= 3 counts)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_run)
 
