@@ -28,6 +28,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.report",
     "armbench.bench.commands.compare",
     "armbench.bench.commands.firmware",
+    "armbench.bench.commands.calibrate",
+    "armbench.bench.commands.twin_check",
 )
 
 

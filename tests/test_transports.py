@@ -167,7 +167,8 @@ async def test_a_third_party_scheme_is_found_through_its_entry_point(
     async with open_transport("ECHO://x") as t:
         await t.write(b"$00000,00000,00000,00000#")
         assert await t.read() == b"$00000,00000,00000,00000#"
-    with pytest.raises(TransportError, match=r"known: avr://, echo://, fake://, labgrid://, rfc2217://, socket://"):
+    known = r"known: avr://, echo://, fake://, labgrid://, rfc2217://, socket://"
+    with pytest.raises(TransportError, match=known):
         open_transport("bogus://somewhere")
 
 

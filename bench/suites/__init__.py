@@ -33,6 +33,7 @@ SUITES: dict[str, str] = {
     "accuracy": "armbench.bench.suites.accuracy:AccuracySuite",
     "repeatability": "armbench.bench.suites.repeatability:RepeatabilitySuite",
     "startup-recovery": "armbench.bench.suites.startup_recovery:StartupRecoverySuite",
+    "joints": "armbench.bench.suites.joints:JointsSuite",
 }
 
 

@@ -1,0 +1,454 @@
+"""Least-squares fits of the robot model to a calibration's observations, each with its standard
+error (``docs/calibration.md`` derives every estimator).
+
+Each fit returns :class:`~armbench.bench.calibrate.model.Fitted` values keyed by their path in the
+settings file; a parameter the data cannot determine keeps its prior and says why. Priors are the
+base settings' (``--settings``, else the default arm): the link masses, the payload, efficiency,
+friction and inertia are *not* identified (the traffic and a joint truth only show torque over
+stiffness, or over pull-out torque) and the fits that need a torque take it from them.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import least_squares
+
+from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.drivers.kinematics import tcp_position
+from armbench.drivers.protocol import TICKS_PER_RAD
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.physics import ArmPhysics, JointPhysics, Mechanism
+from armbench.fakes.settings import emulator_settings
+
+__all__ = [
+    "INSTRUMENT_SIGMA_M",
+    "LOADED_NM",
+    "base_physics",
+    "fit_all",
+    "fit_hall",
+    "fit_kinematics",
+    "fit_play",
+    "fit_pullout",
+    "fit_stiffness",
+    "fit_timing",
+    "link_estimate",
+    "with_kinematics",
+]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Standard error assumed for one coordinate of the true TCP (m): a laser tracker's class; the
+#: fit's own residuals scale it up when they are larger.
+INSTRUMENT_SIGMA_M: Final = 1e-5
+#: A hold counts as loaded on a joint when the model's gravity torque there exceeds this (N·m):
+#: above the largest hold torque of the documented range, so the play sits on gravity's side.
+LOADED_NM: Final = 2.5
+#: Floor of an angle's standard error (rad): what float arithmetic of the truth can resolve.
+SIGMA_FLOOR_RAD: Final = 1e-7
+#: Relative standard error of the needed torque the pull-out fit divides by (the gravity torque is
+#: taken at the reported angle, which differs from the link's by the play and the Hall error).
+PULLOUT_MODEL_REL: Final = 0.01
+#: A parameter only bounded from below by the data is set this far above its bound when the prior
+#: lies below it: the twin then does not lose steps where the arm lost none.
+BOUND_MARGIN: Final = 1.2
+#: A speed run bounds the pull-out torque from below at or above this ratio of effective to
+#: commanded speed (no step lost), and gives an estimate of it below ``LOSSY_RATIO`` (a loss the
+#: model's needed torque explains well); in between it is left out: a loss of a few per cent is
+#: within what an unmodelled event (a re-planned run, a spurious count) makes.
+LOSSLESS_RATIO: Final = 0.995
+LOSSY_RATIO: Final = 0.95
+_KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
+
+
+def base_physics(base: RobotSettings) -> ArmPhysics:
+    """The prior arm: the base settings' physics, the default arm's when they are ideal."""
+    physics = emulator_settings(base).physics
+    return physics if physics is not None else ArmPhysics()
+
+
+def _jkey(j: int, name: str) -> str:
+    return f"emulator.physics.j{j + 1}.{name}"
+
+
+def fit_timing(obs: Observations) -> list[Fitted]:
+    """Reply period and command latency: means with their standard errors."""
+    out = []
+    for key, values in (("timing.reply_period_s", obs.reply_dt_s),
+                        ("timing.latency_s", obs.latency_s)):
+        if len(values) >= 2:
+            a = np.asarray(values, dtype=np.float64)
+            out.append(Fitted(key, float(a.mean()), float(a.std(ddof=1) / math.sqrt(len(a))), "s",
+                              True, f"{len(a)} intervals"))
+        else:
+            out.append(Fitted(key, math.nan, None, "s", False, "not measured"))
+    return out
+
+
+def _play_channel(obs: Observations, j: int, counts_per_rad: float
+                  ) -> tuple[list[float], list[int], float] | None:
+    """Per approach of joint ``j``: link minus motor (exact) or true minus reported (then with
+    the quantisation variance of the reply and the counter), the approach direction, and that
+    variance."""
+    ys, ds = [], []
+    quant = 0.0
+    for a in obs.approaches:
+        if a.joint != j + 1:
+            continue
+        if a.link_rad is not None and a.motor_rad is not None:
+            ys.append(a.link_rad[j] - a.motor_rad[j])
+        elif a.true_rad is not None:
+            ys.append(a.true_rad[j] - a.reported_rad[j])
+            quant = (1.0 / TICKS_PER_RAD) ** 2 / 12 + (1.0 / counts_per_rad) ** 2 / 12
+        else:
+            return None
+        ds.append(a.direction)
+    return ys, ds, quant
+
+
+def fit_play(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[Fitted]:
+    """Gear play and stick-slip band per joint from the bidirectional approaches.
+
+    After an approach moving ``d`` the link trails the motor by half the play and overshoots by
+    ``band · U`` (U uniform in 0..1): ``y = c + d (band U − play/2)``. The difference of the two
+    directions' means is ``band − play``; the pooled variance within a direction is
+    ``band² / 12`` (plus the quantisation of the channel).
+    """
+    out: list[Fitted] = []
+    for j, spec in enumerate(base.joints):
+        p = prior.joints[j]
+        channel = _play_channel(obs, j, spec.counts_per_rad) if obs.truth else None
+        reason = "no truth source: the play is on the link side, behind the encoder"
+        groups = None
+        if channel is not None:
+            ys, ds, quant = channel
+            up = np.asarray([y for y, d in zip(ys, ds, strict=True) if d > 0])
+            down = np.asarray([y for y, d in zip(ys, ds, strict=True) if d < 0])
+            groups = (up, down, quant) if len(up) >= 2 and len(down) >= 2 else None
+            reason = "fewer than 2 approaches from each side"
+        if groups is None:
+            out.append(Fitted(_jkey(j, "backlash_deg"), math.degrees(p.backlash_rad), None, "deg",
+                              False, reason, math.degrees(p.backlash_rad)))
+            out.append(Fitted(_jkey(j, "stick_deg"), math.degrees(p.stick_rad), None, "deg",
+                              False, reason, math.degrees(p.stick_rad)))
+            continue
+        up, down, quant = groups
+        if quant == 0.0:
+            band, sigma_band, diff, var_diff = _uniform_exact(up, down)
+        else:
+            band, sigma_band, diff, var_diff = _uniform_noisy(up, down, quant)
+        play = band - diff
+        sigma_play = math.sqrt(sigma_band ** 2 + var_diff)
+        why = f"{len(up)} + {len(down)} approaches at the Hall position (reversal and scatter)"
+        out.append(Fitted(_jkey(j, "backlash_deg"), math.degrees(play),
+                          math.degrees(max(sigma_play, SIGMA_FLOOR_RAD)), "deg", True, why,
+                          math.degrees(p.backlash_rad)))
+        out.append(Fitted(_jkey(j, "stick_deg"), math.degrees(band),
+                          math.degrees(max(sigma_band, SIGMA_FLOOR_RAD)), "deg", True,
+                          why + ", at full duty", math.degrees(p.stick_rad)))
+    return out
+
+
+def _uniform_exact(up: FloatArray, down: FloatArray) -> tuple[float, float, float, float]:
+    """Band, its standard error, the difference of the two groups' centres and its variance,
+    for exact samples of ``centre ± band·U``: ranges and mid-ranges (the efficient estimators of
+    a uniform variable's width and centre). The range's distribution is skewed (a Beta), so the
+    standard error is half the wider side of the exact 95 % interval of the band
+    (:func:`_band_interval`): two of them bracket the band as a 95 % interval does."""
+    mids, mid_vars = [], []
+    for g in (up, down):
+        n = len(g)
+        mids.append(0.5 * float(g.max() + g.min()))
+        mid_vars.append(1.0 / (2.0 * (n + 1) * (n + 2)))
+    ranges = (float(up.max() - up.min()), float(down.max() - down.min()))
+    lo_q, hi_q = _band_interval(len(up), len(down))
+    estimate = 0.5 * (ranges[0] * (len(up) + 1) / (len(up) - 1)
+                      + ranges[1] * (len(down) + 1) / (len(down) - 1))
+    band = max(estimate, *ranges)
+    sigma_band = 0.5 * max(estimate / lo_q - estimate, estimate - estimate / hi_q)
+    return band, sigma_band, mids[0] - mids[1], band * band * sum(mid_vars)
+
+
+@functools.lru_cache(maxsize=16)
+def _band_interval(n_up: int, n_down: int) -> tuple[float, float]:
+    """The 2.5 % and 97.5 % quantiles of the band estimate over the true band (mean of the two
+    groups' unbiased ranges of uniform samples), by a seeded Monte Carlo of 20 000 draws."""
+    rng = np.random.default_rng(0)
+    est = np.zeros(20_000)
+    for n in (n_up, n_down):
+        u = rng.random((20_000, n))
+        est += 0.5 * (u.max(axis=1) - u.min(axis=1)) * (n + 1) / (n - 1)
+    lo, hi = np.quantile(est, [0.025, 0.975])
+    return float(lo), float(hi)
+
+
+def _uniform_noisy(up: FloatArray, down: FloatArray,
+                   quant: float) -> tuple[float, float, float, float]:
+    """As :func:`_uniform_exact` for samples with a quantisation variance ``quant``: the pooled
+    variance is ``band² / 12 + quant``."""
+    n = len(up) + len(down)
+    s2 = (float(((up - up.mean()) ** 2).sum() + ((down - down.mean()) ** 2).sum()) / (n - 2))
+    band = math.sqrt(12.0 * max(0.0, s2 - quant))
+    var_s2 = s2 * s2 * (1.8 - (n - 3) / (n - 1)) / n  # a uniform variable's kurtosis is 1.8
+    sigma_band = math.sqrt(12.0 * var_s2) / (2.0 * math.sqrt(s2)) if s2 > 0 else 0.0
+    return band, sigma_band, float(up.mean() - down.mean()), s2 * (1 / len(up) + 1 / len(down))
+
+
+def fit_hall(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[Fitted]:
+    """Hall position error per joint: after a crossing the counter is set to the nominal Hall
+    count where the sensor really is, so the counter minus the motor is minus the error (the
+    emulator's motor-side truth; a fixed quantisation of ~0.54 count remains)."""
+    out: list[Fitted] = []
+    for j, spec in enumerate(base.joints):
+        prior_deg = math.degrees(prior.joints[j].hall_error_rad)
+        values = [-(a.firmware_rad[j] - a.motor_rad[j]) for a in obs.approaches
+                  if a.joint == j + 1 and a.cycle >= 1 and a.firmware_rad is not None
+                  and a.motor_rad is not None]
+        if len(values) < 2:
+            reason = ("needs the motor-side truth of the emulator (a counter reset is invisible "
+                      "in the traffic)" if not obs.motor_truth else "no Hall crossing measured")
+            out.append(Fitted(_jkey(j, "hall_error_deg"), prior_deg, None, "deg", False, reason,
+                              prior_deg))
+            continue
+        a = np.asarray(values)
+        se = float(a.std(ddof=1) / math.sqrt(len(a)))
+        fixed = 0.54 / spec.counts_per_rad
+        out.append(Fitted(_jkey(j, "hall_error_deg"), math.degrees(float(a.mean())),
+                          math.degrees(math.hypot(se, fixed)), "deg", True,
+                          f"counter against motor after {len(a)} Hall crossings", prior_deg))
+    return out
+
+
+def link_estimate(q_rad: Sequence[float], fitted: Sequence[Fitted], prior: ArmPhysics,
+                  mech: Mechanism) -> list[float]:
+    """The link angles behind reported ones: the motor is the counter plus the Hall error, the
+    link sits half the play towards gravity where it is loaded (identified values, else the
+    prior's)."""
+    values = {f.key: f.value for f in fitted if f.identified}
+    tau = mech.gravity_nm(q_rad)
+    out = []
+    for j, q in enumerate(q_rad):
+        p = prior.joints[j]
+        hall = math.radians(values.get(_jkey(j, "hall_error_deg"),
+                                       math.degrees(p.hall_error_rad)))
+        half = math.radians(values.get(_jkey(j, "backlash_deg"),
+                                       math.degrees(p.backlash_rad))) / 2
+        side = 1 if tau[j] > p.hold_nm else -1 if tau[j] < -p.hold_nm else 0
+        out.append(q + hall + side * half)
+    return out
+
+
+def fit_stiffness(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                  play: Sequence[Fitted], fitted_before: Sequence[Fitted] = ()) -> list[Fitted]:
+    """Torsional stiffness of the joints gravity loads: at loaded holds the link's offset from
+    the motor is ``c + side · play/2 + τ(q)/k`` (τ from the prior's masses and payload); linear
+    least squares in ``(c, play/2, 1/k)``, the play fixed from the approaches when the torque has
+    one sign only."""
+    mech = Mechanism(prior, base, lambda: [0.0] * 4)
+    out: list[Fitted] = []
+    for j in range(4):
+        p = prior.joints[j]
+        key = _jkey(j, "stiffness_nm_per_rad")
+        rows: list[tuple[float, float]] = []
+        for h in obs.holds:
+            if h.true_rad is None:
+                continue
+            at = h.link_rad if h.link_rad is not None else link_estimate(
+                h.reported_rad, fitted_before, prior, mech)
+            tau = mech.gravity_nm(at)[j]
+            ref = h.motor_rad[j] if h.motor_rad is not None else h.reported_rad[j]
+            if abs(tau) >= LOADED_NM:
+                rows.append((tau, h.true_rad[j] - ref))
+        if len(rows) < 4:
+            reason = ("no truth source: the deflection is on the link side" if not obs.truth
+                      else f"only {len(rows)} holds with |gravity torque| ≥ {LOADED_NM} N·m "
+                           "(joint 1 turns about the vertical; joint 4 carries no lever)")
+            out.append(Fitted(key, p.stiffness_nm_per_rad, None, "N·m/rad", False, reason,
+                              p.stiffness_nm_per_rad))
+            continue
+        tau_a = np.asarray([r[0] for r in rows])
+        y = np.asarray([r[1] for r in rows])
+        side = np.sign(tau_a)
+        play_fit = next((f for f in play if f.key == _jkey(j, "backlash_deg") and f.identified),
+                        None)
+        x = np.column_stack([np.ones_like(tau_a), tau_a])
+        extra_var = 0.0
+        if play_fit is not None and play_fit.sigma is not None:  # the approaches' play: better
+            half, sigma_half = math.radians(play_fit.value) / 2, math.radians(play_fit.sigma) / 2
+            y = y - side * half
+            b = np.linalg.lstsq(x, side, rcond=None)[0][-1]
+            extra_var = float(b * sigma_half) ** 2
+        elif min(int((side > 0).sum()), int((side < 0).sum())) >= 2:
+            x = np.column_stack([np.ones_like(tau_a), side, tau_a])
+        else:
+            y = y - side * p.backlash_rad / 2
+        coef, cov = _linear_lsq(x, y)
+        s, sigma_s = coef[-1], math.sqrt(cov[-1, -1] + extra_var)
+        if s <= 0 or sigma_s >= 0.5 * s:
+            out.append(Fitted(key, p.stiffness_nm_per_rad, None, "N·m/rad", False,
+                              f"deflection not resolved (1/k = {s:.3g} ± {sigma_s:.2g} rad/N·m)",
+                              p.stiffness_nm_per_rad))
+            continue
+        out.append(Fitted(key, 1.0 / s, sigma_s / (s * s), "N·m/rad", True,
+                          f"deflection at {len(rows)} loaded holds against the model's gravity "
+                          "torque (masses and payload of the prior)", p.stiffness_nm_per_rad))
+    return out
+
+
+def _linear_lsq(x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Ordinary least squares: coefficients and their covariance (residual variance scaled)."""
+    coef = np.asarray(np.linalg.lstsq(x, y, rcond=None)[0], dtype=np.float64)
+    resid = y - x @ coef
+    dof = max(1, len(y) - x.shape[1])
+    s2 = max(float(resid @ resid) / dof, SIGMA_FLOOR_RAD ** 2)
+    cov = np.asarray(s2 * np.linalg.pinv(x.T @ x), dtype=np.float64)
+    return coef, cov
+
+
+def _kinematic_model(base: RobotSettings, theta: FloatArray) -> RobotSettings:
+    g = base.geometry
+    geometry = replace(g, **{k: getattr(g, k) + float(theta[i])
+                             for i, k in enumerate(_KINEMATIC_KEYS)})
+    joints = tuple(replace(spec, offset_rad=spec.offset_rad + float(theta[4 + i]))
+                   if i < 3 else spec for i, spec in enumerate(base.joints))
+    return replace(base, geometry=geometry, joints=joints)
+
+
+def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[Fitted]:
+    """DH length errors and joint offset errors from the true TCP at the holds against the true
+    joints (nonlinear least squares, ``scipy.optimize.least_squares``; covariance from the
+    Jacobian, the TCP's standard error :data:`INSTRUMENT_SIGMA_M` or the residuals' if larger).
+    Joint 4's offset turns the tool about its own axis and cannot move the TCP."""
+    ge = prior.geometry_error
+    theta0 = np.array([getattr(ge, k) for k in _KINEMATIC_KEYS]
+                      + [prior.joints[i].offset_error_rad for i in range(3)], dtype=np.float64)
+    keys = ([f"emulator.physics.geometry_error.{k}" for k in _KINEMATIC_KEYS]
+            + [_jkey(i, "offset_error_deg") for i in range(3)])
+    scale = np.array([1.0] * 4 + [180.0 / math.pi] * 3)
+    units = ["m"] * 4 + ["deg"] * 3
+    j4_prior = math.degrees(prior.joints[3].offset_error_rad)
+    kept = [Fitted(_jkey(3, "offset_error_deg"), j4_prior, None, "deg", False,
+                   "turns the tool about its own axis: does not move the TCP", j4_prior),
+            Fitted("emulator.physics.geometry_error.d4_m", ge.d4_m, None, "m", False,
+                   "the tool offset and joint 3's offset turn the TCP about joint 3 alike "
+                   "(only their combination is seen); joint 3's offset is fitted", ge.d4_m)]
+    data = [(h.true_rad, h.tcp_true_m) for h in obs.holds
+            if h.true_rad is not None and h.tcp_true_m is not None]
+    if len(data) < 4:
+        reason = ("no truth source for the TCP" if not obs.truth
+                  else f"only {len(data)} holds with a true TCP")
+        return [Fitted(k, float(v * sc), None, u, False, reason, float(v * sc))
+                for k, v, sc, u in zip(keys, theta0, scale, units, strict=True)] + kept
+    q = np.asarray([d[0] for d in data], dtype=np.float64)
+    p = np.asarray([d[1] for d in data], dtype=np.float64)
+
+    def residuals(theta: FloatArray) -> FloatArray:
+        model = _kinematic_model(base, theta)
+        pred = np.asarray([tcp_position(qi, model) for qi in q])
+        r: FloatArray = ((pred - p) / INSTRUMENT_SIGMA_M).reshape(-1)
+        return r
+
+    result = least_squares(residuals, theta0, method="lm", x_scale=np.full(len(theta0), 1e-3))
+    jac = result.jac
+    dof = max(1, jac.shape[0] - jac.shape[1])
+    chi2 = float(result.fun @ result.fun) / dof
+    cov = np.linalg.pinv(jac.T @ jac) * max(1.0, chi2)
+    out = []
+    limits = [0.002] * 4 + [math.radians(0.5)] * 3
+    for i, key in enumerate(keys):
+        sigma = math.sqrt(max(0.0, float(cov[i, i])))
+        value = float(result.x[i])
+        if sigma > 0.5 * limits[i]:
+            out.append(Fitted(key, float(theta0[i] * scale[i]), None, units[i], False,
+                              f"not resolved by {len(data)} poses (σ {sigma * scale[i]:.2g})",
+                              float(theta0[i] * scale[i])))
+            continue
+        out.append(Fitted(key, value * scale[i], max(sigma, SIGMA_FLOOR_RAD) * scale[i],
+                          units[i], True, f"true TCP at {len(data)} holds (χ²/dof {chi2:.3g})",
+                          float(theta0[i] * scale[i])))
+    return [*out, *kept]
+
+
+def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                fitted_before: Sequence[Fitted] = ()) -> list[Fitted]:
+    """Pull-out torque per joint from the speed ladder: a run that lost steps moved at
+    ``ratio = have / need``, so ``P = ratio · need · (1 + rate / corner)`` with the needed torque
+    from the prior (gravity through the worm gear, friction, spin-up); weighted mean over the lossy
+    runs, each weighted by the binomial scatter of its lost steps."""
+    mech = Mechanism(prior, base, lambda: [0.0] * 4)
+    out: list[Fitted] = []
+    for j, spec in enumerate(base.joints):
+        p: JointPhysics = prior.joints[j]
+        key = _jkey(j, "pullout_nm")
+        estimates, weights, bounds = [], [], []
+        for run in obs.speeds:
+            if run.joint != j + 1:
+                continue
+            rate = run.law_rad_s * spec.steps_per_rad
+            tau = mech.gravity_nm(link_estimate(run.start_rad, fitted_before, prior, mech))[j]
+            need = p.required_nm(tau, run.direction, spec.gear_ratio, rate,
+                                 spec.steps_per_motor_rev)
+            factor = need * (1.0 + rate / p.corner_steps_per_s)
+            ratio = run.ratio
+            if ratio >= LOSSLESS_RATIO:
+                bounds.append(factor)
+                continue
+            if ratio >= LOSSY_RATIO or ratio <= 0.12:
+                continue
+            loss = 1.0 - ratio
+            sd = max((1.0 - loss) * math.sqrt(loss / max(run.steps, 1.0)), 1e-4)
+            estimates.append(ratio * factor)
+            weights.append(1.0 / (sd * factor) ** 2)
+        if len(estimates) < 1:
+            if not bounds:
+                out.append(Fitted(key, p.pullout_nm, None, "N·m", False, "no speed runs",
+                                  p.pullout_nm))
+                continue
+            low = max(bounds)
+            value = max(p.pullout_nm, BOUND_MARGIN * low)
+            out.append(Fitted(key, value, None, "N·m", False,
+                              f"no steps lost at any duty: pull-out ≥ {low:.3g} N·m; set to "
+                              f"the larger of the prior and {BOUND_MARGIN:g} × that bound",
+                              p.pullout_nm, low))
+            continue
+        e, w = np.asarray(estimates), np.asarray(weights)
+        mean = float((e * w).sum() / w.sum())
+        sigma = math.hypot(math.sqrt(1.0 / float(w.sum())), PULLOUT_MODEL_REL * mean)
+        if len(e) > 1:
+            chi2 = float((w * (e - mean) ** 2).sum()) / (len(e) - 1)
+            sigma *= math.sqrt(max(1.0, chi2))
+        out.append(Fitted(key, mean, sigma, "N·m", True,
+                          f"{len(e)} runs that lost steps (speed ladder)", p.pullout_nm))
+    return out
+
+
+def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
+    """``prior`` with the identified DH length and joint offset errors: the gravity torques the
+    stiffness and pull-out fits divide by are then those of the real arm's geometry."""
+    values = {f.key: f.value for f in fitted if f.identified}
+    ge = replace(prior.geometry_error, **{
+        k: values[f"emulator.physics.geometry_error.{k}"] for k in _KINEMATIC_KEYS
+        if f"emulator.physics.geometry_error.{k}" in values})
+    joints = tuple(replace(p, offset_error_rad=math.radians(values[_jkey(i, "offset_error_deg")]))
+                   if _jkey(i, "offset_error_deg") in values else p
+                   for i, p in enumerate(prior.joints))
+    return replace(prior, geometry_error=ge, joints=joints)
+
+
+def fit_all(obs: Observations, base: RobotSettings) -> list[Fitted]:
+    """Every fit, in the order of the settings file (the kinematics first: the torque models of
+    the others use it)."""
+    prior = base_physics(base)
+    kinematics = fit_kinematics(obs, base, prior)
+    model = with_kinematics(prior, kinematics)
+    play = fit_play(obs, base, prior)
+    hall = fit_hall(obs, base, prior)
+    before = [*play, *hall]
+    return [*fit_timing(obs), *play, *hall, *fit_stiffness(obs, base, model, play, before),
+            *fit_pullout(obs, base, model, before), *kinematics]

@@ -1,0 +1,181 @@
+"""What a calibration measures and what it concludes: the observations (JSON-ready, written to disk
+as they grow), the fitted parameters, and the typed errors of a calibration.
+
+Observations keep raw figures only (angles in rad, times in s), so a fit can be repeated from the
+file alone (``armbench calibrate --observations``) and a partial run keeps what it measured.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from armbench.drivers.errors import ArmbenchError
+
+__all__ = [
+    "Approach",
+    "ArmDoesNotMoveError",
+    "CalibrationError",
+    "CaptureContentError",
+    "Fitted",
+    "Hold",
+    "Observations",
+    "SpeedRun",
+]
+
+
+class CalibrationError(ArmbenchError):
+    """A calibration cannot be made (bad input, nothing to fit)."""
+
+
+class ArmDoesNotMoveError(CalibrationError):
+    """A joint did not follow a command: stalled, blocked or unpowered. ``joint`` is 1..4; what
+    was measured before is kept (``partial``)."""
+
+    def __init__(self, joint: int, target_rad: float, reached_rad: float, phase: str) -> None:
+        super().__init__(f"joint {joint} does not move: commanded to {target_rad:+.4f} rad during "
+                         f"the {phase} phase, it stayed at {reached_rad:+.4f} rad (stalled or "
+                         "blocked?); what was measured before is kept")
+        self.joint = joint
+        self.target_rad = target_rad
+        self.reached_rad = reached_rad
+        self.phase = phase
+
+
+class CaptureContentError(CalibrationError, ValueError):
+    """A capture cannot be used: truncated, of another robot model, or without commands; names the
+    file and the problem."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = path
+        self.problem = problem
+
+
+@dataclass(slots=True)
+class Approach:
+    """One ISO 230-2 approach: ``joint`` (1..4) came to ``target_rad`` moving ``direction`` (±1)
+    at ``duty``; the reply and, with a truth source, the true joints (``true_rad``: deflection
+    included), the link angles before deflection (``link_rad``) and the motor shafts
+    (``motor_rad``) at rest."""
+
+    joint: int
+    target_rad: float
+    direction: int
+    duty: int
+    reported_rad: list[float]
+    true_rad: list[float] | None = None
+    link_rad: list[float] | None = None
+    motor_rad: list[float] | None = None
+    firmware_rad: list[float] | None = None
+    cycle: int = 0
+
+
+@dataclass(slots=True)
+class Hold:
+    """The arm at rest at a pose of some gravity load, every joint approached moving ``+``: the
+    reply, the true joints and TCP (m) when a truth source exists (and the link angles before
+    deflection when it has them)."""
+
+    reported_rad: list[float]
+    true_rad: list[float] | None = None
+    motor_rad: list[float] | None = None
+    tcp_true_m: list[float] | None = None
+    link_rad: list[float] | None = None
+
+
+@dataclass(slots=True)
+class SpeedRun:
+    """One move of one joint at ``duty`` towards ``direction`` from ``start_rad`` (all joints):
+    the speed law (12) predicts ``law_rad_s``; the replies gave ``rate_rad_s`` (slope over the
+    middle of the move, ``samples`` replies) and ``steps`` microsteps were travelled."""
+
+    joint: int
+    duty: int
+    direction: int
+    start_rad: list[float]
+    law_rad_s: float
+    rate_rad_s: float
+    samples: int
+    steps: float
+
+    @property
+    def ratio(self) -> float:
+        """Effective over commanded speed (1 − the share of lost steps)."""
+        return self.rate_rad_s / self.law_rad_s
+
+
+@dataclass(slots=True)
+class Observations:
+    """Everything one calibration measured, in the order it was measured."""
+
+    source: str
+    truth: bool = False
+    motor_truth: bool = False
+    reply_dt_s: list[float] = field(default_factory=list)
+    latency_s: list[float] = field(default_factory=list)
+    approaches: list[Approach] = field(default_factory=list)
+    holds: list[Hold] = field(default_factory=list)
+    speeds: list[SpeedRun] = field(default_factory=list)
+    phases_done: list[str] = field(default_factory=list)
+    phases_skipped: dict[str, str] = field(default_factory=dict)
+    robot_time_s: float = 0.0
+    error: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready mapping."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Observations:
+        """The inverse of :meth:`to_json`."""
+        d = dict(data)
+        d["approaches"] = [Approach(**a) for a in d.get("approaches", [])]
+        d["holds"] = [Hold(**h) for h in d.get("holds", [])]
+        d["speeds"] = [SpeedRun(**s) for s in d.get("speeds", [])]
+        return cls(**d)
+
+    def save(self, path: Path) -> None:
+        """Write to ``path`` (replaced atomically, so a crash never leaves half a file)."""
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n", encoding="utf-8")
+        tmp.replace(path)
+
+
+@dataclass(frozen=True, slots=True)
+class Fitted:
+    """One parameter of the robot model after the fit.
+
+    ``key``: its dotted path in the settings file (``emulator.physics.j2.backlash_deg``);
+    ``value`` and ``sigma`` (one standard error) in ``unit``; ``identified``: whether the data
+    determined it (else ``value`` is the prior kept, and ``reason`` says why); ``reason`` also
+    says what determined it. ``lower_bound``: what the data do say about a parameter they did not
+    determine (``value`` is then raised to be consistent with it, and written).
+    """
+
+    key: str
+    value: float
+    sigma: float | None
+    unit: str
+    identified: bool
+    reason: str
+    prior: float | None = None
+    lower_bound: float | None = None
+
+    @property
+    def written(self) -> bool:
+        """Whether the settings file gets this value (identified, or raised to a bound)."""
+        return self.identified or self.lower_bound is not None
+
+    def covers(self, truth: float, k: float = 2.0) -> bool:
+        """Whether ``truth`` lies within ``k`` standard errors of the value (2: 95 %)."""
+        if self.sigma is None or not math.isfinite(self.sigma):
+            return False
+        return abs(self.value - truth) <= k * self.sigma
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready mapping."""
+        return asdict(self)

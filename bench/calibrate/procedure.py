@@ -1,0 +1,302 @@
+"""The identification procedure of ``armbench calibrate --port``: moves that make the arm show its
+parameters, on any port, within a budget of robot time.
+
+Phases, the most informative first (each skipped when what is left of the budget cannot hold it):
+
+1. ``timing`` — the reply period (replies while idle) and the latency from a command to the first
+   reply that shows the motion.
+2. ``approaches`` — ISO 230-2 style bidirectional approaches of every joint to its Hall position
+   (all joints at once): with a truth source the reversal of the link against the motor is the gear
+   play, its scatter the stick-slip band; the counter against the motor after a Hall crossing is
+   the Hall position's error.
+3. ``holds`` (truth only) — rest at poses of different gravity load, every joint approached from
+   below: deflection against the model's gravity torque (stiffness) and the true TCP against the
+   true joints (DH lengths and joint offsets).
+4. ``ladder`` — per joint, moves at a ladder of duties up and down a gravity-loaded range: the
+   effective speed against law (12), i.e. the step loss and where it starts.
+
+Everything reads time from the running loop and waits with asyncio (virtual time against
+``fake://``, real time on a pty, TCP or hardware). Observations are saved after every unit of work.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+from collections.abc import Callable, Sequence
+from typing import Any, Final
+
+import numpy as np
+
+from armbench.bench.calibrate.model import (
+    Approach,
+    ArmDoesNotMoveError,
+    Hold,
+    Observations,
+    SpeedRun,
+)
+from armbench.bench.truth import EmulatorTruth
+from armbench.drivers.arm import Arm, JointState
+from armbench.drivers.errors import MoveTimeoutError
+from armbench.drivers.motion import joint_speed_rad_s
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings
+
+__all__ = ["DEFAULT_BUDGET_S", "HOLD_POSES_RAD", "LADDER_DUTIES", "PHASES", "Procedure"]
+
+#: Robot time a calibration may take by default (s): the issue's bound of 15 minutes.
+DEFAULT_BUDGET_S: Final = 900.0
+PHASES: Final = ("timing", "approaches", "holds", "ladder")
+#: Distance (rad) each approach starts from: beyond the widest gear play of the documented range
+#: and across the Hall sensor's position error.
+APPROACH_OFFSET_RAD: Final = 0.04
+APPROACH_CYCLES: Final = 10
+SETTLE_S: Final = 0.25
+IDLE_S: Final = 1.0
+LATENCY_MOVES: Final = 4
+#: Poses (protocol rad) of the holds: both signs and several magnitudes of gravity torque on joints
+#: 2 and 3, joint 1 and 4 spread for the kinematic fit; every pose and its approach point within
+#: the default joint limits.
+HOLD_POSES_RAD: Final = (
+    (0.0, 0.5, 0.4, 0.0), (0.8, 0.9, 0.3, 0.5), (-0.8, -0.6, -0.5, 1.0), (0.4, -0.3, -0.9, 0.2),
+    (-0.4, 0.3, 0.9, 1.5), (1.2, 1.0, -0.4, 0.0), (-1.2, -0.7, 0.8, 0.8), (0.0, 0.7, -1.2, 1.8),
+    (2.0, 0.2, 0.5, -0.3), (-2.0, -0.2, -0.6, 0.6), (0.6, 1.1, -0.2, 1.2), (-0.6, -0.5, 0.95, 0.4),
+)
+#: Duties of the speed ladder, the most informative first (full duty is where steps are lost).
+LADDER_DUTIES: Final = (99, 97, 95, 98, 96, 93, 90)
+#: Per joint: the start pose of its ladder and the range its moves span (protocol rad): joints 2
+#: and 3 tilted so that moving towards the vertical lifts the arm; 1 and 4 carry no gravity load
+#: and get the two top duties only.
+LADDER_RANGES: Final = {
+    2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
+    3: ((0.0, 0.5, 0.9, 0.0), 0.9, 0.6),
+    1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
+    4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
+}
+UNLOADED_DUTIES: Final = (99, 95)
+#: Share of a move at each end left out of the speed fit (start-up and arrival).
+RATE_MARGIN: Final = 0.2
+
+
+class Procedure:
+    """Run the phases against ``arm`` within ``budget_s`` of robot time, filling ``obs`` and
+    calling ``save`` after every unit of work. Raises :class:`ArmDoesNotMoveError` when a joint
+    does not follow (after saving)."""
+
+    def __init__(self, arm: Arm, settings: RobotSettings, obs: Observations, *,
+                 budget_s: float = DEFAULT_BUDGET_S, save: Callable[[], None] = lambda: None,
+                 progress: Callable[[str], None] = lambda message: None) -> None:
+        self.arm = arm
+        self.settings = settings
+        self.obs = obs
+        self.budget_s = budget_s
+        self.save = save
+        self.progress = progress
+        self._loop = asyncio.get_running_loop()
+        self._t0 = self._loop.time()
+        self._truth = EmulatorTruth(arm) if arm.ground_truth() is not None else None
+        obs.truth = self._truth is not None
+        sample = arm.ground_truth()
+        obs.motor_truth = getattr(sample, "motor_rad", None) is not None
+        self._phase = "timing"
+
+    # --- budget --------------------------------------------------------------------------------
+    def elapsed_s(self) -> float:
+        """Robot time used so far (s)."""
+        return self._loop.time() - self._t0
+
+    def _fits(self, estimate_s: float) -> bool:
+        return self.elapsed_s() + estimate_s <= self.budget_s
+
+    def _move_estimate_s(self, start: Sequence[float], target: Sequence[float],
+                         duty: int) -> float:
+        """Time a move will take by law (12), with room for lost steps and the arrival."""
+        worst = max(abs(t - s) / joint_speed_rad_s(duty, j.steps_per_rad)
+                    for s, t, j in zip(start, target, self.settings.joints, strict=True))
+        return 1.3 * worst + 0.05
+
+    # --- the phases ----------------------------------------------------------------------------
+    async def run(self) -> Observations:
+        """Every phase that fits the budget, in order."""
+        phases: list[tuple[str, Callable[[], Any], float]] = [
+            ("timing", self.timing, IDLE_S + 1.0),
+            ("approaches", self.approaches, 6.0),
+        ]
+        if self._truth is not None:
+            phases.append(("holds", self.holds, 8.0))
+        else:
+            self.obs.phases_skipped["holds"] = "no truth source (deflection and kinematics " \
+                                               "need one)"
+        phases.append(("ladder", self.ladder, 4.0))
+        for name, phase, minimum_s in phases:
+            if not self._fits(minimum_s):
+                self.obs.phases_skipped[name] = (f"budget: {self.budget_s - self.elapsed_s():.1f} "
+                                                 f"s left, at least {minimum_s:.0f} s needed")
+                continue
+            self._phase = name
+            self.progress(f"calibrate: {name} ({self.elapsed_s():.1f} s of robot time so far)")
+            await phase()
+            self.obs.phases_done.append(name)
+            self._stamp()
+        return self.obs
+
+    def _stamp(self) -> None:
+        self.obs.robot_time_s = round(self.elapsed_s(), 6)
+        self.save()
+
+    async def timing(self) -> None:
+        """Reply period while idle; latency of a command to the first reply that moved."""
+        arm = self.arm
+        with arm.record_states() as states:
+            await asyncio.sleep(IDLE_S)
+        self.obs.reply_dt_s = [round(b.t_s - a.t_s, 9) for a, b in itertools.pairwise(states)]
+        home = list(arm.state.q_rad)
+        for k in range(LATENCY_MOVES):
+            target = list(home)
+            target[0] = home[0] + (0.02 if k % 2 == 0 else 0.0)
+            before = arm.state.ticks[0]
+            t_sent = self._loop.time()
+            await arm.move_joints(target, MAX_DUTY, wait=False)
+            moved = await arm.wait_state(_ticks_changed(before), timeout_s=2.0)
+            self.obs.latency_s.append(round(moved.t_s - t_sent, 9))
+            await self._move(target, MAX_DUTY)
+
+    async def approaches(self) -> None:
+        """ISO 230-2 bidirectional approaches of all joints to their Hall positions."""
+        p0 = [min(max(j.hall_rad, j.lower_rad + APPROACH_OFFSET_RAD),
+                  j.upper_rad - APPROACH_OFFSET_RAD) for j in self.settings.joints]
+        for cycle in range(APPROACH_CYCLES):
+            for direction in (1, -1):
+                start = [q - direction * APPROACH_OFFSET_RAD for q in p0]
+                if not self._fits(2 * self._move_estimate_s(start, p0, MAX_DUTY) + SETTLE_S):
+                    self.obs.phases_skipped["approaches"] = f"budget: stopped at cycle {cycle}"
+                    return
+                await self._move(start, MAX_DUTY)
+                await self._move(p0, MAX_DUTY)
+                state, truth = await self._rest()
+                for j in range(4):
+                    self.obs.approaches.append(Approach(
+                        j + 1, p0[j], direction, MAX_DUTY, list(state.q_rad), cycle=cycle,
+                        **truth))
+            self._stamp()
+
+    async def holds(self) -> None:
+        """Rest at poses of different gravity load, each joint approached from below."""
+        for pose in HOLD_POSES_RAD:
+            target = [min(max(q, j.lower_rad + APPROACH_OFFSET_RAD), j.upper_rad)
+                      for q, j in zip(pose, self.settings.joints, strict=True)]
+            below = [q - APPROACH_OFFSET_RAD for q in target]
+            if not self._fits(self._move_estimate_s(self.arm.state.q_rad, below, MAX_DUTY)
+                              + self._move_estimate_s(below, target, MAX_DUTY) + SETTLE_S):
+                self.obs.phases_skipped["holds"] = "budget: not every pose was held"
+                return
+            await self._move(below, MAX_DUTY)
+            await self._move(target, MAX_DUTY)
+            state, truth = await self._rest()
+            tcp = self._truth.true_position_m() if self._truth is not None else None
+            self.obs.holds.append(Hold(list(state.q_rad), truth.get("true_rad"),
+                                       truth.get("motor_rad"),
+                                       None if tcp is None else [float(v) for v in tcp],
+                                       truth.get("link_rad")))
+            self._stamp()
+
+    async def ladder(self) -> None:
+        """Moves at a ladder of duties, up and down, per joint: effective speed vs duty."""
+        for duty in LADDER_DUTIES:
+            for joint, (base, high, low) in LADDER_RANGES.items():
+                if joint in (1, 4) and duty not in UNLOADED_DUTIES:
+                    continue
+                for a, b in ((high, low), (low, high)):
+                    start = list(base)
+                    start[joint - 1] = a
+                    target = list(base)
+                    target[joint - 1] = b
+                    need = (self._move_estimate_s(self.arm.state.q_rad, start, MAX_DUTY)
+                            + self._move_estimate_s(start, target, duty))
+                    if not self._fits(need):
+                        self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
+                                                             f" of joint {joint}")
+                        return
+                    await self._move(start, MAX_DUTY)
+                    await self._speed_run(joint, start, target, duty)
+            self._stamp()
+
+    async def _speed_run(self, joint: int, start: list[float], target: list[float],
+                         duty: int) -> None:
+        arm = self.arm
+        j = joint - 1
+        spec = self.settings.joints[j]
+        with arm.record_states() as states:
+            await self._move(target, duty)
+        run = speed_of(states, j, start[j], target[j])
+        if run is None:
+            return
+        rate, n = run
+        self.obs.speeds.append(SpeedRun(joint, duty, 1 if target[j] > start[j] else -1,
+                                        [float(v) for v in start],
+                                        joint_speed_rad_s(duty, spec.steps_per_rad), rate, n,
+                                        abs(target[j] - start[j]) * spec.steps_per_rad))
+
+    # --- primitives ----------------------------------------------------------------------------
+    async def _move(self, target: Sequence[float], duty: int) -> JointState:
+        start = self.arm.state.q_rad
+        # the drive may lose up to 90 % of its steps against a load (docs/robot-model.md): give
+        # a move ten times its law (12) time before calling the joint stuck
+        timeout_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
+        try:
+            state = await self.arm.move_joints(list(target), duty, timeout_s=timeout_s)
+        except MoveTimeoutError as exc:
+            now = exc.last_state.q_rad if exc.last_state is not None else self.arm.state.q_rad
+            errors = [abs(t - q) for t, q in zip(target, now, strict=True)]
+            j = int(np.argmax(errors))
+            self._stamp()
+            raise ArmDoesNotMoveError(j + 1, float(target[j]), float(now[j]),
+                                      self._phase) from exc
+        assert state is not None
+        return state
+
+    async def _rest(self) -> tuple[JointState, dict[str, list[float]]]:
+        """Wait the settling time; the first reply after it and the truth beside it."""
+        await asyncio.sleep(SETTLE_S)
+        t = self._loop.time()
+        state = await self.arm.wait_state(lambda s: s.t_s >= t, timeout_s=2.0)
+        return state, truth_of(self.arm)
+
+
+def _ticks_changed(before: int) -> Callable[[JointState], bool]:
+    """A predicate: joint 1's wire value is no longer ``before``."""
+    return lambda state: state.ticks[0] != before
+
+
+def truth_of(arm: Arm) -> dict[str, list[float]]:
+    """The emulator's truth beside the newest reply (empty without one): ``true_rad``,
+    ``link_rad``, ``motor_rad``, ``firmware_rad`` as far as the sample has them."""
+    sample = arm.ground_truth()
+    if sample is None:
+        return {}
+    out: dict[str, list[float]] = {"true_rad": [float(v) for v in sample.true_rad]}
+    for name in ("link_rad", "motor_rad", "firmware_rad"):
+        value = getattr(sample, name, None)
+        if value is not None:
+            out[name] = [float(v) for v in value]
+    return out
+
+
+def speed_of(states: Sequence[JointState], j: int, start: float,
+             target: float) -> tuple[float, int] | None:
+    """Slope (rad/s, unsigned) of joint ``j`` over the middle of a move from ``start`` to
+    ``target``, fitted to the replies; None with fewer than 5 replies there."""
+    span = target - start
+    if span == 0:
+        return None
+    t, q = [], []
+    for s in states:
+        f = (s.q_rad[j] - start) / span
+        if RATE_MARGIN <= f <= 1.0 - RATE_MARGIN:
+            t.append(s.t_s)
+            q.append(s.q_rad[j])
+    if len(t) < 5:
+        return None
+    slope = float(np.polyfit(np.asarray(t) - t[0], np.asarray(q), 1)[0])
+    return abs(slope), len(t)
+

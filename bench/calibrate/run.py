@@ -1,0 +1,62 @@
+"""A whole calibration: measure on a port (or read a capture), fit, write the outputs.
+
+Results already measured stay on disk: the observations are saved after every unit of work, and
+when a joint does not move the fit of what was measured is written before the error is raised.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from armbench.bench.calibrate.capture import load_capture, observations_from_capture
+from armbench.bench.calibrate.fit import fit_all
+from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
+from armbench.bench.calibrate.output import CalibrationResult, apply_fit, write_outputs
+from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
+from armbench.drivers.arm import Arm
+from armbench.drivers.settings import RobotSettings
+
+__all__ = ["calibrate_capture", "calibrate_port", "finish"]
+
+
+def finish(obs: Observations, base: RobotSettings, out: Path,
+           error: str | None = None) -> CalibrationResult:
+    """Fit ``obs``, write the settings, the fit and the page next to ``out``."""
+    fitted = fit_all(obs, base)
+    result = CalibrationResult(obs, fitted, apply_fit(base, fitted), error)
+    write_outputs(result, out)
+    return result
+
+
+async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
+                         budget_s: float = DEFAULT_BUDGET_S,
+                         progress: Callable[[str], None] = lambda message: None
+                         ) -> CalibrationResult:
+    """Run the procedure on ``port`` and write the outputs. A joint that does not move ends the
+    procedure: what was measured is fitted and written, then :class:`ArmDoesNotMoveError` is
+    raised."""
+    out = Path(out)
+    obs = Observations(source=port)
+    raw = out.with_suffix(".observations.json")
+    failure: ArmDoesNotMoveError | None = None
+    async with Arm.connect(port, base) as arm:
+        procedure = Procedure(arm, base, obs, budget_s=budget_s, save=lambda: obs.save(raw),
+                              progress=progress)
+        try:
+            await procedure.run()
+        except ArmDoesNotMoveError as exc:
+            failure = exc
+            obs.error = str(exc)
+        obs.save(raw)
+    result = finish(obs, base, out, obs.error)
+    if failure is not None:
+        raise failure
+    return result
+
+
+def calibrate_capture(capture: str | Path, base: RobotSettings, out: Path) -> CalibrationResult:
+    """Fit what the traffic of an existing capture shows and write the outputs."""
+    data = load_capture(capture, base)
+    obs = observations_from_capture(data, base)
+    return finish(obs, base, Path(out))

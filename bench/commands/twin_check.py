@@ -1,0 +1,60 @@
+"""``armbench twin-check CAPTURE [--settings robot.toml] [--json]``: replay a capture's commands
+into the twin on virtual time and compare the reply streams (see :mod:`armbench.bench.twin_check`).
+
+Exit status: 0 the twin is within the config's tolerance (``twin.*`` limits), 1 it is not, 2 bad
+input (a truncated capture, another robot model's, one without commands).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from armbench.bench.calibrate.capture import load_capture
+from armbench.bench.twin_check import twin_check
+from armbench.drivers.settings import load_settings
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``twin-check`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "twin-check", help="measure how well the twin predicts an arm's capture",
+        description="Replay the commands of CAPTURE, with their timing, into the emulator built "
+                    "from --settings (the twin) on virtual time, and compare the reply streams: "
+                    "per-joint RMS and largest divergence of the reported angle, arrival-time "
+                    "differences per move.",
+        epilog="Exit status: 0 within the tolerance of the config, 1 not, 2 bad input.")
+    p.add_argument("capture", metavar="CAPTURE", help="capture of the arm (capture.jsonl)")
+    p.add_argument("--settings", metavar="FILE",
+                   help="the twin's settings (e.g. the output of armbench calibrate)")
+    p.add_argument("--config", metavar="FILE",
+                   help="limits file with twin.* limits (default: the packaged twin_check.toml, "
+                        "RMS <= 3 counts)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    data = load_capture(args.capture, settings)
+    result = twin_check(data, settings, args.config)
+    if args.json:
+        print(json.dumps(result.to_json()))
+    else:
+        print(f"twin-check {args.capture}: verdict {result.verdict} "
+              f"({result.replies_compared} replies, {result.moves} commands)")
+        for j in range(4):
+            print(f"  j{j + 1}: RMS {result.rms_counts[j]:8.2f} counts "
+                  f"({result.rms_rad[j]:.3g} rad), max {result.max_counts[j]:8.1f} counts")
+        body = result.to_json()["arrival"]
+        if body["compared"]:
+            print(f"  arrivals: {body['compared']} moves compared, mean twin − arm "
+                  f"{body['mean_dt_s'] * 1e3:+.1f} ms, largest |Δ| "
+                  f"{body['max_abs_dt_s'] * 1e3:.1f} ms")
+        print("  TCP: " + ("no truth in the capture" if result.tcp is None else str(result.tcp)))
+    sys.stdout.flush()
+    return 0 if result.verdict == "pass" else 1

@@ -1,0 +1,226 @@
+"""``armbench twin-check``: how well the twin predicts an arm, measured on the arm's own traffic.
+
+The commands of a capture are replayed, at their recorded times, into the emulator built from the
+given settings (the twin), on virtual time, starting from the capture's first reported pose. The
+two reply streams are then compared at the capture's reply times (the twin's newest reply then,
+as a host would see it):
+
+* per joint, the RMS and largest divergence of the reported angle (rad and encoder counts);
+* per move (each command), the difference of the arrival times (twin − arm) where both arrive;
+* the TCP divergence where the capture has the truth beside its replies (a JSON Lines capture has
+  none; reported as absent).
+
+A capture of several sessions (a run's capture holds one emulator per trial) is cut where the
+replies jump further than the joints can move, or fall silent; each session is replayed into a
+fresh twin from its own first pose.
+
+The verdict judges ``twin.jN.rms_counts`` against the limits of a bench config (``--config``,
+else the packaged ``twin_check.toml``: 3 counts): ``pass`` when every joint is within, else
+``fail``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from armbench.bench.calibrate.capture import CaptureData
+from armbench.bench.limits import LimitsConfig, load_limits
+from armbench.bench.record import Measurement, judge
+from armbench.drivers.motion import joint_speed_rad_s
+from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Framer, Reply
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.settings import emulator_settings
+
+__all__ = ["DEFAULT_CONFIG", "TwinCheck", "compare", "replay_twin", "sessions", "twin_check"]
+
+DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
+#: A move counts as arrived when every joint is this close to its target (rad): the driver's
+#: default arrival tolerance.
+ARRIVAL_TOLERANCE_RAD: Final = 3e-4
+
+#: A reply further than this (rad) beyond what full speed allows since the previous one starts a
+#: new session (the capture of another emulator, or an arm moved by hand while off).
+JUMP_SLACK_RAD: Final = 0.005
+#: Longest stall of the master's loop between two replies (s): the EEPROM records of four joints
+#: changing state at once (4 × 5 bytes × 3.3 ms); a reply may show that much more motion.
+STALL_S: Final = 0.07
+#: A silence longer than this (s) starts a new session: a power cut, a new emulator (its boot
+#: takes 0.1 s); longer than any stall of the loop.
+SILENCE_S: Final = 0.09
+#: Times closer than this (s) count as the same instant: a capture stores them to the nanosecond.
+TIME_SLACK_S: Final = 1e-6
+
+Vec4 = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class TwinCheck:
+    """The comparison of an arm's capture with its twin's replay."""
+
+    rms_rad: list[float]
+    max_rad: list[float]
+    rms_counts: list[float]
+    max_counts: list[float]
+    arrival_dt_s: list[float]
+    moves: int
+    arrived_arm_only: int
+    arrived_twin_only: int
+    replies_compared: int
+    measurements: list[Measurement]
+    verdict: str
+    twin_replies: list[tuple[float, Vec4]]
+    tcp: dict[str, float] | None = None
+    sessions: int = 1
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``--json`` object."""
+        dt = np.asarray(self.arrival_dt_s) if self.arrival_dt_s else None
+        return {
+            "rms_rad": self.rms_rad, "max_rad": self.max_rad, "rms_counts": self.rms_counts,
+            "max_counts": self.max_counts,
+            "arrival": {"moves": self.moves, "compared": len(self.arrival_dt_s),
+                        "arm_only": self.arrived_arm_only, "twin_only": self.arrived_twin_only,
+                        "mean_dt_s": None if dt is None else float(dt.mean()),
+                        "max_abs_dt_s": None if dt is None else float(np.abs(dt).max())},
+            "tcp": self.tcp, "replies_compared": self.replies_compared,
+            "sessions": self.sessions,
+            "measurements": [{"name": m.name, "value": m.value, "unit": m.unit,
+                              "limit": m.limit.describe() if m.limit else None,
+                              "outcome": m.outcome} for m in self.measurements],
+            "verdict": self.verdict,
+        }
+
+
+async def replay_twin(data: CaptureData, settings: RobotSettings) -> list[tuple[float, Vec4]]:
+    """Replay ``data``'s commands into a twin built from ``settings`` on the running loop; the
+    twin's replies, on the capture's clock (its first reply aligned with the capture's)."""
+    loop = asyncio.get_running_loop()
+    emulator = ArmEmulator(settings, emulator_settings(settings),
+                           initial_q_rad=data.replies[0][1])
+    framer = Framer("reply")
+    decode = AngleDecoder(settings.lower_rad, settings.upper_rad)
+    out: list[tuple[float, Vec4]] = []
+
+    def sink(chunk: bytes) -> None:
+        now = loop.time()
+        for event in framer.feed(chunk):
+            if isinstance(event, Reply):
+                out.append((now, decode(event)))
+
+    emulator.attach_host(sink)
+    await emulator.start()
+    try:
+        while not out:
+            await asyncio.sleep(0.001)
+        offset = out[0][0] - data.replies[0][0]
+        for t_s, command in data.commands:
+            delay = t_s + offset - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            emulator.host_write(command.encode())
+        end = data.replies[-1][0] + offset
+        await asyncio.sleep(max(0.0, end - loop.time()) + 0.01)
+    finally:
+        await emulator.close()
+    return [(t - offset, q) for t, q in out]
+
+
+def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
+              settings: RobotSettings) -> list[float | None]:
+    """Per command, the first reply time after it (before the next one) within the arrival
+    tolerance of its target on every joint, or None."""
+    t = np.asarray([r[0] for r in replies])
+    q = np.asarray([r[1] for r in replies])
+    times = [c[0] for c in data.commands] + [math.inf]
+    out: list[float | None] = []
+    for k, (tc, cmd) in enumerate(data.commands):
+        goal = np.asarray(cmd.angles_rad(settings.lower_rad, settings.upper_rad))
+        i0 = int(np.searchsorted(t, tc - TIME_SLACK_S))
+        i1 = int(np.searchsorted(t, times[k + 1] - TIME_SLACK_S))
+        close = np.all(np.abs(q[i0:i1] - goal) <= ARRIVAL_TOLERANCE_RAD, axis=1)
+        out.append(float(t[i0 + int(np.argmax(close))]) if close.any() else None)
+    return out
+
+
+def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: RobotSettings,
+            limits: LimitsConfig | None) -> TwinCheck:
+    """Compare the capture's replies with the twin's (see the module doc)."""
+    t_twin = np.asarray([r[0] for r in twin])
+    q_twin = np.asarray([r[1] for r in twin])
+    start = data.commands[0][0]
+    rows = [(t, q) for t, q in data.replies if t >= start and t >= t_twin[0]]
+    t_arm = np.asarray([r[0] for r in rows])
+    q_arm = np.asarray([r[1] for r in rows])
+    # the newest twin reply at each capture reply (the capture's times carry 1 ns of rounding)
+    idx = np.searchsorted(t_twin, t_arm + TIME_SLACK_S, side="right") - 1
+    diff = q_arm - q_twin[idx]
+    rms = np.sqrt(np.mean(diff * diff, axis=0))
+    peak = np.max(np.abs(diff), axis=0)
+    counts = np.asarray([j.counts_per_rad for j in settings.joints])
+    measurements = []
+    for j in range(4):
+        measurements.append(judge(f"twin.j{j + 1}.rms_counts", float(rms[j] * counts[j]),
+                                  "counts", limits,
+                                  description="RMS divergence of the reported angle"))
+        measurements.append(judge(f"twin.j{j + 1}.max_counts", float(peak[j] * counts[j]),
+                                  "counts", limits,
+                                  description="largest divergence of the reported angle"))
+    arm_arrivals = _arrivals(data.replies, data, settings)
+    twin_arrivals = _arrivals(twin, data, settings)
+    dts = [b - a for a, b in zip(arm_arrivals, twin_arrivals, strict=True)
+           if a is not None and b is not None]
+    verdict = "fail" if any(m.outcome == "fail" for m in measurements) else "pass"
+    return TwinCheck(
+        [float(v) for v in rms], [float(v) for v in peak], [float(v) for v in rms * counts],
+        [float(v) for v in peak * counts], dts, len(data.commands),
+        sum(a is not None and b is None for a, b in zip(arm_arrivals, twin_arrivals, strict=True)),
+        sum(a is None and b is not None for a, b in zip(arm_arrivals, twin_arrivals, strict=True)),
+        len(rows), measurements, verdict, list(twin))
+
+
+def sessions(data: CaptureData, settings: RobotSettings) -> list[CaptureData]:
+    """The capture cut where the arm it recorded was another one: a reply that jumps further
+    than the joints can move at full speed in the time since the previous one (and a stall of the
+    loop), or a silence longer than :data:`SILENCE_S` (a run's capture holds one emulator per
+    trial, each booting at its own pose). Sessions without commands are left out."""
+    t = np.asarray([r[0] for r in data.replies])
+    q = np.asarray([r[1] for r in data.replies])
+    if len(t) < 2:
+        return [data]
+    dt = np.diff(t)
+    speed = np.asarray([joint_speed_rad_s(MAX_DUTY, j.steps_per_rad) for j in settings.joints])
+    reach = 1.5 * speed * (dt[:, None] + STALL_S) + JUMP_SLACK_RAD
+    jump = np.abs(np.diff(q, axis=0)) > reach
+    cuts = [0, *(np.flatnonzero(jump.any(axis=1) | (dt > SILENCE_S)) + 1), len(t)]
+    out = []
+    for a, b in itertools.pairwise(cuts):
+        t0, t1 = t[a], (t[b] if b < len(t) else math.inf)
+        commands = [c for c in data.commands if t0 <= c[0] < t1]
+        if commands:
+            out.append(CaptureData(data.path, commands, data.replies[a:b], 0))
+    return out
+
+
+def twin_check(data: CaptureData, settings: RobotSettings,
+               config: str | Path | None = None) -> TwinCheck:
+    """Replay each session on a virtual-time loop and compare (see the module doc)."""
+    from armbench.fakes.vclock import run_virtual
+
+    limits = load_limits(config if config is not None else DEFAULT_CONFIG)
+    parts = sessions(data, settings)
+    twin: list[tuple[float, Vec4]] = []
+    for part in parts:
+        twin.extend(run_virtual(replay_twin(part, settings)))
+    merged = CaptureData(data.path, [c for p in parts for c in p.commands],
+                         [r for p in parts for r in p.replies], data.bad_in_frames)
+    result = compare(merged, twin, settings, limits)
+    return replace(result, sessions=len(parts))
