@@ -27,6 +27,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.i2c",
     "armbench.bench.commands.report",
     "armbench.bench.commands.compare",
+    "armbench.bench.commands.campaign",
+    "armbench.bench.commands.merge",
 )
 
 

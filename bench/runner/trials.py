@@ -128,8 +128,9 @@ class TrialAttempts:
         """Capture parts of trials not yet in the record (merged once they are)."""
         self.last_arm: Arm | None = None
 
-    async def connect(self, emulator_seed: int) -> Connection:
-        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``)."""
+    async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
+        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
+        arm ``robot``, by default the plan's)."""
         from armbench.drivers.arm import Arm
         from armbench.drivers.capture import CaptureWriter
 
@@ -142,14 +143,16 @@ class TrialAttempts:
             from armbench.drivers.transports.fake import FakeTransport
             from armbench.fakes.settings import emulator_settings
 
+            robot = plan.settings if robot is None else robot
             emulator = self.emulator_factory(
-                plan.settings, emulator_settings(plan.settings, seed=emulator_seed), plan.faults)
+                robot, emulator_settings(robot, seed=emulator_seed), plan.faults)
             transport = FakeTransport(plan.port, plan.settings.serial, emulator)
         capture: CaptureWriter | None = None
         try:
             # t_s on the run clock straight away: the part is appended to capture.jsonl as is
-            capture = CaptureWriter(part, asyncio.get_running_loop().time()
-                                    - self.clock.elapsed_s())
+            if plan.capture:
+                capture = CaptureWriter(part, asyncio.get_running_loop().time()
+                                        - self.clock.elapsed_s())
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=not plan.fake,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)
@@ -214,7 +217,8 @@ class TrialAttempts:
         try:
             if plan.isolation == "trial":
                 own = await self.connect(derive_seed(plan.seed, "emulator", ps.name, index,
-                                                     attempt))
+                                                     attempt),
+                                         ps.suite.emulated_settings(plan.settings, trial_params))
                 conn = own
             else:
                 conn = await self._run_connection()
