@@ -64,7 +64,7 @@ def test_bad_sigma_is_named(tmp_path: Path) -> None:
     path = tmp_path / "bad.toml"
     path.write_text('[emulator.effects]\nbacklash_rad = "x"  # fitted: ± 0.1 rad (1 σ); a\n',
                     encoding="utf-8")
-    with pytest.raises(SettingsError, match="emulator.effects.backlash_rad"):
+    with pytest.raises(SettingsError, match=r"emulator\.effects\.backlash_rad"):
         read_uncertainties(path)
 
 

@@ -245,7 +245,8 @@ class ParallelTrials:
             return results
 
         tasks = [asyncio.ensure_future(measure(index)) for index in todo]
-        last_commit = time.perf_counter()
+        last_commit = wall0 = time.perf_counter()
+        jobs0, worker_s0 = self.jobs, self.worker_s
         try:
             for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
                 await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
@@ -259,6 +260,9 @@ class ParallelTrials:
                     last_commit = now
                 if trial.status == "error":
                     return trial
+            runner.progress.message(
+                f"[{ps.name}] {self.jobs - jobs0} job(s) took {self.worker_s - worker_s0:.2f} s "
+                f"in the workers, {time.perf_counter() - wall0:.2f} s of wall time")
             return None
         finally:
             for task in tasks:
