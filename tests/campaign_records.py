@@ -41,12 +41,14 @@ def _walk(a: object, b: object, where: str, tol: float, out: list[str]) -> None:
         out.append(f"{where}: {a!r} vs {b!r}")
 
 
-def record_differences(a: Path, b: Path, *, tol: float = 0.0) -> list[str]:
+def record_differences(a: Path, b: Path, *, tol: float = 0.0,
+                       environment: bool = True) -> list[str]:
     """What differs between the records in run directories ``a`` and ``b`` (empty: the same
-    record); floats equal to ``tol`` (relative, or absolute below 1)."""
+    record); floats equal to ``tol`` (relative, or absolute below 1); ``environment=False``
+    leaves the environment (the limits file's path) out."""
     ra, rb = load(a), load(b)
     out: list[str] = []
     _walk(ra["suites"], rb["suites"], "suites", tol, out)
-    for key in ("planned_suites", "environment"):
+    for key in ("planned_suites", "environment") if environment else ("planned_suites",):
         _walk(ra[key], rb[key], key, tol, out)
     return out

@@ -49,12 +49,15 @@ def config(tmp_path: Path) -> Path:
 
 def test_run_on_dask_gives_the_local_pool_record_and_capture(
         tmp_path: Path, config: Path, two_workers: distributed.LocalCluster) -> None:
-    common = {"suites": ["startup-recovery"], "config": config, "seed": 5}
-    local = run_sync(RunOptions(**common, out=tmp_path / "local", workers=2), progress=None)
-    dask = run_sync(RunOptions(**common, out=tmp_path / "dask",
-                               scheduler=two_workers.scheduler_address), progress=None)
+    local = run_sync(RunOptions(suites=["startup-recovery"], config=config, seed=5,
+                                out=tmp_path / "local", workers=2), progress=None)
+    on_dask = tmp_path / "dask.toml"  # the [bench] setting this time
+    on_dask.write_text(CONFIG + f'[bench]\nscheduler = "{two_workers.scheduler_address}"\n',
+                       encoding="utf-8")
+    dask = run_sync(RunOptions(suites=["startup-recovery"], config=on_dask, seed=5,
+                               out=tmp_path / "dask"), progress=None)
     assert local.exit_status == dask.exit_status == 0
-    assert record_differences(tmp_path / "local", tmp_path / "dask") == []
+    assert record_differences(tmp_path / "local", tmp_path / "dask", environment=False) == []
     # the capture parts travelled back as bytes and were merged on the run clock
     capture = (tmp_path / "dask" / "capture.jsonl").read_bytes()
     assert capture and capture == (tmp_path / "local" / "capture.jsonl").read_bytes()
