@@ -32,9 +32,10 @@ import os
 import pickle
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
+from typing import Any
 
 from armbench.bench.record import Trial, path_inside
 from armbench.bench.runner.capture import job_part_tag
@@ -94,8 +95,11 @@ class TrialJob:
     plan: BenchPlan
     """The run's plan, without what a worker does not need (records, power, tracker)."""
     suite: PlannedSuite
+    """The suite, without its trial plan (thousands of trials in a campaign): ``params``."""
     index: int
     attempt: int
+    params: Mapping[str, Any]
+    """The trial's parameters."""
     ship: bool = False
     """Send the capture back as bytes (a Dask worker) instead of leaving it in the run
     directory (a local worker process)."""
@@ -119,7 +123,7 @@ class TrialJob:
             self.plan, out_dir=out_dir)
         attempts = TrialAttempts(plan, _JobClock(out_dir), messages, default_emulator,
                                  part_tag=job_part_tag(self.suite.name, self.index, self.attempt))
-        trial = await attempts.attempt(self.suite, self.index, self.attempt)
+        trial = await attempts.attempt(self.suite, self.index, self.attempt, self.params)
         return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
 
 
@@ -170,7 +174,8 @@ class ParallelTrials:
     def _job(self, ps: PlannedSuite, index: int, attempt: int) -> TrialJob:
         plan = dataclasses.replace(self.runner.plan, suites=[], resume=None, baseline=None,
                                    runner_info={})
-        return TrialJob(plan, ps, index, attempt, ship=self.runner.plan.scheduler is not None)
+        return TrialJob(plan, dataclasses.replace(ps, trials=[]), index, attempt,
+                        ps.trials[index], ship=self.runner.plan.scheduler is not None)
 
     async def _connect(self) -> DaskCluster:
         """The Dask client, connected on first use (in a thread: connecting blocks)."""

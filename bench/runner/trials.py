@@ -10,9 +10,9 @@ import dataclasses
 import logging
 import random
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.power import EmulatorPower
 from armbench.bench.record import RESULTS_FILE, RecordWriter, RunRecord, Trial
@@ -206,12 +206,15 @@ class TrialAttempts:
                             params=ps.params, rng=random.Random(rng_seed), power=power,
                             truth=truth, progress=progress, artifacts=artifacts)
 
-    async def attempt(self, ps: PlannedSuite, index: int, attempt: int) -> Trial:
-        """Measure trial ``index`` of ``ps`` once: the trial, or a trial in error (a lost arm
-        on hardware raises :class:`RunAborted`)."""
+    async def attempt(self, ps: PlannedSuite, index: int, attempt: int,
+                      trial_params: Mapping[str, Any] | None = None) -> Trial:
+        """Measure trial ``index`` of ``ps`` once (its parameters ``trial_params``, by default
+        ``ps.trials[index]``): the trial, or a trial in error (a lost arm on hardware raises
+        :class:`RunAborted`)."""
         plan = self.plan
         clock = self.clock
-        trial_params = ps.trials[index]
+        if trial_params is None:
+            trial_params = ps.trials[index]
         t0 = clock.elapsed_s()
         own: Connection | None = None
         try:
