@@ -1,7 +1,9 @@
-"""Campaigns at scale (``slow``): the same campaign on 1, 2 and 4 Dask workers and merged from 3
+"""Campaigns at scale (``slow``, and run only when asked for: ``pytest -m slow``; minutes to an
+hour on a busy 2-core machine): the same campaign on 1, 2 and 4 Dask workers and merged from 3
 shards gives one record; a 10 000-cut start-up recovery campaign completes with every cut
-exactly once. Throughput is measured by ``scripts/dask_throughput.py`` (``docs/campaigns.md``),
-not asserted here."""
+exactly once. Their small variants are in the default run (``test_dask.py``,
+``test_campaign.py``). Throughput is measured by ``scripts/dask_throughput.py``
+(``docs/campaigns.md``), not asserted here."""
 
 from __future__ import annotations
 
@@ -15,6 +17,13 @@ from armbench.bench.campaign import CampaignOptions, merge_shards, run_campaign
 distributed = pytest.importorskip("distributed")
 
 pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(autouse=True)
+def _asked_for(request: pytest.FixtureRequest) -> None:
+    expression = str(request.config.getoption("markexpr") or "")
+    if "slow" not in expression or "not slow" in expression:
+        pytest.skip("campaign at scale: run with -m slow")
 
 
 def test_one_two_four_workers_and_three_shards_give_one_record(tmp_path: Path) -> None:
