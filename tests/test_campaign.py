@@ -5,6 +5,7 @@ the same record whatever the number of workers or shards. Real emulator, real CL
 from __future__ import annotations
 
 import html
+import io
 import json
 import random
 import re
@@ -173,3 +174,35 @@ def test_cli_campaign_writes_record_and_page(tmp_path: Path,
                  "--out", str(tmp_path / "d")]) == 2
     assert "--samples" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+class _CtrlC(io.StringIO):
+    """A progress stream whose ``after``-th finished trial line is met by Ctrl-C."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__()
+        self.after = after
+        self.done = 0
+
+    def write(self, text: str) -> int:
+        if " done " in text:
+            self.done += 1
+            if self.done == self.after:
+                raise KeyboardInterrupt
+        return super().write(text)
+
+
+def test_interrupted_campaign_keeps_its_samples_and_resumes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stopped = run_campaign(CampaignOptions("startup-recovery", 8, seed=3, out=tmp_path / "a",
+                                           workers=1), progress=_CtrlC(4))
+    assert stopped.interrupted and stopped.exit_status == 130
+    on_disk = json.loads((tmp_path / "a" / "results.json").read_text())
+    assert len(on_disk["suites"]["startup-recovery"]["trials"]) == 4  # batching lost none
+    assert main(["campaign", "--resume", str(tmp_path / "a"), "--workers", "1"]) == 0
+    assert "8 sample(s) measured" in capsys.readouterr().out
+    run_campaign(CampaignOptions("startup-recovery", 8, seed=3, out=tmp_path / "b", workers=1),
+                 progress=None)
+    assert record_differences(tmp_path / "a", tmp_path / "b", tol=1e-9) == []
+    assert main(["campaign", "--resume", str(tmp_path / "a"), "--seed", "2"]) == 2
+    assert "--seed comes from the campaign" in capsys.readouterr().err

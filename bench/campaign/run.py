@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import json
 import sys
 import time
 from collections.abc import Mapping
@@ -19,11 +20,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
+from armbench.bench.baseline import read_record
 from armbench.bench.campaign.draws import read_uncertainties
 from armbench.bench.campaign.suite import CampaignSuite, campaign_params
-from armbench.bench.record import RESULTS_FILE, Trial, load_record
+from armbench.bench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
 from armbench.bench.runner import (
     EXIT_INTERRUPTED,
+    RUNNER_FILE,
     BenchPlan,
     PlannedSuite,
     RunOptions,
@@ -31,7 +34,7 @@ from armbench.bench.runner import (
     execute,
     prepare,
 )
-from armbench.bench.runner.plan import MAX_TRIALS
+from armbench.bench.runner.plan import MAX_TRIALS, json_equal
 from armbench.bench.runner.trials import LoopClockWriter
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
@@ -54,6 +57,9 @@ class CampaignOptions:
     workers: int | None = None
     scheduler: str | None = None
     shard: tuple[int, int] | None = None
+    resume: str | Path | None = None
+    """A campaign's run directory to continue: its suite, samples, settings, limits, seed and
+    shard come from there."""
 
 
 class BatchedWriter(LoopClockWriter):
@@ -87,8 +93,43 @@ class BatchedWriter(LoopClockWriter):
         return path
 
 
+def _resumed(options: CampaignOptions) -> BenchPlan:
+    """The plan of the campaign in ``options.resume``, to continue: the same inputs drawn again
+    (the draws depend on the seed and the sample only), checked against the record."""
+    assert options.resume is not None
+    directory = Path(options.resume)
+    record = read_record(path_inside(directory, RESULTS_FILE))
+    try:
+        info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
+        campaign = info["campaign"]
+        suite, samples = str(campaign["suite"]), int(campaign["samples"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise RecordError(str(directory / RUNNER_FILE), "does not describe a campaign; "
+                                                        "armbench run --resume continues a "
+                                                        "run") from None
+    if options.suite not in ("", suite) or options.samples not in (0, samples):
+        raise ArmbenchError(f"--resume: the campaign in {directory} is {suite} with {samples} "
+                            "samples; give neither SUITE nor --samples")
+    shard = info.get("shard")
+    plan = prepare_campaign(CampaignOptions(
+        suite, samples, settings=info.get("settings"), config=info.get("config"),
+        seed=record.environment.seed, workers=options.workers, scheduler=options.scheduler,
+        shard=(shard[0], shard[1]) if isinstance(shard, list) and len(shard) == 2 else None,
+        runs_root=directory.parent))
+    for ps in plan.suites:
+        rec = record.suites.get(ps.name)
+        if rec is not None and (rec.version != ps.suite.version
+                                or not json_equal(rec.params, ps.params)):
+            raise RecordError(f"suites.{ps.name}.params", "differ from what the campaign's "
+                                                          "inputs give now; start a new one")
+    return dataclasses.replace(plan, out_dir=directory, resume=record, run_id=record.run_id,
+                               runner_info={**info, **plan.runner_info})
+
+
 def prepare_campaign(options: CampaignOptions) -> BenchPlan:
     """Validate the options and plan the campaign (draws included), before anything runs."""
+    if options.resume is not None:
+        return _resumed(options)
     if isinstance(options.samples, bool) or not 1 <= options.samples <= MAX_TRIALS:
         raise SettingsError("--samples", options.samples, f"must be 1 to {MAX_TRIALS}")
     plan = prepare(RunOptions(

@@ -2,7 +2,8 @@
 distributions and pass probabilities (see ``docs/campaigns.md``).
 
 ``armbench campaign SUITE --samples N [--settings fitted.toml] [--config bench.toml]
-[--seed N] [--workers N | --scheduler tcp://HOST:PORT] [--shard I/N] [--out DIR]``
+[--seed N] [--workers N | --scheduler tcp://HOST:PORT] [--shard I/N] [--out DIR]``;
+``armbench campaign --resume DIR [--workers N | --scheduler ...]``
 
 Writes ``results.json`` (the record: one trial per sample, the distributions as ``campaign.*``
 suite figures) and ``campaign.html`` (histograms, pass probabilities with Wilson intervals).
@@ -20,6 +21,7 @@ from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.commands.run import shard_arg
 from armbench.bench.record import RunRecord
 from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PASS, RunOutcome
+from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register", "write_campaign_page"]
 
@@ -35,8 +37,11 @@ def register(sub: Any) -> None:
                     "and moment of each power cut. Writes results.json and campaign.html.",
         epilog="Exit status: 0 every sample measured, 2 the campaign could not run or a sample "
                "is in error, 130 interrupted.")
-    p.add_argument("suite", metavar="SUITE", help="the suite (accuracy, startup-recovery, ...)")
-    p.add_argument("--samples", type=int, required=True, metavar="N", help="samples to draw")
+    p.add_argument("suite", metavar="SUITE", nargs="?", default="",
+                   help="the suite (accuracy, startup-recovery, ...)")
+    p.add_argument("--samples", type=int, default=0, metavar="N", help="samples to draw")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the interrupted campaign in DIR (its inputs are kept)")
     p.add_argument("--settings", metavar="FILE",
                    help="robot settings TOML; values with a 'fitted: ± sigma' comment "
                         "(armbench calibrate) are drawn per sample")
@@ -62,10 +67,18 @@ def write_campaign_page(record: RunRecord, outcome: RunOutcome) -> None:
 
 
 def _campaign(args: argparse.Namespace) -> int:
+    if args.resume is None and not args.suite:
+        raise ArmbenchError("SUITE: name the suite of the campaign (or --resume DIR)")
+    if args.resume is not None:
+        given = [flag for flag, value in (("--settings", args.settings), ("--config", args.config),
+                                          ("--seed", args.seed), ("--out", args.out),
+                                          ("--shard", args.shard)) if value is not None]
+        if given:
+            raise ArmbenchError(f"--resume: {given[0]} comes from the campaign being resumed")
     outcome = run_campaign(CampaignOptions(
         suite=args.suite, samples=args.samples, settings=args.settings, config=args.config,
         out=args.out, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-        shard=args.shard), progress=sys.stderr)
+        shard=args.shard, resume=args.resume), progress=sys.stderr)
     record = outcome.record
     suite = next(iter(record.suites.values()), None)
     errors = 0 if suite is None else sum(t.status == "error" for t in suite.trials)
@@ -79,8 +92,10 @@ def _campaign(args: argparse.Namespace) -> int:
     print(f"  results.json  {outcome.results_path}", file=sys.stdout)
     if args.shard is None and suite is not None:
         write_campaign_page(record, outcome)
-    if outcome.interrupted:
-        return EXIT_INTERRUPTED
     complete = (suite is not None and suite.status == "done" and not errors
                 and outcome.error is None)
+    if not complete:
+        print(f"  continue with: armbench campaign --resume {outcome.out_dir}", file=sys.stdout)
+    if outcome.interrupted:
+        return EXIT_INTERRUPTED
     return EXIT_PASS if complete else EXIT_ERROR

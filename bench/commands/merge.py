@@ -13,9 +13,8 @@ import argparse
 import sys
 from typing import Any
 
-from armbench.bench.campaign import merge_shards
+from armbench.bench.campaign import CAMPAIGN_KEY, merge_shards
 from armbench.bench.reporting import write_reports
-from armbench.reports.campaign import campaign_suite
 
 __all__ = ["register"]
 
@@ -34,7 +33,7 @@ def register(sub: Any) -> None:
 def _merge(args: argparse.Namespace) -> int:
     outcome = merge_shards(args.shards, args.out)
     record = outcome.record
-    if campaign_suite(record) is not None:
+    if any(CAMPAIGN_KEY in s.params for s in record.suites.values()):
         from armbench.bench.commands.campaign import write_campaign_page
 
         write_campaign_page(record, outcome)

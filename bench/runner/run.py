@@ -169,6 +169,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         interrupted = True
         raise
     finally:
+        if writer_class is not LoopClockWriter:  # a batching writer's last trials
+            writer.write()
         printer.finish()
         if interrupted:
             printer.message(f"interrupted: the record keeps every finished trial; continue with "
