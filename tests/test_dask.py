@@ -133,3 +133,15 @@ def test_worker_killed_mid_campaign_loses_and_repeats_nothing(tmp_path: Path) ->
     run_campaign(CampaignOptions("startup-recovery", samples, seed=9, out=tmp_path / "calm",
                                  workers=2), progress=None)
     assert record_differences(tmp_path / "killed", tmp_path / "calm") == []
+
+
+def test_unreachable_scheduler_stops_the_run_with_its_address(
+        tmp_path: Path, config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from armbench.bench.runner import cluster
+
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT_S", 1.0)  # nothing listens: no need to wait
+    outcome = run_sync(RunOptions(suites=["startup-recovery"], config=config,
+                                  out=tmp_path / "r", scheduler="tcp://127.0.0.1:1"),
+                       progress=None)
+    assert outcome.exit_status == 2
+    assert outcome.error is not None and "Dask scheduler tcp://127.0.0.1:1" in outcome.error
