@@ -30,6 +30,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.firmware",
     "armbench.bench.commands.calibrate",
     "armbench.bench.commands.twin_check",
+    "armbench.bench.commands.campaign",
+    "armbench.bench.commands.merge",
 )
 
 

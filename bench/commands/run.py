@@ -3,7 +3,7 @@
 ``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
 [--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
 [--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
-[--capture-max-mb MB]``
+[--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N]``
 
 Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
 failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
@@ -62,6 +62,12 @@ def register(sub: Any) -> None:
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="processes measuring fake:// trials at once (default: [bench] workers, "
                         "else one per CPU, at most 2; 1: in turn on one loop)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="measure fake:// trials on this Dask scheduler's workers (default: "
+                        "[bench] scheduler, else the local processes of --workers)")
+    p.add_argument("--shard", type=shard_arg, metavar="I/N",
+                   help="measure only shard I of N of the trials (CI); join the shards with "
+                        "armbench merge")
     p.add_argument("--retries", type=int, default=None, metavar="N",
                    help="measure a trial that ended in error up to N more times (default: "
                         "[bench] retries, else 0)")
@@ -74,6 +80,18 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_run)
 
 
+def shard_arg(text: str) -> tuple[int, int]:
+    """``I/N`` → ``(I, N)`` with 1 <= I <= N (an argparse type)."""
+    i, sep, n = text.partition("/")
+    try:
+        shard = (int(i), int(n))
+    except ValueError:
+        shard = (0, 0)
+    if not sep or not 1 <= shard[0] <= shard[1]:
+        raise argparse.ArgumentTypeError(f"{text!r} is not I/N with 1 <= I <= N")
+    return shard
+
+
 def _run(args: argparse.Namespace) -> int:
     options = RunOptions(
         suites=list(args.suites), port=args.port, config=args.config, out=args.out,
@@ -81,7 +99,8 @@ def _run(args: argparse.Namespace) -> int:
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
-        workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb)
+        workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
+        scheduler=args.scheduler, shard=args.shard)
     outcome = run_sync(options, progress=sys.stderr)
     write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
     _summary(outcome)

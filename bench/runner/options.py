@@ -27,6 +27,7 @@ __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "EXIT_ERROR", "EXIT_FAIL", "EXIT_INTERRUPTED", "EXIT_PASS",
     "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan", "EmulatorFactory", "Isolation",
     "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome", "derive_seed", "exit_status",
+    "in_shard",
 ]
 
 #: The limits file used when ``--config`` is not given (shipped with the package).
@@ -52,6 +53,12 @@ Isolation = Literal["trial", "run"]
 EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault]"],
                            "ArmEmulator"]
 """Builds the ``fake://`` emulator of a connection (tests pass one to watch the emulators)."""
+
+
+def in_shard(index: int, shard: tuple[int, int] | None) -> bool:
+    """Whether trial ``index`` belongs to ``shard`` ``(I, N)``: every N-th trial from I − 1, so
+    each shard gets its share of a plan that cycles through conditions; None: every trial."""
+    return shard is None or index % shard[1] == shard[0] - 1
 
 
 def exit_status(verdict: Verdict) -> int:
@@ -103,6 +110,11 @@ class RunOptions:
     workers: int | None = None
     """Processes measuring ``fake://`` trials at once; None: ``[bench] workers`` or one per CPU
     (at most 2)."""
+    scheduler: str | None = None
+    """A Dask scheduler (``tcp://HOST:PORT``) measuring the ``fake://`` trials; None:
+    ``[bench] scheduler`` or the local process pool."""
+    shard: tuple[int, int] | None = None
+    """``(I, N)``: measure only shard I of N (1-based) of every suite's trials (CI)."""
 
 
 @dataclass(slots=True)
@@ -149,11 +161,17 @@ class BenchPlan:
     workers: int = 1
     """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
     capture: bool = True
-    """Whether the traffic is captured (``[bench] capture``, ``--no-capture``)."""
+    """Whether connections write the traffic capture (``[bench] capture``, ``--no-capture``; a
+    campaign of thousands of trials does not)."""
     capture_max_bytes: int | None = None
     """The capture's size bound in bytes; None: unbounded."""
     warnings: list[str] = field(default_factory=list)
     """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
+    scheduler: str | None = None
+    """The Dask scheduler measuring ``fake://`` trials (``[bench] scheduler``), or None."""
+    shard: tuple[int, int] | None = None
+    """``(I, N)``: only the trials of shard I of N (:func:`in_shard`); suites are not summarised
+    (``armbench merge`` does it over every shard)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
@@ -168,7 +186,7 @@ class BenchPlan:
         if rec is not None and rec.status == "done":
             return []
         done = set() if rec is None else {t.index for t in rec.completed_trials()}
-        return [i for i in range(len(s.trials)) if i not in done]
+        return [i for i in range(len(s.trials)) if i not in done and in_shard(i, self.shard)]
 
 
 @dataclass(slots=True)

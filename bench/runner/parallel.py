@@ -10,6 +10,10 @@ at most two; the process machinery is ``armbench.bench.workers``) and commits th
 ``started_s`` on the run clock, ``results.json``, and the capture part merged with its times
 moved onto the run clock.
 
+With a Dask scheduler (``plan.scheduler``, ``armbench.bench.runner.cluster``) the same jobs go
+to the cluster's workers instead, whatever ``workers`` says; a job then sends its capture part
+back as bytes (workers may have no access to the run directory) and the parent writes it.
+
 A worker runs :meth:`TrialJob.measure`: the same :meth:`TrialAttempts.attempt` the sequential
 path runs, on a ``VirtualTimeLoop`` starting at 0, with a stand-in for the record writer (the
 worker never writes ``results.json``) and the trial's progress messages collected for the parent
@@ -26,14 +30,17 @@ import logging
 import multiprocessing
 import os
 import pickle
+import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
+from typing import Any
 
 from armbench.bench.record import Trial, path_inside
 from armbench.bench.runner.capture import job_part_tag
-from armbench.bench.runner.options import BenchPlan, PlannedSuite
+from armbench.bench.runner.cluster import DaskCluster
+from armbench.bench.runner.options import BenchPlan, PlannedSuite, RunAborted
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
 from armbench.bench.workers import run_job, worker_init
 
@@ -45,11 +52,14 @@ log = logging.getLogger("armbench.runner")
 @dataclass(frozen=True, slots=True)
 class JobResult:
     """What a worker sends back: the trial on the worker's clock (``started_s`` from its loop's
-    0), its capture parts (times on the same clock) and its progress messages."""
+    0), its capture parts (times on the same clock: files in the run directory, or their bytes
+    from a Dask worker), its progress messages and the seconds the job took in the worker."""
 
     trial: Trial
     parts: tuple[Path, ...]
     messages: tuple[str, ...]
+    shipped: tuple[bytes, ...] = ()
+    worker_s: float = 0.0
 
 
 class _JobClock:
@@ -85,16 +95,35 @@ class TrialJob:
     plan: BenchPlan
     """The run's plan, without what a worker does not need (records, power, tracker)."""
     suite: PlannedSuite
+    """The suite, without its trial plan (thousands of trials in a campaign): ``params``."""
     index: int
     attempt: int
+    params: Mapping[str, Any]
+    """The trial's parameters."""
+    ship: bool = False
+    """Send the capture back as bytes (a Dask worker) instead of leaving it in the run
+    directory (a local worker process)."""
 
     async def measure(self) -> JobResult:
         """Measure the attempt on the running loop (a worker's fresh virtual-time loop)."""
+        t0 = time.perf_counter()
+        if not self.ship:
+            result = await self._measure(self.plan.out_dir)
+        else:
+            with tempfile.TemporaryDirectory(prefix="armbench-job-") as tmp:
+                result = await self._measure(Path(tmp))
+                result = dataclasses.replace(
+                    result, parts=(), shipped=tuple(p.read_bytes() for p in result.parts
+                                                    if p.exists()))
+        return dataclasses.replace(result, worker_s=time.perf_counter() - t0)
+
+    async def _measure(self, out_dir: Path) -> JobResult:
         messages = _Messages()
-        attempts = TrialAttempts(self.plan, _JobClock(self.plan.out_dir), messages,
-                                 default_emulator,
+        plan = self.plan if out_dir == self.plan.out_dir else dataclasses.replace(
+            self.plan, out_dir=out_dir)
+        attempts = TrialAttempts(plan, _JobClock(out_dir), messages, default_emulator,
                                  part_tag=job_part_tag(self.suite.name, self.index, self.attempt))
-        trial = await attempts.attempt(self.suite, self.index, self.attempt)
+        trial = await attempts.attempt(self.suite, self.index, self.attempt, self.params)
         return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
 
 
@@ -112,6 +141,12 @@ class ParallelTrials:
         self.runner = runner
         self.pool: concurrent.futures.ProcessPoolExecutor | None = None
         """The worker processes, once started."""
+        self.cluster: DaskCluster | None = None
+        """The Dask client (``plan.scheduler``), once connected."""
+        self.worker_s = 0.0
+        """Seconds the committed jobs took inside the workers (with the wall time of the run:
+        the overhead of sending trials out)."""
+        self.jobs = 0
 
     def usable(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
         """Whether the trials of ``ps`` go to worker processes: ``fake://`` with trial isolation
@@ -119,7 +154,8 @@ class ParallelTrials:
         run clock is moved by each trial's duration), and a plan that can be sent."""
         runner = self.runner
         plan = runner.plan
-        if not (plan.fake and plan.isolation == "trial" and plan.workers > 1 and len(todo) > 1
+        spread = plan.workers > 1 or plan.scheduler is not None
+        if not (plan.fake and plan.isolation == "trial" and spread and len(todo) > 1
                 and runner.attempts.emulator_factory is default_emulator
                 and plan.tracker is None and plan.power is None):
             return False
@@ -138,7 +174,20 @@ class ParallelTrials:
     def _job(self, ps: PlannedSuite, index: int, attempt: int) -> TrialJob:
         plan = dataclasses.replace(self.runner.plan, suites=[], resume=None, baseline=None,
                                    runner_info={})
-        return TrialJob(plan, ps, index, attempt)
+        return TrialJob(plan, dataclasses.replace(ps, trials=[]), index, attempt,
+                        ps.trials[index], ship=self.runner.plan.scheduler is not None)
+
+    async def _connect(self) -> DaskCluster:
+        """The Dask client, connected on first use (in a thread: connecting blocks)."""
+        if self.cluster is None:
+            address = self.runner.plan.scheduler
+            assert address is not None
+            loop = asyncio.get_running_loop()
+            try:
+                self.cluster = await loop.run_in_executor(None, DaskCluster, address)
+            except (OSError, TimeoutError) as exc:
+                raise RunAborted(f"cannot reach the Dask scheduler {address}: {exc}") from exc
+        return self.cluster
 
     async def run(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
         """Measure ``todo`` in worker processes, commit them in order; the trial that stopped
@@ -146,9 +195,18 @@ class ParallelTrials:
         runner = self.runner
         loop = asyncio.get_running_loop()
         attempts = runner.plan.retries + 1
-        in_flight = asyncio.Semaphore(runner.plan.workers)  # the pool's queue stays short
+        if runner.plan.scheduler is not None:
+            cluster = await self._connect()
+            # two per worker thread: the next trial is there when one ends, the queue stays short
+            in_flight = asyncio.Semaphore(2 * cluster.threads())
+        else:
+            in_flight = asyncio.Semaphore(runner.plan.workers)  # the pool's queue stays short
 
         async def shared(job: TrialJob) -> JobResult:
+            if self.cluster is not None:
+                on_cluster: JobResult = await loop.run_in_executor(self.cluster.executor,
+                                                                   run_job, job)
+                return on_cluster
             if self.pool is None:
                 self.pool = _new_pool(runner.plan.workers)
             pool = self.pool
@@ -181,7 +239,7 @@ class ParallelTrials:
                             result = await shared(job)
                         except concurrent.futures.BrokenExecutor:
                             result = await alone(job)
-                    except Exception as exc:  # the worker itself failed (killed, result unsent)
+                    except Exception as exc:  # the worker failed (killed, KilledWorker on Dask)
                         log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
                         result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
                                                  status="error",
@@ -192,7 +250,8 @@ class ParallelTrials:
             return results
 
         tasks = [asyncio.ensure_future(measure(index)) for index in todo]
-        last_commit = time.perf_counter()
+        last_commit = wall0 = time.perf_counter()
+        jobs0, worker_s0 = self.jobs, self.worker_s
         try:
             for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
                 await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
@@ -206,6 +265,9 @@ class ParallelTrials:
                     last_commit = now
                 if trial.status == "error":
                     return trial
+            runner.progress.message(
+                f"[{ps.name}] {self.jobs - jobs0} job(s) took {self.worker_s - worker_s0:.2f} s "
+                f"in the workers, {time.perf_counter() - wall0:.2f} s of wall time")
             return None
         finally:
             for task in tasks:
@@ -225,8 +287,16 @@ class ParallelTrials:
         start = clock.elapsed_s()
         trial = dataclasses.replace(result.trial, started_s=start)
         clock.advance(trial.duration_s)
+        parts = list(result.parts)
+        for k, data in enumerate(result.shipped, 1):  # on disk before the record: see recover
+            part = runner.writer.artifact_path(
+                f".capture.part{k}{job_part_tag(ps.name, index, attempt)}.jsonl")
+            part.write_bytes(data)
+            parts.append(part)
         runner.writer.add_trial(ps.name, trial)
-        for part in result.parts:
+        self.worker_s += result.worker_s
+        self.jobs += 1
+        for part in parts:
             runner.captures.merge(part, start - result.trial.started_s)
         for line in result.messages:
             runner.progress.message(line)
@@ -239,3 +309,6 @@ class ParallelTrials:
         pool, self.pool = self.pool, None
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
+        cluster, self.cluster = self.cluster, None
+        if cluster is not None:
+            cluster.close()

@@ -59,7 +59,8 @@ __all__ = ["prepare"]
 MAX_TRIALS = 10_000
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
-               "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes"}
+               "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes",
+               "scheduler"}
 
 
 @dataclass(slots=True)
@@ -99,6 +100,7 @@ class _BenchKnobs:
     tracker_params: Mapping[str, Any]
     capture: bool
     capture_max_bytes: int | None
+    scheduler: str | None = None
 
 
 def _number(where: str, value: object, *, low: float, strict: bool) -> float:
@@ -244,6 +246,12 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
     if not isinstance(tracker_params, Mapping):
         raise SettingsError("bench.tracker", tracker_params, "is not a table")
     capture, capture_max_bytes = capture_options(bench, options.capture, options.capture_max_mb)
+    scheduler = options.scheduler if options.scheduler is not None else bench.get("scheduler")
+    if scheduler is not None:
+        from armbench.bench.runner.cluster import check_scheduler
+
+        check_scheduler("--scheduler" if options.scheduler is not None else "bench.scheduler",
+                        scheduler, fake)
     return _BenchKnobs(
         retries=retries, workers=workers, isolation=isolation, capture=capture,
         capture_max_bytes=capture_max_bytes,
@@ -255,7 +263,7 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
         power_timeout_s=_number("bench.power_timeout_s",
                                 bench.get("power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
                                 low=0, strict=True),
-        tracker_params=tracker_params)
+        tracker_params=tracker_params, scheduler=scheduler)
 
 
 def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
@@ -370,7 +378,8 @@ def _resume_target(options: RunOptions) -> Path:
     resume_dir = Path(options.resume)
     for flag, given in (("SUITE", bool(options.suites)), ("--config", options.config),
                         ("--seed", options.seed is not None),
-                        ("--settings", options.settings), ("--faults", options.faults)):
+                        ("--settings", options.settings), ("--faults", options.faults),
+                        ("--shard", options.shard is not None)):
         if given:
             raise ArmbenchError(f"--resume: {flag} comes from the run being resumed and "
                                 "cannot be given again")
@@ -426,6 +435,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         "settings": str(Path(settings_path).resolve()) if settings_path else None,
         "config": str(Path(inputs.config.path).resolve()) if inputs.config.path else None,
         "faults": str(Path(options.faults).resolve()) if options.faults is not None else None,
+        "shard": None if options.shard is None else list(check_shard(options.shard)),
     }
     if resume is not None:
         runner_info = {**info, "suites": runner_info["suites"]}
@@ -437,5 +447,23 @@ def prepare(options: RunOptions) -> BenchPlan:
         connect_timeout_s=knobs.connect_timeout_s, settle_s=knobs.settle_s, power=power,
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
         capture=knobs.capture, capture_max_bytes=knobs.capture_max_bytes,
-        warnings=_warnings(inputs.config),
+        warnings=_warnings(inputs.config), scheduler=knobs.scheduler,
+        shard=_shard_of(runner_info),
     )
+
+
+def check_shard(shard: tuple[int, int]) -> tuple[int, int]:
+    """``(I, N)`` with 1 <= I <= N, else a SettingsError naming ``--shard``."""
+    i, n = shard
+    if not (isinstance(i, int) and isinstance(n, int) and 1 <= i <= n):
+        raise SettingsError("--shard", f"{i}/{n}", "must be I/N with 1 <= I <= N")
+    return i, n
+
+
+def _shard_of(info: Mapping[str, Any]) -> tuple[int, int] | None:
+    shard = info.get("shard")
+    if shard is None:
+        return None
+    if not (isinstance(shard, list) and len(shard) == 2):
+        raise RecordError(f"{RUNNER_FILE}.shard", f"{shard!r} is not [I, N]")
+    return check_shard((shard[0], shard[1]))

@@ -50,6 +50,7 @@ from armbench.bench.runner.options import (
     RunOptions,
     RunOutcome,
     exit_status,
+    in_shard,
 )
 from armbench.bench.runner.parallel import ParallelTrials
 from armbench.bench.runner.plan import prepare
@@ -78,9 +79,11 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
     writer.begin_suite(name, ps.suite.version, ps.params)
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
-    todo = [i for i in range(n) if i not in done]
+    shard = runner.plan.shard
+    todo = [i for i in range(n) if i not in done and in_shard(i, shard)]
     runner.progress.message(f"[{name}] {n} trial(s)" + (
-        f", {len(done)} already measured" if done else ""))
+        f", {len(done)} already measured" if done else "") + (
+        f", shard {shard[0]}/{shard[1]}: {len(todo)} to measure" if shard else ""))
     stopped: Trial | None = None
     if parallel.usable(ps, todo):
         stopped = await parallel.run(ps, todo)
@@ -96,11 +99,17 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
         writer.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
         runner.progress.message(f"[{name}] stopped: trial {stopped.index}: {stopped.error}")
         return
+    if shard is not None:  # a summary of one shard's trials would mislead: merge summarises
+        writer.end_suite(name)
+        runner.progress.message(f"[{name}] shard {shard[0]}/{shard[1]} done (summary: "
+                                "armbench merge)")
+        return
     await runner.summarize(ps)
 
 
 async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
-                  emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+                  emulator_factory: EmulatorFactory | None = None,
+                  writer_class: type[LoopClockWriter] = LoopClockWriter) -> RunOutcome:
     """Run a prepared plan (see the module docstring); returns the outcome.
 
     Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
@@ -108,7 +117,7 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
     :class:`asyncio.CancelledError`.
     """
     if plan.resume is not None:
-        resumed = LoopClockWriter.resume(plan.out_dir)
+        resumed = writer_class.resume(plan.out_dir)
         assert isinstance(resumed, LoopClockWriter)
         writer = resumed
         for ps in plan.suites:  # planned suites may be re-checked, never changed
@@ -116,7 +125,7 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                 writer.record.planned_suites.append(ps.name)
     else:
         plan.out_dir.mkdir(parents=True, exist_ok=True)
-        writer = LoopClockWriter(plan.out_dir, _new_record(plan))
+        writer = writer_class(plan.out_dir, _new_record(plan))
     atomic_write_bytes(writer.artifact_path(RUNNER_FILE),
                        (json.dumps(plan.runner_info, indent=1) + "\n").encode())
     t_run0 = writer.elapsed_s()
@@ -160,6 +169,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         interrupted = True
         raise
     finally:
+        if writer_class is not LoopClockWriter:  # a batching writer's last trials
+            writer.write()
         printer.finish()
         if interrupted:
             printer.message(f"interrupted: the record keeps every finished trial; continue with "

@@ -10,9 +10,9 @@ import dataclasses
 import logging
 import random
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.power import EmulatorPower
 from armbench.bench.record import (
@@ -135,8 +135,9 @@ class TrialAttempts:
         """Capture parts of trials not yet in the record (merged once they are)."""
         self.last_arm: Arm | None = None
 
-    async def connect(self, emulator_seed: int) -> Connection:
-        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``)."""
+    async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
+        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
+        arm ``robot``, by default the plan's)."""
         from armbench.drivers.arm import Arm
         from armbench.drivers.capture import CaptureWriter
 
@@ -149,8 +150,9 @@ class TrialAttempts:
             from armbench.fakes.settings import emulator_settings
             from armbench.fakes.transport import FakeTransport
 
+            robot = plan.settings if robot is None else robot
             emulator = self.emulator_factory(
-                plan.settings, emulator_settings(plan.settings, seed=emulator_seed), plan.faults)
+                robot, emulator_settings(robot, seed=emulator_seed), plan.faults)
             transport = FakeTransport(plan.port, plan.settings.serial, emulator)
         capture: CaptureWriter | None = None
         try:
@@ -212,18 +214,22 @@ class TrialAttempts:
                             params=ps.params, rng=random.Random(rng_seed), power=power,
                             truth=truth, progress=progress, artifacts=artifacts)
 
-    async def attempt(self, ps: PlannedSuite, index: int, attempt: int) -> Trial:
-        """Measure trial ``index`` of ``ps`` once: the trial, or a trial in error (a lost arm
-        on hardware raises :class:`RunAborted`)."""
+    async def attempt(self, ps: PlannedSuite, index: int, attempt: int,
+                      trial_params: Mapping[str, Any] | None = None) -> Trial:
+        """Measure trial ``index`` of ``ps`` once (its parameters ``trial_params``, by default
+        ``ps.trials[index]``): the trial, or a trial in error (a lost arm on hardware raises
+        :class:`RunAborted`)."""
         plan = self.plan
         clock = self.clock
-        trial_params = ps.trials[index]
+        if trial_params is None:
+            trial_params = ps.trials[index]
         t0 = clock.elapsed_s()
         own: Connection | None = None
         try:
             if plan.isolation == "trial":
                 own = await self.connect(derive_seed(plan.seed, "emulator", ps.name, index,
-                                                     attempt))
+                                                     attempt),
+                                         ps.suite.emulated_settings(plan.settings, trial_params))
                 conn = own
             else:
                 conn = await self._run_connection()

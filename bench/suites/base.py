@@ -126,6 +126,12 @@ class Suite(abc.ABC):
                   trial_params: Mapping[str, Any]) -> Awaitable[Trial]:
         """Run one trial and return it (``status="error"`` when it could not be measured)."""
 
+    def emulated_settings(self, settings: RobotSettings,
+                          trial_params: Mapping[str, Any]) -> RobotSettings:
+        """The arm the emulator plays in a ``fake://`` trial: ``settings`` (the bench's model of
+        the arm, which the driver keeps); a campaign draws another arm per trial."""
+        return settings
+
     @abc.abstractmethod
     def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
         """Suite-level measurements from all finished trials (what baselines compare)."""

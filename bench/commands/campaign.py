@@ -1,0 +1,101 @@
+"""``armbench campaign``: many trials of one suite over drawn conditions on the emulator, their
+distributions and pass probabilities (see ``docs/campaigns.md``).
+
+``armbench campaign SUITE --samples N [--settings fitted.toml] [--config bench.toml]
+[--seed N] [--workers N | --scheduler tcp://HOST:PORT] [--shard I/N] [--out DIR]``;
+``armbench campaign --resume DIR [--workers N | --scheduler ...]``
+
+Writes ``results.json`` (the record: one trial per sample, the distributions as ``campaign.*``
+suite figures) and ``campaign.html`` (histograms, pass probabilities with Wilson intervals).
+Exit status: 0 the campaign measured every sample, 2 it could not run or a sample is in error,
+130 interrupted. Samples failing limits are the campaign's findings, not its failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from armbench.bench.campaign import CampaignOptions, run_campaign
+from armbench.bench.commands.run import shard_arg
+from armbench.bench.record import RunRecord
+from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PASS, RunOutcome
+from armbench.drivers.errors import ArmbenchError
+
+__all__ = ["register", "write_campaign_page"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``campaign`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "campaign", help="many trials of one suite over drawn conditions (Monte Carlo on the "
+                         "emulator)",
+        description="Run SUITE --samples times on the emulator, each sample over drawn "
+                    "conditions: the arm's fitted settings drawn from their uncertainties "
+                    "(--settings, a calibration's output), and for startup-recovery the state "
+                    "and moment of each power cut. Writes results.json and campaign.html.",
+        epilog="Exit status: 0 every sample measured, 2 the campaign could not run or a sample "
+               "is in error, 130 interrupted.")
+    p.add_argument("suite", metavar="SUITE", nargs="?", default="",
+                   help="the suite (accuracy, startup-recovery, ...)")
+    p.add_argument("--samples", type=int, default=0, metavar="N", help="samples to draw")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the interrupted campaign in DIR (its inputs are kept)")
+    p.add_argument("--settings", metavar="FILE",
+                   help="robot settings TOML; values with a 'fitted: ± sigma' comment "
+                        "(armbench calibrate) are drawn per sample")
+    p.add_argument("--config", metavar="FILE", help="limits and suite parameters")
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="campaign seed")
+    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local worker processes (default: [bench] workers, else one per CPU, "
+                        "at most 2)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="measure the samples on this Dask scheduler's workers")
+    p.add_argument("--shard", type=shard_arg, metavar="I/N",
+                   help="measure only shard I of N of the samples; join with armbench merge")
+    p.set_defaults(func=_campaign)
+
+
+def write_campaign_page(record: RunRecord, outcome: RunOutcome) -> None:
+    """``campaign.html`` beside the record."""
+    from armbench.reports.campaign import CAMPAIGN_PAGE, render_campaign
+
+    path = render_campaign(record, outcome.out_dir / CAMPAIGN_PAGE)
+    print(f"  {CAMPAIGN_PAGE:<13} {path}", file=sys.stdout)
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    if args.resume is None and not args.suite:
+        raise ArmbenchError("SUITE: name the suite of the campaign (or --resume DIR)")
+    if args.resume is not None:
+        given = [flag for flag, value in (("--settings", args.settings), ("--config", args.config),
+                                          ("--seed", args.seed), ("--out", args.out),
+                                          ("--shard", args.shard)) if value is not None]
+        if given:
+            raise ArmbenchError(f"--resume: {given[0]} comes from the campaign being resumed")
+    outcome = run_campaign(CampaignOptions(
+        suite=args.suite, samples=args.samples, settings=args.settings, config=args.config,
+        out=args.out, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
+        shard=args.shard, resume=args.resume), progress=sys.stderr)
+    record = outcome.record
+    suite = next(iter(record.suites.values()), None)
+    errors = 0 if suite is None else sum(t.status == "error" for t in suite.trials)
+    print(f"campaign {record.run_id}: {args.suite}, "
+          f"{0 if suite is None else len(suite.trials) - errors} sample(s) measured"
+          + (f", {errors} in error" if errors else ""), file=sys.stdout)
+    if suite is not None:
+        for m in suite.measurements:
+            if m.name.endswith((".pass_pct", ".rate_pct")):
+                print(f"  {m.name} = {m.value:.4g} %  ({m.description})", file=sys.stdout)
+    print(f"  results.json  {outcome.results_path}", file=sys.stdout)
+    if args.shard is None and suite is not None:
+        write_campaign_page(record, outcome)
+    complete = (suite is not None and suite.status == "done" and not errors
+                and outcome.error is None)
+    if not complete:
+        print(f"  continue with: armbench campaign --resume {outcome.out_dir}", file=sys.stdout)
+    if outcome.interrupted:
+        return EXIT_INTERRUPTED
+    return EXIT_PASS if complete else EXIT_ERROR

@@ -1,0 +1,48 @@
+"""``armbench merge``: join the shards of a run (``armbench run --shard I/N``, ``armbench
+campaign --shard I/N``) into one record, as the unsharded run would have written it.
+
+``armbench merge DIR... --out DIR``
+
+Exit status: as ``armbench run`` for the merged record (0 pass, 1 a limit failed, 2 error); 2 for
+shards that do not make one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from armbench.bench.campaign import CAMPAIGN_KEY, merge_shards
+from armbench.bench.reporting import write_reports
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``merge`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "merge", help="join the shards of a run into one record",
+        description="Join shard run directories (--shard I/N) into one record: every trial once, "
+                    "the suite summaries computed over all of them.")
+    p.add_argument("shards", nargs="+", metavar="DIR", help="the shards' run directories")
+    p.add_argument("--out", required=True, metavar="DIR", help="the merged run directory")
+    p.set_defaults(func=_merge)
+
+
+def _merge(args: argparse.Namespace) -> int:
+    outcome = merge_shards(args.shards, args.out)
+    record = outcome.record
+    if any(CAMPAIGN_KEY in s.params for s in record.suites.values()):
+        from armbench.bench.commands.campaign import write_campaign_page
+
+        write_campaign_page(record, outcome)
+        status = 0 if record.verdict != "incomplete" and record.verdict != "error" else 2
+    else:
+        write_reports(record, outcome.out_dir)
+        status = outcome.exit_status
+    trials = sum(len(s.trials) for s in record.suites.values())
+    print(f"merged {len(args.shards)} shard(s) into run {record.run_id}: {trials} trial(s), "
+          f"verdict {record.verdict}", file=sys.stdout)
+    print(f"  results.json  {outcome.results_path}", file=sys.stdout)
+    return status

@@ -1,0 +1,211 @@
+"""``armbench campaign``: draws from a calibration's uncertainties, the Wilson interval, a
+campaign's record (one trial per sample, distributions as ``campaign.*`` figures), its page, and
+the same record whatever the number of workers or shards. Real emulator, real CLI."""
+
+from __future__ import annotations
+
+import html
+import io
+import json
+import random
+import re
+from pathlib import Path
+
+import pytest
+from campaign_records import record_differences
+
+from armbench.bench.campaign import (
+    CampaignOptions,
+    merge_shards,
+    read_uncertainties,
+    run_campaign,
+    wilson_interval,
+)
+from armbench.bench.campaign.draws import draw_arm
+from armbench.bench.cli import main
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.reports.format import CSP
+
+# As armbench calibrate writes it: each fitted value with its standard error in a comment.
+FITTED = """# Robot settings fitted by armbench calibrate from fake://.
+[joints.j2]
+offset_deg = 90.0  # fitted: ± 0.3 deg (1 σ); Hall approaches
+hall_deg = 0.0  # kept: not identified
+
+[emulator]
+profile = "ideal"  # the drawn play alone moves the true path (no stick-slip, sag or step loss)
+
+[emulator.effects]
+backlash_rad = 0.001  # fitted: ± 0.002 rad (1 σ); reversal gaps
+noise_rate_hz = 0.0
+"""
+
+ACCURACY = """spec_version = "armbench-limits/1"
+[limits."accuracy.coordinated.true_mean_mm"]
+high = 0.5
+unit = "mm"
+[suites.accuracy]
+laps = 1
+styles = ["coordinated"]
+"""
+
+
+@pytest.fixture()
+def fitted(tmp_path: Path) -> Path:
+    path = tmp_path / "fitted.toml"
+    path.write_text(FITTED, encoding="utf-8")
+    return path
+
+
+def test_uncertainties_read_from_the_calibration_comments(fitted: Path) -> None:
+    got = read_uncertainties(fitted)
+    assert [(u.key, u.value, u.sigma, u.unit) for u in got] == [
+        ("joints.j2.offset_deg", 90.0, 0.3, "deg"),
+        ("emulator.effects.backlash_rad", 0.001, 0.002, "rad")]
+
+
+def test_bad_sigma_is_named(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text('[emulator.effects]\nbacklash_rad = "x"  # fitted: ± 0.1 rad (1 σ); a\n',
+                    encoding="utf-8")
+    with pytest.raises(SettingsError, match=r"emulator\.effects\.backlash_rad"):
+        read_uncertainties(path)
+
+
+def test_draws_follow_the_law_within_valid_settings(fitted: Path) -> None:
+    uncertain = read_uncertainties(fitted)
+    rng = random.Random(1)
+    arms = [draw_arm(RobotSettings(), uncertain, rng) for _ in range(800)]
+    offsets = [a["joints.j2.offset_deg"] for a in arms]
+    mean = sum(offsets) / len(offsets)
+    sd = (sum((x - mean) ** 2 for x in offsets) / (len(offsets) - 1)) ** 0.5
+    assert abs(mean - 90.0) < 0.04 and abs(sd - 0.3) < 0.04  # 3.8 and 2.7 standard errors
+    # a play cannot be negative: N(0.001, 0.002) restricted to >= 0, every draw valid
+    play = [a["emulator.effects.backlash_rad"] for a in arms]
+    assert min(play) >= 0.0 and max(play) > 0.005
+    assert draw_arm(RobotSettings(), uncertain, random.Random(7)) == draw_arm(
+        RobotSettings(), uncertain, random.Random(7))
+
+
+def test_wilson_interval_known_values() -> None:
+    # Wilson (1927); e.g. Brown, Cai & DasGupta (2001): 0/10 -> [0, 0.2775], 5/10 -> [0.2366,
+    # 0.7634], 10/10 -> [0.7225, 1]
+    for passed, n, low, high in ((0, 10, 0.0, 0.2775), (5, 10, 0.2366, 0.7634),
+                                 (10, 10, 0.7225, 1.0), (95, 100, 0.8883, 0.9785)):
+        lo, hi = wilson_interval(passed, n)
+        assert lo == pytest.approx(low, abs=1e-4) and hi == pytest.approx(high, abs=1e-4)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def _figures(run: Path) -> dict[str, float]:
+    record = json.loads((run / "results.json").read_text())
+    (suite,) = record["suites"].values()
+    return {m["name"]: m["value"] for m in suite["measurements"]}
+
+
+def test_accuracy_campaign_draws_arms_and_reports_pass_probability(
+        tmp_path: Path, fitted: Path) -> None:
+    config = tmp_path / "bench.toml"
+    config.write_text(ACCURACY, encoding="utf-8")
+    outcome = run_campaign(CampaignOptions("accuracy", 5, settings=fitted, config=config,
+                                           out=tmp_path / "c", seed=4, workers=1),
+                           progress=None)
+    suite = outcome.record.suites["accuracy"]
+    assert [t.index for t in suite.trials] == list(range(5))
+    arms = [t.params["arm"] for t in suite.trials]
+    assert len({a["emulator.effects.backlash_rad"] for a in arms}) == 5
+    # the emulator played the drawn arm: its play shows in the true path
+    true_mean = [next(m.value for m in t.measurements
+                      if m.name == "accuracy.coordinated.true_mean_mm") for t in suite.trials]
+    assert len(set(true_mean)) == 5
+    by_play = sorted(zip((a["emulator.effects.backlash_rad"] for a in arms), true_mean,
+                         strict=True))
+    assert by_play[-1][1] > by_play[0][1]  # more play, larger true error
+    figures = _figures(tmp_path / "c")
+    passed = sum(v <= 0.5 for v in true_mean)
+    assert figures["campaign.accuracy.coordinated.true_mean_mm.pass_pct"] == pytest.approx(
+        100.0 * passed / 5)
+    low, high = wilson_interval(passed, 5)
+    assert figures["campaign.accuracy.coordinated.true_mean_mm.pass_ci_low_pct"] == \
+        pytest.approx(100 * low)
+    assert figures["campaign.accuracy.coordinated.true_mean_mm.pass_ci_high_pct"] == \
+        pytest.approx(100 * high)
+    assert figures["campaign.accuracy.coordinated.true_mean_mm.n"] == 5
+    # the 100 Hz state samples are left out of the record; the figures stay
+    assert all(s.get("event") == "samples_left_out" for t in suite.trials for s in t.samples)
+    assert not (tmp_path / "c" / "capture.jsonl").exists()
+
+
+def test_startup_campaign_draws_states_and_shards_merge_to_the_same_record(
+        tmp_path: Path) -> None:
+    def campaign(out: str, **kw: object) -> None:
+        run_campaign(CampaignOptions("startup-recovery", 15, seed=11, out=tmp_path / out,
+                                     **kw),  # type: ignore[arg-type]
+                     progress=None)
+
+    campaign("w1", workers=1)
+    campaign("w2", workers=2)
+    for i in (1, 2, 3):
+        campaign(f"s{i}", workers=1, shard=(i, 3))
+    merge_shards([tmp_path / f"s{i}" for i in (1, 2, 3)], tmp_path / "merged")
+    # one worker measures in turn on the run's loop: trial durations agree to rounding
+    assert record_differences(tmp_path / "w1", tmp_path / "w2", tol=1e-9) == []
+    assert record_differences(tmp_path / "w1", tmp_path / "merged", tol=1e-9) == []
+    record = json.loads((tmp_path / "w1" / "results.json").read_text())
+    trials = record["suites"]["startup-recovery"]["trials"]
+    conditions = {t["params"]["trials"][0]["condition"] for t in trials}
+    assert len(conditions) >= 5  # drawn, not cycled: 15 draws of 10 states
+    recovered = [m["value"] for t in trials for m in t["measurements"]
+                 if m["name"] == "startup.recovered"]
+    figures = _figures(tmp_path / "w1")
+    assert figures["campaign.startup.recovered.rate_pct"] == pytest.approx(
+        100 * sum(recovered) / len(recovered))
+    assert figures["campaign.samples"] == 15
+
+
+def test_cli_campaign_writes_record_and_page(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["campaign", "startup-recovery", "--samples", "6", "--seed", "3", "--workers",
+                 "1", "--out", str(tmp_path / "c")]) == 0
+    out = capsys.readouterr().out
+    assert "6 sample(s) measured" in out and "campaign.startup.recovered.rate_pct" in out
+    page = (tmp_path / "c" / "campaign.html").read_text(encoding="utf-8")
+    assert CSP in html.unescape(page) and "<svg" in page and "<script" not in page
+    assert "Recovery by state at the cut" in page
+    assert re.search(r"http[s]?://", page.replace("http://www.w3.org", "")) is None
+    assert main(["campaign", "startup-recovery", "--samples", "0",
+                 "--out", str(tmp_path / "d")]) == 2
+    assert "--samples" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+class _CtrlC(io.StringIO):
+    """A progress stream whose ``after``-th finished trial line is met by Ctrl-C."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__()
+        self.after = after
+        self.done = 0
+
+    def write(self, text: str) -> int:
+        if " done " in text:
+            self.done += 1
+            if self.done == self.after:
+                raise KeyboardInterrupt
+        return super().write(text)
+
+
+def test_interrupted_campaign_keeps_its_samples_and_resumes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stopped = run_campaign(CampaignOptions("startup-recovery", 8, seed=3, out=tmp_path / "a",
+                                           workers=1), progress=_CtrlC(4))
+    assert stopped.interrupted and stopped.exit_status == 130
+    on_disk = json.loads((tmp_path / "a" / "results.json").read_text())
+    assert len(on_disk["suites"]["startup-recovery"]["trials"]) == 4  # batching lost none
+    assert main(["campaign", "--resume", str(tmp_path / "a"), "--workers", "1"]) == 0
+    assert "8 sample(s) measured" in capsys.readouterr().out
+    run_campaign(CampaignOptions("startup-recovery", 8, seed=3, out=tmp_path / "b", workers=1),
+                 progress=None)
+    assert record_differences(tmp_path / "a", tmp_path / "b", tol=1e-9) == []
+    assert main(["campaign", "--resume", str(tmp_path / "a"), "--seed", "2"]) == 2
+    assert "--seed comes from the campaign" in capsys.readouterr().err
