@@ -22,6 +22,7 @@ BENCHMARK_MODULES: tuple[str, ...] = (
     "armbench.bench.perf.transports",
     "armbench.bench.perf.driver",
     "armbench.bench.perf.report",
+    "armbench.bench.perf.fleet",
 )
 
 

@@ -63,9 +63,9 @@ def arm_name(port: str) -> str:
         place, _ = parse_labgrid_url(port)
         text = place
     else:
-        text = port.split("://", 1)[-1] if "://" in port else port
-        text = text or port.split("://", 1)[0]
-    name = re.sub(r"[^A-Za-z0-9._-]+", "-", text).strip("-.")
+        scheme, sep, rest = port.partition("://")
+        text = (f"{scheme}-{rest}" if scheme_of(port) == "fake" else rest) if sep else port
+    name = re.sub(r"[^A-Za-z0-9._]+", "-", text).strip("-.")
     return name[:64] or "arm"
 
 
