@@ -11,7 +11,7 @@ from typing import Any
 
 from armbench.bench.record import RecordError, atomic_write_bytes
 
-__all__ = ["FLEET_FILE", "FLEET_SCHEMA", "FleetArm", "FleetIndex", "read_fleet_index",
+__all__ = ["FLEET_FILE", "FLEET_SCHEMA", "FleetArm", "FleetIndex", "is_fleet", "read_fleet_index",
            "write_fleet_index"]
 
 #: The fleet's index inside the run directory.
@@ -38,6 +38,11 @@ class FleetIndex:
     fleet_id: str
     arms: tuple[FleetArm, ...]
     exit_status: int | None = None
+
+
+def is_fleet(directory: str | Path) -> bool:
+    """Whether ``directory`` is the run directory of a fleet (it holds ``fleet.json``)."""
+    return (Path(directory) / FLEET_FILE).is_file()
 
 
 def write_fleet_index(out_dir: Path, index: FleetIndex) -> None:

@@ -16,6 +16,7 @@ import argparse
 import sys
 from typing import Any
 
+from armbench.bench.fleet_index import is_fleet
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, RunOutcome, run_sync
 from armbench.bench.suites import SUITES
@@ -81,7 +82,7 @@ def _run(args: argparse.Namespace) -> int:
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers)
-    if len(ports) > 1:
+    if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
         from armbench.bench.commands.fleet import run_fleet
 
         return run_fleet(options, ports)

@@ -25,7 +25,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, cast
 
-from armbench.bench.fleet_index import FLEET_FILE, FleetArm, FleetIndex, write_fleet_index
+from armbench.bench.fleet_index import (
+    FLEET_FILE,
+    FleetArm,
+    FleetIndex,
+    read_fleet_index,
+    write_fleet_index,
+)
 from armbench.bench.record import RESULTS_FILE, load_record, new_run_id
 from armbench.bench.runner.options import (
     EXIT_ERROR,
@@ -129,15 +135,29 @@ class FleetOutcome:
 
 def _arm_options(options: RunOptions, arm: Arm, out_dir: Path) -> RunOptions:
     """The options of one arm: its port, its folder, its own baseline in the baseline fleet."""
-    baseline = options.baseline
-    if baseline is not None:
-        own = Path(baseline) / arm.name / RESULTS_FILE
-        if not own.is_file():
-            raise ArmbenchError(f"--baseline {baseline}: a fleet's baseline is an earlier fleet "
-                                f"run holding the same arms; {own} does not exist")
-        baseline = own
-    return dataclasses.replace(options, port=arm.port, out=out_dir / arm.name, baseline=baseline,
-                               resume=None)
+    return dataclasses.replace(options, port=arm.port, out=out_dir / arm.name,
+                               baseline=_own_baseline(options, arm), resume=None)
+
+
+def _own_baseline(options: RunOptions, arm: Arm) -> Path | None:
+    """The arm's record in the baseline fleet run (``--baseline DIR``)."""
+    if options.baseline is None:
+        return None
+    own = Path(options.baseline) / arm.name / RESULTS_FILE
+    if not own.is_file():
+        raise ArmbenchError(f"--baseline {options.baseline}: a fleet's baseline is an earlier "
+                            f"fleet run holding the same arms; {own} does not exist")
+    return own
+
+
+def _resumed_options(options: RunOptions, arm: Arm, out_dir: Path) -> RunOptions:
+    """The options of one arm of a fleet being resumed: its own record continued."""
+    folder = out_dir / arm.name
+    if not (folder / RESULTS_FILE).exists():
+        raise ArmbenchError(f"--resume {out_dir}: arm {arm.name!r} has no record "
+                            f"({folder / RESULTS_FILE}); start a new fleet run")
+    return dataclasses.replace(options, port=arm.port, resume=folder, out=None,
+                               baseline=_own_baseline(options, arm))
 
 
 def _write_index(out_dir: Path, fleet_id: str, arms: Sequence[Arm],
@@ -211,18 +231,29 @@ def run_fleet_sync(options: RunOptions, ports: Sequence[str], *,
                    progress: IO[str] | None = sys.stderr,
                    emulator_factory: EmulatorFactory | None = None) -> FleetOutcome:
     """Check every arm's plan, then run them all at once on one loop (see the module
-    docstring). Ctrl-C returns each arm's record on disk with exit status 130."""
+    docstring); with ``options.resume`` (a fleet's run directory, no ``ports``) continue every
+    arm of that fleet. Ctrl-C returns each arm's record on disk with exit status 130."""
     if options.resume is not None:
-        raise ArmbenchError("--resume continues one arm's run: resume RUN_DIR/<arm> of the "
-                            "fleet with its port")
-    arms = parse_arms(ports)
-    fleet_id = new_run_id()
-    out_dir = Path(options.out) if options.out is not None else Path(options.runs_root) / fleet_id
-    if (out_dir / FLEET_FILE).exists():
-        raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; choose another --out")
-    plans = [prepare(_arm_options(options, arm, out_dir)) for arm in arms]
+        out_dir = Path(options.resume)
+        if ports:
+            raise ArmbenchError("--resume: a fleet continues on the ports it began with; "
+                                "leave --port out")
+        index = read_fleet_index(out_dir)
+        fleet_id = index.fleet_id
+        arms = [Arm(a.name, a.port) for a in index.arms]
+        plans = [prepare(_resumed_options(options, arm, out_dir)) for arm in arms]
+    else:
+        arms = parse_arms(ports)
+        fleet_id = new_run_id()
+        out_dir = (Path(options.out) if options.out is not None
+                   else Path(options.runs_root) / fleet_id)
+        if (out_dir / FLEET_FILE).exists():
+            raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; resume it "
+                                "(--resume) or choose another --out")
+        plans = [prepare(_arm_options(options, arm, out_dir)) for arm in arms]
     for plan, arm in zip(plans, arms, strict=True):
-        plan.run_id = f"{fleet_id}-{arm.name}"
+        if plan.resume is None:
+            plan.run_id = f"{fleet_id}-{arm.name}"
     out_dir.mkdir(parents=True, exist_ok=True)
     _write_index(out_dir, fleet_id, arms, [None] * len(arms), [None] * len(arms), None)
     main = _run_all(plans, arms, progress, emulator_factory)
