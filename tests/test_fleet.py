@@ -134,9 +134,10 @@ def test_each_arm_gets_a_run_folder_of_its_own(fake_fleets: Path) -> None:
     light, heavy = (load_record(a / n / "results.json") for n in ("light", "heavy"))
     assert _headline(light, 4) != _headline(heavy, 4)
     # the same arm alone gives the same record: a fleet does not change what an arm measures
-    status, _ = _cli("accuracy", "--port", "fake://?seed=5", "--out", str(fake_fleets / "alone"))
+    status, _ = _cli("accuracy", "--port", "solo=fake://?seed=5", "--out",
+                     str(fake_fleets / "alone"))
     alone = load_record(fake_fleets / "alone" / "results.json")
-    assert status == 0
+    assert status == 0 and alone.environment.port == "fake://?seed=5"
     assert [_headline(alone, k) for k in range(5)] == [_headline(heavy, k) for k in range(5)]
     assert not (fake_fleets / "alone" / "fleet.json").exists()
 

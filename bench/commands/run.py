@@ -19,6 +19,7 @@ from typing import Any
 from armbench.bench.fleet_index import is_fleet
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, RunOutcome, run_sync
+from armbench.bench.runner.fleet import parse_arms
 from armbench.bench.suites import SUITES
 
 __all__ = ["register"]
@@ -75,7 +76,8 @@ def register(sub: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     ports: list[str] = args.port or []
     options = RunOptions(
-        suites=list(args.suites), port=ports[0] if len(ports) == 1 else None,
+        suites=list(args.suites),
+        port=parse_arms(ports)[0].port if len(ports) == 1 else None,  # NAME= of one arm: unused
         config=args.config, out=args.out,
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
