@@ -4,9 +4,10 @@
   ``armbench emulate --pty`` process, driven by one ``armbench run accuracy --port ... --port ...``
   process (one lap per style, real time). Each arm's reply rate is read from its own
   ``capture.jsonl``: replies received (well-formed ``in`` frames) per second between the first
-  and the last one, i.e. over the whole run. The figure is the lowest arm's rate over the reply-rate
-  bound of :func:`armbench.bench.perf.driver.reply_rate_bound` (the bound of
-  ``driver.pty_reply_rate``, the one-arm figure); the note lists every arm's rate. Target 0.9.
+  and the last one, i.e. over the whole run. The value is the lowest arm's rate, the bound that
+  of :func:`armbench.bench.perf.driver.reply_rate_bound` (the bound of ``driver.pty_reply_rate``,
+  the one-arm figure), the ratio (the figure's name) their quotient; the note lists every arm's
+  rate. Target ratio 0.9.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def run(options: PerfOptions) -> list[Figure]:
         rates = _fleet_rates(ARMS, 1, Path(tmp))
     worst = min(rates.values())
     return [Figure(
-        "fleet.pty_reply_rate_min_ratio", worst / bound, "of bound", 1.0, worst / bound,
+        "fleet.pty_reply_rate_min_ratio", worst, "replies/s", bound, worst / bound,
         note=f"{ARMS} armbench emulate --pty arms driven by one armbench run (accuracy, one "
              f"lap per style); replies/s per arm from its capture: "
              + ", ".join(f"{n} {r:.1f}" for n, r in rates.items())
