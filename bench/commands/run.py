@@ -8,6 +8,7 @@
 Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
 failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
 moves —, a lost arm, a trial in error), 130 interrupted (resume with ``--resume DIR``).
+With several ``--port``: the worst arm's status, one line per arm (``docs/fleet.md``).
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ import argparse
 import sys
 from typing import Any
 
+from armbench.bench.fleet_index import is_fleet
 from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
+from armbench.bench.runner.fleet import parse_arms
 from armbench.bench.suites import SUITES
 
 __all__ = ["register"]
@@ -36,14 +39,18 @@ def register(sub: Any) -> None:
     p.add_argument("suites", nargs="*", metavar="SUITE",
                    help=f"suites to run (default: all: {', '.join(SUITES)}); "
                         "package.module:Class runs a suite of your own")
-    p.add_argument("--port", default=None,
-                   help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or fake:// "
-                        "(default fake://, the emulator on virtual time)")
+    p.add_argument("--port", action="append", default=None, metavar="[NAME=]PORT",
+                   help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT, "
+                        "labgrid://PLACE or fake:// (default fake://, the emulator on virtual "
+                        "time); given several times, every arm at once, each in OUT/NAME/ "
+                        "(see docs/fleet.md)")
     p.add_argument("--config", metavar="FILE",
                    help="limits and suite parameters (default: the packaged default_bench.toml)")
     p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
     p.add_argument("--baseline", metavar="FILE",
-                   help="results.json of an earlier run: fail on regressions against it")
+                   help="results.json of an earlier run: fail on regressions against it (with "
+                        "several --port: the folder of an earlier fleet run, each arm against "
+                        "its own)")
     p.add_argument("--resume", metavar="DIR",
                    help="continue the interrupted run in DIR (finished trials are kept)")
     p.add_argument("--seed", type=int, default=None, metavar="N",
@@ -93,14 +100,21 @@ def shard_arg(text: str) -> tuple[int, int]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    ports: list[str] = args.port or []
     options = RunOptions(
-        suites=list(args.suites), port=args.port, config=args.config, out=args.out,
+        suites=list(args.suites),
+        port=parse_arms(ports)[0].port if len(ports) == 1 else None,  # NAME= of one arm: unused
+        config=args.config, out=args.out,
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
         scheduler=args.scheduler, shard=args.shard)
+    if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
+        from armbench.bench.commands.fleet import run_fleet
+
+        return run_fleet(options, ports)
     outcome = run_sync(options, progress=sys.stderr)
     write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
     _summary(outcome)

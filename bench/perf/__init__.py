@@ -23,6 +23,7 @@ BENCHMARK_MODULES: tuple[str, ...] = (
     "armbench.bench.perf.driver",
     "armbench.bench.perf.report",
     "armbench.bench.perf.firmware",
+    "armbench.bench.perf.fleet",
 )
 
 

@@ -1,8 +1,9 @@
 """The bench runner behind ``armbench run``: :func:`prepare` validates everything a run reads
 (``plan``), :func:`execute` and :func:`run_sync` run it (``run``), trial by trial (``trials``),
-in worker processes when it can (``parallel``), showing progress (``progress``) and keeping the
-traffic capture one stream (``capture``)."""
+in worker processes when it can (``parallel``), on several arms at once (``fleet``), showing
+progress (``progress``) and keeping the traffic capture one stream (``capture``)."""
 
+from armbench.bench.runner.fleet import FleetOutcome, run_fleet_sync
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     DEFAULT_CONFIG,
@@ -38,6 +39,7 @@ __all__ = [
     "RUNNER_FILE",
     "BenchPlan",
     "EmulatorFactory",
+    "FleetOutcome",
     "PlannedSuite",
     "ProgressPrinter",
     "RunAborted",
@@ -48,5 +50,6 @@ __all__ = [
     "exit_status",
     "prepare",
     "run_bench",
+    "run_fleet_sync",
     "run_sync",
 ]
