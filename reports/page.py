@@ -34,7 +34,7 @@ from armbench.bench.suites.contract import STARTUP
 from armbench.reports.environment import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows
-from armbench.reports.sections import accuracy, generic, repeatability, startup_recovery
+from armbench.reports.sections import accuracy, generic, joints, repeatability, startup_recovery
 from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
 from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
@@ -49,6 +49,7 @@ SECTIONS: Mapping[str, SectionBuilder] = {
     accuracy.SUITE: accuracy.build,
     repeatability.SUITE: repeatability.build,
     startup_recovery.SUITE: startup_recovery.build,
+    joints.SUITE: joints.build,
 }
 
 

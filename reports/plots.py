@@ -505,3 +505,35 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center",
                         va="center")
     return fig
+
+
+@dataclass(frozen=True, slots=True)
+class JointBars:
+    """One figure of every joint for :func:`joint_bars`: reported and, where known, true."""
+
+    title: str
+    reported: Sequence[float | None]
+    true: Sequence[float | None]
+
+
+def joint_bars(joints: Sequence[str], panels: Sequence[JointBars], unit: str) -> Figure:
+    """One small panel per figure: a bar per joint for the reported angle (solid) and the true
+    one (hatched, so the two never rest on colour alone)."""
+    with plot_style():
+        cols = max(1, len(panels))
+        fig = new_figure(7.2, 2.3, left=0.08, bottom=0.2, top=0.8, wspace=0.45)
+        x = np.arange(len(joints))
+        for k, panel in enumerate(panels):
+            ax = fig.add_subplot(1, cols, k + 1)
+            rep = [np.nan if v is None else v for v in panel.reported]
+            tru = [np.nan if v is None else v for v in panel.true]
+            ax.bar(x - 0.2, rep, 0.4, color=COLOURS[0], label="reported")
+            ax.bar(x + 0.2, tru, 0.4, color=COLOURS[1], hatch="///", edgecolor="black",
+                   linewidth=0.4, label="true")
+            ax.set_xticks(x, [safe_label(j, 6) for j in joints])
+            ax.set_title(safe_label(panel.title, 30), fontsize=8)
+            ax.xaxis.grid(False)
+            if k == 0:
+                ax.set_ylabel(unit)
+        legend(fig.axes[0], loc="lower left", bbox_to_anchor=(0.0, 1.12), ncols=2)
+    return fig

@@ -14,6 +14,7 @@ from typing import Final
 
 __all__ = [
     "ACCURACY",
+    "JOINTS",
     "POS_DECIMALS",
     "RAD_DECIMALS",
     "REPEATABILITY",
@@ -331,3 +332,45 @@ class StartupNames:
 ACCURACY: Final = AccuracyNames()
 REPEATABILITY: Final = RepeatabilityNames()
 STARTUP: Final = StartupNames()
+
+
+@dataclass(frozen=True, slots=True)
+class JointsNames:
+    """The joints suite (ISO 230-2 bidirectional positioning of each joint)."""
+
+    suite: str = "joints"
+    prefix: str = "joints"
+    # trial parameter and the sample key of the true angle
+    joint: str = "joint"
+    true_angle: str = "true_rad"
+    # figures per joint (mrad), of the reported angle, and with ``true_`` of the true one
+    accuracy: str = "accuracy_mrad"
+    repeatability: str = "repeatability_mrad"
+    reversal: str = "reversal_mrad"
+    mean_reversal: str = "mean_reversal_mrad"
+    systematic: str = "systematic_mrad"
+    true: str = "true_"
+
+    def metric(self, joint: int, figure: str, true: bool = False) -> str:
+        """``joints.j<N>.[true_]<figure>``."""
+        return f"{self.prefix}.j{joint}.{self.true if true else ''}{figure}"
+
+    @property
+    def figures(self) -> tuple[str, ...]:
+        """The figures shown per joint, in order."""
+        return (self.accuracy, self.repeatability, self.reversal, self.systematic)
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        p = self.prefix
+        return (
+            Headline("worst joint accuracy A", f"{p}.j*.{self.accuracy}", worst_of=True),
+            Headline("worst joint repeatability R", f"{p}.j*.{self.repeatability}",
+                     worst_of=True),
+            Headline("worst joint reversal B", f"{p}.j*.{self.reversal}", worst_of=True),
+            Headline("worst true joint accuracy A", f"{p}.j*.{self.true}{self.accuracy}",
+                     worst_of=True),
+        )
+
+
+JOINTS: Final = JointsNames()

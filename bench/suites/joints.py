@@ -33,6 +33,7 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.contract import JOINTS
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 
@@ -77,7 +78,7 @@ def joint_figures(samples: Sequence[Mapping[str, Any]], key: str = "q_rad"
 class JointsSuite(Suite):
     """ISO 230-2 bidirectional positioning per joint (see module doc)."""
 
-    name = "joints"
+    name = JOINTS.suite
     version = "1"
 
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
@@ -122,13 +123,13 @@ class JointsSuite(Suite):
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per joint."""
-        return [{"joint": j} for j in params["joints"]]
+        return [{JOINTS.joint: j} for j in params["joints"]]
 
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:
         """All cycles of one joint."""
         p = ctx.params
-        joint = int(trial_params["joint"])
+        joint = int(trial_params[JOINTS.joint])
         j = joint - 1
         targets = sorted(joint_targets(ctx.settings, joint, p["targets_frac"]))
         over, duty, settle = float(p["overtravel_rad"]), int(p["duty"]), float(p["settle_s"])
@@ -157,14 +158,14 @@ class JointsSuite(Suite):
                             "q_rad": round(state.q_rad[j], 6)}
                         true = probe.joints(state)
                         if true is not None:
-                            sample["true_rad"] = round(true[j], 7)
+                            sample[JOINTS.true_angle] = round(true[j], 7)
                         samples.append(sample)
                     if direction > 0:
                         await go(targets[-1] + over)
                 await asyncio.sleep(0)
             ms = Measurements(ctx)
             _add(ms, joint, "", joint_figures(samples))
-            _add(ms, joint, "true_", joint_figures(samples, "true_rad"))
+            _add(ms, joint, "true_", joint_figures(samples, JOINTS.true_angle))
             return samples, ms.items
 
         timeout_s = 60.0 + 20.0 * int(p["cycles"]) * len(targets)
@@ -176,15 +177,15 @@ class JointsSuite(Suite):
         for t in trials:
             if t.status != "done":
                 continue
-            joint = int(t.params["joint"])
+            joint = int(t.params[JOINTS.joint])
             _add(ms, joint, "", joint_figures(t.samples))
-            _add(ms, joint, "true_", joint_figures(t.samples, "true_rad"))
+            _add(ms, joint, "true_", joint_figures(t.samples, JOINTS.true_angle))
         return ms.items
 
 
 def _add(ms: Measurements, joint: int, prefix: str, figures: Mapping[str, float]) -> None:
     for key, value in figures.items():
         what = "true" if prefix else "reported"
-        ms.add(f"joints.j{joint}.{prefix}{key}", value, "mrad",
+        ms.add(JOINTS.metric(joint, key, true=bool(prefix)), value, "mrad",
                undirected=key == "mean_reversal_mrad",
                description=f"{_DESCRIPTIONS[key]}, {what} angle")
