@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "armbench.bench.commands.twin_check",
     "armbench.bench.commands.campaign",
     "armbench.bench.commands.merge",
+    "armbench.bench.commands.urdf",
 )
 
 

@@ -12,6 +12,7 @@ import signal
 import sys
 from typing import Any
 
+from armbench.bench.live import DEFAULT_ENDPOINT, follow_emulator, live_view
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError, load_settings
 from armbench.fakes.arm import ArmEmulator
@@ -49,6 +50,9 @@ def register(sub: Any) -> None:
                    help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--idle-timeout", type=float, default=300.0, metavar="S",
                    help="with --tcp: disconnect a client silent for S seconds (default 300)")
+    p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
+                   help="serve the joint stream (reported and true) to Foxglove over WebSocket "
+                        f"(default {DEFAULT_ENDPOINT}: loopback unless a host is given)")
     p.set_defaults(func=_run)
 
 
@@ -80,7 +84,9 @@ def _run(args: argparse.Namespace) -> int:
         asyncio.run(serve_firmware(robot, args.firmware, args, host_port))
         return 0
     arm = ArmEmulator(robot, settings, faults)
-    with asyncio.Runner(loop_factory=real_time_loop) as runner:
+    with asyncio.Runner(loop_factory=real_time_loop) as runner, \
+            live_view(args.foxglove, robot, name="emulate", announce=sys.stdout) as live:
+        follow_emulator(live, arm)
         runner.run(_serve(arm, args, host_port))
     return 0
 

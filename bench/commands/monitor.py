@@ -15,9 +15,10 @@ import json
 import math
 import sys
 from collections import deque
-from collections.abc import Coroutine
+from collections.abc import AsyncIterator, Coroutine
 from typing import Any, TextIO, TypeVar
 
+from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, live_view
 from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import scheme_of
@@ -59,6 +60,9 @@ def register(sub: Any) -> None:
                    help="display refreshes per second without --json (default 10)")
     p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
                    help="report the arm as silent after S seconds without a reply (default 0.5)")
+    p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
+                   help="serve the joint stream to Foxglove over WebSocket (default "
+                        f"{DEFAULT_ENDPOINT}: loopback unless a host is given)")
     p.set_defaults(func=_run)
 
 
@@ -73,7 +77,14 @@ def _run(args: argparse.Namespace) -> int:
         raise InvalidTargetError(None, "--duration", duration, "must be > 0")
     return run_on_port(args.port, monitor(args.port, settings, json_lines=args.json,
                                           duration_s=duration, refresh_hz=args.rate,
-                                          reply_timeout_s=args.reply_timeout, out=sys.stdout))
+                                          reply_timeout_s=args.reply_timeout, out=sys.stdout,
+                                          foxglove=args.foxglove))
+
+
+@contextlib.asynccontextmanager
+async def _live(endpoint: str | None, settings: RobotSettings) -> AsyncIterator[LiveView | None]:
+    with live_view(endpoint, settings, name="monitor", announce=sys.stderr) as view:
+        yield view
 
 
 class _Rate:
@@ -128,13 +139,16 @@ def _summary(arm: Arm, state: JointState, rate_hz: float, note: str) -> str:
 
 async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = False,
                   duration_s: float | None = None, refresh_hz: float = 10.0,
-                  reply_timeout_s: float = 0.5, out: TextIO = sys.stdout) -> int:
-    """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation."""
+                  reply_timeout_s: float = 0.5, out: TextIO = sys.stdout,
+                  foxglove: str | None = None) -> int:
+    """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation;
+    with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.bench.live`)."""
     tty = out.isatty() and not json_lines
     period = 1.0 / refresh_hz if refresh_hz > 0 else 0.0
     rate = _Rate()
     drawn = 0
-    async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s) as arm:
+    async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s) as arm, \
+            _live(foxglove, settings) as live:
         loop = asyncio.get_running_loop()
         end = None if duration_s is None else loop.time() + duration_s
         stream = arm.states()
@@ -156,6 +170,8 @@ async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = Fals
             else:
                 note = ""
             r = rate.update(state.t_s, arm.frames_received)
+            if live is not None and not note:
+                live.driver_state(state, arm.ground_truth())
             if json_lines:
                 out.write(json.dumps(state_json(arm, state, r, stream.skipped)) + "\n")
                 continue

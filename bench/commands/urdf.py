@@ -1,0 +1,45 @@
+"""``armbench urdf [--settings FILE] [--out FILE]``: the arm as a URDF for RViz and Foxglove.
+
+Built from the DH table and the robot settings (joint limits, link lengths) by
+:func:`armbench.drivers.urdf.robot_urdf`; the joint positions are the protocol angles the driver
+reports on ``/joint_states``. Written to ``--out`` or printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import load_settings
+from armbench.drivers.urdf import robot_urdf
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``urdf`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "urdf", help="write a URDF of the arm (RViz, Foxglove's 3D panel)",
+        description="A URDF of the arm from the DH table and the robot settings: revolute "
+                    "joints j1..j4 with the settings' limits (protocol angles), simple link "
+                    "geometry; the origin of link4 is the TCP.")
+    p.add_argument("--settings", default=None, metavar="FILE",
+                   help="robot settings TOML file (default: built-in robot model)")
+    p.add_argument("--out", default=None, metavar="FILE", help="write here (default: stdout)")
+    p.set_defaults(func=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    settings = load_settings(args.settings)
+    text = robot_urdf(settings)
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    try:
+        Path(args.out).write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ArmbenchError(f"--out {args.out}: cannot write: {exc.strerror or exc}") from exc
+    return 0

@@ -1,0 +1,68 @@
+"""``armbench urdf``: the URDF loaded by an independent library (``yourdfpy``) has the forward
+kinematics of armbench's DH model, to 1e-9 m, at random joint angles inside the limits."""
+
+from __future__ import annotations
+
+import io
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yourdfpy
+
+from armbench.bench.cli import main
+from armbench.drivers.kinematics import fk
+from armbench.drivers.settings import Geometry, JointSettings, RobotSettings
+from armbench.drivers.urdf import robot_urdf
+
+OTHER = RobotSettings(
+    geometry=Geometry(d1_m=0.42, d2_m=-0.012, a2_m=0.33, a3_m=0.29, d4_m=0.07),
+    joints=(JointSettings("j1", 50.0, -2.0, 2.2, 0.3, -1, -0.1),
+            JointSettings("j2", 50.0, -0.8, 1.1, math.pi / 2, 1, 0.0, i2c_address=0x10),
+            JointSettings("j3", 38.0, -1.5, 1.0, -0.2, -1, 0.0, i2c_address=0x11),
+            JointSettings("j4", 28.0, -0.5, 2.0, 0.1, 1, 0.0, i2c_address=0x12)))
+
+
+def _load(text: str) -> yourdfpy.URDF:
+    return yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=False)
+
+
+@pytest.mark.parametrize("settings", [RobotSettings(), OTHER], ids=["default", "other"])
+def test_urdf_forward_kinematics_matches_dh(settings: RobotSettings) -> None:
+    robot = _load(robot_urdf(settings))
+    assert robot.validate()
+    joints = robot.actuated_joints
+    assert [j.name for j in joints] == ["j1", "j2", "j3", "j4"]
+    for joint, js in zip(joints, settings.joints, strict=True):
+        assert joint.type == "revolute"
+        assert joint.limit.lower == js.lower_rad and joint.limit.upper == js.upper_rad
+    rng = np.random.default_rng(16)
+    worst = 0.0
+    for _ in range(200):
+        q = [rng.uniform(j.lower_rad, j.upper_rad) for j in settings.joints]
+        robot.update_cfg(dict(zip(["j1", "j2", "j3", "j4"], q, strict=True)))
+        pose = robot.get_transform("link4", "base_link")
+        worst = max(worst, float(np.abs(pose - fk(q, settings)).max()))
+    assert worst < 1e-9
+
+
+def test_urdf_command_writes_the_file_or_prints_it(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    settings_file = tmp_path / "robot.toml"
+    settings_file.write_text("[geometry]\nd4_m = 0.05\n")
+    out = tmp_path / "arm.urdf"
+    assert main(["urdf", "--settings", str(settings_file), "--out", str(out)]) == 0
+    assert out.read_text() == robot_urdf(RobotSettings().with_d4(0.05))
+    assert main(["urdf"]) == 0
+    assert capsys.readouterr().out == robot_urdf(RobotSettings())
+    assert main(["urdf", "--out", str(tmp_path / "missing" / "x.urdf")]) == 2
+    assert "--out" in capsys.readouterr().err
+
+
+def test_urdf_command_from_the_shell() -> None:
+    done = subprocess.run([sys.executable, "-m", "armbench", "urdf"], capture_output=True,
+                          text=True, check=True)
+    assert _load(done.stdout).robot.name == "robolink"
