@@ -8,7 +8,6 @@ import asyncio
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -17,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from netutil import free_port
+from netutil import free_port, listening
 
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import (
@@ -70,16 +69,6 @@ def _wait(condition: object, what: str, timeout_s: float = 30.0) -> None:
         time.sleep(0.2)
 
 
-def _accepts(tcp_port: int) -> bool:
-    """Something accepts connections on 127.0.0.1:``tcp_port`` (gRPC listens on IPv6 too, which
-    ``netutil.listening`` does not read)."""
-    try:
-        socket.create_connection(("127.0.0.1", tcp_port), timeout=1).close()
-    except OSError:
-        return False
-    return True
-
-
 def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
     for proc in reversed(procs):
         if proc.poll() is None:
@@ -102,7 +91,7 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
         procs.append(subprocess.Popen([_tool("labgrid-coordinator"), "--listen", coordinator],
                                       cwd=folder, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL))
-        _wait(lambda: _accepts(port), "the coordinator listens")
+        _wait(lambda: listening(port), "the coordinator listens")
         config = []
         for name in ARMS:
             emulator = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
