@@ -14,9 +14,10 @@ A capture of several sessions (a run's capture holds one emulator per trial) is 
 replies jump further than the joints can move, or fall silent; each session is replayed into a
 fresh twin from its own first pose.
 
-The verdict judges ``twin.jN.rms_counts`` against the limits of a bench config (``--config``,
-else the packaged ``twin_check.toml``: 3 counts): ``pass`` when every joint is within, else
-``fail``.
+Every figure is a measurement named by the suite contract (``TWIN_CHECK``) and judged against
+the limits of a bench config (``--config``, else the packaged ``twin_check.toml``, which limits
+``twin.jN.rms_counts`` to 3 counts): the verdict is ``pass`` when every judged figure is within,
+else ``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
 """
 
 from __future__ import annotations
