@@ -14,9 +14,10 @@ A capture of several sessions (a run's capture holds one emulator per trial) is 
 replies jump further than the joints can move, or fall silent; each session is replayed into a
 fresh twin from its own first pose.
 
-The verdict judges ``twin.jN.rms_counts`` against the limits of a bench config (``--config``,
-else the packaged ``twin_check.toml``: 3 counts): ``pass`` when every joint is within, else
-``fail``.
+Every figure is a measurement named by the suite contract (``TWIN_CHECK``) and judged against
+the limits of a bench config (``--config``, else the packaged ``twin_check.toml``, which limits
+``twin.jN.rms_counts`` to 3 counts): the verdict is ``pass`` when every judged figure is within,
+else ``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
 """
 
 from __future__ import annotations
@@ -25,22 +26,25 @@ import asyncio
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
+import numpy.typing as npt
 
 from armbench.bench.calibrate.capture import CaptureData
 from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.record import Measurement, judge
+from armbench.bench.suites.contract import TWIN_CHECK
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.settings import emulator_settings
 
-__all__ = ["DEFAULT_CONFIG", "TwinCheck", "compare", "replay_twin", "sessions", "twin_check"]
+__all__ = ["DEFAULT_CONFIG", "Aligned", "TwinCheck", "compare", "replay_twin", "sessions",
+           "twin_check"]
 
 DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
@@ -60,11 +64,31 @@ SILENCE_S: Final = 0.09
 TIME_SLACK_S: Final = 1e-6
 
 Vec4 = tuple[float, float, float, float]
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class Aligned:
+    """The two reply streams side by side: at each compared reply of the capture (``t_s``, s on
+    the capture's clock) the arm's reported angles and the twin's newest ones (``(n, 4)``, rad),
+    and each joint's encoder counts per rad."""
+
+    t_s: FloatArray
+    arm_rad: FloatArray
+    twin_rad: FloatArray
+    counts_per_rad: FloatArray
+
+    @property
+    def divergence_counts(self) -> FloatArray:
+        """Arm minus twin, per joint, in encoder counts (``(n, 4)``)."""
+        return (self.arm_rad - self.twin_rad) * self.counts_per_rad
 
 
 @dataclass(frozen=True, slots=True)
 class TwinCheck:
-    """The comparison of an arm's capture with its twin's replay."""
+    """The comparison of an arm's capture with its twin's replay. ``arrivals`` holds, per
+    command, its time and the arrival time in the arm's and the twin's stream (None: never
+    arrived before the next command)."""
 
     rms_rad: list[float]
     max_rad: list[float]
@@ -80,6 +104,8 @@ class TwinCheck:
     twin_replies: list[tuple[float, Vec4]]
     tcp: dict[str, float] | None = None
     sessions: int = 1
+    series: Aligned | None = None
+    arrivals: list[tuple[float, float | None, float | None]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -162,29 +188,62 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     q_arm = np.asarray([r[1] for r in rows])
     # the newest twin reply at each capture reply (the capture's times carry 1 ns of rounding)
     idx = np.searchsorted(t_twin, t_arm + TIME_SLACK_S, side="right") - 1
+    counts = np.asarray([j.counts_per_rad for j in settings.joints])
+    aligned = Aligned(t_arm, q_arm, q_twin[idx], counts)
     diff = q_arm - q_twin[idx]
     rms = np.sqrt(np.mean(diff * diff, axis=0))
     peak = np.max(np.abs(diff), axis=0)
-    counts = np.asarray([j.counts_per_rad for j in settings.joints])
-    measurements = []
-    for j in range(4):
-        measurements.append(judge(f"twin.j{j + 1}.rms_counts", float(rms[j] * counts[j]),
-                                  "counts", limits,
-                                  description="RMS divergence of the reported angle"))
-        measurements.append(judge(f"twin.j{j + 1}.max_counts", float(peak[j] * counts[j]),
-                                  "counts", limits,
-                                  description="largest divergence of the reported angle"))
     arm_arrivals = _arrivals(data.replies, data, settings)
     twin_arrivals = _arrivals(twin, data, settings)
-    dts = [b - a for a, b in zip(arm_arrivals, twin_arrivals, strict=True)
-           if a is not None and b is not None]
-    verdict = "fail" if any(m.outcome == "fail" for m in measurements) else "pass"
+    pairs = list(zip(arm_arrivals, twin_arrivals, strict=True))
+    dts = [b - a for a, b in pairs if a is not None and b is not None]
+    arm_only = sum(a is not None and b is None for a, b in pairs)
+    twin_only = sum(a is None and b is not None for a, b in pairs)
+    measurements = _measurements(rms, peak, counts, dts, len(data.commands), arm_only,
+                                 twin_only, len(rows), limits)
     return TwinCheck(
         [float(v) for v in rms], [float(v) for v in peak], [float(v) for v in rms * counts],
-        [float(v) for v in peak * counts], dts, len(data.commands),
-        sum(a is not None and b is None for a, b in zip(arm_arrivals, twin_arrivals, strict=True)),
-        sum(a is None and b is not None for a, b in zip(arm_arrivals, twin_arrivals, strict=True)),
-        len(rows), measurements, verdict, list(twin))
+        [float(v) for v in peak * counts], dts, len(data.commands), arm_only, twin_only,
+        len(rows), measurements, _verdict(measurements), list(twin), series=aligned,
+        arrivals=[(c[0], a, b) for c, (a, b) in zip(data.commands, pairs, strict=True)])
+
+
+def _verdict(measurements: Sequence[Measurement]) -> str:
+    """``fail`` when a figure is outside its limit, else ``pass``."""
+    return "fail" if any(m.outcome == "fail" for m in measurements) else "pass"
+
+
+def _measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray, dts: Sequence[float],
+                  moves: int, arm_only: int, twin_only: int, replies: int,
+                  limits: LimitsConfig | None) -> list[Measurement]:
+    """The figures of a check, named by the suite contract and judged against ``limits``: per
+    joint the RMS and largest divergence (counts, rad), the arrival-time differences, the counts
+    of what was compared."""
+    n = TWIN_CHECK
+    out = []
+    for j in range(4):
+        for figure, value, unit, what in (
+                (n.rms_counts, rms[j] * counts[j], "counts", "RMS divergence"),
+                (n.max_counts, peak[j] * counts[j], "counts", "largest divergence"),
+                (n.rms_rad, rms[j], "rad", "RMS divergence"),
+                (n.max_rad, peak[j], "rad", "largest divergence")):
+            out.append(judge(n.joint_metric(j + 1, figure), float(value), unit, limits,
+                             better="lower", description=f"{what} of the reported angle"))
+    if dts:
+        dt = np.asarray(dts)
+        out.append(replace(judge(n.metric(n.mean_dt), float(dt.mean()), "s", limits,
+                                 description="mean arrival-time difference, twin - arm"),
+                           better=None))
+        out.append(judge(n.metric(n.max_abs_dt), float(np.abs(dt).max()), "s", limits,
+                         description="largest arrival-time difference, |twin - arm|"))
+    for figure, value, what in (
+            (n.moves, moves, "commands replayed"),
+            (n.compared, len(dts), "moves both streams arrived at"),
+            (n.arm_only, arm_only, "moves only the arm arrived at"),
+            (n.twin_only, twin_only, "moves only the twin arrived at"),
+            (n.replies, replies, "replies of the capture compared")):
+        out.append(judge(n.metric(figure), float(value), "", limits, description=what))
+    return out
 
 
 def sessions(data: CaptureData, settings: RobotSettings) -> list[CaptureData]:
@@ -210,6 +269,18 @@ def sessions(data: CaptureData, settings: RobotSettings) -> list[CaptureData]:
     return out
 
 
+def _tcp(tcp: dict[str, float] | None, limits: LimitsConfig) -> list[Measurement]:
+    """The TCP divergence as measurements, where the capture had truth (``rms_mm``,
+    ``max_mm``)."""
+    n = TWIN_CHECK
+    tcp = tcp or {}
+    return [judge(n.metric(name), tcp[key], "mm", limits, better="lower",
+                  description=f"{what} of the TCP, arm against twin")
+            for name, key, what in ((n.tcp_rms, "rms_mm", "RMS divergence"),
+                                    (n.tcp_max, "max_mm", "largest divergence"))
+            if key in tcp]
+
+
 def twin_check(data: CaptureData, settings: RobotSettings,
                config: str | Path | None = None) -> TwinCheck:
     """Replay each session on a virtual-time loop and compare (see the module doc)."""
@@ -223,4 +294,8 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     merged = CaptureData(data.path, [c for p in parts for c in p.commands],
                          [r for p in parts for r in p.replies], data.bad_in_frames)
     result = compare(merged, twin, settings, limits)
-    return replace(result, sessions=len(parts))
+    count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
+                  description="sessions replayed, each into a fresh twin")
+    measurements = [*result.measurements, count, *_tcp(result.tcp, limits)]
+    return replace(result, sessions=len(parts), measurements=measurements,
+                   verdict=_verdict(measurements))

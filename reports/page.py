@@ -34,7 +34,14 @@ from armbench.bench.suites.contract import STARTUP
 from armbench.reports.environment import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows
-from armbench.reports.sections import accuracy, generic, joints, repeatability, startup_recovery
+from armbench.reports.sections import (
+    accuracy,
+    generic,
+    joints,
+    repeatability,
+    startup_recovery,
+    twin_check,
+)
 from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
 from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
@@ -50,6 +57,7 @@ SECTIONS: Mapping[str, SectionBuilder] = {
     repeatability.SUITE: repeatability.build,
     startup_recovery.SUITE: startup_recovery.build,
     joints.SUITE: joints.build,
+    twin_check.SUITE: twin_check.build,
 }
 
 

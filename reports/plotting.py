@@ -11,7 +11,6 @@ to are prefixed, the others dropped). No pyplot: figures are plain
 from __future__ import annotations
 
 import io
-import math
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -22,6 +21,8 @@ import numpy as np
 import numpy.typing as npt
 from markupsafe import Markup, escape
 from matplotlib.figure import Figure
+
+from armbench.bench.metrics.series import envelope_indices
 
 __all__ = [
     "COLOURS",
@@ -203,18 +204,5 @@ def envelope(t: FloatArray, y: FloatArray,
              buckets: int = ENVELOPE_BUCKETS) -> tuple[FloatArray, FloatArray]:
     """A min/max envelope of the series ``y(t)``: per bucket of consecutive samples its lowest and
     highest point, in time order. Peaks survive, unlike with plain decimation."""
-    n = len(y)
-    if n <= 2 * buckets:
-        return t, y
-    size = math.ceil(n / buckets)
-    pad = size * buckets - n
-    yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(buckets, size)
-    valid = ~np.all(np.isnan(yp), axis=1)
-    lo = np.nanargmin(np.where(np.isnan(yp), np.inf, yp), axis=1)
-    hi = np.nanargmax(np.where(np.isnan(yp), -np.inf, yp), axis=1)
-    base = np.arange(buckets) * size
-    idx = np.concatenate([(base + lo)[valid], (base + hi)[valid]])
-    idx = np.unique(np.clip(idx, 0, n - 1))
+    idx = envelope_indices(y, buckets)
     return t[idx], y[idx]
-
-

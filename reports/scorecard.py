@@ -8,7 +8,14 @@ from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
 from armbench.bench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
-from armbench.bench.suites.contract import ACCURACY, JOINTS, REPEATABILITY, STARTUP, Headline
+from armbench.bench.suites.contract import (
+    ACCURACY,
+    JOINTS,
+    REPEATABILITY,
+    STARTUP,
+    TWIN_CHECK,
+    Headline,
+)
 from armbench.reports.format import format_value, margin
 from armbench.reports.views import ScoreRow
 
@@ -20,6 +27,7 @@ HEADLINES: Mapping[str, Sequence[Headline]] = {
     REPEATABILITY.suite: REPEATABILITY.headlines,
     STARTUP.suite: STARTUP.headlines,
     JOINTS.suite: JOINTS.headlines,
+    TWIN_CHECK.suite: TWIN_CHECK.headlines,
 }
 #: Headlines of a suite the contract does not know (the pytest plugin's): its failed
 #: measurements first, then its judged ones, at most this many.

@@ -1,8 +1,11 @@
-"""``armbench twin-check CAPTURE [--settings robot.toml] [--json]``: replay a capture's commands
-into the twin on virtual time and compare the reply streams (see :mod:`armbench.bench.twin_check`).
+"""``armbench twin-check CAPTURE [--settings robot.toml] [--config bench.toml] [--json]
+[--out DIR]``: replay a capture's commands into the twin on virtual time and compare the reply
+streams (see :mod:`armbench.bench.twin_check`); with ``--out`` the check is also a run record
+with its ``report.html`` and ``junit.xml`` (see :mod:`armbench.bench.twin_record`).
 
 Exit status: 0 the twin is within the config's tolerance (``twin.*`` limits), 1 it is not, 2 bad
-input (a truncated capture, another robot model's, one without commands).
+input (a truncated capture, another robot model's, one without commands, an ``--out`` that
+already holds a record): nothing is written then.
 """
 
 from __future__ import annotations
@@ -10,10 +13,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate.capture import load_capture
-from armbench.bench.twin_check import twin_check
+from armbench.bench.limits import load_limits
+from armbench.bench.reporting import write_reports
+from armbench.bench.twin_check import DEFAULT_CONFIG, twin_check
+from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
 from armbench.drivers.settings import load_settings
 
 __all__ = ["register"]
@@ -35,13 +42,26 @@ def register(sub: Any) -> None:
                    help="limits file with twin.* limits (default: the packaged twin_check.toml, "
                         "RMS <= 3 counts)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="DIR",
+                   help="also write the check as a run record: DIR/results.json (suite "
+                        "twin-check: figures, verdict, inputs, the arm-vs-twin series), "
+                        "report.html and junit.xml")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    out = None if args.out is None else Path(args.out)
+    if out is not None:
+        check_out_dir(out)
     settings = load_settings(args.settings)
+    config = DEFAULT_CONFIG if args.config is None else Path(args.config)
+    limits = load_limits(config)
     data = load_capture(args.capture, settings)
-    result = twin_check(data, settings, args.config)
+    result = twin_check(data, settings, config)
+    if out is not None:
+        inputs = TwinInputs(Path(args.capture),
+                            None if args.settings is None else Path(args.settings), config)
+        write_reports(write_twin_record(result, inputs, settings, limits, out), out)
     if args.json:
         print(json.dumps(result.to_json()))
     else:
@@ -56,5 +76,7 @@ def _run(args: argparse.Namespace) -> int:
                   f"{body['mean_dt_s'] * 1e3:+.1f} ms, largest |Δ| "
                   f"{body['max_abs_dt_s'] * 1e3:.1f} ms")
         print("  TCP: " + ("no truth in the capture" if result.tcp is None else str(result.tcp)))
+    if out is not None and not args.json:
+        print(f"  record: {out}")
     sys.stdout.flush()
     return 0 if result.verdict == "pass" else 1

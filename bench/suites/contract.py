@@ -20,11 +20,13 @@ __all__ = [
     "REPEATABILITY",
     "SAMPLE",
     "STARTUP",
+    "TWIN_CHECK",
     "AccuracyNames",
     "Headline",
     "RepeatabilityNames",
     "SampleKeys",
     "StartupNames",
+    "TwinCheckNames",
     "resolution",
 ]
 
@@ -374,3 +376,70 @@ class JointsNames:
 
 
 JOINTS: Final = JointsNames()
+
+
+@dataclass(frozen=True, slots=True)
+class TwinCheckNames:
+    """``armbench twin-check --out``: how well the twin predicts an arm's capture (the record of
+    :mod:`armbench.bench.twin_record`; the report's twin-check section)."""
+
+    suite: str = "twin-check"
+    prefix: str = "twin"
+    # suite parameters: the inputs and how the series were kept
+    capture: str = "capture"
+    capture_sha256: str = "capture_sha256"
+    settings: str = "settings"
+    settings_sha256: str = "settings_sha256"
+    config: str = "config"
+    config_sha256: str = "config_sha256"
+    buckets: str = "series_buckets"
+    # samples: ``kind`` (SAMPLE.kind) is one of these
+    series_kind: str = "series"
+    arrival_kind: str = "arrival"
+    # keys of a series sample (one joint at one reply of the capture)
+    joint: str = "joint"
+    arm: str = "arm_rad"
+    twin: str = "twin_rad"
+    divergence: str = "divergence_counts"
+    # keys of an arrival sample (one command both streams arrived at; SAMPLE.t is its time)
+    arm_arrival: str = "arm_s"
+    twin_arrival: str = "twin_s"
+    arrival_dt: str = "dt_s"
+    # figures per joint (twin.j<N>.<figure>)
+    rms_counts: str = "rms_counts"
+    max_counts: str = "max_counts"
+    rms_rad: str = "rms_rad"
+    max_rad: str = "max_rad"
+    # figures of the whole check (twin.<figure>)
+    mean_dt: str = "arrival.mean_dt_s"
+    max_abs_dt: str = "arrival.max_abs_dt_s"
+    moves: str = "arrival.moves"
+    compared: str = "arrival.compared"
+    arm_only: str = "arrival.arm_only"
+    twin_only: str = "arrival.twin_only"
+    replies: str = "replies_compared"
+    sessions: str = "sessions"
+    tcp_rms: str = "tcp.rms_mm"
+    tcp_max: str = "tcp.max_mm"
+
+    def joint_metric(self, joint: int, figure: str) -> str:
+        """``twin.j<N>.<figure>``."""
+        return f"{self.prefix}.j{joint}.{figure}"
+
+    def metric(self, figure: str) -> str:
+        """``twin.<figure>``."""
+        return f"{self.prefix}.{figure}"
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        p = self.prefix
+        return (
+            Headline("worst joint RMS divergence", f"{p}.j*.{self.rms_counts}", worst_of=True),
+            Headline("worst joint largest divergence", f"{p}.j*.{self.max_counts}",
+                     worst_of=True),
+            Headline("largest arrival-time difference", self.metric(self.max_abs_dt)),
+            Headline("TCP RMS divergence", self.metric(self.tcp_rms)),
+        )
+
+
+TWIN_CHECK: Final = TwinCheckNames()

@@ -1,0 +1,181 @@
+"""``armbench twin-check --out DIR``: the check as a run record (results.json read back by the
+record package, report.html with the overlay, junit.xml), the CI gate's exit statuses, bad input
+writing nothing; and the min/max envelope that keeps the record's series bounded. The emulator
+stands in for the arm (its capture is the arm's traffic); everything else is the real command."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_report import cells, check_safe, parse
+from test_twin_check import _lap
+
+from armbench.bench.metrics.series import envelope_indices
+from armbench.bench.record import load_record
+from armbench.bench.suites.contract import SAMPLE, TWIN_CHECK
+from armbench.bench.twin_record import SERIES_BUCKETS, file_sha256
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.vclock import run_virtual
+
+ROOT = Path(__file__).resolve().parents[1]
+N = TWIN_CHECK
+
+
+def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "armbench", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("twin-record") / "capture.jsonl"
+    run_virtual(_lap("fake://", path))
+    return path
+
+
+def _series(samples: list[Mapping[str, Any]], joint: int) -> list[Mapping[str, Any]]:
+    return [s for s in samples if s[SAMPLE.kind] == N.series_kind and s[N.joint] == joint]
+
+
+def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path) -> None:
+    """The arm's capture against its own twin: a record with RMS 0 and verdict pass, junit.xml
+    without failures, and ``armbench report DIR`` renders it again."""
+    out = tmp_path / "check"
+    proc = _cli("twin-check", capture, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    record = load_record(out / "results.json")
+    assert record.verdict == "pass"
+    assert list(record.suites) == [N.suite] and record.planned_suites == [N.suite]
+    suite = record.suites[N.suite]
+    ms = {m.name: m for m in suite.measurements}
+    for j in range(1, 5):
+        assert ms[N.joint_metric(j, N.rms_counts)].value == 0.0
+        assert ms[N.joint_metric(j, N.rms_counts)].outcome == "pass"
+        assert ms[N.joint_metric(j, N.max_counts)].value == 0.0
+    assert suite.params[N.capture_sha256] == file_sha256(capture)
+    assert suite.params[N.settings] is None
+    assert record.environment.port == "fake://"
+    samples = list(suite.trials[0].samples)
+    assert all(s[N.divergence] == 0.0 for s in samples if s[SAMPLE.kind] == N.series_kind)
+    junit = ET.parse(out / "junit.xml").getroot()
+    assert sum(int(s.get("failures", "0")) for s in junit.iter("testsuite")) == 0
+    assert (out / "report.html").is_file()
+    (out / "report.html").unlink()
+    proc = _cli("report", out)
+    assert proc.returncode == 0, proc.stderr
+    html = (out / "report.html").read_text(encoding="utf-8")
+    doc = parse(html)
+    check_safe(html, doc)
+    section = doc.by_id(N.suite)
+    assert section is not None
+    assert "pass" in section.text().lower()
+
+
+def test_other_twin_fails_with_the_overlay(capture: Path, tmp_path: Path) -> None:
+    """A twin with a weaker joint 2 (pull-out torque 1.0 instead of 1.5 N·m): exit 1, a fail
+    record whose numbers are the ones --json prints, whose kept series show the divergence (its
+    peak kept exactly), and a report with the overlay figure and the per-joint table."""
+    weak = tmp_path / "weak.toml"
+    weak.write_text("[emulator.physics.j2]\npullout_nm = 1.0\n")
+    out = tmp_path / "check"
+    proc = _cli("twin-check", capture, "--settings", weak, "--out", out, "--json")
+    assert proc.returncode == 1, proc.stderr
+    body = json.loads(proc.stdout)
+    assert body["verdict"] == "fail"
+    record = load_record(out / "results.json")
+    assert record.verdict == "fail"
+    suite = record.suites[N.suite]
+    ms = {m.name: m for m in suite.measurements}
+    assert {m["name"]: m["value"] for m in body["measurements"]} == {
+        name: m.value for name, m in ms.items()}
+    for j in range(4):
+        assert ms[N.joint_metric(j + 1, N.rms_counts)].value == body["rms_counts"][j]
+        assert ms[N.joint_metric(j + 1, N.max_rad)].value == body["max_rad"][j]
+    assert ms[N.metric(N.replies)].value == body["replies_compared"]
+    assert ms[N.metric(N.compared)].value == body["arrival"]["compared"]
+    assert ms[N.joint_metric(2, N.rms_counts)].outcome == "fail"
+    assert body["rms_counts"][1] > 3.0
+    assert suite.params[N.settings] == str(weak)
+    assert suite.params[N.settings_sha256] == file_sha256(weak)
+
+    samples = list(suite.trials[0].samples)
+    counts = RobotSettings().joints[1].counts_per_rad
+    j2 = _series(samples, 2)
+    assert len(j2) < body["replies_compared"]  # kept, not all
+    assert len(j2) <= 6 * SERIES_BUCKETS + 2
+    peak = max(abs(float(s[N.divergence])) for s in j2)
+    assert peak == pytest.approx(body["max_counts"][1], abs=1e-3)
+    for s in j2:
+        arm, twin = float(s[N.arm]), float(s[N.twin])
+        assert float(s[N.divergence]) == pytest.approx((arm - twin) * counts, abs=0.01)
+    times = [float(s[SAMPLE.t]) for s in j2]
+    assert times == sorted(times)
+    assert all(s[N.divergence] == 0.0 for s in _series(samples, 1))
+
+    junit = ET.parse(out / "junit.xml").getroot()
+    failed = [c.get("name") for c in junit.iter("testcase") if c.find("failure") is not None]
+    assert failed == [N.joint_metric(2, N.rms_counts)]
+
+    html = (out / "report.html").read_text(encoding="utf-8")
+    doc = parse(html)
+    check_safe(html, doc)
+    section = doc.by_id(N.suite)
+    assert section is not None
+    labels = [svg.attrs.get("aria-label") or "" for svg in section.iter("svg")]
+    assert any(label.startswith("Arm against twin") for label in labels), labels
+    assert f"{body['max_counts'][1]:.3g} counts on j2" in labels[0]
+    table = next(t for t in section.iter("table") if "twin-joints" in t.classes())
+    rows = {cells(r)[0]: cells(r) for r in table.iter("tr") if cells(r)[0] != "joint"}
+    assert sorted(rows) == ["j1", "j2", "j3", "j4"]
+    assert rows["j2"][1] == f"{body['rms_counts'][1]:.4g} counts"
+    assert "FAIL" in rows["j2"][-1] and "pass" in rows["j1"][-1]
+    arrivals = next(t for t in section.iter("table") if "twin-arrivals" in t.classes())
+    assert ["commands replayed", str(body["arrival"]["moves"])] in [cells(r) for r in
+                                                                   arrivals.iter("tr")]
+    scorecard = doc.by_id("scorecard")
+    assert scorecard is not None and "worst joint RMS divergence" in scorecard.text()
+
+
+def test_bad_input_writes_nothing(capture: Path, tmp_path: Path) -> None:
+    """A truncated capture exits 2 with --out and leaves no record; an --out that already holds
+    a record exits 2 before the replay and leaves that record as it was."""
+    lines = capture.read_text().splitlines()
+    cut = tmp_path / "cut.jsonl"
+    cut.write_text("\n".join(lines[:300]) + "\n" + lines[300][:20])
+    out = tmp_path / "check"
+    proc = _cli("twin-check", cut, "--out", out)
+    assert proc.returncode == 2 and "truncated" in proc.stderr
+    assert not (out / "results.json").exists() and not (out / "junit.xml").exists()
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "results.json").write_text("{}")
+    proc = _cli("twin-check", capture, "--out", taken)
+    assert proc.returncode == 2 and "already holds a run record" in proc.stderr
+    assert (taken / "results.json").read_text() == "{}"
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=3000),
+       st.integers(1, 50), st.integers(0, 2999))
+def test_envelope_keeps_extremes(values: list[float], buckets: int, spike_at: int) -> None:
+    """The kept rows are at most two per bucket and series plus the ends, ascending, and hold
+    every series' extremes (a spike anywhere survives)."""
+    y = np.asarray(values)
+    y[spike_at % len(y)] = 1e4
+    both = np.column_stack([y, -y[::-1]])
+    idx = envelope_indices(both, buckets)
+    assert list(idx) == sorted(set(idx.tolist()))
+    assert idx[0] == 0 and idx[-1] == len(y) - 1
+    assert len(idx) <= max(len(y) if len(y) <= 2 * buckets else 0, 4 * buckets + 2)
+    for col in both.T:
+        assert col[idx].max() == col.max() and col[idx].min() == col.min()
