@@ -246,10 +246,8 @@ class JointModel:
         return (self._s - self._gap - self._stick) / self._steps_per_rad
 
     def loaded_angle_rad(self) -> float:
-        """Joint angle in radians on the loaded flank of the play, before the stick-slip: where
-        gravity is evaluated (the stick-slip moves the link by a few hundredths of a degree and
-        its torque by well under 0.1 %; leaving it out keeps the step loss, which amplifies a
-        torque's error, a function of the commanded motion)."""
+        """Joint angle (rad) on the play's loaded flank before the stick-slip: where gravity is
+        evaluated (the random stick-slip, < 0.1 % of the torque, stays out of the step loss)."""
         return (self._s - self._gap) / self._steps_per_rad
 
     @property
@@ -486,32 +484,22 @@ class JointModel:
             self._stick = -self._dir * band * float(np.random.Generator(bits).random())
 
     def _misses(self, d: int, period: int, steps: int) -> int:
-        """Pulses lost while ``steps`` shaft steps are made towards ``d`` every ``period`` cycles.
-
-        Against the load (``JointPhysics.loss_fraction``: the stepper slips until its mean rate is
-        what its torque allows) the loss is a function of the torque deficit: the fraction's
-        share of the pulses, its fractional part carried to the next run (error diffusion), so the
-        same move under the same load loses the same steps; ``loss_jitter`` scatters the fraction
-        (seeded). The static-friction effect of ``[emulator.effects]``, when it loses more, draws
-        each pulse at random (negative binomial)."""
+        """Pulses lost while ``steps`` steps are made towards ``d`` every ``period`` cycles: the
+        share of the torque deficit (``JointPhysics.loss_fraction``), the fraction of a pulse
+        carried to the next run (error diffusion: the same move under the same load loses the
+        same steps), scattered by ``loss_jitter``; or, when it loses more, the static-friction
+        effect's draw per pulse."""
         fx = self._effects
         p_fx = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
-        physics = self._physics
-        p = 0.0
-        if physics is not None:
-            joint = self._joint
-            p = physics.loss_fraction(self._load_nm, d, joint.gear_ratio,
-                                      1.0 / (period * CYCLE_S), joint.steps_per_motor_rev)
-        if p_fx > p:
-            assert self._miss_bits is not None
-            return int(np.random.Generator(self._miss_bits).negative_binomial(steps, 1.0 - p_fx))
-        if p <= 0.0:
+        physics, joint, bits = self._physics, self._joint, self._miss_bits
+        p = 0.0 if physics is None else physics.loss_fraction(
+            self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S), joint.steps_per_motor_rev)
+        if p_fx > p and bits is not None:
+            return int(np.random.Generator(bits).negative_binomial(steps, 1.0 - p_fx))
+        if physics is None or p <= 0.0:
             return 0
-        assert physics is not None
-        if physics.loss_jitter:
-            assert self._miss_bits is not None
-            jitter = float(np.random.Generator(self._miss_bits).standard_normal())
-            p = min(0.9, max(0.0, p * (1.0 + physics.loss_jitter * jitter)))
+        if physics.loss_jitter and bits is not None:
+            p = physics.jittered(p, float(np.random.Generator(bits).standard_normal()))
         owed = steps * p / (1.0 - p) + self._lost_carry
         misses = int(owed)
         self._lost_carry = owed - misses
@@ -606,8 +594,7 @@ class JointModel:
                             max(-self._half_play, self._gap + run.direction * (after - before)))
         if done == run.pulses:
             self.spurious_counts += abs(run.glitch)
-            # a spurious count ends the run between two pulses of the same motion: the load (and
-            # so the step loss) stays the one of the motion's start, as without it
+            # a spurious count splits a motion: its step loss stays the one of its start
             self._glitched = run.glitch != 0
             if run.hall_at_end and self._homing_dir:
                 self._finish_homing(run.start + (done - 1) * run.period + 1)

@@ -142,6 +142,11 @@ class JointPhysics:
             return 0.0
         return min(0.9, 1.0 - have / need)
 
+    def jittered(self, fraction: float, normal: float) -> float:
+        """A run's lost ``fraction`` scattered by ``loss_jitter`` times the standard normal draw
+        ``normal`` (within 0..0.9, as :meth:`loss_fraction`)."""
+        return min(0.9, max(0.0, fraction * (1.0 + self.loss_jitter * normal)))
+
     def stick_band_rad(self, speed_fraction: float) -> float:
         """Width (rad) of the stick-slip band after an approach at ``speed_fraction`` of the
         rated step rate (0..1)."""
