@@ -194,9 +194,10 @@ class ArmEmulator:
         return float(p[0]), float(p[1]), float(p[2])
 
     def _link_angles_rad(self) -> list[float]:
-        """The joints' link angles where they stand (no syncing: called from inside a joint's
-        event, gravity needs the others' angles as they are)."""
-        return [b.true_rad() for b in self.boards]
+        """The joints' link angles where they stand, before the stick-slip (no syncing: called
+        from inside a joint's event, gravity needs the others' angles as they are)."""
+        return [b.true_rad() if b.model is None else b.model.loaded_angle_rad()
+                for b in self.boards]
 
     def firmware_angles_rad(self) -> tuple[float | None, ...]:
         """What each board's encoder counter says now (``None`` without power)."""

@@ -70,6 +70,7 @@ _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", 
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
            "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits", "_noise_p",
+           "_lost_carry", "_glitched",
            "transitions", "pulses", "steps_taken", "steps_missed", "steps_blocked",
            "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
@@ -124,11 +125,14 @@ class JointModel:
         self._load_nm = 0.0
         self._preload = 0  # side (±1) gravity holds the link on within the play; 0: play operator
         self._stick = 0.0  # link behind the play's flank after a stop (stick-slip), microsteps
+        self._lost_carry = 0.0  # lost pulses owed but not yet whole (error diffusion), pulses
+        self._glitched = False  # the last run ended at a spurious count: the next one continues it
         # chance of a spurious count per step that moves the shaft
         self._noise_p = noise_per_count * self._num / self._den
         # one PCG64 stream per effect, None while the effect is off
         self._miss_bits = (np.random.PCG64([seed, 0])
-                           if self._effects.miss_probability or physics is not None else None)
+                           if self._effects.miss_probability
+                           or (physics is not None and physics.loss_jitter) else None)
         self._noise_bits = (np.random.PCG64([seed, 1])
                             if self._effects.noise_rate_hz or self._noise_p else None)
         self._stick_bits = (np.random.PCG64([seed, 2])
@@ -241,6 +245,11 @@ class JointModel:
         but for the link's deflection under load, which the arm adds)."""
         return (self._s - self._gap - self._stick) / self._steps_per_rad
 
+    def loaded_angle_rad(self) -> float:
+        """Joint angle (rad) on the play's loaded flank before the stick-slip: where gravity is
+        evaluated (the random stick-slip, < 0.1 % of the torque, stays out of the step loss)."""
+        return (self._s - self._gap) / self._steps_per_rad
+
     @property
     def load_nm(self) -> float:
         """The gravity torque on the joint at its last event (N·m, positive towards +q)."""
@@ -351,6 +360,7 @@ class JointModel:
             self._target, self._duty = target_counts, duty
             self._run = None
             self._idle = False
+            self._glitched = False
 
     def home(self, tick: int, direction: int, duty: int) -> None:
         """Start the startup recovery at ``tick``: drive ``direction`` (+1 CW, −1 CCW) at ``duty``
@@ -434,6 +444,7 @@ class JointModel:
                 err = self._error()
                 if self._duty == 0 or err == 0:
                     self._state = STOP
+                    self._glitched = False
                     if self._physics is not None:
                         self._settle()
                     self._now += 1
@@ -453,7 +464,7 @@ class JointModel:
         physics = self._physics
         assert physics is not None
         load = self._load
-        tau = 0.0 if load is None else load((self._s - self._gap) / self._steps_per_rad)
+        tau = 0.0 if load is None else load(self.loaded_angle_rad())
         self._load_nm = tau
         side = 1 if tau > physics.hold_nm else -1 if tau < -physics.hold_nm else 0
         self._preload = side
@@ -472,24 +483,34 @@ class JointModel:
             band = physics.stick_band_rad(2.0 / (101 - self._duty)) * self._steps_per_rad
             self._stick = -self._dir * band * float(np.random.Generator(bits).random())
 
-    def _miss_p(self, d: int, period: int) -> float:
-        """Chance that a pulse of a run towards ``d`` every ``period`` cycles is lost: the static
-        friction effect above its start duty, or the share the stepper cannot drive against the
-        load at this rate (``JointPhysics.loss_fraction``), whichever is larger."""
+    def _misses(self, d: int, period: int, steps: int) -> int:
+        """Pulses lost while ``steps`` steps are made towards ``d`` every ``period`` cycles: the
+        share of the torque deficit (``JointPhysics.loss_fraction``), the fraction of a pulse
+        carried to the next run (error diffusion: the same move under the same load loses the
+        same steps), scattered by ``loss_jitter``; or, when it loses more, the static-friction
+        effect's draw per pulse."""
         fx = self._effects
-        p = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
-        physics = self._physics
-        if physics is not None:
-            joint = self._joint
-            p = max(p, physics.loss_fraction(self._load_nm, d, joint.gear_ratio,
-                                             1.0 / (period * CYCLE_S), joint.steps_per_motor_rev))
-        return p
+        p_fx = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
+        physics, joint, bits = self._physics, self._joint, self._miss_bits
+        p = 0.0 if physics is None else physics.loss_fraction(
+            self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S), joint.steps_per_motor_rev)
+        if p_fx > p and bits is not None:
+            return int(np.random.Generator(bits).negative_binomial(steps, 1.0 - p_fx))
+        if physics is None or p <= 0.0:
+            return 0
+        if physics.loss_jitter and bits is not None:
+            p = physics.jittered(p, float(np.random.Generator(bits).standard_normal()))
+        owed = steps * p / (1.0 - p) + self._lost_carry
+        misses = int(owed)
+        self._lost_carry = owed - misses
+        return misses
 
     def _plan(self, d: int) -> Run:
         """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
         period = 101 - self._duty
-        if self._physics is not None:
+        if self._physics is not None and not (self._glitched and d == self._dir):
             self._update_load()
+        self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
         if self._stalled or self._s == limit:
             return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
@@ -513,11 +534,7 @@ class JointModel:
         offset_end = self._offset + glitch
         if hall_at_end:
             offset_end = self.hall_count - self._encoder(self.hall_step)
-        misses = 0
-        if self._miss_bits is not None:
-            p = self._miss_p(d, period)
-            if p > 0.0:
-                misses = int(np.random.Generator(self._miss_bits).negative_binomial(steps, 1.0 - p))
+        misses = self._misses(d, period, steps)
         return Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
                     offset_end, glitch, hall_at_end)
 
@@ -577,5 +594,7 @@ class JointModel:
                             max(-self._half_play, self._gap + run.direction * (after - before)))
         if done == run.pulses:
             self.spurious_counts += abs(run.glitch)
+            # a spurious count splits a motion: its step loss stays the one of its start
+            self._glitched = run.glitch != 0
             if run.hall_at_end and self._homing_dir:
                 self._finish_homing(run.start + (done - 1) * run.period + 1)

@@ -90,7 +90,9 @@ class JointPhysics:
     commanded rate (no ramp in the firmware). ``stick_rad``: stick-slip band of a stop at full
     speed; ``stick_floor``: its fraction at standstill speed (the band grows linearly with the
     approach speed in between). ``offset_error_rad`` / ``hall_error_rad``: the actual DH offset and
-    Hall position minus the nominal ones.
+    Hall position minus the nominal ones. ``loss_jitter``: relative standard deviation of a run's
+    lost fraction about :meth:`loss_fraction` (seeded; 0: the same move under the same load loses
+    the same steps).
     """
 
     mass_kg: float = 0.0
@@ -108,6 +110,7 @@ class JointPhysics:
     stick_floor: float = 0.3
     offset_error_rad: float = 0.0
     hall_error_rad: float = 0.0
+    loss_jitter: float = 0.0
 
     def pullout_at_nm(self, steps_per_s: float) -> float:
         """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s."""
@@ -138,6 +141,11 @@ class JointPhysics:
         if need <= have:
             return 0.0
         return min(0.9, 1.0 - have / need)
+
+    def jittered(self, fraction: float, normal: float) -> float:
+        """A run's lost ``fraction`` scattered by ``loss_jitter`` times the standard normal draw
+        ``normal`` (within 0..0.9, as :meth:`loss_fraction`)."""
+        return min(0.9, max(0.0, fraction * (1.0 + self.loss_jitter * normal)))
 
     def stick_band_rad(self, speed_fraction: float) -> float:
         """Width (rad) of the stick-slip band after an approach at ``speed_fraction`` of the
@@ -195,6 +203,7 @@ JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "stick_floor": (0.0, 1.0),
     "offset_error_rad": (_deg(-0.5), _deg(0.5)),
     "hall_error_rad": (_deg(-0.1), _deg(0.1)),
+    "loss_jitter": (0.0, 0.05),
 }
 #: Ranges of the arm-wide settings.
 ARM_RANGES: Final[Mapping[str, tuple[float, float]]] = {
@@ -215,7 +224,7 @@ class ArmPhysics:
 
     joints: tuple[JointPhysics, ...] = DEFAULT_JOINT_PHYSICS
     payload_kg: float = 0.0
-    noise_per_count: float = 5e-5
+    noise_per_count: float = 1e-6
     gravity_m_s2: float = 9.80665
     geometry_error: GeometryError = field(default_factory=lambda: GeometryError(
         d1_m=0.0006, d2_m=-0.0003, a2_m=0.0008, a3_m=-0.0005))

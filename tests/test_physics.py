@@ -200,19 +200,21 @@ def test_under_load_the_approach_direction_no_longer_moves_the_link_in_its_play(
 
 def test_step_loss_by_hand_up_against_gravity_at_full_duty_and_not_down() -> None:
     """15 N·m at 50:1 and η = 0.35 needs 0.857 N·m; the stepper gives 1.3 / (1 + 6250/8000)
-    = 0.730 N·m at duty 99: 14.8 % of the pulses are lost going up; going down needs
+    = 0.730 N·m at duty 99: 14.8 % of the pulses are lost going up (exactly the share of the
+    deficit: S steps cost S / (1 − p) pulses, the fraction carried); going down needs
     15 × (1/0.35 − 2) / 50 = 0.257 N·m: none."""
     ph = JointPhysics(pullout_nm=1.3, corner_steps_per_s=8000.0, efficiency=0.35)
     rate = 1.0 / (2 * CYCLE_S)
     have = 1.3 / (1 + rate / 8000.0)
-    assert ph.loss_fraction(-15.0, +1, 50.0, rate, 1600) == pytest.approx(
-        1 - have / (15 / (50 * 0.35)), rel=1e-12)
+    p = 1 - have / (15 / (50 * 0.35))
+    assert ph.loss_fraction(-15.0, +1, 50.0, rate, 1600) == pytest.approx(p, rel=1e-12)
     assert ph.loss_fraction(-15.0, -1, 50.0, rate, 1600) == 0.0
     assert ph.required_nm(-15.0, -1, 50.0, rate, 1600) == pytest.approx(
         15 * (1 / 0.35 - 2) / 50)
     up = physical_joint(lambda q: -15.0, pullout_nm=1.3)
     run_to(up, 0, 0.5)
     assert up.steps_missed / up.pulses == pytest.approx(0.148, abs=0.02)
+    assert up.steps_missed == math.floor(up.steps_taken * p / (1 - p))
     assert up.counter == pytest.approx(round(0.5 * J2.counts_per_rad), abs=1)  # made up
     down = physical_joint(lambda q: -15.0, pullout_nm=1.3)
     run_to(down, 0, -0.5)
@@ -220,6 +222,68 @@ def test_step_loss_by_hand_up_against_gravity_at_full_duty_and_not_down() -> Non
     slow = physical_joint(lambda q: -15.0, pullout_nm=1.3)
     run_to(slow, 0, 0.5, duty=81)  # a tenth of the rate: 1.21 N·m available
     assert slow.steps_missed == 0
+
+
+def test_the_same_move_under_the_same_load_loses_the_same_steps() -> None:
+    """Step loss is a function of the torque deficit, not a draw: other seeds, the same lost
+    pulses and the same stop tick; a lift repeated loses the same again (within the one pulse
+    the error diffusion carries), and many short lifts lose what one long lift does."""
+    ends = []
+    for seed in (1, 2, 3):
+        physics = replace(JointPhysics(), backlash_rad=math.radians(0.5), pullout_nm=1.3)
+        m = JointModel(J2, physics=physics, load=lambda q: -15.0, seed=seed)
+        ends.append((run_to(m, 0, 0.4), m.steps_missed, m.counter))
+    assert ends[0] == ends[1] == ends[2]
+    m = physical_joint(lambda q: -15.0, pullout_nm=1.3)
+    tick = run_to(m, 0, 0.4)
+    first = m.steps_missed
+    run_to(m, run_to(m, tick + 100, 0.0), 0.4)  # down (no loss), then up again
+    assert abs((m.steps_missed - first) - first) <= 1
+    short = physical_joint(lambda q: -15.0, pullout_nm=1.3)
+    tick = 0
+    for k in range(1, 41):
+        tick = run_to(short, tick + 100, 0.01 * k)
+    assert abs(short.steps_missed - first) <= 1  # carried: not 40 × a fraction lost
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-40.0, 40.0), st.integers(60, 99), st.sampled_from([1, -1]))
+def test_lost_share_is_the_torque_deficit(load_nm: float, duty: int, direction: int) -> None:
+    """Whatever the load and rate, a single move loses ⌊S p / (1 − p)⌋ pulses for S steps, p
+    being ``loss_fraction``; lowering loses no more than lifting against the same torque."""
+    physics = replace(JointPhysics(), pullout_nm=1.3)
+    rate = 1.0 / ((101 - duty) * CYCLE_S)
+    p = physics.loss_fraction(load_nm, direction, 50.0, rate, 1600)
+    m = JointModel(J2, physics=physics, load=lambda q: load_nm, seed=5)
+    run_to(m, 0, 0.3 * direction, duty)
+    assert m.steps_missed == math.floor(m.steps_taken * p / (1 - p))
+    assert physics.loss_fraction(-abs(load_nm), -1, 50.0, rate, 1600) <= physics.loss_fraction(
+        -abs(load_nm), +1, 50.0, rate, 1600)
+
+
+def test_loss_jitter_is_seeded_and_a_spurious_count_does_not_change_the_loss() -> None:
+    """``loss_jitter`` scatters the lost fraction per run, the same with the same seed; a spurious
+    encoder count in the middle of a lift does not re-read the load (the loss stays the
+    motion's), so the lift loses what it would have lost without it, but for the count."""
+    lost = []
+    for seed in (1, 1, 2):
+        physics = replace(JointPhysics(), pullout_nm=1.3, loss_jitter=0.03)
+        m = JointModel(J2, physics=physics, load=lambda q: -15.0, seed=seed)
+        run_to(m, 0, 0.4)
+        lost.append(m.steps_missed)
+    assert lost[0] == lost[1] != lost[2]
+    assert JOINT_RANGES["loss_jitter"][0] <= DEFAULT_JOINT_PHYSICS[1].loss_jitter
+
+    def lift(noise: float) -> JointModel:
+        physics = replace(JointPhysics(), pullout_nm=1.3)
+        m = JointModel(J2, physics=physics, load=lambda q: -15.0 - 20.0 * q, seed=4,
+                       noise_per_count=noise)
+        run_to(m, 0, 0.4)
+        return m
+
+    clean, noisy = lift(0.0), lift(1e-3)
+    assert noisy.spurious_counts >= 1
+    assert abs(noisy.steps_missed - clean.steps_missed) <= noisy.spurious_counts + 1
 
 
 @settings(max_examples=50, deadline=None)

@@ -34,9 +34,10 @@ async def _lap(port: str, capture: Path, settings: RobotSettings | None = None) 
     async with Arm.connect(port, settings, capture=capture) as arm:
         await arm.move_to(CORNERS[0], branch="front-up", coordinated=True)
         await asyncio.sleep(0.2)
-        for k in (1, 2, 3, 0):
-            await arm.move_to(CORNERS[k], branch="front-up")
         # a weak hidden arm may not keep up: the capture holds what it did
+        for k in (1, 2, 3, 0):
+            with contextlib.suppress(MoveTimeoutError):
+                await arm.move_to(CORNERS[k], branch="front-up")
         with contextlib.suppress(MoveTimeoutError):
             await arm.follow_path([*CORNERS, CORNERS[0]], speed_m_s=0.05, spacing_m=0.005,
                                   branch="front-up")
@@ -105,8 +106,9 @@ def test_bad_captures(default_capture: Path, tmp_path: Path) -> None:
 
 def _fidelity(seed: int, folder: Path) -> dict[str, list[float]]:
     """RMS divergence (counts) of the calibrated twin, of the uncalibrated prior, and of the
-    hidden arm's own settings with another seed (the floor: the step loss's scatter), on a
-    held-out lap; and the lap's path error (mm) from each reply stream."""
+    hidden arm's own settings with another seed (the floor: what is still drawn at random, the
+    rare spurious counts), on a held-out lap; and the lap's path error (mm) from each reply
+    stream."""
     table = draw_hidden(seed)
     hidden, base = write_hidden(table, folder)
     run_virtual(calibrate_port(f"fake://?settings={hidden}", load_settings(base),
@@ -128,13 +130,14 @@ def _fidelity(seed: int, folder: Path) -> dict[str, list[float]]:
 
 
 def test_calibrated_twin_of_a_hidden_arm(tmp_path: Path) -> None:
-    """On a held-out lap of a hidden arm, the calibrated twin diverges about as much as the hidden
-    arm's own model run with another seed (the floor: the lost steps are drawn at random; at most
-    twice it plus 3 counts), far less than the prior, and gives the arm's path error within
-    10 %."""
+    """The target on a held-out lap of a hidden arm: the calibrated twin diverges by at most 3
+    encoder counts RMS on every joint (the step loss is a function of the load, so a twin that
+    knows the pull-out torque replays it), far less than the prior, and gives the arm's path
+    error within 10 %."""
     f = _fidelity(2, tmp_path)
     for j in range(4):
-        assert f["calibrated"][j] <= 2.0 * f["floor"][j] + 3.0, f
+        assert f["calibrated"][j] <= 3.0, f
+        assert f["floor"][j] <= 3.0, f
     assert max(f["prior"]) > 10 * max(f["calibrated"]), f
     arm = f["arm_path_mm"][0]
     assert abs(f["calibrated_path_mm"][0] - arm) <= 0.1 * arm, f
@@ -142,14 +145,15 @@ def test_calibrated_twin_of_a_hidden_arm(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_calibrated_twins_several_arms(tmp_path: Path) -> None:
-    """As above on five more hidden arms (figures printed for docs/calibration.md)."""
+    """As above on five more hidden arms, among them the three that lose the most steps (3, 4
+    and 7; figures for docs/calibration.md)."""
     for seed in (3, 4, 5, 6, 7):
         folder = tmp_path / str(seed)
         folder.mkdir()
         f = _fidelity(seed, folder)
         print(seed, {k: [round(v, 2) for v in vs] for k, vs in f.items()})
         for j in range(4):
-            assert f["calibrated"][j] <= 2.0 * f["floor"][j] + 3.0, (seed, f)
+            assert f["calibrated"][j] <= 3.0, (seed, f)
         arm = f["arm_path_mm"][0]
         assert abs(f["calibrated_path_mm"][0] - arm) <= 0.1 * arm, (seed, f)
 

@@ -59,11 +59,13 @@ PULLOUT_MODEL_REL: Final = 0.01
 #: lies below it: the twin then does not lose steps where the arm lost none.
 BOUND_MARGIN: Final = 1.2
 #: A speed run bounds the pull-out torque from below at or above this ratio of effective to
-#: commanded speed (no step lost), and gives an estimate of it below ``LOSSY_RATIO`` (a loss the
-#: model's needed torque explains well); in between it is left out: a loss of a few per cent is
-#: within what an unmodelled event (a re-planned run, a spurious count) makes.
-LOSSLESS_RATIO: Final = 0.995
-LOSSY_RATIO: Final = 0.95
+#: commanded speed (no step lost: the slope of a lossless run is 1 within a few 1e-5), and gives an
+#: estimate of it below: the step loss is a function of the torque deficit (``fakes/physics.py``),
+#: so even a small loss measures the pull-out torque.
+LOSSLESS_RATIO: Final = 0.9995
+#: Standard error of a speed run's ratio besides the lost pulses' rounding (one in ``steps``): the
+#: slope fitted over the middle of the move (lossless runs scatter about 1 by a few 1e-5).
+RATIO_SIGMA: Final = 1e-4
 _KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
 
 
@@ -380,7 +382,8 @@ def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     """Pull-out torque per joint from the speed ladder: a run that lost steps moved at
     ``ratio = have / need``, so ``P = ratio · need · (1 + rate / corner)`` with the needed torque
     from the prior (gravity through the worm gear, friction, spin-up); weighted mean over the lossy
-    runs, each weighted by the binomial scatter of its lost steps."""
+    runs, each weighted by the precision of its ratio (the slope's and the lost pulses'
+    rounding)."""
     mech = Mechanism(prior, base, lambda: [0.0] * 4)
     out: list[Fitted] = []
     for j, spec in enumerate(base.joints):
@@ -399,10 +402,9 @@ def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
             if ratio >= LOSSLESS_RATIO:
                 bounds.append(factor)
                 continue
-            if ratio >= LOSSY_RATIO or ratio <= 0.12:
+            if ratio <= 0.12:
                 continue
-            loss = 1.0 - ratio
-            sd = max((1.0 - loss) * math.sqrt(loss / max(run.steps, 1.0)), 1e-4)
+            sd = math.hypot(RATIO_SIGMA, 1.0 / max(run.steps, 1.0))
             estimates.append(ratio * factor)
             weights.append(1.0 / (sd * factor) ** 2)
         if len(estimates) < 1:

@@ -65,11 +65,13 @@ HOLD_POSES_RAD: Final = (
 #: Duties of the speed ladder, the most informative first (full duty is where steps are lost).
 LADDER_DUTIES: Final = (99, 97, 95, 98, 96, 93, 90)
 #: Per joint: the start pose of its ladder and the range its moves span (protocol rad): joints 2
-#: and 3 tilted so that moving towards the vertical lifts the arm; 1 and 4 carry no gravity load
-#: and get the two top duties only.
+#: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
+#: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
+#: step here loses none elsewhere at these duties); 1 and 4 carry no gravity load and get the two
+#: top duties only.
 LADDER_RANGES: Final = {
     2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
-    3: ((0.0, 0.5, 0.9, 0.0), 0.9, 0.6),
+    3: ((0.0, 0.6, 1.0, 0.0), 1.0, 0.7),
     1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
     4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
 }
