@@ -88,10 +88,13 @@ def verdict_reasons(record: RunRecord) -> list[str]:
             shown = ", ".join(regressed[:6])
             reasons.append(f"{len(regressed)} metric(s) regressed against baseline "
                            f"{record.baseline.baseline_run_id}: {shown}")
+    disturbed = record.disturbance_note()
     if not reasons:
         reasons.append("every measurement within its limits" +
                        ("" if record.baseline is None else
                         f", no regression against baseline {record.baseline.baseline_run_id}"))
+    if disturbed is not None:
+        reasons.append(disturbed)
     return reasons
 
 
