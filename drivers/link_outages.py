@@ -157,7 +157,7 @@ class OutageLog:
         if current is not None:
             self.current = None
             self._ended.append(replace(current, ended_s=now_s))
-        elif math.isfinite(last_reply_s) and now_s - last_reply_s > self.silence_s:
+        elif math.isfinite(last_reply_s) and now_s - last_reply_s >= self.silence_s:
             self.count += 1
             self._ended.append(LinkOutage("reply silence", f"no reply for "
                                           f"{now_s - last_reply_s:.3f} s", last_reply_s,
@@ -168,7 +168,7 @@ class OutageLog:
         ``silence_s`` since ``last_reply_s``."""
         if self.current is not None:
             return self.current
-        if math.isfinite(last_reply_s) and now_s - last_reply_s > self.silence_s:
+        if math.isfinite(last_reply_s) and now_s - last_reply_s >= self.silence_s:
             return LinkOutage("reply silence", f"no reply for {now_s - last_reply_s:.3f} s so far",
                               last_reply_s, last_reply_s + self.silence_s)
         return None
