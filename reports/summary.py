@@ -187,6 +187,7 @@ def suite_view(record: RunRecord, suite: SuiteRecord, key: str,
         superseded=len(suite.superseded_trials),
         measured=sum(1 for _ in all_measurements(suite)), failed=failed, regressed=regressed,
         error=suite.error, params=params_text(suite.params),
+        disturbed=sum(t.disturbed for t in suite.trials),
     )
     view.rows = [measurement_row(m, None, cmp_rows.get(m.name)) for m in suite.measurements]
     view.trial_metrics = _trial_metrics(suite)

@@ -143,6 +143,8 @@ class SuiteView:
     error: str | None
     params: str
     rows: list[MeasurementRow] = field(default_factory=list)
+    disturbed: int = 0
+    """Trials the link to the arm was lost during (measured, kept, flagged)."""
     trial_metrics: list[TrialMetricRow] = field(default_factory=list)
     trial_rows: list[MeasurementRow] = field(default_factory=list)
     trials: list[TrialView] = field(default_factory=list)

@@ -23,6 +23,7 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
+from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.drivers.link_outages import LinkOutage, OutageLog
 from armbench.fakes.vclock import VirtualTimeLoop
@@ -117,6 +118,9 @@ def test_the_run_says_how_many_trials_were_disturbed(tmp_path: Path) -> None:
     assert any(r.startswith(note) for r in verdict_reasons(record))
     write_junit(record, tmp_path / "junit.xml")
     assert 'name="disturbed_trials" value="1, 2"' in (tmp_path / "junit.xml").read_text()
+    write_reports(record, tmp_path)
+    html = (tmp_path / "report.html").read_text()
+    assert note in html and "3 (2 disturbed by link outages)" in html  # the suites table
     record.suites["accuracy"].trials[1:] = []
     assert record.disturbance_note() is None
 
