@@ -77,10 +77,11 @@ def far_end(request: pytest.FixtureRequest, tmp_path: Path,
 
 
 def _run_with_outage(tmp: Path, far: FarEnd, *, down_s: float | None,
-                     timeout_s: float) -> tuple[int, str, Path]:
+                     timeout_s: float) -> tuple[int, str, Path, float]:
     """``armbench run accuracy`` (two trials) on ``far.port``; once trial 1 is done and the
     second has run for 1 s, the far end is killed and, after ``down_s`` (None: never), started
-    again. The exit status, stdout + stderr, and the run folder."""
+    again. The exit status, stdout + stderr, the run folder, and the seconds from the kill until
+    the far end served again (a loaded machine starts a process slowly)."""
     config = tmp / "two-laps.toml"
     config.write_text(TWO_LAPS.format(timeout_s=timeout_s))
     out = tmp / "run"
@@ -100,16 +101,27 @@ def _run_with_outage(tmp: Path, far: FarEnd, *, down_s: float | None,
                 assert line, "".join(lines)
                 lines.append(line)
         time.sleep(1.0)  # the second lap is under way
+        t_kill = time.monotonic()
         far.kill()
         if down_s is not None:
             time.sleep(down_s)
             far.start()
-        rest, _ = proc.communicate(timeout=90.0)
+        down_wall_s = time.monotonic() - t_kill
+        rest, _ = proc.communicate(timeout=120.0)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(5)
-    return proc.returncode, "".join(lines) + rest, out
+    return proc.returncode, "".join(lines) + rest, out, down_wall_s
+
+
+def _show(far: FarEnd, trial: Any, event: dict[str, Any], status: int) -> None:
+    """One line of the campaign's outcome (shown with ``pytest -s``)."""
+    print(f"\n{far.port.split(':')[0]}: exit {status}, trial {trial.index} {trial.status}"
+          f"{' (' + (trial.error or '')[:60] + ')' if trial.error else ''}, disturbed "
+          f"{trial.disturbed}; outage {event['duration_s']:.2f} s, "
+          f"{event['reconnect_attempts']} failed reconnects, "
+          f"{event['commands_unacknowledged']} commands unacknowledged, cause {event['cause']!r}")
 
 
 def _lost_port_events(trial: Any) -> list[dict[str, Any]]:
@@ -132,7 +144,8 @@ def _check_first_trial_kept(out: Path) -> Any:
 
 def test_a_short_outage_mid_trial_is_recorded_and_disturbs_the_trial(
         far_end: FarEnd, tmp_path: Path) -> None:
-    status, output, out = _run_with_outage(tmp_path, far_end, down_s=1.0, timeout_s=10.0)
+    status, output, out, down_wall_s = _run_with_outage(tmp_path, far_end, down_s=1.0,
+                                                        timeout_s=30.0)
     record = _check_first_trial_kept(out)
     second = record.suites["accuracy"].trials[1]
     (lost,) = _lost_port_events(second)
@@ -141,7 +154,7 @@ def test_a_short_outage_mid_trial_is_recorded_and_disturbs_the_trial(
     # reconnection), why, and what it cost
     assert second.started_s <= lost["started_s"] <= lost["detected_s"] <= lost["ended_s"]
     assert lost["ended_s"] <= second.ended_s + 1e-6
-    assert 1.0 <= lost["duration_s"] <= 8.0, lost
+    assert 1.0 <= lost["duration_s"] <= down_wall_s + 5.0, (lost, down_wall_s)
     assert lost["duration_s"] == pytest.approx(lost["ended_s"] - lost["started_s"])
     assert not lost["ongoing"] and lost["cause"]
     assert lost["reconnect_attempts"] >= 1 and lost["commands_unacknowledged"] >= 0
@@ -152,6 +165,7 @@ def test_a_short_outage_mid_trial_is_recorded_and_disturbs_the_trial(
     elif second.status == "error":  # a new emulator starts at home, far from the lap: a typed
         assert second.error is not None and status == 2  # error of the arm, after the link
         assert not second.error.startswith(("bench bug", "LinkLostError", "PortLostError"))
+    _show(far_end, second, lost, status)
     assert "1 trial disturbed by link outages (accuracy 1)" in output
     assert "disturbed: the link was lost 1 time(s)" in output  # the trial's progress line
     assert "1 trial disturbed by link outages" in (out / "report.html").read_text()
@@ -160,7 +174,7 @@ def test_a_short_outage_mid_trial_is_recorded_and_disturbs_the_trial(
 
 def test_an_outage_beyond_the_timeout_is_a_lost_port_not_a_move_timeout(
         far_end: FarEnd, tmp_path: Path) -> None:
-    status, output, out = _run_with_outage(tmp_path, far_end, down_s=None, timeout_s=2.0)
+    status, output, out, _ = _run_with_outage(tmp_path, far_end, down_s=None, timeout_s=2.0)
     assert status == 2, output
     record = _check_first_trial_kept(out)
     second = record.suites["accuracy"].trials[1]
@@ -171,6 +185,7 @@ def test_an_outage_beyond_the_timeout_is_a_lost_port_not_a_move_timeout(
     assert lost["ongoing"] and lost["ended_s"] is None and lost["reconnect_attempts"] >= 1
     assert 2.0 <= lost["duration_s"] <= 4.0, lost
     assert second.disturbed and "MoveTimeoutError" not in output
+    _show(far_end, second, lost, status)
 
 
 @pytest.fixture
