@@ -3,6 +3,7 @@ numbering of a page and the readers of loosely typed sample data (samples are an
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import re
@@ -169,7 +170,13 @@ class Figures:
         when given, ``alt``: the figures the plot shows, in words."""
         self.count += 1
         label = f"{title}. {alt}" if alt else title
-        return FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
+        view = FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
+        # a drawn figure is a web of reference cycles (artists, transforms, callbacks): free it
+        # now, or the figures of a long run's sections pile up until the collector runs
+        fig.clear()
+        del fig
+        gc.collect()
+        return view
 
     def copy(self, figure: FigureView) -> FigureView:
         """The same plot once more on the page (the lead plot), its ids renamed."""
