@@ -297,7 +297,7 @@ class ArmLink:
             one = replies.one(data, t)
             if one is not None:  # what follows does for a chunk that is exactly one reply
                 self._state = one
-                if t - self._last_rx_s > self.reply_timeout_s or self.outages.current:
+                if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
                     self.outages.reply(t, self._last_rx_s)
                 self._last_rx_s = t
                 self._tx_since_rx = 0
@@ -316,7 +316,7 @@ class ArmLink:
         state = batch.state
         if state is not None:
             self._state = state
-            if t - self._last_rx_s > self.reply_timeout_s or self.outages.current:
+            if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
                 self.outages.reply(t, self._last_rx_s)
             self._last_rx_s = t
             self._tx_since_rx = 0
