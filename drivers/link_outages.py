@@ -14,7 +14,8 @@ good) and ends at the first valid reply after it. Two kinds:
 
 What was lost: ``commands_unacknowledged`` counts the commands written after the last reply
 before the loss (the far end may never have read them) and the writes refused while the link was
-down. Times are the event loop's; :meth:`LinkOutage.to_json` puts them on a caller's clock.
+down. Times are the event loop's; :meth:`LinkOutage.to_json` counts them from an origin (the
+runner's: the trial's start).
 """
 
 from __future__ import annotations
@@ -99,16 +100,16 @@ class LinkOutage:
         end = self.ended_s if self.ended_s is not None else t1_s
         return max(0.0, min(end, t1_s) - max(self.started_s, t0_s))
 
-    def to_json(self, now_s: float, offset_s: float = 0.0) -> dict[str, Any]:
-        """The outage as a record event: its times plus ``offset_s`` (loop time to the caller's
-        clock), its duration up to ``now_s`` if it is still going on."""
+    def to_json(self, now_s: float, origin_s: float = 0.0) -> dict[str, Any]:
+        """The outage as a record event: its times in seconds from loop time ``origin_s``
+        (``start_t_s`` < 0: it began before), its duration up to ``now_s`` if it still lasts."""
         return {
             "event": "link outage",
             "kind": self.kind,
             "cause": self.cause,
-            "started_s": self.started_s + offset_s,
-            "detected_s": self.detected_s + offset_s,
-            "ended_s": None if self.ended_s is None else self.ended_s + offset_s,
+            "start_t_s": self.started_s - origin_s,
+            "detected_t_s": self.detected_s - origin_s,
+            "end_t_s": None if self.ended_s is None else self.ended_s - origin_s,
             "duration_s": self.duration_s(now_s),
             "ongoing": self.ended_s is None,
             "reconnect_attempts": self.reconnect_attempts,

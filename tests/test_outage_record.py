@@ -42,19 +42,21 @@ def _record() -> RunRecord:
 
 
 def _trial(index: int, *, disturbed: bool) -> Trial:
-    events = [OUTAGE.to_json(20.0, offset_s=100.0)] if disturbed else []
+    events = [OUTAGE.to_json(20.0, origin_s=10.0)] if disturbed else []
     return Trial(index, 100.0 + index, 5.0, {"lap": index}, [{"t_s": 0.0}], status="done",
                  events=events, disturbed=disturbed)
 
 
-def test_an_outage_as_an_event_on_the_callers_clock() -> None:
-    ev = OUTAGE.to_json(20.0, offset_s=100.0)
-    assert ev == {"event": "link outage", "kind": "port lost",
-                  "cause": "connection reset by peer", "started_s": 112.0,
-                  "detected_s": 112.01, "ended_s": 115.5, "duration_s": 3.5, "ongoing": False,
-                  "reconnect_attempts": 4, "commands_unacknowledged": 1}
-    ongoing = LinkOutage("port lost", "EOF", 12.0, 12.0).to_json(20.0)
-    assert ongoing["ongoing"] and ongoing["ended_s"] is None and ongoing["duration_s"] == 8.0
+def test_an_outage_as_an_event_timed_from_the_trials_start() -> None:
+    ev = OUTAGE.to_json(20.0, origin_s=10.0)
+    assert ev == pytest.approx({"event": "link outage", "kind": "port lost",
+                                "cause": "connection reset by peer", "start_t_s": 2.0,
+                                "detected_t_s": 2.01, "end_t_s": 5.5, "duration_s": 3.5,
+                                "ongoing": False, "reconnect_attempts": 4,
+                                "commands_unacknowledged": 1})
+    ongoing = LinkOutage("port lost", "EOF", 12.0, 12.0).to_json(20.0, origin_s=13.0)
+    assert ongoing["ongoing"] and ongoing["end_t_s"] is None and ongoing["duration_s"] == 8.0
+    assert ongoing["start_t_s"] == -1.0  # it began before the trial
 
 
 def test_the_outage_log_tells_losses_from_silences() -> None:
@@ -85,7 +87,7 @@ def test_events_and_disturbed_survive_the_journal_and_results_json(tmp_path: Pat
     for record in (mid, load_record(tmp_path / "results.json")):
         first, second = record.suites["accuracy"].trials
         assert not first.disturbed and first.events == ()
-        assert second.disturbed and second.events == (OUTAGE.to_json(20.0, offset_s=100.0),)
+        assert second.disturbed and second.events == (OUTAGE.to_json(20.0, origin_s=10.0),)
         assert record.disturbed_trials() == [("accuracy", 1)]
         assert record.verdict == ("incomplete" if record is mid else "pass")
 
@@ -141,5 +143,5 @@ def test_a_power_cut_on_fake_is_a_silence_in_the_record_not_a_disturbance(
     assert trial.error.startswith("ReplyTimeoutError")
     (ev,) = trial.events
     assert ev["event"] == "link outage" and ev["kind"] == "reply silence" and ev["ongoing"]
-    assert trial.started_s <= ev["started_s"] <= trial.ended_s
+    assert 0.0 <= ev["start_t_s"] <= ev["detected_t_s"] <= trial.duration_s
     assert not trial.disturbed and outcome.record.disturbance_note() is None

@@ -4,7 +4,7 @@ repetition with its raw samples) and a :class:`SuiteRecord` (one suite's trials 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, get_args
 
 from armbench.bench.limits import Limit, LimitsConfig
@@ -160,7 +160,8 @@ class Trial:
     error: str | None = None
     events: Sequence[Mapping[str, Any]] = ()
     """What happened to the bench during the trial (JSON objects with an ``"event"`` name, times
-    on the run clock), e.g. each ``"link outage"`` of the connection to the arm."""
+    ``*_t_s`` in seconds from the trial's start), e.g. each ``"link outage"`` of the connection
+    to the arm."""
     disturbed: bool = False
     """The link to the arm was lost during the trial: its measurements are kept but flagged."""
 
@@ -205,15 +206,6 @@ class Trial:
             "events": [dict(ev) for ev in self.events],
             "samples": list(self.samples),
         }
-
-    def moved_to(self, started_s: float) -> Trial:
-        """The same trial started at ``started_s`` on the run clock, its events' times moved
-        with it: a trial measured on another clock, placed on the run's."""
-        dt_s = started_s - self.started_s
-        events = [{k: (v + dt_s if k.endswith("_s") and k != "duration_s"
-                       and isinstance(v, float) else v) for k, v in ev.items()}
-                  for ev in self.events]
-        return replace(self, started_s=started_s, events=events)
 
     @classmethod
     def from_json(cls, data: object, where: str) -> Trial:

@@ -285,7 +285,7 @@ class ParallelTrials:
         runner = self.runner
         clock = runner.writer
         start = clock.elapsed_s()
-        trial = result.trial.moved_to(start)
+        trial = dataclasses.replace(result.trial, started_s=start)
         clock.advance(trial.duration_s)
         parts = list(result.parts)
         for k, data in enumerate(result.shipped, 1):  # on disk before the record: see recover

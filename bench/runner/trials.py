@@ -265,17 +265,17 @@ class TrialAttempts:
                 await self.disconnect(own, merge=False)
 
     def _with_outages(self, trial: Trial, arm: Arm | None, t_loop0: float) -> Trial:
-        """``trial`` with the outages of ``arm``'s link since loop time ``t_loop0`` among its
-        events (times on the run clock); a lost port marks it disturbed."""
+        """``trial`` with the outages of ``arm``'s link since loop time ``t_loop0`` (the trial's
+        start) among its events, timed from the trial's start as its samples are; a lost port
+        marks it disturbed."""
         if arm is None:
             return trial
         now = asyncio.get_running_loop().time()
         outages = arm.link_outages(t_loop0)
         if not outages:
             return trial
-        offset_s = self.clock.elapsed_s() - now
         return dataclasses.replace(
-            trial, events=[*trial.events, *(o.to_json(now, offset_s) for o in outages)],
+            trial, events=[*trial.events, *(o.to_json(now, t_loop0) for o in outages)],
             disturbed=trial.disturbed or any(o.kind == "port lost" for o in outages))
 
     async def _run_connection(self) -> Connection:
