@@ -73,7 +73,14 @@ def far_end(request: pytest.FixtureRequest, tmp_path: Path,
             yield FarEnd(server.port, server.kill, server.start, True)
         return
     emu = emulators(kind)
-    yield FarEnd(emu.port, lambda: emu.stop(signal.SIGKILL), emu.start, False)
+
+    def kill() -> None:
+        emu.stop(signal.SIGKILL)
+        # the device goes with it, as udev removes an unplugged adapter's node: a stale link
+        # could lead to a pty number that another process on this machine was given since
+        emu.link.unlink(missing_ok=True)
+
+    yield FarEnd(emu.port, kill, emu.start, False)
 
 
 def _run_with_outage(tmp: Path, far: FarEnd, *, down_s: float | None,
