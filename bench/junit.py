@@ -74,6 +74,9 @@ def _suite_element(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     for key, value in (("run_id", record.run_id), ("suite_version", suite.version),
                        ("status", suite.status)):
         ET.SubElement(props, "property", name=key, value=_text(value))
+    disturbed = [str(t.index) for t in suite.trials if t.disturbed]
+    if disturbed:  # measured while the link to the arm was lost at least once: kept, flagged
+        ET.SubElement(props, "property", name="disturbed_trials", value=", ".join(disturbed))
     base = f"armbench.{suite.name}"
     for trial in suite.trials:
         cls = f"{base}.trial{trial.index}"

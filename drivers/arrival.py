@@ -114,7 +114,11 @@ class ArrivalTracker:
         the distance to go has not shrunk for the link's ``resend_after_s``.
 
         Raises :class:`MoveTimeoutError` at the deadline, :class:`MoveInterruptedError` when a
-        newer command superseded this one, and what the link's waits raise."""
+        newer command superseded this one, and what the link's waits raise. Time the port was
+        lost does not count against the deadline: while the reader reconnects the move waits for
+        it (the reconnect policy bounds that wait and raises
+        :class:`~armbench.drivers.errors.LinkLostError`), and afterwards the deadline is later by
+        the outage's length."""
         link = self._link
         cmd = self._cmd
         assert link._loop is not None and cmd is not None
@@ -126,15 +130,23 @@ class ArrivalTracker:
             state = link.state
             if reached(state):
                 return state
+            if link._reconnecting:  # the port is lost: no deadline, no resend until it is back
+                got = await link._wait(reached, None, since=self._since)
+                if got is not None:
+                    self._check_current()
+                    return got
+                continue
+            deadline = self.deadline + link.link_down_s(self._since)
             # the very sum the wake-up below is set at: comparing differences instead can miss
             # it by one ulp on virtual time, and the loop would spin without yielding
             if loop.time() >= max(self._last_progress, self._last_send) + resend_after:
                 await link._resend(cmd)
                 self._last_send = self._last_progress = loop.time()
-            wake = min(self.deadline, max(self._last_progress, self._last_send) + resend_after)
+            wake = min(deadline, max(self._last_progress, self._last_send) + resend_after)
             got = await link._wait(reached, wake, since=self._since)
             self._check_current()
             if got is not None:
                 return got
-            if loop.time() >= self.deadline:
+            if not link._reconnecting and (
+                    loop.time() >= self.deadline + link.link_down_s(self._since)):
                 raise MoveTimeoutError(self._goal, self.tol, self.timeout_s, link._state)

@@ -23,6 +23,7 @@ __all__ = [
     "InvalidTargetError",
     "JointRangeError",
     "LabgridError",
+    "LinkLostError",
     "MoveInterruptedError",
     "MoveTimeoutError",
     "NoSerialResourceError",
@@ -52,6 +53,22 @@ class TransportError(ArmbenchError, OSError):
 
 class PortLostError(TransportError):
     """The port went away while open (USB unplugged, TCP reset, pty closed, emulator killed)."""
+
+
+class LinkLostError(PortLostError):
+    """The link stayed lost longer than the outage timeout: the port went away and reconnecting
+    did not bring a reply back in time. Names the port, how long it was silent (``silent_s``, from
+    the last valid reply) and why (``cause``); ``attempts`` is the reconnect attempts made."""
+
+    def __init__(self, port: str, cause: str, silent_s: float, attempts: int) -> None:
+        super().__init__(port, f"link lost, silent for {silent_s:.1f} s ({cause}; "
+                               f"gave up after {attempts} reconnect attempts)")
+        self.cause = cause
+        self.silent_s = silent_s
+        self.attempts = attempts
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return (type(self), (self.port, self.cause, self.silent_s, self.attempts))
 
 
 class LabgridError(TransportError):

@@ -14,8 +14,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Generator, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Generator
 from pathlib import Path as FsPath
 from types import TracebackType
 from typing import Any, Final, Self
@@ -25,10 +24,12 @@ from armbench.drivers.errors import (
     DriverClosedError,
     DriverError,
     InvalidTargetError,
+    LinkLostError,
     PortLostError,
     ReplyTimeoutError,
     TransportError,
 )
+from armbench.drivers.link_outages import LinkOutage, OutageLog, ReconnectPolicy
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import COMMAND_LEN, Command, FrameError, Reply
 from armbench.drivers.replies import ReplyStream
@@ -37,7 +38,8 @@ from armbench.drivers.state import JointState
 from armbench.drivers.transports import Transport, open_transport
 from armbench.drivers.waiters import Waiters, any_state, never
 
-__all__ = ["CONNECT_TIMEOUT_S", "HOLD_TIMEOUT_S", "RESEND_AFTER_S", "ArmLink", "ReconnectPolicy"]
+__all__ = ["CONNECT_TIMEOUT_S", "HOLD_TIMEOUT_S", "RESEND_AFTER_S", "ArmLink", "LinkOutage",
+           "ReconnectPolicy"]
 
 log = logging.getLogger("armbench.driver")
 
@@ -49,38 +51,6 @@ HOLD_TIMEOUT_S: Final = 0.5
 #: How long ``connect`` waits for the first valid reply (an Arduino resets when the port opens
 #: and its boot loader takes up to ~2 s before the firmware replies).
 CONNECT_TIMEOUT_S: Final = 3.0
-
-
-@dataclass(frozen=True, slots=True)
-class ReconnectPolicy:
-    """Exponential back-off of the reader's reconnection after a lost port: wait
-    ``initial_delay_s``, then ``factor`` times longer each attempt up to ``max_delay_s``; give up
-    after ``max_attempts`` (None: never) and surface :class:`PortLostError`."""
-
-    initial_delay_s: float = 0.05
-    factor: float = 2.0
-    max_delay_s: float = 1.0
-    max_attempts: int | None = 20
-
-    def __post_init__(self) -> None:
-        for name in ("initial_delay_s", "max_delay_s"):
-            v = getattr(self, name)
-            if not ((f := finite_float(v)) is not None and f >= 0):
-                raise InvalidTargetError(None, f"reconnect.{name}", v, "must be a number >= 0")
-        if not self.factor >= 1:
-            raise InvalidTargetError(None, "reconnect.factor", self.factor, "must be >= 1")
-        if self.max_attempts is not None and self.max_attempts < 1:
-            raise InvalidTargetError(None, "reconnect.max_attempts", self.max_attempts,
-                                     "must be >= 1 or None")
-
-    def delays(self) -> Iterator[float]:
-        """The waits before each attempt."""
-        delay = self.initial_delay_s
-        n = 0
-        while self.max_attempts is None or n < self.max_attempts:
-            yield delay
-            n += 1
-            delay = min(delay * self.factor, self.max_delay_s)
 
 
 def _consume(task: asyncio.Task[Any]) -> None:
@@ -152,6 +122,9 @@ class ArmLink:
         """Successful reconnections."""
         self.reconnect_attempts = 0
         """Failed reconnection attempts."""
+        self.outages = OutageLog(self.reply_timeout_s)
+        """Every loss of the link (see :mod:`~armbench.drivers.link_outages`)."""
+        self._tx_since_rx = 0
 
     @property
     def frames_received(self) -> int:
@@ -260,6 +233,17 @@ class ArmLink:
         return (self._opened and not self._closed and not self._reconnecting
                 and self._failure is None)
 
+    def link_outages(self, since_s: float = -math.inf) -> list[LinkOutage]:
+        """The link's outages that overlap loop times [``since_s``, now], oldest first; one
+        going on now comes last, with ``ended_s`` None."""
+        now = self._loop.time() if self._loop is not None else self._last_rx_s
+        return self.outages.between(since_s, now, self._last_rx_s)
+
+    def link_down_s(self, since_s: float) -> float:
+        """Seconds since loop time ``since_s`` during which the port was lost."""
+        assert self._loop is not None
+        return self.outages.down_s(since_s, self._loop.time(), self._last_rx_s)
+
     # --- reader -------------------------------------------------------------------------------
 
     async def _read_loop(self) -> None:
@@ -276,6 +260,7 @@ class ArmLink:
                     if self._closed:
                         return
                     log.warning("%s: %s", self.port, exc)
+                    self._lost(exc)
                     if self.reconnect_policy is None:
                         self._set_failure(exc)
                         return
@@ -312,7 +297,10 @@ class ArmLink:
             one = replies.one(data, t)
             if one is not None:  # what follows does for a chunk that is exactly one reply
                 self._state = one
+                if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
+                    self.outages.reply(t, self._last_rx_s)
                 self._last_rx_s = t
+                self._tx_since_rx = 0
                 self._waiters.offer(one)
                 return
         batch = replies.receive(data, t, every=bool(recorders))
@@ -328,7 +316,10 @@ class ArmLink:
         state = batch.state
         if state is not None:
             self._state = state
+            if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
+                self.outages.reply(t, self._last_rx_s)
             self._last_rx_s = t
+            self._tx_since_rx = 0
             self._waiters.offer(state)
 
     async def _reconnect(self, exc: TransportError) -> bool:
@@ -342,8 +333,12 @@ class ArmLink:
                 await old.close()
         last: BaseException = exc
         attempts = 0
+        give_up_at = (math.inf if policy.give_up_after_s is None
+                      else self._silent_since_s() + policy.give_up_after_s)
         for delay in policy.delays():
-            await asyncio.sleep(delay)
+            if self._loop.time() >= give_up_at:
+                break
+            await asyncio.sleep(min(delay, max(0.0, give_up_at - self._loop.time())))
             if self._closed:
                 return False
             attempts += 1
@@ -357,6 +352,7 @@ class ArmLink:
                     raise
                 last = err
                 self.reconnect_attempts += 1
+                self.outages.attempt_failed()
                 log.info("%s: reconnect attempt %d failed: %s", self.port, attempts, err)
                 continue
             self._transport = transport
@@ -370,9 +366,22 @@ class ArmLink:
             return True
         self._reconnecting = False
         reason = exc.reason if isinstance(exc, TransportError) else str(exc)
-        self._set_failure(PortLostError(self.port, f"{reason}; gave up after {attempts} "
-                                                   f"reconnect attempts (last: {last})"))
+        if last is not exc:
+            reason += f"; last attempt: {last}"
+        self._set_failure(LinkLostError(self.port, reason,
+                                        self._loop.time() - self._silent_since_s(), attempts))
         return False
+
+    def _silent_since_s(self) -> float:
+        """Loop time since which the link has been silent: the last reply, or the opening."""
+        return max(self._last_rx_s, self._linked0_s)
+
+    def _lost(self, exc: TransportError) -> None:
+        """The transport reported the port lost: an outage begins (one already going on goes
+        on)."""
+        assert self._loop is not None
+        self.outages.lost(self._loop.time(), exc.reason, self._silent_since_s(),
+                          self._tx_since_rx)
 
     def _set_failure(self, exc: BaseException) -> None:
         if self._failure is None:
@@ -385,6 +394,8 @@ class ArmLink:
         exc = self._failure
         if exc is None:
             return
+        if isinstance(exc, LinkLostError):
+            raise LinkLostError(exc.port, exc.cause, exc.silent_s, exc.attempts) from exc
         if isinstance(exc, PortLostError):
             raise PortLostError(exc.port, exc.reason) from exc
         if isinstance(exc, TransportError):
@@ -451,6 +462,7 @@ class ArmLink:
             assert self._loop is not None and self._transport is not None
             gen = self._link_gen
             if self._reconnecting:
+                self.outages.command_lost()
                 if not retry:  # a late hold or resend would be stale on the new link
                     raise PortLostError(self.port, "reconnecting")
                 await self._wait_link(gen)
@@ -458,12 +470,16 @@ class ArmLink:
             t = self._loop.time()
             try:
                 await self._transport.write(data)
-            except TransportError:
+            except TransportError as exc:
+                if not self._closed:
+                    self._lost(exc)
+                    self.outages.command_lost()
                 if self.reconnect_policy is None or self._closed or not retry:
                     raise
                 await self._wait_link(gen)
                 continue
             self.commands_sent += 1
+            self._tx_since_rx += 1
             if self._capture is not None:
                 self._capture.frame(t, "out", data.decode("ascii"))
             return t

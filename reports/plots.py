@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
@@ -65,6 +66,22 @@ __all__ = [
 # --------------------------------------------------------------------------------------------
 
 
+#: Runs of a panel named in its legend; the others are drawn and counted in one more entry (a
+#: legend of hundreds of laps reads as nothing and costs most of a long run's report).
+LEGEND_RUNS = 8
+
+
+def _run_label(i: int, text: str) -> str:
+    """The legend label of run ``i`` of a panel: its text for the first :data:`LEGEND_RUNS`."""
+    return safe_label(text) if i < LEGEND_RUNS else "_nolegend_"
+
+
+def _more_runs(ax: Axes, runs: int) -> None:
+    """One legend entry for the runs beyond :data:`LEGEND_RUNS`, if any."""
+    if runs > LEGEND_RUNS:
+        ax.plot([], [], " ", label=f"and {runs - LEGEND_RUNS} more")
+
+
 @dataclass(frozen=True, slots=True)
 class AttainedPath:
     """One run's attained path: reported (forward kinematics of the reported joints) and, when the
@@ -98,11 +115,12 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
                 colour = COLOURS[i % len(COLOURS)]
                 rep = decimate(run.reported_mm)
                 ax.plot(rep[:, 1], rep[:, 2], color=colour, linestyle=LINESTYLES[i % 4],
-                        linewidth=1.0, label=safe_label(f"{run.label} reported"))
+                        linewidth=1.0, label=_run_label(i, f"{run.label} reported"))
                 if run.true_mm is not None and len(run.true_mm):
                     tru = decimate(run.true_mm)
                     ax.plot(tru[:, 1], tru[:, 2], color=colour, linestyle=":", linewidth=0.8,
-                            alpha=0.8, label=safe_label(f"{run.label} true"))
+                            alpha=0.8, label=_run_label(i, f"{run.label} true"))
+            _more_runs(ax, len(panel.runs))
             ax.set_title(safe_label(panel.title))
             ax.set_xlabel("y (mm)")
             ax.set_ylabel("z (mm)")
@@ -143,7 +161,8 @@ def error_over_time(panels: Sequence[ErrorPanel], paper_mm: float | None,
                 if len(y):
                     top = max(top, float(np.nanmax(y)))
                 ax.plot(t, y, color=COLOURS[i % len(COLOURS)], linestyle=LINESTYLES[i % 4],
-                        linewidth=0.8, label=safe_label(run.label))
+                        linewidth=0.8, label=_run_label(i, run.label))
+            _more_runs(ax, len(panel.runs))
             if paper_mm is not None:
                 ax.axhline(paper_mm, color="#D55E00", linestyle="--", linewidth=1.3,
                            label=safe_label(f"paper §7 mean {paper_mm:.1f} mm"))

@@ -88,10 +88,13 @@ def verdict_reasons(record: RunRecord) -> list[str]:
             shown = ", ".join(regressed[:6])
             reasons.append(f"{len(regressed)} metric(s) regressed against baseline "
                            f"{record.baseline.baseline_run_id}: {shown}")
+    disturbed = record.disturbance_note()
     if not reasons:
         reasons.append("every measurement within its limits" +
                        ("" if record.baseline is None else
                         f", no regression against baseline {record.baseline.baseline_run_id}"))
+    if disturbed is not None:
+        reasons.append(disturbed)
     return reasons
 
 
@@ -184,6 +187,7 @@ def suite_view(record: RunRecord, suite: SuiteRecord, key: str,
         superseded=len(suite.superseded_trials),
         measured=sum(1 for _ in all_measurements(suite)), failed=failed, regressed=regressed,
         error=suite.error, params=params_text(suite.params),
+        disturbed=sum(t.disturbed for t in suite.trials),
     )
     view.rows = [measurement_row(m, None, cmp_rows.get(m.name)) for m in suite.measurements]
     view.trial_metrics = _trial_metrics(suite)

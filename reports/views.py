@@ -3,6 +3,7 @@ numbering of a page and the readers of loosely typed sample data (samples are an
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import re
@@ -143,6 +144,8 @@ class SuiteView:
     error: str | None
     params: str
     rows: list[MeasurementRow] = field(default_factory=list)
+    disturbed: int = 0
+    """Trials the link to the arm was lost during (measured, kept, flagged)."""
     trial_metrics: list[TrialMetricRow] = field(default_factory=list)
     trial_rows: list[MeasurementRow] = field(default_factory=list)
     trials: list[TrialView] = field(default_factory=list)
@@ -167,7 +170,13 @@ class Figures:
         when given, ``alt``: the figures the plot shows, in words."""
         self.count += 1
         label = f"{title}. {alt}" if alt else title
-        return FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
+        view = FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
+        # a drawn figure is a web of reference cycles (artists, transforms, callbacks): free it
+        # now, or the figures of a long run's sections pile up until the collector runs
+        fig.clear()
+        del fig
+        gc.collect()
+        return view
 
     def copy(self, figure: FigureView) -> FigureView:
         """The same plot once more on the page (the lead plot), its ids renamed."""

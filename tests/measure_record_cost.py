@@ -19,7 +19,7 @@ from pathlib import Path
 
 _CHILD = """
 import atexit, json, resource, sys
-import armbench.bench.runner as runner
+import armbench.bench.commands.run as runner
 figures = {}
 def _peak_kb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

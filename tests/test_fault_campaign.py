@@ -91,8 +91,6 @@ import contextlib
 import io
 import json
 import random
-import select
-import shutil
 import signal
 import subprocess
 import sys
@@ -103,7 +101,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
-from netutil import free_port, listening
+from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
 from armbench.bench.record import load_record
 from armbench.bench.reporting import write_reports
@@ -680,59 +678,10 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
 # Real transports: the emulator process, ser2net
 
 
-class Emulator:
-    """``python -m armbench emulate --pty --link PATH`` or ``--tcp 127.0.0.1:PORT`` in a subprocess,
-    restartable on the same link or port."""
-
-    def __init__(self, tmp: Path, kind: str, extra: Sequence[str] = ()) -> None:
-        self.kind = kind
-        self.extra = list(extra)
-        self.link = tmp / "arm-pty"
-        self.tcp_port = free_port()
-        self.log = tmp / f"emulate-{kind}.log"
-        self.proc: subprocess.Popen[str] | None = None
-
-    @property
-    def port(self) -> str:
-        return str(self.link) if self.kind == "pty" else f"socket://127.0.0.1:{self.tcp_port}"
-
-    def start(self) -> None:
-        where = (["--pty", "--link", str(self.link)] if self.kind == "pty"
-                 else ["--tcp", f"127.0.0.1:{self.tcp_port}"])
-        with self.log.open("a") as err:
-            self.proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", *where,
-                                          *self.extra],
-                                         cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
-        assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], 20.0)
-        line = self.proc.stdout.readline() if ready else ""
-        assert "serving the arm on " in line, f"emulate did not start: {line!r}"
-        self.started = time.monotonic()  # ~ the emulator's time 0 (its faults' at_s)
-
-    def stop(self, sig: int = signal.SIGTERM) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-
-
 @pytest.fixture
 def emulators(tmp_path: Path) -> Iterator[Callable[..., Emulator]]:
-    made: list[Emulator] = []
-
-    def make(kind: str, *extra: str) -> Emulator:
-        emu = Emulator(tmp_path, kind, extra)
-        made.append(emu)
-        emu.start()
-        return emu
-
-    yield make
-    for emu in made:
-        emu.stop()
-
+    with emulator_maker(tmp_path) as make:
+        yield make
 
 
 async def _until(condition: Callable[[], bool], timeout_s: float = STEP_S) -> None:
@@ -886,58 +835,14 @@ def test_tcp_emulator_killed_reconnection_gives_up(emulators: Callable[..., Emul
     MATRIX[("emulator SIGKILL, no restart", "tcp")] = "PortLostError (gave up after 3 attempts)"
 
 
-@dataclass
-class Ser2net:
-    exe: str
-    config: Path
-    tcp_port: int
-    proc: subprocess.Popen[bytes] | None = None
-
-    @property
-    def port(self) -> str:
-        return f"rfc2217://127.0.0.1:{self.tcp_port}"
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen([self.exe, "-n", "-u", "-P", str(self.config) + ".pid",
-                                      "-c", str(self.config)],
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 10.0
-        while not listening(self.tcp_port):
-            assert self.proc.poll() is None, f"ser2net exited with {self.proc.returncode}"
-            assert time.monotonic() < deadline, "ser2net does not listen"
-            time.sleep(0.01)
-
-    def kill(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(5)
-
-
-
 @pytest.fixture
 def ser2net(tmp_path: Path, emulators: Callable[..., Emulator]) -> Iterator[tuple[Ser2net,
                                                                                      Emulator]]:
     """ser2net serving, as ``rfc2217://``, the pty that ``armbench emulate --pty --link``
     provides."""
-    exe = shutil.which("ser2net") or shutil.which("ser2net", path="/usr/sbin:/usr/local/sbin")
-    if exe is None:
-        pytest.skip("ser2net not installed (Debian package 'ser2net'): the RFC 2217 campaign "
-                    "needs a real one")
     emu = emulators("pty")
-    tcp_port = free_port()
-    config = tmp_path / "ser2net.yaml"
-    config.write_text(
-        "connection: &armbench\n"
-        f"  accepter: telnet(rfc2217),tcp,127.0.0.1,{tcp_port}\n"
-        f"  connector: serialdev,{emu.link},115200n81,local\n"
-        "  options:\n"
-        "    chardelay: false\n")
-    server = Ser2net(exe, config, tcp_port)
-    server.start()
-    try:
+    with ser2net_over(tmp_path, emu) as server:
         yield server, emu
-    finally:
-        server.kill()
 
 
 def test_ser2net_restart_is_reported_and_reconnected(ser2net: tuple[Ser2net, Emulator]) -> None:

@@ -126,6 +126,8 @@ def _summary(outcome: RunOutcome) -> None:
     out = sys.stdout
     notes = ([outcome.error] if outcome.error else []) + [
         f"warning: {w}" for w in outcome.warnings]
+    if (disturbed := record.disturbance_note()) is not None:
+        notes.append(f"warning: {disturbed}")
     print(f"run {record.run_id}: verdict {record.verdict}"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
     for suite in record.suites.values():

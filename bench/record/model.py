@@ -158,9 +158,21 @@ class Trial:
     measurements: Sequence[Measurement] = ()
     status: TrialStatus = "done"
     error: str | None = None
+    events: Sequence[Mapping[str, Any]] = ()
+    """What happened to the bench during the trial (JSON objects with an ``"event"`` name, times
+    ``*_t_s`` in seconds from the trial's start), e.g. each ``"link outage"`` of the connection
+    to the arm."""
+    disturbed: bool = False
+    """The link to the arm was lost during the trial: its measurements are kept but flagged."""
 
     def __post_init__(self) -> None:
         where = f"trial {self.index}"
+        object.__setattr__(self, "events", tuple(self.events))
+        for i, ev in enumerate(self.events):
+            if not isinstance(ev, Mapping) or not isinstance(ev.get("event"), str):
+                raise RecordError(f"{where}.events[{i}]", "must be an object with an 'event' name")
+        if not isinstance(self.disturbed, bool):
+            raise RecordError(f"{where}.disturbed", "must be true or false")
         if isinstance(self.index, bool) or not isinstance(self.index, int) or self.index < 0:
             raise RecordError(f"{where}.index", "must be an integer >= 0")
         object.__setattr__(self, "started_s", _num(self.started_s, f"{where}.started_s"))
@@ -190,6 +202,8 @@ class Trial:
             "duration_s": self.duration_s,
             "params": dict(self.params),
             "measurements": [m.to_json() for m in self.measurements],
+            "disturbed": self.disturbed,
+            "events": [dict(ev) for ev in self.events],
             "samples": list(self.samples),
         }
 
@@ -208,9 +222,14 @@ class Trial:
                         for i, m in enumerate(ms)]
         status = _choice(_get(d, "status", where), f"{where}.status", get_args(TrialStatus))
         error = _opt_str(_get(d, "error", where), f"{where}.error")
+        events = [_obj(ev, f"{where}.events[{i}]")  # absent from records before issue 20
+                  for i, ev in enumerate(_list(d.get("events", []), f"{where}.events"))]
+        disturbed = d.get("disturbed", False)
+        if not isinstance(disturbed, bool):
+            raise RecordError(f"{where}.disturbed", "must be true or false")
         with _located(where):
             return cls(index, started_s, duration_s, params, samples, measurements, status,
-                       error)
+                       error, events, disturbed)
 
 
 @dataclass(slots=True, kw_only=True)

@@ -86,6 +86,25 @@ class RunRecord:
         """The suite-level measurements of all suites, by name (names are unique in a record)."""
         return {m.name: m for s in self.suites.values() for m in s.measurements}
 
+    def disturbed_trials(self) -> list[tuple[str, int]]:
+        """The current trials the link to the arm was lost during, as (suite, index)."""
+        return [(s.name, t.index) for s in self.suites.values() for t in s.trials if t.disturbed]
+
+    def disturbance_note(self) -> str | None:
+        """The run-level line on disturbed trials (``"2 trials disturbed by link outages:
+        accuracy 3, 4"``), None when no trial was."""
+        disturbed = self.disturbed_trials()
+        if not disturbed:
+            return None
+        by_suite: dict[str, list[str]] = {}
+        for name, index in disturbed:
+            by_suite.setdefault(name, []).append(str(index))
+        shown = "; ".join(f"{name} {', '.join(ix[:10])}" + (" ..." if len(ix) > 10 else "")
+                          for name, ix in by_suite.items())
+        n = len(disturbed)
+        return (f"{n} trial{'s' if n != 1 else ''} disturbed by link outages ({shown}): their "
+                "measurements are kept but flagged")
+
     @property
     def verdict(self) -> Verdict:
         """The run's verdict, first that applies: ``"error"`` (a suite or current trial errored),

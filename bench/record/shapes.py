@@ -43,6 +43,8 @@ class TrialJson(TypedDict):
     duration_s: float
     params: dict[str, Any]
     measurements: list[MeasurementJson]
+    disturbed: bool
+    events: list[dict[str, Any]]
     samples: list[Mapping[str, Any]]
 
 

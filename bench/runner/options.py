@@ -24,10 +24,10 @@ if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
     from armbench.fakes.settings import EmulatorSettings
 
 __all__ = [
-    "CAPTURE_FILE", "DEFAULT_CONFIG", "EXIT_ERROR", "EXIT_FAIL", "EXIT_INTERRUPTED", "EXIT_PASS",
-    "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan", "EmulatorFactory", "Isolation",
-    "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome", "derive_seed", "exit_status",
-    "in_shard",
+    "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",
+    "EXIT_INTERRUPTED", "EXIT_PASS", "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
+    "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
+    "derive_seed", "exit_status", "in_shard",
 ]
 
 #: The limits file used when ``--config`` is not given (shipped with the package).
@@ -37,6 +37,10 @@ DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "default_bench.toml"
 JUNIT_FILE = "junit.xml"
 #: How the run was invoked (suite references, files), read back by ``--resume``.
 RUNNER_FILE = "runner.json"
+
+#: How long a lost port may stay silent before the trial ends in ``LinkLostError`` (s): a USB
+#: re-enumeration or a ser2net restarted by systemd takes a few seconds.
+DEFAULT_OUTAGE_TIMEOUT_S = 10.0
 
 EXIT_PASS = 0
 EXIT_FAIL = 1
@@ -158,6 +162,9 @@ class BenchPlan:
     tracker: PoseSource | None
     run_id: str
     runner_info: dict[str, Any] = field(default_factory=dict)
+    outage_timeout_s: float = DEFAULT_OUTAGE_TIMEOUT_S
+    """How long a lost port may stay lost before its trial ends in ``LinkLostError`` (``[bench]
+    outage_timeout_s``): the reconnection's time bound, counted from the last reply."""
     workers: int = 1
     """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
     capture: bool = True

@@ -35,6 +35,7 @@ from armbench.bench.record import (
 )
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
+    DEFAULT_OUTAGE_TIMEOUT_S,
     RUNNER_FILE,
     BenchPlan,
     Isolation,
@@ -58,7 +59,8 @@ __all__ = ["prepare"]
 #: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
 MAX_TRIALS = 10_000
 
-_BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "settle_s",
+_BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "outage_timeout_s",
+               "settle_s",
                "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes",
                "scheduler"}
 
@@ -95,6 +97,7 @@ class _BenchKnobs:
     isolation: Isolation
     reply_timeout_s: float
     connect_timeout_s: float
+    outage_timeout_s: float
     settle_s: float
     power_timeout_s: float
     tracker_params: Mapping[str, Any]
@@ -259,6 +262,9 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
                                 low=0, strict=True),
         connect_timeout_s=_number("bench.connect_timeout_s",
                                   bench.get("connect_timeout_s", 3.0), low=0, strict=True),
+        outage_timeout_s=_number("bench.outage_timeout_s",
+                                 bench.get("outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S), low=0,
+                                 strict=True),
         settle_s=_number("bench.settle_s", bench.get("settle_s", 0.0), low=0, strict=False),
         power_timeout_s=_number("bench.power_timeout_s",
                                 bench.get("power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
@@ -444,7 +450,8 @@ def prepare(options: RunOptions) -> BenchPlan:
         config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
         out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
-        connect_timeout_s=knobs.connect_timeout_s, settle_s=knobs.settle_s, power=power,
+        connect_timeout_s=knobs.connect_timeout_s, outage_timeout_s=knobs.outage_timeout_s,
+        settle_s=knobs.settle_s, power=power,
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
         capture=knobs.capture, capture_max_bytes=knobs.capture_max_bytes,
         warnings=_warnings(inputs.config), scheduler=knobs.scheduler,

@@ -178,6 +178,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
     record = writer.record
     status = EXIT_ERROR if error is not None else exit_status(record.verdict)
     notes = ([error] if error else []) + [f"warning: {w}" for w in plan.warnings]
+    if (disturbed := record.disturbance_note()) is not None:
+        notes.append(f"warning: {disturbed}")
     printer.message(f"verdict: {record.verdict}" + (f" ({'; '.join(notes)})" if notes else ""))
     return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings))
 

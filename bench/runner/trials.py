@@ -138,7 +138,7 @@ class TrialAttempts:
     async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
         """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
         arm ``robot``, by default the plan's)."""
-        from armbench.drivers.arm import Arm
+        from armbench.drivers.arm import Arm, ReconnectPolicy
         from armbench.drivers.capture import CaptureWriter
 
         plan = self.plan
@@ -155,6 +155,10 @@ class TrialAttempts:
                 robot, emulator_settings(robot, seed=emulator_seed), plan.faults)
             transport = FakeTransport(plan.port, plan.settings.serial, emulator)
         capture: CaptureWriter | None = None
+        # a lost port is reopened (not fake://: a new transport is a new emulator) until it has
+        # been silent for the outage timeout
+        reconnect: bool | ReconnectPolicy = (False if plan.fake else ReconnectPolicy(
+            max_attempts=None, give_up_after_s=plan.outage_timeout_s))
         try:
             # t_s on the run clock straight away: the part is appended to capture.jsonl as is
             if plan.capture:
@@ -162,7 +166,7 @@ class TrialAttempts:
                                         - self.clock.elapsed_s(),
                                         max_bytes=plan.capture_max_bytes)
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
-                              capture=capture, reconnect=not plan.fake,
+                              capture=capture, reconnect=reconnect,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)
             await arm.open()
         except BaseException:
@@ -224,7 +228,9 @@ class TrialAttempts:
         if trial_params is None:
             trial_params = ps.trials[index]
         t0 = clock.elapsed_s()
+        t_loop0 = asyncio.get_running_loop().time()
         own: Connection | None = None
+        arm: Arm | None = None
         try:
             if plan.isolation == "trial":
                 own = await self.connect(derive_seed(plan.seed, "emulator", ps.name, index,
@@ -233,6 +239,7 @@ class TrialAttempts:
                 conn = own
             else:
                 conn = await self._run_connection()
+            arm = conn.arm
             ctx = self.context(ps, conn.arm, conn.emulator, derive_seed(plan.seed, ps.name,
                                                                         index))
             result = await ps.suite.run_trial(ctx, index, trial_params)
@@ -241,19 +248,35 @@ class TrialAttempts:
             if result.index != index:
                 raise ValueError(f"run_trial({index}) returned trial index {result.index}")
             duration = max(0.0, clock.elapsed_s() - t0)
-            return dataclasses.replace(result, started_s=t0, duration_s=duration)
+            return self._with_outages(dataclasses.replace(result, started_s=t0,
+                                                          duration_s=duration), arm, t_loop0)
         except RunAborted:
             raise
         except Exception as exc:
             if not isinstance(exc, MEASUREMENT_ERRORS):
                 log.error("suite %s trial %d: %s", ps.name, index, describe(exc),
                           exc_info=True)
-            return Trial(index, t0, max(0.0, clock.elapsed_s() - t0), params=trial_params,
-                         status="error", error=describe(exc))
+            return self._with_outages(
+                Trial(index, t0, max(0.0, clock.elapsed_s() - t0), params=trial_params,
+                      status="error", error=describe(exc)), arm, t_loop0)
         finally:
             if own is not None:
                 self.unmerged.append(own.part)
                 await self.disconnect(own, merge=False)
+
+    def _with_outages(self, trial: Trial, arm: Arm | None, t_loop0: float) -> Trial:
+        """``trial`` with the outages of ``arm``'s link since loop time ``t_loop0`` (the trial's
+        start) among its events, timed from the trial's start as its samples are; a lost port
+        marks it disturbed."""
+        if arm is None:
+            return trial
+        now = asyncio.get_running_loop().time()
+        outages = arm.link_outages(t_loop0)
+        if not outages:
+            return trial
+        return dataclasses.replace(
+            trial, events=[*trial.events, *(o.to_json(now, t_loop0) for o in outages)],
+            disturbed=trial.disturbed or any(o.kind == "port lost" for o in outages))
 
     async def _run_connection(self) -> Connection:
         """The run's connection (``isolation = "run"``), opened again when it was lost."""
@@ -316,6 +339,11 @@ class TrialRunner:
         """The progress line of a recorded attempt: done, or its error and whether it is
         retried."""
         status = trial.status if trial.status == "done" else f"error ({trial.error})"
+        lost = [ev for ev in trial.events
+                if ev.get("event") == "link outage" and ev.get("kind") == "port lost"]
+        if lost:
+            status += (f" (disturbed: the link was lost {len(lost)} time(s), "
+                       f"{sum(float(ev['duration_s']) for ev in lost):.1f} s in all)")
         retry = trial.status == "error" and attempt < self.plan.retries
         if retry:
             status += f", retrying ({attempt + 1}/{self.plan.retries})"

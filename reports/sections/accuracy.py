@@ -3,7 +3,10 @@ Fig. 12 (error over time), armbench's two styles against the paper's figure.
 
 Names come from the suite contract (:data:`armbench.bench.suites.contract.ACCURACY`); every figure
 in the tables is the one the record holds. The error series drawn in Fig. 12 are computed from the
-samples (the record keeps only their summaries).
+samples (the record keeps only their summaries), one lap at a time: each lap's samples are read,
+reduced to what its plots draw (at most :data:`PLOT_POINTS` points per figure over all laps, at
+least :data:`MIN_LAP_POINTS` per lap) and let go, so the section's memory does not grow with the
+samples of a long run.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from armbench.bench.record import RunRecord, SuiteRecord, Trial
 from armbench.bench.suites.contract import ACCURACY, SAMPLE
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_value
+from armbench.reports.plotting import MAX_LINE_POINTS
 from armbench.reports.views import (
     Figures,
     FigureView,
@@ -34,6 +38,11 @@ from armbench.reports.views import (
 __all__ = ["SUITE", "AccuracyView", "LapRow", "PaperRow", "build"]
 
 SUITE = ACCURACY.suite
+#: Points one figure draws over all its laps; a run of few laps draws each as before, a run of
+#: many draws each with fewer points (so memory and report size stay bounded) ...
+PLOT_POINTS = 24_000
+#: ... but never fewer than this per lap.
+MIN_LAP_POINTS = 100
 #: How each style is called on the page.
 STYLE_TITLES: Mapping[str, str] = {
     ACCURACY.paper: "paper-style (corners only, joint-interpolated)",
@@ -76,13 +85,14 @@ class AccuracyView:
 
 @dataclass(slots=True)
 class _Lap:
+    """One lap reduced to what the section shows: its sample count and its plots' points."""
+
     trial: Trial
     style: str
-    t: FloatArray
-    reported: FloatArray
-    true: FloatArray  # NaN rows where a sample has no true position
-    errors: FloatArray | None = None
-    belief: FloatArray | None = None
+    samples: int
+    path_mm: FloatArray  # the reported path, decimated
+    errors: tuple[FloatArray, FloatArray] | None = None  # (t_s, mm), a min/max envelope
+    belief: tuple[FloatArray, FloatArray] | None = None  # (t_s, mm), a min/max envelope
 
 
 def _series(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -103,6 +113,9 @@ def _series(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatArra
 
 
 def _laps(suite: SuiteRecord, corners: FloatArray | None, notes: list[str]) -> list[_Lap]:
+    """Every drawable lap, each read from its samples and reduced before the next is read."""
+    points = max(MIN_LAP_POINTS, PLOT_POINTS // max(1, len(suite.trials)))
+    points = min(points, MAX_LINE_POINTS)
     laps = []
     for trial in suite.trials:
         style = trial.params.get(ACCURACY.style)
@@ -111,13 +124,15 @@ def _laps(suite: SuiteRecord, corners: FloatArray | None, notes: list[str]) -> l
         t, rep, tru = _series(trial.samples)
         if not len(rep):
             continue
-        lap = _Lap(trial, str(style), t, rep, tru)
+        lap = _Lap(trial, str(style), len(rep), plots.decimate(rep * 1000.0, points))
         has = ~np.isnan(tru[:, 0])
         if has.any():
-            lap.belief = np.linalg.norm(rep[has] - tru[has], axis=1) * 1000.0
+            lap.belief = plots.envelope(t[has], np.linalg.norm(rep[has] - tru[has], axis=1)
+                                        * 1000.0, points // 2)
         if corners is not None:
             try:
-                lap.errors = path_errors(rep, corners, closed=True).euclidean_mm
+                lap.errors = plots.envelope(
+                    t, path_errors(rep, corners, closed=True).euclidean_mm, points // 2)
             except MetricsInputError as exc:  # pragma: no cover - inputs are checked above
                 notes.append(f"trial {trial.index}: {exc}")
         laps.append(lap)
@@ -143,7 +158,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
     recorded = suite.measurements
     out = [figs.make(
         plots.paths_yz([plots.PathPanel(STYLE_TITLES[s], [
-            plots.AttainedPath(_lap_label(lap), lap.reported * 1000.0)
+            plots.AttainedPath(_lap_label(lap), lap.path_mm)
             for lap in laps if lap.style == s])
             for s in styles], None if corners is None else corners * 1000.0),
         "Fig. 11: paths in the YZ plane against the reference square",
@@ -156,7 +171,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
     if corners is not None and any(lap.errors is not None for lap in laps):
         out.append(figs.make(
             plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
-                plots.ErrorRun(_lap_label(lap), lap.t, lap.errors)
+                plots.ErrorRun(_lap_label(lap), *lap.errors)
                 for lap in laps if lap.style == s and lap.errors is not None],
                 _recorded(recorded, ACCURACY.metric(s, ACCURACY.mean))) for s in styles],
                 paper_mm),
@@ -168,7 +183,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
     if any(lap.belief is not None for lap in laps):
         out.append(figs.make(
             plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
-                plots.ErrorRun(_lap_label(lap), lap.t[~np.isnan(lap.true[:, 0])], lap.belief)
+                plots.ErrorRun(_lap_label(lap), *lap.belief)
                 for lap in laps if lap.style == s and lap.belief is not None],
                 _recorded(recorded, ACCURACY.metric(s, ACCURACY.belief_mean)))
                 for s in styles], None, "reported - true (mm)"),
@@ -200,7 +215,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
 
         rows.append(LapRow(
             index=lap.trial.index, style=STYLE_TITLES[lap.style],
-            lap=text(lap.trial.params.get(ACCURACY.lap, "-"), 20), samples=len(lap.reported),
+            lap=text(lap.trial.params.get(ACCURACY.lap, "-"), 20), samples=lap.samples,
             lap_time=format_duration(_recorded(ms, ACCURACY.metric(lap.style,
                                                                    ACCURACY.lap_time))),
             mean=fig(ACCURACY.mean), rms=fig(ACCURACY.rms), maximum=fig(ACCURACY.max),
