@@ -13,10 +13,14 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_firmware import needs_toolchain
 
+from armbench.bench.power import HarnessPower, port_power
+from armbench.bench.suites import ReReferencing
+from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.transports import open_transport
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
@@ -133,3 +137,35 @@ async def test_power_switched_through_the_control_fifo(tmp_path: Path) -> None:
         assert await replies_for(transport, 0.5) == []
         subprocess.run(["sh", "-c", f"echo power on > {fifo}"], check=True, timeout=10)
         assert len(await replies_for(transport, 1.0)) > 10  # booted after 0.1 s
+
+
+async def test_harness_power_re_references_the_arm(tmp_path: Path) -> None:
+    """The rescue after a stalled recovery on ``avr://``: the port's own power switch
+    (``port_power``: the harness's control channel) cuts the power, turns the joints back to zero
+    and blanks the EEPROMs (refused while powered), and the firmware then reports zero where the
+    joints stand and moves again."""
+    async with Arm.connect(f"avr://?eeprom={tmp_path}") as arm:
+        power = port_power(arm)
+        assert isinstance(power, HarnessPower) and isinstance(power, ReReferencing)
+        await arm.move_joints([0.3, -0.2, 0.2, 0.1], 99)
+        assert (await harness_stats(arm))["boards"][1]["motor_steps"] != 0
+        await power.re_reference()  # powered: refused, nothing changes
+        await asyncio.sleep(0.05)
+        assert (await harness_stats(arm))["boards"][1]["motor_steps"] != 0
+        await power.power_off()
+        await power.re_reference()
+        await asyncio.sleep(0.2)
+        assert (tmp_path / "joint2.eep").read_bytes()[:5] == b"\xff" * 5
+        await power.power_on()
+        await asyncio.sleep(0.3)
+        state = await arm.wait_state(lambda s: True, timeout_s=5.0)
+        assert state.q_rad == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=1e-4)
+        assert all(b["motor_steps"] == 0 for b in (await harness_stats(arm))["boards"])
+        await arm.move_joints([0.1, 0.1, 0.1, 0.1], 99)
+        assert arm.state.q_rad == pytest.approx((0.1, 0.1, 0.1, 0.1), abs=2e-3)
+
+
+async def harness_stats(arm: Arm) -> dict[str, Any]:
+    transport = arm.transport
+    assert isinstance(transport, AvrTransport) and transport.harness is not None
+    return await transport.harness.stats()
