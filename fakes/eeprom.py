@@ -41,19 +41,22 @@ class Eeprom:
         """How many times the firmware stored its record (one per motion change)."""
         self.cell_writes = 0
         """Cell writes actually performed (changed bytes only)."""
+        self.last_written: tuple[int, ...] = ()
+        """Addresses of the cells the last :meth:`store` wrote."""
 
     def store(self, motion: Motion, counter: int) -> int:
         """Store the record; returns how many cells were written (what costs time and wear)."""
         data = _RECORD.pack(_STATE_CODE[motion], max(-(2**31), min(2**31 - 1, counter)))
-        written = 0
+        written = []
         for i, b in enumerate(data):
             if self._cells[i] != b:
                 self._cells[i] = b
                 self._wear[i] += 1
-                written += 1
+                written.append(i)
+        self.last_written = tuple(written)
         self.record_writes += 1
-        self.cell_writes += written
-        return written
+        self.cell_writes += len(written)
+        return len(written)
 
     def load(self) -> EepromRecord | None:
         """The stored record, or ``None`` for a blank or unreadable one."""
