@@ -178,3 +178,17 @@ async def harness_stats(arm: Arm) -> dict[str, Any]:
     transport = arm.transport
     assert isinstance(transport, AvrTransport) and transport.harness is not None
     return await transport.harness.stats()
+
+
+async def test_a_held_up_host_is_not_a_silent_arm() -> None:
+    """The harness keeps replying while the host is held up for a second inside a wait (a busy
+    machine, a slow synchronous write): the replies wait in the pty, so the driver must read them
+    before it calls the arm silent (a repeatability run on avr:// stopped on this). The wait is
+    the driver's own (``_wait``, as a move's arrival tracker calls it after a resend)."""
+    async with Arm.connect("avr://") as arm:
+        loop = asyncio.get_running_loop()
+        seen = arm.state.seq
+        since = loop.time()
+        time.sleep(1.0)  # held up: no reader ran meanwhile
+        state = await arm._wait(lambda s: s.seq > seen, loop.time() + 5.0, since=since)
+    assert state is not None and state.seq > seen
