@@ -25,7 +25,7 @@ from smbus2 import i2c_msg
 
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.eeprom import Eeprom
+from armbench.fakes.eeprom import Eeprom, RecordWrites
 from armbench.fakes.i2c import (
     I2C_M_RD,
     REG_POSITION,
@@ -56,26 +56,6 @@ MAX_LAG_S = 0.05
 #: others. So a run measures the same whatever loop time it starts at.
 NS_PER_CYCLE = round(CYCLE_S * 1e9)
 
-#: The order in which the firmware's record store reads each cell of the record and writes it if
-#: it changed: the state, then the counter from its high byte down (``eeprom_update_byte``, then
-#: avr-libc's ``eeprom_update_dword``; firmware/joint.c).
-RECORD_ACCESS_ORDER = (0, 4, 3, 2, 1)
-
-
-def record_write_times(written: tuple[int, ...], start_s: float, busy_until_s: float,
-                       s_per_byte: float) -> tuple[float, float]:
-    """When the firmware's record store started at ``start_s`` returns, and until when the EEPROM
-    stays busy, for a record whose cells ``written`` changed (ATmega328P: a byte write runs in
-    the background for ``s_per_byte``; every access, read or write, first waits until no write
-    runs, EECR.EEPE). So n changed cells stall the code (n − 1) writes when the last cell it
-    touches is one of them, n otherwise, and the last write goes on after it returns."""
-    t, busy = start_s, busy_until_s
-    for address in RECORD_ACCESS_ORDER:
-        t = max(t, busy)
-        if address in written:
-            busy = t + s_per_byte
-    return t, busy
-
 _new_tuple = tuple.__new__  # builds a NamedTuple without its Python-level __new__ (hot path)
 
 
@@ -103,9 +83,9 @@ class Board:
         """The arm's physics (gravity, deflection, play side); None: the ideal mechanism."""
         self.stalled = False
         self._counts_per_rad = joint.counts_per_rad
-        self.records_unwritten: list[tuple[int, ...]] | None = None
-        """The cells of records stored since the main loop last paid their write time (the
-        master's, :meth:`MasterBoard.write_records`); None where nothing waits for them."""
+        self.unpaid_records: RecordWrites | None = None
+        """The records whose write time the main loop still has to pay (the master's); None where
+        nothing waits for them."""
 
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
@@ -127,11 +107,11 @@ class Board:
         """Write the EEPROM record for each motion change since the last call; cells written."""
         assert self.model is not None
         cells = 0
-        unwritten = self.records_unwritten
+        writes = self.unpaid_records
         for _tick, motion, counter in self.model.drain_transitions():
             cells += self.eeprom.store(motion, counter)
-            if unwritten is not None:
-                unwritten.append(self.eeprom.last_written)
+            if writes is not None:
+                writes.add(self.eeprom.last_written)
         return cells
 
     # conversions ---------------------------------------------------------------------------------
@@ -363,9 +343,7 @@ class MasterBoard(Board):
         self.commands = 0
         self.i2c_errors = 0
         self.framer = Framer("command")
-        self.records_unwritten = []
-        self.eeprom_busy_until_s = -math.inf
-        """Until when the last EEPROM byte write runs (the next record's first access waits)."""
+        self.unpaid_records = RecordWrites(settings.eeprom_write_s_per_byte)
         self._timer: asyncio.TimerHandle | None = None
         self._run_due: Callable[[float], None] | None = None
         self.deferrable = False
@@ -375,22 +353,9 @@ class MasterBoard(Board):
 
     def _on_power_on(self, t_s: float) -> None:
         self.framer = Framer("command")
-        self.records_unwritten = []
-        self.eeprom_busy_until_s = -math.inf
+        self.unpaid_records = RecordWrites(self.settings.eeprom_write_s_per_byte)
         self.clock.now = t_s
         self.uart.begin(t_s)
-
-    def write_records(self, t_s: float) -> float:
-        """The main loop's record store at ``t_s``, for the records stored since the last one
-        (the records themselves are in the EEPROM already): when the loop goes on."""
-        unwritten = self.records_unwritten
-        assert unwritten is not None
-        s_per_byte = self.settings.eeprom_write_s_per_byte
-        for written in unwritten:
-            t_s, self.eeprom_busy_until_s = record_write_times(
-                written, t_s, self.eeprom_busy_until_s, s_per_byte)
-        unwritten.clear()
-        return t_s
 
     def _on_power_off(self) -> None:
         self._run_due = self.uart.before_deliver = None
@@ -483,9 +448,9 @@ class MasterBoard(Board):
         clock = self.clock
         uart, bus, slaves, settings = self.uart, self.bus, self.slaves, self.settings
         line_end = settings.reply_line_end.encode()
-        unwritten = self.records_unwritten
-        assert unwritten is not None
-        self.write_records(clock.now)  # the start-up recovery's records, written in setup()
+        writes = self.unpaid_records
+        assert writes is not None
+        writes.pay(clock.now)  # the start-up recovery's records, written in setup()
         overhead_s = settings.loop_overhead_s
         # smbus2 messages over buffers of our own (as i2c_msg.write/read build them), read and
         # filled through memoryviews: cheaper than ctypes item access on msg.buf
@@ -584,8 +549,8 @@ class MasterBoard(Board):
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
                 self.store_transitions()
-            if unwritten:
-                now = self.write_records(now)
+            if writes.pending:
+                now = writes.pay(now)
             now += overhead_s
             # Pack all current poses and send through UART
             reply = encode_reply(own, positions[0], positions[1], positions[2])

@@ -168,7 +168,7 @@ void joint_store_motion(void)
         c = motion_counter;
     }
     if (dirty) {   /* EEPROM.put: only changed cells are written; the state, then the counter
-                      from its high byte down (fakes/boards.py RECORD_ACCESS_ORDER) */
+                      from its high byte down (fakes/eeprom.py RECORD_ACCESS_ORDER) */
         record_byte(EE_STATE, m);
         for (int8_t i = 3; i >= 0; i--) {
             record_byte((uint8_t *)EE_COUNTER + i, (uint8_t)((uint32_t)c >> (8 * i)));
