@@ -1,17 +1,22 @@
 """Power switches: how the bench cuts and restores the arm's power (start-up recovery tests).
 
-Three implementations of :class:`~armbench.bench.suites.base.PowerSwitch`:
+Four implementations of :class:`~armbench.bench.suites.base.PowerSwitch`:
 
 - :class:`EmulatorPower` — ``fake://``: the emulator's own power control (instantaneous, on the
   loop's clock, so on virtual time);
+- :class:`HarnessPower` — ``avr://``: the firmware harness's control channel (``power off``,
+  ``power on``), in real time;
 - :class:`CommandPower` — hardware with a relay: runs a configured command for "off" and one for
   "on" (``--power-command "relay off" "relay on"``), each with a timeout; a non-zero exit status,
   a timeout or a missing program raise :class:`PowerError`;
 - :class:`ManualPower` — hardware without a relay: prints a prompt for the operator and waits
   for Enter (``--power-manual``).
 
-All waiting is asyncio (a subprocess, or a line read in the default executor), so a suite awaiting
-a power switch can be cancelled like any other step. See ``docs/runner.md``.
+The two ports' own switches (:func:`port_power` finds them) can also re-reference an arm whose
+start-up recovery stalled (:class:`~armbench.bench.suites.base.ReReferencing`), as a lab does by
+hand; a relay or an operator prompt cannot. All waiting is asyncio (a subprocess, or a line read
+in the default executor), so a suite awaiting a power switch can be cancelled like any other step.
+See ``docs/runner.md``.
 """
 
 from __future__ import annotations
@@ -30,9 +35,11 @@ __all__ = [
     "DEFAULT_COMMAND_TIMEOUT_S",
     "CommandPower",
     "EmulatorPower",
+    "HarnessPower",
     "ManualPower",
     "PowerError",
     "parse_command",
+    "port_power",
 ]
 
 #: How long a power command may run before it is killed and the switch fails (s).
@@ -88,8 +95,91 @@ class EmulatorPower:
         self.emulator.power_on()
         await asyncio.sleep(0)
 
+    async def re_reference(self) -> None:
+        """While the power is off: blank the EEPROMs; the emulator's firmware then takes each
+        motor's position as its counter, what an operator re-referencing the joints achieves."""
+        for eeprom in getattr(self.emulator, "eeproms", ()):
+            eeprom.erase()
+        await asyncio.sleep(0)
+
     def __repr__(self) -> str:
         return "EmulatorPower()"
+
+
+class _HarnessLike(Protocol):
+    async def power(self, on: bool) -> None: ...
+
+    async def re_reference(self) -> None: ...
+
+
+def _harness_of(source: Any) -> _HarnessLike | None:
+    """The firmware harness ``source`` is or holds (an ``avr://`` transport's ``harness``, an
+    arm's current transport's), else None."""
+    if callable(getattr(source, "re_reference", None)) and callable(getattr(source, "power",
+                                                                            None)):
+        found: _HarnessLike = source
+        return found
+    for holder in (source, getattr(source, "transport", None)):
+        harness = getattr(holder, "harness", None)
+        if harness is not None:
+            return _harness_of(harness)
+    return None
+
+
+class HarnessPower:
+    """The power control of the firmware harness behind an ``avr://`` port, through its control
+    channel: all four boards cut and restored (EEPROM and motor positions survive), and a
+    stalled arm re-referenced (:meth:`re_reference`).
+
+    ``source`` is the :class:`~armbench.fakes.avr.Harness`, an ``avr://`` transport or an arm on
+    one, resolved at each switch (the arm's transport is a new one after a reconnection).
+    """
+
+    def __init__(self, source: Any) -> None:
+        self._source = source
+
+    @property
+    def harness(self) -> _HarnessLike:
+        """The harness switched now; :class:`PowerError` if there is none."""
+        try:
+            harness = _harness_of(self._source)
+        except ArmbenchError as exc:  # the arm is closed
+            raise PowerError(f"no harness to switch: {exc}") from exc
+        if harness is None:
+            raise PowerError(f"{self._source!r} has no firmware harness to switch "
+                             "(HarnessPower is for avr://)")
+        return harness
+
+    async def power_off(self) -> None:
+        """Cut the four boards' power (the harness takes it at its next simulated millisecond)."""
+        await self.harness.power(False)
+
+    async def power_on(self) -> None:
+        """Restore the power; the boards boot."""
+        await self.harness.power(True)
+
+    async def re_reference(self) -> None:
+        """While the power is off: every joint back to its zero position, every EEPROM blanked,
+        as a lab re-homes the arm by hand and erases the EEPROMs with a programmer; at power-up
+        the firmware counts from zero where the joints stand."""
+        await self.harness.re_reference()
+
+    def __repr__(self) -> str:
+        return "HarnessPower()"
+
+
+def port_power(source: Any) -> EmulatorPower | HarnessPower | None:
+    """The power switch the port behind ``source`` (an arm, a transport, an emulator) has of its
+    own: the emulator's on ``fake://``, the firmware harness's on ``avr://``; None for hardware,
+    whose power needs a relay command or the operator."""
+    if (callable(getattr(source, "power_off", None))
+            or getattr(source, "emulator", None) is not None):
+        return EmulatorPower(source)
+    try:
+        harness = _harness_of(source)
+    except ArmbenchError:
+        return None
+    return None if harness is None else HarnessPower(source)
 
 
 def parse_command(command: str | Sequence[str], what: str) -> list[str]:

@@ -51,6 +51,9 @@ HOLD_TIMEOUT_S: Final = 0.5
 #: How long ``connect`` waits for the first valid reply (an Arduino resets when the port opens
 #: and its boot loader takes up to ~2 s before the firmware replies).
 CONNECT_TIMEOUT_S: Final = 3.0
+#: Event-loop passes a silence check gives the reader before it calls the arm silent: one to
+#: select the readable port, one for the transport's read, one for the reader task.
+_DRAIN_PASSES: Final = 3
 
 
 def _consume(task: asyncio.Task[Any]) -> None:
@@ -418,6 +421,7 @@ class ArmLink:
             raise DriverClosedError(self.port)
         if since is None:
             since = loop.time()
+        drained = False
         while True:
             self._raise_if_failed()
             now = loop.time()
@@ -426,8 +430,16 @@ class ArmLink:
             wake_at = math.inf if deadline is None else deadline
             if reply_timeout and not self._reconnecting:
                 silent_until = max(self._last_rx_s, since, self._linked_s) + self.reply_timeout_s
+                if now >= silent_until and not drained:
+                    # A host held up (a busy machine, a slow synchronous step) finds replies
+                    # waiting unread in the OS's buffer: the reader takes them first.
+                    drained = True
+                    for _ in range(_DRAIN_PASSES):
+                        await asyncio.sleep(0)
+                    continue
                 if now >= silent_until:
                     raise ReplyTimeoutError(self.port, self.reply_timeout_s, self._state)
+                drained = False
                 wake_at = min(wake_at, silent_until)
             waiter = self._waiters.add(predicate, wake_at)
             state = await waiter.future

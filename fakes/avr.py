@@ -6,7 +6,7 @@ bus, joints, pty and power control (``docs/firmware.md``). This module is their 
 :func:`build` compiles both with the system toolchain into a cache folder, :func:`find_images`
 names the four images a ``firmware=`` value points to, :func:`board_specs` turns the robot
 settings into the harness's joint arguments and :class:`Harness` runs the harness process and
-talks to its control channel (power, statistics).
+talks to its control channel (power, re-referencing, statistics).
 """
 
 from __future__ import annotations
@@ -47,8 +47,6 @@ DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev gcc"
 _AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-std=gnu11", "-Wall",
                "-Wextra", "-Werror")
 _AVR_SOURCES = ("main.c", "joint.c", "master.c", "slave.c")
-_HARNESS_SOURCES = ("harness/harness.c", "harness/twi_bus.c", "harness/joint.c",
-                    "harness/uart.c")
 HARNESS_NAME = "armfw-harness"
 
 
@@ -111,8 +109,9 @@ def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
              source)
         _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", str(elf),
               str(out / f"joint{joint}.hex")], source)
+    harness_sources = sorted(str(p.relative_to(source)) for p in (source / "harness").glob("*.c"))
     _run(["cc", "-O2", "-std=gnu11", "-Wall", "-Wextra", "-Werror", "-o",
-          str(out / HARNESS_NAME), *_HARNESS_SOURCES, "-lsimavr"], source)
+          str(out / HARNESS_NAME), *harness_sources, "-lsimavr"], source)
     done.write_text("ok\n")
     return out
 
@@ -237,6 +236,13 @@ class Harness:
     async def power(self, on: bool) -> None:
         """Cut or restore the power of all four boards (EEPROM and motor positions survive)."""
         await self.command("power on" if on else "power off")
+
+    async def re_reference(self) -> None:
+        """While the power is off: every joint turned back to its zero position and every EEPROM
+        blanked (``home``, ``eeprom blank``), what a lab does by hand to an arm whose start-up
+        recovery stalled; at power-up the firmware counts from zero where the joints stand."""
+        await self.command("eeprom blank")
+        await self.command("home")
 
     async def stop(self) -> None:
         """Quit the harness (its EEPROM files are written) and wait for it."""

@@ -10,13 +10,17 @@ with ``{n}`` (default: the reference firmware of ``firmware/``); ``eeprom`` a fo
 boards' EEPROM across runs (default: none, a new arm); ``control`` a FIFO taking the harness's
 commands, so a bench can switch the power with ``--power-command "sh -c 'echo power off >
 FIFO'" "sh -c 'echo power on > FIFO'"``. The harness is ``transport.harness`` for its side
-channels: power cut and restore, the firmware's own timing figures.
+channels: power cut and restore, the firmware's own timing figures. When it closes, the harness's
+figures are kept in ``transport.last_stats`` and a lag behind real time is declared in the log (a
+warning: the arm's clock fell behind the wall clock, as on a machine too busy to serve it).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import TransportError
@@ -24,7 +28,12 @@ from armbench.drivers.settings import RobotSettings, SerialSettings, load_settin
 from armbench.drivers.transports.serial_port import SerialTransport
 from armbench.fakes.avr import FirmwareError, Harness
 
-__all__ = ["AvrTransport", "parse_avr_url"]
+__all__ = ["LAG_WARN_MS", "AvrTransport", "parse_avr_url"]
+
+log = logging.getLogger("armbench.firmware")
+
+#: A harness that fell further behind real time than this (ms) is declared in a warning.
+LAG_WARN_MS = 20.0
 
 _KNOWN = {"firmware", "settings", "eeprom", "control"}
 
@@ -55,6 +64,8 @@ class AvrTransport(SerialTransport):
         super().__init__(port, serial)
         self.harness: Harness | None = None
         """The running harness (None before :meth:`open` and after :meth:`close`)."""
+        self.last_stats: dict[str, Any] | None = None
+        """The harness's figures when it was stopped (``docs/firmware.md``)."""
 
     async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         robot, firmware, eeprom, control = parse_avr_url(self.port)
@@ -75,9 +86,29 @@ class AvrTransport(SerialTransport):
 
     async def _stop_harness(self) -> None:
         harness, self.harness = self.harness, None
-        if harness is not None:
-            await harness.stop()
+        if harness is None:
+            return
+        try:
+            async with asyncio.timeout(2.0):
+                self.last_stats = await harness.stats()
+        except (FirmwareError, OSError, TimeoutError) as exc:
+            log.info("%s: no figures from the harness: %s", self.port, exc)
+        else:
+            declare_lag(self.port, self.last_stats)
+        await harness.stop()
 
     async def close(self) -> None:
         await super().close()
         await self._stop_harness()
+
+
+def declare_lag(port: str, stats: dict[str, Any]) -> None:
+    """Log how far the harness fell behind real time (its pacing catches up, docs/firmware.md):
+    a warning beyond :data:`LAG_WARN_MS`, else one info line."""
+    lag_ms = float(stats.get("lag_max_ms", 0.0))
+    text = (f"{port}: harness ran {stats.get('sim_s', 0.0):.1f} simulated s in "
+            f"{stats.get('wall_s', 0.0):.1f} wall s; worst lag behind real time {lag_ms:.1f} ms, "
+            f"{stats.get('behind_s', 0.0):.2f} s spent catching up, "
+            f"{stats.get('lag_drops', 0)} lags given up")
+    log.log(logging.WARNING if lag_ms > LAG_WARN_MS or stats.get("lag_drops") else logging.INFO,
+            text)

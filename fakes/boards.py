@@ -25,7 +25,7 @@ from smbus2 import i2c_msg
 
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.eeprom import Eeprom
+from armbench.fakes.eeprom import Eeprom, RecordWrites
 from armbench.fakes.i2c import (
     I2C_M_RD,
     REG_POSITION,
@@ -83,6 +83,9 @@ class Board:
         """The arm's physics (gravity, deflection, play side); None: the ideal mechanism."""
         self.stalled = False
         self._counts_per_rad = joint.counts_per_rad
+        self.unpaid_records: RecordWrites | None = None
+        """The records whose write time the main loop still has to pay (the master's); None where
+        nothing waits for them."""
 
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
@@ -104,8 +107,11 @@ class Board:
         """Write the EEPROM record for each motion change since the last call; cells written."""
         assert self.model is not None
         cells = 0
+        writes = self.unpaid_records
         for _tick, motion, counter in self.model.drain_transitions():
             cells += self.eeprom.store(motion, counter)
+            if writes is not None:
+                writes.add(self.eeprom.last_written)
         return cells
 
     # conversions ---------------------------------------------------------------------------------
@@ -337,6 +343,7 @@ class MasterBoard(Board):
         self.commands = 0
         self.i2c_errors = 0
         self.framer = Framer("command")
+        self.unpaid_records = RecordWrites(settings.eeprom_write_s_per_byte)
         self._timer: asyncio.TimerHandle | None = None
         self._run_due: Callable[[float], None] | None = None
         self.deferrable = False
@@ -346,6 +353,7 @@ class MasterBoard(Board):
 
     def _on_power_on(self, t_s: float) -> None:
         self.framer = Framer("command")
+        self.unpaid_records = RecordWrites(self.settings.eeprom_write_s_per_byte)
         self.clock.now = t_s
         self.uart.begin(t_s)
 
@@ -440,7 +448,9 @@ class MasterBoard(Board):
         clock = self.clock
         uart, bus, slaves, settings = self.uart, self.bus, self.slaves, self.settings
         line_end = settings.reply_line_end.encode()
-        eeprom_s = settings.eeprom_write_s_per_byte
+        writes = self.unpaid_records
+        assert writes is not None
+        writes.pay(clock.now)  # the start-up recovery's records, written in setup()
         overhead_s = settings.loop_overhead_s
         # smbus2 messages over buffers of our own (as i2c_msg.write/read build them), read and
         # filled through memoryviews: cheaper than ctypes item access on msg.buf
@@ -538,7 +548,9 @@ class MasterBoard(Board):
             self.last_firmware_rad = q = counter / counts_per_rad
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
-                now += self.store_transitions() * eeprom_s
+                self.store_transitions()
+            if writes.pending:
+                now = writes.pay(now)
             now += overhead_s
             # Pack all current poses and send through UART
             reply = encode_reply(own, positions[0], positions[1], positions[2])

@@ -40,5 +40,6 @@ uint8_t joint_status(void);
 
 void role_setup(void);
 void role_loop(void);
+void role_eeprom_busy(void);   /* called while a record store waits for the EEPROM */
 
 #endif

@@ -146,6 +146,17 @@ void joint_init(void)
     TIMSK1 = 1 << OCIE1A;
 }
 
+/* One cell of the record: wait until the EEPROM has finished the previous write (3.3 ms a byte)
+ * while the role does what must not wait (a slave keeps its position register current), then
+ * read it and write it if it changed. */
+static void record_byte(uint8_t *address, uint8_t value)
+{
+    while (!eeprom_is_ready()) {
+        role_eeprom_busy();
+    }
+    eeprom_update_byte(address, value);
+}
+
 void joint_store_motion(void)
 {
     uint8_t dirty, m;
@@ -156,9 +167,12 @@ void joint_store_motion(void)
         m = motion;
         c = motion_counter;
     }
-    if (dirty) {                       /* EEPROM.put: only changed cells are written */
-        eeprom_update_byte(EE_STATE, m);
-        eeprom_update_dword(EE_COUNTER, (uint32_t)c);
+    if (dirty) {   /* EEPROM.put: only changed cells are written; the state, then the counter
+                      from its high byte down (fakes/eeprom.py RECORD_ACCESS_ORDER) */
+        record_byte(EE_STATE, m);
+        for (int8_t i = 3; i >= 0; i--) {
+            record_byte((uint8_t *)EE_COUNTER + i, (uint8_t)((uint32_t)c >> (8 * i)));
+        }
     }
 }
 

@@ -231,6 +231,11 @@ void role_setup(void)
     }
 }
 
+void role_eeprom_busy(void)
+{
+    /* Algorithm 1 waits: its own position was read before the record, the reply follows it */
+}
+
 void role_loop(void)
 {
     uint8_t ref[4];

@@ -100,20 +100,33 @@ void role_setup(void)
     set_sleep_mode(SLEEP_MODE_IDLE);
 }
 
-void role_loop(void)
+/* The POSITION register kept current: the conversion only when the counter moved. */
+static void refresh_position(void)
 {
     static int32_t last = -1;
     int32_t c;
     cli();
     c = joint_counter;
     sei();
-    if (c != last) {   /* the conversion only when the counter moved */
+    if (c != last) {
         uint16_t t = joint_position_ticks();
         last = c;
         cli();
         pos_ticks = t;
         sei();
     }
+}
+
+/* While the joint's EEPROM record is written (up to 13 ms) the master still reads the position:
+ * keep it current, or a moving joint reports a stale one. */
+void role_eeprom_busy(void)
+{
+    refresh_position();
+}
+
+void role_loop(void)
+{
+    refresh_position();
     cli();
     if (!ref_pending || joint_recovering()) {
         sleep_enable();

@@ -13,11 +13,16 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_firmware import needs_toolchain
 
+from armbench.bench.power import HarnessPower, port_power
+from armbench.bench.suites import ReReferencing
+from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports import open_transport
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
 from armbench.fakes.avr_transport import AvrTransport
@@ -55,6 +60,8 @@ async def test_avr_port_serves_the_firmware_in_real_time() -> None:
                for t, w in zip(replies[-1], (500, 62332, 500, 62332), strict=True))
     assert stats["uart"]["replies"] >= len(replies)
     assert transport.harness is None  # closed with the transport
+    last = transport.last_stats  # the figures at the close, the lag declared in the log
+    assert last is not None and last["sim_s"] >= 1.5 and last["lag_max_ms"] >= 0.0
 
 
 async def test_power_cut_while_moving_recovers_at_the_hall(tmp_path: Path) -> None:
@@ -110,15 +117,21 @@ def test_emulate_firmware_on_tcp() -> None:
 
 def test_differential_check_against_the_emulator() -> None:
     """The same script on the emulator and on the firmware: every firmware reply lies within the
-    emulator's replies of the surrounding 6.5 ms (one loop period, 3.2 ms, plus one EEPROM byte
-    write, 3.3 ms: the emulator stalls for the last byte's write too, see docs/firmware.md),
-    widened by 10 counts; at rest they agree exactly."""
-    firmware = run_firmware(DEFAULT_SCRIPT, 5.0)
+    emulator's replies of the surrounding 3.2 ms (one loop period), widened by 5 counts (3.2 seen,
+    docs/firmware.md). At rest they agree within those 5 counts too: the hold (duty 0) at 3.6 s
+    stops the joints mid-move wherever each loop picks it up, and the two loops' periods differ
+    (2.4 ms emulator, 3.0 ms firmware), so the rest positions are one loop's motion apart at
+    most (equal to the tick before this check was tightened, by coincidence of those moments)."""
+    robot = RobotSettings()
+    firmware = run_firmware(DEFAULT_SCRIPT, 5.0, robot)
     emulator = run_emulator(DEFAULT_SCRIPT, 5.0)
-    result = compare(firmware, emulator, window_s=6.5e-3, tol_counts=10.0)
+    result = compare(firmware, emulator, robot, window_s=3.2e-3, tol_counts=5.0)
     assert result.compared > 1500
     assert result.excess_counts == (0.0, 0.0, 0.0, 0.0), result
-    assert firmware[-1][1] == emulator[-1][1]
+    rest = compare(firmware[-1:], emulator[-1:], robot, window_s=1.0, tol_counts=5.0)
+    assert rest.compared == 1 and rest.excess_counts == (0.0, 0.0, 0.0, 0.0), rest
+
+
 
 
 async def test_power_switched_through_the_control_fifo(tmp_path: Path) -> None:
@@ -133,3 +146,49 @@ async def test_power_switched_through_the_control_fifo(tmp_path: Path) -> None:
         assert await replies_for(transport, 0.5) == []
         subprocess.run(["sh", "-c", f"echo power on > {fifo}"], check=True, timeout=10)
         assert len(await replies_for(transport, 1.0)) > 10  # booted after 0.1 s
+
+
+async def test_harness_power_re_references_the_arm(tmp_path: Path) -> None:
+    """The rescue after a stalled recovery on ``avr://``: the port's own power switch
+    (``port_power``: the harness's control channel) cuts the power, turns the joints back to zero
+    and blanks the EEPROMs (refused while powered), and the firmware then reports zero where the
+    joints stand and moves again."""
+    async with Arm.connect(f"avr://?eeprom={tmp_path}") as arm:
+        power = port_power(arm)
+        assert isinstance(power, HarnessPower) and isinstance(power, ReReferencing)
+        await arm.move_joints([0.3, -0.2, 0.2, 0.1], 99)
+        assert (await harness_stats(arm))["boards"][1]["motor_steps"] != 0
+        await power.re_reference()  # powered: refused, nothing changes
+        await asyncio.sleep(0.05)
+        assert (await harness_stats(arm))["boards"][1]["motor_steps"] != 0
+        await power.power_off()
+        await power.re_reference()
+        await asyncio.sleep(0.2)
+        assert (tmp_path / "joint2.eep").read_bytes()[:5] == b"\xff" * 5
+        await power.power_on()
+        await asyncio.sleep(0.3)
+        state = await arm.wait_state(lambda s: True, timeout_s=5.0)
+        assert state.q_rad == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=1e-4)
+        assert all(b["motor_steps"] == 0 for b in (await harness_stats(arm))["boards"])
+        await arm.move_joints([0.1, 0.1, 0.1, 0.1], 99)
+        assert arm.state.q_rad == pytest.approx((0.1, 0.1, 0.1, 0.1), abs=2e-3)
+
+
+async def harness_stats(arm: Arm) -> dict[str, Any]:
+    transport = arm.transport
+    assert isinstance(transport, AvrTransport) and transport.harness is not None
+    return await transport.harness.stats()
+
+
+async def test_a_held_up_host_is_not_a_silent_arm() -> None:
+    """The harness keeps replying while the host is held up for a second inside a wait (a busy
+    machine, a slow synchronous write): the replies wait in the pty, so the driver must read them
+    before it calls the arm silent (a repeatability run on avr:// stopped on this). The wait is
+    the driver's own (``_wait``, as a move's arrival tracker calls it after a resend)."""
+    async with Arm.connect("avr://") as arm:
+        loop = asyncio.get_running_loop()
+        seen = arm.state.seq
+        since = loop.time()
+        time.sleep(1.0)  # held up: no reader ran meanwhile
+        state = await arm._wait(lambda s: s.seq > seen, loop.time() + 5.0, since=since)
+    assert state is not None and state.seq > seen

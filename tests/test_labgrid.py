@@ -155,7 +155,7 @@ def test_a_place_is_acquired_used_and_released(lab: Lab) -> None:
         async with Arm.connect(port, connect_timeout_s=10.0) as arm:
             assert _acquired_by(lab, "arm-a") != ""  # held for the run
             state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
-            assert state is not None and abs(state.q_rad[0] - 0.05) < 2e-4
+            assert state is not None and abs(state.q_rad[0] - 0.05) < 3e-4  # arrival tolerance
 
     asyncio.run(main())
     assert _acquired_by(lab, "arm-a") == ""  # released when the run ended
@@ -165,7 +165,7 @@ def test_two_places_at_once(lab: Lab) -> None:
     async def main() -> list[float]:
         return list(await asyncio.gather(*(_move(lab.port(name)) for name in ARMS)))
 
-    assert all(abs(q - 0.05) < 2e-4 for q in asyncio.run(main()))
+    assert all(abs(q - 0.05) < 3e-4 for q in asyncio.run(main()))  # arrival tolerance
     assert [_acquired_by(lab, name) for name in ARMS] == ["", ""]
 
 

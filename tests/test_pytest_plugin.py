@@ -45,7 +45,7 @@ async def test_joint1_reaches_its_target(arm, record_measurement, bench_record):
                        limit=(None, 1.0))
     record_measurement("lab.j1.move_s", loop.time() - t0, "s", limit={"high": 60.0})
     truth = arm.ground_truth()
-    assert truth is not None and abs(truth.true_rad[0] - 0.4) < 2e-3
+    assert truth is not None and abs(truth.true_rad[0] - 0.4) < 3e-3  # gear play ≈ 2 mrad
 
 
 async def test_too_strict_a_limit_fails(arm, record_measurement):

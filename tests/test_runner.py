@@ -23,7 +23,14 @@ import pytest
 
 import armbench.bench.cli
 import armbench.bench.suites
-from armbench.bench.power import CommandPower, EmulatorPower, ManualPower, PowerError
+from armbench.bench.power import (
+    CommandPower,
+    EmulatorPower,
+    HarnessPower,
+    ManualPower,
+    PowerError,
+    port_power,
+)
 from armbench.bench.record import Measurement, Trial, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
@@ -38,7 +45,14 @@ from armbench.bench.runner import (
     run_bench,
     run_sync,
 )
-from armbench.bench.suites import SUITES, Suite, SuiteContext, UnknownSuiteError, load_suite
+from armbench.bench.suites import (
+    SUITES,
+    ReReferencing,
+    Suite,
+    SuiteContext,
+    UnknownSuiteError,
+    load_suite,
+)
 from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
 from armbench.drivers.capture import read_capture
 from armbench.drivers.errors import ArmbenchError, PortLostError
@@ -661,6 +675,54 @@ async def test_emulator_power_follows_the_arm_to_its_emulator() -> None:
     assert first.events == ["off", "on"]
     with pytest.raises(PowerError, match="no emulator"):
         await EmulatorPower(_Holder(None)).power_off()
+
+
+class _FakeHarness:
+    """Stands in for the firmware harness process (tests/test_firmware_loop.py runs the real
+    one): the control lines it would receive."""
+
+    def __init__(self) -> None:
+        self.lines: list[str] = []
+
+    async def power(self, on: bool) -> None:
+        self.lines.append("power on" if on else "power off")
+
+    async def re_reference(self) -> None:
+        self.lines.append("re-reference")
+
+
+class _Transport:
+    def __init__(self, harness: Any) -> None:
+        self.harness = harness
+
+
+class _ArmOn:
+    def __init__(self, transport: Any) -> None:
+        self.transport = transport
+
+
+async def test_port_power_is_the_ports_own_switch() -> None:
+    """fake:// gets the emulator's switch, avr:// the harness's (following the arm's current
+    transport), hardware none; both own switches can re-reference, a relay cannot."""
+    emulator = _FakeEmulator()
+    assert isinstance(port_power(emulator), EmulatorPower)
+    assert isinstance(port_power(_Holder(emulator)), EmulatorPower)
+    assert port_power(_ArmOn(_Transport(None))) is None
+    assert port_power(_Holder(None)) is None
+    first, second = _FakeHarness(), _FakeHarness()
+    arm = _ArmOn(_Transport(first))
+    power = port_power(arm)
+    assert isinstance(power, HarnessPower) and isinstance(power, ReReferencing)
+    await power.power_off()
+    await power.re_reference()
+    arm.transport = _Transport(second)  # a reconnection started a new harness
+    await power.power_on()
+    assert first.lines == ["power off", "re-reference"] and second.lines == ["power on"]
+    assert not isinstance(CommandPower("true", "true"), ReReferencing)
+    assert not isinstance(ManualPower(), ReReferencing)
+    arm.transport = _Transport(None)
+    with pytest.raises(PowerError, match="no firmware harness"):
+        await power.power_off()
 
 
 async def test_command_power_runs_commands_and_reports_failures(tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
-from armbench.bench.power import EmulatorPower
+from armbench.bench.power import port_power
 from armbench.bench.record import (
     RESULTS_FILE,
     RecordWriter,
@@ -199,12 +199,11 @@ class TrialAttempts:
         plan = self.plan
         power = plan.power
         truth = plan.tracker
-        if plan.fake:
-            source = emulator if emulator is not None else arm
-            if power is None:
-                power = EmulatorPower(source)
-            if truth is None:
-                truth = EmulatorTruth(source, plan.settings)
+        source = emulator if emulator is not None else arm
+        if power is None:
+            power = port_power(source)  # the emulator's (fake://), the harness's (avr://)
+        if plan.fake and truth is None:
+            truth = EmulatorTruth(source, plan.settings)
 
         def artifacts(name: str) -> Path:
             path = self.clock.artifact_path(Path(ps.name) / name)

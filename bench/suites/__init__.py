@@ -10,7 +10,14 @@ from __future__ import annotations
 
 import importlib
 
-from armbench.bench.suites.base import PoseSource, PowerSwitch, Progress, Suite, SuiteContext
+from armbench.bench.suites.base import (
+    PoseSource,
+    PowerSwitch,
+    Progress,
+    ReReferencing,
+    Suite,
+    SuiteContext,
+)
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
@@ -18,6 +25,7 @@ __all__ = [
     "PoseSource",
     "PowerSwitch",
     "Progress",
+    "ReReferencing",
     "Suite",
     "SuiteContext",
     "SuiteError",

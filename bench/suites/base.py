@@ -17,7 +17,7 @@ import abc
 import random
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 from armbench.bench.limits import LimitsConfig
 from armbench.bench.record import Better, Measurement, Trial, judge
@@ -26,7 +26,7 @@ from armbench.drivers.settings import RobotSettings
 if TYPE_CHECKING:
     from armbench.drivers.arm import Arm
 
-__all__ = ["PoseSource", "PowerSwitch", "Progress", "Suite", "SuiteContext"]
+__all__ = ["PoseSource", "PowerSwitch", "Progress", "ReReferencing", "Suite", "SuiteContext"]
 
 
 class PowerSwitch(Protocol):
@@ -38,6 +38,16 @@ class PowerSwitch(Protocol):
 
     async def power_on(self) -> None:
         """Restore the power now."""
+
+
+@runtime_checkable
+class ReReferencing(Protocol):
+    """A power switch that can also re-reference the arm while its power is off (the emulator's,
+    the firmware harness's): what a lab does by hand to an arm whose start-up recovery stalled
+    (re-home the joints, erase the EEPROMs). A relay or an operator prompt cannot."""
+
+    async def re_reference(self) -> None:
+        """Make the arm's stored position agree with where it stands (power off)."""
 
 
 class PoseSource(Protocol):

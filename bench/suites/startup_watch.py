@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
-from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.base import ReReferencing, SuiteContext
 from armbench.bench.suites.contract import STARTUP
 from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
 
@@ -119,19 +119,19 @@ async def await_recovery(arm: Any, t_on: float,
 
 
 async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:
-    """After a failed recovery: re-reference the arm so the campaign can go on. On the
-    emulator: power off, blank EEPROMs (the firmware then takes the motor position as its
-    counter, what an operator re-referencing the joints by hand achieves), power on. On
-    hardware: nothing can be done from here; the next trial errors if the arm is unusable."""
-    emu = emulator_of(ctx.arm)
-    if emu is None or ctx.power is None:
+    """After a failed recovery: re-reference the arm so the campaign can go on. With a power switch
+    that can (:class:`~armbench.bench.suites.base.ReReferencing`: the emulator's on ``fake://``,
+    the firmware harness's on ``avr://``): power off, re-reference (what an operator re-homing the
+    joints and erasing the EEPROMs achieves), power on. With a relay or the operator prompt:
+    nothing can be done from here; the next trial errors if the arm is unusable."""
+    power = ctx.power
+    if power is None or not isinstance(power, ReReferencing):
         log(STARTUP.ev_rescue, done=False, reason="operator must re-reference the arm")
         return
-    await ctx.power.power_off()
-    for eeprom in getattr(emu, "eeproms", ()):
-        eeprom.erase()
+    await power.power_off()
+    await power.re_reference()
     await asyncio.sleep(float(ctx.params["off_s"]))
-    await ctx.power.power_on()
+    await power.power_on()
     t = loop_time()
     try:
         await ctx.arm.wait_state(lambda s: s.t_s >= t, timeout_s=5.0)
@@ -141,4 +141,3 @@ async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:
         log(STARTUP.ev_rescue, done=False, reason=f"the arm did not come back: {exc}")
         return
     log(STARTUP.ev_rescue, done=True, q_rad=rad_list(ctx.arm.state.q_rad))
-

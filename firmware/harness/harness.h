@@ -59,7 +59,7 @@ typedef struct board_t {
     isr_stat_t isr[26];              /* per interrupt vector of the ATmega328P */
     int isr_depth;
     uint8_t isr_stack[4];
-    uint32_t stats_addr;
+    uint32_t stats_addr;             /* data address of fw_stats, 0 if unknown */
     uint64_t instructions;           /* executed (a busy core costs the harness its time) */
     uint64_t eeprom_busy_until;      /* cycle: EEPE reads 1 until then */
     struct {
@@ -69,7 +69,7 @@ typedef struct board_t {
     struct {
         avr_io_read_t c;
         void *param;
-    } eecr_r;             /* data address of fw_stats, 0 if unknown */
+    } eecr_r;                        /* simavr's own EECR handlers, called by the harness's */
 } board_t;
 
 /* The bus and the harness's global state */
@@ -82,16 +82,38 @@ typedef struct harness_t {
     unsigned rx_head, rx_tail;
     uint64_t rx_next_at;
     uint64_t rx_bytes, rx_lost_power;
-    uint64_t tx_bytes, replies;
+    uint64_t tx_bytes, tx_lost, replies;
     uint64_t last_reply_at, period_min, period_max, period_sum, period_n;
     /* I2C */
     uint64_t i2c_transactions, i2c_naks, i2c_start_at, i2c_min, i2c_max, i2c_sum;
-    uint64_t cycle_limit;
-    uint64_t lag_drops;              /* real-time pacing gave up a lag of more than 50 ms */
+    /* real-time pacing (harness.c) */
+    double lag_max_s;                /* worst lag behind the wall clock */
+    double behind_s;                 /* wall time spent catching up a lag */
+    uint64_t lag_drops;              /* lags too long to catch up (the process was stopped) */
+    double lag_dropped_s;            /* simulated time given up by those */
     unsigned isr_vector;             /* the control interrupt's vector (11: TIMER1_COMPA) */
+    /* options */
+    const char *eeprom_dir;          /* --eeprom-dir: jointN.eep kept there, or NULL */
+    uint64_t boot_cycles;            /* --boot-ms: held in reset this long after power-up */
+    double stop_after_s;             /* --seconds, < 0 without */
 } harness_t;
 
 extern harness_t H;
+
+void die(const char *what, const char *detail);
+
+void board_setup(board_t *b);
+void board_power_on(board_t *b);
+void board_power_off(board_t *b);
+void board_save(board_t *b);
+void board_eeprom_blank(board_t *b);
+void board_run(board_t *b, uint64_t until);
+
+void open_pty(void);
+void open_control_fifo(const char *path);
+void pty_put(uint8_t c);
+void pty_flush(void);
+int poll_io(double wall_s);
 
 void twi_attach(board_t *b);
 void twi_reset(board_t *b);
@@ -108,5 +130,6 @@ void print_stats(double wall_s);
 
 void joint_attach(board_t *b);
 void joint_service(board_t *b, uint64_t now);
+void joint_home(board_t *b);
 
 #endif

@@ -122,3 +122,11 @@ void joint_service(board_t *b, uint64_t now)
         j->q_head = (j->q_head + 1) % PIN_QUEUE;
     }
 }
+
+/* "home" while unpowered: the joint turned back to its zero position (microstep 0, the zero
+ * pose), as an operator re-homing the arm by hand would; the pins follow at the next power-up. */
+void joint_home(board_t *b)
+{
+    b->joint.motor_steps = 0;
+    b->joint.q_head = b->joint.q_tail = 0;
+}
