@@ -96,6 +96,8 @@ class Procedure:
         self.progress = progress
         self._loop = asyncio.get_running_loop()
         self._t0 = self._loop.time()
+        self._slowdown = 1.6
+        self._overhead_s = 0.05
         self._truth = EmulatorTruth(arm) if arm.ground_truth() is not None else None
         obs.truth = self._truth is not None
         sample = arm.ground_truth()
@@ -112,10 +114,16 @@ class Procedure:
 
     def _move_estimate_s(self, start: Sequence[float], target: Sequence[float],
                          duty: int) -> float:
-        """Time a move will take by law (12), with room for lost steps and the arrival."""
-        worst = max(abs(t - s) / joint_speed_rad_s(duty, j.steps_per_rad)
-                    for s, t, j in zip(start, target, self.settings.joints, strict=True))
-        return 1.3 * worst + 0.05
+        """Time a move will take by law (12), with room for lost steps and the arrival, both
+        as this arm has shown them so far: the slowest ratio of a long move's time to its law
+        (12) time (at least 1.6: an arm that loses many steps against gravity is slower than any
+        fixed margin) and the longest time a move took beyond that (at least 0.05 s: the
+        command's EEPROM record, the arrival)."""
+        return self._slowdown * self._law_s(start, target, duty) + self._overhead_s
+
+    def _law_s(self, start: Sequence[float], target: Sequence[float], duty: int) -> float:
+        return max(abs(t - s) / joint_speed_rad_s(duty, j.steps_per_rad)
+                   for s, t, j in zip(start, target, self.settings.joints, strict=True))
 
     # --- the phases ----------------------------------------------------------------------------
     async def run(self) -> Observations:
@@ -245,6 +253,8 @@ class Procedure:
         # the drive may lose up to 90 % of its steps against a load (docs/robot-model.md): give
         # a move ten times its law (12) time before calling the joint stuck
         timeout_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
+        law_s = self._law_s(start, target, duty)
+        began_s = self._loop.time()
         try:
             state = await self.arm.move_joints(list(target), duty, timeout_s=timeout_s)
         except MoveTimeoutError as exc:
@@ -255,6 +265,10 @@ class Procedure:
             raise ArmDoesNotMoveError(j + 1, float(target[j]), float(now[j]),
                                       self._phase) from exc
         assert state is not None
+        took_s = self._loop.time() - began_s
+        if law_s > 0.2:
+            self._slowdown = max(self._slowdown, (took_s - self._overhead_s) / law_s)
+        self._overhead_s = max(self._overhead_s, took_s - self._slowdown * law_s)
         return state
 
     async def _rest(self) -> tuple[JointState, dict[str, list[float]]]:
