@@ -23,6 +23,7 @@ from pathlib import Path
 
 from armbench.bench.record import (
     CAPTURE_FILE,
+    LEGACY_CAPTURE_FILE,
     REPORT_FILE,
     RESULTS_FILE,
     RunRecord,
@@ -149,8 +150,9 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
             path = path / RESULTS_FILE
         rec = load_record(path)
         source = path.name
-        if capture_path is None and (path.parent / CAPTURE_FILE).is_file():
-            capture_path = path.parent / CAPTURE_FILE
+        for name in (CAPTURE_FILE, LEGACY_CAPTURE_FILE):  # capture.mcap, else an older run's
+            if capture_path is None and (path.parent / name).is_file():
+                capture_path = path.parent / name
     html = build_report_html(rec, capture=capture_path, out_dir=out.parent, source=source)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, html.encode("utf-8"))

@@ -33,7 +33,7 @@ def register(sub: Any) -> None:
         "run", help="run bench suites and judge them against limits and a baseline",
         description="Run bench suites against the arm (the built-in emulator on virtual time "
                     "unless --port is given), write results.json after every trial, then "
-                    "junit.xml, report.html and the traffic capture capture.jsonl.",
+                    "junit.xml, report.html and the traffic capture capture.mcap.",
         epilog="Exit status: 0 pass, 1 a limit or regression failed, 2 the bench could not run "
                "or the run is incomplete, 130 interrupted (continue with --resume DIR).")
     p.add_argument("suites", nargs="*", metavar="SUITE",
