@@ -47,7 +47,7 @@ __all__ = ["BATCH_FRAMES", "BATCH_SPAN_S", "DISPLAY_PERIOD_S", "McapCapture"]
 BATCH_FRAMES: Final = 256
 #: Seconds a ``UartFrames`` message spans at most.
 BATCH_SPAN_S: Final = 1.0
-#: Seconds between two samples of the derived topics at least (20 Hz).
+#: Seconds between two samples of the derived topics at least (10 Hz).
 DISPLAY_PERIOD_S: Final = TRUTH_PERIOD_S
 #: Uncompressed bytes of a chunk.
 CHUNK_BYTES: Final = 4 << 20
@@ -67,8 +67,8 @@ _TICK_WEIGHTS: Final = np.array([10_000, 1_000, 100, 10, 1])
 
 
 class _Sampler:
-    """Picks the samples of a derived topic: the first value of each ``period_ns`` slot, when it
-    differs from the last one written or a new second began since."""
+    """Picks the samples of a derived topic: the first value of each ``period_ns`` slot of a
+    part's clock, when it differs from the last one written or a new second began since."""
 
     def __init__(self, period_ns: int) -> None:
         self.period_ns = period_ns
@@ -76,10 +76,15 @@ class _Sampler:
         self._second = -1
         self._value: object = None
 
-    def pick(self, t_ns: npt.NDArray[np.int64], value: Any) -> list[int]:
-        """Indices (into ``t_ns``, times in order) of the samples; ``value(i)`` is the value
-        at index ``i``."""
-        slots = t_ns // self.period_ns
+    def new_part(self) -> None:
+        """The next values are on another part's clock."""
+        self._slot = -1
+
+    def pick(self, clock_ns: npt.NDArray[np.int64], t_ns: npt.NDArray[np.int64],
+             value: Any) -> list[int]:
+        """Indices of the samples among values at part-clock times ``clock_ns`` (in order),
+        stamped ``t_ns``; ``value(i)`` is the value at index ``i``."""
+        slots = clock_ns // self.period_ns
         first = np.flatnonzero(np.diff(slots, prepend=self._slot) != 0).tolist()
         kept: list[int] = []
         for i in first:
@@ -185,28 +190,33 @@ class McapCapture:
         ``offset_s`` (onto this capture's clock); returns the frames read."""
         count = 0
         shift = offset_s - self.t0_s
+        self._reported.new_part()
+        self._true.new_part()
         for block in read_part(path):
             t_ns = np.maximum(np.rint((block.t_s + shift) * 1e9), 0).astype(np.int64)
             errors = {int(x["i"]): str(x["error"]) for x in block.extra if "error" in x}
-            self._frames(t_ns, block.flags, block.frames, errors)
+            self._frames(t_ns, block.flags, _Frames(block.blob, block.starts, block.lengths),
+                         errors, _clock_ns(block.t_s))
             if len(block.truth_t_s):
                 self._truth(np.maximum(np.rint((block.truth_t_s + shift) * 1e9), 0)
-                            .astype(np.int64), block.truth_rad)
+                            .astype(np.int64), block.truth_rad, _clock_ns(block.truth_t_s))
             for x in block.extra:
                 if "event" in x and "t_s" in x:
                     self.event(float(x["t_s"]) + offset_s, str(x["event"]),
                                str(x.get("suite", "")), int(x.get("trial", -1)),
                                x.get("detail") or {})
-            count += len(block.frames)
+            count += len(block.t_s)
         return count
 
     def _frames(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
-                frames: list[bytes], errors: dict[int, str]) -> None:
-        """A block of frames in time order: raw batches per direction, goals, reported states."""
-        if not frames:
+                frames: _Frames, errors: dict[int, str],
+                clock_ns: npt.NDArray[np.int64]) -> None:
+        """A block of frames in time order (``t_ns``; ``clock_ns`` on their part's clock): raw
+        batches per direction, goals, reported states."""
+        if not len(t_ns):
             return
-        self.traffic.add(t_ns, flags, frames, errors)
-        self.frames += len(frames)
+        self.traffic.add(t_ns, flags, frames.get, errors)
+        self.frames += len(t_ns)
         inbound = (flags & IN_FLAG) != 0
         valid = (flags & ERROR_FLAG) == 0
         sides: tuple[tuple[Direction, npt.NDArray[np.bool_]], ...] = (("out", ~inbound),
@@ -214,34 +224,36 @@ class McapCapture:
         for direction, mask in sides:
             idx = np.flatnonzero(mask)
             if len(idx):
-                self._uart(direction, t_ns[idx], [frames[i] for i in idx.tolist()],
+                self._uart(direction, t_ns[idx], frames, idx,
                            [errors.get(i, "") for i in idx.tolist()] if errors else None)
         for i in np.flatnonzero(~inbound & valid).tolist():
-            self._command(int(t_ns[i]), frames[i].decode("ascii", "backslashreplace"))
+            self._command(int(t_ns[i]), frames.get(i).decode("ascii", "backslashreplace"))
         idx = np.flatnonzero(inbound & valid)
         if len(idx):
-            replies = [frames[i] for i in idx.tolist()]
-            self._states(t_ns[idx], replies)
+            self._states(t_ns[idx], frames, idx, clock_ns[idx])
 
-    def _uart(self, direction: Direction, t_ns: npt.NDArray[np.int64], frames: list[bytes],
-              errors: list[str] | None) -> None:
-        """Frames of one direction as ``UartFrames`` messages of :data:`BATCH_FRAMES` frames or
-        :data:`BATCH_SPAN_S` at most."""
+    def _uart(self, direction: Direction, t_ns: npt.NDArray[np.int64], frames: _Frames,
+              idx: npt.NDArray[np.intp], errors: list[str] | None) -> None:
+        """Frames ``idx`` (one direction) as ``UartFrames`` messages of :data:`BATCH_FRAMES`
+        frames or :data:`BATCH_SPAN_S` at most."""
         topic = "/uart/rx" if direction == "in" else "/uart/tx"
+        rows = frames.rows(idx) if errors is None else None
         span_ns = round(BATCH_SPAN_S * 1e9)
-        start, n = 0, len(frames)
+        start, n = 0, len(idx)
         while start < n:
             end = min(start + BATCH_FRAMES,
                       int(np.searchsorted(t_ns, t_ns[start] + span_ns, side="right")))
             end = max(end, start + 1)
             t0 = int(t_ns[start])
             offsets = t_ns[start:end] - t0
-            if errors is None or not any(errors[start:end]):
-                data = ros2.encode_uart_frames_bytes(t0, offsets, frames[start:end])
+            if rows is not None:
+                data = ros2.encode_uart_frames_bytes(t0, offsets, rows[start:end])
+            elif errors is None or not any(errors[start:end]):
+                data = ros2.encode_uart_frames_bytes(t0, offsets, frames.list(idx[start:end]))
             else:
                 data = ros2.encode_uart_frames(
                     t0, offsets, [f.decode("utf-8", "backslashreplace")
-                                  for f in frames[start:end]], errors[start:end])
+                                  for f in frames.list(idx[start:end])], errors[start:end])
             self._add(topic, t0, data)
             start = end
 
@@ -253,25 +265,33 @@ class McapCapture:
         self._add("/joint_states_goal", t_ns,
                   self._goal.encode(t_ns, q, [float(d) for d in fields[1::2]]))
 
-    def _states(self, t_ns: npt.NDArray[np.int64], replies: list[bytes]) -> None:
-        """The sampled replies as ``/joint_states`` and ``/tf``."""
-        kept = self._reported.pick(t_ns, replies.__getitem__)
-        ticks = _reply_ticks([replies[i] for i in kept])
-        rows = [(int(t_ns[i]), self._decode(Reply(*t))) for i, t in zip(kept, ticks, strict=True)
-                if t is not None]
-        if not rows:
+    def _states(self, t_ns: npt.NDArray[np.int64], frames: _Frames,
+                idx: npt.NDArray[np.intp], clock_ns: npt.NDArray[np.int64]) -> None:
+        """The sampled replies ``idx`` as ``/joint_states`` and ``/tf``."""
+        rows = frames.rows(idx)
+        if rows is not None and rows.shape[1] == REPLY_LEN:
+            kept = self._reported.pick(clock_ns, t_ns, lambda i: rows[i].tobytes())
+            ticks = _reply_ticks(rows[kept])
+        else:
+            replies = frames.list(idx)
+            kept = self._reported.pick(clock_ns, t_ns, replies.__getitem__)
+            ticks = [_ticks(replies[i].decode("ascii", "backslashreplace"), 4) for i in kept]
+        samples = [(int(t_ns[i]), self._decode(Reply(*t)))
+                   for i, t in zip(kept, ticks, strict=True) if t is not None]
+        if not samples:
             return
-        t = np.array([r[0] for r in rows], dtype=np.int64)
-        q = np.array([r[1] for r in rows], dtype=np.float64)
+        t = np.array([r[0] for r in samples], dtype=np.int64)
+        q = np.array([r[1] for r in samples], dtype=np.float64)
         states = self._js.encode_many(t, q)
-        frames = self._tf.encode_many(t, ros2.link_transforms_many(q, self.settings))
+        poses = self._tf.encode_many(t, ros2.link_transforms_many(q, self.settings))
         for k, t_k in enumerate(t.tolist()):
             self._add("/joint_states", t_k, states[k])
-            self._add("/tf", t_k, frames[k])
+            self._add("/tf", t_k, poses[k])
 
-    def _truth(self, t_ns: npt.NDArray[np.int64], q_rad: npt.NDArray[np.float64]) -> None:
+    def _truth(self, t_ns: npt.NDArray[np.int64], q_rad: npt.NDArray[np.float64],
+               clock_ns: npt.NDArray[np.int64]) -> None:
         """The ground truth (rad), sampled as the reported angles are."""
-        kept = self._true.pick(t_ns, lambda i: q_rad[i].tobytes())
+        kept = self._true.pick(clock_ns, t_ns, lambda i: q_rad[i].tobytes())
         if kept:
             for t_k, data in zip(t_ns[kept].tolist(), self._js.encode_many(t_ns[kept],
                                                                            q_rad[kept]),
@@ -289,7 +309,7 @@ class McapCapture:
                     times, frames, errors = decode_uart_frames(msg.data)
                     flags = np.array([(IN_FLAG if msg.topic == "/uart/rx" else 0)
                                       | (ERROR_FLAG if e else 0) for e in errors], dtype=np.uint8)
-                    self.traffic.add(np.array(times, dtype=np.int64), flags, frames,
+                    self.traffic.add(np.array(times, dtype=np.int64), flags, frames.__getitem__,
                                      {i: e.decode("utf-8", "backslashreplace")
                                       for i, e in enumerate(errors) if e})
                     self.frames += len(frames)
@@ -320,6 +340,11 @@ class McapCapture:
             self._fh = None
 
 
+def _clock_ns(t_s: npt.NDArray[np.float64]) -> npt.NDArray[np.int64]:
+    """Seconds of a part's clock as whole nanoseconds."""
+    return np.rint(t_s * 1e9).astype(np.int64)
+
+
 def _ticks(frame: str, count: int) -> list[int] | None:
     """The ``count`` comma-separated numbers of a ``$...#`` frame, None if it is not one."""
     try:
@@ -329,15 +354,38 @@ def _ticks(frame: str, count: int) -> list[int] | None:
     return values if len(values) == count and frame[:1] == "$" else None
 
 
-def _reply_ticks(replies: list[bytes]) -> list[list[int] | None]:
-    """The four tick counts of each reply (None: not one), with numpy when all are the codec's
-    ``$ddddd,ddddd,ddddd,ddddd#``."""
-    if not replies:
-        return []
-    if all(len(r) == REPLY_LEN for r in replies):
-        raw = np.frombuffer(b"".join(replies), dtype=np.uint8).reshape(len(replies), REPLY_LEN)
-        digits = raw[:, _TICK_COLUMNS].astype(np.int64) - 48
-        if ((digits >= 0) & (digits <= 9)).all():
-            ticks: list[list[int] | None] = (digits @ _TICK_WEIGHTS).tolist()
-            return ticks
-    return [_ticks(r.decode("ascii", "backslashreplace"), 4) for r in replies]
+def _reply_ticks(rows: npt.NDArray[np.uint8]) -> list[list[int] | None]:
+    """The four tick counts of each reply (``$ddddd,ddddd,ddddd,ddddd#``, one per row), None
+    for one that is not such a reply."""
+    digits = rows[:, _TICK_COLUMNS].astype(np.int64) - 48
+    ok = ((digits >= 0) & (digits <= 9)).all(axis=(1, 2)) & (rows[:, 0] == ord("$"))
+    values = (digits @ _TICK_WEIGHTS).tolist()
+    return [v if good else None for v, good in zip(values, ok.tolist(), strict=True)]
+
+
+class _Frames:
+    """The frames of a part's block, kept as its bytes: a frame, a list, or the rows of a 2-D
+    array (frames of one length) are cut out when asked for."""
+
+    def __init__(self, blob: bytes, starts: npt.NDArray[np.int64],
+                 lengths: npt.NDArray[np.int64]) -> None:
+        self.blob = blob
+        self.starts = starts
+        self.lengths = lengths
+
+    def get(self, i: int) -> bytes:
+        start = int(self.starts[i])
+        return self.blob[start:start + int(self.lengths[i])]
+
+    def list(self, idx: npt.NDArray[np.intp]) -> list[bytes]:
+        return [self.get(i) for i in idx.tolist()]
+
+    def rows(self, idx: npt.NDArray[np.intp]) -> npt.NDArray[np.uint8] | None:
+        """Frames ``idx`` as rows, None unless all have one length."""
+        lengths = self.lengths[idx]
+        size = int(lengths[0]) if len(lengths) else 0
+        if not size or (lengths != size).any():
+            return None
+        buf = np.frombuffer(self.blob, dtype=np.uint8)
+        rows: npt.NDArray[np.uint8] = buf[self.starts[idx, None] + np.arange(size)]
+        return rows

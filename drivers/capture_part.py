@@ -32,8 +32,8 @@ from armbench.drivers.capture import (
 __all__ = ["ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock", "PartWriter",
            "first_part_time", "read_part"]
 
-#: Seconds between two truth samples at least (the derived topics' rate, 20 Hz).
-TRUTH_PERIOD_S: Final = 0.05
+#: Seconds between two truth samples at least (the derived topics' rate, 10 Hz).
+TRUTH_PERIOD_S: Final = 0.1
 #: Flag bits of a record: arm → host, a framing error.
 IN_FLAG: Final = 1
 ERROR_FLAG: Final = 2
@@ -43,13 +43,15 @@ _BLOCK_MAGIC: Final = b"ABP2"
 
 
 class PartBlock(NamedTuple):
-    """One block of a capture part: times (loop seconds less the part's ``t0_s``), flags,
-    frames as bytes, the truth (times and angles in rad, one row each) and the extra records
-    (events, the errors' reasons by index) as dicts."""
+    """One block of a capture part: times (loop seconds less the part's ``t0_s``), flags, the
+    frames (``blob[starts[i]:starts[i] + lengths[i]]``), the truth (times and angles in rad, one
+    row each) and the extra records (events, the errors' reasons by index) as dicts."""
 
     t_s: npt.NDArray[np.float64]
     flags: npt.NDArray[np.uint8]
-    frames: list[bytes]
+    blob: bytes
+    starts: npt.NDArray[np.int64]
+    lengths: npt.NDArray[np.int64]
     truth_t_s: npt.NDArray[np.float64]
     truth_rad: npt.NDArray[np.float64]
     extra: list[dict[str, Any]]
@@ -60,7 +62,9 @@ class PartWriter(CaptureWriter):
     runner): the driver's frames (the :class:`~armbench.drivers.capture.CaptureWriter` calls;
     a reply costs three appends), the ground truth beside the replies (sampled every
     ``period_s`` from ``truth``, a callable giving the newest truth in rad or None) and bench
-    events."""
+    events. The truth is taken at the first reply of each ``period_s`` slot of the part's
+    clock, where :class:`~armbench.drivers.capture_mcap.McapCapture` samples the replies, so
+    the two stand side by side."""
 
     def __init__(self, path: str | Path, t0_s: float, *,
                  truth: Callable[[], tuple[float, ...] | None] | None = None,
@@ -83,7 +87,7 @@ class PartWriter(CaptureWriter):
         self._extra: list[dict[str, Any]] = []
         self._truth = truth
         self._period_s = period_s
-        self._last_truth_s = -1e18
+        self._slot = -1.0
         try:
             self._bin: IO[bytes] | None = self.path.open("wb")
         except OSError as exc:
@@ -103,7 +107,7 @@ class PartWriter(CaptureWriter):
         self._times.append(t_s - self.t0_s)
         self._frames.append(data)
         self._flags.append(IN_FLAG)
-        if self._truth is not None and t_s - self._last_truth_s >= self._period_s:
+        if self._truth is not None and (t_s - self.t0_s) // self._period_s != self._slot:
             self._sample_truth(t_s)
         if (len(self._frames) >= self.batch_records
                 or t_s - self._last_flush >= self.batch_interval_s):
@@ -114,7 +118,7 @@ class PartWriter(CaptureWriter):
         q = self._truth()
         if q is not None and (not self._joints or len(q) == self._joints):
             self._joints = len(q)
-            self._last_truth_s = t_s
+            self._slot = (t_s - self.t0_s) // self._period_s
             self._truth_t.append(t_s - self.t0_s)
             self._truth_q.extend(q)
 
@@ -193,17 +197,17 @@ def read_part(path: str | Path) -> Iterator[PartBlock]:
                 return
             t = np.frombuffer(body, dtype="<f8", count=n)
             flags = np.frombuffer(body, dtype=np.uint8, count=n, offset=8 * n)
-            lengths = np.frombuffer(body, dtype="<u2", count=n, offset=9 * n)
+            lengths = np.frombuffer(body, dtype="<u2", count=n, offset=9 * n).astype(np.int64)
             pos = 11 * n
-            ends = (np.cumsum(lengths, dtype=np.int64) + pos).tolist()
-            frames = [body[a:b] for a, b in zip([pos, *ends[:-1]], ends, strict=True)]
+            blob = body[pos:pos + frame_bytes]
+            starts = np.cumsum(lengths) - lengths
             pos += frame_bytes
             truth_t = np.frombuffer(body, dtype="<f8", count=m, offset=pos)
             truth_q = np.frombuffer(body, dtype="<f8", count=m * joints,
                                     offset=pos + 8 * m).reshape(m, joints)
             extra = [json.loads(line) for line in
                      body[pos + 8 * m * (1 + joints):].decode().splitlines() if line]
-            yield PartBlock(t, flags, frames, truth_t, truth_q, extra)
+            yield PartBlock(t, flags, blob, starts, lengths, truth_t, truth_q, extra)
 
 
 def first_part_time(path: str | Path) -> float | None:

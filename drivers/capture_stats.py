@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any, Final
 
@@ -170,10 +171,11 @@ class TrafficCounter:
         self.events: list[str] = []
 
     def add(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
-            frames: list[bytes], errors: dict[int, str]) -> None:
-        """A block of records: times (ns), flags (1 arm → host, 2 an error), frames and the
-        errors' reasons by index."""
-        n = len(frames)
+            frame: Callable[[int], bytes], errors: dict[int, str]) -> None:
+        """A block of records: times (ns), flags (1 arm → host, 2 an error), each frame's
+        bytes by index (asked for those of the excerpt only) and the errors' reasons by
+        index."""
+        n = len(t_ns)
         kinds = (flags & 3).astype(np.int8)
         self._times.append(np.asarray(t_ns, dtype=np.int64))
         self._kinds.append(kinds)
@@ -183,7 +185,7 @@ class TrafficCounter:
                     [:3 * HEAD_LINES])
         for i in keep:
             self._texts.append((int(t_ns[i]), 1 - int(kinds[i] & 1), self._count + i,
-                                frames[i].decode("utf-8", "backslashreplace"), errors.get(i)))
+                                frame(i).decode("utf-8", "backslashreplace"), errors.get(i)))
         for reason in errors.values():
             self._reasons[short_text(reason)] += 1
         self._count += n

@@ -279,29 +279,32 @@ def _string_seq(texts: Sequence[str]) -> bytes:
     return b"".join(pieces)
 
 
-def _string_seq_bytes(texts: Sequence[bytes]) -> bytes:
-    """:func:`_string_seq` of ASCII byte strings; all of one length (replies, commands): with
-    numpy, one row per element."""
-    n = len(texts)
-    size = len(texts[0]) if n else 0
-    if n == 0 or any(len(t) != size for t in texts):
-        return _string_seq([t.decode("ascii", "backslashreplace") for t in texts])
+def _string_seq_rows(rows: npt.NDArray[np.uint8]) -> bytes:
+    """:func:`_string_seq` of ASCII texts of one length, one per row of ``rows``: with numpy."""
+    n, size = rows.shape
     width = 4 + size + 1 + (-(size + 1) % 4)
-    rows = np.zeros((n, width), dtype=np.uint8)
-    rows[:, :4] = np.frombuffer(struct.pack("<I", size + 1), dtype=np.uint8)
-    rows[:, 4:4 + size] = np.frombuffer(b"".join(texts), dtype=np.uint8).reshape(n, size)
-    return rows.tobytes()
+    out = np.zeros((n, width), dtype=np.uint8)
+    out[:, :4] = np.frombuffer(struct.pack("<I", size + 1), dtype=np.uint8)
+    out[:, 4:4 + size] = rows
+    return out.tobytes()
 
 
 def encode_uart_frames_bytes(t0_ns: int, offsets_ns: npt.NDArray[np.int64],
-                             frames: Sequence[bytes]) -> bytes:
-    """:func:`encode_uart_frames` of valid frames given as ASCII bytes (no errors)."""
+                             frames: Sequence[bytes] | npt.NDArray[np.uint8]) -> bytes:
+    """:func:`encode_uart_frames` of valid frames (no errors) given as ASCII bytes, or as the
+    rows of a 2-D array when all have one length."""
     n = len(frames)
+    if isinstance(frames, np.ndarray):
+        seq = _string_seq_rows(frames) if n and frames.shape[1] else _string_seq([""] * n)
+    elif n and len(set(map(len, frames))) == 1:
+        seq = _string_seq_rows(np.frombuffer(b"".join(frames), dtype=np.uint8).reshape(n, -1))
+    else:
+        seq = _string_seq([t.decode("ascii", "backslashreplace") for t in frames])
     sec, nsec = _split_ns(t0_ns)
     pad = b"\x00\x00\x00\x00" if n else b""
     return b"".join((_CDR_HEADER, struct.pack("<iII", sec, nsec, n), pad,
                      np.asarray(offsets_ns, dtype="<i8").tobytes(),
-                     struct.pack("<I", n), _string_seq_bytes(frames),
+                     struct.pack("<I", n), seq,
                      struct.pack("<I", n), _string_seq([""] * n)))[:-3 if n else None]
 
 

@@ -105,14 +105,16 @@ def _summary(path: Path, size: int, t: TrafficTally, skipped: int, bad: int) -> 
 
 
 def summarize_capture(path: str | Path, *, max_records: int = MAX_RECORDS,
-                      head: int = HEAD_LINES, errors: int = HEAD_LINES) -> CaptureSummary:
-    """Read ``path`` (streamed, bounded; a closed MCAP capture's stored tally when the default
-    excerpt is asked for) and summarise it; OSError if it cannot be opened."""
+                      head: int = HEAD_LINES, errors: int = HEAD_LINES,
+                      stored: bool = True) -> CaptureSummary:
+    """Summarise ``path``: a closed MCAP capture's stored tally (unless ``stored`` is False, or
+    another excerpt is asked for), else the records read (streamed, bounded); OSError if it
+    cannot be opened."""
     p = Path(path)
     size = p.stat().st_size
-    stored = read_tally(p) if head == errors == HEAD_LINES else None
-    if stored is not None and stored.records <= max_records:
-        return _summary(p, size, stored, 0, 0)
+    tallied = read_tally(p) if stored and head == errors == HEAD_LINES else None
+    if tallied is not None and tallied.records <= max_records:
+        return _summary(p, size, tallied, 0, 0)
     times = array("d")
     kinds = array("b")  # 0 out frame, 1 in frame, 2 out error, 3 in error
     reasons: Counter[str] = Counter()

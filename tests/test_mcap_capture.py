@@ -237,6 +237,15 @@ def test_reader_gives_the_records_of_the_run(run_dir: tuple[Path, _Emulators]) -
     summary = summarize_capture(out / "capture.mcap")
     assert summary.records == len(records) and summary.bad_lines == 0
     assert summary.frames_out == sum(r.dir == "out" for r in records)
+    # the tally stored while the run wrote the capture is what reading it back gives
+    _same_summaries(summary, summarize_capture(out / "capture.mcap", stored=False))
+
+
+def _same_summaries(x: Any, y: Any) -> None:
+    for field in dataclasses.fields(x):
+        if field.name not in ("path", "size_bytes"):
+            u, v = getattr(x, field.name), getattr(y, field.name)
+            assert np.array_equal(u, v) if isinstance(u, np.ndarray) else u == v, field.name
 
 
 def _capture(w: CaptureWriter) -> None:
@@ -262,10 +271,9 @@ def test_mcap_and_jsonl_give_the_same_records(tmp_path: Path) -> None:
     b = list(open_capture(tmp_path / "capture.mcap"))
     assert sorted(a) == sorted(b) and len(a) == 500 + 6
     x, y = (summarize_capture(p) for p in (jsonl, tmp_path / "capture.mcap"))
-    for field in dataclasses.fields(x):
-        if field.name not in ("path", "size_bytes"):
-            u, v = getattr(x, field.name), getattr(y, field.name)
-            assert np.array_equal(u, v) if isinstance(u, np.ndarray) else u == v, field.name
+    assert x.errors_in == 6 and x.resyncs == 6
+    _same_summaries(x, y)  # y: the tally the MCAP writer stored
+    _same_summaries(x, summarize_capture(tmp_path / "capture.mcap", stored=False))
     with capture_lines(tmp_path / "capture.mcap") as lines:
         assert sum(1 for _ in lines) == len(a)
     assert [c.command for c in replay_capture(tmp_path / "capture.mcap")] == [
@@ -326,6 +334,13 @@ def test_fast_encoders_are_byte_for_byte_mcap_ros2s(t_ns: int, values: list[floa
              "transform": {"translation": dict(zip("xyz", p[:3], strict=True)),
                            "rotation": dict(zip("xyzw", p[3:], strict=True))}}
             for (parent, child), p in zip(ros2.MOVING_PAIRS, poses, strict=True)]})
+    rows = np.array([t_ns, t_ns // 3], dtype=np.int64)
+    q = np.array([values[:4], values[4:8]], dtype=np.float64)
+    assert ros2.JointStateEncoder().encode_many(rows, q) == [
+        ros2.JointStateEncoder().encode(int(t), list(v)) for t, v in zip(rows, q, strict=True)]
+    tf = ros2.TfEncoder(ros2.MOVING_PAIRS)
+    assert tf.encode_many(rows, np.array([poses, poses[::-1]])) == [
+        tf.encode(int(rows[0]), poses), tf.encode(int(rows[1]), poses[::-1])]
     offsets = list(range(len(texts)))
     errors = texts[::-1]
     frames = ros2.dynamic_encoder(ros2.UART_FRAMES)(
