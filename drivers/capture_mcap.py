@@ -372,6 +372,7 @@ class _Frames:
         self.blob = blob
         self.starts = starts
         self.lengths = lengths
+        self._cached: tuple[bytes, npt.NDArray[np.uint8] | None] | None = None
 
     def get(self, i: int) -> bytes:
         start = int(self.starts[i])
@@ -381,11 +382,18 @@ class _Frames:
         return [self.get(i) for i in idx.tolist()]
 
     def rows(self, idx: npt.NDArray[np.intp]) -> npt.NDArray[np.uint8] | None:
-        """Frames ``idx`` as rows, None unless all have one length."""
+        """Frames ``idx`` (in order) as rows, None unless all have one length. Cut out by a
+        mask over the bytes, cached for the last ``idx`` asked for."""
+        key = idx.tobytes()
+        if self._cached is not None and self._cached[0] == key:
+            return self._cached[1]
         lengths = self.lengths[idx]
         size = int(lengths[0]) if len(lengths) else 0
-        if not size or (lengths != size).any():
-            return None
-        buf = np.frombuffer(self.blob, dtype=np.uint8)
-        rows: npt.NDArray[np.uint8] = buf[self.starts[idx, None] + np.arange(size)]
+        rows: npt.NDArray[np.uint8] | None = None
+        if size and not (lengths != size).any():
+            chosen = np.zeros(len(self.lengths), dtype=np.bool_)
+            chosen[idx] = True
+            buf = np.frombuffer(self.blob, dtype=np.uint8)
+            rows = buf[np.repeat(chosen, self.lengths)].reshape(len(idx), size)
+        self._cached = (key, rows)
         return rows

@@ -168,6 +168,8 @@ class TrafficCounter:
         """Records that may be in the excerpt: (t ns, 1 host → arm else 0, index added, frame,
         error), so that they sort in the readers' order."""
         self._reasons: Counter[str] = Counter()
+        self._latest_head_ns = 2**63 - 1
+        """A block starting after this (ns) and without errors holds no record of the excerpt."""
         self.events: list[str] = []
 
     def add(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
@@ -179,6 +181,11 @@ class TrafficCounter:
         kinds = (flags & 3).astype(np.int8)
         self._times.append(np.asarray(t_ns, dtype=np.int64))
         self._kinds.append(kinds)
+        for reason in errors.values():
+            self._reasons[short_text(reason)] += 1
+        if not errors and n and int(t_ns[0]) > self._latest_head_ns:  # nothing for the excerpt
+            self._count += n
+            return
         order = np.lexsort((np.arange(n), 1 - (kinds & 1), t_ns))
         keep = {int(i) for i in order[:2 * HEAD_LINES]}
         keep.update(sorted(errors, key=lambda i: (int(t_ns[i]), 1 - int(kinds[i] & 1), i))
@@ -186,8 +193,6 @@ class TrafficCounter:
         for i in keep:
             self._texts.append((int(t_ns[i]), 1 - int(kinds[i] & 1), self._count + i,
                                 frame(i).decode("utf-8", "backslashreplace"), errors.get(i)))
-        for reason in errors.values():
-            self._reasons[short_text(reason)] += 1
         self._count += n
         if len(self._texts) > 20 * HEAD_LINES:
             self._texts = self._excerpt_candidates()
@@ -195,6 +200,8 @@ class TrafficCounter:
     def _excerpt_candidates(self) -> list[tuple[int, int, int, str, str | None]]:
         texts = sorted(self._texts)
         errors = [x for x in texts if x[4] is not None]
+        if len(texts) >= 2 * HEAD_LINES:  # later records (times in order) cannot be in the head
+            self._latest_head_ns = texts[2 * HEAD_LINES - 1][0] - 1
         return sorted({*texts[:2 * HEAD_LINES], *errors[:3 * HEAD_LINES]})
 
     def tally(self) -> TrafficTally:
