@@ -21,16 +21,16 @@ from typing import IO, Any, Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from armbench.drivers.capture import (
-    BATCH_INTERVAL_S,
-    BATCH_RECORDS,
-    CaptureError,
-    CaptureWriter,
-    Direction,
-)
+from armbench.drivers.capture import CaptureError, CaptureWriter, Direction
 
-__all__ = ["ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock", "PartWriter",
-           "first_part_time", "read_part"]
+__all__ = ["BLOCK_RECORDS", "BLOCK_S", "ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock",
+           "PartWriter", "first_part_time", "read_part"]
+
+#: Records of a block at most, and loop seconds after which a block is written even if not
+#: full. Large: each block costs a write here and numpy calls in the runner, and a part is read
+#: only once its trial is in the record (a part cut short belongs to a trial measured again).
+BLOCK_RECORDS: Final = 8192
+BLOCK_S: Final = 20.0
 
 #: Seconds between two truth samples at least (the derived topics' rate, 10 Hz).
 TRUTH_PERIOD_S: Final = 0.1
@@ -68,8 +68,8 @@ class PartWriter(CaptureWriter):
 
     def __init__(self, path: str | Path, t0_s: float, *,
                  truth: Callable[[], tuple[float, ...] | None] | None = None,
-                 period_s: float = TRUTH_PERIOD_S, batch_records: int = BATCH_RECORDS,
-                 batch_interval_s: float = BATCH_INTERVAL_S) -> None:
+                 period_s: float = TRUTH_PERIOD_S, batch_records: int = BLOCK_RECORDS,
+                 batch_interval_s: float = BLOCK_S) -> None:
         # not CaptureWriter.__init__: that one opens a text file
         self.path = Path(path)
         self.t0_s = t0_s
