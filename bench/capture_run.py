@@ -59,13 +59,22 @@ class LoggedPower:
 
 def emulator_truth(emulator: Any) -> Any:
     """A callable giving the emulator's newest ground truth (rad), None before the first
-    reply, for :class:`PartWriter`; None without an emulator."""
+    reply, for :class:`PartWriter`; None without an emulator. The true angles (the links'
+    angles and their deflection under gravity, computed when read) are computed again only when
+    the links moved: a resting arm costs a comparison."""
     if emulator is None:
         return None
+    last: list[Any] = [None, None, None]
 
     def newest() -> tuple[float, ...] | None:
         truth = getattr(emulator, "truth", None)
-        return tuple(truth[-1].true_rad) if truth else None
+        if not truth:
+            return None
+        sample = truth[-1]
+        if sample.link_rad != last[0] or sample.mechanism is not last[1]:
+            last[:] = [sample.link_rad, sample.mechanism, tuple(sample.true_rad)]
+        value: tuple[float, ...] = last[2]
+        return value
 
     return newest
 
