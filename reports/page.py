@@ -1,6 +1,6 @@
 """The run report: one self-contained HTML page (``report.html``) from a run record.
 
-Data flows one way: the report reads ``results.json`` (and ``capture.jsonl`` beside it, when the
+Data flows one way: the report reads ``results.json`` (and ``capture.mcap`` beside it, when the
 run captured its traffic) and nothing else; it never talks to a robot, a driver or the emulator.
 What each section shows is described in ``docs/reports.md``.
 
@@ -136,8 +136,9 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
     """Render the report of ``record`` (a :class:`RunRecord`, a ``results.json`` path or a run
     directory) to ``out_path`` (written atomically); returns the path written.
 
-    The traffic section reads ``capture`` when given, else ``capture.jsonl`` beside the record
-    file if there is one. Raises ``RecordError`` for an unreadable or invalid record.
+    The traffic section reads ``capture`` when given, else ``capture.mcap`` (or an older run's
+    ``capture.jsonl``) beside the record file if there is one. Raises ``RecordError`` for an
+    unreadable or invalid record.
     """
     out = Path(out_path)
     capture_path = None if capture is None else Path(capture)

@@ -81,8 +81,8 @@ def register(sub: Any) -> None:
     p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
                    help="do not capture the traffic (default: [bench] capture, else capture)")
     p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
-                   help="stop the capture (one event line says so) when capture.jsonl would "
-                        "exceed MB megabytes; the run goes on (default: [bench] "
+                   help="stop the capture (a capture_stopped event says so) before capture.mcap "
+                        "would exceed MB megabytes; the run goes on (default: [bench] "
                         "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 

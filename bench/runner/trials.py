@@ -299,7 +299,7 @@ class TrialRunner:
 
     @property
     def captures(self) -> CaptureParts:
-        """The run's ``capture.jsonl``."""
+        """The run's ``capture.mcap``."""
         return self.attempts.captures
 
     async def run_trial(self, ps: PlannedSuite, index: int) -> Trial:
