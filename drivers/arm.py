@@ -35,7 +35,8 @@ from armbench.drivers.arrival import (
     MOVE_TIMEOUT_SLACK_S,
     ArrivalTracker,
 )
-from armbench.drivers.capture import CaptureWriter, replay_capture
+from armbench.drivers.capture import CaptureWriter
+from armbench.drivers.capture_read import replay_capture
 from armbench.drivers.errors import (
     DriverClosedError,
     DriverError,

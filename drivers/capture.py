@@ -32,7 +32,7 @@ from typing import IO, Any, Final, Literal, NamedTuple
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
-from armbench.drivers.protocol import Command, Framer
+from armbench.drivers.protocol import Command
 from armbench.drivers.settings import SettingsError
 
 __all__ = [
@@ -48,7 +48,6 @@ __all__ = [
     "capture_stopped",
     "merge_capture",
     "read_capture",
-    "replay_capture",
     "shift_capture",
     "stop_event",
 ]
@@ -167,6 +166,11 @@ class CaptureWriter:
             self._buf.append(json.dumps({"t_s": round(t, 9), "dir": direction, "frame": frame,
                                          "error": None}))
         self._added(t_s)
+
+    def reply(self, t_s: float, data: bytes) -> None:
+        """Add a reply the codec validated, as the wire bytes of exactly one frame (the
+        driver's short path): :meth:`frame` with ``"in"``."""
+        self.frame(t_s, "in", data.decode("ascii"))
 
     def _added(self, t_s: float) -> None:
         self.records += 1
@@ -367,8 +371,9 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord | None:
 
 
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
-    """Every record of a capture file, in order (streamed: the file is not loaded whole); event
-    lines (a stop at the size bound) are skipped."""
+    """Every record of a JSON Lines capture file, in order (streamed: the file is not loaded
+    whole); event lines (a stop at the size bound) are skipped. Either format:
+    :func:`armbench.drivers.capture_read.open_capture`."""
     p = str(path)
     try:
         fh = Path(path).open(encoding="ascii")  # noqa: SIM115 - closed by the with below
@@ -394,23 +399,3 @@ class ReplayCommand(NamedTuple):
     t_s: float
     command: Command
     capture_t_s: float
-
-
-def replay_capture(path: str | Path) -> Iterator[ReplayCommand]:
-    """The host → arm commands of a capture, with their times relative to the first one.
-
-    Records with an ``error`` and ``in`` records are skipped; an ``out`` frame that is not a valid
-    command is a :class:`CaptureError` (the driver only ever writes valid commands).
-    """
-    t0: float | None = None
-    for n, rec in enumerate(read_capture(path), 1):
-        if rec.dir != "out" or rec.error is not None:
-            continue
-        framer = Framer("command")
-        events = framer.feed(rec.frame.encode("ascii", "backslashreplace"))
-        if len(events) != 1 or not isinstance(events[0], Command):
-            raise CaptureError(str(path), None,
-                               f"record {n}: out frame {rec.frame!r} is not one command")
-        if t0 is None:
-            t0 = rec.t_s
-        yield ReplayCommand(rec.t_s - t0, events[0], rec.t_s)

@@ -296,9 +296,11 @@ class ArmLink:
         replies = self._replies
         capture = self._capture
         recorders = self._recorders
-        if capture is None and not recorders:
+        if not recorders:
             one = replies.one(data, t)
             if one is not None:  # what follows does for a chunk that is exactly one reply
+                if capture is not None:
+                    capture.reply(t, data)
                 self._state = one
                 if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
                     self.outages.reply(t, self._last_rx_s)

@@ -43,6 +43,7 @@ __all__ = [
     "encode_uart_frames",
     "encode_uart_frames_bytes",
     "link_transforms",
+    "link_transforms_many",
     "static_transforms",
 ]
 
@@ -96,6 +97,7 @@ class _Layout:
         self.pos = 0
         self.consts: list[Any] = []
         self.slots: list[int] = []  # index into consts of each variable field, in order
+        self.offsets: list[int] = []  # byte offset of each variable field in the message
 
     def _align(self, n: int) -> None:
         pad = -self.pos % n
@@ -119,6 +121,7 @@ class _Layout:
     def var(self, code: str, size: int) -> None:
         self._align(size)
         self.fmt.append(code)
+        self.offsets.append(4 + self.pos)
         self.slots.append(len(self.consts))
         self.consts.append(None)
         self.pos += size
@@ -136,6 +139,30 @@ def _stamp_layout(lay: _Layout, frame_id: str) -> None:
 def _split_ns(t_ns: int) -> tuple[int, int]:
     sec, nsec = divmod(t_ns, 1_000_000_000)
     return sec, nsec
+
+
+class _Rows:
+    """Many messages of one fixed layout at once: rows of a template, variable fields written
+    by column with numpy (the stamps, the float64 values)."""
+
+    def __init__(self, template: bytes, count: int) -> None:
+        self.rows = np.tile(np.frombuffer(template, dtype=np.uint8), (count, 1))
+
+    def put(self, offset: int, values: npt.ArrayLike, dtype: str) -> None:
+        """Write ``values`` (one row of fields per message) at ``offset`` of each message."""
+        data = np.ascontiguousarray(values, dtype=dtype)
+        data = data.reshape(len(self.rows), -1)
+        width = data.shape[1] * data.dtype.itemsize
+        self.rows[:, offset:offset + width] = data.view(np.uint8).reshape(len(self.rows), width)
+
+    def stamp(self, offset: int, t_ns: npt.NDArray[np.int64]) -> None:
+        """A ``builtin_interfaces/Time`` (sec, nanosec) at ``offset``."""
+        sec, nsec = np.divmod(t_ns, 1_000_000_000)
+        self.put(offset, sec, "<i4")
+        self.put(offset + 4, nsec, "<u4")
+
+    def messages(self) -> list[bytes]:
+        return [row.tobytes() for row in self.rows]
 
 
 class JointStateEncoder:
@@ -159,6 +186,7 @@ class JointStateEncoder:
         self._struct, consts = lay.compile()
         self._mid = tuple(consts[3:consts.index(None, 3)])  # frame id .. position count
         self._velocity = (0, 4) if with_effort else (0, 0)
+        self._offsets = lay.offsets
         self.with_effort = with_effort
 
     def encode(self, t_ns: int, q_rad: Sequence[float],
@@ -170,6 +198,16 @@ class JointStateEncoder:
             return self._struct.pack(_CDR_HEADER, sec, nsec, *self._mid, *q_rad, *self._velocity,
                                      *effort)
         return self._struct.pack(_CDR_HEADER, sec, nsec, *self._mid, *q_rad, *self._velocity)
+
+    def encode_many(self, t_ns: npt.NDArray[np.int64],
+                    q_rad: npt.NDArray[np.float64]) -> list[bytes]:
+        """Messages without effort stamped ``t_ns[i]`` with positions ``q_rad[i]``: what
+        :meth:`encode` gives for each, built with numpy."""
+        assert not self.with_effort
+        rows = _Rows(self.encode(0, (0.0,) * len(JOINT_NAMES)), len(t_ns))
+        rows.stamp(self._offsets[0], t_ns)
+        rows.put(self._offsets[2], q_rad, "<f8")  # the positions follow each other
+        return rows.messages()
 
 
 class TfEncoder:
@@ -187,6 +225,7 @@ class TfEncoder:
                 lay.var("d", 8)
         self._struct, self._consts = lay.compile()
         self._slots = [i + 1 for i in lay.slots]  # +1: the header in front
+        self._offsets = lay.offsets
 
     def encode(self, t_ns: int, poses: Sequence[Sequence[float]]) -> bytes:
         """One message stamped ``t_ns``; ``poses`` holds (tx, ty, tz, qx, qy, qz, qw) per pair."""
@@ -201,6 +240,16 @@ class TfEncoder:
                 values[slots[k + 2 + j]] = pose[j]
             k += 9
         return self._struct.pack(*values)
+
+    def encode_many(self, t_ns: npt.NDArray[np.int64],
+                    poses: npt.NDArray[np.float64]) -> list[bytes]:
+        """Messages stamped ``t_ns[i]`` with ``poses[i]`` (pairs × 7): what :meth:`encode`
+        gives for each, built with numpy."""
+        rows = _Rows(self.encode(0, [(0.0,) * 7] * self._n), len(t_ns))
+        for k in range(self._n):
+            rows.stamp(self._offsets[9 * k], t_ns)
+            rows.put(self._offsets[9 * k + 2], poses[:, k, :], "<f8")
+        return rows.messages()
 
 
 @functools.cache
@@ -230,29 +279,32 @@ def _string_seq(texts: Sequence[str]) -> bytes:
     return b"".join(pieces)
 
 
-def _string_seq_bytes(texts: Sequence[bytes]) -> bytes:
-    """:func:`_string_seq` of ASCII byte strings; all of one length (replies, commands): with
-    numpy, one row per element."""
-    n = len(texts)
-    size = len(texts[0]) if n else 0
-    if n == 0 or any(len(t) != size for t in texts):
-        return _string_seq([t.decode("ascii", "backslashreplace") for t in texts])
+def _string_seq_rows(rows: npt.NDArray[np.uint8]) -> bytes:
+    """:func:`_string_seq` of ASCII texts of one length, one per row of ``rows``: with numpy."""
+    n, size = rows.shape
     width = 4 + size + 1 + (-(size + 1) % 4)
-    rows = np.zeros((n, width), dtype=np.uint8)
-    rows[:, :4] = np.frombuffer(struct.pack("<I", size + 1), dtype=np.uint8)
-    rows[:, 4:4 + size] = np.frombuffer(b"".join(texts), dtype=np.uint8).reshape(n, size)
-    return rows.tobytes()
+    out = np.zeros((n, width), dtype=np.uint8)
+    out[:, :4] = np.frombuffer(struct.pack("<I", size + 1), dtype=np.uint8)
+    out[:, 4:4 + size] = rows
+    return out.tobytes()
 
 
 def encode_uart_frames_bytes(t0_ns: int, offsets_ns: npt.NDArray[np.int64],
-                             frames: Sequence[bytes]) -> bytes:
-    """:func:`encode_uart_frames` of valid frames given as ASCII bytes (no errors)."""
+                             frames: Sequence[bytes] | npt.NDArray[np.uint8]) -> bytes:
+    """:func:`encode_uart_frames` of valid frames (no errors) given as ASCII bytes, or as the
+    rows of a 2-D array when all have one length."""
     n = len(frames)
+    if isinstance(frames, np.ndarray):
+        seq = _string_seq_rows(frames) if n and frames.shape[1] else _string_seq([""] * n)
+    elif n and len(set(map(len, frames))) == 1:
+        seq = _string_seq_rows(np.frombuffer(b"".join(frames), dtype=np.uint8).reshape(n, -1))
+    else:
+        seq = _string_seq([t.decode("ascii", "backslashreplace") for t in frames])
     sec, nsec = _split_ns(t0_ns)
     pad = b"\x00\x00\x00\x00" if n else b""
     return b"".join((_CDR_HEADER, struct.pack("<iII", sec, nsec, n), pad,
                      np.asarray(offsets_ns, dtype="<i8").tobytes(),
-                     struct.pack("<I", n), _string_seq_bytes(frames),
+                     struct.pack("<I", n), seq,
                      struct.pack("<I", n), _string_seq([""] * n)))[:-3 if n else None]
 
 
@@ -311,6 +363,18 @@ def link_transforms(q_rad: Sequence[float], settings: RobotSettings) -> list[tup
     out: list[tuple[float, ...]] = []
     for q, joint in zip(q_rad, settings.joints, strict=True):
         out.append((0.0, 0.0, 0.0, *_quat_z(joint.to_dh(q))))
+    return out
+
+
+def link_transforms_many(q_rad: npt.NDArray[np.float64],
+                         settings: RobotSettings) -> npt.NDArray[np.float64]:
+    """:func:`link_transforms` of many rows of angles at once: shape (rows, joints, 7)."""
+    sign = np.array([j.sign for j in settings.joints], dtype=np.float64)
+    offset = np.array([j.offset_rad for j in settings.joints], dtype=np.float64)
+    half = 0.5 * (sign * q_rad + offset)
+    out = np.zeros((*q_rad.shape, 7), dtype=np.float64)
+    out[..., 5] = np.sin(half)
+    out[..., 6] = np.cos(half)
     return out
 
 

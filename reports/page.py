@@ -1,6 +1,6 @@
 """The run report: one self-contained HTML page (``report.html``) from a run record.
 
-Data flows one way: the report reads ``results.json`` (and ``capture.jsonl`` beside it, when the
+Data flows one way: the report reads ``results.json`` (and ``capture.mcap`` beside it, when the
 run captured its traffic) and nothing else; it never talks to a robot, a driver or the emulator.
 What each section shows is described in ``docs/reports.md``.
 
@@ -23,6 +23,7 @@ from pathlib import Path
 
 from armbench.bench.record import (
     CAPTURE_FILE,
+    LEGACY_CAPTURE_FILE,
     REPORT_FILE,
     RESULTS_FILE,
     RunRecord,
@@ -143,8 +144,9 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
     """Render the report of ``record`` (a :class:`RunRecord`, a ``results.json`` path or a run
     directory) to ``out_path`` (written atomically); returns the path written.
 
-    The traffic section reads ``capture`` when given, else ``capture.jsonl`` beside the record
-    file if there is one. Raises ``RecordError`` for an unreadable or invalid record.
+    The traffic section reads ``capture`` when given, else ``capture.mcap`` (or an older run's
+    ``capture.jsonl``) beside the record file if there is one. Raises ``RecordError`` for an
+    unreadable or invalid record.
     """
     out = Path(out_path)
     capture_path = None if capture is None else Path(capture)
@@ -157,8 +159,9 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
             path = path / RESULTS_FILE
         rec = load_record(path)
         source = path.name
-        if capture_path is None and (path.parent / CAPTURE_FILE).is_file():
-            capture_path = path.parent / CAPTURE_FILE
+        for name in (CAPTURE_FILE, LEGACY_CAPTURE_FILE):  # capture.mcap, else an older run's
+            if capture_path is None and (path.parent / name).is_file():
+                capture_path = path.parent / name
     html = build_report_html(rec, capture=capture_path, out_dir=out.parent, source=source)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out, html.encode("utf-8"))

@@ -793,8 +793,9 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
 
 
 def test_one_reply_short_path_gives_the_general_paths_states() -> None:
-    """A chunk that is one reply takes the driver's short path unless a capture or a state
-    recorder is open; both paths must give the same states, counters and move results."""
+    """A chunk that is one reply takes the driver's short path unless a state recorder is open
+    (a capture takes the reply's bytes on it); both paths must give the same states, counters
+    and move results."""
 
     async def session(general: bool) -> tuple[Any, ...]:
         async with Arm.connect("fake://?seed=5") as arm:

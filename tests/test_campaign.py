@@ -133,7 +133,7 @@ def test_accuracy_campaign_draws_arms_and_reports_pass_probability(
     assert figures["campaign.accuracy.coordinated.true_mean_mm.n"] == 5
     # the 100 Hz state samples are left out of the record; the figures stay
     assert all(s.get("event") == "samples_left_out" for t in suite.trials for s in t.samples)
-    assert not (tmp_path / "c" / "capture.jsonl").exists()
+    assert not (tmp_path / "c" / "capture.mcap").exists()
 
 
 def test_startup_campaign_draws_states_and_shards_merge_to_the_same_record(

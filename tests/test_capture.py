@@ -17,8 +17,8 @@ from armbench.drivers.capture import (
     CaptureRecord,
     CaptureWriter,
     read_capture,
-    replay_capture,
 )
+from armbench.drivers.capture_read import replay_capture
 from armbench.drivers.protocol import Command
 from armbench.fakes.vclock import run_virtual
 

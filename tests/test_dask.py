@@ -15,7 +15,9 @@ import pytest
 from campaign_records import record_differences
 
 from armbench.bench.campaign import CampaignOptions, run_campaign
+from armbench.bench.record import CAPTURE_FILE
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.drivers.capture_read import open_capture
 from armbench.drivers.settings import SettingsError
 
 distributed = pytest.importorskip("distributed")
@@ -60,8 +62,8 @@ def test_run_on_dask_gives_the_local_pool_record_and_capture(
     assert local.exit_status == dask.exit_status == 0
     assert record_differences(tmp_path / "local", tmp_path / "dask", environment=False) == []
     # the capture parts travelled back as bytes and were merged on the run clock
-    capture = (tmp_path / "dask" / "capture.jsonl").read_bytes()
-    assert capture and capture == (tmp_path / "local" / "capture.jsonl").read_bytes()
+    capture = list(open_capture(tmp_path / "dask" / CAPTURE_FILE))
+    assert capture and capture == list(open_capture(tmp_path / "local" / CAPTURE_FILE))
     assert not list((tmp_path / "dask").glob(".capture.part*"))
 
 

@@ -113,7 +113,7 @@ from armbench.drivers.arm import (
     ReconnectPolicy,
     ReplyTimeoutError,
 )
-from armbench.drivers.capture import read_capture
+from armbench.drivers.capture_read import open_capture
 from armbench.drivers.errors import PortLostError
 from armbench.fakes.vclock import VirtualTimeLoop
 
@@ -591,7 +591,7 @@ def reference_run(tmp_path_factory: pytest.TempPathFactory) -> Reference:
     wall = time.perf_counter() - t
     assert done.returncode == 0, done.stderr
     record = load_record(tmp / "run" / "results.json")
-    records = sum(1 for _ in read_capture(tmp / "run" / "capture.jsonl"))
+    records = sum(1 for _ in open_capture(tmp / "run" / "capture.mcap"))
     return Reference(config, wall, _measurements(record), records)
 
 
@@ -669,8 +669,8 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
     assert [t.index for t in load_record(out / "results.json").suites["accuracy"].trials] == [0, 1]
     resumed = _bench("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
-    times = [r.t_s for r in read_capture(out / "capture.jsonl")]
-    assert times == sorted(times), "capture.jsonl is not one stream on the run clock"
+    times = [r.t_s for r in open_capture(out / "capture.mcap")]
+    assert times == sorted(times), "capture.mcap is not one stream on the run clock"
     assert len(times) == reference_run.capture_records
 
 

@@ -125,7 +125,7 @@ def test_each_arm_gets_a_run_folder_of_its_own(fake_fleets: Path) -> None:
     assert index.exit_status == 0
     for name in ("light", "heavy"):
         folder = a / name
-        for f in ("results.json", "report.html", "junit.xml", "capture.jsonl", "runner.json"):
+        for f in ("results.json", "report.html", "junit.xml", "capture.mcap", "runner.json"):
             assert (folder / f).is_file(), folder / f
         record = load_record(folder / "results.json")
         assert record.run_id == f"{index.fleet_id}-{name}"

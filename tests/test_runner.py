@@ -54,7 +54,7 @@ from armbench.bench.suites import (
     load_suite,
 )
 from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
-from armbench.drivers.capture import read_capture
+from armbench.drivers.capture_read import open_capture
 from armbench.drivers.errors import ArmbenchError, PortLostError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
@@ -274,7 +274,7 @@ def test_run_end_to_end_writes_every_file(tmp_path: Path) -> None:
     names = {tc.get("name") for tc in root.iter("testcase")}
     assert {"tiny.move_mean_s", "tiny.error_max_mm", "tiny.move_s"} <= names
     assert (out / "report.html").read_text().lstrip().lower().startswith("<!doctype html")
-    records = list(read_capture(out / "capture.jsonl"))
+    records = list(open_capture(out / "capture.mcap"))
     assert {r.dir for r in records} == {"in", "out"}
     times = [r.t_s for r in records]
     assert times == sorted(times) and times[-1] <= suite.ended_s  # type: ignore[operator]
@@ -355,7 +355,7 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     assert trial.duration_s > 0.05  # real seconds on the loop's (monotonic) clock
     assert record.environment.port == f"socket://{host}:{port}"
     assert server.clients_served == 1
-    assert list(read_capture(tmp_path / "r" / "capture.jsonl"))
+    assert list(open_capture(tmp_path / "r" / "capture.mcap"))
 
 
 # --------------------------------------------------------------------------------------------
@@ -492,7 +492,7 @@ def test_resume_after_cancellation_matches_an_uninterrupted_run(tmp_path: Path) 
     assert resumed.record.verdict == whole.record.verdict
     assert resumed.exit_status == whole.exit_status == EXIT_ERROR
     # The capture of both sessions is one stream on the continued run clock.
-    times = [r.t_s for r in read_capture(out / "capture.jsonl")]
+    times = [r.t_s for r in open_capture(out / "capture.mcap")]
     assert times == sorted(times)
 
 
@@ -881,7 +881,7 @@ def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> Non
     assert [t.index for t in trials] == [0, 1, 2, 3]
     for a, b in itertools.pairwise(trials):
         assert b.started_s == pytest.approx(a.started_s + a.duration_s, abs=1e-9)
-    capture = list(read_capture(tmp_path / "w2" / "capture.jsonl"))
+    capture = list(open_capture(tmp_path / "w2" / "capture.mcap"))
     times = [r.t_s for r in capture]
     assert times == sorted(times)
     assert times[0] >= trials[0].started_s and times[-1] <= trials[-1].ended_s + 1e-6

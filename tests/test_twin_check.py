@@ -172,7 +172,7 @@ def test_run_capture_in_sessions(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     settings = RobotSettings()
-    result = twin_check(load_capture(out / "capture.jsonl", settings), settings)
+    result = twin_check(load_capture(out / "capture.mcap", settings), settings)
     assert result.sessions >= 2
     assert result.verdict == "pass"
     assert max(result.rms_counts) < 3.0, result.rms_counts

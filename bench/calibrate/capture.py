@@ -2,10 +2,10 @@
 checked against the robot model, and what the traffic alone shows (reply period, latency, effective
 speed against duty and direction).
 
-The capture is read with the project's reader (:func:`armbench.drivers.capture.read_capture`), so
-every capture format it reads works here. Problems are :class:`CaptureContentError` naming the file
-and the problem: a truncated capture, replies that this robot model cannot have produced, a capture
-without commands.
+The capture is read with :func:`armbench.drivers.capture_read.open_capture` (MCAP or JSON
+Lines), so every capture format it reads works here. Problems are :class:`CaptureContentError`
+naming the file and the problem: a truncated capture, replies that this robot model cannot have
+produced, a capture without commands.
 """
 
 from __future__ import annotations
@@ -20,7 +20,8 @@ import numpy as np
 
 from armbench.bench.calibrate.model import CaptureContentError, Observations, SpeedRun
 from armbench.bench.calibrate.procedure import speed_of
-from armbench.drivers.capture import CaptureError, read_capture
+from armbench.drivers.capture import CaptureError
+from armbench.drivers.capture_read import open_capture
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import AngleDecoder, Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
@@ -64,7 +65,7 @@ def load_capture(path: str | Path, settings: RobotSettings) -> CaptureData:
     replies: list[tuple[float, Vec4]] = []
     bad = 0
     try:
-        for rec in read_capture(p):
+        for rec in open_capture(p):
             if rec.error is not None:
                 bad += rec.dir == "in"
                 continue

@@ -6,7 +6,7 @@ exactly once, by index) and the suite summaries computed over all of them by the
 The shards must be of one run: the same shard count, each shard once, the same port, settings,
 seed, faults, limits file, suites, suite versions and parameters. Run ids, timestamps and
 ``started_s`` (each shard's own clock) differ from an unsharded run; the traffic capture is not
-merged (each shard keeps its own ``capture.jsonl``).
+merged (each shard keeps its own ``capture.mcap``).
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """``armbench report``: (re-)render run reports and the run index from the records alone.
 
 ``armbench report DIR...`` writes ``DIR/report.html`` from ``DIR/results.json`` (and
-``DIR/capture.jsonl`` when present); ``armbench report --index RUNS_DIR`` writes
-``RUNS_DIR/index.html`` over every run directory in ``RUNS_DIR``. Both can be given at once.
+``DIR/capture.mcap``, or an older run's ``DIR/capture.jsonl``, when present); ``armbench report
+--index RUNS_DIR`` writes ``RUNS_DIR/index.html`` over every run directory in ``RUNS_DIR``. Both
+can be given at once.
 Exit status 0 when everything rendered, 2 when a record could not be read (the other directories
 are still rendered).
 """

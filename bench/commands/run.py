@@ -33,7 +33,7 @@ def register(sub: Any) -> None:
         "run", help="run bench suites and judge them against limits and a baseline",
         description="Run bench suites against the arm (the built-in emulator on virtual time "
                     "unless --port is given), write results.json after every trial, then "
-                    "junit.xml, report.html and the traffic capture capture.jsonl.",
+                    "junit.xml, report.html and the traffic capture capture.mcap.",
         epilog="Exit status: 0 pass, 1 a limit or regression failed, 2 the bench could not run "
                "or the run is incomplete, 130 interrupted (continue with --resume DIR).")
     p.add_argument("suites", nargs="*", metavar="SUITE",
@@ -81,8 +81,8 @@ def register(sub: Any) -> None:
     p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
                    help="do not capture the traffic (default: [bench] capture, else capture)")
     p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
-                   help="stop the capture (one event line says so) when capture.jsonl would "
-                        "exceed MB megabytes; the run goes on (default: [bench] "
+                   help="stop the capture (a capture_stopped event says so) before capture.mcap "
+                        "would exceed MB megabytes; the run goes on (default: [bench] "
                         "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 

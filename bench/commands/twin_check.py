@@ -35,7 +35,8 @@ def register(sub: Any) -> None:
                     "per-joint RMS and largest divergence of the reported angle, arrival-time "
                     "differences per move.",
         epilog="Exit status: 0 within the tolerance of the config, 1 not, 2 bad input.")
-    p.add_argument("capture", metavar="CAPTURE", help="capture of the arm (capture.jsonl)")
+    p.add_argument("capture", metavar="CAPTURE",
+                   help="capture of the arm (capture.mcap or capture.jsonl)")
     p.add_argument("--settings", metavar="FILE",
                    help="the twin's settings (e.g. the output of armbench calibrate)")
     p.add_argument("--config", metavar="FILE",

@@ -3,7 +3,7 @@
 * ``fleet.pty_reply_rate_min_ratio`` — ``ARMS`` (8) arms, each served by its own
   ``armbench emulate --pty`` process, driven by one ``armbench run accuracy --port ... --port ...``
   process (one lap per style, real time). Each arm's reply rate is read from its own
-  ``capture.jsonl``: replies received (well-formed ``in`` frames) per second between the first
+  ``capture.mcap``: replies received (well-formed ``in`` frames) per second between the first
   and the last one, i.e. over the whole run. The value is the lowest arm's rate, the bound that
   of :func:`armbench.bench.perf.driver.reply_rate_bound` (the bound of ``driver.pty_reply_rate``,
   the one-arm figure), the ratio (the figure's name) their quotient; the note lists every arm's
@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import subprocess
 import sys
@@ -23,6 +22,7 @@ from pathlib import Path
 from armbench.bench.perf import Figure, PerfOptions
 from armbench.bench.perf.driver import reply_rate_bound, serve_pty
 from armbench.bench.runner.options import CAPTURE_FILE, DEFAULT_CONFIG
+from armbench.drivers.capture_read import open_capture
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.settings import emulator_settings
 
@@ -35,12 +35,7 @@ _ROOT = Path(__file__).resolve().parents[2]
 
 def capture_reply_rate(capture: Path) -> float:
     """Replies per second in a capture: well-formed frames from the arm, first to last."""
-    times = []
-    with capture.open(encoding="utf-8") as f:
-        for line in f:
-            entry = json.loads(line)
-            if entry.get("dir") == "in" and entry.get("error") is None:
-                times.append(float(entry["t_s"]))
+    times = [r.t_s for r in open_capture(capture) if r.dir == "in" and r.error is None]
     if len(times) < 2 or times[-1] <= times[0]:
         return 0.0
     return (len(times) - 1) / (times[-1] - times[0])

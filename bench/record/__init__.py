@@ -37,6 +37,7 @@ from armbench.bench.record.fields import (
 from armbench.bench.record.files import (
     CAPTURE_FILE,
     JOURNAL_FILE,
+    LEGACY_CAPTURE_FILE,
     REPORT_FILE,
     RESULTS_FILE,
     atomic_write_bytes,
@@ -58,6 +59,7 @@ from armbench.bench.record.writer import RecordWriter, continued_clock_s
 __all__ = [
     "CAPTURE_FILE",
     "JOURNAL_FILE",
+    "LEGACY_CAPTURE_FILE",
     "PAPER_REFERENCE",
     "REPORT_FILE",
     "RESULTS_FILE",

@@ -15,6 +15,7 @@ from armbench.bench.record.fields import RecordError
 __all__ = [
     "CAPTURE_FILE",
     "JOURNAL_FILE",
+    "LEGACY_CAPTURE_FILE",
     "REPORT_FILE",
     "RESULTS_FILE",
     "atomic_write",
@@ -31,8 +32,10 @@ RESULTS_FILE = "results.json"
 JOURNAL_FILE = "results.journal.jsonl"
 #: The HTML report beside it.
 REPORT_FILE = "report.html"
-#: The traffic capture (JSON Lines, ``armbench.drivers.capture``) beside it.
-CAPTURE_FILE = "capture.jsonl"
+#: The traffic capture (MCAP, ``armbench.drivers.capture_mcap``) beside it.
+CAPTURE_FILE = "capture.mcap"
+#: The older JSON Lines capture (runs before MCAP), still read by every reader.
+LEGACY_CAPTURE_FILE = "capture.jsonl"
 
 
 def path_inside(directory: str | Path, name: str | PurePath) -> Path:

@@ -30,7 +30,7 @@ def continued_clock_s(out_dir: Path, record: RunRecord) -> float:
     that neither jumps back after a resume. A worker's parts (``-job-``) are on their own clock
     and inside their recorded trials."""
     captures = [out_dir / CAPTURE_FILE,
-                *(p for p in out_dir.glob(".capture.part*.jsonl") if "-job-" not in p.name)]
+                *(p for p in out_dir.glob(".capture.part*.part") if "-job-" not in p.name)]
     ends = [t for p in captures if (t := capture_end_s(p)) is not None]
     return max([record.end_s, *ends])
 

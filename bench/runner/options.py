@@ -108,7 +108,7 @@ class RunOptions:
     retries: int | None = None
     """Extra attempts for a trial that ends in error; None: ``[bench] retries`` or 0."""
     capture: bool | None = None
-    """Capture the traffic (``capture.jsonl``); None: ``[bench] capture`` or true."""
+    """Capture the traffic (``capture.mcap``); None: ``[bench] capture`` or true."""
     capture_max_mb: float | None = None
     """The capture's size bound (MB); None: ``[bench] capture_max_bytes`` or unbounded."""
     workers: int | None = None

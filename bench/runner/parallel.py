@@ -273,7 +273,8 @@ class ParallelTrials:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
-            for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.jsonl"):
+            runner.captures.flush()  # the committed trials' parts: on disk, deleted
+            for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.part"):
                 with contextlib.suppress(OSError):  # parts of trials never committed
                     path.unlink()
 
@@ -290,10 +291,11 @@ class ParallelTrials:
         parts = list(result.parts)
         for k, data in enumerate(result.shipped, 1):  # on disk before the record: see recover
             part = runner.writer.artifact_path(
-                f".capture.part{k}{job_part_tag(ps.name, index, attempt)}.jsonl")
+                f".capture.part{k}{job_part_tag(ps.name, index, attempt)}.part")
             part.write_bytes(data)
             parts.append(part)
         runner.writer.add_trial(ps.name, trial)
+        runner.captures.trial(ps.name, trial)
         self.worker_s += result.worker_s
         self.jobs += 1
         for part in parts:

@@ -171,6 +171,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
     finally:
         if writer_class is not LoopClockWriter:  # a batching writer's last trials
             writer.write()
+        runner.captures.flush()
+        runner.captures.finish({RESULTS_FILE: writer.artifact_path(RESULTS_FILE)})
         printer.finish()
         if interrupted:
             printer.message(f"interrupted: the record keeps every finished trial; continue with "

@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
+from armbench.bench.capture_run import LoggedPower, emulator_truth, fault_events
 from armbench.bench.power import port_power
 from armbench.bench.record import (
     RESULTS_FILE,
@@ -39,6 +40,7 @@ from armbench.drivers.settings import RobotSettings
 
 if TYPE_CHECKING:
     from armbench.drivers.arm import Arm
+    from armbench.drivers.capture_part import PartWriter
     from armbench.fakes.arm import ArmEmulator
     from armbench.fakes.faults import Fault
     from armbench.fakes.settings import EmulatorSettings
@@ -112,6 +114,7 @@ class Connection:
     arm: Arm
     emulator: ArmEmulator | None
     part: Path
+    writer: PartWriter | None = None
 
 
 class TrialAttempts:
@@ -139,11 +142,11 @@ class TrialAttempts:
         """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
         arm ``robot``, by default the plan's)."""
         from armbench.drivers.arm import Arm, ReconnectPolicy
-        from armbench.drivers.capture import CaptureWriter
+        from armbench.drivers.capture_part import PartWriter
 
         plan = self.plan
         self._parts += 1
-        part = self.clock.artifact_path(f".capture.part{self._parts}{self._part_tag}.jsonl")
+        part = self.clock.artifact_path(f".capture.part{self._parts}{self._part_tag}.part")
         emulator = None
         transport = None
         if plan.fake:
@@ -154,17 +157,16 @@ class TrialAttempts:
             emulator = self.emulator_factory(
                 robot, emulator_settings(robot, seed=emulator_seed), plan.faults)
             transport = FakeTransport(plan.port, plan.settings.serial, emulator)
-        capture: CaptureWriter | None = None
+        capture: PartWriter | None = None
         # a lost port is reopened (not fake://: a new transport is a new emulator) until it has
         # been silent for the outage timeout
         reconnect: bool | ReconnectPolicy = (False if plan.fake else ReconnectPolicy(
             max_attempts=None, give_up_after_s=plan.outage_timeout_s))
         try:
-            # t_s on the run clock straight away: the part is appended to capture.jsonl as is
+            # t_s on the run clock straight away: the part is added to capture.mcap as is
             if plan.capture:
-                capture = CaptureWriter(part, asyncio.get_running_loop().time()
-                                        - self.clock.elapsed_s(),
-                                        max_bytes=plan.capture_max_bytes)
+                capture = PartWriter(part, asyncio.get_running_loop().time()
+                                     - self.clock.elapsed_s(), truth=emulator_truth(emulator))
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=reconnect,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)
@@ -178,12 +180,13 @@ class TrialAttempts:
             self.captures.merge(part)
             raise
         self.last_arm = arm
-        return Connection(arm, emulator, part)
+        return Connection(arm, emulator, part, capture)
 
     async def disconnect(self, conn: Connection, *, merge: bool = True) -> None:
         """Close the arm (and its emulator); its capture part is merged now, or, with
         ``merge=False``, by the caller once the trial it holds is in the record."""
         try:
+            fault_events(conn.emulator, conn.writer)
             await conn.arm.close()
         finally:
             if conn.emulator is not None:
@@ -241,6 +244,9 @@ class TrialAttempts:
             arm = conn.arm
             ctx = self.context(ps, conn.arm, conn.emulator, derive_seed(plan.seed, ps.name,
                                                                         index))
+            if ctx.power is not None and conn.writer is not None:
+                ctx = dataclasses.replace(ctx, power=LoggedPower(ctx.power, conn.writer, ps.name,
+                                                                 index))
             result = await ps.suite.run_trial(ctx, index, trial_params)
             if not isinstance(result, Trial):
                 raise TypeError(f"run_trial returned {type(result).__name__}, not a Trial")
@@ -310,10 +316,12 @@ class TrialRunner:
         self.writer = writer
         self.progress = progress
         self.attempts = TrialAttempts(plan, writer, progress, emulator_factory)
+        if plan.capture:
+            self.attempts.captures.open_run(plan.settings, writer.record)
 
     @property
     def captures(self) -> CaptureParts:
-        """The run's ``capture.jsonl``."""
+        """The run's ``capture.mcap``."""
         return self.attempts.captures
 
     async def run_trial(self, ps: PlannedSuite, index: int) -> Trial:
@@ -324,6 +332,7 @@ class TrialRunner:
             wall0 = time.perf_counter()
             trial = await self.attempts.attempt(ps, index, attempt)
             self.writer.add_trial(ps.name, trial)
+            self.captures.trial(ps.name, trial)
             for part in self.attempts.unmerged:  # after the record: see CaptureParts.recover
                 self.captures.merge(part)
             self.attempts.unmerged.clear()

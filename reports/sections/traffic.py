@@ -1,5 +1,6 @@
 """The traffic section: what the capture of the serial line holds (frames each way, framing
-errors and resyncs over time, an excerpt), from ``capture.jsonl`` beside the record."""
+errors and resyncs over time, an excerpt), from ``capture.mcap`` (or ``.jsonl``) beside the
+record."""
 
 from __future__ import annotations
 

@@ -1,0 +1,194 @@
+"""The run's traffic capture ``capture.mcap``: what the runner writes into it besides frames.
+
+The driver of each connection writes a binary part (:class:`~armbench.drivers.capture_part.
+PartWriter`: frames, the emulator's ground truth, power switches and faults, on that process's
+loop clock); the runner adds each part to the run's :class:`~armbench.drivers.capture_mcap.
+McapCapture` once its trial is in the record, moved onto the run clock, with the trial's start
+and end as events. At the end ``results.json`` is attached. A resumed run copies what the killed
+run's file holds (up to its last complete chunk) into a new one. A size bound is kept by
+adding a part only while the file, the part's bytes (more than it adds, compressed) and
+:data:`CLOSING_BYTES` fit in it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import zstandard
+
+from armbench.bench.record import RunRecord, Trial
+from armbench.bench.suites.base import PowerSwitch
+from armbench.drivers.capture_mcap import McapCapture
+from armbench.drivers.capture_part import PartWriter
+from armbench.drivers.capture_read import iter_messages
+from armbench.drivers.settings import RobotSettings
+
+__all__ = ["CLOSING_BYTES", "LoggedPower", "RunCapture", "emulator_truth", "fault_events"]
+
+#: Bytes kept for what closing a bounded capture writes (stop event, tally, summary).
+CLOSING_BYTES = 65_536
+
+
+class LoggedPower:
+    """A power switch whose switching is written to a capture part as ``power_off`` /
+    ``power_on`` events (loop time of the request)."""
+
+    def __init__(self, inner: PowerSwitch, part: PartWriter, suite: str, trial: int) -> None:
+        self.inner = inner
+        self._part = part
+        self._suite = suite
+        self._trial = trial
+
+    async def power_off(self) -> None:
+        self._part.event(asyncio.get_running_loop().time(), "power_off", self._suite, self._trial)
+        await self.inner.power_off()
+
+    async def power_on(self) -> None:
+        self._part.event(asyncio.get_running_loop().time(), "power_on", self._suite, self._trial)
+        await self.inner.power_on()
+
+    def __repr__(self) -> str:
+        return f"LoggedPower({self.inner!r})"
+
+
+def emulator_truth(emulator: Any) -> Any:
+    """A callable giving the emulator's newest ground truth (rad), None before the first
+    reply, for :class:`PartWriter`; None without an emulator. The true angles (the links'
+    angles and their deflection under gravity, computed when read) are computed again only when
+    the links moved: a resting arm costs a comparison."""
+    if emulator is None:
+        return None
+    last: list[Any] = [None, None, None]
+
+    def newest() -> tuple[float, ...] | None:
+        truth = getattr(emulator, "truth", None)
+        if not truth:
+            return None
+        sample = truth[-1]
+        if sample.link_rad != last[0] or sample.mechanism is not last[1]:
+            last[:] = [sample.link_rad, sample.mechanism, tuple(sample.true_rad)]
+        value: tuple[float, ...] = last[2]
+        return value
+
+    return newest
+
+
+def fault_events(emulator: Any, part: PartWriter | None) -> None:
+    """The emulator's fault activations (``injector.activations``) as ``fault`` events."""
+    injector = getattr(emulator, "injector", None)
+    if injector is None or part is None:
+        return
+    for t_rel, description in getattr(injector, "activations", ()):
+        part.event(injector.t_start + t_rel, "fault", detail={"fault": description})
+
+
+class RunCapture:
+    """The run's ``capture.mcap``, opened at the first part (a resumed run's earlier capture is
+    carried over)."""
+
+    def __init__(self, path: Path, settings: RobotSettings, record: RunRecord,
+                 max_bytes: int | None = None) -> None:
+        self.path = path
+        self.settings = settings
+        self.record = record
+        self.max_bytes = max_bytes
+        self.sink: McapCapture | None = None
+        self._held: list[Path] = []
+        """Parts added whose frames are not all on disk yet (deleted when they are)."""
+
+    def _metadata(self) -> dict[str, str]:
+        env = self.record.environment
+        return {"run_id": self.record.run_id, "created": self.record.created,
+                "seed": str(env.seed), "port": str(env.port),
+                "clock": "virtual" if str(env.port).startswith("fake://") else "real",
+                "settings": json.dumps(self.settings.to_mapping(), sort_keys=True),
+                "suites": json.dumps(self.record.planned_suites)}
+
+    def open(self) -> McapCapture:
+        """The writer (created on first use)."""
+        if self.sink is None:
+            earlier = self.path.with_name(f".{self.path.name}.earlier")
+            if self.path.exists():
+                os.replace(self.path, earlier)
+            self.sink = McapCapture(self.path, self.settings, metadata=self._metadata())
+            if earlier.exists():
+                with contextlib.suppress(Exception):
+                    self.sink.copy_messages(iter_messages(earlier))
+                earlier.unlink()
+        return self.sink
+
+    def _room(self) -> int | None:
+        """Bytes the bound leaves (chunk in progress written first), None: unbounded."""
+        if self.max_bytes is None:
+            return None
+        self.flush()
+        size = self.path.stat().st_size if self.path.exists() else 0
+        return self.max_bytes - CLOSING_BYTES - size
+
+    def fits(self, part: Path) -> bool:
+        """Whether ``part`` can be added within the size bound."""
+        self.open()
+        room = self._room()
+        return room is None or part.stat().st_size <= room
+
+    def stop(self, reason: str) -> None:
+        """The capture stops at its bound (a ``capture_stopped`` event at the run's clock)."""
+        self.open().stop(self.record.end_s, reason)
+
+    def add_part(self, part: Path, offset_s: float) -> None:
+        """Add a part; it is deleted once all its frames are on disk in complete chunks (so a
+        run killed before that merges it again on resume, and never twice): when a chunk ended
+        while it was added, the rest of it is written as a chunk of its own at once."""
+        sink = self.open()
+        chunks = sink.chunks
+        sink.add_part(part, offset_s)
+        if sink.chunks != chunks:
+            self._release()  # the parts before this one are on disk
+            sink.flush()
+            _unlink(part)
+        else:
+            self._held.append(part)
+
+    def _release(self) -> None:
+        held, self._held = self._held, []
+        for part in held:
+            _unlink(part)
+
+    def trial(self, suite: str, trial: Trial) -> None:
+        """A trial's start and end as events (run clock)."""
+        sink = self.open()
+        sink.event(trial.started_s, "trial_start", suite, trial.index)
+        sink.event(trial.ended_s, "trial_end", suite, trial.index,
+                   {"status": trial.status, "error": trial.error})
+
+    def flush(self) -> None:
+        """Write what is buffered as complete chunks (and delete the parts it came from)."""
+        if self.sink is not None:
+            self.sink.flush()
+            self._release()
+
+    def finish(self, attachments: Mapping[str, Path]) -> None:
+        """Attach the run's files, zstd-compressed (``results.json`` as ``results.json.zst``: a
+        default run's record is 5 MB of JSON, half the capture's budget), and close the file."""
+        sink = self.open()
+        try:
+            for name, path in attachments.items():
+                with contextlib.suppress(OSError):
+                    data = zstandard.compress(path.read_bytes(), 9)
+                    room = self._room()
+                    if room is None or len(data) <= room:
+                        sink.attach(name + ".zst", data, "application/zstd")
+        finally:
+            sink.close()
+            self._release()
+
+
+def _unlink(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.unlink()

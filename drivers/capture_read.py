@@ -1,0 +1,331 @@
+"""One reader for captures of either format: ``capture.mcap`` (:mod:`armbench.drivers.capture_mcap`)
+and the older JSON Lines ``capture.jsonl`` (:mod:`armbench.drivers.capture`).
+
+:func:`open_capture` yields the same :class:`~armbench.drivers.capture.CaptureRecord` records
+for both, in time order; :func:`capture_lines` gives an MCAP capture as the JSON Lines text the
+older format holds (for readers of that text). An MCAP file cut short (a killed run: no summary,
+a chunk half written) is read up to its last complete record.
+"""
+
+from __future__ import annotations
+
+import functools
+import heapq
+import io
+import json
+import re
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO, Any, Final, NamedTuple
+
+import numpy as np
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Chunk, Message
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
+from mcap_ros2._dynamic import generate_dynamic
+
+from armbench.drivers.capture import (
+    CaptureError,
+    CaptureRecord,
+    Direction,
+    ReplayCommand,
+    read_capture,
+)
+from armbench.drivers.capture import capture_stopped as jsonl_stopped
+from armbench.drivers.capture_stats import TALLY_METADATA, TrafficTally
+from armbench.drivers.protocol import Command, Framer
+from armbench.drivers.ros2 import BENCH_EVENT, SCHEMAS
+
+__all__ = [
+    "MCAP_MAGIC",
+    "RawMessage",
+    "capture_lines",
+    "capture_stopped",
+    "decode_uart_frames",
+    "is_mcap",
+    "iter_messages",
+    "open_capture",
+    "read_attachment",
+    "read_tally",
+    "replay_capture",
+]
+
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+_OP_MESSAGE: Final = int(Opcode.MESSAGE)
+_OP_CHANNEL: Final = int(Opcode.CHANNEL)
+_U64: Final = struct.Struct("<Q")
+_MESSAGE_HEAD: Final = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+#: Printable ASCII without '"' and '\\': written into a JSON string as it is.
+_PLAIN = re.compile(rb'[ !#-\[\]-~]*')
+
+
+class RawMessage(NamedTuple):
+    """One message of an MCAP file: its topic, log time (ns) and CDR bytes."""
+
+    topic: str
+    log_time_ns: int
+    data: bytes
+
+
+def is_mcap(path: str | Path) -> bool:
+    """Whether ``path`` starts with the MCAP magic (else it is taken as JSON Lines)."""
+    try:
+        with Path(path).open("rb") as fh:
+            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError as exc:
+        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+
+
+def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+    """The messages of an MCAP file in file order (optionally only ``topics``), streamed; a file
+    cut short ends at its last complete record. Chunks are walked here (``mcap`` reads the
+    file's records and decompresses them): only the wanted messages are copied out."""
+    wanted = None if topics is None else set(topics)
+    channels: dict[int, str] = {}
+    try:
+        fh = Path(path).open("rb")  # noqa: SIM115 - closed below
+    except OSError as exc:
+        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+    with fh:
+        records = StreamReader(fh, skip_magic=False, emit_chunks=True).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except (McapError, EOFError, struct.error, ValueError):
+                return  # cut short: what came before stands
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = channels.get(record.channel_id, "")
+                if wanted is None or topic in wanted:
+                    yield RawMessage(topic, record.log_time, record.data)
+            elif isinstance(record, Chunk):
+                yield from _chunk_messages(record, channels, wanted)
+
+
+def _chunk_messages(chunk: Chunk, channels: dict[int, str],
+                    wanted: set[str] | None) -> Iterator[RawMessage]:
+    data, size = _chunk_data(chunk)
+    pos = 0
+    unpack = _MESSAGE_HEAD.unpack_from
+    while pos + 9 <= size:
+        opcode = data[pos]
+        (length,) = _U64.unpack_from(data, pos + 1)
+        body = pos + 9
+        pos = body + length
+        if opcode == _OP_MESSAGE:
+            channel_id, _, log_time, _ = unpack(data, body)
+            topic = channels.get(channel_id, "")
+            if wanted is None or topic in wanted:
+                yield RawMessage(topic, log_time, data[body + 22:pos])
+        elif opcode == _OP_CHANNEL:
+            channel = Channel.read(ReadDataStream(io.BytesIO(data[body:pos])))
+            channels[channel.id] = channel.topic
+
+
+def _chunk_data(chunk: Chunk) -> tuple[bytes, int]:
+    if chunk.compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(chunk.data,
+                                                       max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        stream, size = get_chunk_data_stream(chunk)
+        data = stream.read(size)
+    return data, len(data)
+
+
+def _strings(data: bytes, pos: int) -> tuple[list[bytes], int]:
+    """A CDR ``string[]`` at ``pos`` (its count first): its elements as bytes (NUL dropped) and
+    the position after it. Elements of one length (frames) are cut with numpy in one go."""
+    pos += -(pos - 4) % 4
+    (count,) = struct.unpack_from("<I", data, pos)
+    pos += 4
+    if count == 0:
+        return [], pos
+    (size,) = struct.unpack_from("<I", data, pos)
+    width = 4 + size + (-size % 4)
+    end = pos + count * width
+    if size > 0 and end - (-size % 4) <= len(data):  # the last element has no padding
+        rows = np.frombuffer(data[pos:end].ljust(count * width, b"\x00"),
+                             dtype=np.uint8).reshape(count, width)
+        if np.all(rows[:, :4].copy().view("<u4").ravel() == size):
+            if size == 1:
+                return [b""] * count, end
+            texts = rows[:, 4:3 + size].copy().view(f"S{size - 1}").ravel().tolist()
+            if all(len(t) == size - 1 for t in texts):  # no NUL inside an element
+                return texts, end
+    out = []
+    for _ in range(count):
+        pos += -(pos - 4) % 4
+        (size,) = struct.unpack_from("<I", data, pos)
+        out.append(data[pos + 4:pos + 3 + size])
+        pos += 4 + size
+    return out, pos
+
+
+def decode_uart_frames(data: bytes) -> tuple[list[int], list[bytes], list[bytes]]:
+    """Times (ns), frames and errors (empty: none) of an ``armbench_msgs/msg/UartFrames``
+    message; :class:`ValueError` if it is not one."""
+    try:
+        sec, nsec, n = struct.unpack_from("<iII", data, 4)
+        pos = 16 + (4 if n else 0)
+        offsets = np.frombuffer(data, dtype="<i8", count=n, offset=pos)
+        frames, pos = _strings(data, pos + 8 * n)
+        errors, pos = _strings(data, pos)
+    except struct.error as exc:
+        raise ValueError(f"UartFrames cut short: {exc}") from None
+    if len(frames) != n or len(errors) != n:
+        raise ValueError(f"UartFrames of {n} times, {len(frames)} frames, {len(errors)} errors")
+    t0 = sec * 1_000_000_000 + nsec
+    return (offsets + t0).tolist(), frames, errors
+
+
+def _batches(path: Path, topic: str) -> Iterator[tuple[list[int], list[bytes], list[bytes]]]:
+    for msg in iter_messages(path, (topic,)):
+        try:
+            yield decode_uart_frames(msg.data)
+        except ValueError as exc:
+            raise CaptureError(str(path), None, f"{topic} at {msg.log_time_ns} ns: {exc}") from None
+
+
+def _direction(path: Path, topic: str) -> Iterator[CaptureRecord]:
+    direction: Direction = "in" if topic == "/uart/rx" else "out"
+    for times, frames, errors in _batches(path, topic):
+        for t_ns, frame, error in zip(times, frames, errors, strict=True):
+            yield CaptureRecord(t_ns / 1e9, direction, frame.decode("utf-8", "backslashreplace"),
+                                error.decode("utf-8", "backslashreplace") or None)
+
+
+def open_capture(path: str | Path) -> Iterator[CaptureRecord]:
+    """Every frame record of a capture of either format, in time order (streamed; of an MCAP
+    capture's records with equal times, arm → host first)."""
+    p = Path(path)
+    if not is_mcap(p):
+        yield from read_capture(p)
+        return
+    yield from heapq.merge(_direction(p, "/uart/rx"), _direction(p, "/uart/tx"),
+                           key=lambda r: r.t_s)
+
+
+def _line_stream(path: Path, topic: str) -> Iterator[tuple[int, bytes]]:
+    """(time ns, JSON line) of each frame of one direction, as the JSON Lines writer writes."""
+    direction = "in" if topic == "/uart/rx" else "out"
+    fmt = b'{"t_s": %d.%09d, "dir": "' + direction.encode() + b'", "frame": "%s", "error": null}\n'
+    for times, frames, errors in _batches(path, topic):
+        if not any(errors) and _PLAIN.fullmatch(b"".join(frames)):
+            yield from zip(times, [fmt % (t // 1_000_000_000, t % 1_000_000_000, f)
+                                   for t, f in zip(times, frames, strict=True)], strict=True)
+            continue
+        for t_ns, frame, error in zip(times, frames, errors, strict=True):
+            text = json.dumps({"t_s": t_ns / 1e9, "dir": direction,
+                               "frame": frame.decode("utf-8", "backslashreplace"),
+                               "error": error.decode("utf-8", "backslashreplace") or None})
+            yield t_ns, text.encode() + b"\n"
+
+
+def _lines(path: Path) -> Iterator[bytes]:
+    for _, line in heapq.merge(_line_stream(path, "/uart/rx"), _line_stream(path, "/uart/tx")):
+        yield line
+
+
+def read_tally(path: str | Path) -> TrafficTally | None:
+    """The traffic's tally an MCAP capture stores when it is closed
+    (:class:`~armbench.drivers.capture_stats.TrafficCounter`); None for a JSON Lines capture, a
+    file cut short or one without it. Read through the summary's metadata index: the chunks are
+    not read."""
+    p = Path(path)
+    if not is_mcap(p):
+        return None
+    try:
+        with p.open("rb") as fh:
+            reader = make_reader(fh)
+            if reader.get_summary() is None:
+                return None
+            for meta in reader.iter_metadata():
+                if meta.name == TALLY_METADATA:
+                    return TrafficTally.from_json(meta.metadata["tally"])
+    except (McapError, EOFError, struct.error, ValueError, KeyError):
+        return None
+    except OSError as exc:
+        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+    return None
+
+
+def capture_stopped(path: str | Path) -> bool:
+    """Whether the capture (either format) stopped at its size bound: a ``capture_stopped``
+    event on ``/bench/events``, or the JSON Lines stop event."""
+    p = Path(path)
+    if not is_mcap(p):
+        return jsonl_stopped(p)
+    decode = _event_decoder()
+    return any(decode(msg.data).kind == "capture_stopped"
+               for msg in iter_messages(p, ("/bench/events",)))
+
+
+@functools.cache
+def _event_decoder() -> Callable[[bytes], Any]:
+    decoder: Callable[[bytes], Any] = generate_dynamic(BENCH_EVENT, SCHEMAS[BENCH_EVENT])[
+        BENCH_EVENT]
+    return decoder
+
+
+def read_attachment(path: str | Path, name: str) -> bytes | None:
+    """The attachment ``name`` of an MCAP file (``name.zst`` decompressed when only that is
+    there), None if it has neither."""
+    found: dict[str, bytes] = {}
+    try:
+        with Path(path).open("rb") as fh:
+            for record in StreamReader(fh, emit_chunks=True).records:
+                if isinstance(record, Attachment) and record.name in (name, name + ".zst"):
+                    found[record.name] = record.data
+    except (McapError, EOFError, struct.error, ValueError):
+        pass
+    except OSError as exc:
+        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+    if name in found:
+        return found[name]
+    if name + ".zst" in found:
+        return zstandard.ZstdDecompressor().decompressobj().decompress(found[name + ".zst"])
+    return None
+
+
+@contextmanager
+def capture_lines(path: str | Path) -> Iterator[Iterator[bytes] | IO[bytes]]:
+    """The capture as JSON Lines bytes, line by line: the file itself for JSON Lines, the
+    records of an MCAP capture in that text otherwise."""
+    p = Path(path)
+    if is_mcap(p):
+        yield _lines(p)
+        return
+    with p.open("rb") as fh:
+        yield fh
+
+
+def replay_capture(path: str | Path) -> Iterator[ReplayCommand]:
+    """The host → arm commands of a capture (either format), with their times relative to the
+    first one.
+
+    Records with an ``error`` and ``in`` records are skipped; an ``out`` frame that is not a valid
+    command is a :class:`CaptureError` (the driver only ever writes valid commands).
+    """
+    t0: float | None = None
+    for n, rec in enumerate(open_capture(path), 1):
+        if rec.dir != "out" or rec.error is not None:
+            continue
+        framer = Framer("command")
+        events = framer.feed(rec.frame.encode("ascii", "backslashreplace"))
+        if len(events) != 1 or not isinstance(events[0], Command):
+            raise CaptureError(str(path), None,
+                               f"record {n}: out frame {rec.frame!r} is not one command")
+        if t0 is None:
+            t0 = rec.t_s
+        yield ReplayCommand(rec.t_s - t0, events[0], rec.t_s)

@@ -1,0 +1,224 @@
+"""What a capture's traffic adds up to (frames each way, framing errors by reason,
+resynchronisations, frame rates over time, an excerpt): :func:`tally` over the records in order,
+shared by the report's reading of a capture and by the MCAP writer, which counts the frames as
+it adds them (:class:`TrafficCounter`) and stores the tally in the file (metadata
+:data:`TALLY_METADATA`), so the report does not read 1.5 M records back.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["HEAD_LINES", "MAX_BINS", "TALLY_METADATA", "TEXT_LIMIT", "TrafficCounter",
+           "TrafficLine", "TrafficTally", "nice_bin", "short_text", "tally"]
+
+#: Bins of the frame-rate plot at most.
+MAX_BINS: Final = 100
+#: Characters of a frame or reason kept in an excerpt.
+TEXT_LIMIT: Final = 96
+#: Records of the excerpt, and framing errors after it, kept as text.
+HEAD_LINES: Final = 20
+#: The MCAP metadata record holding the tally (key ``tally``: its JSON).
+TALLY_METADATA: Final = "armbench.traffic"
+
+FloatArray = npt.NDArray[np.float64]
+#: Kind of a record: 0 host → arm frame, 1 arm → host frame, 2 and 3 the same with an error.
+KindArray = npt.NDArray[np.int8]
+
+
+@dataclass(frozen=True, slots=True)
+class TrafficLine:
+    """One record of an excerpt: its line number (from 1) and fields, text shortened."""
+
+    line: int
+    t_s: float
+    dir: str
+    frame: str
+    error: str | None
+
+
+@dataclass(frozen=True, slots=True)
+class TrafficTally:
+    """What a capture adds up to. Counts per bin of ``bin_s`` seconds from ``bin_start_s[0]``;
+    ``resyncs`` counts valid frames that followed an error in the same direction."""
+
+    records: int
+    frames_in: int
+    frames_out: int
+    errors_in: int
+    errors_out: int
+    resyncs: int
+    duration_s: float
+    reasons: list[tuple[str, int]]
+    bin_s: float
+    bin_start_s: FloatArray
+    count_in: FloatArray
+    count_out: FloatArray
+    errors_per_bin: FloatArray
+    resyncs_per_bin: FloatArray
+    head: list[TrafficLine]
+    first_errors: list[TrafficLine]
+    events: list[str]
+
+    def to_json(self) -> str:
+        data = asdict(self)
+        for name, value in data.items():
+            if isinstance(value, np.ndarray):
+                data[name] = value.tolist()
+        return json.dumps(data)
+
+    @classmethod
+    def from_json(cls, text: str) -> TrafficTally:
+        """The tally :meth:`to_json` wrote; ValueError if ``text`` is not one."""
+        try:
+            data: dict[str, Any] = json.loads(text)
+            for name in ("bin_start_s", "count_in", "count_out", "errors_per_bin",
+                         "resyncs_per_bin"):
+                data[name] = np.asarray(data[name], dtype=np.float64)
+            data["reasons"] = [(str(r), int(n)) for r, n in data["reasons"]]
+            for name in ("head", "first_errors"):
+                data[name] = [TrafficLine(**x) for x in data[name]]
+            return cls(**data)
+        except (TypeError, KeyError, AttributeError) as exc:
+            raise ValueError(f"not a traffic tally: {exc}") from None
+
+
+def short_text(text: str) -> str:
+    """``text`` cut to :data:`TEXT_LIMIT` characters."""
+    return text if len(text) <= TEXT_LIMIT else text[: TEXT_LIMIT - 1] + "…"
+
+
+def nice_bin(span_s: float, max_bins: int) -> float:
+    """The smallest 1-2-5 bin width (s) giving at most ``max_bins`` bins over ``span_s``."""
+    raw = max(span_s / max_bins, 1e-3)
+    exp = math.floor(math.log10(raw))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        width = m * 10.0**exp
+        if width >= raw * (1 - 1e-9):
+            return width
+    return 10.0 ** (exp + 1)  # pragma: no cover
+
+
+def _resyncs(kinds: KindArray) -> npt.NDArray[np.bool_]:
+    """Per record (in order): a valid frame right after an error of its direction."""
+    out = np.zeros(len(kinds), dtype=np.bool_)
+    for direction in (0, 1):
+        idx = np.flatnonzero((kinds & 1) == direction)
+        err = kinds[idx] >= 2
+        out[idx[1:]] = ~err[1:] & err[:-1]
+    return out
+
+
+def tally(times_s: FloatArray, kinds: KindArray, reasons: Counter[str],
+          head: list[TrafficLine], first_errors: list[TrafficLine],
+          events: list[str]) -> TrafficTally:
+    """The tally of the records ``times_s``/``kinds`` (in the capture's order)."""
+    resync = _resyncs(kinds)
+    if len(times_s):
+        t0, t1 = float(times_s.min()), float(times_s.max())
+    else:
+        t0 = t1 = 0.0
+    bin_s = nice_bin(max(t1 - t0, 1e-3), MAX_BINS)
+    start = math.floor(t0 / bin_s) * bin_s
+    n_bins = max(1, math.floor((t1 - start) / bin_s) + 1)
+    idx = np.clip(((times_s - start) / bin_s).astype(np.int64), 0, n_bins - 1)
+
+    def per_bin(mask: npt.NDArray[np.bool_]) -> FloatArray:
+        return np.bincount(idx[mask], minlength=n_bins).astype(np.float64)
+
+    return TrafficTally(
+        records=len(times_s),
+        frames_in=int(np.count_nonzero(kinds == 1)),
+        frames_out=int(np.count_nonzero(kinds == 0)),
+        errors_in=int(np.count_nonzero(kinds == 3)),
+        errors_out=int(np.count_nonzero(kinds == 2)),
+        resyncs=int(np.count_nonzero(resync)),
+        duration_s=t1 - t0,
+        reasons=reasons.most_common(10),
+        bin_s=bin_s,
+        bin_start_s=start + bin_s * np.arange(n_bins, dtype=np.float64),
+        count_in=per_bin(kinds == 1),
+        count_out=per_bin(kinds == 0),
+        errors_per_bin=per_bin(kinds >= 2),
+        resyncs_per_bin=per_bin(resync),
+        head=head,
+        first_errors=first_errors,
+        events=events,
+    )
+
+
+class TrafficCounter:
+    """Counts records as a writer adds them, in blocks in any order, and gives their
+    :func:`tally` in the readers' order (time, arm → host first on equal times, then the order
+    added) without keeping more text than the excerpt needs."""
+
+    def __init__(self) -> None:
+        self._times: list[npt.NDArray[np.int64]] = []
+        self._kinds: list[KindArray] = []
+        self._count = 0
+        self._texts: list[tuple[int, int, int, str, str | None]] = []
+        """Records that may be in the excerpt: (t ns, 1 host → arm else 0, index added, frame,
+        error), so that they sort in the readers' order."""
+        self._reasons: Counter[str] = Counter()
+        self._latest_head_ns = 2**63 - 1
+        """A block starting after this (ns) and without errors holds no record of the excerpt."""
+        self.events: list[str] = []
+
+    def add(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
+            frame: Callable[[int], bytes], errors: dict[int, str]) -> None:
+        """A block of records: times (ns), flags (1 arm → host, 2 an error), each frame's
+        bytes by index (asked for those of the excerpt only) and the errors' reasons by
+        index."""
+        n = len(t_ns)
+        kinds = (flags & 3).astype(np.int8)
+        self._times.append(np.asarray(t_ns, dtype=np.int64))
+        self._kinds.append(kinds)
+        for reason in errors.values():
+            self._reasons[short_text(reason)] += 1
+        if not errors and n and int(t_ns[0]) > self._latest_head_ns:  # nothing for the excerpt
+            self._count += n
+            return
+        order = np.lexsort((np.arange(n), 1 - (kinds & 1), t_ns))
+        keep = {int(i) for i in order[:2 * HEAD_LINES]}
+        keep.update(sorted(errors, key=lambda i: (int(t_ns[i]), 1 - int(kinds[i] & 1), i))
+                    [:3 * HEAD_LINES])
+        for i in keep:
+            self._texts.append((int(t_ns[i]), 1 - int(kinds[i] & 1), self._count + i,
+                                frame(i).decode("utf-8", "backslashreplace"), errors.get(i)))
+        self._count += n
+        if len(self._texts) > 20 * HEAD_LINES:
+            self._texts = self._excerpt_candidates()
+
+    def _excerpt_candidates(self) -> list[tuple[int, int, int, str, str | None]]:
+        texts = sorted(self._texts)
+        errors = [x for x in texts if x[4] is not None]
+        if len(texts) >= 2 * HEAD_LINES:  # later records (times in order) cannot be in the head
+            self._latest_head_ns = texts[2 * HEAD_LINES - 1][0] - 1
+        return sorted({*texts[:2 * HEAD_LINES], *errors[:3 * HEAD_LINES]})
+
+    def tally(self) -> TrafficTally:
+        """The tally of every record added."""
+        t_ns = np.concatenate(self._times) if self._times else np.zeros(0, dtype=np.int64)
+        kinds = np.concatenate(self._kinds) if self._kinds else np.zeros(0, dtype=np.int8)
+        order = np.lexsort((1 - (kinds & 1), t_ns))  # stable: the order added on ties
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(1, len(order) + 1)
+        head: list[TrafficLine] = []
+        first_errors: list[TrafficLine] = []
+        for t, out_later, index, frame, error in self._excerpt_candidates():
+            line = TrafficLine(int(rank[index]), t / 1e9, "out" if out_later else "in",
+                               short_text(frame), None if error is None else short_text(error))
+            if len(head) < HEAD_LINES:
+                head.append(line)
+            elif error is not None and len(first_errors) < HEAD_LINES:
+                first_errors.append(line)
+        return tally(t_ns[order] / 1e9, kinds[order], self._reasons, head, first_errors,
+                     list(self.events))
