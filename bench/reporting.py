@@ -9,6 +9,8 @@ import html
 import logging
 from pathlib import Path
 
+import zstandard
+
 from armbench.bench.record import RunRecord, atomic_write_bytes, path_inside
 from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE
 from armbench.drivers.errors import ArmbenchError
@@ -18,10 +20,36 @@ __all__ = ["text_summary", "write_reports"]
 log = logging.getLogger("armbench.runner")
 
 
-def write_reports(record: RunRecord, out_dir: Path) -> None:
+def write_reports(record: RunRecord, out_dir: Path, *,
+                  capture_max_bytes: int | None = None) -> None:
     """``junit.xml`` and ``report.html`` of ``record`` in ``out_dir``. The HTML report comes from
     ``reports.render_report`` when that package is available; otherwise (or if it fails) a plain
-    text summary wrapped in HTML is written, so the file always exists."""
+    text summary wrapped in HTML is written, so the file always exists. The report is attached
+    to the run's ``capture.mcap`` (zstd) when the capture's size bound leaves room for it."""
+    _write_pages(record, out_dir)
+    _attach_report(out_dir, capture_max_bytes)
+
+
+def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:
+    from armbench.drivers.capture_append import append_attachment
+    from armbench.drivers.capture_read import capture_stopped, is_mcap
+
+    capture, report = out_dir / CAPTURE_FILE, out_dir / REPORT_FILE
+    try:
+        if not capture.exists() or not report.exists() or not is_mcap(capture):
+            return
+        data = zstandard.compress(report.read_bytes(), 9)
+        if capture_max_bytes is not None and (
+                capture.stat().st_size + len(data) + 4096 > capture_max_bytes
+                or capture_stopped(capture)):
+            log.warning("report.html not attached to %s: its size bound", capture)
+            return
+        append_attachment(capture, REPORT_FILE + ".zst", data, "application/zstd")
+    except (OSError, ArmbenchError) as exc:
+        log.warning("report.html not attached to %s: %s", capture, exc)
+
+
+def _write_pages(record: RunRecord, out_dir: Path) -> None:
     from armbench.bench.junit import write_junit
 
     try:

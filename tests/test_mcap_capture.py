@@ -34,6 +34,7 @@ from armbench.drivers.capture_read import (
     capture_lines,
     is_mcap,
     open_capture,
+    read_attachment,
     replay_capture,
 )
 from armbench.drivers.kinematics import fk
@@ -352,3 +353,38 @@ def test_fast_encoders_are_byte_for_byte_mcap_ros2s(t_ns: int, values: list[floa
             ros2.dynamic_encoder(ros2.UART_FRAMES)(
                 {"stamp": stamp, "offset_ns": offsets, "frame": texts,
                  "error": [""] * len(texts)})
+
+
+def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
+                                               tmp_path: Path) -> None:
+    """``write_reports`` attaches ``report.html`` to ``capture.mcap`` after the capture was
+    closed: the summary then indexes it beside ``results.json`` (a valid file, CRCs checked),
+    every message is still there; within a size bound that has no room for it, the capture is
+    left as it was."""
+    from mcap.stream_reader import StreamReader
+
+    from armbench.bench.reporting import write_reports
+
+    out, _ = run_dir
+    for bound, name in ((None, "free"), (1, "bounded")):
+        here = tmp_path / name
+        here.mkdir()
+        for file in ("results.json", "capture.mcap"):
+            (here / file).write_bytes((out / file).read_bytes())
+        before = (here / "capture.mcap").read_bytes()
+        write_reports(load_record(here / "results.json"), here, capture_max_bytes=bound)
+        path = here / "capture.mcap"
+        if bound is not None:
+            assert path.read_bytes() == before
+            continue
+        with path.open("rb") as fh:
+            reader = make_reader(fh)
+            summary = reader.get_summary()
+            assert summary is not None and summary.statistics is not None
+            assert summary.statistics.attachment_count == 2
+            assert {i.name for i in summary.attachment_indexes} == {"results.json.zst",
+                                                                      "report.html.zst"}
+            assert read_attachment(path, "report.html") == (here / "report.html").read_bytes()
+            assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
+        with path.open("rb") as fh:
+            assert sum(1 for _ in StreamReader(fh, validate_crcs=True).records) > 0

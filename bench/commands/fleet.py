@@ -25,7 +25,8 @@ def run_fleet(options: RunOptions, ports: Sequence[str]) -> int:
     outcome = run_fleet_sync(options, ports, progress=sys.stderr)
     for arm_outcome in outcome.outcomes:
         if arm_outcome is not None:
-            write_reports(arm_outcome.record, arm_outcome.out_dir)
+            write_reports(arm_outcome.record, arm_outcome.out_dir,
+                          capture_max_bytes=arm_outcome.capture_max_bytes)
     page = outcome.out_dir / FLEET_PAGE
     try:
         from armbench.reports.fleet import render_fleet

@@ -116,7 +116,8 @@ def _run(args: argparse.Namespace) -> int:
 
         return run_fleet(options, ports)
     outcome = run_sync(options, progress=sys.stderr)
-    write_reports(outcome.record, outcome.out_dir)  # the record is on disk: now its reports
+    # the record is on disk: now its reports
+    write_reports(outcome.record, outcome.out_dir, capture_max_bytes=outcome.capture_max_bytes)
     _summary(outcome)
     return outcome.exit_status
 

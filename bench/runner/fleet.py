@@ -202,7 +202,8 @@ def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
     if not path.exists():
         return None
     return RunOutcome(plan.out_dir, load_record(path), status, interrupted=status ==
-                      EXIT_INTERRUPTED, error=error, warnings=tuple(plan.warnings))
+                      EXIT_INTERRUPTED, error=error, warnings=tuple(plan.warnings),
+                      capture_max_bytes=plan.capture_max_bytes)
 
 
 async def _run_arm(plan: BenchPlan, progress: IO[str] | None,

@@ -208,6 +208,8 @@ class RunOutcome:
     """Why the bench stopped early (connection lost for good, a baseline that cannot be used)."""
     warnings: tuple[str, ...] = ()
     """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
+    capture_max_bytes: int | None = None
+    """The capture's size bound (None: unbounded), which the report attached to it keeps."""
 
     @property
     def verdict(self) -> Verdict:

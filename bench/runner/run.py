@@ -183,7 +183,8 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
     if (disturbed := record.disturbance_note()) is not None:
         notes.append(f"warning: {disturbed}")
     printer.message(f"verdict: {record.verdict}" + (f" ({'; '.join(notes)})" if notes else ""))
-    return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings))
+    return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings),
+                      capture_max_bytes=plan.capture_max_bytes)
 
 
 async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,

@@ -1,0 +1,96 @@
+"""Add an attachment to a finished MCAP file: the run's ``report.html`` is written after the
+capture is closed (the report reads the capture's traffic tally from its summary), so it joins
+the file afterwards. The file is cut at its ``DataEnd`` record, the attachment written there, and
+the summary written again with the attachment in its index and statistics (summary CRC 0: "not
+computed", as the MCAP specification allows). A crash in between leaves a file without a summary,
+which every reader opens up to its last complete record (as a killed run's)."""
+
+from __future__ import annotations
+
+import struct
+from collections import defaultdict
+from io import BytesIO
+from pathlib import Path
+
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    DataEnd,
+    Footer,
+    McapRecord,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.stream_reader import StreamReader
+
+__all__ = ["append_attachment"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
+_DATA_END_BYTES = 1 + 8 + 4
+
+
+def _summary(data: bytes, footer: Footer) -> list[McapRecord]:
+    """The summary section's records, summary offsets and footer left out (written anew)."""
+    reader = StreamReader(BytesIO(data[footer.summary_start:]), skip_magic=True)
+    return [r for r in reader.records if not isinstance(r, SummaryOffset | Footer)]
+
+
+def append_attachment(path: Path, name: str, data: bytes, media_type: str,
+                      log_time_ns: int = 0) -> bool:
+    """Attach ``data`` as ``name`` to the finished MCAP file at ``path``. False (the file left
+    as it is) when the file has no summary to extend (a killed run's) or is not MCAP."""
+    with path.open("r+b") as fh:
+        whole = fh.read()
+        if len(whole) < 2 * len(_MAGIC) + _FOOTER_BYTES + _DATA_END_BYTES \
+                or not whole.startswith(_MAGIC) or not whole.endswith(_MAGIC):
+            return False
+        tail = whole[-len(_MAGIC) - _FOOTER_BYTES:-len(_MAGIC)]
+        if tail[0] != Opcode.FOOTER:
+            return False
+        footer = Footer(*struct.unpack_from("<QQI", tail, 9))
+        data_end = footer.summary_start - _DATA_END_BYTES
+        if footer.summary_start == 0 or data_end <= 0 or whole[data_end] != Opcode.DATA_END:
+            return False
+        summary = _summary(whole, footer)
+        out = RecordBuilder()
+        attachment = Attachment(log_time_ns, log_time_ns, name, media_type, data)
+        attachment.write(out)
+        length = out.count
+        DataEnd(0).write(out)
+        summary_start = data_end + out.count
+        groups: dict[int, list[McapRecord]] = defaultdict(list)
+        for record in summary:
+            if isinstance(record, Statistics):
+                record.attachment_count += 1
+            groups[_opcode(record)].append(record)
+        groups[Opcode.ATTACHMENT_INDEX].append(AttachmentIndex(
+            data_end, length, log_time_ns, log_time_ns, len(data), name, media_type))
+        offsets: list[SummaryOffset] = []
+        for opcode, records in groups.items():
+            start = data_end + out.count
+            for record in records:
+                record.write(out)
+            offsets.append(SummaryOffset(opcode, start, data_end + out.count - start))
+        offset_start = data_end + out.count
+        for offset in offsets:
+            offset.write(out)
+        Footer(summary_start, offset_start, 0).write(out)
+        fh.seek(data_end)
+        fh.truncate()
+        fh.write(_end(out) + _MAGIC)
+    return True
+
+
+def _opcode(record: McapRecord) -> int:
+    """The opcode a summary record is written with (its group)."""
+    builder = RecordBuilder()
+    record.write(builder)
+    return _end(builder)[0]
+
+
+def _end(builder: RecordBuilder) -> bytes:
+    data: bytes = builder.end()  # type: ignore[no-untyped-call]  # mcap has no annotations here
+    return data
