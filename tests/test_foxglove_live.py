@@ -162,7 +162,8 @@ def test_emulate_serves_the_joint_stream_at_the_reply_rate() -> None:
         rate = (len(times) - 1) / ((times[-1] - times[0]) / 1e9)  # by the messages' own clock
         # both counted by clients on a shared machine: a quarter's tolerance
         assert 0.75 * replies / 3.0 <= rate <= 1.25 * replies / 3.0, (topic, rate, replies)
-    assert counts["/joint_states"] == counts["/tf"]
+    # one /tf per reported state: the 3 s window may close between a state and its /tf
+    assert abs(counts["/joint_states"] - counts["/tf"]) <= 1
 
 
 def test_monitor_serves_the_joint_stream_at_the_reply_rate() -> None:
