@@ -7,8 +7,10 @@ as a host would see it):
 
 * per joint, the RMS and largest divergence of the reported angle (rad and encoder counts);
 * per move (each command), the difference of the arrival times (twin − arm) where both arrive;
-* the TCP divergence where the capture has the truth beside its replies (a JSON Lines capture has
-  none; reported as absent).
+* the TCP divergence where the capture has the truth beside its replies (``/joint_states/true``
+  of an MCAP capture of ``fake://``: the arm's true TCP against the twin's at the same instants,
+  both through the twin's actual DH model; a JSON Lines capture or a real arm's has none:
+  reported as absent).
 
 A capture of several sessions (a run's capture holds one emulator per trial) is cut where the
 replies jump further than the joints can move, or fall silent; each session is replayed into a
@@ -37,6 +39,8 @@ from armbench.bench.calibrate.capture import CaptureData
 from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.record import Measurement, judge
 from armbench.bench.suites.contract import TWIN_CHECK
+from armbench.drivers.capture_read import read_joint_states
+from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Framer, Reply
 from armbench.drivers.settings import RobotSettings
@@ -44,7 +48,7 @@ from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.settings import emulator_settings
 
 __all__ = ["DEFAULT_CONFIG", "Aligned", "TwinCheck", "compare", "replay_twin", "sessions",
-           "twin_check"]
+           "tcp_divergence", "twin_check"]
 
 DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
@@ -126,21 +130,27 @@ class TwinCheck:
         }
 
 
-async def replay_twin(data: CaptureData, settings: RobotSettings) -> list[tuple[float, Vec4]]:
+async def replay_twin(data: CaptureData, settings: RobotSettings,
+                      truth: list[tuple[float, Vec4]] | None = None) -> list[tuple[float, Vec4]]:
     """Replay ``data``'s commands into a twin built from ``settings`` on the running loop; the
-    twin's replies, on the capture's clock (its first reply aligned with the capture's)."""
+    twin's replies, on the capture's clock (its first reply aligned with the capture's). With
+    ``truth`` given, the twin's true joint angles at each of its replies are appended to it."""
     loop = asyncio.get_running_loop()
     emulator = ArmEmulator(settings, emulator_settings(settings),
                            initial_q_rad=data.replies[0][1])
     framer = Framer("reply")
     decode = AngleDecoder(settings.lower_rad, settings.upper_rad)
     out: list[tuple[float, Vec4]] = []
+    true_at: list[tuple[float, Vec4]] = []
 
     def sink(chunk: bytes) -> None:
         now = loop.time()
         for event in framer.feed(chunk):
             if isinstance(event, Reply):
                 out.append((now, decode(event)))
+                if truth is not None:
+                    q = emulator.true_angles_rad()
+                    true_at.append((now, (q[0], q[1], q[2], q[3])))
 
     emulator.attach_host(sink)
     await emulator.start()
@@ -157,7 +167,31 @@ async def replay_twin(data: CaptureData, settings: RobotSettings) -> list[tuple[
         await asyncio.sleep(max(0.0, end - loop.time()) + 0.01)
     finally:
         await emulator.close()
+    if truth is not None:
+        truth.extend((t - offset, q) for t, q in true_at)
     return [(t - offset, q) for t, q in out]
+
+
+def tcp_divergence(arm_truth: Sequence[tuple[float, Sequence[float]]],
+                   twin_truth: Sequence[tuple[float, Vec4]],
+                   geometry: RobotSettings) -> dict[str, float] | None:
+    """RMS and largest distance (mm) between the arm's true TCP (the capture's truth samples)
+    and the twin's at the same instants (its newest truth then), both through ``geometry`` (the
+    twin's actual DH model: the arm's own is what a calibration estimates). None without truth
+    on both sides."""
+    if not arm_truth or not twin_truth:
+        return None
+    t_twin = np.asarray([r[0] for r in twin_truth])
+    rows = [(t, q) for t, q in arm_truth if t >= t_twin[0]]
+    if not rows:
+        return None
+    idx = np.searchsorted(t_twin, np.asarray([r[0] for r in rows]) + TIME_SLACK_S,
+                          side="right") - 1
+    arm_tcp = tcp_position(np.asarray([r[1] for r in rows]), geometry)
+    twin_tcp = tcp_position(np.asarray([twin_truth[i][1] for i in idx]), geometry)
+    d_mm = 1e3 * np.linalg.norm(arm_tcp - twin_tcp, axis=1)
+    return {"rms_mm": float(np.sqrt(np.mean(d_mm * d_mm))), "max_mm": float(d_mm.max()),
+            "samples": float(len(rows))}
 
 
 def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
@@ -288,12 +322,17 @@ def twin_check(data: CaptureData, settings: RobotSettings,
 
     limits = load_limits(config if config is not None else DEFAULT_CONFIG)
     parts = sessions(data, settings)
+    arm_truth = read_joint_states(data.path)
+    twin_truth: list[tuple[float, Vec4]] | None = [] if arm_truth else None
     twin: list[tuple[float, Vec4]] = []
     for part in parts:
-        twin.extend(run_virtual(replay_twin(part, settings)))
+        twin.extend(run_virtual(replay_twin(part, settings, twin_truth)))
     merged = CaptureData(data.path, [c for p in parts for c in p.commands],
                          [r for p in parts for r in p.replies], data.bad_in_frames)
     result = compare(merged, twin, settings, limits)
+    if twin_truth:
+        geometry = ArmEmulator(settings, emulator_settings(settings)).actual_settings
+        result = replace(result, tcp=tcp_divergence(arm_truth, twin_truth, geometry))
     count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *_tcp(result.tcp, limits)]

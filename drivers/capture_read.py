@@ -40,7 +40,7 @@ from armbench.drivers.capture import (
 from armbench.drivers.capture import capture_stopped as jsonl_stopped
 from armbench.drivers.capture_stats import TALLY_METADATA, TrafficTally
 from armbench.drivers.protocol import Command, Framer
-from armbench.drivers.ros2 import BENCH_EVENT, SCHEMAS
+from armbench.drivers.ros2 import BENCH_EVENT, JOINT_STATE, SCHEMAS
 
 __all__ = [
     "MCAP_MAGIC",
@@ -52,6 +52,7 @@ __all__ = [
     "iter_messages",
     "open_capture",
     "read_attachment",
+    "read_joint_states",
     "read_tally",
     "replay_capture",
 ]
@@ -269,6 +270,26 @@ def capture_stopped(path: str | Path) -> bool:
     decode = _event_decoder()
     return any(decode(msg.data).kind == "capture_stopped"
                for msg in iter_messages(p, ("/bench/events",)))
+
+
+def read_joint_states(path: str | Path,
+                      topic: str = "/joint_states/true") -> list[tuple[float, tuple[float, ...]]]:
+    """The (log time s, positions rad) of every ``sensor_msgs/msg/JointState`` on ``topic`` of an
+    MCAP capture (by default the truth beside the replies); empty for a JSON Lines capture, which
+    carries no truth."""
+    p = Path(path)
+    if not is_mcap(p):
+        return []
+    decode = _joint_state_decoder()
+    return [(msg.log_time_ns * 1e-9, tuple(float(v) for v in decode(msg.data).position))
+            for msg in iter_messages(p, (topic,))]
+
+
+@functools.cache
+def _joint_state_decoder() -> Callable[[bytes], Any]:
+    decoder: Callable[[bytes], Any] = generate_dynamic(JOINT_STATE, SCHEMAS[JOINT_STATE])[
+        JOINT_STATE]
+    return decoder
 
 
 @functools.cache

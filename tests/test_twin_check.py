@@ -176,3 +176,9 @@ def test_run_capture_in_sessions(tmp_path: Path) -> None:
     assert result.sessions >= 2
     assert result.verdict == "pass"
     assert max(result.rms_counts) < 3.0, result.rms_counts
+    # the MCAP capture carries the emulator's truth: the TCP divergence is measured, small for
+    # the same arm (what differs is the seeded stick-slip and play at rest: tenths of a mm)
+    assert result.tcp is not None and result.tcp["samples"] > 10, result.tcp
+    assert 0.0 < result.tcp["rms_mm"] < 1.0, result.tcp
+    names = {m.name for m in result.measurements}
+    assert {"twin.tcp.rms_mm", "twin.tcp.max_mm"} <= names, names
