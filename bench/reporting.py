@@ -31,6 +31,7 @@ def write_reports(record: RunRecord, out_dir: Path, *,
 
 
 def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:
+    from armbench.bench.capture_run import CLOSING_BYTES
     from armbench.drivers.capture_append import append_attachment
     from armbench.drivers.capture_read import capture_stopped, is_mcap
 
@@ -40,7 +41,7 @@ def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:
             return
         data = zstandard.compress(report.read_bytes(), 9)
         if capture_max_bytes is not None and (
-                capture.stat().st_size + len(data) + 4096 > capture_max_bytes
+                capture.stat().st_size + len(data) + CLOSING_BYTES > capture_max_bytes
                 or capture_stopped(capture)):
             log.warning("report.html not attached to %s: its size bound", capture)
             return
