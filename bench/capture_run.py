@@ -20,16 +20,16 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import zstandard
-
 from armbench.bench.record import RunRecord, Trial
-from armbench.bench.suites.base import PowerSwitch
+from armbench.bench.suites.base import PowerSwitch, ReReferencing
+from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, zstd_attachment
 from armbench.drivers.capture_mcap import McapCapture
 from armbench.drivers.capture_part import PartWriter
 from armbench.drivers.capture_read import iter_messages
 from armbench.drivers.settings import RobotSettings
 
-__all__ = ["CLOSING_BYTES", "LoggedPower", "RunCapture", "emulator_truth", "fault_events"]
+__all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
+           "emulator_truth", "fault_events", "logged_power"]
 
 #: Bytes kept for what closing a bounded capture writes (stop event, tally, summary).
 CLOSING_BYTES = 65_536
@@ -54,7 +54,28 @@ class LoggedPower:
         await self.inner.power_on()
 
     def __repr__(self) -> str:
-        return f"LoggedPower({self.inner!r})"
+        return f"{type(self).__name__}({self.inner!r})"
+
+
+class LoggedReReferencingPower(LoggedPower):
+    """A :class:`LoggedPower` around a switch that can re-reference the arm (the emulator's, the
+    firmware harness's): the capability stays (a wrapper without it made every stalled start-up
+    recovery unrescuable while a capture was written), logged as ``re_reference``."""
+
+    async def re_reference(self) -> None:
+        inner = self.inner
+        assert isinstance(inner, ReReferencing)  # logged_power chose this class for it
+        self._part.event(asyncio.get_running_loop().time(), "re_reference", self._suite,
+                         self._trial)
+        await inner.re_reference()
+
+
+def logged_power(inner: PowerSwitch, part: PartWriter, suite: str,
+                 trial: int) -> LoggedPower:
+    """``inner`` with its switching written to ``part``, its capabilities kept."""
+    if isinstance(inner, ReReferencing):
+        return LoggedReReferencingPower(inner, part, suite, trial)
+    return LoggedPower(inner, part, suite, trial)
 
 
 def emulator_truth(emulator: Any) -> Any:
@@ -180,10 +201,10 @@ class RunCapture:
         try:
             for name, path in attachments.items():
                 with contextlib.suppress(OSError):
-                    data = zstandard.compress(path.read_bytes(), 9)
+                    zst_name, data = zstd_attachment(name, path)
                     room = self._room()
                     if room is None or len(data) <= room:
-                        sink.attach(name + ".zst", data, "application/zstd")
+                        sink.attach(zst_name, data, ZSTD_MEDIA_TYPE)
         finally:
             sink.close()
             self._release()

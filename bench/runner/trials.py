@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
-from armbench.bench.capture_run import LoggedPower, emulator_truth, fault_events
+from armbench.bench.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.power import port_power
 from armbench.bench.record import (
     RESULTS_FILE,
@@ -245,8 +245,8 @@ class TrialAttempts:
             ctx = self.context(ps, conn.arm, conn.emulator, derive_seed(plan.seed, ps.name,
                                                                         index))
             if ctx.power is not None and conn.writer is not None:
-                ctx = dataclasses.replace(ctx, power=LoggedPower(ctx.power, conn.writer, ps.name,
-                                                                 index))
+                ctx = dataclasses.replace(ctx, power=logged_power(ctx.power, conn.writer, ps.name,
+                                                                  index))
             result = await ps.suite.run_trial(ctx, index, trial_params)
             if not isinstance(result, Trial):
                 raise TypeError(f"run_trial returned {type(result).__name__}, not a Trial")
