@@ -15,17 +15,20 @@ Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
 
 from __future__ import annotations
 
+import functools
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 from armbench.bench.record import (
     ComparisonRow,
     Measurement,
     RunRecord,
     SuiteRecord,
-    atomic_write_bytes,
 )
+from armbench.bench.record.files import atomic_write
 
 __all__ = ["to_junit", "write_junit"]
 
@@ -46,8 +49,8 @@ def _value(m: Measurement) -> str:
     return f"{m.value:g} {m.unit}".rstrip()
 
 
-def _measurement_case(parent: ET.Element, classname: str, m: Measurement) -> None:
-    case = ET.SubElement(parent, "testcase", classname=classname, name=_text(m.name), time="0")
+def _measurement_case(classname: str, m: Measurement) -> ET.Element:
+    case = ET.Element("testcase", classname=classname, name=_text(m.name), time="0")
     limit = "no limit" if m.limit is None else f"limit {m.limit.describe()}"
     if m.outcome == "fail":
         failure = ET.SubElement(case, "failure", type="limit",
@@ -60,15 +63,18 @@ def _measurement_case(parent: ET.Element, classname: str, m: Measurement) -> Non
     out = ET.SubElement(case, "system-out")
     out.text = _text(f"{m.name} = {_value(m)} ({m.outcome}; {limit})"
                      + (f"\n{m.description}" if m.description else ""))
+    return case
 
 
-def _error_case(parent: ET.Element, classname: str, name: str, kind: str, message: str) -> None:
-    case = ET.SubElement(parent, "testcase", classname=classname, name=name, time="0")
+def _error_case(classname: str, name: str, kind: str, message: str) -> ET.Element:
+    case = ET.Element("testcase", classname=classname, name=name, time="0")
     err = ET.SubElement(case, "error", type=kind, message=_text(message))
     err.text = _text(message)
+    return case
 
 
-def _suite_element(record: RunRecord, suite: SuiteRecord) -> ET.Element:
+def _suite_head(record: RunRecord, suite: SuiteRecord) -> ET.Element:
+    """The ``<testsuite>`` element of ``suite`` with its properties and time, no testcases."""
     el = ET.Element("testsuite", name=_text(suite.name))
     props = ET.SubElement(el, "properties")
     for key, value in (("run_id", record.run_id), ("suite_version", suite.version),
@@ -77,29 +83,33 @@ def _suite_element(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     disturbed = [str(t.index) for t in suite.trials if t.disturbed]
     if disturbed:  # measured while the link to the arm was lost at least once: kept, flagged
         ET.SubElement(props, "property", name="disturbed_trials", value=", ".join(disturbed))
-    base = f"armbench.{suite.name}"
-    for trial in suite.trials:
-        cls = f"{base}.trial{trial.index}"
-        if trial.status == "error":
-            _error_case(el, cls, "trial", "trial_error",
-                        f"trial {trial.index} could not be carried out: {trial.error}")
-        for m in trial.measurements:
-            _measurement_case(el, cls, m)
-    for m in suite.measurements:
-        _measurement_case(el, base, m)
-    if suite.status == "error":
-        _error_case(el, base, "suite", "suite_error", f"suite {suite.name} stopped: {suite.error}")
-    elif suite.status == "running":
-        _error_case(el, base, "suite", "incomplete",
-                    f"suite {suite.name} did not finish (the run was interrupted)")
     duration = 0.0 if suite.ended_s is None else suite.ended_s - suite.started_s
     el.set("time", _seconds(duration))
     return el
 
 
-def _row_case(parent: ET.Element, row: ComparisonRow) -> None:
-    case = ET.SubElement(parent, "testcase", classname="armbench.baseline", name=_text(row.name),
-                         time="0")
+def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
+    """The testcases of ``suite``, one at a time (a long run has hundreds of thousands)."""
+    base = f"armbench.{suite.name}"
+    for trial in suite.trials:
+        cls = f"{base}.trial{trial.index}"
+        if trial.status == "error":
+            yield _error_case(cls, "trial", "trial_error",
+                              f"trial {trial.index} could not be carried out: {trial.error}")
+        for m in trial.measurements:
+            yield _measurement_case(cls, m)
+    for m in suite.measurements:
+        yield _measurement_case(base, m)
+    if suite.status == "error":
+        yield _error_case(base, "suite", "suite_error",
+                          f"suite {suite.name} stopped: {suite.error}")
+    elif suite.status == "running":
+        yield _error_case(base, "suite", "incomplete",
+                          f"suite {suite.name} did not finish (the run was interrupted)")
+
+
+def _row_case(row: ComparisonRow) -> ET.Element:
+    case = ET.Element("testcase", classname="armbench.baseline", name=_text(row.name), time="0")
     unit = f" {row.unit}" if row.unit else ""
     if row.status == "compared":
         summary = (f"{row.name}: {row.value:g}{unit}, baseline {row.baseline:g}{unit}, change "
@@ -113,50 +123,101 @@ def _row_case(parent: ET.Element, row: ComparisonRow) -> None:
         failure.text = _text(summary)
     out = ET.SubElement(case, "system-out")
     out.text = _text(summary)
+    return case
 
 
-def _count(el: ET.Element) -> None:
-    """Set the ``tests``/``failures``/``errors``/``skipped`` attributes of a testsuite."""
-    cases = el.findall("testcase")
-    el.set("tests", str(len(cases)))
-    for tag, attr in (("failure", "failures"), ("error", "errors"), ("skipped", "skipped")):
-        el.set(attr, str(sum(1 for c in cases if c.find(tag) is not None)))
+def _baseline_head(record: RunRecord) -> ET.Element:
+    assert record.baseline is not None
+    el = ET.Element("testsuite", name="baseline", time=_seconds(0.0))
+    props = ET.SubElement(el, "properties")
+    ET.SubElement(props, "property", name="baseline_run_id",
+                  value=_text(record.baseline.baseline_run_id))
+    return el
 
 
-def to_junit(record: RunRecord) -> ET.Element:
-    """The ``<testsuites>`` element of ``record`` (see the module docstring for the layout)."""
-    root = ET.Element("testsuites", name=_text(f"armbench {record.run_id}"))
-    suites = [_suite_element(record, s) for s in record.suites.values()]
+#: A testsuite head and a function that yields its testcases.
+_Suite = tuple[ET.Element, Callable[[], Iterator[ET.Element]]]
+
+
+def _suites(record: RunRecord) -> Iterator[_Suite]:
+    """Each ``<testsuite>`` head of ``record`` with a function that yields its testcases afresh
+    (called once to count them, once to write them: nothing of a long run is held whole)."""
+    for suite in record.suites.values():
+        yield _suite_head(record, suite), functools.partial(_suite_cases, suite)
     for name in record.planned_suites:
         if name not in record.suites:
             el = ET.Element("testsuite", name=_text(name), time=_seconds(0.0))
-            _error_case(el, f"armbench.{name}", "suite", "incomplete",
-                        f"suite {name} was planned but never started")
-            suites.append(el)
-    if record.baseline is not None:
-        el = ET.Element("testsuite", name="baseline", time=_seconds(0.0))
-        props = ET.SubElement(el, "properties")
-        ET.SubElement(props, "property", name="baseline_run_id",
-                      value=_text(record.baseline.baseline_run_id))
-        for row in record.baseline.rows:
-            _row_case(el, row)
-        suites.append(el)
-    total = 0.0
-    for el in suites:
-        _count(el)
-        total += float(el.get("time", "0"))
-        root.append(el)
+            case = _error_case(f"armbench.{name}", "suite", "incomplete",
+                               f"suite {name} was planned but never started")
+            yield el, functools.partial(iter, (case,))
+    baseline = record.baseline
+    if baseline is not None:
+        yield _baseline_head(record), lambda: (_row_case(row) for row in baseline.rows)
+
+
+def _count(head: ET.Element, cases: Iterator[ET.Element]) -> None:
+    """Set the ``tests``/``failures``/``errors``/``skipped`` attributes of a testsuite head."""
+    counts = dict.fromkeys(("tests", "failures", "errors", "skipped"), 0)
+    for case in cases:
+        counts["tests"] += 1
+        for tag, attr in (("failure", "failures"), ("error", "errors"), ("skipped", "skipped")):
+            counts[attr] += case.find(tag) is not None
+    for attr, value in counts.items():
+        head.set(attr, str(value))
+
+
+def _counted(record: RunRecord) -> tuple[ET.Element, list[_Suite]]:
+    """The ``<testsuites>`` root (attributes only) and the counted suite heads of ``record``."""
+    root = ET.Element("testsuites", name=_text(f"armbench {record.run_id}"))
+    suites = list(_suites(record))
+    for head, cases in suites:
+        _count(head, cases())
     for attr in ("tests", "failures", "errors", "skipped"):
-        root.set(attr, str(sum(int(el.get(attr, "0")) for el in suites)))
-    root.set("time", _seconds(total))
+        root.set(attr, str(sum(int(head.get(attr, "0")) for head, _ in suites)))
+    root.set("time", _seconds(sum(float(head.get("time", "0")) for head, _ in suites)))
+    return root, suites
+
+
+def to_junit(record: RunRecord) -> ET.Element:
+    """The ``<testsuites>`` element of ``record`` as one tree (see the module docstring for the
+    layout); :func:`write_junit` writes the same document without building it whole."""
+    root, suites = _counted(record)
+    for head, cases in suites:
+        head.extend(cases())
+        root.append(head)
     return root
 
 
+def _open_tag(el: ET.Element) -> bytes:
+    """``<tag attr="...">`` of ``el``, without its children or end tag."""
+    whole: bytes = ET.tostring(ET.Element(el.tag, el.attrib), encoding="utf-8",
+                               short_empty_elements=False)
+    return whole[: whole.rindex(b"</")]
+
+
+def _indented(el: ET.Element, level: int) -> bytes:
+    """``el`` serialised on its own lines, indented as ``ET.indent`` would at depth ``level``."""
+    ET.indent(el, level=level)
+    text: bytes = ET.tostring(el, encoding="utf-8")
+    return b"  " * level + text + b"\n"
+
+
+def _stream(record: RunRecord, fh: BinaryIO) -> None:
+    root, suites = _counted(record)
+    fh.write(b"<?xml version='1.0' encoding='utf-8'?>\n" + _open_tag(root) + b"\n")
+    for head, cases in suites:
+        fh.write(b"  " + _open_tag(head) + b"\n")
+        for child in head:
+            fh.write(_indented(child, 2))
+        for case in cases():
+            fh.write(_indented(case, 2))
+        fh.write(b"  </testsuite>\n")
+    fh.write(b"</testsuites>\n")
+
+
 def write_junit(record: RunRecord, path: str | Path) -> Path:
-    """Write the JUnit XML of ``record`` to ``path`` atomically (UTF-8, with XML declaration);
-    returns the path."""
-    root = to_junit(record)
-    ET.indent(root)
-    data = ET.tostring(root, encoding="utf-8", xml_declaration=True) + b"\n"
-    atomic_write_bytes(path, data)
+    """Write the JUnit XML of ``record`` to ``path`` atomically (UTF-8, with XML declaration),
+    testcase by testcase, so its memory is one testcase's whatever the run's length; returns the
+    path."""
+    atomic_write(path, functools.partial(_stream, record))
     return Path(path)

@@ -136,3 +136,13 @@ def test_interrupted_suite_and_illegal_characters(tmp_path: Path) -> None:
     assert "bad \\x00\\x1b byte" in out
     path = write_junit(w.record, tmp_path / "junit.xml")
     assert ET.parse(path).getroot().get("errors") == "2"
+
+
+def test_streamed_file_is_the_tree_serialised(tmp_path: Path) -> None:
+    """write_junit writes testcase by testcase; the document is the one to_junit builds whole."""
+    for name in ("passing", "failing", "interrupted", "regressed"):
+        record = load_record(RECORDS / f"{name}.json")
+        tree = to_junit(record)
+        ET.indent(tree)
+        whole = ET.tostring(tree, encoding="utf-8", xml_declaration=True) + b"\n"
+        assert write_junit(record, tmp_path / f"{name}.xml").read_bytes() == whole, name
