@@ -10,12 +10,13 @@ from __future__ import annotations
 import json
 import math
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
+import zstandard
 
 __all__ = ["HEAD_LINES", "MAX_BINS", "TALLY_METADATA", "TEXT_LIMIT", "TrafficCounter",
            "TrafficLine", "TrafficTally", "nice_bin", "short_text", "tally"]
@@ -117,42 +118,114 @@ def _resyncs(kinds: KindArray) -> npt.NDArray[np.bool_]:
     return out
 
 
+@dataclass(frozen=True, slots=True)
+class _Binning:
+    """The bins of a tally over records from ``t0`` to ``t1`` (s)."""
+
+    t0: float
+    t1: float
+    bin_s: float
+    start: float
+    n_bins: int
+
+    @classmethod
+    def over(cls, t0: float, t1: float) -> _Binning:
+        bin_s = nice_bin(max(t1 - t0, 1e-3), MAX_BINS)
+        start = math.floor(t0 / bin_s) * bin_s
+        return cls(t0, t1, bin_s, start, max(1, math.floor((t1 - start) / bin_s) + 1))
+
+    def index(self, times_s: FloatArray) -> npt.NDArray[np.int64]:
+        """The bin of each time."""
+        return np.clip(((times_s - self.start) / self.bin_s).astype(np.int64), 0,
+                       self.n_bins - 1)
+
+    def count(self, idx: npt.NDArray[np.int64], mask: npt.NDArray[np.bool_]) -> FloatArray:
+        return np.bincount(idx[mask], minlength=self.n_bins).astype(np.float64)
+
+
+def _assemble(b: _Binning, totals: npt.NDArray[np.int64], per_bin: FloatArray, resyncs: int,
+              reasons: Counter[str], head: list[TrafficLine], first_errors: list[TrafficLine],
+              events: list[str]) -> TrafficTally:
+    """The tally of counts by kind (``totals``, 4) and per bin (``per_bin``, rows: in frames,
+    out frames, errors, resyncs)."""
+    return TrafficTally(
+        records=int(totals.sum()),
+        frames_in=int(totals[1]),
+        frames_out=int(totals[0]),
+        errors_in=int(totals[3]),
+        errors_out=int(totals[2]),
+        resyncs=resyncs,
+        duration_s=b.t1 - b.t0,
+        reasons=reasons.most_common(10),
+        bin_s=b.bin_s,
+        bin_start_s=b.start + b.bin_s * np.arange(b.n_bins, dtype=np.float64),
+        count_in=per_bin[0],
+        count_out=per_bin[1],
+        errors_per_bin=per_bin[2],
+        resyncs_per_bin=per_bin[3],
+        head=head,
+        first_errors=first_errors,
+        events=events,
+    )
+
+
+def _bin_counts(b: _Binning, times_s: FloatArray, kinds: KindArray,
+                resync: npt.NDArray[np.bool_] | None) -> FloatArray:
+    """Per bin: in frames, out frames, errors, resyncs (zeros without ``resync``)."""
+    idx = b.index(times_s)
+    out = np.zeros((4, b.n_bins), dtype=np.float64)
+    out[0] = b.count(idx, kinds == 1)
+    out[1] = b.count(idx, kinds == 0)
+    out[2] = b.count(idx, kinds >= 2)
+    if resync is not None:
+        out[3] = b.count(idx, resync)
+    return out
+
+
 def tally(times_s: FloatArray, kinds: KindArray, reasons: Counter[str],
           head: list[TrafficLine], first_errors: list[TrafficLine],
           events: list[str]) -> TrafficTally:
     """The tally of the records ``times_s``/``kinds`` (in the capture's order)."""
     resync = _resyncs(kinds)
     if len(times_s):
-        t0, t1 = float(times_s.min()), float(times_s.max())
+        b = _Binning.over(float(times_s.min()), float(times_s.max()))
     else:
-        t0 = t1 = 0.0
-    bin_s = nice_bin(max(t1 - t0, 1e-3), MAX_BINS)
-    start = math.floor(t0 / bin_s) * bin_s
-    n_bins = max(1, math.floor((t1 - start) / bin_s) + 1)
-    idx = np.clip(((times_s - start) / bin_s).astype(np.int64), 0, n_bins - 1)
+        b = _Binning.over(0.0, 0.0)
+    totals = np.bincount(kinds, minlength=4)[:4].astype(np.int64)
+    return _assemble(b, totals, _bin_counts(b, times_s, kinds, resync),
+                     int(np.count_nonzero(resync)), reasons, head, first_errors, events)
 
-    def per_bin(mask: npt.NDArray[np.bool_]) -> FloatArray:
-        return np.bincount(idx[mask], minlength=n_bins).astype(np.float64)
 
-    return TrafficTally(
-        records=len(times_s),
-        frames_in=int(np.count_nonzero(kinds == 1)),
-        frames_out=int(np.count_nonzero(kinds == 0)),
-        errors_in=int(np.count_nonzero(kinds == 3)),
-        errors_out=int(np.count_nonzero(kinds == 2)),
-        resyncs=int(np.count_nonzero(resync)),
-        duration_s=t1 - t0,
-        reasons=reasons.most_common(10),
-        bin_s=bin_s,
-        bin_start_s=start + bin_s * np.arange(n_bins, dtype=np.float64),
-        count_in=per_bin(kinds == 1),
-        count_out=per_bin(kinds == 0),
-        errors_per_bin=per_bin(kinds >= 2),
-        resyncs_per_bin=per_bin(resync),
-        head=head,
-        first_errors=first_errors,
-        events=events,
-    )
+@dataclass(frozen=True, slots=True)
+class _StoredBlock:
+    """A block of records as the counter keeps it: times as zstd-compressed differences (a
+    long run's 1.8 M records take 2 MB, not 16), kinds compressed, the extreme times."""
+
+    count: int
+    t_min: int
+    t_max: int
+    first_ns: int
+    deltas: bytes
+    kinds: bytes
+
+    @classmethod
+    def of(cls, t_ns: npt.NDArray[np.int64], kinds: KindArray) -> _StoredBlock:
+        if not len(t_ns):
+            return cls(0, 0, 0, 0, b"", b"")
+        return cls(len(t_ns), int(t_ns.min()), int(t_ns.max()), int(t_ns[0]),
+                   zstandard.compress(np.diff(t_ns).tobytes(), 1),
+                   zstandard.compress(np.ascontiguousarray(kinds, dtype=np.int8).tobytes(), 1))
+
+    def records(self) -> tuple[npt.NDArray[np.int64], KindArray]:
+        """The times (ns) and kinds, as they were added."""
+        if not self.count:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int8)
+        deltas = np.frombuffer(zstandard.decompress(self.deltas), dtype=np.int64)
+        t_ns = np.empty(self.count, dtype=np.int64)
+        t_ns[0] = self.first_ns
+        np.cumsum(deltas, out=t_ns[1:])
+        t_ns[1:] += self.first_ns
+        return t_ns, np.frombuffer(zstandard.decompress(self.kinds), dtype=np.int8)
 
 
 class TrafficCounter:
@@ -161,8 +234,8 @@ class TrafficCounter:
     added) without keeping more text than the excerpt needs."""
 
     def __init__(self) -> None:
-        self._times: list[npt.NDArray[np.int64]] = []
-        self._kinds: list[KindArray] = []
+        self._blocks: list[_StoredBlock] = []
+        self._errors = 0
         self._count = 0
         self._texts: list[tuple[int, int, int, str, str | None]] = []
         """Records that may be in the excerpt: (t ns, 1 host → arm else 0, index added, frame,
@@ -179,8 +252,8 @@ class TrafficCounter:
         index."""
         n = len(t_ns)
         kinds = (flags & 3).astype(np.int8)
-        self._times.append(np.asarray(t_ns, dtype=np.int64))
-        self._kinds.append(kinds)
+        self._blocks.append(_StoredBlock.of(np.asarray(t_ns, dtype=np.int64), kinds))
+        self._errors += int(np.count_nonzero(kinds >= 2))
         for reason in errors.values():
             self._reasons[short_text(reason)] += 1
         if not errors and n and int(t_ns[0]) > self._latest_head_ns:  # nothing for the excerpt
@@ -205,20 +278,69 @@ class TrafficCounter:
         return sorted({*texts[:2 * HEAD_LINES], *errors[:3 * HEAD_LINES]})
 
     def tally(self) -> TrafficTally:
-        """The tally of every record added."""
-        t_ns = np.concatenate(self._times) if self._times else np.zeros(0, dtype=np.int64)
-        kinds = np.concatenate(self._kinds) if self._kinds else np.zeros(0, dtype=np.int8)
-        order = np.lexsort((1 - (kinds & 1), t_ns))  # stable: the order added on ties
-        rank = np.empty(len(order), dtype=np.int64)
-        rank[order] = np.arange(1, len(order) + 1)
+        """The tally of every record added: counted block by block (a long run holds millions
+        of records); sorted into the readers' order only for the resynchronisations, which
+        need it, when there are errors, and never for the excerpt's line numbers."""
+        if self._errors:
+            return self._tally_sorted()
+        filled = [block for block in self._blocks if block.count]
+        b = _Binning.over(min(block.t_min for block in filled) / 1e9,
+                          max(block.t_max for block in filled) / 1e9) if filled \
+            else _Binning.over(0.0, 0.0)
+        totals = np.zeros(4, dtype=np.int64)
+        per_bin = np.zeros((4, b.n_bins), dtype=np.float64)
+        for t_ns, kinds in self._records():
+            totals += np.bincount(kinds, minlength=4)[:4]
+            per_bin += _bin_counts(b, t_ns / 1e9, kinds, None)
+        head, first_errors = self._excerpt(self._line_number)
+        return _assemble(b, totals, per_bin, 0, self._reasons, head, first_errors,
+                         list(self.events))
+
+    def _records(self) -> Iterator[tuple[npt.NDArray[np.int64], KindArray]]:
+        """Each block's times (ns) and kinds, in the order added."""
+        for block in self._blocks:
+            yield block.records()
+
+    def _line_number(self, t_ns: int, out_later: int, index: int) -> int:
+        """The line (from 1) of the record added as ``index`` in the readers' order: one more
+        than the records before it (earlier, or as early and arm → host first, or as early,
+        same direction and added before)."""
+        before, offset = 0, 0
+        for times, kinds in self._records():
+            later = 1 - (kinds & 1)
+            same = times == t_ns
+            before += int(np.count_nonzero(times < t_ns))
+            before += int(np.count_nonzero(same & (later < out_later)))
+            first = max(0, min(len(times), index - offset))
+            before += int(np.count_nonzero(same[:first] & (later[:first] == out_later)))
+            offset += len(times)
+        return before + 1
+
+    def _excerpt(self, line: Callable[[int, int, int], int]) -> tuple[list[TrafficLine],
+                                                                     list[TrafficLine]]:
+        """The excerpt's first lines and first errors, numbered by ``line``."""
         head: list[TrafficLine] = []
         first_errors: list[TrafficLine] = []
         for t, out_later, index, frame, error in self._excerpt_candidates():
-            line = TrafficLine(int(rank[index]), t / 1e9, "out" if out_later else "in",
-                               short_text(frame), None if error is None else short_text(error))
+            if len(head) >= HEAD_LINES and (error is None or len(first_errors) >= HEAD_LINES):
+                continue
+            row = TrafficLine(line(t, out_later, index), t / 1e9, "out" if out_later else "in",
+                              short_text(frame), None if error is None else short_text(error))
             if len(head) < HEAD_LINES:
-                head.append(line)
-            elif error is not None and len(first_errors) < HEAD_LINES:
-                first_errors.append(line)
+                head.append(row)
+            else:
+                first_errors.append(row)
+        return head, first_errors
+
+    def _tally_sorted(self) -> TrafficTally:
+        """The tally with every record in the readers' order (for the resynchronisations)."""
+        blocks = list(self._records())
+        t_ns = np.concatenate([t for t, _ in blocks]) if blocks else np.zeros(0, dtype=np.int64)
+        kinds = np.concatenate([k for _, k in blocks]) if blocks else np.zeros(0, dtype=np.int8)
+        del blocks
+        order = np.lexsort((1 - (kinds & 1), t_ns))  # stable: the order added on ties
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(1, len(order) + 1)
+        head, first_errors = self._excerpt(lambda _t, _o, index: int(rank[index]))
         return tally(t_ns[order] / 1e9, kinds[order], self._reasons, head, first_errors,
                      list(self.events))
