@@ -9,8 +9,6 @@ import html
 import logging
 from pathlib import Path
 
-import zstandard
-
 from armbench.bench.record import RunRecord, atomic_write_bytes, path_inside
 from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE
 from armbench.drivers.errors import ArmbenchError
@@ -32,20 +30,20 @@ def write_reports(record: RunRecord, out_dir: Path, *,
 
 def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:
     from armbench.bench.capture_run import CLOSING_BYTES
-    from armbench.drivers.capture_append import append_attachment
+    from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, append_attachment, zstd_attachment
     from armbench.drivers.capture_read import capture_stopped, is_mcap
 
     capture, report = out_dir / CAPTURE_FILE, out_dir / REPORT_FILE
     try:
         if not capture.exists() or not report.exists() or not is_mcap(capture):
             return
-        data = zstandard.compress(report.read_bytes(), 9)
+        name, data = zstd_attachment(REPORT_FILE, report)
         if capture_max_bytes is not None and (
                 capture.stat().st_size + len(data) + CLOSING_BYTES > capture_max_bytes
                 or capture_stopped(capture)):
             log.warning("report.html not attached to %s: its size bound", capture)
             return
-        append_attachment(capture, REPORT_FILE + ".zst", data, "application/zstd")
+        append_attachment(capture, name, data, ZSTD_MEDIA_TYPE)
     except (OSError, ArmbenchError) as exc:
         log.warning("report.html not attached to %s: %s", capture, exc)
 

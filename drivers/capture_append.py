@@ -7,11 +7,13 @@ which every reader opens up to its last complete record (as a killed run's)."""
 
 from __future__ import annotations
 
+import os
 import struct
 from collections import defaultdict
 from io import BytesIO
 from pathlib import Path
 
+import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
@@ -25,17 +27,35 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader
 
-__all__ = ["append_attachment"]
+__all__ = ["ZSTD_MEDIA_TYPE", "append_attachment", "zstd_attachment"]
+
+#: Media type of a file attached zstd-compressed (``<name>.zst``).
+ZSTD_MEDIA_TYPE = "application/zstd"
+#: zstd level of the run's attached files: level 9 makes ``results.json`` of a default run about
+#: a tenth of its size at a fraction of a second.
+_ZSTD_LEVEL = 9
 
 _MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
 _DATA_END_BYTES = 1 + 8 + 4
 
 
-def _summary(data: bytes, footer: Footer) -> list[McapRecord]:
-    """The summary section's records, summary offsets and footer left out (written anew)."""
-    reader = StreamReader(BytesIO(data[footer.summary_start:]), skip_magic=True)
+def _summary(summary: bytes) -> list[McapRecord]:
+    """The summary section's records (``summary``: the file from the footer's
+    ``summary_start``), summary offsets and footer left out (written anew)."""
+    reader = StreamReader(BytesIO(summary), skip_magic=True)
     return [r for r in reader.records if not isinstance(r, SummaryOffset | Footer)]
+
+
+def zstd_attachment(name: str, path: Path) -> tuple[str, bytes]:
+    """The attachment name (``name.zst``) and zstd-compressed bytes of the file at ``path``
+    (``OSError`` when it cannot be read). Compressed as it is read: a long run's
+    ``results.json`` (60 MB for 200 accuracy laps) is never in memory whole, only its tenth."""
+    out = BytesIO()
+    with path.open("rb") as fh:
+        zstandard.ZstdCompressor(level=_ZSTD_LEVEL).copy_stream(
+            fh, out, size=os.fstat(fh.fileno()).st_size)
+    return name + ".zst", out.getvalue()
 
 
 def append_attachment(path: Path, name: str, data: bytes, media_type: str,
@@ -43,18 +63,24 @@ def append_attachment(path: Path, name: str, data: bytes, media_type: str,
     """Attach ``data`` as ``name`` to the finished MCAP file at ``path``. False (the file left
     as it is) when the file has no summary to extend (a killed run's) or is not MCAP."""
     with path.open("r+b") as fh:
-        whole = fh.read()
-        if len(whole) < 2 * len(_MAGIC) + _FOOTER_BYTES + _DATA_END_BYTES \
-                or not whole.startswith(_MAGIC) or not whole.endswith(_MAGIC):
+        size = fh.seek(0, os.SEEK_END)
+        if size < 2 * len(_MAGIC) + _FOOTER_BYTES + _DATA_END_BYTES:
             return False
-        tail = whole[-len(_MAGIC) - _FOOTER_BYTES:-len(_MAGIC)]
-        if tail[0] != Opcode.FOOTER:
+        fh.seek(0)
+        head = fh.read(len(_MAGIC))
+        fh.seek(size - len(_MAGIC) - _FOOTER_BYTES)
+        tail = fh.read()
+        if head != _MAGIC or not tail.endswith(_MAGIC) or tail[0] != Opcode.FOOTER:
             return False
         footer = Footer(*struct.unpack_from("<QQI", tail, 9))
         data_end = footer.summary_start - _DATA_END_BYTES
-        if footer.summary_start == 0 or data_end <= 0 or whole[data_end] != Opcode.DATA_END:
+        if footer.summary_start == 0 or data_end <= 0:
             return False
-        summary = _summary(whole, footer)
+        fh.seek(data_end)  # only the summary is read: the messages before it stay on disk
+        rest = fh.read()
+        if not rest or rest[0] != Opcode.DATA_END:
+            return False
+        summary = _summary(rest[_DATA_END_BYTES:])
         out = RecordBuilder()
         attachment = Attachment(log_time_ns, log_time_ns, name, media_type, data)
         attachment.write(out)

@@ -388,3 +388,19 @@ def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
             assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
         with path.open("rb") as fh:
             assert sum(1 for _ in StreamReader(fh, validate_crcs=True).records) > 0
+
+
+def test_a_capture_without_summary_gets_no_attachment(run_dir: tuple[Path, _Emulators],
+                                                      tmp_path: Path) -> None:
+    """A killed run's capture (cut before its summary) or a file that is not MCAP is left as it
+    was: ``append_attachment`` reads only the file's head and tail and says False."""
+    from armbench.drivers.capture_append import append_attachment
+
+    out, _ = run_dir
+    whole = (out / "capture.mcap").read_bytes()
+    for name, data in (("cut", whole[: len(whole) // 2]), ("text", b"not an mcap file" * 8),
+                       ("empty", b"")):
+        path = tmp_path / f"{name}.mcap"
+        path.write_bytes(data)
+        assert not append_attachment(path, "x.zst", b"data", "application/zstd"), name
+        assert path.read_bytes() == data, name
