@@ -71,15 +71,44 @@ __all__ = [
 LEGEND_RUNS = 8
 
 
-def _run_label(i: int, text: str) -> str:
-    """The legend label of run ``i`` of a panel: its text for the first :data:`LEGEND_RUNS`."""
-    return safe_label(text) if i < LEGEND_RUNS else "_nolegend_"
-
-
 def _more_runs(ax: Axes, runs: int) -> None:
     """One legend entry for the runs beyond :data:`LEGEND_RUNS`, if any."""
     if runs > LEGEND_RUNS:
         ax.plot([], [], " ", label=f"and {runs - LEGEND_RUNS} more")
+
+
+@dataclass(frozen=True, slots=True)
+class _Stroke:
+    """How a family of run lines is drawn: a fixed line style (or each run's own), width, alpha."""
+
+    linewidth: float
+    linestyle: str | None = None
+    alpha: float = 1.0
+
+
+def _draw_runs(ax: Axes, lines: Sequence[tuple[str, FloatArray, FloatArray] | None],
+               stroke: _Stroke) -> None:
+    """Draw line ``i`` of ``lines`` (label, x, y; ``None`` draws nothing) in run ``i``'s colour
+    and line style. The first :data:`LEGEND_RUNS` are lines of their own with their labels; the
+    rest share one ``LineCollection`` per colour and style: a long run's hundreds of laps look the
+    same, without a Line2D each (most of such a report's memory)."""
+    grouped: dict[tuple[int, int], list[FloatArray]] = {}
+    for i, line in enumerate(lines):
+        if line is None or not len(line[1]):
+            continue
+        label, x, y = line
+        style = LINESTYLES[i % 4] if stroke.linestyle is None else stroke.linestyle
+        if i < LEGEND_RUNS:
+            ax.plot(x, y, color=COLOURS[i % len(COLOURS)], linestyle=style,
+                    linewidth=stroke.linewidth, alpha=stroke.alpha, label=safe_label(label))
+        else:
+            grouped.setdefault((i % len(COLOURS), i % 4), []).append(np.column_stack([x, y]))
+    for (colour, style_index), segments in grouped.items():
+        style = LINESTYLES[style_index] if stroke.linestyle is None else stroke.linestyle
+        ax.add_collection(LineCollection(segments, colors=COLOURS[colour], linestyles=style,
+                                         linewidths=stroke.linewidth, alpha=stroke.alpha))
+    if grouped:
+        ax.autoscale_view()
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,15 +140,14 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
                 closed = np.vstack([square_mm, square_mm[:1]])
                 ax.plot(closed[:, 1], closed[:, 2], color="black", linestyle="--",
                         linewidth=1.2, label="reference square")
-            for i, run in enumerate(panel.runs):
-                colour = COLOURS[i % len(COLOURS)]
-                rep = decimate(run.reported_mm)
-                ax.plot(rep[:, 1], rep[:, 2], color=colour, linestyle=LINESTYLES[i % 4],
-                        linewidth=1.0, label=_run_label(i, f"{run.label} reported"))
-                if run.true_mm is not None and len(run.true_mm):
-                    tru = decimate(run.true_mm)
-                    ax.plot(tru[:, 1], tru[:, 2], color=colour, linestyle=":", linewidth=0.8,
-                            alpha=0.8, label=_run_label(i, f"{run.label} true"))
+            reported = [decimate(run.reported_mm) for run in panel.runs]
+            _draw_runs(ax, [(f"{run.label} reported", rep[:, 1], rep[:, 2])
+                            for run, rep in zip(panel.runs, reported, strict=True)],
+                       _Stroke(linewidth=1.0))
+            true = [None if run.true_mm is None else decimate(run.true_mm) for run in panel.runs]
+            _draw_runs(ax, [None if tru is None else (f"{run.label} true", tru[:, 1], tru[:, 2])
+                            for run, tru in zip(panel.runs, true, strict=True)],
+                       _Stroke(linewidth=0.8, linestyle=":", alpha=0.8))
             _more_runs(ax, len(panel.runs))
             ax.set_title(safe_label(panel.title))
             ax.set_xlabel("y (mm)")
@@ -156,12 +184,9 @@ def error_over_time(panels: Sequence[ErrorPanel], paper_mm: float | None,
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False, sharey=True)[0]
         top = 0.0
         for ax, panel in zip(axes, panels, strict=False):
-            for i, run in enumerate(panel.runs):
-                t, y = envelope(run.t_s, run.error_mm)
-                if len(y):
-                    top = max(top, float(np.nanmax(y)))
-                ax.plot(t, y, color=COLOURS[i % len(COLOURS)], linestyle=LINESTYLES[i % 4],
-                        linewidth=0.8, label=_run_label(i, run.label))
+            drawn = [(run.label, *envelope(run.t_s, run.error_mm)) for run in panel.runs]
+            top = max([top, *(float(np.nanmax(y)) for _, _, y in drawn if len(y))])
+            _draw_runs(ax, drawn, _Stroke(linewidth=0.8))
             _more_runs(ax, len(panel.runs))
             if paper_mm is not None:
                 ax.axhline(paper_mm, color="#D55E00", linestyle="--", linewidth=1.3,

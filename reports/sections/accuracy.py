@@ -41,8 +41,9 @@ SUITE = ACCURACY.suite
 #: Points one figure draws over all its laps; a run of few laps draws each as before, a run of
 #: many draws each with fewer points (so memory and report size stay bounded) ...
 PLOT_POINTS = 24_000
-#: ... but never fewer than this per lap.
-MIN_LAP_POINTS = 100
+#: ... but never fewer than this per lap (ten per side of the square: its corners still read
+#: as corners; runs of up to 300 laps stay within PLOT_POINTS).
+MIN_LAP_POINTS = 40
 #: How each style is called on the page.
 STYLE_TITLES: Mapping[str, str] = {
     ACCURACY.paper: "paper-style (corners only, joint-interpolated)",
