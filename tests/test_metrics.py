@@ -143,6 +143,17 @@ def test_translation_moves_ap_and_leaves_rp(cmd: Point, offs: list[Point], shift
         pose_repeatability(pts).rp_mm, abs=1e-8)
 
 
+@settings(max_examples=60, deadline=None)
+@given(pos=point, n=st.integers(min_value=2, max_value=60))
+def test_one_position_attained_every_time_has_rp_exactly_zero(pos: Point, n: int) -> None:
+    """An arm that rests on the same encoder counts reports the same position each cycle: RP and
+    vAP are 0, not the rounding of a mean (2.2e-13 mm before)."""
+    pts = np.tile(np.array(pos), (n, 1))
+    assert pose_repeatability(pts).rp_mm == 0.0
+    assert multidirectional_variation([pts, pts[:2]]).vap_p_mm == 0.0
+    assert pose_accuracy(pts, pos).ap_p_mm == 0.0
+
+
 @settings(max_examples=30, deadline=None)
 @given(offs=offsets, angle=st.floats(min_value=-math.pi, max_value=math.pi))
 def test_rotation_leaves_app_and_rp(offs: list[Point], angle: float) -> None:

@@ -96,7 +96,9 @@ def test_each_suite_gets_its_own_section(runs: Path) -> None:
     rep = doc.by_id(REPEATABILITY.suite)
     assert rep is not None
     _filled(_table(rep, "speed"), ["pose cycles", "mean cycle time", "worst AP", "worst RP",
-                                   "RD (P2-P4)", "path AT"], "repeatability per speed")
+                                   "worst RP, true", "RD (P2-P4)", "path AT"],
+            "repeatability per speed")
+    assert "the true RP is the arm's repeatability" in rep.text()
     st = doc.by_id(STARTUP.suite)
     assert st is not None
     cuts = _table(st, "trial")

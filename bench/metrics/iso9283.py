@@ -223,7 +223,7 @@ def pose_accuracy(attained_m: ArrayLike, commanded_m: ArrayLike) -> PoseAccuracy
     commanded position ``(3,)`` (m): AP per axis and APp, in mm."""
     pts = as_points(attained_m, "attained_m")
     cmd = as_point(commanded_m, "commanded_m")
-    bary = pts.mean(axis=0)
+    bary = _barycentre(pts)
     ap = (bary - cmd) * MM_PER_M
     return PoseAccuracy(
         ap_x_mm=float(ap[0]),
@@ -235,6 +235,14 @@ def pose_accuracy(attained_m: ArrayLike, commanded_m: ArrayLike) -> PoseAccuracy
     )
 
 
+def _barycentre(pts: FloatArray) -> FloatArray:
+    """Mean of ``pts`` along axis 0, taken about the first row: exact when every row is the same
+    (an arm resting on the same encoder count gives RP 0, not 2e-13 mm of rounding)."""
+    first = pts[0]
+    out: FloatArray = first + (pts - first).mean(axis=0)
+    return out
+
+
 def _mean_and_std(v: FloatArray, axis: int = -1) -> tuple[FloatArray, FloatArray]:
     """Mean and sample standard deviation (n - 1) of ``v`` along ``axis``."""
     return v.mean(axis=axis), v.std(axis=axis, ddof=1)
@@ -244,7 +252,7 @@ def pose_repeatability(attained_m: ArrayLike) -> PoseRepeatability:
     """ISO 9283 §7.2.2 position repeatability RP (mm) of ``n >= 2`` attained positions ``(n, 3)``
     (m) of one commanded pose."""
     pts = as_points(attained_m, "attained_m", min_count=2)
-    dist = np.linalg.norm(pts - pts.mean(axis=0), axis=1) * MM_PER_M
+    dist = np.linalg.norm(pts - _barycentre(pts), axis=1) * MM_PER_M
     mean, s = _mean_and_std(dist)
     return PoseRepeatability(
         rp_mm=float(mean + 3.0 * s), l_mean_mm=float(mean), s_l_mm=float(s), n=len(pts)
@@ -260,7 +268,7 @@ def multidirectional_variation(
         raise MetricsInputError("attained_by_direction_m: needs at least 2 approach directions")
     bary = np.array(
         [
-            as_points(a, f"attained_by_direction_m[{k}]").mean(axis=0)
+            _barycentre(as_points(a, f"attained_by_direction_m[{k}]"))
             for k, a in enumerate(attained_by_direction_m)
         ]
     )
@@ -493,7 +501,7 @@ def path_characteristics(
             raise MetricsInputError(f"method: unknown {method!r}")
         paired.append(p)
     pts = np.stack(paired)  # (n, m, 3)
-    bary = pts.mean(axis=0)  # (m, 3)
+    bary = _barycentre(pts)  # (m, 3)
     accuracy = np.linalg.norm(bary - ref, axis=1) * MM_PER_M
     at_index = int(np.argmax(accuracy))
     rt_mm: float | None = None

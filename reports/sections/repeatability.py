@@ -63,6 +63,7 @@ class SpeedRow:
     cycle_time: str
     worst_ap: str
     worst_rp: str
+    worst_true_rp: str
     rd: str
     at: str
 
@@ -73,6 +74,7 @@ class RepeatabilityView:
     rows: list[RepRow]
     speed_rows: list[SpeedRow]
     cube: str
+    has_true: bool
 
 
 def _pose_key(name: str) -> tuple[int, str]:
@@ -170,8 +172,16 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         speed=f"{format_number(sp)} %", cycles=one(f"{R.at_speed(sp)}.{R.cycles}"),
         cycle_time=format_duration(sum(times[sp]) / len(times[sp])) if times.get(sp) else "-",
         worst_ap=worst(sp, R.ap), worst_rp=worst(sp, R.rp),
+        worst_true_rp=worst(sp, f"true_{R.rp}"),
         rd=one(f"{R.at_speed(sp)}.{R.rd}"), at=one(f"{R.path_prefix(sp)}.{R.at}"))
         for sp in speeds]
+    has_true = any(r.worst_true_rp != "-" for r in speed_rows)
+    if has_true:
+        notes.append("RP is computed twice: from the reported joints (encoder counts on the motor "
+                     "shafts, as the paper measured) and from the true position (a tracker, or "
+                     "the emulator's truth). A closed loop that rests on the same counts every "
+                     "cycle reports RP 0 while the links, past the gears' play and friction, "
+                     "scatter: the true RP is the arm's repeatability (docs/robot-model.md).")
     figures: list[FigureView] = []
     if poses:
         figures.append(_cube_figure(figs, corners, poses, commanded, points, speeds, label))
@@ -187,7 +197,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         key=SUITE, template="repeatability", title="Repeatability: ISO 9283 poses",
         suite=view, figures=figures, notes=notes,
         body=RepeatabilityView(speeds=[f"{format_number(s)} %" for s in speeds], rows=rows,
-                               speed_rows=speed_rows, cube=cube))
+                               speed_rows=speed_rows, cube=cube, has_true=has_true))
 
 
 def _cube_figure(figs: Figures, corners: FloatArray | None, poses: list[str],
