@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 from armbench.bench.record import (
     CAPTURE_FILE,
@@ -28,9 +29,9 @@ from armbench.bench.record import (
     RESULTS_FILE,
     RunRecord,
     SuiteRecord,
-    atomic_write_bytes,
     load_record,
 )
+from armbench.bench.record.files import atomic_write
 from armbench.bench.suites.contract import STARTUP
 from armbench.reports.environment import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
@@ -47,7 +48,7 @@ from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
 from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
 
-__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report",
+__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "report_chunks",
            "suite_sections"]
 
 SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
@@ -103,6 +104,13 @@ def build_report_html(record: RunRecord, *, capture: Path | None = None,
                       out_dir: Path | None = None, source: str = RESULTS_FILE) -> str:
     """The report page of ``record`` as HTML text. ``capture`` is a traffic capture to summarise
     (linked relative to ``out_dir``, where the page will be written)."""
+    return "".join(report_chunks(record, capture=capture, out_dir=out_dir, source=source))
+
+
+def report_chunks(record: RunRecord, *, capture: Path | None = None,
+                  out_dir: Path | None = None, source: str = RESULTS_FILE) -> Iterator[str]:
+    """The report page of ``record`` as pieces of HTML text in order (Jinja's ``generate``):
+    written as they come, a long run's page is never in memory whole, as text or as bytes."""
     figs = Figures()
     suites, sections, orphans = suite_sections(record, figs)
     traffic = None
@@ -113,7 +121,7 @@ def build_report_html(record: RunRecord, *, capture: Path | None = None,
         lead = figs.copy(traffic.figures[0])
     robot_s = sum(t.duration_s for s in record.suites.values() for t in s.trials)
     baseline = record.baseline
-    return jinja_environment().get_template("report.html.j2").render(
+    return jinja_environment().get_template("report.html.j2").generate(
         record=record,
         verdict=record.verdict,
         reasons=verdict_reasons(record),
@@ -162,7 +170,12 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
         for name in (CAPTURE_FILE, LEGACY_CAPTURE_FILE):  # capture.mcap, else an older run's
             if capture_path is None and (path.parent / name).is_file():
                 capture_path = path.parent / name
-    html = build_report_html(rec, capture=capture_path, out_dir=out.parent, source=source)
+    chunks = report_chunks(rec, capture=capture_path, out_dir=out.parent, source=source)
     out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out, html.encode("utf-8"))
+
+    def write(fh: BinaryIO) -> None:
+        for chunk in chunks:  # a template error leaves the earlier page as it was
+            fh.write(chunk.encode("utf-8"))
+
+    atomic_write(out, write)
     return out
