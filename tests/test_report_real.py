@@ -99,6 +99,13 @@ def test_each_suite_gets_its_own_section(runs: Path) -> None:
                                    "worst RP, true", "RD (P2-P4)", "path AT"],
             "repeatability per speed")
     assert "the true RP is the arm's repeatability" in rep.text()
+    per_pose = _table(rep, "pose")
+    assert per_pose[1][:3] == ["AP", "RP", "RP, true"]
+    poses = [r for r in per_pose[2:] if r and r[0].startswith("P")]
+    assert len(poses) == 5
+    for row in poses:  # pose, commanded, then AP / RP / RP true per speed
+        true_rp = row[4::3]
+        assert len(true_rp) == 3 and all(float(v) > 0.0 for v in true_rp), row
     st = doc.by_id(STARTUP.suite)
     assert st is not None
     cuts = _table(st, "trial")

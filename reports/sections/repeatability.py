@@ -45,6 +45,7 @@ class RepCell:
     ap_outcome: str
     rp: str
     rp_outcome: str
+    true_rp: str
     n: int
     computed: bool
 
@@ -132,6 +133,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
             pts = np.array(points.get((speed, pose), []), dtype=np.float64).reshape(-1, 3)
             ap_m = recorded.get(R.pose_metric(speed, pose, R.ap))
             rp_m = recorded.get(R.pose_metric(speed, pose, R.rp))
+            true_rp_m = recorded.get(R.pose_metric(speed, pose, f"true_{R.rp}"))
             ap = None if ap_m is None else ap_m.value
             rp = None if rp_m is None else rp_m.value
             computed = False
@@ -145,6 +147,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
                 ap_outcome="unjudged" if ap_m is None else ap_m.outcome,
                 rp=format_number(rp, unit="mm"),
                 rp_outcome="unjudged" if rp_m is None else rp_m.outcome,
+                true_rp="-" if true_rp_m is None else format_number(true_rp_m.value, unit="mm"),
                 n=len(pts), computed=computed))
             if len(pts):
                 dev = (pts - pts.mean(axis=0))[:, 1:] * 1000.0
