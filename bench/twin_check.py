@@ -45,7 +45,7 @@ from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.settings import actual_robot, emulator_settings
 
 __all__ = ["DEFAULT_CONFIG", "Aligned", "TwinCheck", "compare", "replay_twin", "sessions",
            "tcp_divergence", "twin_check"]
@@ -331,8 +331,8 @@ def twin_check(data: CaptureData, settings: RobotSettings,
                          [r for p in parts for r in p.replies], data.bad_in_frames)
     result = compare(merged, twin, settings, limits)
     if twin_truth:
-        geometry = ArmEmulator(settings, emulator_settings(settings)).actual_settings
-        result = replace(result, tcp=tcp_divergence(arm_truth, twin_truth, geometry))
+        result = replace(result, tcp=tcp_divergence(arm_truth, twin_truth,
+                                                     actual_robot(settings)))
     count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *_tcp(result.tcp, limits)]

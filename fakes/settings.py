@@ -18,7 +18,7 @@ from armbench.fakes.joint import CYCLE_S, PhysicalEffects
 from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
 
 __all__ = ["CYCLE_S", "PROFILES", "ArmPhysics", "EmulatorSettings", "PhysicalEffects",
-           "emulator_settings", "with_emulator_overrides"]
+           "actual_robot", "emulator_settings", "with_emulator_overrides"]
 
 @dataclass(frozen=True, slots=True)
 class EmulatorSettings:
@@ -70,6 +70,13 @@ class EmulatorSettings:
 
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
                            "profile": str}
+
+
+def actual_robot(robot: RobotSettings) -> RobotSettings:
+    """The robot model of the arm the emulator builds from ``robot`` with its default settings:
+    the actual DH lengths and joint offsets (the truth's), ``robot`` itself when ideal."""
+    physics = emulator_settings(robot).physics
+    return robot if physics is None else physics.actual_settings(robot)
 
 
 def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSettings:

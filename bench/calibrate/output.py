@@ -203,12 +203,11 @@ def _figures(result: CalibrationResult) -> list[tuple[str, Markup]]:
 
 def _kinematic_residuals_mm(result: CalibrationResult) -> list[float]:
     from armbench.drivers.kinematics import tcp_position
-    from armbench.fakes.settings import emulator_settings
+    from armbench.fakes.settings import actual_robot, emulator_settings
 
-    physics = emulator_settings(result.settings).physics
-    if physics is None:
+    if emulator_settings(result.settings).physics is None:
         return []
-    actual = physics.actual_settings(result.settings)
+    actual = actual_robot(result.settings)
     return [float(np.linalg.norm(tcp_position(h.true_rad, actual) - np.asarray(h.tcp_true_m)))
             * 1000.0 for h in result.observations.holds
             if h.true_rad is not None and h.tcp_true_m is not None]
