@@ -49,6 +49,7 @@ __all__ = [
     "capture_stopped",
     "decode_uart_frames",
     "is_mcap",
+    "iter_events",
     "iter_messages",
     "open_capture",
     "read_attachment",
@@ -267,9 +268,15 @@ def capture_stopped(path: str | Path) -> bool:
     p = Path(path)
     if not is_mcap(p):
         return jsonl_stopped(p)
+    return any(event.kind == "capture_stopped" for event in iter_events(p))
+
+
+def iter_events(path: str | Path) -> Iterator[Any]:
+    """The bench events (``armbench_msgs/msg/BenchEvent``: ``kind``, ``suite``, ``trial``,
+    ``detail``) on ``/bench/events`` of an MCAP capture, in file order, decoded."""
     decode = _event_decoder()
-    return any(decode(msg.data).kind == "capture_stopped"
-               for msg in iter_messages(p, ("/bench/events",)))
+    for msg in iter_messages(path, ("/bench/events",)):
+        yield decode(msg.data)
 
 
 def read_joint_states(path: str | Path,

@@ -13,7 +13,7 @@ from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import ReReferencing
 from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import _event_decoder, iter_messages
+from armbench.drivers.capture_read import iter_events
 
 CONFIG = """spec_version = "armbench-limits/1"
 
@@ -52,8 +52,6 @@ def test_a_stalled_recovery_is_rescued_with_the_capture_on(tmp_path: Path) -> No
     toward = next(t for t in trials if t.params["condition"] == "cw-toward-near")
     rescues = [s for s in toward.samples if s.get("event") == "rescue"]
     assert rescues and rescues[0]["done"], rescues
-    decode = _event_decoder()
-    kinds = [decode(m.data).kind for m in iter_messages(tmp_path / "run" / "capture.mcap",
-                                                         ("/bench/events",))]
+    kinds = [event.kind for event in iter_events(tmp_path / "run" / "capture.mcap")]
     assert "re_reference" in kinds
     assert outcome.out_dir == tmp_path / "run"
