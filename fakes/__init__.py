@@ -2,3 +2,7 @@
 
 Light on purpose: importing it imports none of its modules.
 """
+
+if __name__ != "armbench.fakes":  # the checkout's folder imported by its bare name: a second copy
+    raise ImportError(f"{__name__!r} installs as armbench.fakes: import it by that name")
+

@@ -11,6 +11,9 @@ from armbench.reports.format import CSP, VERDICT_MARKS, format_duration, format_
 from armbench.reports.index import INDEX_FILE, render_index
 from armbench.reports.page import build_report_html, render_report
 
+if __name__ != "armbench.reports":  # the checkout's folder imported by its bare name: a second copy
+    raise ImportError(f"{__name__!r} installs as armbench.reports: import it by that name")
+
 __all__ = [
     "CSP",
     "INDEX_FILE",

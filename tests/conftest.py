@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -12,27 +14,50 @@ import pytest
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
-BUILD_INPUTS = ("armbench", "bench", "drivers", "fakes", "reports", "pyproject.toml", "setup.py",
-                "README.md")
+BUILD_INPUTS = ("api", "bench", "drivers", "fakes", "reports", "firmware", "pyproject.toml",
+                "setup.py", "README.md")
 
 
-@pytest.fixture(scope="session")
-def armbench_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def build_wheel(work: Path, *, pure: bool) -> Path:
     """A wheel of this checkout built as ``pip install .`` builds it (mypyc compiling the hot
-    modules when a C compiler is at hand), from a copy so the checkout gets no build folders."""
-    work = tmp_path_factory.mktemp("wheel")
+    modules when a C compiler is at hand, unless ``pure``), from a copy so the checkout gets no
+    build folders."""
     copy = work / "src"
     copy.mkdir()
     for name in BUILD_INPUTS:
         source = ROOT / name
         if source.is_dir():
-            shutil.copytree(source, copy / name, symlinks=True,
+            shutil.copytree(source, copy / name,
                             ignore=shutil.ignore_patterns("__pycache__", "*.so"))
         else:
             shutil.copy2(source, copy / name)
+    env = {k: v for k, v in os.environ.items() if k != "ARMBENCH_PURE_PYTHON"}
+    if pure:
+        env["ARMBENCH_PURE_PYTHON"] = "1"
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
-                            "-w", str(work / "dist"), str(copy)],
+                            "-w", str(work / "dist"), str(copy)], env=env,
                            capture_output=True, text=True, timeout=900, check=False)
     assert built.returncode == 0, built.stdout[-3000:] + built.stderr[-3000:]
     (wheel,) = (work / "dist").glob("armbench-*.whl")
     return wheel
+
+
+def unpack(wheel: Path, tree: Path) -> Path:
+    """The installed tree of ``wheel``, as pip lays it out in site-packages."""
+    with zipfile.ZipFile(wheel) as z:
+        z.extractall(tree)
+    return tree
+
+
+@pytest.fixture(scope="session")
+def armbench_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The release wheel of this checkout (compiled when a C compiler is at hand)."""
+    return build_wheel(tmp_path_factory.mktemp("wheel"), pure=False)
+
+
+@pytest.fixture(scope="session")
+def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The plain-Python build of this checkout (``ARMBENCH_PURE_PYTHON=1``), unpacked as pip
+    installs it: what the compiled build is compared with."""
+    work = tmp_path_factory.mktemp("pure")
+    return unpack(build_wheel(work, pure=True), work / "installed")

@@ -1,6 +1,7 @@
-"""The release build: the hot modules compiled by mypyc (``armbench/hot_modules.py``) must behave
-exactly as their Python source. A wheel is built from a copy of this checkout, as ``pip install .``
-builds it, and the same emulated sessions run on it and on the source."""
+"""The release build: the hot modules compiled by mypyc (``api/hot_modules.py``) must behave
+exactly as their Python source. Two wheels are built from a copy of this checkout, as ``pip install
+.`` builds them (compiled, and with ``ARMBENCH_PURE_PYTHON=1``), and the same emulated sessions run
+on both."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import os
 import shutil
 import subprocess
 import sys
-import zipfile
 from pathlib import Path
 
 import pytest
+from conftest import unpack
 
 import armbench
 from armbench.hot_modules import HOT_MODULES, build_name
@@ -20,7 +21,6 @@ from armbench.hot_modules import HOT_MODULES, build_name
 HERE = Path(__file__).resolve().parent
 #: Where this process imports armbench from (the checkout, or an environment's site-packages).
 SRC = Path(armbench.__file__).resolve().parent.parent
-ROOT = HERE.parent
 
 
 def _env(path: Path) -> dict[str, str]:
@@ -44,10 +44,7 @@ def compiled_tree(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory
     """The installed tree of the wheel, as pip lays it out in site-packages."""
     if shutil.which(os.environ.get("CC", "cc")) is None:
         pytest.skip("no C compiler: a wheel build installs plain Python")
-    tree = tmp_path_factory.mktemp("installed")
-    with zipfile.ZipFile(armbench_wheel) as z:
-        z.extractall(tree)
-    return tree
+    return unpack(armbench_wheel, tmp_path_factory.mktemp("installed"))
 
 
 @pytest.mark.slow
@@ -63,11 +60,11 @@ def test_a_wheel_compiles_every_hot_module_and_nothing_else_is_installed(
 
 
 @pytest.mark.slow
-def test_the_compiled_build_behaves_as_the_source(compiled_tree: Path) -> None:
+def test_the_compiled_build_behaves_as_the_source(compiled_tree: Path, pure_tree: Path) -> None:
     """Three emulated sessions (driver moves, a power cut with start-up recovery, faults, physical
     effects, the bus fused and not, blocking receive) give the same states, replies, ground truth,
     counters and EEPROM in both builds, to the last bit."""
-    compiled, source = _run_trace(compiled_tree), _run_trace(ROOT)
+    compiled, source = _run_trace(compiled_tree), _run_trace(pure_tree)
     assert compiled.pop("build") == "compiled (mypyc)"
     assert source.pop("build") == "source"
     modules_c, modules_s = compiled.pop("modules"), source.pop("modules")

@@ -31,7 +31,6 @@ import asyncio
 import contextlib
 import itertools
 import math
-import os
 import random
 import select
 import statistics
@@ -39,7 +38,6 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 from smbus2 import i2c_msg
 
@@ -56,7 +54,6 @@ __all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty", "timer_laten
 
 #: Poses the realtime benchmark moves between at duty 99 (rad, within the default limits).
 POSES = ((0.5, 0.4, 0.6, 0.8), (-0.5, -0.3, -0.6, -0.2))
-_ROOT = Path(__file__).resolve().parents[2]
 
 
 def loop_period_s(emulator: EmulatorSettings, slaves: int = 3) -> float:
@@ -135,10 +132,8 @@ def _percentile(values: list[float], q: float) -> float:
 @contextlib.contextmanager
 def serve_pty(timeout_s: float = 15.0) -> Iterator[str]:
     """``armbench emulate --pty`` in a subprocess; yields the pty device it printed."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_ROOT), env.get("PYTHONPATH")) if p)
     proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
         ready, _, _ = select.select([proc.stdout], [], [], timeout_s)

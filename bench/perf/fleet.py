@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import subprocess
 import sys
 import tempfile
@@ -30,7 +29,6 @@ __all__ = ["ARMS", "capture_reply_rate", "run"]
 
 #: Arms of the fleet figure, each with an emulator process of its own.
 ARMS = 8
-_ROOT = Path(__file__).resolve().parents[2]
 
 
 def capture_reply_rate(capture: Path) -> float:
@@ -47,15 +45,13 @@ def _fleet_rates(arms: int, laps: int, folder: Path) -> dict[str, float]:
     config = folder / "fleet.toml"
     config.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
                       + f"\n[suites.accuracy]\nlaps = {laps}\n", encoding="utf-8")
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(_ROOT), env.get("PYTHONPATH")) if p)
     names = [f"arm{k}" for k in range(arms)]
     with contextlib.ExitStack() as stack:
         ports = [f"{n}={stack.enter_context(serve_pty())}" for n in names]
         done = subprocess.run(
             [sys.executable, "-m", "armbench", "run", "accuracy", "--config", str(config),
              "--out", str(folder / "run"), *(x for p in ports for x in ("--port", p))],
-            env=env, capture_output=True, text=True, timeout=900, check=False)
+            capture_output=True, text=True, timeout=900, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"armbench run over {arms} arms exited {done.returncode}: "
                            f"{done.stdout[-2000:]}{done.stderr[-2000:]}")
