@@ -21,13 +21,10 @@ import math
 from collections.abc import Callable, Generator
 from ctypes import create_string_buffer
 
-from smbus2 import i2c_msg
-
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
 from armbench.fakes.eeprom import Eeprom, RecordWrites
 from armbench.fakes.i2c import (
-    I2C_M_RD,
     REG_POSITION,
     REG_REFERENCE,
     REG_STATUS,
@@ -35,6 +32,7 @@ from armbench.fakes.i2c import (
     BusClock,
     I2CBus,
 )
+from armbench.fakes.i2c_messages import I2C_M_RD, I2CMessage
 from armbench.fakes.joint import CYCLE_S, JointModel
 from armbench.fakes.physics import Mechanism, TruthSample
 from armbench.fakes.settings import EmulatorSettings
@@ -452,14 +450,14 @@ class MasterBoard(Board):
         assert writes is not None
         writes.pay(clock.now)  # the start-up recovery's records, written in setup()
         overhead_s = settings.loop_overhead_s
-        # smbus2 messages over buffers of our own (as i2c_msg.write/read build them), read and
+        # messages over buffers of our own (as I2CMessage.write/read build them), read and
         # filled through memoryviews: cheaper than ctypes item access on msg.buf
         ref_bufs = [create_string_buffer(bytes((REG_REFERENCE, 0, 0, 0)), 4) for _ in slaves]
-        ref_msgs = [i2c_msg(addr=s.address, flags=0, len=4, buf=b)
+        ref_msgs = [I2CMessage(addr=s.address, flags=0, len=4, buf=b)
                     for s, b in zip(slaves, ref_bufs, strict=True)]
         ref_views = [memoryview(b).cast("B") for b in ref_bufs]
         pos_bufs = [create_string_buffer(2) for _ in slaves]
-        pos_msgs = [i2c_msg(addr=s.address, flags=I2C_M_RD, len=2, buf=b)
+        pos_msgs = [I2CMessage(addr=s.address, flags=I2C_M_RD, len=2, buf=b)
                     for s, b in zip(slaves, pos_bufs, strict=True)]
         pos_views = [memoryview(b).cast("B") for b in pos_bufs]
         positions = [0] * len(slaves)

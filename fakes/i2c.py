@@ -1,11 +1,12 @@
 """A simulated I²C bus with smbus2's call shape, and the register layout the boards share.
 
-The master calls ``bus.i2c_rdwr(*msgs)`` with ``smbus2.i2c_msg`` objects exactly as it would on a
-real ``smbus2.SMBus``: the call is synchronous, fills read buffers, and raises ``OSError`` with
-``EREMOTEIO`` when a slave does not acknowledge its address (what Linux i2c-dev reports) or ``EIO``
-on a bus error. Time is the bus's ``clock``: each transaction advances it by what the bus speed
-implies (start, 9 bits per byte with the acknowledge, stop, repeated starts), so the master's loop
-takes as long as it would on the wire without an ``await`` per transaction.
+The master calls ``bus.i2c_rdwr(*msgs)`` with messages of ``smbus2.i2c_msg``'s layout
+(:mod:`armbench.fakes.i2c_messages`) exactly as it would on a real ``smbus2.SMBus``: the call is
+synchronous, fills read buffers, and raises ``OSError`` with ``EREMOTEIO`` when a slave does not
+acknowledge its address (what Linux i2c-dev reports) or ``EIO`` on a bus error. Time is the bus's
+``clock``: each transaction advances it by what the bus speed implies (start, 9 bits per byte with
+the acknowledge, stop, repeated starts), so the master's loop takes as long as it would on the
+wire without an ``await`` per transaction.
 
 Register layout (``docs/i2c.md``; the paper gives none). Little-endian, one pointer per slave:
 
@@ -31,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
-from smbus2 import i2c_msg
+from armbench.fakes.i2c_messages import I2C_M_RD, I2CMessage
 
 __all__ = [
     "I2C_M_RD",
@@ -46,7 +47,6 @@ __all__ = [
     "transaction_bits",
 ]
 
-I2C_M_RD = 0x0001
 REG_REFERENCE = 0x01
 REG_POSITION = 0x02
 REG_STATUS = 0x03
@@ -83,7 +83,7 @@ class I2CStats:
     bus_errors: int = 0
 
 
-def transaction_bits(msgs: tuple[i2c_msg, ...]) -> int:
+def transaction_bits(msgs: tuple[I2CMessage, ...]) -> int:
     """Bit times of one combined transaction: START, then per message the address byte and data
     bytes (9 bits each with ACK), a repeated START between messages, and a STOP."""
     bits = 1
@@ -118,13 +118,13 @@ class I2CBus:
         found = []
         for address in range(0x08, 0x78):
             try:
-                self.i2c_rdwr(i2c_msg.write(address, b""))
+                self.i2c_rdwr(I2CMessage.write(address, b""))
             except OSError:
                 continue
             found.append(address)
         return found
 
-    def i2c_rdwr(self, *msgs: i2c_msg) -> None:
+    def i2c_rdwr(self, *msgs: I2CMessage) -> None:
         """Run a combined transaction, as ``smbus2.SMBus.i2c_rdwr`` does."""
         bit_s = self.bit_s
         clock = self.clock

@@ -18,13 +18,13 @@ from typing import Any
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from smbus2 import i2c_msg
 
 from armbench.drivers.protocol import Command, FrameError, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator, ArmStats
 from armbench.fakes.faults import Fault, parse_faults
 from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
+from armbench.fakes.i2c_messages import I2CMessage
 from armbench.fakes.settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
 
@@ -89,10 +89,8 @@ def loop_period_s(robot: RobotSettings = ROBOT, i2c_hz: int = 100_000) -> float:
 
 
 def test_bus_timing_matches_transaction_bits() -> None:
-    from smbus2 import i2c_msg
-
-    assert transaction_bits((i2c_msg.write(0x10, b"1234"),)) == 1 + 9 * 5 + 1
-    assert transaction_bits((i2c_msg.read(0x10, 2),)) == 1 + 9 * 3 + 1
+    assert transaction_bits((I2CMessage.write(0x10, b"1234"),)) == 1 + 9 * 5 + 1
+    assert transaction_bits((I2CMessage.read(0x10, 2),)) == 1 + 9 * 3 + 1
 
 
 def test_polling_firmware_replies_every_loop_at_the_bus_rate() -> None:
@@ -546,9 +544,9 @@ def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
                 arm.set_stalled(j, stalled[j - 1])
             else:  # a second master points a slave at STATUS, later reads where it points
                 address = arm.slave_address(rng.randint(2, 4))
-                read = i2c_msg.read(address, 2)
+                read = I2CMessage.read(address, 2)
                 try:
-                    arm.bus.i2c_rdwr(i2c_msg.write(address, [REG_STATUS]))
+                    arm.bus.i2c_rdwr(I2CMessage.write(address, [REG_STATUS]))
                     await asyncio.sleep(rng.uniform(0.0, 0.05))
                     arm.bus.i2c_rdwr(read)
                 except OSError:
@@ -569,7 +567,7 @@ def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
 
     rdwr = I2CBus.i2c_rdwr
 
-    def counted(bus: I2CBus, *msgs: i2c_msg) -> None:
+    def counted(bus: I2CBus, *msgs: I2CMessage) -> None:
         calls[0] += 1
         rdwr(bus, *msgs)
 

@@ -20,12 +20,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from smbus2 import i2c_msg
-
 from armbench.bench.commands.monitor import run_on_port
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import open_transport, scheme_of
+from armbench.fakes.i2c_messages import I2CMessage
 
 __all__ = ["REG_WHO_AM_I", "ScanResult", "register", "scan_bus"]
 
@@ -39,6 +38,14 @@ class I2CBusLike(Protocol):
     """What the scan needs of a bus: smbus2's combined transaction."""
 
     def i2c_rdwr(self, *msgs: Any) -> None: ...
+
+
+class MessageType(Protocol):
+    """The bus's message class: smbus2's ``i2c_msg`` on a real bus, or the emulator's."""
+
+    def read(self, address: int, length: int) -> Any: ...
+
+    def write(self, address: int, data: list[int]) -> Any: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,10 +77,11 @@ class ScanResult:
         return out
 
 
-def read_who_am_i(bus: I2CBusLike, address: int) -> int | None:
+def read_who_am_i(bus: I2CBusLike, address: int,
+                  messages: MessageType = I2CMessage) -> int | None:
     """Register 0x04 of ``address`` (write the pointer, read one byte), None on a bus error."""
-    write = i2c_msg.write(address, [REG_WHO_AM_I])
-    read = i2c_msg.read(address, 1)
+    write = messages.write(address, [REG_WHO_AM_I])
+    read = messages.read(address, 1)
     try:
         bus.i2c_rdwr(write, read)
     except OSError:
@@ -81,10 +89,12 @@ def read_who_am_i(bus: I2CBusLike, address: int) -> int | None:
     return int(next(iter(read)))
 
 
-def scan_bus(bus: I2CBusLike, probe: Callable[[int], bool]) -> ScanResult:
-    """Probe every address with ``probe`` and read WHO_AM_I from those that answer."""
+def scan_bus(bus: I2CBusLike, probe: Callable[[int], bool],
+             messages: MessageType = I2CMessage) -> ScanResult:
+    """Probe every address with ``probe`` and read WHO_AM_I from those that answer, with
+    ``messages`` of the bus's own class."""
     found = tuple(a for a in ADDRESSES if probe(a))
-    return ScanResult(found, {a: read_who_am_i(bus, a) for a in found})
+    return ScanResult(found, {a: read_who_am_i(bus, a, messages) for a in found})
 
 
 def register(sub: Any) -> None:
@@ -164,7 +174,7 @@ def _scan_linux(number: int) -> ScanResult:
         raise ArmbenchError(f"i2c scan: {device} does not exist (no such bus, or the i2c-dev "
                             "module is not loaded: 'modprobe i2c-dev'; 'i2cdetect -l' lists the "
                             "buses)")
-    from smbus2 import SMBus
+    from smbus2 import SMBus, i2c_msg  # fcntl inside: Linux only, and only here
 
     try:
         bus = SMBus(number)
@@ -178,7 +188,7 @@ def _scan_linux(number: int) -> ScanResult:
                 return False
             return True
 
-        return scan_bus(bus, probe)
+        return scan_bus(bus, probe, i2c_msg)
     finally:
         bus.close()
 

@@ -39,13 +39,12 @@ import sys
 import time
 from collections.abc import Iterator
 
-from smbus2 import i2c_msg
-
 from armbench.bench.perf import Figure, PerfOptions
 from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import REPLY_LEN, Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.fakes.i2c import transaction_bits
+from armbench.fakes.i2c_messages import I2CMessage
 from armbench.fakes.settings import EmulatorSettings, emulator_settings
 from armbench.fakes.transport import FakeTransport
 from armbench.fakes.vclock import run_virtual
@@ -59,8 +58,8 @@ POSES = ((0.5, 0.4, 0.6, 0.8), (-0.5, -0.3, -0.6, -0.2))
 def loop_period_s(emulator: EmulatorSettings, slaves: int = 3) -> float:
     """The emulated master's loop period: per slave one 4-byte reference write and one 2-byte
     position read on the I²C bus, plus the loop's CPU overhead."""
-    write = transaction_bits((i2c_msg.write(0x10, b"\x01\x00\x00\x00"),))
-    read = transaction_bits((i2c_msg.read(0x10, 2),))
+    write = transaction_bits((I2CMessage.write(0x10, b"\x01\x00\x00\x00"),))
+    read = transaction_bits((I2CMessage.read(0x10, 2),))
     return slaves * (write + read) * emulator.i2c_bit_s + emulator.loop_overhead_s
 
 

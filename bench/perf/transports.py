@@ -24,7 +24,6 @@ import os
 import subprocess
 import sys
 import time
-import tty
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -69,7 +68,9 @@ class RoundTripRate:
 @contextlib.contextmanager
 def echo_pty() -> Iterator[str]:
     """A pty whose master is served by an echo peer process: every 37 bytes written to the slave
-    are answered with one 25-byte reply. Yields the slave's path."""
+    are answered with one 25-byte reply. Yields the slave's path (POSIX only)."""
+    import tty  # POSIX: imported by the figure that needs a pty
+
     master, slave = os.openpty()
     tty.setraw(slave)
     proc = subprocess.Popen(

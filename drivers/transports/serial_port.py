@@ -15,9 +15,6 @@ import asyncio
 import contextlib
 from typing import Any
 
-import serial
-import serial_asyncio_fast
-
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.transports.streams import StreamTransport
 
@@ -26,22 +23,27 @@ __all__ = ["OPEN_TIMEOUT_S", "SerialTransport", "pyserial_settings"]
 OPEN_TIMEOUT_S = 5.0
 """Seconds :meth:`SerialTransport.open` waits for the device to open (USB adapters can be slow)."""
 
-_OPEN_ERRORS: tuple[type[Exception], ...] = (OSError, ValueError)
-with contextlib.suppress(ImportError):  # POSIX: pyserial lets termios.error out of open()
-    import termios
 
-    _OPEN_ERRORS += (termios.error,)
 
-_STOPBITS = {1: serial.STOPBITS_ONE, 1.5: serial.STOPBITS_ONE_POINT_FIVE, 2: serial.STOPBITS_TWO}
+def _open_errors() -> tuple[type[Exception], ...]:
+    """What opening a port may raise: pyserial lets ``termios.error`` out of ``open()`` on POSIX
+    (imported here, not at start: the module loads on every system)."""
+    errors: tuple[type[Exception], ...] = (OSError, ValueError)
+    with contextlib.suppress(ImportError):
+        import termios
+
+        errors += (termios.error,)
+    return errors
 
 
 def pyserial_settings(settings: SerialSettings) -> dict[str, Any]:
-    """The ``serial.Serial`` keyword arguments of ``settings`` (baudrate in bit/s)."""
+    """The ``serial.Serial`` keyword arguments of ``settings`` (baudrate in bit/s). pyserial's
+    stop-bit constants are the numbers 1, 1.5 and 2 themselves."""
     return {
         "baudrate": settings.baudrate,
         "bytesize": settings.bytesize,
         "parity": settings.parity,
-        "stopbits": _STOPBITS.get(settings.stopbits, settings.stopbits),
+        "stopbits": settings.stopbits,
     }
 
 
@@ -59,6 +61,10 @@ class SerialTransport(StreamTransport):
         """Seconds :meth:`open` waits for the device."""
 
     async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        # pyserial picks its platform's backend when imported: on POSIX that imports fcntl and
+        # termios, so it is imported when a port opens, not when the module loads
+        import serial_asyncio_fast
+
         try:
             async with asyncio.timeout(self.open_timeout_s):
                 return await serial_asyncio_fast.open_serial_connection(
@@ -66,7 +72,7 @@ class SerialTransport(StreamTransport):
                     **pyserial_settings(self.serial))
         except TimeoutError:
             raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
-        except _OPEN_ERRORS as exc:  # serial.SerialException is an OSError
+        except _open_errors() as exc:  # serial.SerialException is an OSError
             raise self._error(f"cannot open: {exc}") from exc
 
     def _loss(self, exc: OSError) -> str:
