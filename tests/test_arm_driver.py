@@ -754,13 +754,6 @@ def test_cli_i2c_scan(capsys: pytest.CaptureFixture[str]) -> None:
         _cli(i2c_cmd, ["i2c", "scan", "--port", "/dev/ttyUSB0"])
 
 
-_MAIN = """
-import sys
-from armbench.bench import cli
-if "armbench.bench.commands.move" not in cli.COMMAND_MODULES:
-    cli.COMMAND_MODULES += ("armbench.bench.commands.move",)
-sys.exit(cli.main(sys.argv[1:]))
-"""
 
 
 def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
@@ -771,7 +764,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
         async with Arm.connect(pty_emulator.port) as arm:
             await home(arm)
         proc = await within(asyncio.create_subprocess_exec(
-            sys.executable, "-c", _MAIN, "-v", "move", "--port", pty_emulator.port,
+            sys.executable, "-m", "armbench", "-v", "move", "--port", pty_emulator.port,
             *(str(q) for q in far), cwd=ROOT, stderr=subprocess.PIPE), 10.0)
         assert proc.stderr is not None
         err = b""

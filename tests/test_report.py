@@ -544,15 +544,6 @@ def test_index_of_an_empty_directory(tmp_path: Path) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-@pytest.fixture()
-def commands(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``report`` and ``compare`` registered (whether or not armbench.bench.cli lists them yet)."""
-    modules = (*cli.COMMAND_MODULES, "armbench.bench.commands.report",
-               "armbench.bench.commands.compare")
-    monkeypatch.setattr(cli, "COMMAND_MODULES", tuple(dict.fromkeys(modules)))
-
-
-@pytest.mark.usefixtures("commands")
 def test_report_command(runs_dir: Path, capsys: pytest.CaptureFixture[str]) -> None:
     # the interrupted run (c) has the fewest plots: cheap to render twice
     assert cli.main(["report", str(runs_dir / "c" / "results.json"), "--index",
@@ -573,7 +564,6 @@ def test_report_command(runs_dir: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert cli.main(["report", "--index", str(runs_dir / "nope")]) == 2
 
 
-@pytest.mark.usefixtures("commands")
 def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     passing, regressed = str(RECORDS / "passing.json"), str(RECORDS / "regressed.json")
     limits = str(RECORDS.parent / "bench.toml")

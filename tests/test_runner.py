@@ -427,7 +427,6 @@ def test_validation_errors_stop_the_run_before_the_arm_moves(tmp_path: Path) -> 
 def test_cli_validation_error_is_one_line_and_status_2(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
-    _register_cli(monkeypatch)
     status = armbench.bench.cli.main(["run", "tiny", "--config", str(write_config(tmp_path)),
                              "--out", str(tmp_path / "r"), "--port", "warp://x"])
     assert status == 2
@@ -513,7 +512,6 @@ def test_resume_refuses_changed_inputs(tmp_path: Path) -> None:
 def test_ctrl_c_exits_130_and_resume_completes(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    _register_cli(monkeypatch)
     out = tmp_path / "r"
     TinySuite.interrupt_at = 2
     args = ["run", "tiny", "--config", str(write_config(tmp_path)), "--out", str(out),
@@ -539,7 +537,6 @@ def test_ctrl_c_exits_130_and_resume_completes(
 def test_regression_gate_fails_on_an_injected_fault(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
-    _register_cli(monkeypatch)
     config = str(write_config(tmp_path))
     clean = tmp_path / "clean"
     assert armbench.bench.cli.main(["run", "tiny", "--config", config,
@@ -838,13 +835,6 @@ def test_progress_printer_rewrites_its_line_on_a_terminal() -> None:
 
 
 # --------------------------------------------------------------------------------------------
-
-
-def _register_cli(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Make ``armbench run`` available even before the lead registers it in armbench.bench.cli."""
-    if "armbench.bench.commands.run" not in armbench.bench.cli.COMMAND_MODULES:
-        monkeypatch.setattr(armbench.bench.cli, "COMMAND_MODULES",
-                            (*armbench.bench.cli.COMMAND_MODULES, "armbench.bench.commands.run"))
 
 
 def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:

@@ -27,7 +27,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``calibrate`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "calibrate", help="fit the robot model of an arm (settings with uncertainties)",
+        "calibrate",
         description="Identify the arm's parameters (gear play, stick-slip, Hall positions, "
                     "stiffness, pull-out torque, DH errors, reply timing) from moves on PORT or "
                     "from a capture, and write a settings file with each fitted value's "

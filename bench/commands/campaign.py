@@ -29,8 +29,7 @@ __all__ = ["register", "write_campaign_page"]
 def register(sub: Any) -> None:
     """Add the ``campaign`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "campaign", help="many trials of one suite over drawn conditions (Monte Carlo on the "
-                         "emulator)",
+        "campaign",
         description="Run SUITE --samples times on the emulator, each sample over drawn "
                     "conditions: the arm's fitted settings drawn from their uncertainties "
                     "(--settings, a calibration's output), and for startup-recovery the state "

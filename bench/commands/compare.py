@@ -26,7 +26,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``compare`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "compare", help="compare run B with baseline run A, metric by metric",
+        "compare",
         description="Compare the suite-level measurements of run B with those of baseline run "
                     "A. Exit status 1 on a regression beyond tolerance, 0 otherwise, 2 on bad "
                     "input.")

@@ -29,7 +29,7 @@ log = logging.getLogger("armbench.emulator")
 def register(sub: Any) -> None:
     """Add the ``emulate`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "emulate", help="serve the emulated arm on a pty or TCP port",
+        "emulate",
         description="Run the firmware emulator in real time and serve it as the robot: on a "
                     "pseudo-terminal (any serial program can open it) or on a TCP port.")
     where = p.add_mutually_exclusive_group(required=True)

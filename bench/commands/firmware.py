@@ -14,7 +14,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``firmware`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "firmware", help="build the firmware in the loop (AVR images and simavr harness)",
+        "firmware",
         description="Build the paper's firmware for the ATmega328P (joint1..4.elf/.hex) and the "
                     "simavr harness that runs four of them, with the system toolchain (Debian: "
                     "gcc-avr avr-libc simavr libsimavr-dev).")

@@ -100,7 +100,7 @@ def scan_bus(bus: I2CBusLike, probe: Callable[[int], bool],
 def register(sub: Any) -> None:
     """Add the ``i2c`` subcommand (``i2c scan``)."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "i2c", help="I²C bus tools (scan the joint boards)",
+        "i2c",
         description="Tools for the I²C bus between the joint boards.")
     isub = p.add_subparsers(dest="i2c_command", required=True, metavar="ACTION")
     s: argparse.ArgumentParser = isub.add_parser(

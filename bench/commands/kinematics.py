@@ -53,7 +53,7 @@ def _common(p: argparse.ArgumentParser) -> None:
 def register(sub: Any) -> None:
     """Add the ``fk`` and ``ik`` subcommands."""
     f: argparse.ArgumentParser = sub.add_parser(
-        "fk", help="forward kinematics: joint angles → TCP pose",
+        "fk",
         description="Pose of the TCP (frame 4) in the base frame for four joint angles in radians "
                     "(protocol convention, zero = all joints looking up, joint 1 to the front; "
                     "DH angles with --dh). Prints the 4×4 pose and the TCP position in mm and m.")
@@ -66,7 +66,7 @@ def register(sub: Any) -> None:
     _accept_negative_numbers(f)
 
     i: argparse.ArgumentParser = sub.add_parser(
-        "ik", help="inverse kinematics: TCP position → every joint solution",
+        "ik",
         description="Every closed-form solution (front/back × elbow up/down) putting the TCP at "
                     "X Y Z (metres, base frame), with whether it is inside the joint limits. "
                     "Only the roll about the tool axis is free (--roll).",

@@ -22,7 +22,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``merge`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "merge", help="join the shards of a run into one record",
+        "merge",
         description="Join shard run directories (--shard I/N) into one record: every trial once, "
                     "the suite summaries computed over all of them.")
     p.add_argument("shards", nargs="+", metavar="DIR", help="the shards' run directories")

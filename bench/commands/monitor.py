@@ -45,7 +45,7 @@ def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
 def register(sub: Any) -> None:
     """Add the ``monitor`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "monitor", help="live joint angles, TCP position, frame rate and error counts",
+        "monitor",
         description="Show the arm's state as it streams in: joint angles (rad and degrees), the "
                     "TCP position by forward kinematics, the reply rate and the error counters.")
     p.add_argument("--port", default="fake://",

@@ -30,7 +30,7 @@ _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$
 def register(sub: Any) -> None:
     """Add the ``move`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "move", help="move to joint angles or a TCP position",
+        "move",
         description="Move the arm to four joint angles (radians, protocol convention) or, with "
                     "--xyz, to a TCP position (metres, base frame); print the final state.",
         epilog="Exit status: 0 when arrived, 2 for a refused target, an unreachable position, a "

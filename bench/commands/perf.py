@@ -15,7 +15,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``perf`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "perf", help="measure codec, emulator and driver throughput",
+        "perf",
         description="Measure armbench's throughput figures; targets are set on their ratios.")
     p.add_argument("--json", action="store_true",
                    help='print {"build": ..., "figures": [...]} on one line')

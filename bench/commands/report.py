@@ -25,7 +25,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``report`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "report", help="render run reports (DIR/report.html) and the run index",
+        "report",
         description="Render the self-contained HTML report of each run directory from its "
                     "results.json, and/or the index of a directory of runs.")
     p.add_argument("dirs", nargs="*", metavar="DIR",

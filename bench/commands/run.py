@@ -30,7 +30,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``run`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "run", help="run bench suites and judge them against limits and a baseline",
+        "run",
         description="Run bench suites against the arm (the built-in emulator on virtual time "
                     "unless --port is given), write results.json after every trial, then "
                     "junit.xml, report.html and the traffic capture capture.mcap.",

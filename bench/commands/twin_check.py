@@ -29,7 +29,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``twin-check`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "twin-check", help="measure how well the twin predicts an arm's capture",
+        "twin-check",
         description="Replay the commands of CAPTURE, with their timing, into the emulator built "
                     "from --settings (the twin) on virtual time, and compare the reply streams: "
                     "per-joint RMS and largest divergence of the reported angle, arrival-time "

@@ -22,7 +22,7 @@ __all__ = ["register"]
 def register(sub: Any) -> None:
     """Add the ``urdf`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
-        "urdf", help="write a URDF of the arm (RViz, Foxglove's 3D panel)",
+        "urdf",
         description="A URDF of the arm from the DH table and the robot settings: revolute "
                     "joints j1..j4 with the settings' limits (protocol angles), simple link "
                     "geometry; the origin of link4 is the TCP.")

@@ -17,6 +17,7 @@ __all__ = ["BENCHMARK_MODULES", "Figure", "PerfOptions", "best_rate", "run_bench
 
 #: Each module exposes ``run(options) -> list[Figure]``.
 BENCHMARK_MODULES: tuple[str, ...] = (
+    "armbench.bench.perf.startup",
     "armbench.bench.perf.codec",
     "armbench.bench.perf.emulator",
     "armbench.bench.perf.transports",
