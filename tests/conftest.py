@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -16,6 +17,20 @@ ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
 BUILD_INPUTS = ("api", "bench", "drivers", "fakes", "reports", "firmware", "pyproject.toml",
                 "setup.py", "README.md")
+
+
+#: A test that needs a pseudo-terminal: ``pty`` in its name or parameters, as a word.
+_NEEDS_PTY = re.compile(r"(?<![a-z])pty(?![a-z])", re.IGNORECASE)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Where the system has no pseudo-terminals (Windows), the tests that need one skip."""
+    if hasattr(os, "openpty"):
+        return
+    skip = pytest.mark.skip(reason="needs a pseudo-terminal: this system has none")
+    for item in items:
+        if _NEEDS_PTY.search(item.name) or "pty_emulator" in getattr(item, "fixturenames", ()):
+            item.add_marker(skip)
 
 
 def build_wheel(work: Path, *, pure: bool) -> Path:
