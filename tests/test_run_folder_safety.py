@@ -168,14 +168,18 @@ def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
 # -- a resumed capture equals the uninterrupted one ---------------------------------------------
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
-@pytest.mark.parametrize("after", [1, 3])
+@pytest.mark.parametrize(("sig", "after", "workers"), [
+    (signal.SIGKILL, 1, "2"), (signal.SIGKILL, 3, "2"), (signal.SIGTERM, 1, "2"),
+    (signal.SIGTERM, 3, "2"), (signal.SIGKILL, 3, "1")],
+    ids=["SIGKILL-1", "SIGKILL-3", "SIGTERM-1", "SIGTERM-3", "SIGKILL-3-in-turn"])
 def test_resumed_capture_after_a_kill_equals_the_whole_run(
-        sig: signal.Signals, after: int, tmp_path: Path, whole_run: Capture) -> None:
-    """Killed after some trials (their workers' parts left behind, written out of turn), then
-    resumed: the same frames in time order, every trial event, the same twin-check."""
+        sig: signal.Signals, after: int, workers: str, tmp_path: Path,
+        whole_run: Capture) -> None:
+    """Killed after some trials (their workers' parts left behind, written out of turn; or the
+    parts of trials measured in turn), then resumed: the same frames in time order, every trial
+    event, the same twin-check."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", workers)
     _wait_for(proc, f"trial {after}/6 done")
     proc.send_signal(sig)
     proc.communicate(timeout=WAIT_S)
