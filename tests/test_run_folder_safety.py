@@ -257,6 +257,23 @@ def test_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
         assert _snapshot(out) == before
 
 
+def test_campaign_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
+    """``armbench campaign --resume`` reads its suite from ``runner.json`` too."""
+    out = tmp_path / "campaign"
+    done = _bench("campaign", "startup-recovery", "--samples", "2", "--workers", "1", "--out",
+                  str(out))
+    assert done.returncode == 0, done.stderr
+    info = json.loads((out / "runner.json").read_text())
+    info["campaign"]["suite"] = "this:Nope"
+    (out / "runner.json").write_text(json.dumps(info))
+    before = _snapshot(out)
+    refused = _bench("campaign", "--resume", str(out))
+    assert refused.returncode == 2, refused.stderr
+    assert "'this:Nope'" in refused.stderr and "not registered" in refused.stderr
+    assert "Beautiful is better" not in refused.stdout + refused.stderr
+    assert _snapshot(out) == before
+
+
 def test_resume_loads_a_suite_registered_in_the_package(tmp_path: Path) -> None:
     """The recorded reference of a registered suite (name or its module:Class) still loads."""
     out = _interrupted_run(tmp_path)

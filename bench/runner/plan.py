@@ -196,11 +196,11 @@ def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], port: _Port) -> 
     refs = info.get("suites") or {}
     suite_refs = [refs.get(name, name) if isinstance(refs, dict) else name
                   for name in resume.planned_suites]
-    _check_registered(suite_refs)
+    check_registered_suites(suite_refs)
     return _Inputs(settings, settings_path, config, seed, faults, suite_refs)
 
 
-def _check_registered(suite_refs: Sequence[object]) -> None:
+def check_registered_suites(suite_refs: Sequence[object]) -> None:
     """A resumed run loads only registered suites (:func:`registered_suites`): the record and
     ``runner.json`` are files anyone may hand over, and a module they name would run its code
     on import. Anything else is refused naming it, before anything is imported."""
