@@ -5,7 +5,9 @@ PartWriter`: frames, the emulator's ground truth, power switches and faults, on 
 loop clock); the runner adds each part to the run's :class:`~armbench.drivers.capture_mcap.
 McapCapture` once its trial is in the record, moved onto the run clock, with the trial's start
 and end as events. At the end ``results.json`` is attached. A resumed run copies what the killed
-run's file holds (up to its last complete chunk) into a new one. A size bound is kept by
+run's file holds (up to its last complete chunk) into a new one, after the frames of an older
+run's ``capture.jsonl`` (kept as it is), so the new file holds every session. A size bound is
+kept by
 adding a part only while the file, the part's bytes (more than it adds, compressed) and
 :data:`CLOSING_BYTES` fit in it.
 """
@@ -20,12 +22,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.record import RunRecord, Trial
+from armbench.bench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 from armbench.bench.suites.base import PowerSwitch, ReReferencing
+from armbench.drivers.capture import CaptureError, read_capture
 from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, zstd_attachment
 from armbench.drivers.capture_mcap import McapCapture
 from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import iter_messages
+from armbench.drivers.capture_read import iter_events, iter_messages
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
@@ -122,6 +125,11 @@ class RunCapture:
         self.sink: McapCapture | None = None
         self._held: list[Path] = []
         """Parts added whose frames are not all on disk yet (deleted when they are)."""
+        self.carried_events: set[tuple[str, str, int, int]] = set()
+        """The bench events an earlier capture of the run holds, as (kind, suite, trial,
+        ns): the trial events a resume must not write twice."""
+        self.legacy_frames = 0
+        """Frames carried over from an older run's ``capture.jsonl``."""
 
     def _metadata(self) -> dict[str, str]:
         env = self.record.environment
@@ -132,17 +140,48 @@ class RunCapture:
                 "suites": json.dumps(self.record.planned_suites)}
 
     def open(self) -> McapCapture:
-        """The writer (created on first use)."""
+        """The writer (created on first use), holding what the run captured before a resume:
+        an older run's ``capture.jsonl``, then the file a killed or interrupted session left."""
         if self.sink is None:
             earlier = self.path.with_name(f".{self.path.name}.earlier")
             if self.path.exists():
                 os.replace(self.path, earlier)
             self.sink = McapCapture(self.path, self.settings, metadata=self._metadata())
+            legacy = self.path.with_name(LEGACY_CAPTURE_FILE)
+            if legacy.exists() and not _holds_frames(earlier):
+                self._carry_legacy(legacy)
             if earlier.exists():
+                with contextlib.suppress(Exception):
+                    for event in iter_events(earlier):
+                        self.carried_events.add(_event_key(event))
                 with contextlib.suppress(Exception):
                     self.sink.copy_messages(iter_messages(earlier))
                 earlier.unlink()
         return self.sink
+
+    def _carry_legacy(self, legacy: Path) -> None:
+        """The frames of an older run's ``capture.jsonl`` (times on the run clock), through a
+        part file, as a part a connection writes; the JSON Lines file stays as it is."""
+        assert self.sink is not None
+        part = self.path.with_name(f".{legacy.name}.part")
+        writer = PartWriter(part, 0.0)
+        try:
+            for record in read_capture(legacy):
+                writer.write(record.t_s, record.dir, record.frame, record.error)
+                self.legacy_frames += 1
+        except CaptureError as exc:  # what was read before the bad line is kept
+            self.sink.traffic.events.append(f"{legacy.name} carried up to: {exc}")
+        finally:
+            writer.close()
+        self.sink.add_part(part, 0.0)
+        self.sink.flush()
+        _unlink(part)
+
+    def has_trial_events(self, suite: str, trial: Trial) -> bool:
+        """Whether the capture carried over holds ``trial``'s start and end events."""
+        start = ("trial_start", suite, trial.index, round(trial.started_s * 1e9))
+        end = ("trial_end", suite, trial.index, round(trial.ended_s * 1e9))
+        return start in self.carried_events and end in self.carried_events
 
     def _room(self) -> int | None:
         """Bytes the bound leaves (chunk in progress written first), None: unbounded."""
@@ -208,6 +247,22 @@ class RunCapture:
         finally:
             sink.close()
             self._release()
+
+
+def _event_key(event: Any) -> tuple[str, str, int, int]:
+    stamp = event.stamp
+    return (str(event.kind), str(event.suite), int(event.trial),
+            int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec))
+
+
+def _holds_frames(capture: Path) -> bool:
+    """Whether an MCAP capture holds a frame (up to its last complete chunk)."""
+    if not capture.exists():
+        return False
+    try:
+        return next(iter_messages(capture, ("/uart/rx", "/uart/tx")), None) is not None
+    except CaptureError:
+        return False
 
 
 def _unlink(path: Path) -> None:

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from armbench.drivers.capture import CaptureError, CaptureWriter, Direction
 
 __all__ = ["BLOCK_RECORDS", "BLOCK_S", "ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock",
-           "PartWriter", "first_part_time", "read_part"]
+           "PartWriter", "first_part_time", "part_span", "read_part"]
 
 #: Records of a block at most, and loop seconds after which a block is written even if not
 #: full. Large: each block costs a write here and numpy calls in the runner, and a part is read
@@ -220,3 +220,19 @@ def first_part_time(path: str | Path) -> float | None:
     except (OSError, ValueError):
         return None
     return None
+
+
+def part_span(path: str | Path) -> tuple[float, float] | None:
+    """The times of the first and the last frame of a part (seconds, the part's clock), None if
+    it has none readable: which recorded trials a recovered part holds."""
+    first: float | None = None
+    last = 0.0
+    try:
+        for block in read_part(path):
+            if len(block.t_s):
+                if first is None:
+                    first = float(block.t_s[0])
+                last = max(last, float(block.t_s.max()))
+    except (OSError, ValueError):
+        pass
+    return None if first is None else (first, max(first, last))

@@ -26,7 +26,7 @@ from urllib.parse import parse_qs, urlsplit
 from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
 from armbench.drivers.transports.serial_port import SerialTransport
-from armbench.fakes.avr import FirmwareError, Harness
+from armbench.fakes.avr import FirmwareError, Harness, build, find_images
 
 __all__ = ["LAG_WARN_MS", "AvrTransport", "parse_avr_url"]
 
@@ -66,6 +66,16 @@ class AvrTransport(SerialTransport):
         """The running harness (None before :meth:`open` and after :meth:`close`)."""
         self.last_stats: dict[str, Any] | None = None
         """The harness's figures when it was stopped (``docs/firmware.md``)."""
+
+    def preflight(self) -> None:
+        """The URL's query, the firmware images and the harness (built now if needed, as
+        :meth:`open` would)."""
+        _, firmware, _, _ = parse_avr_url(self.port)
+        try:
+            find_images(firmware)
+            build()
+        except FirmwareError as exc:
+            raise self._error(str(exc)) from exc
 
     async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         robot, firmware, eeprom, control = parse_avr_url(self.port)

@@ -34,7 +34,7 @@ from armbench.bench.runner import (
     execute,
     prepare,
 )
-from armbench.bench.runner.plan import MAX_TRIALS, json_equal
+from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json_equal
 from armbench.bench.runner.trials import LoopClockWriter
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
@@ -107,6 +107,7 @@ def _resumed(options: CampaignOptions) -> BenchPlan:
         raise RecordError(str(directory / RUNNER_FILE), "does not describe a campaign; "
                                                         "armbench run --resume continues a "
                                                         "run") from None
+    check_registered_suites([suite])  # a folder cannot make armbench import its code
     if options.suite not in ("", suite) or options.samples not in (0, samples):
         raise ArmbenchError(f"--resume: the campaign in {directory} is {suite} with {samples} "
                             "samples; give neither SUITE nor --samples")

@@ -115,9 +115,9 @@ def _run(args: argparse.Namespace) -> int:
         from armbench.bench.commands.fleet import run_fleet
 
         return run_fleet(options, ports)
-    outcome = run_sync(options, progress=sys.stderr)
-    # the record is on disk: now its reports
-    write_reports(outcome.record, outcome.out_dir, capture_max_bytes=outcome.capture_max_bytes)
+    # the record is on disk: now its reports, while the run folder is still locked
+    outcome = run_sync(options, progress=sys.stderr, then=lambda done: write_reports(
+        done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
     _summary(outcome)
     return outcome.exit_status
 

@@ -20,7 +20,9 @@ __all__ = [
     "RESULTS_FILE",
     "atomic_write",
     "atomic_write_bytes",
+    "check_directory_writable",
     "fsync_directory",
+    "make_directory",
     "path_inside",
     "run_directory",
 ]
@@ -72,6 +74,52 @@ def run_directory(root: str | Path, run_name: str) -> Path:
         target.mkdir(exist_ok=True)
     except FileExistsError:
         raise RecordError("run name", f"{target} exists and is not a directory") from None
+    return target
+
+
+def _display(path: Path) -> str:
+    """``path`` as text that can be printed (bytes that are not UTF-8 as ``\\xNN``)."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")
+
+
+def check_directory_writable(directory: str | Path, what: str) -> None:
+    """Raise a RecordError naming ``what`` (``--out DIR``) unless ``directory`` is, or can be
+    made, a directory this process can write into: checked on the nearest part of the path that
+    exists (a file in the way, a path under a file, a read-only file system or folder), without
+    creating anything."""
+    target = Path(directory)
+    probe = target
+    while not probe.exists() and probe != probe.parent:
+        if probe.is_symlink():  # a dangling symlink: mkdir would fail on it
+            raise RecordError(what, f"{_display(probe)} is a broken symbolic link")
+        probe = probe.parent
+    if not probe.is_dir():
+        where = "is" if probe == target else f"is under {_display(probe)}, which is"
+        raise RecordError(what, f"{_display(target)} {where} a file, not a directory")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        reason = "a read-only file system" if _read_only(probe) else "no write permission"
+        raise RecordError(what, f"{_display(target)} cannot be written: {reason} at "
+                                f"{_display(probe)}")
+
+
+def _read_only(path: Path) -> bool:
+    try:
+        return bool(os.statvfs(path).f_flag & getattr(os, "ST_RDONLY", 1))
+    except (OSError, AttributeError):
+        return False
+
+
+def make_directory(directory: str | Path, what: str) -> Path:
+    """Create ``directory`` (and its parents) if missing; a RecordError naming ``what`` and the
+    OS's reason, one line, when it cannot be."""
+    target = Path(directory)
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise RecordError(what, f"{_display(target)} exists and is not a directory") from None
+    except OSError as exc:
+        raise RecordError(what, f"{_display(target)} cannot be created: "
+                                f"{exc.strerror or exc}") from None
     return target
 
 

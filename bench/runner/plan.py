@@ -33,6 +33,7 @@ from armbench.bench.record import (
     new_run_id,
     path_inside,
 )
+from armbench.bench.record.files import check_directory_writable
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
     DEFAULT_OUTAGE_TIMEOUT_S,
@@ -42,7 +43,8 @@ from armbench.bench.runner.options import (
     PlannedSuite,
     RunOptions,
 )
-from armbench.bench.suites import load_suite, suite_names
+from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
+from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
 from armbench.drivers.capture import capture_options
@@ -153,7 +155,8 @@ def _check_port(port: str) -> _Port:
         raise TransportError(port, "no such serial device (is the arm plugged in? "
                                    "'python3 -m serial.tools.list_ports' lists the ports)")
     if scheme_of(port) != "fake":
-        open_transport(port)  # built, not opened: its constructor checks the address
+        # built, not opened: its constructor checks the address, preflight what it needs
+        open_transport(port).preflight()
         return _Port(port, fake=False)
     from armbench.fakes.transport import parse_fake_url
 
@@ -193,7 +196,23 @@ def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], port: _Port) -> 
     refs = info.get("suites") or {}
     suite_refs = [refs.get(name, name) if isinstance(refs, dict) else name
                   for name in resume.planned_suites]
+    check_registered_suites(suite_refs)
     return _Inputs(settings, settings_path, config, seed, faults, suite_refs)
+
+
+def check_registered_suites(suite_refs: Sequence[object]) -> None:
+    """A resumed run loads only registered suites (:func:`registered_suites`): the record and
+    ``runner.json`` are files anyone may hand over, and a module they name would run its code
+    on import. Anything else is refused naming it, before anything is imported."""
+    registered = registered_suites()
+    targets = set(registered.values())
+    for ref in suite_refs:
+        if isinstance(ref, str) and (ref in registered or ref in targets):
+            continue
+        raise SuiteError(f"--resume: the run names suite {ref!r}, which is not registered "
+                         f"(known: {', '.join(registered)}; a suite of your own is registered "
+                         f"as an entry point of the group {SUITES_ENTRY_POINT_GROUP!r}); a run "
+                         "folder cannot make armbench import a module it names")
 
 
 def _new_inputs(options: RunOptions, port: _Port) -> _Inputs:
@@ -395,6 +414,27 @@ def _resume_target(options: RunOptions) -> Path:
     return resume_dir
 
 
+def _check_text_inputs(options: RunOptions) -> None:
+    """Every path and string the record stores must be text (UTF-8): a file name of other bytes
+    (``b'\\xff.toml'`` on POSIX) is refused naming it, before anything is read or made."""
+    given = (("--config", options.config), ("--settings", options.settings),
+             ("--faults", options.faults), ("--out", options.out),
+             ("--baseline", options.baseline), ("--resume", options.resume),
+             ("--port", options.port), ("--tracker", options.tracker),
+             ("runs folder", options.runs_root),
+             *(("SUITE", suite) for suite in options.suites))
+    for flag, value in given:
+        if value is None:
+            continue
+        text = os.fspath(value)
+        try:
+            text.encode("utf-8")
+        except UnicodeEncodeError:
+            shown = os.fsencode(text).decode("utf-8", "backslashreplace")
+            raise ArmbenchError(f"{flag}: {shown} is not valid UTF-8 text (a file name of "
+                                "other bytes cannot be kept in the record); rename it") from None
+
+
 def prepare(options: RunOptions) -> BenchPlan:
     """Validate ``options`` and everything they name, without touching the arm or creating the
     run directory.
@@ -403,6 +443,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
     whose message names the offending field or file.
     """
+    _check_text_inputs(options)
     resume: RunRecord | None = None
     info: dict[str, Any] = {}
     if options.resume is not None:
@@ -414,6 +455,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         if options.out is not None and (out_dir / RESULTS_FILE).exists():
             raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; resume "
                                                            "it (--resume) or choose another --out")
+        check_directory_writable(out_dir, "--out" if options.out is not None else "run folder")
     env = None if resume is None else resume.environment
     port = _check_port(options.port or (env.port if env is not None and env.port else None)
                        or "fake://")

@@ -25,9 +25,13 @@ Semantics of errors, retries, cancellation and resume: ``docs/runner.md``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import json
+import logging
 import sys
+from collections.abc import Callable
+from pathlib import Path
 from typing import IO
 
 from armbench.bench.baseline import BaselineError, compare
@@ -39,6 +43,8 @@ from armbench.bench.record import (
     capture_environment,
     load_record,
 )
+from armbench.bench.record.files import make_directory
+from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
     EXIT_INTERRUPTED,
@@ -59,6 +65,8 @@ from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_e
 from armbench.bench.truth import aclose_source, aopen_source
 
 __all__ = ["execute", "run_bench", "run_sync"]
+
+log = logging.getLogger("armbench.runner")
 
 
 def _new_record(plan: BenchPlan) -> RunRecord:
@@ -114,8 +122,19 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
 
     Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
     the record as it is on disk (every finished trial) and propagates
-    :class:`asyncio.CancelledError`.
+    :class:`asyncio.CancelledError`. The run folder is locked while the run writes it
+    (:mod:`armbench.bench.runner.lock`): a second writer is refused before anything is written.
     """
+    if plan.resume is None:
+        make_directory(plan.out_dir, "run folder")
+    with hold_run_folder(plan.out_dir):
+        return await _execute(plan, progress=progress, emulator_factory=emulator_factory,
+                              writer_class=writer_class)
+
+
+async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
+                   emulator_factory: EmulatorFactory | None,
+                   writer_class: type[LoopClockWriter]) -> RunOutcome:
     if plan.resume is not None:
         resumed = writer_class.resume(plan.out_dir)
         assert isinstance(resumed, LoopClockWriter)
@@ -124,7 +143,6 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
             if ps.name not in writer.record.planned_suites:
                 writer.record.planned_suites.append(ps.name)
     else:
-        plan.out_dir.mkdir(parents=True, exist_ok=True)
         writer = writer_class(plan.out_dir, _new_record(plan))
     atomic_write_bytes(writer.artifact_path(RUNNER_FILE),
                        (json.dumps(plan.runner_info, indent=1) + "\n").encode())
@@ -169,10 +187,11 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         interrupted = True
         raise
     finally:
-        if writer_class is not LoopClockWriter:  # a batching writer's last trials
-            writer.write()
-        runner.captures.flush()
-        runner.captures.finish({RESULTS_FILE: writer.artifact_path(RESULTS_FILE)})
+        try:
+            if writer_class is not LoopClockWriter:  # a batching writer's last trials
+                writer.write()
+        finally:
+            _close_capture(runner, writer)
         printer.finish()
         if interrupted:
             printer.message(f"interrupted: the record keeps every finished trial; continue with "
@@ -187,6 +206,18 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                       capture_max_bytes=plan.capture_max_bytes)
 
 
+def _close_capture(runner: TrialRunner, writer: LoopClockWriter) -> None:
+    """Write the rest of the capture and close it. An OS error here (a full disk) costs the
+    capture's tail, said in the log, never the record or the error that stopped the run: the
+    record is what the run is for, and is already on disk."""
+    try:
+        runner.captures.flush()
+        runner.captures.finish({RESULTS_FILE: writer.artifact_path(RESULTS_FILE)})
+    except OSError as exc:
+        log.warning("capture %s could not be completed: %s", runner.captures.capture,
+                    exc.strerror or exc)
+
+
 async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
                     emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
     """Validate ``options`` (raising before any motion) and run them on the running loop."""
@@ -195,11 +226,31 @@ async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
 
 
 def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
-             emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+             emulator_factory: EmulatorFactory | None = None,
+             then: Callable[[RunOutcome], None] | None = None) -> RunOutcome:
     """Validate and run on a loop of the right kind: a virtual-time loop
     (``armbench.fakes.vclock``) for ``fake://``, ``asyncio.run`` otherwise. Ctrl-C returns the
-    outcome of the record on disk with exit status 130."""
-    plan = prepare(options)
+    outcome of the record on disk with exit status 130. ``then`` is called with the outcome
+    while the run folder is still locked (the command writes the reports there).
+
+    A folder to resume is locked before its record is read (a run still writing it is
+    refused before anything of it is read or written); a new run's folder once it is made.
+    """
+    with contextlib.ExitStack() as held:
+        if options.resume is not None and (Path(options.resume) / RESULTS_FILE).is_file():
+            held.enter_context(hold_run_folder(options.resume))
+        plan = prepare(options)
+        if plan.resume is None:
+            make_directory(plan.out_dir, "--out" if options.out is not None else "run folder")
+        held.enter_context(hold_run_folder(plan.out_dir))
+        outcome = _run_plan(plan, progress, emulator_factory)
+        if then is not None:
+            then(outcome)
+        return outcome
+
+
+def _run_plan(plan: BenchPlan, progress: IO[str] | None,
+              emulator_factory: EmulatorFactory | None) -> RunOutcome:
     main = execute(plan, progress=progress, emulator_factory=emulator_factory)
     try:
         if plan.fake:

@@ -2,13 +2,18 @@
 
 :data:`SUITES` maps each suite's command-line name to ``"module:Class"``; the module is imported
 only when the suite is loaded, so a broken or slow suite module costs nothing to the others.
-Besides a registered name, :func:`load_suite` accepts a ``"package.module:Class"`` of any
-:class:`~armbench.bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite).
+Other distributions register suites as entry points of the group :data:`ENTRY_POINT_GROUP`
+(``armbench.suites``), as transports are registered. Besides a registered name,
+:func:`load_suite` accepts a ``"package.module:Class"`` of any
+:class:`~armbench.bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite) when
+the user names it on the command line; a run record only ever names registered suites
+(:func:`registered_suites`), so resuming a folder never imports code the folder names.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 
 from armbench.bench.suites.base import (
     PoseSource,
@@ -21,6 +26,7 @@ from armbench.bench.suites.base import (
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = [
+    "ENTRY_POINT_GROUP",
     "SUITES",
     "PoseSource",
     "PowerSwitch",
@@ -32,6 +38,7 @@ __all__ = [
     "UnknownSuiteError",
     "is_suite_spec",
     "load_suite",
+    "registered_suites",
     "suite_class",
     "suite_names",
 ]
@@ -43,6 +50,10 @@ SUITES: dict[str, str] = {
     "startup-recovery": "armbench.bench.suites.startup_recovery:StartupRecoverySuite",
     "joints": "armbench.bench.suites.joints:JointsSuite",
 }
+
+
+#: Entry-point group under which distributions register suites by name.
+ENTRY_POINT_GROUP = "armbench.suites"
 
 
 class SuiteError(ArmbenchError, ValueError):
@@ -63,6 +74,15 @@ def suite_names() -> list[str]:
     return list(SUITES)
 
 
+def registered_suites() -> dict[str, str]:
+    """Every registered suite name → ``"module:Class"``: the entry points of
+    :data:`ENTRY_POINT_GROUP`, and the built-ins over them. Only reads metadata: nothing is
+    imported."""
+    found = {ep.name: f"{ep.module}:{ep.attr}"
+             for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    return {**found, **SUITES}
+
+
 def is_suite_spec(name: str) -> bool:
     """True for a ``"package.module:Class"`` reference (rather than a registered name)."""
     module, sep, cls = name.partition(":")
@@ -75,7 +95,7 @@ def suite_class(name: str) -> type[Suite]:
     Raises :class:`UnknownSuiteError` for an unknown name and :class:`SuiteError` when the module
     cannot be imported or the attribute is not a :class:`Suite` subclass.
     """
-    target = SUITES.get(name)
+    target = SUITES.get(name) or registered_suites().get(name)
     if target is None:
         if not is_suite_spec(name):
             raise UnknownSuiteError(name)

@@ -55,6 +55,12 @@ class Transport(abc.ABC):
     def is_open(self) -> bool:
         """True between a successful :meth:`open` and :meth:`close` or the loss of the port."""
 
+    def preflight(self) -> None:
+        """Check what can be checked before anything is opened or made (a library the transport
+        needs, the firmware it runs): raises :class:`TransportError` naming the port. The bench
+        calls it before it makes a run folder; the default checks nothing."""
+        return
+
     @abc.abstractmethod
     async def open(self) -> None:
         """Open and configure the port; raises :class:`TransportError` naming it on failure."""

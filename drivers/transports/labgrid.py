@@ -233,12 +233,16 @@ class LabgridTransport(Transport):
         future = asyncio.get_running_loop().run_in_executor(place.client.thread, fn)
         return await asyncio.shield(future)  # a cancelled run still finishes what labgrid does
 
-    async def open(self) -> None:
+    def preflight(self) -> None:
+        """labgrid must be installed."""
         try:
             import labgrid  # noqa: F401
         except ImportError as exc:
             raise TransportError(self.port, "labgrid is not installed (pip install "
                                             "'armbench[labgrid]')") from exc
+
+    async def open(self) -> None:
+        self.preflight()
         if self._place is not None:
             raise TransportError(self.port, "transport is already open")
         place = self._place = LabgridPlace(self.port, self.place_name,

@@ -1,0 +1,374 @@
+"""Run folders and ``--resume`` against adversarial use (``docs/reliability.md``, second round):
+one writer per folder (an OS lock a killed process releases), a resumed capture equal to the
+uninterrupted one after ``kill -9`` or SIGTERM, an older ``capture.jsonl`` carried into the new
+capture, no code a folder names imported, and the bad inputs that used to leave a folder behind
+(a transport that cannot work, a path that is not UTF-8, an ``--out`` that cannot be written, a
+disk that fills up) refused in one line with exit 2.
+
+Every run here is a real ``python -m armbench run`` process where the case is about processes
+(locks, signals); the full disk is a real tmpfs of a few hundred kilobytes (skipped where this
+process may not mount one).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import armbench.bench.cli
+from armbench.bench.record import load_record
+from armbench.drivers.capture import CaptureRecord, CaptureWriter
+from armbench.drivers.capture_read import iter_events, open_capture
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = "3"
+WAIT_S = 300.0
+"""Upper bound of a whole accuracy run under load (it takes seconds alone)."""
+
+
+def _env(**extra: str) -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": str(ROOT), **extra}
+
+
+def _bench(*args: str, cwd: Path = ROOT, env: dict[str, str] | None = None
+           ) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "armbench", *args], cwd=cwd, text=True,
+                          capture_output=True, timeout=WAIT_S, check=False,
+                          env=env if env is not None else _env())
+
+
+def _start(*args: str) -> subprocess.Popen[str]:
+    """A run in a process group of its own (its worker processes with it)."""
+    return subprocess.Popen([sys.executable, "-m", "armbench", *args], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(),
+                            start_new_session=True)
+
+
+def _freeze(proc: subprocess.Popen[str], sig: signal.Signals) -> None:
+    """SIGSTOP or SIGCONT to the run and its workers."""
+    os.killpg(proc.pid, sig)
+
+
+def _wait_for(proc: subprocess.Popen[str], text: str) -> None:
+    """Read the process's progress until a line holds ``text`` (it is still running then)."""
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        if text in line:
+            return
+    pytest.fail(f"the run ended before {text!r}")
+
+
+def _one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> str:
+    assert result.returncode == 2, (result.stdout, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("armbench run: error: "), result.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+def _snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+@dataclass(frozen=True)
+class Capture:
+    frames: list[CaptureRecord]
+    events: list[tuple[str, str, int, int]]
+    twin: dict[str, Any]
+
+
+def _capture(run: Path) -> Capture:
+    path = run / "capture.mcap"
+    events = [(e.kind, e.suite, e.trial, e.stamp.sec * 1_000_000_000 + e.stamp.nanosec)
+              for e in iter_events(path)]
+    check = _bench("twin-check", "--json", str(path))
+    assert check.returncode in (0, 1), check.stderr
+    return Capture(list(open_capture(path)), events, json.loads(check.stdout))
+
+
+@pytest.fixture(scope="module")
+def whole_run(tmp_path_factory: pytest.TempPathFactory) -> Capture:
+    """An uninterrupted ``run accuracy`` of the seed: what every resumed run must equal."""
+    out = tmp_path_factory.mktemp("whole") / "run"
+    done = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
+    assert done.returncode == 0, done.stderr
+    return _capture(out)
+
+
+# -- one writer per run folder ------------------------------------------------------------------
+
+
+def test_resume_of_a_run_still_going_is_refused_and_the_run_completes(
+        tmp_path: Path, whole_run: Capture) -> None:
+    """The run is frozen (SIGSTOP) mid-way, holding its folder: ``--resume`` of it exits 2 with
+    one line naming the holder, and changes nothing; the run, continued, ends as a whole run."""
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    try:
+        _wait_for(proc, "trial 2/6 done")
+        _freeze(proc, signal.SIGSTOP)
+        before = _snapshot(out)
+        refused = _bench("run", "--resume", str(out))
+        line = _one_line_error(refused, f"pid {proc.pid}", "accuracy", "started")
+        assert "is being written by" in line
+        assert _snapshot(out) == before
+    finally:
+        _freeze(proc, signal.SIGCONT)
+        _, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0, err
+    assert not (out / ".armbench.lock").exists()
+    resumed = _capture(out)
+    assert len(resumed.frames) == len(whole_run.frames)
+    assert resumed.events == whole_run.events
+
+
+def test_a_second_run_into_the_same_out_is_refused(tmp_path: Path) -> None:
+    """Two runs given one ``--out``: the second is refused before it writes anything."""
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    try:
+        _wait_for(proc, "trial 1/6 done")
+        _freeze(proc, signal.SIGSTOP)
+        before = _snapshot(out)
+        # results.json is there: refused by the record check; the lock refuses without it too
+        (out / "results.json").rename(out / "held.json")
+        refused = _bench("run", "accuracy", "--out", str(out))
+        (out / "held.json").rename(out / "results.json")
+        _one_line_error(refused, f"pid {proc.pid}")
+        assert _snapshot(out) == before
+    finally:
+        _freeze(proc, signal.SIGCONT)
+        proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0
+
+
+def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
+    """The lock is the OS's: ``kill -9`` of its holder releases it, and the resume goes on."""
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    _wait_for(proc, "trial 1/6 done")
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=WAIT_S)
+    resumed = _bench("run", "--resume", str(out))
+    assert resumed.returncode == 0, resumed.stderr
+
+
+# -- a resumed capture equals the uninterrupted one ---------------------------------------------
+
+
+@pytest.mark.parametrize(("sig", "after", "workers"), [
+    (signal.SIGKILL, 1, "2"), (signal.SIGKILL, 3, "2"), (signal.SIGTERM, 1, "2"),
+    (signal.SIGTERM, 3, "2"), (signal.SIGKILL, 3, "1")],
+    ids=["SIGKILL-1", "SIGKILL-3", "SIGTERM-1", "SIGTERM-3", "SIGKILL-3-in-turn"])
+def test_resumed_capture_after_a_kill_equals_the_whole_run(
+        sig: signal.Signals, after: int, workers: str, tmp_path: Path,
+        whole_run: Capture) -> None:
+    """Killed after some trials (their workers' parts left behind, written out of turn; or the
+    parts of trials measured in turn), then resumed: the same frames in time order, every trial
+    event, the same twin-check."""
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", workers)
+    _wait_for(proc, f"trial {after}/6 done")
+    proc.send_signal(sig)
+    proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == -sig
+    resumed = _bench("run", "--resume", str(out))
+    assert resumed.returncode == 0, resumed.stderr
+    got = _capture(out)
+    times = [r.t_s for r in got.frames]
+    assert times == sorted(times)
+    assert len(got.frames) == len(whole_run.frames)
+    assert got.frames == whole_run.frames
+    assert got.events == whole_run.events
+    assert sum(1 for e in got.events if e[0] in ("trial_start", "trial_end")) == 12
+    assert got.twin["verdict"] == whole_run.twin["verdict"] == "pass"
+    assert got.twin["rms_counts"] == whole_run.twin["rms_counts"]
+    assert not list(out.glob(".capture.part*"))
+
+
+def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Capture) -> None:
+    """A run whose capture is an older ``capture.jsonl`` (interrupted, then resumed by this
+    armbench): the new ``capture.mcap`` holds the old session's frames and the new ones."""
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    _wait_for(proc, "trial 3/6 done")
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 130
+    old = list(open_capture(out / "capture.mcap"))
+    assert 0 < len(old) < len(whole_run.frames)
+    legacy = CaptureWriter(out / "capture.jsonl", 0.0)
+    for r in old:
+        legacy.write(r.t_s, r.dir, r.frame, r.error)
+    legacy.close()
+    (out / "capture.mcap").unlink()
+    kept = (out / "capture.jsonl").read_bytes()
+    resumed = _bench("run", "--resume", str(out))
+    assert resumed.returncode == 0, resumed.stderr
+    frames = list(open_capture(out / "capture.mcap"))
+    assert len(frames) == len(whole_run.frames)
+    assert [(r.dir, r.frame) for r in frames] == [(r.dir, r.frame) for r in whole_run.frames]
+    assert [r.t_s for r in frames] == pytest.approx([r.t_s for r in whole_run.frames], abs=1e-6)
+    assert (out / "capture.jsonl").read_bytes() == kept  # the user's file, untouched
+
+
+# -- a run folder cannot make armbench run its code ---------------------------------------------
+
+
+def _interrupted_run(tmp_path: Path) -> Path:
+    out = tmp_path / "run"
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    _wait_for(proc, "trial 1/6 done")
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 130
+    return out
+
+
+def test_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
+    """``runner.json`` naming ``this:Nope`` (the Zen of Python on import) or a module beside the
+    folder: exit 2 naming it, nothing imported, nothing written."""
+    out = _interrupted_run(tmp_path)
+    marker = tmp_path / "pwned"
+    (out / "pwn_suite.py").write_text(f"open({str(marker)!r}, 'w').write('ran')\n"
+                                      "class PwnSuite: pass\n")
+    info = json.loads((out / "runner.json").read_text())
+    for ref in ("this:Nope", "pwn_suite:PwnSuite"):
+        info["suites"] = {"accuracy": ref}
+        (out / "runner.json").write_text(json.dumps(info))
+        before = _snapshot(out)
+        refused = _bench("run", "--resume", ".", cwd=out)
+        _one_line_error(refused, repr(ref), "not registered")
+        assert "Zen of Python" not in refused.stdout + refused.stderr
+        assert "Beautiful is better" not in refused.stdout + refused.stderr
+        assert not marker.exists()
+        assert _snapshot(out) == before
+
+
+def test_campaign_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
+    """``armbench campaign --resume`` reads its suite from ``runner.json`` too."""
+    out = tmp_path / "campaign"
+    done = _bench("campaign", "startup-recovery", "--samples", "2", "--workers", "1", "--out",
+                  str(out))
+    assert done.returncode == 0, done.stderr
+    info = json.loads((out / "runner.json").read_text())
+    info["campaign"]["suite"] = "this:Nope"
+    (out / "runner.json").write_text(json.dumps(info))
+    before = _snapshot(out)
+    refused = _bench("campaign", "--resume", str(out))
+    assert refused.returncode == 2, refused.stderr
+    assert "'this:Nope'" in refused.stderr and "not registered" in refused.stderr
+    assert "Beautiful is better" not in refused.stdout + refused.stderr
+    assert _snapshot(out) == before
+
+
+def test_resume_loads_a_suite_registered_in_the_package(tmp_path: Path) -> None:
+    """The recorded reference of a registered suite (name or its module:Class) still loads."""
+    out = _interrupted_run(tmp_path)
+    info = json.loads((out / "runner.json").read_text())
+    info["suites"] = {"accuracy": "armbench.bench.suites.accuracy:AccuracySuite"}
+    (out / "runner.json").write_text(json.dumps(info))
+    assert _bench("run", "--resume", str(out)).returncode == 0
+
+
+# -- inputs refused before any folder exists ----------------------------------------------------
+
+
+def test_labgrid_without_labgrid_is_refused_before_a_folder_exists(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setitem(sys.modules, "labgrid", None)  # what an environment without it gives
+    out = tmp_path / "run"
+    status = armbench.bench.cli.main(["run", "accuracy", "--port", "labgrid://bench-1",
+                                      "--out", str(out)])
+    err = capsys.readouterr().err
+    assert status == 2 and "labgrid is not installed" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path: Path) -> None:
+    """An installed armbench has no ``firmware/`` beside it: a copy of the package without it,
+    and no cached build."""
+    tree = tmp_path / "site"
+    tree.mkdir()
+    for name in ("bench", "drivers", "fakes", "reports"):
+        shutil.copytree(ROOT / name, tree / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "armbench", tree / "armbench", symlinks=True,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    out = tmp_path / "run"
+    refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,
+                     env={**os.environ, "PYTHONPATH": str(tree),
+                          "XDG_CACHE_HOME": str(tmp_path / "cache")})
+    _one_line_error(refused, "avr://", "no firmware sources")
+    assert not out.exists()
+
+
+def test_a_config_path_that_is_not_utf8_is_refused_naming_it(tmp_path: Path) -> None:
+    config = os.fsdecode(os.fsencode(tmp_path) + b"/limits-\xff.toml")
+    shutil.copy(ROOT / "bench" / "default_bench.toml", config)
+    out = tmp_path / "run"
+    refused = _bench("run", "accuracy", "--config", config, "--out", str(out), cwd=tmp_path)
+    _one_line_error(refused, "--config", "limits-\\xff.toml", "not valid UTF-8")
+    assert not out.exists() and not (tmp_path / "runs").exists()
+
+
+@contextlib.contextmanager
+def _tmpfs(where: Path, *options: str) -> Iterator[Path]:
+    """A tmpfs mounted at ``where`` (skipped where mount is not permitted), unmounted after."""
+    where.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", ",".join(options), "tmpfs",
+                              str(where)], capture_output=True, text=True, check=False)
+    if mounted.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
+    try:
+        yield where
+    finally:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+@pytest.mark.parametrize("case", ["file in the way", "under a file", "read-only"])
+def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("mine\n")
+    with contextlib.ExitStack() as stack:
+        if case == "file in the way":
+            out = blocker
+        elif case == "under a file":
+            out = blocker / "run"
+        else:
+            out = stack.enter_context(_tmpfs(tmp_path / "ro", "ro", "size=64k")) / "run"
+        refused = _bench("run", "accuracy", "--out", str(out))
+        line = _one_line_error(refused, "--out")
+        assert {"file in the way": "a file, not a directory",
+                "under a file": "a file, not a directory",
+                "read-only": "read-only file system"}[case] in line
+        assert not out.exists() or out == blocker
+    assert blocker.read_text() == "mine\n"
+
+
+def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path) -> None:
+    """A tmpfs too small for the run: the record's own error in one line (not the capture's
+    OSError), exit 2, and the trials measured until then still on disk for ``--resume``."""
+    with _tmpfs(tmp_path / "small", "size=1200k") as disk:
+        out = disk / "run"
+        full = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
+        assert full.returncode == 2, full.stderr
+        assert "Traceback" not in full.stderr
+        line = full.stderr.strip().splitlines()[-1]
+        assert line.startswith("armbench run: error: "), full.stderr
+        assert "results" in line and "No space left on device" in line
+        record = load_record(out / "results.json")
+        measured = [t for s in record.suites.values() for t in s.trials]
+        assert measured and all(t.status == "done" for t in measured)
