@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.baseline import TOO_DEEP
-from armbench.bench.record import REPORT_FILE, RESULTS_FILE
+from armbench.bench.record import REPORT_FILE, RESULTS_FILE, TOO_DEEP
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
