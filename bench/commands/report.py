@@ -58,5 +58,6 @@ def _run(args: argparse.Namespace) -> int:
             continue
         print(out)
     if args.index is not None:
-        print(render_index(args.index))
+        print(render_index(args.index, warn=lambda reason: print(
+            f"armbench report: warning: {reason}", file=sys.stderr)))
     return status
