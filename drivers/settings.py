@@ -19,6 +19,7 @@ from typing import Any
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
+from armbench.drivers.user_files import MAX_TOML_BYTES, FileRefused, read_regular_file
 
 __all__ = [
     "DEFAULT_JOINTS",
@@ -29,9 +30,13 @@ __all__ = [
     "SettingsError",
     "load_settings",
     "read_toml",
+    "read_toml_document",
 ]
 
 JOINT_COUNT = 4
+#: The most tables and arrays a user's TOML file may nest: the formats nest four at most, and a
+#: file nested hundreds deep would exhaust Python's recursion when copied.
+MAX_TOML_DEPTH = 32
 
 
 class SettingsError(ArmbenchError, ValueError):
@@ -190,23 +195,52 @@ def load_settings(path: str | Path | None = None) -> RobotSettings:
 
 def read_toml(path: str | Path, what: str) -> dict[str, Any]:
     """The TOML file at ``path`` as a table; anything that keeps it from being one (missing, a
-    directory, unreadable, not UTF-8, not TOML) raises :class:`SettingsError` naming ``what`` and
-    the path, in one line."""
+    directory, a FIFO or device, more than :data:`MAX_TOML_BYTES`, unreadable, not UTF-8, not
+    TOML, nested deeper than :data:`MAX_TOML_DEPTH`) raises :class:`SettingsError` naming
+    ``what`` and the path, in one line."""
+    return read_toml_document(path, what)[1]
+
+
+def read_toml_document(path: str | Path, what: str) -> tuple[str, dict[str, Any]]:
+    """:func:`read_toml`, with the file's text too (for readers of its comments)."""
     p = Path(path)
     try:
-        with p.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise SettingsError(what, str(p), "does not exist") from None
-    except IsADirectoryError:
-        raise SettingsError(what, str(p), "is a directory, not a TOML file") from None
-    except OSError as exc:
-        raise SettingsError(what, str(p), f"cannot be read: {exc.strerror or exc}") from None
+        raw = read_regular_file(p, "a TOML file", MAX_TOML_BYTES)
+    except FileRefused as exc:
+        raise SettingsError(what, str(p), exc.reason) from None
+    try:
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise SettingsError(what, str(p), f"is not UTF-8 text: {exc.reason} at byte "
                                           f"{exc.start}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SettingsError(what, str(p), f"is not valid TOML: {exc}") from None
+    except RecursionError:
+        data = None
+    if data is None or _depth(data) > MAX_TOML_DEPTH:
+        raise SettingsError(what, str(p), f"is nested more than {MAX_TOML_DEPTH} tables or "
+                                          "arrays deep") from None
+    return text, data
+
+
+def _depth(value: object) -> int:
+    """How many tables and arrays deep ``value`` is nested (iteratively: any depth is measured
+    without recursion)."""
+    deepest = 0
+    stack: list[tuple[object, int]] = [(value, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, Mapping):
+            children: list[object] = list(node.values())
+        elif isinstance(node, list):
+            children = list(node)
+        else:
+            continue
+        deepest = max(deepest, depth + 1)
+        stack.extend((child, depth + 1) for child in children)
+    return deepest
 
 
 _JOINT_KEYS_DEG = {"lower_deg": "lower_rad", "upper_deg": "upper_rad", "offset_deg": "offset_rad",

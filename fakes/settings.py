@@ -17,8 +17,8 @@ from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.joint import CYCLE_S, PhysicalEffects
 from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
 
-__all__ = ["CYCLE_S", "PROFILES", "ArmPhysics", "EmulatorSettings", "PhysicalEffects",
-           "actual_robot", "emulator_settings", "with_emulator_overrides"]
+__all__ = ["CYCLE_S", "MAX_TIMES_S", "PROFILES", "ArmPhysics", "EmulatorSettings",
+           "PhysicalEffects", "actual_robot", "emulator_settings", "with_emulator_overrides"]
 
 @dataclass(frozen=True, slots=True)
 class EmulatorSettings:
@@ -67,6 +67,11 @@ class EmulatorSettings:
         """Seconds per bit on the I²C bus."""
         return 1.0 / self.i2c_hz
 
+
+#: Upper bounds of the emulator's times (s), checked when the settings are read: a master loop
+#: or an EEPROM byte of a second, a boot of a minute are already far beyond any ATmega328P.
+MAX_TIMES_S: dict[str, float] = {"loop_overhead_s": 1.0, "eeprom_write_s_per_byte": 1.0,
+                                 "boot_s": 60.0}
 
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
                            "profile": str}
@@ -181,9 +186,9 @@ def _validate(s: EmulatorSettings) -> None:
         v = getattr(s, name)
         if not isinstance(v, int) or v < 1:
             raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
-    for name in ("loop_overhead_s", "eeprom_write_s_per_byte", "boot_s"):
-        if getattr(s, name) < 0:
-            raise SettingsError(f"emulator.{name}", getattr(s, name), "must be >= 0")
+    for name, high_s in MAX_TIMES_S.items():
+        if not 0 <= getattr(s, name) <= high_s:
+            raise SettingsError(f"emulator.{name}", getattr(s, name), f"must be 0..{high_s:g} s")
     if s.reply_line_end not in ("", "\n", "\r\n"):
         raise SettingsError("emulator.reply_line_end", s.reply_line_end,
                             "must be '', '\\n' or '\\r\\n'")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -120,9 +121,12 @@ def _href(target: Path, out_dir: Path) -> str:
 
 
 def render_index(runs_dir: str | os.PathLike[str],
-                 out_path: str | os.PathLike[str] | None = None) -> Path:
+                 out_path: str | os.PathLike[str] | None = None,
+                 warn: Callable[[str], object] | None = None) -> Path:
     """Write the index of the runs in ``runs_dir`` (each a directory holding ``results.json``) to
-    ``out_path`` (default ``runs_dir/index.html``, written atomically); returns the path."""
+    ``out_path`` (default ``runs_dir/index.html``, written atomically); returns the path. A record
+    that cannot be read is listed as unreadable with the reason, and ``warn`` (if given) is told
+    the reason."""
     root = Path(runs_dir)
     if not root.is_dir():
         raise RecordError(str(root), "is not a directory of runs")
@@ -136,6 +140,8 @@ def render_index(runs_dir: str | os.PathLike[str],
             record = read_record(results)
         except RecordError as exc:
             loaded.append(((2, 0.0, d.name), d.name, d, None, str(exc)))
+            if warn is not None:
+                warn(f"{exc} (listed as unreadable)")
             continue
         loaded.append((_created_key(record.created), record.run_id, d, record, None))
     loaded.sort(key=lambda item: (item[0], item[1]))

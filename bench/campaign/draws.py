@@ -14,14 +14,13 @@ from __future__ import annotations
 import math
 import random
 import re
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings, SettingsError, read_toml_document
 
 __all__ = ["Uncertain", "apply_arm", "draw_arm", "read_uncertainties"]
 
@@ -68,11 +67,7 @@ def read_uncertainties(path: str | Path) -> list[Uncertain]:
     without a ``fitted: ± sigma`` comment stay fixed. A sigma that is not a finite number >= 0,
     or a fitted key that is not a number, is a :class:`SettingsError` naming it."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-        data = tomllib.loads(text)
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ArmbenchError(f"--settings {p}: cannot be read: {exc}") from None
+    text, data = read_toml_document(p, "--settings")
     out: list[Uncertain] = []
     table: list[str] = []
     for line in text.splitlines():

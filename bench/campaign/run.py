@@ -103,7 +103,7 @@ def _resumed(options: CampaignOptions) -> BenchPlan:
         info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
         campaign = info["campaign"]
         suite, samples = str(campaign["suite"]), int(campaign["samples"])
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         raise RecordError(str(directory / RUNNER_FILE), "does not describe a campaign; "
                                                         "armbench run --resume continues a "
                                                         "run") from None

@@ -52,7 +52,7 @@ def _read_shard(directory: Path) -> _Shard:
     record = load_record(directory / RESULTS_FILE)
     try:
         info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:
         raise MergeError(f"{directory}: no readable {RUNNER_FILE} ({exc}): not a run "
                          "directory") from None
     shard = info.get("shard") if isinstance(info, dict) else None

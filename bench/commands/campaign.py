@@ -21,6 +21,7 @@ from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.commands.run import shard_arg
 from armbench.bench.record import RunRecord
 from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PASS, RunOutcome
+from armbench.bench.runner.plan import MAX_TRIALS
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register", "write_campaign_page"]
@@ -38,7 +39,8 @@ def register(sub: Any) -> None:
                "is in error, 130 interrupted.")
     p.add_argument("suite", metavar="SUITE", nargs="?", default="",
                    help="the suite (accuracy, startup-recovery, ...)")
-    p.add_argument("--samples", type=int, default=0, metavar="N", help="samples to draw")
+    p.add_argument("--samples", type=int, default=None, metavar="N",
+                   help=f"samples to draw, 1 to {MAX_TRIALS} (required unless --resume)")
     p.add_argument("--resume", metavar="DIR",
                    help="continue the interrupted campaign in DIR (its inputs are kept)")
     p.add_argument("--settings", metavar="FILE",
@@ -68,6 +70,9 @@ def write_campaign_page(record: RunRecord, outcome: RunOutcome) -> None:
 def _campaign(args: argparse.Namespace) -> int:
     if args.resume is None and not args.suite:
         raise ArmbenchError("SUITE: name the suite of the campaign (or --resume DIR)")
+    if args.resume is None and args.samples is None:
+        raise ArmbenchError(f"--samples: required; give the number of samples to draw "
+                            f"(1 to {MAX_TRIALS})")
     if args.resume is not None:
         given = [flag for flag, value in (("--settings", args.settings), ("--config", args.config),
                                           ("--seed", args.seed), ("--out", args.out),
@@ -75,7 +80,7 @@ def _campaign(args: argparse.Namespace) -> int:
         if given:
             raise ArmbenchError(f"--resume: {given[0]} comes from the campaign being resumed")
     outcome = run_campaign(CampaignOptions(
-        suite=args.suite, samples=args.samples, settings=args.settings, config=args.config,
+        suite=args.suite, samples=args.samples or 0, settings=args.settings, config=args.config,
         out=args.out, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
         shard=args.shard, resume=args.resume), progress=sys.stderr)
     record = outcome.record

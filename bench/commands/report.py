@@ -15,8 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.baseline import TOO_DEEP
-from armbench.bench.record import REPORT_FILE, RESULTS_FILE
+from armbench.bench.record import REPORT_FILE, RESULTS_FILE, TOO_DEEP
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
@@ -59,5 +58,6 @@ def _run(args: argparse.Namespace) -> int:
             continue
         print(out)
     if args.index is not None:
-        print(render_index(args.index))
+        print(render_index(args.index, warn=lambda reason: print(
+            f"armbench report: warning: {reason}", file=sys.stderr)))
     return status

@@ -50,6 +50,7 @@ from armbench.bench.record.model import Measurement, SuiteRecord, Trial, default
 from armbench.bench.record.run import (
     PAPER_REFERENCE,
     SCHEMA,
+    TOO_DEEP,
     RunRecord,
     load_record,
     validate_record,
@@ -64,6 +65,7 @@ __all__ = [
     "REPORT_FILE",
     "RESULTS_FILE",
     "SCHEMA",
+    "TOO_DEEP",
     "Better",
     "Comparison",
     "ComparisonRow",

@@ -25,12 +25,15 @@ from armbench.bench.record.fields import (
 from armbench.bench.record.journal import journal_path, read_journal
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial
 from armbench.bench.record.shapes import RecordJson
+from armbench.drivers.user_files import FileRefused, read_regular_file
 
-__all__ = ["PAPER_REFERENCE", "SCHEMA", "RunRecord", "load_record", "replay_journal",
+__all__ = ["PAPER_REFERENCE", "SCHEMA", "TOO_DEEP", "RunRecord", "load_record", "replay_journal",
            "validate_record"]
 
 #: The schema identifier of the records this module writes and reads.
 SCHEMA = "armbench-run/1"
+#: What a file nested beyond the JSON parser's depth is called (it is no run record).
+TOO_DEEP = "is nested too deeply to be a run record"
 #: The paper's figures the report shows next to ours (mean Euclidean path error of §7, mm).
 PAPER_REFERENCE: Mapping[str, float] = {"paper_mean_error_mm": 12.4}
 
@@ -184,24 +187,41 @@ def validate_record(data: object) -> RunRecord:
 
 
 def load_record(path: str | Path) -> RunRecord:
-    """Read and validate a ``results.json``; errors name the file and the field."""
+    """Read and validate a ``results.json`` and replay its journal; errors name the file and the
+    field. Whatever keeps the file from being a record (not a regular file, not JSON, an integer
+    beyond Python's digit limit, nesting beyond the parser's depth) is a :class:`RecordError`
+    naming the file, never another exception."""
     p = Path(path)
     try:
-        data = json.loads(p.read_bytes())
-    except FileNotFoundError:
-        raise RecordError(str(p), "does not exist") from None
-    except IsADirectoryError:
-        raise RecordError(str(p), "is a directory, not a results.json") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise RecordError(str(p), f"is not valid JSON: {exc}") from None
-    except OSError as exc:
-        raise RecordError(str(p), f"cannot be read: {exc.strerror or exc}") from None
-    try:
+        data = json.loads(read_regular_file(p, "a results.json"))
         record = validate_record(data)
+    except FileRefused as exc:
+        raise RecordError(str(p), exc.reason) from None
     except RecordError as exc:
         raise RecordError(f"{p}: {exc.where}", exc.reason) from None
-    replay_journal(record, journal_path(p))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RecordError(str(p), f"is not valid JSON: {exc}") from None
+    except ValueError as exc:  # an integer of more digits than int() converts
+        raise RecordError(str(p), f"is not a run record: {_plain_reason(exc)}") from None
+    except RecursionError:
+        raise RecordError(str(p), TOO_DEEP) from None
+    journal = journal_path(p)
+    try:
+        replay_journal(record, journal)
+    except RecordError:
+        raise
+    except ValueError as exc:
+        raise RecordError(str(journal), f"is not a journal of trials: {_plain_reason(exc)}") \
+            from None
+    except RecursionError:
+        raise RecordError(str(journal), TOO_DEEP) from None
     return record
+
+
+def _plain_reason(exc: ValueError) -> str:
+    """The reason of a parser's ValueError without Python's advice to the programmer (``; use
+    sys.set_int_max_str_digits() ...``)."""
+    return str(exc).split("; use sys.", 1)[0]
 
 
 def replay_journal(record: RunRecord, path: Path) -> int:

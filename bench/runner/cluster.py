@@ -35,11 +35,12 @@ def check_scheduler(where: str, address: object, fake: bool) -> str:
     installed); a :class:`SettingsError` naming ``where`` otherwise."""
     if not isinstance(address, str):
         raise SettingsError(where, address, "is not a scheduler address (tcp://HOST:PORT)")
-    url = urlsplit(address)
-    try:
+    try:  # urlsplit refuses an unclosed IPv6 bracket, .port a port out of range
+        url = urlsplit(address)
         port = url.port
     except ValueError:
-        port = None
+        raise SettingsError(where, address, "is not a scheduler address (tcp://HOST:PORT)") \
+            from None
     if url.scheme not in SCHEMES or not url.hostname or (url.scheme != "inproc" and not port):
         raise SettingsError(where, address, "is not a scheduler address (tcp://HOST:PORT)")
     if not fake:

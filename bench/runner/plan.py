@@ -15,6 +15,7 @@ from __future__ import annotations
 import fnmatch
 import itertools
 import json
+import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -60,6 +61,15 @@ __all__ = ["prepare"]
 
 #: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
 MAX_TRIALS = 10_000
+
+#: Upper bounds of the ``[bench]`` times (s) and counts (and of ``--retries``, ``--workers``),
+#: checked before anything moves: the run clock stays far inside the capture's int32 seconds
+#: stamps (2**31 s) over :data:`MAX_TRIALS` trials of every suite, and no count asks the machine
+#: for the impossible. Documented in ``docs/runner.md``.
+BENCH_MAX: dict[str, float] = {
+    "retries": 100, "workers": 1024, "reply_timeout_s": 60.0, "connect_timeout_s": 600.0,
+    "outage_timeout_s": 600.0, "settle_s": 600.0, "power_timeout_s": 600.0,
+}
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "outage_timeout_s",
                "settle_s",
@@ -108,19 +118,44 @@ class _BenchKnobs:
     scheduler: str | None = None
 
 
-def _number(where: str, value: object, *, low: float, strict: bool) -> float:
+def _number(where: str, value: object, *, low: float, strict: bool, high: float) -> float:
     number = finite_float(value)
     if number is None:
         raise SettingsError(where, value, "is not a finite number")
     if number < low or (strict and number == low):
         raise SettingsError(where, value, f"must be {'>' if strict else '>='} {low:g}")
+    if number > high:
+        raise SettingsError(where, value, f"must be <= {high:g}")
     return number
 
 
-def _integer(where: str, value: object) -> int:
+def _integer(where: str, value: object, high: float | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 0:
         raise SettingsError(where, value, "must be a whole number >= 0")
+    if high is not None and value > high:
+        raise SettingsError(where, value, f"must be <= {high:g}")
     return value
+
+
+def check_storable(where: str, value: object) -> None:
+    """Refuse, naming its dotted path, the first value under ``value`` the record cannot store:
+    a float that is not finite (TOML has ``inf`` and ``nan``, JSON has not)."""
+    stack: list[tuple[str, object]] = [(where, value)]
+    while stack:
+        path, node = stack.pop()
+        if isinstance(node, float) and not math.isfinite(node):
+            raise SettingsError(path, node, "is not finite; a run record cannot store it")
+        if isinstance(node, Mapping):
+            stack.extend((f"{path}.{k}" if path else str(k), v) for k, v in node.items())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((f"{path}[{i}]", v) for i, v in enumerate(node))
+
+
+def _seconds(bench: Mapping[str, Any], key: str, default: float, *, strict: bool = True) -> float:
+    """``[bench] key``: a time in seconds, > 0 (>= 0 when not ``strict``) and at most its
+    :data:`BENCH_MAX` bound."""
+    return _number(f"bench.{key}", bench.get(key, default), low=0, strict=strict,
+                   high=BENCH_MAX[key])
 
 
 def json_equal(a: object, b: object) -> bool:
@@ -249,12 +284,13 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
         if key not in _BENCH_KEYS:
             raise SettingsError(f"bench.{key}", value, "is not a bench parameter (known: "
                                 f"{', '.join(sorted(_BENCH_KEYS))})")
-    retries = _integer("bench.retries", bench.get("retries", 0))
+    retries = _integer("bench.retries", bench.get("retries", 0), BENCH_MAX["retries"])
     if options.retries is not None:
-        retries = _integer("--retries", options.retries)
-    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)))
+        retries = _integer("--retries", options.retries, BENCH_MAX["retries"])
+    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
+                       BENCH_MAX["workers"])
     if options.workers is not None:
-        workers = _integer("--workers", options.workers)
+        workers = _integer("--workers", options.workers, BENCH_MAX["workers"])
     if workers < 1:
         raise SettingsError("--workers" if options.workers is not None else "bench.workers",
                             workers, "must be at least 1")
@@ -277,17 +313,11 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
     return _BenchKnobs(
         retries=retries, workers=workers, isolation=isolation, capture=capture,
         capture_max_bytes=capture_max_bytes,
-        reply_timeout_s=_number("bench.reply_timeout_s", bench.get("reply_timeout_s", 0.5),
-                                low=0, strict=True),
-        connect_timeout_s=_number("bench.connect_timeout_s",
-                                  bench.get("connect_timeout_s", 3.0), low=0, strict=True),
-        outage_timeout_s=_number("bench.outage_timeout_s",
-                                 bench.get("outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S), low=0,
-                                 strict=True),
-        settle_s=_number("bench.settle_s", bench.get("settle_s", 0.0), low=0, strict=False),
-        power_timeout_s=_number("bench.power_timeout_s",
-                                bench.get("power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
-                                low=0, strict=True),
+        reply_timeout_s=_seconds(bench, "reply_timeout_s", 0.5),
+        connect_timeout_s=_seconds(bench, "connect_timeout_s", 3.0),
+        outage_timeout_s=_seconds(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
+        settle_s=_seconds(bench, "settle_s", 0.0, strict=False),
+        power_timeout_s=_seconds(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
         tracker_params=tracker_params, scheduler=scheduler)
 
 
@@ -465,7 +495,8 @@ def prepare(options: RunOptions) -> BenchPlan:
     if port.fake:
         from armbench.fakes.settings import emulator_settings
 
-        emulator_settings(inputs.settings, seed=0)  # the [emulator] table, checked now
+        emulator_settings(inputs.settings)  # the [emulator] table, its seed too, checked now
+    check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
     _check_limit_units(planned, inputs.config)
     baseline = (None if options.baseline is None

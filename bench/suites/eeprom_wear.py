@@ -24,10 +24,14 @@ from armbench.bench.suites.workspace import (
     POSE_NAMES,
 )
 
-__all__ = ["ATMEGA328P_EEPROM_CYCLES", "eeprom_life_years", "measure_wear", "wear_measurements"]
+__all__ = ["ATMEGA328P_EEPROM_CYCLES", "MAX_WEAR_S", "eeprom_life_years", "measure_wear",
+           "wear_measurements"]
 
 #: ATmega328P data sheet: rated EEPROM write/erase cycles per cell.
 ATMEGA328P_EEPROM_CYCLES: Final = 100_000
+#: The longest wear trial (``wear_duration_s``, s of robot time): one day, checked before
+#: anything moves; a longer one would only repeat the same duty cycle.
+MAX_WEAR_S: Final = 86_400.0
 
 
 def eeprom_life_years(wear_per_hour: float, hours_per_year: float,

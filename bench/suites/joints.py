@@ -24,6 +24,7 @@ from armbench.bench.metrics import MetricsInputError
 from armbench.bench.metrics.iso230 import axis_positioning
 from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
+    MAX_REPEATS,
     Measurements,
     TruthProbe,
     check_int,
@@ -96,13 +97,14 @@ class JointsSuite(Suite):
                 or len(set(joints)) != len(joints)):
             raise SettingsError(f"{where}.joints", joints, "must list some of 1, 2, 3, 4 once each")
         fracs = params["targets_frac"]
-        if not isinstance(fracs, list) or len(fracs) < 2:
-            raise SettingsError(f"{where}.targets_frac", fracs, "must list at least 2 fractions")
+        if not isinstance(fracs, list) or not 2 <= len(fracs) <= MAX_REPEATS:
+            raise SettingsError(f"{where}.targets_frac", fracs,
+                                f"must list 2 to {MAX_REPEATS} fractions")
         for f in fracs:
             check_number(f"{where}.targets_frac", f, low=0.0, high=1.0)
         if len(set(fracs)) != len(fracs):
             raise SettingsError(f"{where}.targets_frac", fracs, "has repeated targets")
-        check_int(f"{where}.cycles", params["cycles"], low=2)
+        check_int(f"{where}.cycles", params["cycles"], low=2, high=MAX_REPEATS)
         over = check_number(f"{where}.overtravel_rad", params["overtravel_rad"], low=0.0,
                             low_open=True, high=0.5)
         check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)

@@ -56,6 +56,7 @@ from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.contract import SAMPLE, STARTUP
 from armbench.bench.suites.eeprom_wear import (
     ATMEGA328P_EEPROM_CYCLES,
+    MAX_WEAR_S,
     eeprom_life_years,
     measure_wear,
     wear_measurements,
@@ -166,7 +167,8 @@ class StartupRecoverySuite(Suite):
         check_number(f"{w}.tolerance_mm", params["tolerance_mm"], low=0.0, low_open=True)
         check_number(f"{w}.still_s", params["still_s"], low=0.0, high=10.0)
         check_bool(f"{w}.rescue", params["rescue"])
-        check_number(f"{w}.wear_duration_s", params["wear_duration_s"], low=0.0)
+        check_number(f"{w}.wear_duration_s", params["wear_duration_s"], low=0.0,
+                     high=MAX_WEAR_S)
         check_number(f"{w}.use_hours_per_year", params["use_hours_per_year"], low=0.0,
                      low_open=True, high=8784.0)
         for zone in ("near", "far"):
