@@ -127,5 +127,8 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
     finally:
         await server.close()
         stats = arm.stats()
+        overrun = (server.receive.overrun_bytes if isinstance(server, PtyServer)
+                   else server.overrun_bytes)
         print(f"armbench emulate: stopped after {stats.loops} loops, {stats.commands} commands "
-              f"received", flush=True)
+              f"received, {overrun} bytes dropped by the full receive buffer (overrun)",
+              flush=True)
