@@ -344,7 +344,8 @@ class TcpServer:
         return self.host, self.port
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        peer = str(writer.get_extra_info("peername"))
+        name = writer.get_extra_info("peername")
+        peer = f"{name[0]}:{name[1]}" if isinstance(name, tuple) else str(name)
         if not await self._take_slot(peer, writer):
             return
         self._client = writer

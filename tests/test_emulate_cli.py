@@ -247,3 +247,24 @@ def test_tcp_a_refused_client_is_told_why() -> None:
         first.close()
 
     _tcp_server_test(body, idle_timeout_s=30.0)
+
+
+def test_move_against_a_busy_emulator_shows_the_servers_line(
+        capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
+    """``armbench move`` while another client has the arm: the error is the server's ``busy``
+    line (it read "no valid reply within 3 s (no reply ever received)" before)."""
+    proc, url = start("--tcp", "127.0.0.1:0", "--duration", "60")
+    try:
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        with socket.create_connection((host, int(port)), timeout=5) as first:
+            first.sendall(Command.from_rad([0.0, 0.0, 0.0, 0.0], 0).encode())
+            first.settimeout(5)
+            assert first.recv(4096)  # the first client is being served
+            assert main(["move", "0", "0", "0", "0", "--port", url]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert "the server said: busy: another client" in err[-1], err
+        assert err[-1].startswith("armbench move: error: ") and "no valid reply" not in err[-1]
+        assert "the server says: busy: another client" in caplog.text  # logged as it came
+    finally:
+        proc.kill()
+        proc.wait()

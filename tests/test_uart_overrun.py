@@ -32,7 +32,7 @@ from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.server_notes import MAX_NOTE_BYTES, ServerNotes, note_line
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
-from armbench.fakes.serve import ClientStream, ReceiveBuffer
+from armbench.fakes.serve import ClientStream, ReceiveBuffer, TcpServer, real_time_loop
 from armbench.fakes.vclock import run_virtual
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,6 +142,29 @@ def test_server_notes_bound_a_line_without_end() -> None:
     got = notes.feed(b"x" * 10 * MAX_NOTE_BYTES)
     assert got == ["x" * MAX_NOTE_BYTES]
     assert notes.feed(b"x" * 1000) == []
+
+
+def test_the_driver_shows_the_servers_overrun_line(caplog: pytest.LogCaptureFixture) -> None:
+    """1000 bytes at once through the driver's own transport: 936 are dropped, the driver logs
+    the server's line and keeps it as ``server_note``, and the next move goes through."""
+    async def body() -> None:
+        server = TcpServer(ArmEmulator())
+        host, port = await server.start()
+        try:
+            async with Arm.connect(f"socket://{host}:{port}") as arm:
+                await arm.transport.write(b"x" * 1000)
+                await arm.wait_state(lambda s: arm.server_note is not None, 5.0)
+                assert arm.server_note == ("overrun: 936 bytes dropped, the 64-byte receive "
+                                           "buffer was full (936 bytes in all)")
+                await asyncio.sleep(64 * arm.settings.serial.byte_time_s + 0.01)  # line free
+                done = await arm.move_joints((0.02, 0.0, 0.0, 0.0), 99)
+                assert done is not None and server.overrun_bytes == 936 and arm.resends == 0
+        finally:
+            await server.close()
+
+    with asyncio.Runner(loop_factory=real_time_loop) as runner:
+        runner.run(body())
+    assert "the server says: overrun: 936 bytes dropped" in caplog.text
 
 
 # --- the hostile client against a real emulator process ------------------------------------------
