@@ -268,3 +268,35 @@ def test_move_against_a_busy_emulator_shows_the_servers_line(
     finally:
         proc.kill()
         proc.wait()
+
+
+@pytest.mark.parametrize("argv", [
+    ["emulate", "--pty", "--foxglove", "0.0.0.0:0", "--duration", "0.1"],
+    ["emulate", "--tcp", "127.0.0.1:0", "--foxglove", "[::]:0", "--duration", "0.1"],
+    ["monitor", "--foxglove", "0.0.0.0:0", "--duration", "0.1"],
+    ["monitor", "--foxglove", "example.org:8765", "--duration", "0.1"],
+])
+def test_foxglove_refuses_a_remote_bind_without_the_flag(
+        argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """``--foxglove`` follows ``--tcp``'s rule: the live server has no authentication and takes
+    any Origin, so binding anything but loopback needs ``--allow-remote`` (nothing starts)."""
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "--foxglove" in lines[0] and "not a loopback address" in lines[0]
+    assert "--allow-remote" in lines[0] and "without authentication" in lines[0]
+    assert "serving" not in out and "Foxglove live view" not in out + err
+
+
+def test_remote_binds_are_warned_about_with_the_flag() -> None:
+    from armbench.bench.live import check_bind, check_live_endpoint, is_loopback
+
+    assert all(is_loopback(h) for h in ("127.0.0.1", "127.3.2.1", "::1", "localhost"))
+    assert not any(is_loopback(h) for h in ("0.0.0.0", "::", "10.0.0.1", "example.org", ""))
+    assert check_live_endpoint("127.0.0.1:0", allow_remote=False) is None
+    assert check_live_endpoint(":8765", allow_remote=False) is None  # loopback by default
+    warning = check_live_endpoint("0.0.0.0:8765", allow_remote=True)
+    assert warning is not None and warning.startswith("WARNING: --foxglove serves on 0.0.0.0")
+    assert "without authentication" in warning
+    tcp = check_bind("--tcp", "::", True, "move the arm")
+    assert tcp is not None and "move the arm" in tcp
