@@ -110,11 +110,13 @@ class ReceiveBuffer:
     """What a server hands the emulated UART: at most ``size_bytes`` wait for the line.
 
     A pty or a socket has no baud rate, so a client can write far faster than the line carries
-    bytes. The bytes read from it wait for the line in a buffer of the size of the board's receive
-    buffer (``[emulator] rx_buffer_bytes``, by default ``RX_SIZE`` of ``firmware/master.c``: the
-    Arduino core's 64 bytes); bytes arriving when it is full are dropped and counted as overrun,
-    as an ATmega328P's UART drops a byte that finds its buffer full. Whatever a client sends,
-    memory stays bounded and a later client waits behind at most ``size_bytes`` of line time.
+    bytes. What it writes waits for the line in a buffer of ``[emulator] host_buffer_bytes``
+    (what the host side of a real serial line holds); bytes arriving when it is full are dropped
+    and counted as overrun, as a UART drops a byte that finds its buffer full. On the line the
+    board's own receive buffer (``rx_buffer_bytes``, ``RX_SIZE`` of ``firmware/master.c``) drops
+    what its loop does not read in time, as before. Whatever a client sends, memory stays bounded
+    and a later client waits behind at most ``size_bytes`` of line time (none on TCP: a client's
+    unsent bytes are discarded when it leaves, :meth:`discard`).
 
     Overruns are reported through ``report`` (the client's stream and the emulator's log), the
     first at once, then at most one line per :data:`OVERRUN_REPORT_S` with the count since.
@@ -158,11 +160,18 @@ class ReceiveBuffer:
             return
         self._reported_s = asyncio.get_running_loop().time()
         count, self._unreported = self._unreported, 0
-        self._report(f"overrun: {count} bytes dropped, the {self.size_bytes}-byte receive buffer "
-                     f"was full ({self.overrun_bytes} bytes in all)")
+        self._report(f"overrun: {count} bytes dropped, sent faster than the line carries them "
+                     f"with its {self.size_bytes}-byte buffer full ({self.overrun_bytes} bytes "
+                     f"in all)")
+
+    def discard(self) -> int:
+        """The client has gone: forget its bytes that have not begun on the line (returns how
+        many) and stop reporting."""
+        self.close()
+        return self.arm.uart.discard_unsent(asyncio.get_running_loop().time())
 
     def close(self) -> None:
-        """Stop reporting (the client has gone)."""
+        """Stop reporting."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -217,7 +226,7 @@ class PtyServer:
     """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
 
     def __init__(self, arm: ArmEmulator, link: str | Path | None = None,
-                 rx_buffer_bytes: int | None = None) -> None:
+                 buffer_bytes: int | None = None) -> None:
         self.arm = arm
         self.link = Path(link) if link is not None else None
         self._master_fd = -1
@@ -227,7 +236,7 @@ class PtyServer:
         self._frames = FrameLogger()
         self._stream = ClientStream(self._write)
         self.receive = ReceiveBuffer(
-            arm, arm.settings.rx_buffer_bytes if rx_buffer_bytes is None else rx_buffer_bytes,
+            arm, arm.settings.host_buffer_bytes if buffer_bytes is None else buffer_bytes,
             self._overrun)
         """The receive buffer; its ``overrun_bytes`` counts what the pty's clients lost."""
 
@@ -304,10 +313,9 @@ class TcpServer:
     def __init__(self, arm: ArmEmulator, host: str = "127.0.0.1", port: int = 0,
                  idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
                  stalled_buffer_bytes: int = STALLED_BUFFER_BYTES,
-                 rx_buffer_bytes: int | None = None) -> None:
+                 buffer_bytes: int | None = None) -> None:
         self.arm = arm
-        self.rx_buffer_bytes = (arm.settings.rx_buffer_bytes if rx_buffer_bytes is None
-                                else rx_buffer_bytes)
+        self.buffer_bytes = arm.settings.host_buffer_bytes if buffer_bytes is None else buffer_bytes
         """Size of each client's receive buffer (:class:`ReceiveBuffer`)."""
         self._overrun_before = 0
         self._receive: ReceiveBuffer | None = None
@@ -421,12 +429,15 @@ class TcpServer:
             log.warning("client %s: %s", peer, text)
             stream.say(text)
 
-        self._receive = receive = ReceiveBuffer(self.arm, self.rx_buffer_bytes, overrun)
+        self._receive = receive = ReceiveBuffer(self.arm, self.buffer_bytes, overrun)
         self.arm.attach_host(stream.reply)
         try:
             await self._relay(peer, reader, receive, transport, frames)
         finally:
-            receive.close()
+            unsent = receive.discard()
+            if unsent:
+                log.info("client %s: %d bytes it sent were still waiting for the line: discarded",
+                         peer, unsent)
             self._receive = None
             self._overrun_before += receive.overrun_bytes
             if receive.overrun_bytes:

@@ -67,11 +67,11 @@ def test_receive_buffer_keeps_what_fits_and_counts_the_rest() -> None:
         assert rx.backlog_bytes(loop.time()) == 64
         await asyncio.sleep(0)
         # the first report at once (the drops of this instant), the rest a second later
-        assert reports == ["overrun: 946 bytes dropped, the 64-byte receive buffer was full "
-                           "(946 bytes in all)"]
+        assert reports == ["overrun: 946 bytes dropped, sent faster than the line carries them "
+                           "with its 64-byte buffer full (946 bytes in all)"]
         await asyncio.sleep(1.0)
-        assert reports[1:] == ["overrun: 10 bytes dropped, the 64-byte receive buffer was full "
-                               "(956 bytes in all)"]
+        assert reports[1:] == ["overrun: 10 bytes dropped, sent faster than the line carries "
+                               "them with its 64-byte buffer full (956 bytes in all)"]
         # what was kept reached the board: 64 bytes first, then 20 of the 30
         stats = arm.stats()
         assert stats.rx_bytes + stats.rx_overflow_bytes == 84
@@ -83,19 +83,41 @@ def test_receive_buffer_keeps_what_fits_and_counts_the_rest() -> None:
     run_virtual(body())
 
 
-def test_a_command_frame_within_the_buffer_passes_whole() -> None:
-    """The driver's frames (37 bytes, one at a time) are never cut."""
+def test_back_to_back_commands_pass_whole() -> None:
+    """A move and a hold written at once (74 bytes, more than the board's 64-byte buffer) reach
+    the board whole: the host side holds them for the line, as a serial port's driver does."""
     async def body() -> None:
         arm = ArmEmulator()
         await arm.start()
         await asyncio.sleep(0.5)  # booted
-        rx = ReceiveBuffer(arm, arm.settings.rx_buffer_bytes, lambda text: None)
-        for _ in range(5):
-            rx.feed(Command.from_rad((0.01, 0.0, 0.0, 0.0), 99).encode())
-            await asyncio.sleep(0.01)
-        assert rx.overrun_bytes == 0
-        await asyncio.sleep(0.05)
-        assert arm.stats().commands == 5
+        rx = ReceiveBuffer(arm, arm.settings.host_buffer_bytes, lambda text: None)
+        move = Command.from_rad((0.2, 0.0, 0.0, 0.0), 99).encode()
+        hold = Command.from_rad((0.0, 0.0, 0.0, 0.0), 0).encode()
+        for _ in range(3):
+            rx.feed(move + hold)
+            await asyncio.sleep(0.05)
+        stats = arm.stats()
+        assert rx.overrun_bytes == 0 and stats.rx_overflow_bytes == 0
+        assert stats.commands == 6 and stats.rx_bytes == 3 * len(move + hold)
+        await arm.close()
+
+    run_virtual(body())
+
+
+def test_a_departed_clients_unsent_bytes_are_discarded() -> None:
+    async def body() -> None:
+        arm = ArmEmulator()
+        await arm.start()
+        await asyncio.sleep(0.5)
+        rx = ReceiveBuffer(arm, 1000, lambda text: None)
+        rx.feed(b"1" * 1000)
+        await asyncio.sleep(100.5 * arm.uart.byte_s)  # 101 bytes have begun on the line
+        assert rx.discard() == 899
+        loop = asyncio.get_running_loop()
+        assert rx.backlog_bytes(loop.time()) <= 1
+        await asyncio.sleep(0.01)
+        stats = arm.stats()
+        assert stats.rx_bytes + stats.rx_overflow_bytes == 101
         await arm.close()
 
     run_virtual(body())
@@ -145,26 +167,28 @@ def test_server_notes_bound_a_line_without_end() -> None:
 
 
 def test_the_driver_shows_the_servers_overrun_line(caplog: pytest.LogCaptureFixture) -> None:
-    """1000 bytes at once through the driver's own transport: 936 are dropped, the driver logs
-    the server's line and keeps it as ``server_note``, and the next move goes through."""
+    """5000 bytes at once through the driver's own transport: the 904 beyond the 4096-byte buffer
+    are dropped, the driver logs the server's line and keeps it as ``server_note``, and a move
+    goes through once the line has carried the rest."""
     async def body() -> None:
         server = TcpServer(ArmEmulator())
         host, port = await server.start()
         try:
             async with Arm.connect(f"socket://{host}:{port}") as arm:
-                await arm.transport.write(b"x" * 1000)
+                await arm.transport.write(b"x" * 5000)
                 await arm.wait_state(lambda s: arm.server_note is not None, 5.0)
-                assert arm.server_note == ("overrun: 936 bytes dropped, the 64-byte receive "
-                                           "buffer was full (936 bytes in all)")
-                await asyncio.sleep(64 * arm.settings.serial.byte_time_s + 0.01)  # line free
+                assert arm.server_note == ("overrun: 904 bytes dropped, sent faster than the "
+                                           "line carries them with its 4096-byte buffer full "
+                                           "(904 bytes in all)")
+                await asyncio.sleep(4096 * arm.settings.serial.byte_time_s + 0.01)  # line free
                 done = await arm.move_joints((0.02, 0.0, 0.0, 0.0), 99)
-                assert done is not None and server.overrun_bytes == 936 and arm.resends == 0
+                assert done is not None and server.overrun_bytes == 904 and arm.resends == 0
         finally:
             await server.close()
 
     with asyncio.Runner(loop_factory=real_time_loop) as runner:
         runner.run(body())
-    assert "the server says: overrun: 936 bytes dropped" in caplog.text
+    assert "the server says: overrun: 904 bytes dropped" in caplog.text
 
 
 # --- the hostile client against a real emulator process ------------------------------------------
@@ -279,12 +303,14 @@ def test_a_flooding_tcp_client_leaves_no_backlog_and_little_memory(
     hwm_growth = emu.status_kb("VmHWM") - max(hwm0, rss0)
     assert rss_growth < RSS_GROWTH_LIMIT_KB and hwm_growth < RSS_GROWTH_LIMIT_KB, (rss0, hwm0)
     took_s, predicted_s = move_time_s(emu.where)
-    assert took_s <= predicted_s + 0.5, (took_s, predicted_s)  # the driver's own timeout is more
+    # the flood's unsent bytes left with it: the move waits behind nothing (a loaded host may
+    # read the arrival late; the driver's own timeout is longer still)
+    assert took_s <= predicted_s + 0.3, (took_s, predicted_s)
     print(f"tcp flood: {sent / 1e6:.0f} MB sent in {FLOOD_S:g} s, RSS growth "
           f"{rss_growth / 1024:.1f} MB (peak {hwm_growth / 1024:.1f} MB), then move "
           f"{took_s:.3f} s (law (12): {predicted_s:.3f} s)")
     out = emu.stop()
-    m = re.search(r"(\d+) bytes dropped by the full receive buffer", out)
+    m = re.search(r"(\d+) bytes dropped as overrun", out)
     assert m is not None and int(m.group(1)) > sent // 2, out
     log = emu.log.read_text()
     assert "overrun" in log and len(log) < 200_000  # reported at most once a second
@@ -317,7 +343,10 @@ def test_a_flooding_pty_client_leaves_no_backlog(pty_emulator: Emulator) -> None
     assert notes and all(n.startswith("overrun: ") for n in notes), lines[:300]
     assert emu.status_kb("VmRSS") - rss0 < RSS_GROWTH_LIMIT_KB
     took_s, predicted_s = move_time_s(emu.where)
-    assert took_s <= predicted_s + 0.5, (took_s, predicted_s)
+    # behind at most the host buffer's 4096 bytes of line time (a pty has no "client left")
+    assert took_s <= predicted_s + 4096 * RobotSettings().serial.byte_time_s + 0.3, took_s
+    print(f"pty flood: {sent / 1e6:.1f} MB written in 3 s, then move {took_s:.3f} s "
+          f"(law (12): {predicted_s:.3f} s)")
     out = emu.stop()
-    m = re.search(r"(\d+) bytes dropped by the full receive buffer", out)
+    m = re.search(r"(\d+) bytes dropped as overrun", out)
     assert m is not None and int(m.group(1)) > sent // 2, out

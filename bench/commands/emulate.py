@@ -128,5 +128,6 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
         overrun = (server.receive.overrun_bytes if isinstance(server, PtyServer)
                    else server.overrun_bytes)
         print(f"armbench emulate: stopped after {stats.loops} loops, {stats.commands} commands "
-              f"received, {overrun} bytes dropped by the full receive buffer (overrun)",
+              f"received, {overrun} bytes dropped as overrun (sent faster than the line "
+              f"carries them)",
               flush=True)
