@@ -68,6 +68,8 @@ STEP_S = 5.0
 """Deadline of one step (seconds; simulated on fake://)."""
 TEST_S = 30.0
 """Deadline of a whole test body."""
+START_S = 120.0
+"""Deadline of an emulator process's start."""
 HOME = (0.0, 0.4, 0.8, 0.0)
 """A comfortable pose (elbow bent) the motion tests start from; small moves around it."""
 FAST_RECONNECT = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
@@ -113,7 +115,8 @@ class EmulatorProcess:
                 [sys.executable, "-m", "armbench", "emulate", *where], cwd=ROOT,
                 stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], 15.0)
+        # starting Python and the emulator takes seconds of CPU: minutes on a loaded machine
+        ready, _, _ = select.select([self.proc.stdout], [], [], START_S)
         line_out = self.proc.stdout.readline() if ready else ""
         assert "serving the arm on " in line_out, f"emulate did not start: {line_out!r}"
         served = line_out.split("serving the arm on ", 1)[1].split()[0]

@@ -201,7 +201,7 @@ class Emulator:
             self.proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", *args],
                                          cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], 30.0)
+        ready, _, _ = select.select([self.proc.stdout], [], [], 120.0)  # slow on a loaded host
         line = self.proc.stdout.readline() if ready else ""
         m = re.search(r"serving the arm on (\S+)", line)
         assert m is not None, f"emulate did not start: {line!r} {self.log.read_text()}"
