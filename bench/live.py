@@ -6,12 +6,15 @@ Topics as in ``capture.mcap`` (CDR, ``ros2msg`` schemas of :mod:`armbench.driver
 reply, when there is one), ``/tf`` (the joints' link frames), ``/tf_static`` and
 ``/robot_description`` (the URDF, sent again every :data:`REPEAT_S` seconds so a panel opened later
 gets them: the protocol has no latched topics). Times are the loop's, in nanoseconds. The server
-listens on loopback unless a host is given.
+listens on loopback unless a host is given; another address needs ``--allow-remote`` (the server
+has no authentication and takes any Origin: whoever reaches it can read the stream).
 """
 
 from __future__ import annotations
 
 import contextlib
+import ipaddress
+import sys
 from collections.abc import Iterator
 from typing import Any, Final, TextIO
 
@@ -23,7 +26,8 @@ from armbench.drivers.settings import RobotSettings
 from armbench.drivers.urdf import robot_urdf
 
 __all__ = ["DEFAULT_ENDPOINT", "DEFAULT_HOST", "DEFAULT_PORT", "REPEAT_S", "LiveView",
-           "follow_emulator", "live_view", "parse_endpoint"]
+           "check_bind", "check_live_endpoint", "follow_emulator", "is_loopback", "live_view",
+           "parse_endpoint"]
 
 DEFAULT_HOST: Final = "127.0.0.1"
 #: Foxglove's default WebSocket port.
@@ -51,6 +55,34 @@ def parse_endpoint(text: str, option: str = "--foxglove") -> tuple[str, int]:
     if not 0 <= port <= 65535:
         raise ArmbenchError(f"{option}: port {port} is not in 0..65535")
     return host, port
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_bind(option: str, host: str, allow_remote: bool, exposes: str) -> str | None:
+    """A server of ``option`` may listen on ``host``: loopback always; any other address only
+    with ``allow_remote`` (:class:`ArmbenchError` naming the address otherwise), and then the
+    returned warning says what it ``exposes`` to the network. None for loopback."""
+    if is_loopback(host):
+        return None
+    if not allow_remote:
+        raise ArmbenchError(f"{option}: {host} is not a loopback address; anyone who can reach it "
+                            f"could {exposes} (add --allow-remote to mean it)")
+    return f"WARNING: {option} serves on {host}: anyone who can reach it can {exposes}"
+
+
+def check_live_endpoint(endpoint: str, allow_remote: bool) -> str | None:
+    """:func:`check_bind` for ``--foxglove HOST:PORT``: what a remote live view exposes."""
+    return check_bind("--foxglove", parse_endpoint(endpoint)[0], allow_remote,
+                      "read the joint stream and the robot description, without authentication")
 
 
 class LiveView:
@@ -133,12 +165,17 @@ class LiveView:
 
 @contextlib.contextmanager
 def live_view(endpoint: str | None, settings: RobotSettings, *, name: str = "armbench",
-              announce: TextIO | None = None) -> Iterator[LiveView | None]:
+              announce: TextIO | None = None,
+              allow_remote: bool = False) -> Iterator[LiveView | None]:
     """A :class:`LiveView` on ``endpoint`` (``HOST:PORT``; None: no live view), closed on exit;
-    its address is printed to ``announce``."""
+    its address is printed to ``announce``. A host other than loopback is refused unless
+    ``allow_remote`` (:func:`check_bind`), and warned about on stderr with it."""
     if endpoint is None:
         yield None
         return
+    warning = check_live_endpoint(endpoint, allow_remote)
+    if warning is not None:
+        print(f"armbench {name}: {warning}", file=sys.stderr, flush=True)
     view = LiveView(settings, *parse_endpoint(endpoint), name=name)
     if announce is not None:
         print(f"armbench {name}: Foxglove live view on ws://{view.host}:{view.port}",

@@ -33,6 +33,7 @@ from armbench.drivers.link_outages import LinkOutage, OutageLog, ReconnectPolicy
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import COMMAND_LEN, Command, FrameError, Reply
 from armbench.drivers.replies import ReplyStream
+from armbench.drivers.server_notes import ServerNotes
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.state import JointState
 from armbench.drivers.transports import Transport, open_transport
@@ -128,6 +129,11 @@ class ArmLink:
         self.outages = OutageLog(self.reply_timeout_s)
         """Every loss of the link (see :mod:`~armbench.drivers.link_outages`)."""
         self._tx_since_rx = 0
+        self._notes = ServerNotes()
+        self.server_note: str | None = None
+        """The newest line the server wrote between frames (``armbench emulate``'s ``busy``,
+        ``overrun``, ...); each is logged as a warning when it arrives."""
+        self._note_frames = -1
 
     @property
     def frames_received(self) -> int:
@@ -168,6 +174,7 @@ class ArmLink:
             self._reader = loop.create_task(self._read_loop(), name=f"arm-reader {self.port}")
             if self._state is None and await self._wait(
                     any_state, loop.time() + self.connect_timeout_s, reply_timeout=False) is None:
+                self._raise_if_failed()  # the port closed (a server saying why, when it did)
                 raise ReplyTimeoutError(self.port, self.connect_timeout_s, None)
             log.info("%s: connected, first reply after %.3f s", self.port,
                      loop.time() - self._linked_s)
@@ -262,6 +269,7 @@ class ArmLink:
                 except TransportError as exc:
                     if self._closed:
                         return
+                    exc = self._with_note(exc)
                     log.warning("%s: %s", self.port, exc)
                     self._lost(exc)
                     if self.reconnect_policy is None:
@@ -309,6 +317,10 @@ class ArmLink:
                 self._waiters.offer(one)
                 return
         batch = replies.receive(data, t, every=bool(recorders))
+        for note in self._notes.feed(data):
+            log.warning("%s: the server says: %s", self.port, note)
+            self.server_note = note
+            self._note_frames = replies.frames_received
         if batch.states:
             for r in recorders:
                 r.extend(batch.states)
@@ -376,6 +388,15 @@ class ArmLink:
         self._set_failure(LinkLostError(self.port, reason,
                                         self._loop.time() - self._silent_since_s(), attempts))
         return False
+
+    def _with_note(self, exc: TransportError) -> TransportError:
+        """The loss ``exc``, naming what the server said last if no reply followed it (the
+        ``busy`` line of a refusal, the ``disconnected`` line of a take-over)."""
+        note = self.server_note
+        if (note is None or self._note_frames != self._replies.frames_received
+                or type(exc) is not PortLostError):
+            return exc
+        return PortLostError(exc.port, f"{exc.reason}; the server said: {note}")
 
     def _silent_since_s(self) -> float:
         """Loop time since which the link has been silent: the last reply, or the opening."""

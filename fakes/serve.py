@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import errno
 import logging
+import math
 import os
 import selectors
 import socket
@@ -22,10 +23,11 @@ from pathlib import Path
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.protocol import Framer
+from armbench.drivers.server_notes import note_line
 from armbench.fakes.arm import ArmEmulator
 
-__all__ = ["FrameLogger", "LinkError", "PtyServer", "TcpServer", "claim_link", "parse_host_port",
-           "real_time_loop", "release_link"]
+__all__ = ["ClientStream", "FrameLogger", "LinkError", "PtyServer", "ReceiveBuffer", "TcpServer",
+           "claim_link", "parse_host_port", "real_time_loop", "release_link"]
 
 log = logging.getLogger("armbench.emulator")
 
@@ -42,6 +44,11 @@ SEND_BUFFER_BYTES = 16 * 1024
 MAX_BUFFER_BYTES = 256 * 1024
 #: Longest wait for a silent client's session to end when a newcomer takes the arm from it.
 TAKE_OVER_WAIT_S = 5.0
+#: Most bytes read from a client at once: a client writing faster than the line is read in chunks
+#: of this size and what the receive buffer cannot hold is dropped, never queued.
+READ_CHUNK_BYTES = 64 * 1024
+#: Shortest time between two overrun reports (to the client and to the log) of one client.
+OVERRUN_REPORT_S = 1.0
 
 
 def real_time_loop() -> asyncio.AbstractEventLoop:
@@ -69,6 +76,105 @@ class FrameLogger:
         if log.isEnabledFor(logging.DEBUG):
             for event in self._out.feed(data):
                 log.debug("arm -> host %r", event)
+
+
+class ClientStream:
+    """The reply stream to one client, with the server's own lines (:func:`note_line`) put
+    between frames, never inside one (a reply chunk that does not end a frame holds them back)."""
+
+    def __init__(self, write: Callable[[bytes], None]) -> None:
+        self._write = write
+        self._between_frames = True
+        self._held: list[bytes] = []
+
+    def reply(self, data: bytes) -> None:
+        """Bytes of the arm's replies."""
+        self._write(data)
+        self._between_frames = data.endswith((b"#", b"\n"))
+        if self._held and self._between_frames:
+            held, self._held = self._held, []
+            for line in held:
+                self._write(line)
+
+    def say(self, text: str) -> None:
+        """A line of the server's: now if the stream is between frames, else after this frame
+        (only the newest held line is kept)."""
+        line = note_line(text)
+        if self._between_frames:
+            self._write(line)
+        else:
+            self._held = [line]
+
+
+class ReceiveBuffer:
+    """What a server hands the emulated UART: at most ``size_bytes`` wait for the line.
+
+    A pty or a socket has no baud rate, so a client can write far faster than the line carries
+    bytes. What it writes waits for the line in a buffer of ``[emulator] host_buffer_bytes``
+    (what the host side of a real serial line holds); bytes arriving when it is full are dropped
+    and counted as overrun, as a UART drops a byte that finds its buffer full. On the line the
+    board's own receive buffer (``rx_buffer_bytes``, ``RX_SIZE`` of ``firmware/master.c``) drops
+    what its loop does not read in time, as before. Whatever a client sends, memory stays bounded
+    and a later client waits behind at most ``size_bytes`` of line time (none on TCP: a client's
+    unsent bytes are discarded when it leaves, :meth:`discard`).
+
+    Overruns are reported through ``report`` (the client's stream and the emulator's log), the
+    first at once, then at most one line per :data:`OVERRUN_REPORT_S` with the count since.
+    """
+
+    def __init__(self, arm: ArmEmulator, size_bytes: int, report: Callable[[str], None]) -> None:
+        self.arm = arm
+        self.size_bytes = size_bytes
+        self.overrun_bytes = 0
+        """Bytes dropped because the buffer was full."""
+        self._report = report
+        self._unreported = 0
+        self._reported_s = -math.inf
+        self._timer: asyncio.TimerHandle | None = None
+
+    def backlog_bytes(self, now_s: float) -> int:
+        """Bytes handed to the UART that have not finished arriving on the line at ``now_s``."""
+        uart = self.arm.uart
+        ahead_s = uart.rx_line_free_s - now_s
+        return math.ceil(ahead_s / uart.byte_s - 1e-9) if ahead_s > 0 else 0
+
+    def feed(self, data: bytes) -> None:
+        """Bytes read from the client now: what fits goes on the line, the rest is dropped."""
+        loop = asyncio.get_running_loop()
+        room = self.size_bytes - self.backlog_bytes(loop.time())
+        if len(data) <= room:
+            self.arm.host_write(data)
+            return
+        if room > 0:
+            self.arm.host_write(data[:room])
+        dropped = len(data) - max(room, 0)
+        self.overrun_bytes += dropped
+        self._unreported += dropped
+        if self._timer is None:
+            self._timer = loop.call_at(max(loop.time(), self._reported_s + OVERRUN_REPORT_S),
+                                      self._flush)
+
+    def _flush(self) -> None:
+        self._timer = None
+        if not self._unreported:
+            return
+        self._reported_s = asyncio.get_running_loop().time()
+        count, self._unreported = self._unreported, 0
+        self._report(f"overrun: {count} bytes dropped, sent faster than the line carries them "
+                     f"with its {self.size_bytes}-byte buffer full ({self.overrun_bytes} bytes "
+                     f"in all)")
+
+    def discard(self) -> int:
+        """The client has gone: forget its bytes that have not begun on the line (returns how
+        many) and stop reporting."""
+        self.close()
+        return self.arm.uart.discard_unsent(asyncio.get_running_loop().time())
+
+    def close(self) -> None:
+        """Stop reporting."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
 
 
 #: Where the kernel puts pseudo-terminal slaves: a symlink into it is one an emulator made.
@@ -119,7 +225,8 @@ def release_link(link: Path, device: str) -> None:
 class PtyServer:
     """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
 
-    def __init__(self, arm: ArmEmulator, link: str | Path | None = None) -> None:
+    def __init__(self, arm: ArmEmulator, link: str | Path | None = None,
+                 buffer_bytes: int | None = None) -> None:
         self.arm = arm
         self.link = Path(link) if link is not None else None
         self._master_fd = -1
@@ -127,6 +234,11 @@ class PtyServer:
         self.path = ""
         self.dropped_bytes = 0
         self._frames = FrameLogger()
+        self._stream = ClientStream(self._write)
+        self.receive = ReceiveBuffer(
+            arm, arm.settings.host_buffer_bytes if buffer_bytes is None else buffer_bytes,
+            self._overrun)
+        """The receive buffer; its ``overrun_bytes`` counts what the pty's clients lost."""
 
     async def start(self) -> str:
         """Create the pty, start the arm and return the device path."""
@@ -146,13 +258,13 @@ class PtyServer:
                 raise
         loop = asyncio.get_running_loop()
         loop.add_reader(self._master_fd, self._readable)
-        self.arm.attach_host(self._write)
+        self.arm.attach_host(self._stream.reply)
         await self.arm.start()
         return self.path
 
     def _readable(self) -> None:
         try:
-            data = os.read(self._master_fd, 4096)
+            data = os.read(self._master_fd, READ_CHUNK_BYTES)
         except BlockingIOError:
             return
         except OSError as exc:
@@ -161,7 +273,11 @@ class PtyServer:
             return
         if data:
             self._frames.received(data)
-            self.arm.host_write(data)
+            self.receive.feed(data)
+
+    def _overrun(self, text: str) -> None:
+        log.warning("pty %s: %s", self.path, text)
+        self._stream.say(text)
 
     def _write(self, data: bytes) -> None:
         self._frames.sent(data)
@@ -172,6 +288,7 @@ class PtyServer:
 
     async def close(self) -> None:
         """Stop serving and remove the pty (and the link)."""
+        self.receive.close()
         self.arm.detach_host()
         await self.arm.close()
         if self._master_fd >= 0:
@@ -195,8 +312,13 @@ class TcpServer:
 
     def __init__(self, arm: ArmEmulator, host: str = "127.0.0.1", port: int = 0,
                  idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
-                 stalled_buffer_bytes: int = STALLED_BUFFER_BYTES) -> None:
+                 stalled_buffer_bytes: int = STALLED_BUFFER_BYTES,
+                 buffer_bytes: int | None = None) -> None:
         self.arm = arm
+        self.buffer_bytes = arm.settings.host_buffer_bytes if buffer_bytes is None else buffer_bytes
+        """Size of each client's receive buffer (:class:`ReceiveBuffer`)."""
+        self._overrun_before = 0
+        self._receive: ReceiveBuffer | None = None
         self.host = host
         self.port = port
         self.idle_timeout_s = idle_timeout_s
@@ -215,6 +337,12 @@ class TcpServer:
         """Silent clients disconnected because another one asked for the arm."""
         self.on_client: Callable[[str], None] | None = None
 
+    @property
+    def overrun_bytes(self) -> int:
+        """Bytes dropped at the receive buffer, all clients together."""
+        now = self._receive.overrun_bytes if self._receive is not None else 0
+        return self._overrun_before + now
+
     async def start(self) -> tuple[str, int]:
         """Listen, start the arm, and return the bound (host, port)."""
         self._server = await asyncio.start_server(self._serve, self.host, self.port)
@@ -224,7 +352,8 @@ class TcpServer:
         return self.host, self.port
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        peer = str(writer.get_extra_info("peername"))
+        name = writer.get_extra_info("peername")
+        peer = f"{name[0]}:{name[1]}" if isinstance(name, tuple) else str(name)
         if not await self._take_slot(peer, writer):
             return
         self._client = writer
@@ -284,7 +413,6 @@ class TcpServer:
         if sock is not None:  # ~1.5 s of replies in the kernel: a client that stops reading shows
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
-        loop = asyncio.get_running_loop()
 
         def sink(data: bytes) -> None:
             frames.sent(data)
@@ -295,12 +423,35 @@ class TcpServer:
                 return
             writer.write(data)
 
-        self.arm.attach_host(sink)
+        stream = ClientStream(sink)
+
+        def overrun(text: str) -> None:
+            log.warning("client %s: %s", peer, text)
+            stream.say(text)
+
+        self._receive = receive = ReceiveBuffer(self.arm, self.buffer_bytes, overrun)
+        self.arm.attach_host(stream.reply)
+        try:
+            await self._relay(peer, reader, receive, transport, frames)
+        finally:
+            unsent = receive.discard()
+            if unsent:
+                log.info("client %s: %d bytes it sent were still waiting for the line: discarded",
+                         peer, unsent)
+            self._receive = None
+            self._overrun_before += receive.overrun_bytes
+            if receive.overrun_bytes:
+                log.warning("client %s: %d bytes dropped in all (overrun)", peer,
+                            receive.overrun_bytes)
+
+    async def _relay(self, peer: str, reader: asyncio.StreamReader, receive: ReceiveBuffer,
+                     transport: asyncio.WriteTransport, frames: FrameLogger) -> None:
+        loop = asyncio.get_running_loop()
         try:
             while True:
                 try:
                     async with asyncio.timeout(self.idle_timeout_s):
-                        data = await reader.read(4096)
+                        data = await reader.read(READ_CHUNK_BYTES)
                 except TimeoutError:
                     if transport.get_write_buffer_size() <= self.stalled_buffer_bytes:
                         continue  # silent but reading the replies: a listener, not idle
@@ -309,7 +460,7 @@ class TcpServer:
                     break
                 self._last_input_s = loop.time()
                 frames.received(data)
-                self.arm.host_write(data)
+                receive.feed(data)
         except TimeoutError:
             log.warning("client %s idle for %.0f s: disconnected", peer, self.idle_timeout_s)
         except (ConnectionError, OSError) as exc:
@@ -329,7 +480,7 @@ class TcpServer:
 
 def _line(text: str) -> bytes:
     """A message to a client, on a line of its own (no ``$``, so no framer takes it for a frame)."""
-    return f"\r\narmbench emulate: {text}\r\n".encode("ascii", "replace")
+    return note_line(text)
 
 
 async def _say_and_close(writer: asyncio.StreamWriter, text: str) -> None:

@@ -30,9 +30,15 @@ class EmulatorSettings:
     i2c_hz: int = 100_000
     """I²C bus clock: 100 kHz (Arduino Wire default) or 400 kHz."""
     rx_buffer_bytes: int = 64
-    """The Arduino core's serial receive buffer; bytes arriving when it is full are dropped."""
+    """The board's serial receive buffer (``RX_SIZE`` in ``firmware/master.c``, the Arduino core's
+    ``SERIAL_RX_BUFFER_SIZE``); bytes arriving when it is full are dropped."""
     tx_buffer_bytes: int = 64
     """The serial transmit buffer; a longer print blocks the loop until it drains."""
+    host_buffer_bytes: int = 4096
+    """What the host side of the line holds for it when a client of ``armbench emulate`` writes
+    faster than the baud rate: a USB-serial port's write FIFO in Linux is one page, and the
+    firmware-in-the-loop harness queues as much (``rx_queue`` in ``firmware/harness/harness.h``).
+    Bytes arriving when it is full are dropped and counted as overrun (``docs/emulator.md``)."""
     loop_overhead_s: float = 100e-6
     """CPU time of one master loop besides I²C and UART (parsing, formatting) at 16 MHz."""
     reply_line_end: str = ""
@@ -182,13 +188,16 @@ def _validate(s: EmulatorSettings) -> None:
                             "must be 'polling' or 'blocking'")
     if not 10_000 <= s.i2c_hz <= 3_400_000:
         raise SettingsError("emulator.i2c_hz", s.i2c_hz, "is not an I²C clock (10 kHz..3.4 MHz)")
-    for name in ("rx_buffer_bytes", "tx_buffer_bytes"):
+    for name in ("rx_buffer_bytes", "tx_buffer_bytes", "host_buffer_bytes"):
         v = getattr(s, name)
         if not isinstance(v, int) or v < 1:
             raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
     for name, high_s in MAX_TIMES_S.items():
         if not 0 <= getattr(s, name) <= high_s:
             raise SettingsError(f"emulator.{name}", getattr(s, name), f"must be 0..{high_s:g} s")
+    if s.host_buffer_bytes > 1 << 20:
+        raise SettingsError("emulator.host_buffer_bytes", s.host_buffer_bytes,
+                            "must be at most 1048576 (what a client may queue is bounded)")
     if s.reply_line_end not in ("", "\n", "\r\n"):
         raise SettingsError("emulator.reply_line_end", s.reply_line_end,
                             "must be '', '\\n' or '\\r\\n'")

@@ -71,6 +71,24 @@ class Uart:
         self._rx_line_free = start + len(data) * self.byte_s
         self.rx_event.set()
 
+    def discard_unsent(self, t_s: float) -> int:
+        """Forget the host's bytes that have not begun on the line by ``t_s`` (their sender has
+        gone, as a serial port's buffer is flushed when it is closed); returns how many."""
+        rx = self._rx
+        dropped = 0
+        while rx and rx[-1][0] >= t_s:
+            dropped += len(rx.pop()[1])
+        if rx:
+            start, data = rx[-1]
+            begun = min(len(data), math.ceil((t_s - start) / self.byte_s - 1e-9))
+            dropped += len(data) - begun
+            rx[-1] = (start, data[:begun])
+            self._rx_line_free = start + begun * self.byte_s
+        else:
+            self._rx_line_free = min(self._rx_line_free, t_s)
+            self.rx_event.clear()
+        return dropped
+
     # master side -------------------------------------------------------------------------------
     def read_available(self, t_s: float, continuous_since: float | None = None) -> bytes:
         """Bytes received by ``t_s`` since the last read, after receive-buffer overflow.

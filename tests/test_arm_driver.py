@@ -6,7 +6,10 @@
 * ``tcp``: a TCP socket served by ``armbench emulate --tcp 127.0.0.1:PORT`` (real time).
 
 Every test body runs under an overall deadline and each step under its own (``within``); on
-virtual time the deadlines are simulated seconds. Real-time tests keep their moves small.
+virtual time the deadlines are simulated seconds. Real-time tests keep their moves small, and hold
+on a loaded machine: the host may read replies late and in bursts, so they judge time on the arm's
+clock (it replies once per firmware loop: a count of replies is its time) and stillness over a
+count of replies, and leave bounds on the host's own latency to virtual time.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from netutil import free_port
 from armbench.bench.commands import i2c as i2c_cmd
 from armbench.bench.commands import monitor as monitor_cmd
 from armbench.bench.commands import move as move_cmd
+from armbench.bench.perf.driver import reply_rate_bound
 from armbench.drivers.arm import (
     Arm,
     DriverClosedError,
@@ -64,11 +68,18 @@ STEP_S = 5.0
 """Deadline of one step (seconds; simulated on fake://)."""
 TEST_S = 30.0
 """Deadline of a whole test body."""
+START_S = 120.0
+"""Deadline of an emulator process's start."""
 HOME = (0.0, 0.4, 0.8, 0.0)
 """A comfortable pose (elbow bent) the motion tests start from; small moves around it."""
 FAST_RECONNECT = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
                                  max_attempts=60)
 LINKS = ("fake", "pty", "tcp")
+REPLY_S = 1.0 / reply_rate_bound(SETTINGS.serial, EmulatorSettings())
+"""The arm's time between two replies (one per firmware loop): on real time, a count of replies
+is the arm's time, whenever the host reads them."""
+SETTLED_REPLIES = 25
+"""Consecutive replies over which a held arm's joints stay put (~55 ms of the arm's time)."""
 
 
 async def within(aw: Awaitable[T], timeout_s: float = STEP_S) -> T:
@@ -104,7 +115,8 @@ class EmulatorProcess:
                 [sys.executable, "-m", "armbench", "emulate", *where], cwd=ROOT,
                 stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], 15.0)
+        # starting Python and the emulator takes seconds of CPU: minutes on a loaded machine
+        ready, _, _ = select.select([self.proc.stdout], [], [], START_S)
         line_out = self.proc.stdout.readline() if ready else ""
         assert "serving the arm on " in line_out, f"emulate did not start: {line_out!r}"
         served = line_out.split("serving the arm on ", 1)[1].split()[0]
@@ -215,11 +227,33 @@ def near(q: Sequence[float], target: Sequence[float], tol: float) -> bool:
     return all(abs(a - b) <= tol for a, b in zip(q, target, strict=True))
 
 
-async def still(arm: Arm, seconds: float) -> tuple[JointState, JointState]:
-    """Two states ``seconds`` apart."""
-    a = arm.state
-    await within(asyncio.sleep(seconds))
-    return a, arm.state
+async def still(arm: Arm, tol: float = 1e-4) -> tuple[JointState, JointState]:
+    """The first and last of ``SETTLED_REPLIES`` consecutive replies (every one of them seen)
+    whose joints stay within ``tol`` of the first's: the arm holds. Judged on the arm's clock, so
+    a host that reads late does not make a moving arm look still or a still one moving."""
+    start: JointState | None = None
+    last: JointState | None = None
+    checked = 0
+    with arm.record_states() as states:
+        def held(_: JointState) -> bool:
+            nonlocal start, last, checked
+            for s in states[checked:]:
+                if start is None or not near(s.q_rad, start.q_rad, tol):
+                    start = s
+                last = s
+            checked = len(states)
+            return start is not None and last is not None and (
+                last.seq - start.seq >= SETTLED_REPLIES)
+
+        await within(arm.wait_state(held, STEP_S))
+    assert start is not None and last is not None
+    return start, last
+
+
+async def moving(arm: Arm, tol: float = 1e-3) -> JointState:
+    """The first state that is ``tol`` away from the current one: the arm has started moving."""
+    q0 = arm.state.q_rad
+    return await within(arm.wait_state(lambda s: not near(s.q_rad, q0, tol), STEP_S))
 
 
 def offset(q: Sequence[float], d: Sequence[float]) -> tuple[float, float, float, float]:
@@ -318,7 +352,8 @@ def test_state_stream_and_iterator(link: Link) -> None:
                 assert s is arm.state
                 seen.append(s)
             for _ in range(5):  # a slow consumer gets the newest, skipping stale ones
-                await within(asyncio.sleep(0.02))
+                behind = seen[-1].seq + 2
+                await within(arm.wait_state(lambda s: s.seq >= behind))  # noqa: B023
                 s = await within(anext(stream))
                 assert s is arm.state and s.seq > seen[-1].seq
                 seen.append(s)
@@ -337,7 +372,8 @@ def test_state_stream_and_iterator(link: Link) -> None:
                 await within(arm.wait_state(lambda s: False, 0.05))
             assert info.value.last_state is not None
             with arm.record_states() as states:  # every state, not only the newest per read
-                await within(asyncio.sleep(0.05))
+                target = arm.state.seq + 5
+                await within(arm.wait_state(lambda s: s.seq >= target))
             seqs = [s.seq for s in states]
             assert seqs == list(range(seqs[0], seqs[0] + len(seqs))) and len(seqs) >= 5
         # the iterator ends with the connection
@@ -354,7 +390,8 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             start = await home(arm)
             target = offset(HOME, (0.1, -0.04, 0.03, 0.06))
             t0 = loop.time()
-            st = await within(arm.move_joints(target, 99))
+            with arm.record_states() as states:
+                st = await within(arm.move_joints(target, 99))
             assert st is not None and st is arm.state
             tol = arm.default_tolerance_rad()
             assert all(t == pytest.approx(3e-4) for t in tol)
@@ -362,8 +399,14 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             # law (12): the slowest joint sets the time, plus the latency of the line, the loop
             # and the firmware's EEPROM writes when motion starts and stops (~10 ms each)
             predicted = max(joint_times_s(start.q_rad, target, (99,) * 4, SETTINGS))
-            elapsed = st.t_s - t0
-            assert 0.95 * predicted <= elapsed <= predicted + (0.08 if link.real_time else 0.04)
+            if link.real_time:  # on the arm's clock: replies from the first move to arrival
+                first = next(s for s in states if not near(s.q_rad, start.q_rad, 1e-4))
+                there = next(s for s in states if near(s.q_rad, target, 3e-4))
+                moved_s = (there.seq - first.seq) * REPLY_S
+                assert 0.95 * predicted - 0.03 <= moved_s <= predicted + 0.04, (moved_s, predicted)
+            else:
+                elapsed = st.t_s - t0
+                assert 0.95 * predicted <= elapsed <= predicted + 0.04
             truth = arm.ground_truth()
             if truth is not None:
                 assert near(truth.true_rad, target, 3e-4)
@@ -371,8 +414,9 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             t1 = loop.time()
             coarse = await within(arm.move_joints(HOME, 99, tolerance_rad=0.01))
             assert coarse is not None and near(coarse.q_rad, HOME, 0.01)
-            assert not near(coarse.q_rad, HOME, 3e-4)
-            assert coarse.t_s - t1 < predicted
+            if not link.real_time:  # a host that reads late may see the arm there already
+                assert not near(coarse.q_rad, HOME, 3e-4)
+                assert coarse.t_s - t1 < predicted
             assert arm.commands_sent == 3 and arm.resends == 0
 
     link.run(body)
@@ -422,15 +466,20 @@ def test_invalid_targets_are_refused_before_sending(link: Link) -> None:
     link.run(body)
 
 
-def _arrivals(states: list[JointState], goal: Sequence[float], tol: float) -> list[float]:
-    """Per joint, the time from which it stays within ``tol`` of ``goal``."""
+def _arrivals(states: list[JointState], goal: Sequence[float], tol: float,
+              arm_clock: bool = False) -> list[float]:
+    """Per joint, the time from which it stays within ``tol`` of ``goal``: the host's receive
+    time, or with ``arm_clock`` the arm's (the reply count times ``REPLY_S``)."""
+    def t_of(s: JointState) -> float:
+        return s.seq * REPLY_S if arm_clock else s.t_s
+
     out = []
     for i in range(4):
-        t = states[-1].t_s
+        t = t_of(states[-1])
         for s in reversed(states):
             if abs(s.q_rad[i] - goal[i]) > tol:
                 break
-            t = s.t_s
+            t = t_of(s)
         out.append(t)
     return out
 
@@ -443,10 +492,10 @@ def test_coordinated_joints_arrive_together(link: Link) -> None:
             delta = (0.04, -0.03, 0.05, 0.015)
             spreads = {}
             for coordinated, goal in ((False, offset(HOME, delta)), (True, HOME)):
-                t0 = loop.time()
+                t0 = arm.state.seq * REPLY_S if link.real_time else loop.time()
                 with arm.record_states() as states:
                     await within(arm.move_joints(goal, 90, coordinated=coordinated))
-                arrivals = [t - t0 for t in _arrivals(states, goal, 3e-4)]
+                arrivals = [t - t0 for t in _arrivals(states, goal, 3e-4, link.real_time)]
                 spreads[coordinated] = (max(arrivals) - min(arrivals), max(arrivals))
             spread, duration = spreads[True]
             # duty quantisation: each joint is off by at most half a step period per step
@@ -471,7 +520,8 @@ def test_follow_path_on_a_short_line(link: Link) -> None:
             assert mean_mm < 1.0, mean_mm  # the paper: 12.4 mm on its square
             assert run.path_errors_m(SETTINGS).max() * 1e3 < 2.5
             # the speed is about the one asked for (25 mm at 25 mm/s)
-            assert 0.9 <= run.duration_s <= 1.6, run.duration_s
+            # (a loaded host sends each waypoint late and the arm waits: no upper bound there)
+            assert 0.9 <= run.duration_s <= (1.6 if not link.real_time else 10.0), run.duration_s
             assert [w.t_s for w in run.waypoints] == sorted(w.t_s for w in run.waypoints)
             assert run.samples()[0] == (run.states[0].t_s, run.states[0].q_rad)
 
@@ -484,19 +534,21 @@ def test_stop_holds_and_interrupts_a_move(link: Link) -> None:
             await home(arm)
             far = offset(HOME, (0.3, 0.2, 0.2, 0.3))
             await within(arm.move_joints(far, 99, wait=False))
-            await within(asyncio.sleep(0.1))
+            await moving(arm, 0.05)
             held = await within(arm.stop())
-            a, b = await still(arm, 0.15)
-            assert near(a.q_rad, b.q_rad, 1e-4) and near(held.q_rad, b.q_rad, 1e-4)
+            _, b = await still(arm)
             assert not near(b.q_rad, far, 0.05)
-            # a move waiting in another task is superseded by stop()
-            mover = asyncio.create_task(arm.move_joints(HOME, 99))
-            await within(asyncio.sleep(0.05))
+            if not link.real_time:  # a host that reads late may get a reply from before the hold
+                assert near(held.q_rad, b.q_rad, 1e-4)
+            # a move waiting in another task is superseded by stop() (the way left to ``far``
+            # is long: the stop comes well before the arrival even from a slow host)
+            mover = asyncio.create_task(arm.move_joints(far, 99))
+            await moving(arm)
             await within(arm.stop())
             with pytest.raises(MoveInterruptedError):
                 await within(mover)
-            a, b = await still(arm, 0.15)
-            assert near(a.q_rad, b.q_rad, 1e-4) and not near(b.q_rad, HOME, 1e-3)
+            _, b = await still(arm)
+            assert not near(b.q_rad, far, 1e-3)
             truth = arm.ground_truth()
             if truth is not None:
                 assert near(truth.true_rad, b.q_rad, 2e-4)
@@ -513,21 +565,19 @@ def test_cancelled_move_sends_a_hold(link: Link, tmp_path: Path) -> None:
             far = offset(HOME, (-0.3, -0.2, -0.2, 0.3))
             sent = arm.commands_sent
             mover = asyncio.create_task(arm.move_joints(far, 99))
-            await within(asyncio.sleep(0.1))
+            await moving(arm)
             mover.cancel()
             with pytest.raises(asyncio.CancelledError):
                 await within(mover)
             assert arm.commands_sent == sent + 2  # the move and the hold
-            await within(asyncio.sleep(0.05))  # the hold reaches the arm
-            a, b = await still(arm, 0.15)
-            assert near(a.q_rad, b.q_rad, 1e-4) and not near(b.q_rad, far, 0.05)
+            _, b = await still(arm)  # the hold reached the arm
+            assert not near(b.q_rad, far, 0.05)
             # an asyncio.timeout around a move is a cancellation too
             with pytest.raises(TimeoutError):
                 async with asyncio.timeout(0.05):
                     await arm.move_joints(far, 99)
-            await within(asyncio.sleep(0.05))
-            a, b = await still(arm, 0.15)
-            assert near(a.q_rad, b.q_rad, 1e-4)
+            _, b = await still(arm)
+            assert not near(b.q_rad, far, 1e-3)
         outs = [json.loads(x) for x in cap.read_text().splitlines()]
         commands = [Framer("command").feed(r["frame"].encode())[0] for r in outs
                     if r["dir"] == "out"]
@@ -562,7 +612,8 @@ def test_reply_timeout(link: Link) -> None:
                     await within(mover)
                 assert info.value.last_state is not None
                 assert info.value.timeout_s == 0.25
-                assert loop.time() - t_quiet <= 0.25 + (0.35 if emu is None else 0.15)
+                # no sooner than the timeout; the host's own latency bounds it above on real time
+                assert loop.time() - t_quiet <= 0.25 + (0.35 if emu is None else 1.0)
                 with pytest.raises(ReplyTimeoutError):
                     await within(arm.wait_state(lambda s: False, 5.0))
             finally:
@@ -777,8 +828,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
         rest = await within(proc.stderr.read(), 10.0)
         assert await within(proc.wait()) == 130, err + rest
         async with Arm.connect(pty_emulator.port) as arm:
-            a, b = await still(arm, 0.15)
-            assert near(a.q_rad, b.q_rad, 1e-4)
+            _, b = await still(arm)
             assert abs(b.q_rad[0] - HOME[0]) > 0.05 and abs(b.q_rad[0] - far[0]) > 0.3
             await within(arm.move_joints(HOME, 99), 10.0)
 

@@ -5,14 +5,19 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import ipaddress
 import logging
 import math
 import signal
 import sys
 from typing import Any
 
-from armbench.bench.live import DEFAULT_ENDPOINT, follow_emulator, live_view
+from armbench.bench.live import (
+    DEFAULT_ENDPOINT,
+    check_bind,
+    check_live_endpoint,
+    follow_emulator,
+    live_view,
+)
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError, load_settings
 from armbench.fakes.arm import ArmEmulator
@@ -38,7 +43,8 @@ def register(sub: Any) -> None:
                        help="serve on TCP (host defaults to 127.0.0.1)")
     p.add_argument("--link", metavar="PATH", help="with --pty: make PATH a symlink to the device")
     p.add_argument("--allow-remote", action="store_true",
-                   help="with --tcp: allow binding an address other than loopback")
+                   help="with --tcp or --foxglove: allow binding an address other than loopback "
+                        "(no authentication: anyone who reaches it can use it)")
     p.add_argument("--settings", metavar="FILE", help="robot settings TOML ([emulator] table too)")
     p.add_argument("--faults", metavar="FILE", help="fault list TOML ([[faults]] tables)")
     p.add_argument("--seed", type=int, default=None, help="seed of the emulator's randomness")
@@ -72,12 +78,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.link and not args.pty:
         raise ArmbenchError("--link: only with --pty")
     host_port = parse_host_port(args.tcp) if args.tcp else None
-    if host_port is not None and not _is_loopback(host_port[0]):
-        if not args.allow_remote:
-            raise ArmbenchError(f"--tcp: {host_port[0]} is not a loopback address; anyone who "
-                                f"can reach it could move the arm (add --allow-remote to mean it)")
-        print(f"armbench emulate: WARNING: serving on {host_port[0]}, reachable from the network",
-              file=sys.stderr, flush=True)
+    if args.foxglove is not None:  # refused before anything starts; live_view warns
+        check_live_endpoint(args.foxglove, args.allow_remote)
+    if host_port is not None:
+        warning = check_bind("--tcp", host_port[0], args.allow_remote, "move the arm")
+        if warning is not None:
+            print(f"armbench emulate: {warning}", file=sys.stderr, flush=True)
     if args.firmware is not None:
         if args.faults or args.seed is not None:
             raise ArmbenchError("--firmware: --faults and --seed apply to the Python emulator")
@@ -85,19 +91,11 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     arm = ArmEmulator(robot, settings, faults)
     with asyncio.Runner(loop_factory=real_time_loop) as runner, \
-            live_view(args.foxglove, robot, name="emulate", announce=sys.stdout) as live:
+            live_view(args.foxglove, robot, name="emulate", announce=sys.stdout,
+                      allow_remote=args.allow_remote) as live:
         follow_emulator(live, arm)
         runner.run(_serve(arm, args, host_port))
     return 0
-
-
-def _is_loopback(host: str) -> bool:
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 async def _serve(arm: ArmEmulator, args: argparse.Namespace,
@@ -127,5 +125,9 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
     finally:
         await server.close()
         stats = arm.stats()
+        overrun = (server.receive.overrun_bytes if isinstance(server, PtyServer)
+                   else server.overrun_bytes)
         print(f"armbench emulate: stopped after {stats.loops} loops, {stats.commands} commands "
-              f"received", flush=True)
+              f"received, {overrun} bytes dropped as overrun (sent faster than the line "
+              f"carries them)",
+              flush=True)

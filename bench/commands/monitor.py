@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import AsyncIterator, Coroutine
 from typing import Any, TextIO, TypeVar
 
-from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, live_view
+from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, check_live_endpoint, live_view
 from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import scheme_of
@@ -63,6 +63,9 @@ def register(sub: Any) -> None:
     p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
                    help="serve the joint stream to Foxglove over WebSocket (default "
                         f"{DEFAULT_ENDPOINT}: loopback unless a host is given)")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="with --foxglove: allow binding an address other than loopback (no "
+                        "authentication: anyone who reaches it can read the stream)")
     p.set_defaults(func=_run)
 
 
@@ -75,15 +78,20 @@ def _run(args: argparse.Namespace) -> int:
         from armbench.drivers.arm import InvalidTargetError
 
         raise InvalidTargetError(None, "--duration", duration, "must be > 0")
+    if args.foxglove is not None:  # refused before connecting; live_view warns
+        check_live_endpoint(args.foxglove, args.allow_remote)
     return run_on_port(args.port, monitor(args.port, settings, json_lines=args.json,
                                           duration_s=duration, refresh_hz=args.rate,
                                           reply_timeout_s=args.reply_timeout, out=sys.stdout,
-                                          foxglove=args.foxglove))
+                                          foxglove=args.foxglove,
+                                          allow_remote=args.allow_remote))
 
 
 @contextlib.asynccontextmanager
-async def _live(endpoint: str | None, settings: RobotSettings) -> AsyncIterator[LiveView | None]:
-    with live_view(endpoint, settings, name="monitor", announce=sys.stderr) as view:
+async def _live(endpoint: str | None, settings: RobotSettings,
+                allow_remote: bool) -> AsyncIterator[LiveView | None]:
+    with live_view(endpoint, settings, name="monitor", announce=sys.stderr,
+                   allow_remote=allow_remote) as view:
         yield view
 
 
@@ -140,15 +148,16 @@ def _summary(arm: Arm, state: JointState, rate_hz: float, note: str) -> str:
 async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = False,
                   duration_s: float | None = None, refresh_hz: float = 10.0,
                   reply_timeout_s: float = 0.5, out: TextIO = sys.stdout,
-                  foxglove: str | None = None) -> int:
+                  foxglove: str | None = None, allow_remote: bool = False) -> int:
     """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation;
-    with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.bench.live`)."""
+    with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.bench.live`; a host other
+    than loopback only with ``allow_remote``)."""
     tty = out.isatty() and not json_lines
     period = 1.0 / refresh_hz if refresh_hz > 0 else 0.0
     rate = _Rate()
     drawn = 0
     async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s) as arm, \
-            _live(foxglove, settings) as live:
+            _live(foxglove, settings, allow_remote) as live:
         loop = asyncio.get_running_loop()
         end = None if duration_s is None else loop.time() + duration_s
         stream = arm.states()
