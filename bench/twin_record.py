@@ -26,7 +26,11 @@ import numpy as np
 
 from armbench.bench.limits import LimitsConfig
 from armbench.bench.metrics.series import envelope_indices
+from armbench.bench.outputs import check_out_dir as check_out_dir_writable
 from armbench.bench.record import (
+    CAPTURE_FILE,
+    JOURNAL_FILE,
+    REPORT_FILE,
     RESULTS_FILE,
     Measurement,
     RecordError,
@@ -36,6 +40,7 @@ from armbench.bench.record import (
     capture_environment,
     path_inside,
 )
+from armbench.bench.runner.options import JUNIT_FILE
 from armbench.bench.suites.contract import RAD_DECIMALS, SAMPLE, TWIN_CHECK
 from armbench.bench.twin_check import Aligned, TwinCheck
 from armbench.drivers.errors import ArmbenchError
@@ -79,12 +84,21 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+#: What ``--out DIR`` receives: the record, its pages; a capture there would get the report
+#: attached (``armbench.bench.reporting``), and a run's journal means a run's directory.
+OUT_FILES: Final = (RESULTS_FILE, JOURNAL_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE)
+
+
 def check_out_dir(out_dir: Path) -> None:
     """Refuse, before the replay, a directory that already holds a record (a run's record is
-    never overwritten by a check)."""
-    results = path_inside(out_dir, RESULTS_FILE)
-    if results.exists():
-        raise RecordError(str(results), "already holds a run record; choose another directory")
+    never overwritten by a check) or any file the check writes or touches, and one that cannot
+    be written (a file in the way, a read-only file system: :mod:`armbench.bench.outputs`)."""
+    if out_dir.is_dir():
+        results = path_inside(out_dir, RESULTS_FILE)
+        if results.exists():
+            raise RecordError(str(results), "already holds a run record; choose another "
+                                            "directory")
+    check_out_dir_writable("--out", out_dir, OUT_FILES)
 
 
 def _series_samples(series: Aligned) -> list[dict[str, Any]]:

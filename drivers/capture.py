@@ -61,6 +61,9 @@ Direction = Literal["in", "out"]
 
 #: Bytes a bounded capture keeps free for its stop event (a longer line than any stop event).
 EVENT_RESERVE_BYTES: Final = 160
+#: Bytes of one capture line at most when reading (a record is a frame of a few dozen bytes, or
+#: the bytes of one read the framer dropped): a longer line is not a capture's, and is not loaded.
+MAX_LINE_BYTES: Final = 1 << 20
 
 
 class CaptureError(ArmbenchError, ValueError):
@@ -373,23 +376,42 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord | None:
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
     """Every record of a JSON Lines capture file, in order (streamed: the file is not loaded
     whole); event lines (a stop at the size bound) are skipped. Either format:
-    :func:`armbench.drivers.capture_read.open_capture`."""
+    :func:`armbench.drivers.capture_read.open_capture`.
+
+    A line that is not a record (not text, not JSON, nested beyond the parser's depth, longer than
+    :data:`MAX_LINE_BYTES`) and a record whose time is before the previous one's are a
+    :class:`CaptureError` naming the line."""
     p = str(path)
     try:
-        fh = Path(path).open(encoding="ascii")  # noqa: SIM115 - closed by the with below
+        fh = Path(path).open("rb")  # noqa: SIM115 - closed by the with below
     except OSError as exc:
         raise CaptureError(p, None, f"cannot read: {exc.strerror or exc}") from exc
+    last: tuple[float, int] | None = None  # the previous record's time and line
     with fh:
-        for n, text in enumerate(fh, 1):
-            if not text.strip():
+        for n, raw in enumerate(iter(lambda: fh.readline(MAX_LINE_BYTES + 1), b""), 1):
+            if len(raw) > MAX_LINE_BYTES:
+                raise CaptureError(p, n, f"is longer than {MAX_LINE_BYTES} bytes: not a "
+                                         "capture record")
+            if not raw.strip():
                 continue
             try:
-                obj = json.loads(text)
+                obj = json.loads(raw.decode("ascii"))
+            except UnicodeDecodeError as exc:
+                raise CaptureError(p, n, f"is not text: byte 0x{raw[exc.start]:02x} at column "
+                                         f"{exc.start + 1}") from None
             except ValueError as exc:
                 raise CaptureError(p, n, f"is not JSON: {exc}") from None
+            except RecursionError:
+                raise CaptureError(p, n, "is not a capture record: JSON nested too "
+                                         "deeply") from None
             record = _record(obj, p, n)
-            if record is not None:
-                yield record
+            if record is None:
+                continue
+            if last is not None and record.t_s < last[0]:
+                raise CaptureError(p, n, f"time {record.t_s:.9g} s before the previous "
+                                         f"{last[0]:.9g} s (line {last[1]})")
+            last = (record.t_s, n)
+            yield record
 
 
 class ReplayCommand(NamedTuple):

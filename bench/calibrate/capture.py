@@ -21,7 +21,7 @@ import numpy as np
 from armbench.bench.calibrate.model import CaptureContentError, Observations, SpeedRun
 from armbench.bench.calibrate.procedure import speed_of
 from armbench.drivers.capture import CaptureError
-from armbench.drivers.capture_read import open_capture
+from armbench.drivers.capture_read import is_mcap, mcap_layout, open_capture
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import AngleDecoder, Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
@@ -56,9 +56,21 @@ def _line_count(path: Path) -> int | None:
         return None
 
 
+def _no_traffic(path: Path) -> str:
+    """Why a capture without a frame has none: a killed run's MCAP file holds no complete chunk
+    (its frames were still in memory), any other holds no traffic."""
+    if is_mcap(path) or path.suffix.lower() == ".mcap":
+        layout = mcap_layout(path)
+        if not layout.closed and layout.chunks == 0:
+            return ("holds no complete chunk: the run was killed before the first flush; "
+                    "nothing to replay")
+    return "holds no traffic"
+
+
 def load_capture(path: str | Path, settings: RobotSettings) -> CaptureData:
     """Read and check a capture; raises :class:`CaptureContentError` (or the reader's
-    ``CaptureError`` for a file that is not a capture at all)."""
+    ``CaptureError`` for a file that is not a capture at all, a damaged one, times that run
+    backwards)."""
     p = Path(path)
     decode = AngleDecoder(settings.lower_rad, settings.upper_rad)
     commands: list[tuple[float, Command]] = []
@@ -80,14 +92,19 @@ def load_capture(path: str | Path, settings: RobotSettings) -> CaptureData:
             else:
                 bad += 1
     except CaptureError as exc:
-        if exc.line is not None and exc.line == _line_count(p):
+        if (exc.line is not None and exc.reason.startswith("is not JSON")
+                and exc.line == _line_count(p)):
             raise CaptureContentError(str(p), f"truncated: the last record (line {exc.line}) "
                                               f"is incomplete ({exc.reason})") from exc
         raise
     if not replies:
-        what = (f"{bad} reply frames that are not this protocol's 4-joint replies"
-                if bad else "no replies")
-        raise CaptureContentError(str(p), f"another robot model or no traffic: {what}")
+        if not commands and not bad:
+            raise CaptureContentError(str(p), _no_traffic(p))
+        if not bad:
+            raise CaptureContentError(str(p), f"no replies: {len(commands)} commands and not "
+                                              "one reply (the arm never answered)")
+        raise CaptureContentError(str(p), f"another robot model: {bad} reply frames that are "
+                                          "not this protocol's 4-joint replies, and no other")
     if bad > 0.5 * (bad + len(replies)):
         raise CaptureContentError(str(p), f"another robot model: {bad} of "
                                           f"{bad + len(replies)} reply frames are not "

@@ -22,12 +22,15 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.outputs import OutputError, is_run_file
+from armbench.bench.record.files import atomic_write_bytes
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
 from armbench.reports.format import jinja_environment
 from armbench.reports.plots import to_svg
 
-__all__ = ["CalibrationResult", "apply_fit", "render_page", "toml_text", "write_outputs"]
+__all__ = ["CalibrationResult", "apply_fit", "output_paths", "render_page", "toml_text",
+           "write_outputs"]
 
 _BARE_KEY: Final = re.compile(r"[A-Za-z0-9_-]+")
 _HERE: Final = Path(__file__).resolve().parent
@@ -134,9 +137,26 @@ def _sigma_text(f: Fitted) -> str:
     return f"kept: {f.reason}"
 
 
+def output_paths(out: Path, *, observations: bool) -> list[Path]:
+    """Every file a calibration to ``out`` writes: the settings (``out``), the fit (``.json``),
+    the page (``.html``) and, when measuring on a port (``observations``), the observations saved
+    as they are measured (``.observations.json``)."""
+    paths = [out, out.with_suffix(".json"), out.with_suffix(".html")]
+    return [*paths, out.with_suffix(".observations.json")] if observations else paths
+
+
+def _write(path: Path, text: str) -> None:
+    """Replace ``path`` atomically with ``text``; never a file of a run's record."""
+    if is_run_file(path):
+        raise OutputError("--out", path, "belongs to the run record in its directory; it is "
+                                         "never overwritten")
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
 def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
-    """Write ``out`` (settings TOML), ``out`` with ``.json`` (the fit) and ``.html`` (the page);
-    returns the paths by kind."""
+    """Write ``out`` (settings TOML), ``out`` with ``.json`` (the fit) and ``.html`` (the page),
+    each replaced atomically (a reader sees the old file or the new one); returns the paths by
+    kind."""
     out = Path(out)
     comments = {f.key: _sigma_text(f) for f in result.fitted}
     header = (f"Robot settings fitted by armbench calibrate from {result.observations.source}.\n"
@@ -151,18 +171,14 @@ def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
     timing = [f for f in result.fitted if f.key.startswith("timing.") and f.identified]
     for f in timing:
         header += f"\n{f.key} = {f.value:.6g} {f.unit} ± {f.sigma:.2g} (measured)"
-    out.write_text(toml_text(result.settings.to_mapping(), comments, header), encoding="utf-8")
-    paths = {"settings": out}
-    fit_path = out.with_suffix(".json")
-    fit_path.write_text(json.dumps({
+    settings_path, fit_path, page = output_paths(out, observations=False)
+    _write(settings_path, toml_text(result.settings.to_mapping(), comments, header))
+    _write(fit_path, json.dumps({
         "source": result.observations.source, "error": result.error,
         "fitted": [f.to_json() for f in result.fitted],
-        "observations": result.observations.to_json()}, indent=1) + "\n", encoding="utf-8")
-    paths["fit"] = fit_path
-    page = out.with_suffix(".html")
-    page.write_text(render_page(result), encoding="utf-8")
-    paths["page"] = page
-    return paths
+        "observations": result.observations.to_json()}, indent=1) + "\n")
+    _write(page, render_page(result))
+    return {"settings": settings_path, "fit": fit_path, "page": page}
 
 
 def _figures(result: CalibrationResult) -> list[tuple[str, Markup]]:

@@ -5,6 +5,8 @@ procedure on any port (``fake://`` on virtual time); ``armbench calibrate --capt
 robot.toml`` fits what an existing capture's traffic shows. Beside ``robot.toml`` go
 ``robot.json`` (every fitted value, its standard error, the observations), ``robot.html`` (the
 calibration page) and, for ``--port``, ``robot.observations.json`` (saved as it is measured).
+Every output is checked before the arm moves or the capture is read: an existing one is
+overwritten only with ``--force``, a file of a run's record never, an unwritable path is refused.
 Exit status: 0 done, 2 bad input or an arm that does not move (the partial outputs are written).
 """
 
@@ -16,8 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
-from armbench.bench.calibrate.output import CalibrationResult
+from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.commands.monitor import run_on_port
+from armbench.bench.outputs import check_out_files
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 
@@ -38,7 +41,10 @@ def register(sub: Any) -> None:
     src.add_argument("--port", help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or "
                                     "fake://... (the emulator on virtual time)")
     src.add_argument("--capture", metavar="CAPTURE", help="fit an existing capture's traffic")
-    p.add_argument("--out", required=True, metavar="FILE", help="settings TOML to write")
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="settings TOML to write (FILE.json and FILE.html go beside it)")
+    p.add_argument("--force", "--overwrite", action="store_true",
+                   help="overwrite outputs that exist (never a file of a run's record)")
     p.add_argument("--budget-s", type=float, default=DEFAULT_BUDGET_S, metavar="S",
                    help=f"robot time the procedure may take (default {DEFAULT_BUDGET_S:g} s)")
     p.add_argument("--settings", metavar="FILE",
@@ -50,8 +56,10 @@ def register(sub: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     if not 0 < args.budget_s <= 24 * 3600:
         raise InvalidTargetError(None, "--budget-s", args.budget_s, "must be in (0, 86400] s")
-    base = load_settings(args.settings)
     out = Path(args.out)
+    check_out_files("--out", output_paths(out, observations=args.port is not None),
+                    force=args.force)
+    base = load_settings(args.settings)
     if args.capture is not None:
         result = calibrate_capture(args.capture, base, out)
     else:
@@ -59,17 +67,17 @@ def _run(args: argparse.Namespace) -> int:
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
             progress=lambda m: print(m, file=sys.stderr, flush=True)))
-    _summary(result, out)
+    _summary(result, output_paths(out, observations=False))
     return 0
 
 
-def _summary(result: CalibrationResult, out: Path) -> None:
+def _summary(result: CalibrationResult, written: list[Path]) -> None:
     identified = [f for f in result.fitted if f.identified]
     print(f"calibrated from {result.observations.source}: {len(identified)} parameters "
           f"identified, {len(result.fitted) - len(identified)} kept "
           f"({result.observations.robot_time_s:.1f} s of robot time)")
     for f in identified:
         print(f"  {f.key:<48} {f.value:>12.6g} ± {f.sigma or 0:.2g} {f.unit}")
-    for suffix in ("", ".json", ".html"):
-        print(f"  wrote {out.with_suffix(suffix) if suffix else out}")
+    for path in written:
+        print(f"  wrote {path}")
     sys.stdout.flush()

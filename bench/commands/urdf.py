@@ -2,7 +2,8 @@
 
 Built from the DH table and the robot settings (joint limits, link lengths) by
 :func:`armbench.drivers.urdf.robot_urdf`; the joint positions are the protocol angles the driver
-reports on ``/joint_states``. Written to ``--out`` or printed.
+reports on ``/joint_states``. Written to ``--out`` (replaced atomically; an unwritable path is
+refused before anything is built, :mod:`armbench.bench.outputs`) or printed.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.bench.outputs import check_out_files
+from armbench.bench.record.files import atomic_write_bytes
 from armbench.drivers.settings import load_settings
 from armbench.drivers.urdf import robot_urdf
 
@@ -33,13 +35,12 @@ def register(sub: Any) -> None:
 
 
 def _main(args: argparse.Namespace) -> int:
+    if args.out is not None:  # an existing URDF is replaced; a run's record file never
+        check_out_files("--out", [Path(args.out)], force=True)
     settings = load_settings(args.settings)
     text = robot_urdf(settings)
     if args.out is None:
         sys.stdout.write(text)
         return 0
-    try:
-        Path(args.out).write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ArmbenchError(f"--out {args.out}: cannot write: {exc.strerror or exc}") from exc
+    atomic_write_bytes(args.out, text.encode("utf-8"))
     return 0
