@@ -13,8 +13,8 @@ times, each move from rest aligned at its start:
 * per move, the difference of the arrival times (twin − arm, after the start alignment) where
   both arrive;
 * the TCP divergence where the capture has the truth: the arm's true TCP (a tracker's, or the
-  truth joints of an MCAP capture of ``fake://`` through the twin's actual model: joint truth
-  says nothing of link lengths) against the twin's true TCP at the same instants.
+  truth joints of an MCAP capture of ``fake://`` through the actual model of the arm its record
+  names) against the twin's true TCP at the same instants.
 
 Each comparison has a floor computed from the capture (the link's timing scatter times the
 twin's speed, the angle's quantisation; :func:`armbench.bench.twin_align.floor_rad`): what a
@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import json
 import math
+import urllib.parse
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -57,11 +59,12 @@ from armbench.bench.twin_align import (
     move_shifts,
     timing_scatter_s,
 )
-from armbench.drivers.capture_read import read_joint_states
+from armbench.drivers.capture_read import read_attachment, read_joint_states
+from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.settings import actual_robot, emulator_settings
 
@@ -520,13 +523,33 @@ def _judge_tcp(tcp: dict[str, float] | None, allow: Allowance,
     return out
 
 
+def _arm_model(path: str, settings: RobotSettings) -> RobotSettings:
+    """The actual robot model of the arm an MCAP capture recorded, as far as the capture says:
+    a run's capture of ``fake://`` attaches its record, whose environment names the port (and
+    its ``?settings=`` file) and the run's settings, from which the emulator built its arm.
+    Otherwise the twin's own actual model (then the link lengths and offsets cannot be judged:
+    they cancel)."""
+    raw = read_attachment(path, "results.json")
+    try:
+        env = json.loads(raw)["environment"] if raw is not None else {}
+        port = str(env.get("port") or "")
+        if not port.startswith("fake://"):
+            return actual_robot(settings)
+        query = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query)
+        if "settings" in query:
+            return actual_robot(load_settings(query["settings"][0]))
+        return actual_robot(RobotSettings.from_mapping(env["settings"]))
+    except (ValueError, KeyError, TypeError, AttributeError, OSError, ArmbenchError):
+        return actual_robot(settings)
+
+
 def _arm_tcp(path: str, settings: RobotSettings) -> list[tuple[float, Vec3]]:
-    """The arm's true TCP from an MCAP capture's truth joints, through the twin's actual
-    model (the capture does not hold the arm's)."""
+    """The arm's true TCP from an MCAP capture's truth joints, through the arm's actual model
+    (:func:`_arm_model`)."""
     truth = read_joint_states(path)
     if not truth:
         return []
-    p = tcp_position(np.asarray([q for _, q in truth]), actual_robot(settings))
+    p = tcp_position(np.asarray([q for _, q in truth]), _arm_model(path, settings))
     return [(t, (float(x), float(y), float(z))) for (t, _), (x, y, z) in zip(truth, p,
                                                                               strict=True)]
 
