@@ -17,6 +17,8 @@ from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.settings import RobotSettings
 from foreign_arms.tracker_client import TrackerStream
 
+#: Longest silence of the arm tolerated (s).
+REPLY_TIMEOUT_S = 10.0
 CORNERS = square_yz((0.38, 0.0, 0.80), 0.15)
 #: Single-joint moves (target, duty) of the short lap, from the zero pose and back.
 JOINT_MOVES = [((0.5, 0.0, 0.0, 0.0), 99), ((0.0, 0.0, 0.0, 0.0), 95),
@@ -54,7 +56,9 @@ async def capture_lap(url: str, capture: Path, *, full: bool = True,
         stream = None
         if tracker is not None:
             stream = await stack.enter_async_context(TrackerStream(*tracker))
-        arm = await stack.enter_async_context(Arm.connect(url, RobotSettings(), capture=writer))
+        # a loaded machine may starve the arm's process for a while: not a fault of the link
+        arm = await stack.enter_async_context(Arm.connect(url, RobotSettings(), capture=writer,
+                                                          reply_timeout_s=REPLY_TIMEOUT_S))
         await _moves(arm, full)
     writer.close()
     if stream is None:
