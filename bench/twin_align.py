@@ -136,18 +136,23 @@ class Shifts:
     per_joint_s: FloatArray
     measured: list[tuple[int, float]]
 
+    def deviations_s(self) -> list[float]:
+        """Each measured shift minus its joint's median (s)."""
+        out: list[float] = []
+        for j in sorted({j for j, _ in self.measured}):
+            values = np.asarray([v for i, v in self.measured if i == j])
+            out.extend(float(v) for v in values - np.median(values))
+        return out
+
     def scatter_s(self) -> float | None:
-        """The spread (s, robust standard deviation) of the measured shifts about each joint's
-        median: how much the arm's reaction to a command varies against the twin's, which the
-        shifts of commands sent while moving (not measurable) inherit. None with fewer than
-        three."""
+        """The spread (s, RMS) of the measured shifts about each joint's median: how much the
+        arm's reaction to a command varies against the twin's, which the shifts of commands sent
+        while moving (not measurable) may be off by. Not a robust spread: the odd late reaction
+        (a starved process on a loaded machine, two commands queued on the wire) is exactly what
+        such a command may meet. None with fewer than three."""
         if len(self.measured) < 3:
             return None
-        dev = []
-        for j in {j for j, _ in self.measured}:
-            values = np.asarray([v for i, v in self.measured if i == j])
-            dev.extend(np.abs(values - np.median(values)))
-        return float(MAD_TO_SIGMA * np.median(dev))
+        return float(np.sqrt(np.mean(np.square(self.deviations_s()))))
 
 
 def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command]],

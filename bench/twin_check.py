@@ -33,8 +33,6 @@ that was in flight at the cut written first.
 
 from __future__ import annotations
 
-import asyncio
-import itertools
 import json
 import math
 import urllib.parse
@@ -59,45 +57,32 @@ from armbench.bench.twin_align import (
     move_shifts,
     timing_scatter_s,
 )
+from armbench.bench.twin_replay import (
+    BURST_S,
+    TIME_SLACK_S,
+    Session,
+    TwinTruth,
+    replay_twin,
+    sessions,
+)
 from armbench.drivers.capture_read import read_attachment, read_joint_states
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.motion import joint_speed_rad_s
-from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.arm import ArmEmulator
-from armbench.fakes.settings import actual_robot, emulator_settings
+from armbench.fakes.settings import actual_robot
 
 __all__ = ["DEFAULT_CONFIG", "Aligned", "Allowance", "Session", "TwinCheck", "compare",
-           "replay_twin", "sessions", "tcp_divergence", "twin_check"]
+           "replay_floor", "replay_twin", "sessions", "tcp_divergence", "twin_check"]
 
 DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
 #: default arrival tolerance.
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
-#: A reply further than this (rad) beyond what full speed allows since the previous one starts a
-#: new session (the capture of another emulator, or an arm moved by hand while off).
-JUMP_SLACK_RAD: Final = 0.005
-#: Longest stall of the master's loop between two replies (s): the EEPROM records of four joints
-#: changing state at once (4 × 5 bytes × 3.3 ms); a reply may show that much more motion.
-STALL_S: Final = 0.07
-#: A silence longer than this (s) starts a new session: a power cut, a new emulator (its boot
-#: takes 0.1 s); longer than any stall of the loop.
-SILENCE_S: Final = 0.09
-#: Times closer than this (s) count as the same instant: a capture stores them to the nanosecond.
-TIME_SLACK_S: Final = 1e-6
-#: A reply followed by another within this (s) was read in one go with it: after a stall of the
-#: host (a loaded machine), its stamp is when the host woke, not when it came. Such replies are
-#: left out of the comparison, and the silence before them does not cut the capture.
-BURST_S: Final = 2e-4
 #: An arrival seen after a gap of more than this many median reply intervals is not compared.
 SEEN_LATE: Final = 5.0
-#: The twin has booted when it reports the session's first pose within this many ticks on every
-#: joint (its first replies, before the joint boards answer, report them at 0).
-BOOT_TICKS: Final = 3.0
-#: Longest wait for the twin to report that pose (s, virtual).
-BOOT_TIMEOUT_S: Final = 2.0
-
+#: Seed of the reaction draws of the floor's replays, and how many replays it averages.
+REACTION_SEED: Final = 0
+REACTION_REPLAYS: Final = 2
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
 FloatArray = npt.NDArray[np.float64]
@@ -150,15 +135,6 @@ class Aligned:
 
 
 @dataclass(frozen=True, slots=True)
-class Session:
-    """A stretch of a capture recorded from one arm without a break, and the command that was in
-    flight when it began (None for the first)."""
-
-    data: CaptureData
-    in_flight: Command | None = None
-
-
-@dataclass(frozen=True, slots=True)
 class TwinCheck:
     """The comparison of an arm's capture with its twin's replay. ``arrivals`` holds, per
     command, its time and the arrival time in the arm's and the twin's stream (the twin's on the
@@ -187,6 +163,7 @@ class TwinCheck:
     reaction_scatter_s: float = 0.0
     shifts_s: list[float] = field(default_factory=list)
     joint_shifts_s: FloatArray | None = None
+    shift_deviations_s: list[float] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -207,75 +184,6 @@ class TwinCheck:
                               "outcome": m.outcome} for m in self.measurements],
             "verdict": self.verdict,
         }
-
-
-@dataclass(frozen=True, slots=True)
-class TwinTruth:
-    """The twin's truth at each of its replies: times (capture clock), true joint angles (rad)
-    and true TCP (m, through its actual model)."""
-
-    t_s: list[float] = field(default_factory=list)
-    q_rad: list[Vec4] = field(default_factory=list)
-    tcp_m: list[Vec3] = field(default_factory=list)
-
-
-async def replay_twin(data: CaptureData, settings: RobotSettings,
-                      truth: TwinTruth | None = None,
-                      in_flight: Command | None = None) -> list[tuple[float, Vec4]]:
-    """Replay ``data``'s commands into a twin built from ``settings`` on the running loop; the
-    twin's replies from the first one at the session's first pose, on the capture's clock (that
-    reply aligned with the capture's first). ``in_flight`` is written first, at once. With
-    ``truth`` given, the twin's truth at each of its replies is appended to it."""
-    loop = asyncio.get_running_loop()
-    q0 = data.replies[0][1]
-    emulator = ArmEmulator(settings, emulator_settings(settings), initial_q_rad=q0)
-    framer = Framer("reply")
-    decode = AngleDecoder(settings.lower_rad, settings.upper_rad)
-    out: list[tuple[float, Vec4]] = []
-    booted = False
-    near = BOOT_TICKS * TICK_RAD
-
-    def sink(chunk: bytes) -> None:
-        nonlocal booted
-        now = loop.time()
-        for event in framer.feed(chunk):
-            if not isinstance(event, Reply):
-                continue
-            q = decode(event)
-            booted = booted or all(abs(a - b) <= near for a, b in zip(q, q0, strict=True))
-            if not booted:
-                continue
-            out.append((now, q))
-            if truth is not None:
-                a = emulator.true_angles_rad()
-                truth.t_s.append(now)
-                truth.q_rad.append((a[0], a[1], a[2], a[3]))
-                truth.tcp_m.append(emulator.true_position_m())
-
-    emulator.attach_host(sink)
-    await emulator.start()
-    try:
-        give_up = loop.time() + BOOT_TIMEOUT_S
-        while not out:
-            if loop.time() > give_up:
-                raise RuntimeError("the twin never reported the session's first pose")
-            await asyncio.sleep(0.001)
-        offset = out[0][0] - data.replies[0][0]
-        if in_flight is not None:
-            emulator.host_write(in_flight.encode())
-        for t_s, command in data.commands:
-            delay = t_s + offset - loop.time()
-            if delay > 0:
-                await asyncio.sleep(delay)
-            emulator.host_write(command.encode())
-        end = data.replies[-1][0] + offset
-        await asyncio.sleep(max(0.0, end - loop.time()) + 0.01)
-    finally:
-        await emulator.close()
-    if truth is not None:
-        n = len(truth.t_s) - len(out)
-        truth.t_s[n:] = [t - offset for t in truth.t_s[n:]]
-    return [(t - offset, q) for t, q in out]
 
 
 def tcp_divergence(arm_tcp: Sequence[tuple[float, Sequence[float]]], twin: TwinTruth,
@@ -349,9 +257,79 @@ def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 
+@dataclass(frozen=True, slots=True)
+class ReplayFloor:
+    """How far the twin diverges from itself replayed with each command moved by a draw of the
+    arm's reaction scatter (the measured start shifts about their joint's median), compared as
+    the arm is: per joint RMS (rad), the arrival times' RMS difference (s), the TCP's RMS
+    distance (mm; None without truth)."""
+
+    rad: FloatArray
+    dt_s: float
+    tcp_mm: float | None = None
+
+
+def _shift_at(times: Sequence[float], per_command: Sequence[float] | FloatArray) -> Any:
+    """The start shift (s) in force at each of the times ``t`` (the newest command's)."""
+    ct = np.asarray(times)
+    shifts = np.asarray(per_command, dtype=np.float64)
+
+    def at(t: FloatArray) -> FloatArray:
+        k = np.clip(np.searchsorted(ct, t + TIME_SLACK_S, side="right") - 1, 0, len(ct) - 1)
+        return np.asarray(shifts[k], dtype=np.float64)
+    return at
+
+
+def _read_aligned(t_s: FloatArray, times: Sequence[float], twin: Track, shifts: FloatArray
+                  ) -> tuple[FloatArray, FloatArray]:
+    """The twin's angles and speeds (``(n, 4)``) at the times ``t_s``, each joint read at its
+    start shift's instant."""
+    k_of = np.clip(np.searchsorted(np.asarray(times), t_s + TIME_SLACK_S, side="right") - 1,
+                   0, len(times) - 1)
+    at = t_s[:, None] - shifts[k_of]            # per reply and joint, on the twin's clock
+    q = np.column_stack([twin.at(at[:, j])[:, j] for j in range(4)])
+    v = np.column_stack([twin.speed_at(at[:, j])[:, j] for j in range(4)])
+    return q, v
+
+
+def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
+                 perturbed: Sequence[tuple[float, Vec4]], settings: RobotSettings,
+                 truth: tuple[TwinTruth, TwinTruth, Sequence[float]] | None = None
+                 ) -> ReplayFloor:
+    """The :class:`ReplayFloor` of the twin's replay ``twin`` against its perturbed replay,
+    read at the capture's (timed) reply times; with ``truth`` (the two replays' truths and the
+    arm's truth times) the TCP's too."""
+    reference, base = Track.of(perturbed), Track.of(twin)
+    times = [c[0] for c in data.commands]
+    measured = move_shifts(reference, base, data.commands, settings)
+    shifts = measured.per_joint_s
+    t = np.asarray([r[0] for r in _timed(data.replies)])
+    t = t[(t >= times[0]) & (t >= base.t_s[0])]
+    q_base, _ = _read_aligned(t, times, base, shifts)
+    diff = reference.at(t) - q_base
+    per_command = command_shifts(shifts, data.commands, reference, settings)
+    a = _arrivals(perturbed, data, settings)
+    b = _arrivals(twin, data, settings, per_command)
+    dts = np.asarray([y - x for (x, _), (y, _) in zip(a, b, strict=True)
+                      if x is not None and y is not None])
+    tcp_mm = None
+    if truth is not None and len(truth[1].t_s) > 1:
+        moved = Track(np.asarray(truth[1].t_s), np.column_stack(
+            [np.asarray(truth[1].tcp_m), np.zeros(len(truth[1].t_s))]))
+        at = np.asarray(truth[2], dtype=np.float64)
+        samples = [(float(x), tuple(p[:3])) for x, p in zip(at, moved.at(at), strict=True)]
+        tcp = tcp_divergence(samples, truth[0], _shift_at(times, per_command), 0.0)
+        tcp_mm = None if tcp is None else tcp["rms_mm"]
+    return ReplayFloor(np.sqrt(np.mean(diff * diff, axis=0)),
+                       float(np.sqrt(np.mean(dts * dts))) if len(dts) else 0.0, tcp_mm)
+
+
 def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: RobotSettings,
-            limits: LimitsConfig | None, allowance: Allowance | None = None) -> TwinCheck:
-    """Compare the capture's replies with the twin's (see the module doc)."""
+            limits: LimitsConfig | None, allowance: Allowance | None = None,
+            floor_by_replay: ReplayFloor | None = None) -> TwinCheck:
+    """Compare the capture's replies with the twin's (see the module doc). The floor's
+    reaction part is ``floor_by_replay`` where given (what :func:`twin_check` passes), else the
+    reaction scatter times the twin's speed."""
     allow = allowance or Allowance()
     twin_track = Track.of(twin)
     timed = _timed(data.replies)
@@ -364,11 +342,7 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     start = times[0]
     rows = [(t, q) for t, q in data.replies if t >= start and t >= twin_track.t_s[0]]
     arm = Track.of(rows)
-    k_of = np.clip(np.searchsorted(np.asarray(times), arm.t_s + TIME_SLACK_S, side="right") - 1,
-                   0, len(times) - 1)
-    at = arm.t_s[:, None] - shifts[k_of]            # per reply and joint, on the twin's clock
-    q_twin = np.column_stack([twin_track.at(at[:, j])[:, j] for j in range(4)])
-    speed = np.column_stack([twin_track.speed_at(at[:, j])[:, j] for j in range(4)])
+    q_twin, speed = _read_aligned(arm.t_s, times, twin_track, shifts)
     counts = np.asarray([j.counts_per_rad for j in settings.joints])
     aligned = Aligned(arm.t_s, arm.q_rad, q_twin, counts)
     diff = arm.q_rad - q_twin
@@ -377,7 +351,10 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     scatter = timing_scatter_s(whole, times)
     reaction = measured.scatter_s()
     command_scatter = scatter if reaction is None else max(scatter, reaction)
-    floor = floor_rad(speed, scatter, command_scatter, counts)
+    if floor_by_replay is None:
+        floor = floor_rad(speed, scatter, command_scatter, counts)
+    else:
+        floor = np.hypot(floor_rad(speed, scatter, 0.0, counts), floor_by_replay.rad)
     allowed = allow.floor_factor * floor * counts + allow.abs_counts
     per_command = command_shifts(shifts, data.commands, whole, settings)
     settled = _settled(arm, twin_track, times, shifts)
@@ -391,7 +368,11 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
            if a is not None and b is not None and gap <= seen_late]
     arm_only = sum(a is not None and b is None for a, b in pairs)
     twin_only = sum(a is None and b is not None for a, b in pairs)
-    dt_floor = interval_floor_s(whole, twin_track, scatter, command_scatter)
+    if floor_by_replay is None:
+        dt_floor = interval_floor_s(whole, twin_track, scatter, command_scatter)
+    else:
+        dt_floor = math.hypot(interval_floor_s(whole, twin_track, scatter, 0.0),
+                              floor_by_replay.dt_s)
     n = TWIN_CHECK
     measurements = _joint_measurements(rms, peak, counts, floor, allowed, settled_rms, limits)
     measurements += _arrival_measurements(dts, dt_floor, allow, limits)
@@ -418,7 +399,8 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         allowed_counts=[float(v) for v in allowed],
         settled_counts=[float(v) for v in settled_rms * counts], scatter_s=scatter,
         reaction_scatter_s=command_scatter,
-        shifts_s=[float(v) for v in per_command], joint_shifts_s=shifts)
+        shifts_s=[float(v) for v in per_command], joint_shifts_s=shifts,
+        shift_deviations_s=measured.deviations_s())
 
 
 def _verdict(measurements: Sequence[Measurement]) -> str:
@@ -472,38 +454,6 @@ def _arrival_measurements(dts: Sequence[float], floor_s: float, allow: Allowance
     ]
 
 
-def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
-    """The capture cut where the arm it recorded was another one: a reply that jumps further
-    than the joints can move at full speed in the time since the previous one (and a stall of the
-    loop), or a silence longer than :data:`SILENCE_S` (a run's capture holds one emulator per
-    trial, each booting at its own pose) that does not end in a burst (:data:`BURST_S`: then the
-    host was silent, not the arm). Each session after the first carries the command in
-    flight at its start; sessions without commands are left out."""
-    t = np.asarray([r[0] for r in data.replies])
-    q = np.asarray([r[1] for r in data.replies])
-    if len(t) < 2:
-        return [Session(data)]
-    dt = np.diff(t)
-    speed = np.asarray([joint_speed_rad_s(MAX_DUTY, j.steps_per_rad) for j in settings.joints])
-    reach = 1.5 * speed * (dt[:, None] + STALL_S) + JUMP_SLACK_RAD
-    jump = np.abs(np.diff(q, axis=0)) > reach
-    burst = np.append(dt < BURST_S, False)          # per reply: read together with the next
-    silent = (dt > SILENCE_S) & ~burst[1:]
-    cuts = [0, *(np.flatnonzero(jump.any(axis=1) | silent) + 1), len(t)]
-    out = []
-    for a, b in itertools.pairwise(cuts):
-        t0, t1 = t[a], (t[b] if b < len(t) else math.inf)
-        commands = [c for c in data.commands if t0 <= c[0] < t1]
-        before = [c for c in data.commands if c[0] < t0]
-        # a silence is the same arm resuming; a jump is another one, which got no command yet
-        resumed = a > 0 and not jump[a - 1].any()
-        in_flight = before[-1][1] if before and resumed else None
-        if commands:
-            out.append(Session(CaptureData(data.path, commands, data.replies[a:b], 0),
-                               in_flight))
-    return out
-
-
 def _judge_tcp(tcp: dict[str, float] | None, allow: Allowance,
                limits: LimitsConfig) -> list[Measurement]:
     """The TCP divergence as measurements, where the capture had truth."""
@@ -554,12 +504,32 @@ def _arm_tcp(path: str, settings: RobotSettings) -> list[tuple[float, Vec3]]:
                                                                               strict=True)]
 
 
+def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
+    """The RMS over several replays' floors."""
+    tcp = [f.tcp_mm for f in floors if f.tcp_mm is not None]
+    return ReplayFloor(
+        np.sqrt(np.mean([f.rad ** 2 for f in floors], axis=0)),
+        math.sqrt(sum(f.dt_s ** 2 for f in floors) / len(floors)),
+        math.sqrt(sum(v ** 2 for v in tcp) / len(tcp)) if tcp else None)
+
+
+def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> FloatArray:
+    """Per command, a draw (s) of the arm's reaction scatter: one of the measured start shifts'
+    deviations from their joint's median, drawn with replacement (from a seeded generator: the
+    check is reproducible); the reply timing scatter as a normal spread without three of
+    them."""
+    if len(result.shift_deviations_s) >= 3:
+        return np.asarray(rng.choice(np.asarray(result.shift_deviations_s), size=n))
+    return np.asarray(rng.normal(0.0, result.scatter_s, size=n))
+
+
 def twin_check(data: CaptureData, settings: RobotSettings,
                config: str | Path | None = None,
                arm_tcp: Sequence[tuple[float, Sequence[float]]] | None = None) -> TwinCheck:
-    """Replay each session on a virtual-time loop and compare (see the module doc).
-    ``arm_tcp``: the arm's true TCP (capture clock s, m) from a reference instrument; without
-    it, the truth joints of an MCAP capture, if any."""
+    """Replay each session on a virtual-time loop and compare (see the module doc); then
+    replay it again with each command moved by a draw of the arm's reaction scatter, for the
+    floor (:func:`replay_floor`). ``arm_tcp``: the arm's true TCP (capture clock s, m) from a
+    reference instrument; without it, the truth joints of an MCAP capture, if any."""
     from armbench.fakes.vclock import run_virtual
 
     limits = load_limits(config if config is not None else DEFAULT_CONFIG)
@@ -574,16 +544,30 @@ def twin_check(data: CaptureData, settings: RobotSettings,
         twin.extend(run_virtual(replay_twin(part.data, settings, twin_truth, part.in_flight)))
     merged = CaptureData(data.path, [c for p in parts for c in p.data.commands],
                          [r for p in parts for r in p.data.replies], data.bad_in_frames)
-    result = compare(merged, twin, settings, limits, allow)
-    times = np.asarray([c[0] for c in merged.commands])
-    shifts = np.asarray(result.shifts_s)   # per command (its longest-way joint)
-
-    def shift_at(t: FloatArray) -> FloatArray:
-        k = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 1)
-        return np.asarray(shifts[k], dtype=np.float64)
-
+    first = compare(merged, twin, settings, limits, allow)
+    floors = []
+    rng = np.random.default_rng(REACTION_SEED)
+    for _ in range(REACTION_REPLAYS):
+        draws = _reaction_draws(first, len(merged.commands), rng)
+        moved_truth = TwinTruth() if truth_tcp else None
+        moved: list[tuple[float, Vec4]] = []
+        k = 0
+        for part in parts:
+            offsets = draws[k:k + len(part.data.commands)]
+            k += len(part.data.commands)
+            moved.extend(run_virtual(replay_twin(part.data, settings, moved_truth,
+                                                 part.in_flight,
+                                                 offsets_s=[float(v) for v in offsets])))
+        truths = None if twin_truth is None or moved_truth is None else (
+            twin_truth, moved_truth, [t for t, _ in truth_tcp])
+        floors.append(replay_floor(merged, twin, moved, settings, truths))
+    floor = _mean_floor(floors)
+    result = compare(merged, twin, settings, limits, allow, floor)
+    shift_at = _shift_at([c[0] for c in merged.commands], result.shifts_s)
     tcp = None if twin_truth is None else tcp_divergence(truth_tcp, twin_truth, shift_at,
-                         math.hypot(result.scatter_s, result.reaction_scatter_s))
+                                                         result.scatter_s)
+    if tcp is not None and floor.tcp_mm is not None:
+        tcp["floor_mm"] = math.hypot(tcp["floor_mm"], floor.tcp_mm)
     count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *_judge_tcp(tcp, allow, limits)]

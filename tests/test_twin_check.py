@@ -295,7 +295,7 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
                         ("j3 gear -4 %", _twin((50, 50, JITTER_GEAR * 0.96, 28)), "fail"),
                         ("nominal", _twin(), "fail")], False),
         ("stall", ("--no-stall",), [("right", _twin(), "pass"),
-                                    ("j2 gear +4 %", _twin((52, 50, 38, 28)), "fail")], False),
+                                    ("j1 gear +4 %", _twin((52, 50, 38, 28)), "fail")], False),
         ("stall", (), [("no loss law", _twin(), "fail"),
                        ("torque-share loss law", RobotSettings(), "fail")], False),
         ("tracker", TRACKER_ARGS, [
@@ -306,7 +306,7 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     ]
     if shared_arm_script() is not None:
         cases.append(("shared", (), [("right", _twin(SHARED_GEARS), "pass"),
-                                     ("j2 gear +4 %", _twin((49.92, 48, 36, 30)), "fail"),
+                                     ("j1 gear +4 %", _twin((49.92, 48, 36, 30)), "fail"),
                                      ("nominal", _twin(), "fail")], False))
         physical = [("no loss law", _twin(SHARED_GEARS), "fail")]
         right = _shared_physics_twin()
