@@ -16,9 +16,11 @@ of that is the model's doing. So:
 * the floor comes from the capture itself. The arm's own replies, where a joint moves steadily,
   scatter around the straight line through their neighbours by the link's timing scatter times
   the joint's speed: that scatter (s, a robust spread of those residuals in time units) times the
-  twin's speed, for the replies and again for the commands, plus the quantisation of the wire
-  angle and of the encoder on both sides, is the per-joint floor (RMS, rad). A perfect twin
-  scores about the floor; the verdict allows ``k × floor + abs``.
+  twin's speed, plus the quantisation of the wire angle and of the encoder on both sides, is the
+  part of the per-joint floor (RMS, rad) the replies give; the start shifts' spread is the arm's
+  reaction scatter, which :mod:`armbench.bench.twin_check` turns into the rest of the floor by
+  replaying the twin with its commands moved by draws of it. A perfect twin scores about the
+  floor; the verdict allows ``k × floor + abs``.
 """
 
 from __future__ import annotations

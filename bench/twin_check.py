@@ -16,10 +16,13 @@ times, each move from rest aligned at its start:
   truth joints of an MCAP capture of ``fake://`` through the actual model of the arm its record
   names) against the twin's true TCP at the same instants.
 
-Each comparison has a floor computed from the capture (the link's timing scatter times the
-twin's speed, the angle's quantisation; :func:`armbench.bench.twin_align.floor_rad`): what a
-perfect twin would score. The verdict allows ``k × floor + abs`` (per joint in counts, for the
-arrivals in s, for the TCP in mm; ``k`` and ``abs`` in the config's ``[suites."twin-check"]``
+Each comparison has a floor computed from the capture: what a perfect twin would score. The
+link's timing scatter times the twin's speed and the angle's quantisation
+(:func:`armbench.bench.twin_align.floor_rad`), and the arm's reaction scatter (the spread of the
+measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
+compared with itself as the arm is (:func:`replay_floor`). The verdict allows
+``k × floor + abs`` (per joint in counts, for the arrivals in s, for the TCP in mm; ``k`` and
+``abs`` in the config's ``[suites."twin-check"]``
 table, else :class:`Allowance`'s defaults): each ``*.rms_per_allowed`` figure is the RMS over
 its allowance, judged against the limits of a bench config (``--config``, else the packaged
 ``twin_check.toml``, ``high = 1``). The verdict is ``pass`` when every judged figure is within,
