@@ -10,19 +10,24 @@ import json
 import subprocess
 import sys
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from foreign_arms.laps import capture_lap
+from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from hidden_arms import draw_hidden, write_hidden
 
 from armbench.bench.calibrate import calibrate_port, load_capture
 from armbench.bench.metrics import error_summary, path_errors, square_yz
-from armbench.bench.twin_check import twin_check
+from armbench.bench.twin_check import TwinCheck, replay_twin, twin_check
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
+from armbench.fakes.settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,10 +63,16 @@ def default_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_same_arm_is_exact(default_capture: Path) -> None:
-    """The default arm's capture replayed into the default twin: bit-identical replies."""
+    """The default arm's capture replayed into the default twin: bit-identical replies, so no
+    divergence and no start shift."""
     settings = RobotSettings()
-    result = twin_check(load_capture(default_capture, settings), settings)
+    data = load_capture(default_capture, settings)
+    twin = run_virtual(replay_twin(data, settings))
+    n = len(data.replies)
+    assert [q for _, q in twin[:n]] == [q for _, q in data.replies]
+    result = twin_check(data, settings)
     assert result.rms_rad == [0.0] * 4 and result.max_rad == [0.0] * 4
+    assert max(abs(s) for s in result.shifts_s) < 1e-12
     assert result.verdict == "pass"
     assert result.replies_compared > 1000
     assert all(abs(dt) < 1e-9 for dt in result.arrival_dt_s)
@@ -182,3 +193,136 @@ def test_run_capture_in_sessions(tmp_path: Path) -> None:
     assert 0.0 < result.tcp["rms_mm"] < 1.0, result.tcp
     names = {m.name for m in result.measurements}
     assert {"twin.tcp.rms_mm", "twin.tcp.max_mm"} <= names, names
+
+
+# --- foreign arms: simulators written apart from armbench, captured in real time ----------------
+
+def _twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
+          physics: dict[str, Any] | None = None) -> RobotSettings:
+    """A twin with these gear ratios: ideal (law (12) alone), or physical with ``physics``."""
+    table: dict[str, Any] = {"joints": {f"j{j + 1}": {"gear_ratio": g}
+                                        for j, g in enumerate(gears)}}
+    table["emulator"] = ({"profile": "ideal"} if physics is None
+                         else {"profile": "physical", "physics": physics})
+    return RobotSettings.from_mapping(table)
+
+
+def _tracker_twin(play_deg: float, offset_deg: Sequence[float], a2_mm: float,
+                  a3_mm: float) -> RobotSettings:
+    """The twin of tracker_arm.py: a plain play operator on every joint (no gravity, so the
+    link never rests on a loaded flank), zero offsets and lengths off as given, nothing else."""
+    physics: dict[str, Any] = {
+        "payload_kg": 0.0, "noise_per_count": 0.0,
+        "geometry_error": {"d1_m": 0.0, "d2_m": 0.0, "a2_m": a2_mm * 1e-3,
+                           "a3_m": a3_mm * 1e-3}}
+    for j in range(4):
+        physics[f"j{j + 1}"] = {"mass_kg": 0.0, "backlash_deg": play_deg,
+                                "offset_error_deg": offset_deg[j], "hall_error_deg": 0.0,
+                                "stick_deg": 0.0}
+    return _twin(physics=physics)
+
+
+def _foreign_capture(folder: Path, name: str, *args: str, full: bool = True
+                     ) -> tuple[Path, list[tuple[float, list[float]]]]:
+    """A real-time capture of a foreign arm (and its tracker's TCP, if it has one)."""
+    capture = folder / f"{name}.jsonl"
+    with foreign_arm(name, *args) as arm:
+        truth = asyncio.run(capture_lap(arm.url, capture, full=full, tracker=arm.tracker))
+    return capture, [(row[0], row[1:4]) for row in truth]
+
+
+def _check(capture: Path, settings: RobotSettings,
+           arm_tcp: list[tuple[float, list[float]]] | None = None) -> TwinCheck:
+    result = twin_check(load_capture(capture, settings), settings, arm_tcp=arm_tcp or None)
+    print(capture.name, result.verdict, "rms", [round(v, 1) for v in result.rms_counts],
+          "floor", [round(v, 1) for v in result.floor_counts],
+          "allowed", [round(v, 1) for v in result.allowed_counts], "tcp", result.tcp)
+    return result
+
+
+JITTER_GEAR = 39.5  # jitter_arm.py's hidden joint-3 gear
+
+
+def test_foreign_arm_verdicts_short_capture(tmp_path: Path) -> None:
+    """A short real-time capture of the jitter arm (replies every 5..20 ms, 2 % dropped, joint
+    3 geared 39.5 for the nominal 38): the twin with its gear passes, one 4 % off fails, and so
+    does the nominal one. The floor and the allowance come from the capture, so the verdicts
+    hold however loaded the machine was while it was recorded."""
+    capture, _ = _foreign_capture(tmp_path, "jitter", full=False)
+    right = _check(capture, _twin((50, 50, JITTER_GEAR, 28)))
+    assert right.verdict == "pass", right.to_json()
+    off = _check(capture, _twin((50, 50, JITTER_GEAR * 0.96, 28)))
+    assert off.verdict == "fail"
+    assert off.rms_counts[2] > off.allowed_counts[2]
+    nominal = _check(capture, _twin())
+    assert nominal.verdict == "fail"
+
+
+TRACKER_ARGS = ("--play-deg", "0.5,0.5,0.5,0.5", "--offset-deg", "0.3,-0.4,0.4,0",
+                "--a2-error-mm", "4", "--a3-error-mm", "-4")
+TRACKER_OFFSETS = (0.3, -0.4, 0.4, 0.0)
+SHARED_GEARS = (48.0, 48.0, 36.0, 30.0)  # foreign_arm.py's hidden gear ratios
+
+
+def _shared_physics_twin() -> RobotSettings | None:
+    """The twin of foreign_arm.py --physics (its speed loss above a duty, by direction), where
+    the twin's physics can say it (a ``loss_law = "duty"`` joint); None where it cannot."""
+    def joint(above: float, plus: float, minus: float) -> dict[str, Any]:
+        return {"mass_kg": 0.0, "backlash_deg": 0.0, "stick_deg": 0.0, "hall_error_deg": 0.0,
+                "offset_error_deg": 0.0, "loss_law": "duty", "loss_above_duty": above,
+                "loss_plus": plus, "loss_minus": minus}
+    physics = {"payload_kg": 0.0, "noise_per_count": 0.0,
+               "geometry_error": {"d1_m": 0.0, "d2_m": 0.0, "a2_m": 0.0, "a3_m": 0.0},
+               "j1": joint(95, 0.1, 0.1), "j2": joint(90, 0.2, 0.05),
+               "j3": joint(90, 0.2, 0.05), "j4": joint(99, 0.0, 0.0)}
+    try:
+        settings = _twin(SHARED_GEARS, physics)
+        emulator_settings(settings)
+    except SettingsError:
+        return None
+    return settings
+
+
+@pytest.mark.slow
+def test_foreign_arm_verdicts(tmp_path: Path) -> None:
+    """On a real-time capture of every foreign arm (the full lap: single-joint moves, the
+    accuracy square's corners and its streamed path): the model of the arm's hidden truth
+    passes, known-wrong models fail (a gear ratio 4 % off, a missing or wrong step-loss law,
+    play 4 times too large or link lengths off, judged on the tracker's TCP). No false pass, no
+    false fail. Figures for docs/calibration.md (printed with -s)."""
+    cases: list[tuple[str, tuple[str, ...], list[tuple[str, RobotSettings, str]], bool]] = [
+        ("jitter", (), [("right", _twin((50, 50, JITTER_GEAR, 28)), "pass"),
+                        ("j3 gear -4 %", _twin((50, 50, JITTER_GEAR * 0.96, 28)), "fail"),
+                        ("nominal", _twin(), "fail")], False),
+        ("stall", ("--no-stall",), [("right", _twin(), "pass"),
+                                    ("j1 gear +4 %", _twin((52, 50, 38, 28)), "fail")], False),
+        ("stall", (), [("no loss law", _twin(), "fail"),
+                       ("torque-share loss law", RobotSettings(), "fail")], False),
+        ("tracker", TRACKER_ARGS, [
+            ("right", _tracker_twin(0.5, TRACKER_OFFSETS, 4, -4), "pass"),
+            ("play x4", _tracker_twin(2.0, TRACKER_OFFSETS, 4, -4), "fail"),
+            ("lengths nominal", _tracker_twin(0.5, TRACKER_OFFSETS, 0, 0), "fail"),
+            ("j2 gear +4 %", _twin((50, 52, 38, 28)), "fail")], True),
+    ]
+    if shared_arm_script() is not None:
+        cases.append(("shared", (), [("right", _twin(SHARED_GEARS), "pass"),
+                                     ("j1 gear +4 %", _twin((49.92, 48, 36, 30)), "fail"),
+                                     ("nominal", _twin(), "fail")], False))
+        physical = [("no loss law", _twin(SHARED_GEARS), "fail")]
+        right = _shared_physics_twin()
+        if right is not None:
+            physical.append(("right (duty loss law)", right, "pass"))
+        cases.append(("shared", ("--physics",), physical, False))
+    else:
+        print(SHARED_MISSING)
+    wrong: list[str] = []
+    for k, (name, args, twins, tracked) in enumerate(cases):
+        folder = tmp_path / str(k)
+        folder.mkdir()
+        capture, truth = _foreign_capture(folder, name, *args)
+        for label, settings, expected in twins:
+            result = _check(capture, settings, truth if tracked else None)
+            print(f"  {name} {' '.join(args)} / {label}: {result.verdict} (expected {expected})")
+            if result.verdict != expected:
+                wrong.append(f"{name} {args} {label}: {result.verdict}")
+    assert not wrong, wrong
