@@ -10,13 +10,11 @@ import argparse
 import asyncio
 import contextlib
 import json
-import signal
 from pathlib import Path
-
-import serial_asyncio_fast
 
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.avr import Harness
+from armbench.fakes.signals import stop_on_signals
 
 __all__ = ["bridge_tcp", "serve_firmware"]
 
@@ -31,6 +29,8 @@ async def bridge_tcp(harness: Harness, host: str, port: int,
                      stop: asyncio.Event) -> tuple[str, int, asyncio.Server]:
     """Serve ``harness``'s UART on TCP ``host:port`` (one client at a time; a second one is
     closed at once). Returns the bound address and the server."""
+    import serial_asyncio_fast  # pyserial imports fcntl and termios on POSIX: only when used
+
     dev_reader, dev_writer = await serial_asyncio_fast.open_serial_connection(
         url=harness.pty, baudrate=115200)
     busy = asyncio.Lock()
@@ -59,34 +59,32 @@ async def serve_firmware(robot: RobotSettings, firmware: str, args: argparse.Nam
     """Start the harness and serve it on its pty (``--link`` too) or on TCP until Ctrl-C,
     SIGTERM or ``--duration``; print the harness's figures at the end."""
     stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
-    harness = await Harness.start(robot, firmware)
-    server: asyncio.Server | None = None
-    try:
-        if host_port is None:
-            where = harness.pty
-            if args.link:
-                link = Path(args.link)
-                if link.is_symlink():
-                    link.unlink()
-                link.symlink_to(harness.pty)
-                where += f" (link {args.link})"
-        else:
-            host, port, server = await bridge_tcp(harness, *host_port, stop)
-            where = f"socket://{host}:{port}"
-        print(f"armbench emulate: serving the firmware in the loop on {where}", flush=True)
-        with contextlib.suppress(TimeoutError):
-            async with asyncio.timeout(args.duration):
-                await stop.wait()
-        stats = await harness.stats()
-        print(f"armbench emulate: stopped after {stats['uart']['replies']} replies; "
-              f"figures {json.dumps(stats)}", flush=True)
-    finally:
-        stop.set()
-        if server is not None:
-            server.close()
-        if host_port is None and args.link and Path(args.link).is_symlink():
-            Path(args.link).unlink()
-        await harness.stop()
+    with stop_on_signals(stop):
+        harness = await Harness.start(robot, firmware)
+        server: asyncio.Server | None = None
+        try:
+            if host_port is None:
+                where = harness.pty
+                if args.link:
+                    link = Path(args.link)
+                    if link.is_symlink():
+                        link.unlink()
+                    link.symlink_to(harness.pty)
+                    where += f" (link {args.link})"
+            else:
+                host, port, server = await bridge_tcp(harness, *host_port, stop)
+                where = f"socket://{host}:{port}"
+            print(f"armbench emulate: serving the firmware in the loop on {where}", flush=True)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(args.duration):
+                    await stop.wait()
+            stats = await harness.stats()
+            print(f"armbench emulate: stopped after {stats['uart']['replies']} replies; "
+                  f"figures {json.dumps(stats)}", flush=True)
+        finally:
+            stop.set()
+            if server is not None:
+                server.close()
+            if host_port is None and args.link and Path(args.link).is_symlink():
+                Path(args.link).unlink()
+            await harness.stop()

@@ -16,8 +16,6 @@ import math
 import os
 import selectors
 import socket
-import termios
-import tty
 from collections.abc import Callable
 from pathlib import Path
 
@@ -241,7 +239,10 @@ class PtyServer:
         """The receive buffer; its ``overrun_bytes`` counts what the pty's clients lost."""
 
     async def start(self) -> str:
-        """Create the pty, start the arm and return the device path."""
+        """Create the pty, start the arm and return the device path (POSIX only)."""
+        import termios  # POSIX: imported by the server that makes a pty
+        import tty
+
         self._master_fd, self._slave_fd = os.openpty()
         # Raw mode: no echo, no CR/LF translation; the slave end stays open here so that a
         # client closing it does not end the stream (EIO) for the next client.

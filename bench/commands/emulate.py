@@ -7,7 +7,6 @@ import asyncio
 import contextlib
 import logging
 import math
-import signal
 import sys
 from typing import Any
 
@@ -25,6 +24,7 @@ from armbench.fakes.avr_serve import serve_firmware
 from armbench.fakes.faults import faults_from_settings, load_faults
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from armbench.fakes.settings import emulator_settings
+from armbench.fakes.signals import stop_on_signals
 
 __all__ = ["register"]
 
@@ -101,9 +101,6 @@ def _run(args: argparse.Namespace) -> int:
 async def _serve(arm: ArmEmulator, args: argparse.Namespace,
                  host_port: tuple[str, int] | None) -> None:
     stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
     server: PtyServer | TcpServer
     if host_port is None:
         server = PtyServer(arm, args.link)
@@ -119,7 +116,7 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
                                 f"{exc.strerror or exc}") from None
         print(f"armbench emulate: serving the arm on socket://{host}:{port}", flush=True)
     try:
-        with contextlib.suppress(TimeoutError):
+        with stop_on_signals(stop), contextlib.suppress(TimeoutError):
             async with asyncio.timeout(args.duration):
                 await stop.wait()
     finally:
