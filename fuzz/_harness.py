@@ -1,6 +1,5 @@
 """Plumbing shared by the atheris harnesses in this folder (not a harness itself).
 
-* puts the checkout on ``sys.path`` so ``python fuzz/fuzz_x.py`` works without installing armbench;
 * adds the target's dictionary (``fuzz/dicts/<target>.dict``) unless ``-dict=`` is given;
 * crash *signatures* (``ExceptionType@file:line`` of the innermost frame in the checkout), so one
   bug found ten thousand times is still one bug;
@@ -21,8 +20,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 FUZZ_DIR = ROOT / "fuzz"
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 KEEP_GOING_ENV = "ARMBENCH_FUZZ_KEEP_GOING"
 

@@ -36,7 +36,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import atheris
-from _harness import fuzz_main  # first: puts the checkout on sys.path
+from _harness import fuzz_main
 
 with atheris.instrument_imports(include=["tomllib", "drivers", "fakes"]):
     import tomllib

@@ -35,7 +35,7 @@ from __future__ import annotations
 import asyncio
 
 import atheris
-from _harness import fuzz_main  # first: puts the checkout on sys.path
+from _harness import fuzz_main
 
 with atheris.instrument_imports(include=["drivers", "fakes"]):
     from armbench.drivers.protocol import Command

@@ -32,7 +32,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import atheris
-from _harness import fuzz_main, split  # first: puts the checkout on sys.path
+from _harness import fuzz_main, split
 
 with atheris.instrument_imports(include=["drivers"]):
     from armbench.drivers.telnet import (

@@ -16,7 +16,7 @@ import sys
 import traceback
 from pathlib import Path
 
-from _harness import signature  # first: puts the checkout on sys.path
+from _harness import signature
 
 TARGETS = ("framer", "telnet", "config", "emulator_uart")
 
