@@ -392,3 +392,19 @@ def test_compiled_build_loads_its_own_calibration(armbench_wheel: Path, tmp_path
     build, hand_d1, fitted_d1 = done.stdout.split()
     assert build == "compiled (mypyc)"
     assert float(hand_d1) == 0.001 and abs(float(fitted_d1)) < 0.01
+
+
+def test_a_damaged_capture_leaves_the_reports_traffic_section_out(
+        captures: dict[str, Path], tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The report of a run whose capture (without its stored tally) is damaged still renders:
+    the traffic section is left out with a warning naming the damage."""
+    from armbench.reports.sections.traffic import traffic_section
+
+    data = bytearray(captures["mcap"].read_bytes())
+    first, second = _chunk_offsets(bytes(data))[:2]
+    data[first + 200] ^= 0xFF
+    damaged = tmp_path / CAPTURE_FILE
+    damaged.write_bytes(data[:second + 50])  # cut short too: no summary, no stored tally
+    with caplog.at_level("WARNING"):
+        assert traffic_section(damaged, tmp_path, None) is None  # type: ignore[arg-type]
+    assert f"chunk at byte {first} is corrupt" in caplog.text
