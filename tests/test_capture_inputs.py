@@ -389,7 +389,7 @@ def test_compiled_build_loads_its_own_calibration(armbench_wheel: Path, tmp_path
     done = subprocess.run([sys.executable, "-c", probe, str(hand), str(out)], env=env,
                           cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
-    build, hand_d1, fitted_d1 = done.stdout.split()
+    build, hand_d1, fitted_d1 = done.stdout.splitlines()
     assert build == "compiled (mypyc)"
     assert float(hand_d1) == 0.001 and abs(float(fitted_d1)) < 0.01
 
