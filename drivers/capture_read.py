@@ -6,33 +6,28 @@ for both, in time order; :func:`capture_lines` gives an MCAP capture as the JSON
 older format holds (for readers of that text). An MCAP file cut short (a killed run: no summary,
 a chunk half written) is read up to its last complete record; a damaged one (a chunk whose bytes
 fail to decompress or to match its CRC, a record running past the end of a closed file, a file
-named ``.mcap`` that is not MCAP) and frames whose times run backwards are a
-:class:`~armbench.drivers.capture.CaptureError` naming the file and the place.
+named ``.mcap`` that is not MCAP: :mod:`armbench.drivers.capture_walk`) and frames whose times
+run backwards are a :class:`~armbench.drivers.capture.CaptureError` naming the file and the place.
 """
 
 from __future__ import annotations
 
 import functools
 import heapq
-import io
 import json
-import os
 import re
 import struct
-import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any, Final, NamedTuple
+from typing import IO, Any
 
 import numpy as np
 import zstandard
-from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
-from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, Message
-from mcap.stream_reader import StreamReader, get_chunk_data_stream
+from mcap.records import Attachment
+from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import generate_dynamic
 
 from armbench.drivers.capture import (
@@ -44,10 +39,19 @@ from armbench.drivers.capture import (
 )
 from armbench.drivers.capture import capture_stopped as jsonl_stopped
 from armbench.drivers.capture_stats import TALLY_METADATA, TrafficTally
+from armbench.drivers.capture_walk import (
+    MAX_CHUNK_BYTES,
+    MCAP_MAGIC,
+    McapLayout,
+    RawMessage,
+    iter_messages,
+    mcap_layout,
+)
 from armbench.drivers.protocol import Command, Framer
 from armbench.drivers.ros2 import BENCH_EVENT, JOINT_STATE, SCHEMAS
 
 __all__ = [
+    "MAX_CHUNK_BYTES",
     "MCAP_MAGIC",
     "McapLayout",
     "RawMessage",
@@ -65,27 +69,8 @@ __all__ = [
     "replay_capture",
 ]
 
-MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
-_OP_MESSAGE: Final = int(Opcode.MESSAGE)
-_OP_CHANNEL: Final = int(Opcode.CHANNEL)
-_OP_CHUNK: Final = int(Opcode.CHUNK)
-#: Where the data section ends: the summary after it repeats what a reader of messages needs.
-_OP_END: Final = frozenset({int(Opcode.DATA_END), int(Opcode.FOOTER)})
-#: Opcodes the MCAP specification reserves (0x00, 0x10..0x7f): a record claiming one is damage.
-_RESERVED: Final = frozenset({0, *range(0x10, 0x80)})
-_HEAD: Final = struct.Struct("<BQ")  # a record's opcode and length
-_U64: Final = struct.Struct("<Q")
-_MESSAGE_HEAD: Final = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
 #: Printable ASCII without '"' and '\\': written into a JSON string as it is.
 _PLAIN = re.compile(rb'[ !#-\[\]-~]*')
-
-
-class RawMessage(NamedTuple):
-    """One message of an MCAP file: its topic, log time (ns) and CDR bytes."""
-
-    topic: str
-    log_time_ns: int
-    data: bytes
 
 
 def is_mcap(path: str | Path) -> bool:
@@ -95,162 +80,6 @@ def is_mcap(path: str | Path) -> bool:
             return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
     except OSError as exc:
         raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
-
-
-class McapLayout(NamedTuple):
-    """What an MCAP file holds, before its messages are read: its complete chunks, and whether it
-    was closed (its footer and closing magic are there) or cut short (a killed run)."""
-
-    chunks: int
-    closed: bool
-
-
-def _open(path: Path) -> IO[bytes]:
-    try:
-        return path.open("rb")
-    except OSError as exc:
-        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
-
-
-def _damaged(path: Path, pos: int, what: str, problem: object) -> CaptureError:
-    return CaptureError(str(path), None, f"{what} at byte {pos} is corrupt: {problem}")
-
-
-def _closed(fh: IO[bytes]) -> bool:
-    """Whether the file ends with the closing magic after at least the opening one."""
-    size = os.fstat(fh.fileno()).st_size
-    fh.seek(max(0, size - len(MCAP_MAGIC)))
-    return size >= 2 * len(MCAP_MAGIC) and fh.read() == MCAP_MAGIC
-
-
-def _records(path: Path, fh: IO[bytes], bodies: frozenset[int]
-             ) -> Iterator[tuple[int, int, bytes | None]]:
-    """(byte offset, opcode, body) of each record of the data section, the body read only for
-    ``bodies``. A record cut short by the end of the file ends the walk when the file was not
-    closed (a killed run's last record); in a closed file it is damage, like a reserved opcode."""
-    size = os.fstat(fh.fileno()).st_size
-    closed = _closed(fh)
-    fh.seek(0)
-    magic = fh.read(len(MCAP_MAGIC))
-    if magic != MCAP_MAGIC:
-        if MCAP_MAGIC.startswith(magic) and not closed:
-            return  # killed while the magic was written
-        raise CaptureError(str(path), None, "is not an MCAP file: it does not begin with the "
-                                            "MCAP magic")
-    pos = len(MCAP_MAGIC)
-    while True:
-        head = fh.read(_HEAD.size)
-        if len(head) < _HEAD.size:
-            if closed:
-                raise _damaged(path, pos, "record", "the file ends inside its header")
-            return
-        opcode, length = _HEAD.unpack(head)
-        if opcode in _RESERVED:
-            raise _damaged(path, pos, "record", f"opcode 0x{opcode:02x} is not an MCAP record")
-        end = pos + _HEAD.size + length
-        if end > size:
-            if closed:
-                raise _damaged(path, pos, "record", f"its length ({length} bytes) runs past "
-                                                    f"the end of the file ({size} bytes)")
-            return  # cut short: the record was being written
-        if opcode in _OP_END:
-            return
-        if opcode in bodies:
-            yield pos, opcode, fh.read(length)
-        else:
-            fh.seek(end)
-            yield pos, opcode, None
-        pos = end
-
-
-def mcap_layout(path: str | Path) -> McapLayout:
-    """The complete chunks of an MCAP file and whether it was closed (the chunks are not read);
-    a :class:`CaptureError` if the file is damaged or not MCAP."""
-    p = Path(path)
-    with _open(p) as fh:
-        chunks = sum(op == _OP_CHUNK for _, op, _ in _records(p, fh, frozenset()))
-        return McapLayout(chunks, _closed(fh))
-
-
-def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
-    """The messages of an MCAP file in file order (optionally only ``topics``), streamed; a file
-    cut short ends at its last complete record. Records and chunks are walked here (``mcap``
-    parses each record and decompresses); only the wanted messages are copied out. A damaged
-    file is a :class:`CaptureError` naming the byte where the damage is."""
-    wanted = None if topics is None else set(topics)
-    channels: dict[int, str] = {}
-    p = Path(path)
-    with _open(p) as fh:
-        for pos, opcode, body in _records(p, fh, frozenset({_OP_CHANNEL, _OP_MESSAGE,
-                                                            _OP_CHUNK})):
-            if body is None:
-                continue
-            stream = ReadDataStream(io.BytesIO(body))
-            chunk: Chunk | None = None
-            try:
-                if opcode == _OP_CHANNEL:
-                    channel = Channel.read(stream)
-                    channels[channel.id] = channel.topic
-                elif opcode == _OP_MESSAGE:
-                    message = Message.read(stream, len(body))
-                else:
-                    chunk = Chunk.read(stream)
-            except (McapError, EOFError, struct.error, ValueError) as exc:
-                raise _damaged(p, pos, Opcode(opcode).name.lower(), exc) from None
-            if chunk is not None:
-                yield from _chunk_messages(p, pos, chunk, channels, wanted)
-            elif opcode == _OP_MESSAGE:
-                topic = channels.get(message.channel_id, "")
-                if wanted is None or topic in wanted:
-                    yield RawMessage(topic, message.log_time, message.data)
-
-
-def _chunk_messages(path: Path, at: int, chunk: Chunk, channels: dict[int, str],
-                    wanted: set[str] | None) -> Iterator[RawMessage]:
-    data, size = _chunk_data(path, at, chunk)
-    pos = 0
-    unpack = _MESSAGE_HEAD.unpack_from
-    while pos + 9 <= size:
-        opcode = data[pos]
-        (length,) = _U64.unpack_from(data, pos + 1)
-        body = pos + 9
-        pos = body + length
-        if pos > size:
-            raise _damaged(path, at, "chunk", f"a record inside runs past its end ({size} bytes)")
-        if opcode == _OP_MESSAGE:
-            if length < _MESSAGE_HEAD.size:
-                raise _damaged(path, at, "chunk", f"a message inside has {length} bytes")
-            channel_id, _, log_time, _ = unpack(data, body)
-            topic = channels.get(channel_id, "")
-            if wanted is None or topic in wanted:
-                yield RawMessage(topic, log_time, data[body + 22:pos])
-        elif opcode == _OP_CHANNEL:
-            try:
-                channel = Channel.read(ReadDataStream(io.BytesIO(data[body:pos])))
-            except (McapError, EOFError, struct.error, ValueError) as exc:
-                raise _damaged(path, at, "chunk", f"a channel inside: {exc}") from None
-            channels[channel.id] = channel.topic
-
-
-def _chunk_data(path: Path, at: int, chunk: Chunk) -> tuple[bytes, int]:
-    """The chunk's records, decompressed and checked against the chunk's size and CRC."""
-    try:
-        if chunk.compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(
-                chunk.data, max_output_size=chunk.uncompressed_size)
-        elif chunk.compression == "":
-            data = chunk.data
-        else:
-            stream, size = get_chunk_data_stream(chunk)
-            data = stream.read(size)
-    except (zstandard.ZstdError, McapError, EOFError, ValueError, RuntimeError) as exc:
-        raise _damaged(path, at, "chunk", f"{chunk.compression} data: {exc}") from None
-    if len(data) != chunk.uncompressed_size:
-        raise _damaged(path, at, "chunk", f"{len(data)} bytes decompressed, "
-                                          f"{chunk.uncompressed_size} expected")
-    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-        raise _damaged(path, at, "chunk", "its CRC does not match its records")
-    return data, len(data)
 
 
 def _strings(data: bytes, pos: int) -> tuple[list[bytes], int]:

@@ -67,7 +67,7 @@ def _run(args: argparse.Namespace) -> int:
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
             progress=lambda m: print(m, file=sys.stderr, flush=True)))
-    _summary(result, output_paths(out, observations=False))
+    _summary(result, output_paths(out, observations=args.port is not None))
     return 0
 
 

@@ -4,8 +4,9 @@ streams (see :mod:`armbench.bench.twin_check`); with ``--out`` the check is also
 with its ``report.html`` and ``junit.xml`` (see :mod:`armbench.bench.twin_record`).
 
 Exit status: 0 the twin is within the config's tolerance (``twin.*`` limits), 1 it is not, 2 bad
-input (a truncated capture, another robot model's, one without commands, an ``--out`` that
-already holds a record): nothing is written then.
+input (a truncated or damaged capture, another robot model's, one without commands or traffic, an
+``--out`` that already holds a record or a file the check writes, or cannot be written, checked
+before the capture is read): nothing is written then.
 """
 
 from __future__ import annotations

@@ -4,17 +4,21 @@ record."""
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
+from armbench.drivers.capture import CaptureError
 from armbench.reports import plots
 from armbench.reports.capture import CaptureLine, summarize_capture
 from armbench.reports.format import format_duration
 from armbench.reports.views import Figures, FigureView
 
 __all__ = ["TrafficView", "traffic_section"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +47,9 @@ def traffic_section(capture: Path, out_dir: Path, figs: Figures) -> TrafficView 
     try:
         c = summarize_capture(capture)
     except OSError:
+        return None
+    except CaptureError as exc:  # a damaged capture: the rest of the report still stands
+        log.warning("traffic section left out: %s", exc)
         return None
     rel = os.path.relpath(capture.resolve(), out_dir.resolve())
     href = quote(Path(rel).as_posix(), safe="/")
