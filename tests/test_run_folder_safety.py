@@ -165,6 +165,31 @@ def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
     assert resumed.returncode == 0, resumed.stderr
 
 
+def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
+    """A fleet's folder is locked as a run's is: with its lock held by another process,
+    ``run --resume FLEET`` is refused naming that process, and the fleet's files are unchanged."""
+    fleet = tmp_path / "fleet"
+    done = _bench("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
+                  "--out", str(fleet), "--workers", "1")
+    assert done.returncode == 0, done.stderr
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys\n"
+         "from armbench.bench.runner.lock import hold_run_folder\n"
+         f"with hold_run_folder({str(fleet)!r}):\n"
+         "    print('held', flush=True)\n"
+         "    sys.stdin.readline()\n"],
+        cwd=ROOT, env=_env(), text=True, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        before = _snapshot(fleet)
+        refused = _bench("run", "--resume", str(fleet))
+        _one_line_error(refused, f"pid {holder.pid}", "is being written by")
+        assert _snapshot(fleet) == before
+    finally:
+        holder.communicate("\n", timeout=WAIT_S)
+    assert not (fleet / ".armbench.lock").exists()
+
+
 # -- a resumed capture equals the uninterrupted one ---------------------------------------------
 
 
