@@ -383,9 +383,13 @@ def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> 
     assert blocker.read_text() == "mine\n"
 
 
-def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path) -> None:
+def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
+                                                         whole_run: Capture) -> None:
     """A tmpfs too small for the run: the record's own error in one line (not the capture's
-    OSError), exit 2, and the trials measured until then still on disk for ``--resume``."""
+    OSError), exit 2, and the trials measured until then still on disk for ``--resume``, with
+    the capture parts the full disk kept out of ``capture.mcap``: moved to a disk with room
+    and resumed, the run ends with the whole run's capture."""
+    moved = tmp_path / "moved"
     with _tmpfs(tmp_path / "small", "size=1200k") as disk:
         out = disk / "run"
         full = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
@@ -397,3 +401,9 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path) -> None
         record = load_record(out / "results.json")
         measured = [t for s in record.suites.values() for t in s.trials]
         assert measured and all(t.status == "done" for t in measured)
+        shutil.copytree(out, moved)
+    resumed = _bench("run", "--resume", str(moved))
+    assert resumed.returncode == 0, resumed.stderr
+    got = _capture(moved)
+    assert got.frames == whole_run.frames
+    assert got.events == whole_run.events
