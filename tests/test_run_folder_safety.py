@@ -165,6 +165,31 @@ def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
     assert resumed.returncode == 0, resumed.stderr
 
 
+def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
+    """A fleet's folder is locked as a run's is: with its lock held by another process,
+    ``run --resume FLEET`` is refused naming that process, and the fleet's files are unchanged."""
+    fleet = tmp_path / "fleet"
+    done = _bench("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
+                  "--out", str(fleet), "--workers", "1")
+    assert done.returncode == 0, done.stderr
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys\n"
+         "from armbench.bench.runner.lock import hold_run_folder\n"
+         f"with hold_run_folder({str(fleet)!r}):\n"
+         "    print('held', flush=True)\n"
+         "    sys.stdin.readline()\n"],
+        cwd=ROOT, env=_env(), text=True, stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        before = _snapshot(fleet)
+        refused = _bench("run", "--resume", str(fleet))
+        _one_line_error(refused, f"pid {holder.pid}", "is being written by")
+        assert _snapshot(fleet) == before
+    finally:
+        holder.communicate("\n", timeout=WAIT_S)
+    assert not (fleet / ".armbench.lock").exists()
+
+
 # -- a resumed capture equals the uninterrupted one ---------------------------------------------
 
 
@@ -358,9 +383,13 @@ def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> 
     assert blocker.read_text() == "mine\n"
 
 
-def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path) -> None:
+def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
+                                                         whole_run: Capture) -> None:
     """A tmpfs too small for the run: the record's own error in one line (not the capture's
-    OSError), exit 2, and the trials measured until then still on disk for ``--resume``."""
+    OSError), exit 2, and the trials measured until then still on disk for ``--resume``, with
+    the capture parts the full disk kept out of ``capture.mcap``: moved to a disk with room
+    and resumed, the run ends with the whole run's capture."""
+    moved = tmp_path / "moved"
     with _tmpfs(tmp_path / "small", "size=1200k") as disk:
         out = disk / "run"
         full = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
@@ -372,3 +401,9 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path) -> None
         record = load_record(out / "results.json")
         measured = [t for s in record.suites.values() for t in s.trials]
         assert measured and all(t.status == "done" for t in measured)
+        shutil.copytree(out, moved)
+    resumed = _bench("run", "--resume", str(moved))
+    assert resumed.returncode == 0, resumed.stderr
+    got = _capture(moved)
+    assert got.frames == whole_run.frames
+    assert got.events == whole_run.events

@@ -45,6 +45,9 @@ class CaptureParts:
         """The capture's size bound (``[bench] capture_max_bytes``); None: unbounded."""
         self.stopped = False
         """Whether the capture reached its bound (said once through ``say``)."""
+        self.failed = False
+        """Whether the capture could not be written (a full disk): it stopped, and the parts
+        not yet in it stay on disk for a ``--resume`` to merge."""
         self._say = say
         self.run: RunCapture | None = None
         """The run's MCAP writer; None in a worker (:meth:`open_run`)."""
@@ -69,8 +72,9 @@ class CaptureParts:
                 if self._say is not None:
                     self._say(f"capture stopped: {self.capture.name}: {reason}")
             if self.stopped:
-                with contextlib.suppress(OSError):
-                    part.unlink()
+                if not self.failed:  # kept after a write error: a resume merges it
+                    with contextlib.suppress(OSError):
+                        part.unlink()
                 return
             self.run.add_part(part, offset_s)
         except OSError as exc:
@@ -78,15 +82,17 @@ class CaptureParts:
 
     def _failed(self, exc: OSError) -> None:
         """The capture cannot be written (a full disk): it stops there, said once; the run and
-        its record go on, and an error of the record is what the user sees, not this one."""
+        its record go on, and an error of the record is what the user sees, not this one. The
+        parts not in it yet are kept: ``--resume`` (once there is room) merges those of
+        recorded trials, as after a kill."""
         if not self.stopped:
             if self._say is not None:
                 self._say(f"capture stopped: {self.capture.name} cannot be written: "
-                          f"{exc.strerror or exc}")
+                          f"{exc.strerror or exc}; its parts stay for --resume")
             else:
                 log.warning("capture %s cannot be written: %s", self.capture,
                             exc.strerror or exc)
-        self.stopped = True
+        self.stopped = self.failed = True
 
     def trial(self, suite: str, trial: Trial) -> None:
         """A recorded trial's start and end as events in the capture."""

@@ -17,6 +17,7 @@ The loop is the virtual-time one when every arm is ``fake://``, a real one other
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import re
 import sys
@@ -33,6 +34,8 @@ from armbench.bench.fleet_index import (
     write_fleet_index,
 )
 from armbench.bench.record import RESULTS_FILE, load_record, new_run_id
+from armbench.bench.record.files import make_directory
+from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
     EXIT_INTERRUPTED,
@@ -233,7 +236,18 @@ def run_fleet_sync(options: RunOptions, ports: Sequence[str], *,
                    emulator_factory: EmulatorFactory | None = None) -> FleetOutcome:
     """Check every arm's plan, then run them all at once on one loop (see the module
     docstring); with ``options.resume`` (a fleet's run directory, no ``ports``) continue every
-    arm of that fleet. Ctrl-C returns each arm's record on disk with exit status 130."""
+    arm of that fleet. Ctrl-C returns each arm's record on disk with exit status 130. The
+    fleet's folder is locked while the fleet writes it (each arm's folder too, by the runner):
+    a second writer is refused before it reads or writes anything."""
+    with contextlib.ExitStack() as held:
+        if options.resume is not None and (Path(options.resume) / FLEET_FILE).is_file():
+            held.enter_context(hold_run_folder(options.resume))
+        return _run_fleet(options, ports, progress, emulator_factory, held)
+
+
+def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | None,
+               emulator_factory: EmulatorFactory | None,
+               held: contextlib.ExitStack) -> FleetOutcome:
     if options.resume is not None:
         out_dir = Path(options.resume)
         if ports:
@@ -255,7 +269,8 @@ def run_fleet_sync(options: RunOptions, ports: Sequence[str], *,
     for plan, arm in zip(plans, arms, strict=True):
         if plan.resume is None:
             plan.run_id = f"{fleet_id}-{arm.name}"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    make_directory(out_dir, "--out" if options.out is not None else "run folder")
+    held.enter_context(hold_run_folder(out_dir))
     _write_index(out_dir, fleet_id, arms, [None] * len(arms), [None] * len(arms), None)
     main = _run_all(plans, arms, progress, emulator_factory)
     try:

@@ -274,9 +274,10 @@ class ParallelTrials:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
             runner.captures.flush()  # the committed trials' parts: on disk, deleted
-            for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.part"):
-                with contextlib.suppress(OSError):  # parts of trials never committed
-                    path.unlink()
+            if not runner.captures.failed:  # else committed ones may be among them: resume
+                for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.part"):
+                    with contextlib.suppress(OSError):  # parts of trials never committed
+                        path.unlink()
 
     def _commit(self, ps: PlannedSuite, index: int, attempt: int, result: JobResult,
                 wall_s: float) -> Trial:
