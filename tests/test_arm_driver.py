@@ -72,8 +72,6 @@ START_S = 120.0
 """Deadline of an emulator process's start."""
 HOME = (0.0, 0.4, 0.8, 0.0)
 """A comfortable pose (elbow bent) the motion tests start from; small moves around it."""
-FAST_RECONNECT = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
-                                 max_attempts=60)
 LINKS = ("fake", "pty", "tcp")
 REPLY_S = 1.0 / reply_rate_bound(SETTINGS.serial, EmulatorSettings())
 """The arm's time between two replies (one per firmware loop): on real time, a count of replies
@@ -417,7 +415,9 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             if not link.real_time:  # a host that reads late may see the arm there already
                 assert not near(coarse.q_rad, HOME, 3e-4)
                 assert coarse.t_s - t1 < predicted
-            assert arm.commands_sent == 3 and arm.resends == 0
+            # a host held up for RESEND_AFTER_S sees no progress and sends again: no harm
+            assert arm.commands_sent == 3 + arm.resends
+            assert arm.resends == 0 or link.real_time
 
     link.run(body)
 
@@ -669,17 +669,21 @@ def test_reconnect_resumes_the_stream(link: Link) -> None:
     try:
         async def body() -> None:
             port = emu.port if emu else link.port
-            async with Arm.connect(port, reconnect=FAST_RECONNECT, reply_timeout_s=0.5) as arm:
+            # until the emulator is back, however long a loaded machine takes to start it
+            patient = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
+                                      max_attempts=None, give_up_after_s=START_S)
+            async with Arm.connect(port, reconnect=patient, reply_timeout_s=0.5) as arm:
                 seq0 = arm.state.seq
                 target = (0.1, 0.05, 0.05, 0.1)
-                mover = asyncio.create_task(arm.move_joints(target, 99, timeout_s=10.0))
+                mover = asyncio.create_task(arm.move_joints(target, 99,
+                                                            timeout_s=START_S + 10.0))
                 await within(asyncio.sleep(0.1))
                 if emu is not None:
                     emu.kill()
                     while arm.connected:
                         await within(asyncio.sleep(0.01))
                     assert arm.reconnects == 0
-                    await within(asyncio.to_thread(emu.start), 15.0)
+                    await within(asyncio.to_thread(emu.start), START_S)
                 else:
                     await within(arm.transport.close())
                 st = await within(arm.wait_state(lambda s: arm.reconnects == 1 and s.seq > seq0
@@ -691,7 +695,7 @@ def test_reconnect_resumes_the_stream(link: Link) -> None:
                 assert arm.resends >= 1 and arm.reconnects == 1
                 await within(arm.move_joints((0.0, 0.0, 0.0, 0.0), 99))
 
-        link.run(body)
+        link.run(body, START_S + TEST_S)
     finally:
         if emu is not None:
             emu.close()
