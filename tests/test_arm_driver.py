@@ -79,7 +79,8 @@ HOME = (0.0, 0.4, 0.8, 0.0)
 LINKS = ("fake", "pty", "tcp")
 REPLY_S = 1.0 / reply_rate_bound(SETTINGS.serial, EmulatorSettings())
 """The arm's time between two replies (one per firmware loop): on real time, a count of replies
-is the arm's time, whenever the host reads them."""
+is the arm's time, whenever the host reads them (at most: an emulator starved of CPU drops the
+loops it cannot catch up)."""
 SETTLED_REPLIES = 25
 """Consecutive replies over which a held arm's joints stay put (~55 ms of the arm's time)."""
 
@@ -409,11 +410,15 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             # law (12): the slowest joint sets the time, plus the latency of the line, the loop
             # and the firmware's EEPROM writes when motion starts and stops (~10 ms each)
             predicted = max(joint_times_s(start.q_rad, target, (99,) * 4, SETTINGS))
-            if link.real_time:  # on the arm's clock: replies from the first move to arrival
+            if link.real_time:
+                # no sooner than law (12) on the host's clock (a late host only adds to it); no
+                # later on the arm's, replies from the first move to arrival (a starved emulator
+                # drops loops, so it only counts fewer)
+                assert st.t_s - t0 >= 0.95 * predicted
                 first = next(s for s in states if not near(s.q_rad, start.q_rad, 1e-4))
                 there = next(s for s in states if near(s.q_rad, target, 3e-4))
                 moved_s = (there.seq - first.seq) * REPLY_S
-                assert 0.95 * predicted - 0.03 <= moved_s <= predicted + 0.04, (moved_s, predicted)
+                assert moved_s <= predicted + 0.04, (moved_s, predicted)
             else:
                 elapsed = st.t_s - t0
                 assert 0.95 * predicted <= elapsed <= predicted + 0.04
