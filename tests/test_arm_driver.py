@@ -70,6 +70,10 @@ TEST_S = 30.0
 """Deadline of a whole test body."""
 START_S = 120.0
 """Deadline of an emulator process's start."""
+REAL_REPLY_TIMEOUT_S = 5.0
+"""Reply timeout on real time: a starved emulator process can fall silent for longer than the
+driver's default 0.5 s (measured at load 13 on two cores); tests of the timeout itself set
+theirs."""
 MOVE_S = 20.0
 """Timeout of the small moves on real time: the emulator drops what it cannot keep up with, so on
 a starved machine the arm's time runs slower than the host's, which the driver's default timeout
@@ -163,6 +167,15 @@ class Link:
     @property
     def real_time(self) -> bool:
         return self.kind != "fake"
+
+    @property
+    def reply_timeout_s(self) -> float:
+        """The driver's default on virtual time; on real time ``REAL_REPLY_TIMEOUT_S``."""
+        return REAL_REPLY_TIMEOUT_S if self.real_time else 0.5
+
+    def connect(self, **options: Any) -> Arm:
+        """``Arm.connect`` to this link, with the link's reply timeout."""
+        return Arm.connect(self.port, reply_timeout_s=self.reply_timeout_s, **options)
 
     @property
     def move_s(self) -> float | None:
@@ -276,7 +289,7 @@ def test_connect_first_reply_and_close(link: Link) -> None:
     async def body() -> None:
         loop = asyncio.get_running_loop()
         t0 = loop.time()
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             st = arm.state
             assert st.seq >= 1 and arm.frames_received >= 1
             assert t0 <= st.t_s <= loop.time()
@@ -309,7 +322,7 @@ def test_close_on_cancellation(link: Link) -> None:
         opened: asyncio.Future[Arm] = asyncio.get_running_loop().create_future()
 
         async def user() -> None:
-            async with Arm.connect(link.port) as arm:
+            async with link.connect() as arm:
                 opened.set_result(arm)
                 async for _ in arm.states():
                     pass
@@ -352,7 +365,7 @@ def test_open_errors_are_typed(tmp_path: Path) -> None:
 # --- state stream -------------------------------------------------------------------------------
 def test_state_stream_and_iterator(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             stream = arm.states()
             first = await within(anext(stream))
             assert first is arm.state
@@ -396,7 +409,7 @@ def test_state_stream_and_iterator(link: Link) -> None:
 # --- motion -------------------------------------------------------------------------------------
 def test_move_joints_arrives_within_tolerance(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             loop = asyncio.get_running_loop()
             start = await home(arm)
             target = offset(HOME, (0.1, -0.04, 0.03, 0.06))
@@ -442,7 +455,7 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
 
 def test_invalid_targets_are_refused_before_sending(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             out0, sent0 = arm.transport.bytes_out, arm.commands_sent
             with pytest.raises(InvalidTargetError) as bad:
                 await within(arm.move_joints([0.0, math.nan, 0.0, 0.0]))
@@ -504,7 +517,7 @@ def _arrivals(states: list[JointState], goal: Sequence[float], tol: float,
 
 def test_coordinated_joints_arrive_together(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             loop = asyncio.get_running_loop()
             await home(arm)
             delta = (0.04, -0.03, 0.05, 0.015)
@@ -526,7 +539,7 @@ def test_coordinated_joints_arrive_together(link: Link) -> None:
 
 def test_follow_path_on_a_short_line(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             await home(arm)
             p0 = tcp_position(HOME, SETTINGS)
             p1 = p0 + np.array([0.0, 0.02, -0.015])
@@ -549,7 +562,7 @@ def test_follow_path_on_a_short_line(link: Link) -> None:
 
 def test_stop_holds_and_interrupts_a_move(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             await home(arm)
             far = offset(HOME, (0.3, 0.2, 0.2, 0.3))
             await within(arm.move_joints(far, 99, wait=False))
@@ -579,7 +592,7 @@ def test_cancelled_move_sends_a_hold(link: Link, tmp_path: Path) -> None:
     cap = tmp_path / "cancel.jsonl"
 
     async def body() -> None:
-        async with Arm.connect(link.port, capture=cap) as arm:
+        async with link.connect(capture=cap) as arm:
             await home(arm)
             far = offset(HOME, (-0.3, -0.2, -0.2, 0.3))
             sent = arm.commands_sent
@@ -660,7 +673,8 @@ def test_port_lost_mid_move(link: Link) -> None:
     emu = link.fresh() if link.real_time else None
     try:
         async def body() -> None:
-            async with Arm.connect(emu.port if emu else link.port) as arm:
+            async with Arm.connect(emu.port if emu else link.port,
+                                   reply_timeout_s=link.reply_timeout_s) as arm:
                 target = offset(arm.state.q_rad, (0.3, 0.0, 0.0, 0.0))
                 mover = asyncio.create_task(arm.move_joints(target, 99))
                 await within(asyncio.sleep(0.1))
@@ -768,7 +782,7 @@ def test_capture_file(link: Link, tmp_path: Path) -> None:
     cap = tmp_path / "run.jsonl"
 
     async def body() -> tuple[int, int, int]:
-        async with Arm.connect(link.port, capture=cap) as arm:
+        async with link.connect(capture=cap) as arm:
             await within(arm.move_joints(offset(arm.state.q_rad, (0.02, 0.0, 0.0, -0.02)), 99,
                                          timeout_s=link.move_s), MOVE_S + 5)
             await within(arm.stop())
@@ -844,7 +858,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
     far = (1.2, 0.4, 0.8, 0.0)
 
     async def body() -> None:
-        async with Arm.connect(pty_emulator.port) as arm:
+        async with Arm.connect(pty_emulator.port, reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
             await home(arm)
         proc = await within(asyncio.create_subprocess_exec(
             sys.executable, "-c", _MAIN, "-v", "move", "--port", pty_emulator.port,
@@ -859,7 +873,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
         proc.send_signal(signal.SIGINT)
         rest = await within(proc.stderr.read(), 10.0)
         assert await within(proc.wait()) == 130, err + rest
-        async with Arm.connect(pty_emulator.port) as arm:
+        async with Arm.connect(pty_emulator.port, reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
             _, b = await still(arm)
             assert abs(b.q_rad[0] - HOME[0]) > 0.05 and abs(b.q_rad[0] - far[0]) > 0.3
             await within(arm.move_joints(HOME, 99), 10.0)
