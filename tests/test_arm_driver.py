@@ -72,8 +72,7 @@ START_S = 120.0
 """Deadline of an emulator process's start."""
 REAL_REPLY_TIMEOUT_S = 5.0
 """Reply timeout on real time: a starved emulator process can fall silent for longer than the
-driver's default 0.5 s (measured at load 13 on two cores); tests of the timeout itself set
-theirs."""
+driver's default 0.5 s; tests of the timeout itself set theirs."""
 MOVE_S = 20.0
 """Timeout of the small moves on real time: the emulator drops what it cannot keep up with, so on
 a starved machine the arm's time runs slower than the host's, which the driver's default timeout
