@@ -70,14 +70,20 @@ TEST_S = 30.0
 """Deadline of a whole test body."""
 START_S = 120.0
 """Deadline of an emulator process's start."""
+REAL_REPLY_TIMEOUT_S = 5.0
+"""Reply timeout on real time: a starved emulator process can fall silent for longer than the
+driver's default 0.5 s; tests of the timeout itself set theirs."""
+MOVE_S = 20.0
+"""Timeout of the small moves on real time: the emulator drops what it cannot keep up with, so on
+a starved machine the arm's time runs slower than the host's, which the driver's default timeout
+(from law (12)) measures. Virtual time keeps the default."""
 HOME = (0.0, 0.4, 0.8, 0.0)
 """A comfortable pose (elbow bent) the motion tests start from; small moves around it."""
-FAST_RECONNECT = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
-                                 max_attempts=60)
 LINKS = ("fake", "pty", "tcp")
 REPLY_S = 1.0 / reply_rate_bound(SETTINGS.serial, EmulatorSettings())
 """The arm's time between two replies (one per firmware loop): on real time, a count of replies
-is the arm's time, whenever the host reads them."""
+is the arm's time, whenever the host reads them (at most: an emulator starved of CPU drops the
+loops it cannot catch up)."""
 SETTLED_REPLIES = 25
 """Consecutive replies over which a held arm's joints stay put (~55 ms of the arm's time)."""
 
@@ -161,11 +167,28 @@ class Link:
     def real_time(self) -> bool:
         return self.kind != "fake"
 
+    @property
+    def reply_timeout_s(self) -> float:
+        """The driver's default on virtual time; on real time ``REAL_REPLY_TIMEOUT_S``."""
+        return REAL_REPLY_TIMEOUT_S if self.real_time else 0.5
+
+    def connect(self, **options: Any) -> Arm:
+        """``Arm.connect`` to this link, with the link's reply timeout."""
+        return Arm.connect(self.port, reply_timeout_s=self.reply_timeout_s, **options)
+
+    @property
+    def move_s(self) -> float | None:
+        """A move's timeout: ``MOVE_S`` on real time, the driver's default on virtual time."""
+        return MOVE_S if self.real_time else None
+
     def run(self, main: Callable[[], Coroutine[Any, Any, T]], timeout_s: float = TEST_S) -> T:
         """Run a test body on virtual time (fake) or real time (pty, tcp) under a deadline."""
 
+        # on real time a bound on a hung test, not on a slow machine
+        deadline_s = timeout_s if self.kind == "fake" else 4 * timeout_s
+
         async def guarded() -> T:
-            async with asyncio.timeout(timeout_s):
+            async with asyncio.timeout(deadline_s):
                 return await main()
 
         if self.kind == "fake":
@@ -218,7 +241,7 @@ def fake_with_faults(tmp_path: Path, toml: str, name: str = "faults.toml") -> st
 
 async def home(arm: Arm) -> JointState:
     """Move to ``HOME`` (quick when already there)."""
-    st = await within(arm.move_joints(HOME, 99, coordinated=True), 10.0)
+    st = await within(arm.move_joints(HOME, 99, coordinated=True, timeout_s=MOVE_S), MOVE_S + 5)
     assert st is not None
     return st
 
@@ -265,7 +288,7 @@ def test_connect_first_reply_and_close(link: Link) -> None:
     async def body() -> None:
         loop = asyncio.get_running_loop()
         t0 = loop.time()
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             st = arm.state
             assert st.seq >= 1 and arm.frames_received >= 1
             assert t0 <= st.t_s <= loop.time()
@@ -298,7 +321,7 @@ def test_close_on_cancellation(link: Link) -> None:
         opened: asyncio.Future[Arm] = asyncio.get_running_loop().create_future()
 
         async def user() -> None:
-            async with Arm.connect(link.port) as arm:
+            async with link.connect() as arm:
                 opened.set_result(arm)
                 async for _ in arm.states():
                     pass
@@ -341,7 +364,7 @@ def test_open_errors_are_typed(tmp_path: Path) -> None:
 # --- state stream -------------------------------------------------------------------------------
 def test_state_stream_and_iterator(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             stream = arm.states()
             first = await within(anext(stream))
             assert first is arm.state
@@ -385,13 +408,13 @@ def test_state_stream_and_iterator(link: Link) -> None:
 # --- motion -------------------------------------------------------------------------------------
 def test_move_joints_arrives_within_tolerance(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             loop = asyncio.get_running_loop()
             start = await home(arm)
             target = offset(HOME, (0.1, -0.04, 0.03, 0.06))
             t0 = loop.time()
             with arm.record_states() as states:
-                st = await within(arm.move_joints(target, 99))
+                st = await within(arm.move_joints(target, 99, timeout_s=link.move_s), MOVE_S + 5)
             assert st is not None and st is arm.state
             tol = arm.default_tolerance_rad()
             assert all(t == pytest.approx(3e-4) for t in tol)
@@ -399,11 +422,15 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
             # law (12): the slowest joint sets the time, plus the latency of the line, the loop
             # and the firmware's EEPROM writes when motion starts and stops (~10 ms each)
             predicted = max(joint_times_s(start.q_rad, target, (99,) * 4, SETTINGS))
-            if link.real_time:  # on the arm's clock: replies from the first move to arrival
+            if link.real_time:
+                # no sooner than law (12) on the host's clock (a late host only adds to it); no
+                # later on the arm's, replies from the first move to arrival (a starved emulator
+                # drops loops, so it only counts fewer)
+                assert st.t_s - t0 >= 0.95 * predicted
                 first = next(s for s in states if not near(s.q_rad, start.q_rad, 1e-4))
                 there = next(s for s in states if near(s.q_rad, target, 3e-4))
                 moved_s = (there.seq - first.seq) * REPLY_S
-                assert 0.95 * predicted - 0.03 <= moved_s <= predicted + 0.04, (moved_s, predicted)
+                assert moved_s <= predicted + 0.04, (moved_s, predicted)
             else:
                 elapsed = st.t_s - t0
                 assert 0.95 * predicted <= elapsed <= predicted + 0.04
@@ -412,19 +439,22 @@ def test_move_joints_arrives_within_tolerance(link: Link) -> None:
                 assert near(truth.true_rad, target, 3e-4)
             # a coarse tolerance returns before the end of the move
             t1 = loop.time()
-            coarse = await within(arm.move_joints(HOME, 99, tolerance_rad=0.01))
+            coarse = await within(arm.move_joints(HOME, 99, tolerance_rad=0.01,
+                                                  timeout_s=link.move_s), MOVE_S + 5)
             assert coarse is not None and near(coarse.q_rad, HOME, 0.01)
             if not link.real_time:  # a host that reads late may see the arm there already
                 assert not near(coarse.q_rad, HOME, 3e-4)
                 assert coarse.t_s - t1 < predicted
-            assert arm.commands_sent == 3 and arm.resends == 0
+            # a host held up for RESEND_AFTER_S sees no progress and sends again: no harm
+            assert arm.commands_sent == 3 + arm.resends
+            assert arm.resends == 0 or link.real_time
 
     link.run(body)
 
 
 def test_invalid_targets_are_refused_before_sending(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             out0, sent0 = arm.transport.bytes_out, arm.commands_sent
             with pytest.raises(InvalidTargetError) as bad:
                 await within(arm.move_joints([0.0, math.nan, 0.0, 0.0]))
@@ -486,7 +516,7 @@ def _arrivals(states: list[JointState], goal: Sequence[float], tol: float,
 
 def test_coordinated_joints_arrive_together(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             loop = asyncio.get_running_loop()
             await home(arm)
             delta = (0.04, -0.03, 0.05, 0.015)
@@ -494,7 +524,8 @@ def test_coordinated_joints_arrive_together(link: Link) -> None:
             for coordinated, goal in ((False, offset(HOME, delta)), (True, HOME)):
                 t0 = arm.state.seq * REPLY_S if link.real_time else loop.time()
                 with arm.record_states() as states:
-                    await within(arm.move_joints(goal, 90, coordinated=coordinated))
+                    await within(arm.move_joints(goal, 90, coordinated=coordinated,
+                                                 timeout_s=link.move_s), MOVE_S + 5)
                 arrivals = [t - t0 for t in _arrivals(states, goal, 3e-4, link.real_time)]
                 spreads[coordinated] = (max(arrivals) - min(arrivals), max(arrivals))
             spread, duration = spreads[True]
@@ -507,7 +538,7 @@ def test_coordinated_joints_arrive_together(link: Link) -> None:
 
 def test_follow_path_on_a_short_line(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             await home(arm)
             p0 = tcp_position(HOME, SETTINGS)
             p1 = p0 + np.array([0.0, 0.02, -0.015])
@@ -530,7 +561,7 @@ def test_follow_path_on_a_short_line(link: Link) -> None:
 
 def test_stop_holds_and_interrupts_a_move(link: Link) -> None:
     async def body() -> None:
-        async with Arm.connect(link.port) as arm:
+        async with link.connect() as arm:
             await home(arm)
             far = offset(HOME, (0.3, 0.2, 0.2, 0.3))
             await within(arm.move_joints(far, 99, wait=False))
@@ -560,7 +591,7 @@ def test_cancelled_move_sends_a_hold(link: Link, tmp_path: Path) -> None:
     cap = tmp_path / "cancel.jsonl"
 
     async def body() -> None:
-        async with Arm.connect(link.port, capture=cap) as arm:
+        async with link.connect(capture=cap) as arm:
             await home(arm)
             far = offset(HOME, (-0.3, -0.2, -0.2, 0.3))
             sent = arm.commands_sent
@@ -641,7 +672,8 @@ def test_port_lost_mid_move(link: Link) -> None:
     emu = link.fresh() if link.real_time else None
     try:
         async def body() -> None:
-            async with Arm.connect(emu.port if emu else link.port) as arm:
+            async with Arm.connect(emu.port if emu else link.port,
+                                   reply_timeout_s=link.reply_timeout_s) as arm:
                 target = offset(arm.state.q_rad, (0.3, 0.0, 0.0, 0.0))
                 mover = asyncio.create_task(arm.move_joints(target, 99))
                 await within(asyncio.sleep(0.1))
@@ -669,17 +701,21 @@ def test_reconnect_resumes_the_stream(link: Link) -> None:
     try:
         async def body() -> None:
             port = emu.port if emu else link.port
-            async with Arm.connect(port, reconnect=FAST_RECONNECT, reply_timeout_s=0.5) as arm:
+            # until the emulator is back, however long a loaded machine takes to start it
+            patient = ReconnectPolicy(initial_delay_s=0.05, factor=1.5, max_delay_s=0.2,
+                                      max_attempts=None, give_up_after_s=START_S)
+            async with Arm.connect(port, reconnect=patient, reply_timeout_s=0.5) as arm:
                 seq0 = arm.state.seq
                 target = (0.1, 0.05, 0.05, 0.1)
-                mover = asyncio.create_task(arm.move_joints(target, 99, timeout_s=10.0))
+                mover = asyncio.create_task(arm.move_joints(target, 99,
+                                                            timeout_s=START_S + 10.0))
                 await within(asyncio.sleep(0.1))
                 if emu is not None:
                     emu.kill()
                     while arm.connected:
                         await within(asyncio.sleep(0.01))
                     assert arm.reconnects == 0
-                    await within(asyncio.to_thread(emu.start), 15.0)
+                    await within(asyncio.to_thread(emu.start), START_S)
                 else:
                     await within(arm.transport.close())
                 st = await within(arm.wait_state(lambda s: arm.reconnects == 1 and s.seq > seq0
@@ -689,9 +725,10 @@ def test_reconnect_resumes_the_stream(link: Link) -> None:
                 done = await within(mover, 10.0)
                 assert done is not None and near(done.q_rad, target, 3e-4)
                 assert arm.resends >= 1 and arm.reconnects == 1
-                await within(arm.move_joints((0.0, 0.0, 0.0, 0.0), 99))
+                await within(arm.move_joints((0.0, 0.0, 0.0, 0.0), 99, timeout_s=link.move_s),
+                             MOVE_S + 5)
 
-        link.run(body)
+        link.run(body, START_S + TEST_S)
     finally:
         if emu is not None:
             emu.close()
@@ -744,8 +781,9 @@ def test_capture_file(link: Link, tmp_path: Path) -> None:
     cap = tmp_path / "run.jsonl"
 
     async def body() -> tuple[int, int, int]:
-        async with Arm.connect(link.port, capture=cap) as arm:
-            await within(arm.move_joints(offset(arm.state.q_rad, (0.02, 0.0, 0.0, -0.02)), 99))
+        async with link.connect(capture=cap) as arm:
+            await within(arm.move_joints(offset(arm.state.q_rad, (0.02, 0.0, 0.0, -0.02)), 99,
+                                         timeout_s=link.move_s), MOVE_S + 5)
             await within(arm.stop())
             return arm.commands_sent, arm.frames_received, arm.frames_dropped
 
@@ -812,7 +850,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
     far = (1.2, 0.4, 0.8, 0.0)
 
     async def body() -> None:
-        async with Arm.connect(pty_emulator.port) as arm:
+        async with Arm.connect(pty_emulator.port, reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
             await home(arm)
         proc = await within(asyncio.create_subprocess_exec(
             sys.executable, "-m", "armbench", "-v", "move", "--port", pty_emulator.port,
@@ -827,7 +865,7 @@ def test_cli_move_ctrl_c_holds_the_arm(pty_emulator: EmulatorProcess) -> None:
         proc.send_signal(signal.SIGINT)
         rest = await within(proc.stderr.read(), 10.0)
         assert await within(proc.wait()) == 130, err + rest
-        async with Arm.connect(pty_emulator.port) as arm:
+        async with Arm.connect(pty_emulator.port, reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
             _, b = await still(arm)
             assert abs(b.q_rad[0] - HOME[0]) > 0.05 and abs(b.q_rad[0] - far[0]) > 0.3
             await within(arm.move_joints(HOME, 99), 10.0)

@@ -350,3 +350,19 @@ def test_a_flooding_pty_client_leaves_no_backlog(pty_emulator: Emulator) -> None
     out = emu.stop()
     m = re.search(r"(\d+) bytes dropped as overrun", out)
     assert m is not None and int(m.group(1)) > sent // 2, out
+
+
+def test_the_host_buffer_is_a_bounded_setting() -> None:
+    from dataclasses import replace
+
+    from armbench.drivers.settings import SettingsError
+    from armbench.fakes.settings import EmulatorSettings, emulator_settings
+
+    assert EmulatorSettings().host_buffer_bytes == 4096
+    assert EmulatorSettings().rx_buffer_bytes == 64  # RX_SIZE of firmware/master.c
+    robot = replace(RobotSettings(), sections={"emulator": {"host_buffer_bytes": 256}})
+    assert emulator_settings(robot).host_buffer_bytes == 256
+    for bad in (0, 2**21, 1.5, "x"):
+        robot = replace(RobotSettings(), sections={"emulator": {"host_buffer_bytes": bad}})
+        with pytest.raises(SettingsError, match=r"emulator\.host_buffer_bytes"):
+            emulator_settings(robot)
