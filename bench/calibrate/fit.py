@@ -21,6 +21,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import TICKS_PER_RAD
 from armbench.drivers.settings import RobotSettings
@@ -452,5 +453,8 @@ def fit_all(obs: Observations, base: RobotSettings) -> list[Fitted]:
     play = fit_play(obs, base, prior)
     hall = fit_hall(obs, base, prior)
     before = [*play, *hall]
+    mech = Mechanism(model, base, lambda: [0.0] * 4)
+    speeds = fit_speed_models(obs, base, model,
+                              lambda q: link_estimate(q, before, model, mech))
     return [*fit_timing(obs), *play, *hall, *fit_stiffness(obs, base, model, play, before),
-            *fit_pullout(obs, base, model, before), *kinematics]
+            *speeds, *kinematics]

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import math
 from collections.abc import Callable, Sequence
 from typing import Any, Final
 
@@ -35,6 +36,7 @@ from armbench.bench.calibrate.model import (
     Observations,
     SpeedRun,
 )
+from armbench.bench.suites.base import PoseSource
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm, JointState
 from armbench.drivers.errors import MoveTimeoutError
@@ -62,8 +64,9 @@ HOLD_POSES_RAD: Final = (
     (-0.4, 0.3, 0.9, 1.5), (1.2, 1.0, -0.4, 0.0), (-1.2, -0.7, 0.8, 0.8), (0.0, 0.7, -1.2, 1.8),
     (2.0, 0.2, 0.5, -0.3), (-2.0, -0.2, -0.6, 0.6), (0.6, 1.1, -0.2, 1.2), (-0.6, -0.5, 0.95, 0.4),
 )
-#: Duties of the speed ladder, the most informative first (full duty is where steps are lost).
-LADDER_DUTIES: Final = (99, 97, 95, 98, 96, 93, 90)
+#: Duties of the speed ladder, the most informative first: full duty (where steps are lost), then
+#: the lowest (a speed scale without loss: a gear ratio off the nominal), then between.
+LADDER_DUTIES: Final = (99, 90, 95, 97, 93, 98, 96)
 #: Per joint: the start pose of its ladder and the range its moves span (protocol rad): joints 2
 #: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
 #: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
@@ -87,7 +90,8 @@ class Procedure:
 
     def __init__(self, arm: Arm, settings: RobotSettings, obs: Observations, *,
                  budget_s: float = DEFAULT_BUDGET_S, save: Callable[[], None] = lambda: None,
-                 progress: Callable[[str], None] = lambda message: None) -> None:
+                 progress: Callable[[str], None] = lambda message: None,
+                 tracker: PoseSource | None = None) -> None:
         self.arm = arm
         self.settings = settings
         self.obs = obs
@@ -98,7 +102,10 @@ class Procedure:
         self._t0 = self._loop.time()
         self._slowdown = 1.6
         self._overhead_s = 0.05
-        self._truth = EmulatorTruth(arm) if arm.ground_truth() is not None else None
+        self._truth: PoseSource | None = (
+            tracker if tracker is not None
+            else EmulatorTruth(arm) if arm.ground_truth() is not None else None)
+        self._tracker = tracker
         obs.truth = self._truth is not None
         sample = arm.ground_truth()
         obs.motor_truth = getattr(sample, "motor_rad", None) is not None
@@ -241,11 +248,11 @@ class Procedure:
         run = speed_of(states, j, start[j], target[j])
         if run is None:
             return
-        rate, n = run
+        rate, n, sigma = run
         self.obs.speeds.append(SpeedRun(joint, duty, 1 if target[j] > start[j] else -1,
                                         [float(v) for v in start],
                                         joint_speed_rad_s(duty, spec.steps_per_rad), rate, n,
-                                        abs(target[j] - start[j]) * spec.steps_per_rad))
+                                        abs(target[j] - start[j]) * spec.steps_per_rad, sigma))
 
     # --- primitives ----------------------------------------------------------------------------
     async def _move(self, target: Sequence[float], duty: int) -> JointState:
@@ -276,7 +283,11 @@ class Procedure:
         await asyncio.sleep(SETTLE_S)
         t = self._loop.time()
         state = await self.arm.wait_state(lambda s: s.t_s >= t, timeout_s=2.0)
-        return state, truth_of(self.arm)
+        truth = truth_of(self.arm)
+        if self._tracker is not None:
+            q = self._tracker.true_joints_rad()
+            truth = {} if q is None else {"true_rad": [float(v) for v in q]}
+        return state, truth
 
 
 def _ticks_changed(before: int) -> Callable[[JointState], bool]:
@@ -299,9 +310,10 @@ def truth_of(arm: Arm) -> dict[str, list[float]]:
 
 
 def speed_of(states: Sequence[JointState], j: int, start: float,
-             target: float) -> tuple[float, int] | None:
+             target: float) -> tuple[float, int, float] | None:
     """Slope (rad/s, unsigned) of joint ``j`` over the middle of a move from ``start`` to
-    ``target``, fitted to the replies; None with fewer than 5 replies there."""
+    ``target``, fitted to the replies, the number of replies and the slope's standard error
+    from their scatter about the line; None with fewer than 5 replies there."""
     span = target - start
     if span == 0:
         return None
@@ -313,6 +325,11 @@ def speed_of(states: Sequence[JointState], j: int, start: float,
             q.append(s.q_rad[j])
     if len(t) < 5:
         return None
-    slope = float(np.polyfit(np.asarray(t) - t[0], np.asarray(q), 1)[0])
-    return abs(slope), len(t)
+    ta = np.asarray(t) - t[0]
+    qa = np.asarray(q)
+    slope, icept = (float(c) for c in np.polyfit(ta, qa, 1))
+    resid = qa - (slope * ta + icept)
+    sxx = float(((ta - ta.mean()) ** 2).sum())
+    sigma = math.sqrt(float(resid @ resid) / (len(t) - 2) / sxx) if sxx > 0 else math.inf
+    return abs(slope), len(t), sigma
 

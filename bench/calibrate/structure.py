@@ -1,0 +1,385 @@
+"""The drive's speed model of each joint, chosen by held-out prediction: how it loses steps (the
+step-loss law of ``docs/robot-model.md``) and whether its speed is scaled (a gear ratio other than
+the nominal one).
+
+Every speed run of the ladder (or of a capture) gives the ratio ``r`` of its effective speed to
+law (12), with a standard error from the scatter of its own replies about the fitted slope (the
+link's and the host's timing jitter included) and the rounding of one pulse in its steps: the
+arm's own noise in this session. Each candidate structure predicts ``r`` for a run:
+
+* ``prior`` — the base settings' twin as it is (nothing fitted);
+* ``none`` — no step lost: ``r = s``;
+* ``torque`` — the torque deficit's share is lost: ``r = s · clip(P / f, 0.1, 1)`` with ``f`` the
+  torque the run needs (the prior's masses, worm gear, friction, spin-up) times
+  ``1 + rate / corner``: one parameter, the pull-out torque ``P``;
+* ``stall`` — the rotor stops where ``f > P``: ``r = s`` or 0 (only when a run stalled);
+* ``duty`` — a fixed share is lost above a duty, per direction: ``r = s (1 − share±)`` above the
+  threshold, ``s`` below it;
+
+each with ``s = 1`` or with ``s`` fitted (the speed scale: the gear ratio is the nominal over
+``s``). Every candidate is fitted leaving one run out and scored on that run (leave-one-out
+cross-validation, the squared error over the run's standard error, summed): the held-out χ².
+The prior is replaced only when the best candidate's held-out χ² is lower by more than
+:data:`MARGIN` (about two standard errors of evidence); among candidates within
+:data:`PARSIMONY` of the best the one with the fewest parameters wins. Each candidate's weight
+(``exp(−χ²/2)`` normalised, an Akaike-style weight of held-out evidence) says how sure the choice
+is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import minimize_scalar
+
+from armbench.bench.calibrate.model import Fitted, Observations, SpeedRun
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.physics import JOINT_RANGES, ArmPhysics, JointPhysics, Mechanism
+
+__all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "fit_speed_models", "run_table"]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Held-out χ² the best structure must gain over the prior's to replace it.
+MARGIN: Final = 4.0
+#: Candidates within this held-out χ² of the best count as equally good: the simplest is taken.
+PARSIMONY: Final = 2.0
+#: Relative standard error of a run's needed torque (masses and angles of the prior): the torque
+#: and stall fits add it to each lossy run's ratio error, and to the pull-out torque's.
+NEED_REL: Final = 0.01
+#: A run slower than this ratio stalled (the torque law never loses more than 90 %).
+STALLED_RATIO: Final = 0.12
+#: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
+#: accepts around the documented range (``fakes/physics.py``).
+_P_GRID: Final = np.geomspace(0.03, 30.0, 481)
+#: Speed scales a fit may return: another gear set of the same arm (a quarter off the nominal
+#: ratio at most); beyond that a scale would stand in for any step loss.
+SCALE_RANGE: Final = (0.75, 1.33)
+
+
+@dataclass(frozen=True, slots=True)
+class JointSpeeds:
+    """One joint's speed runs as the fits need them: the ratio, its standard error, duty,
+    direction and the torque factor ``f`` (N·m) of each run."""
+
+    ratio: FloatArray
+    sigma: FloatArray
+    duty: FloatArray
+    direction: FloatArray
+    factor: FloatArray
+
+
+def _run_sigma(run: SpeedRun) -> float:
+    slope = (run.rate_sigma_rad_s or 0.0) / run.law_rad_s
+    if not math.isfinite(slope):
+        slope = 1.0
+    return math.sqrt(slope ** 2 + (1.0 / max(run.steps, 1.0)) ** 2 + 1e-5 ** 2)
+
+
+def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
+              link_of: Callable[[Sequence[float]], list[float]]) -> JointSpeeds:
+    """Joint ``j``'s (0-based) runs; ``link_of`` estimates the link angles at a run's start."""
+    spec = base.joints[j]
+    p = prior.joints[j]
+    mech = Mechanism(prior, base, lambda: [0.0] * 4)
+    rows = []
+    for run in obs.speeds:
+        if run.joint != j + 1 or run.law_rad_s <= 0:
+            continue
+        rate = run.law_rad_s * spec.steps_per_rad
+        tau = mech.gravity_nm(link_of(run.start_rad))[j]
+        need = p.required_nm(tau, run.direction, spec.gear_ratio, rate, spec.steps_per_motor_rev)
+        rows.append((run.ratio, _run_sigma(run), run.duty, run.direction,
+                     need * (1.0 + rate / p.corner_steps_per_s)))
+    a = np.asarray(rows, dtype=np.float64).reshape(-1, 5)
+    return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """A fitted structure: its name, whether ``s`` is fitted, the parameters and the
+    predictions of the runs it was fitted on."""
+
+    law: str
+    scaled: bool
+    params: dict[str, float]
+    n_params: int
+
+    @property
+    def name(self) -> str:
+        """``law`` with ``+scale`` when the speed scale is fitted."""
+        return self.law + ("+scale" if self.scaled else "")
+
+
+def _wmean(x: FloatArray, w: FloatArray) -> float:
+    return float((x * w).sum() / w.sum()) if len(x) and w.sum() > 0 else math.nan
+
+
+def _clip_scale(s: float) -> float:
+    return min(SCALE_RANGE[1], max(SCALE_RANGE[0], s))
+
+
+def _torque_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
+    out: FloatArray = np.clip(p_nm / factor, 0.1, 1.0)
+    return out
+
+
+def _stall_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
+    out: FloatArray = (factor <= p_nm).astype(np.float64)
+    return out
+
+
+def _sigma_total(d: JointSpeeds, shape: FloatArray) -> FloatArray:
+    """Each run's ratio error plus the needed torque's relative error where it loses steps."""
+    out: FloatArray = np.sqrt(d.sigma ** 2 + (NEED_REL * shape * (shape < 1.0)) ** 2)
+    return out
+
+
+def _profile(d: JointSpeeds, pred: Callable[[float | FloatArray, FloatArray], FloatArray],
+             scaled: bool) -> tuple[float, float]:
+    """Best ``P`` (and ``s``) of a one-parameter shape ``s · pred(P, f)``: a grid over log P,
+    ``s`` in closed form at each."""
+    def at(p_nm: float) -> tuple[float, float]:
+        g = pred(p_nm, d.factor)
+        w = 1.0 / _sigma_total(d, g) ** 2
+        s = (_clip_scale(float((d.ratio * g * w).sum() / (g * g * w).sum()))
+             if scaled and (g > 0).any() else 1.0)
+        return float((((d.ratio - s * g) ** 2) * w).sum()), s
+
+    # the whole grid at once (rows: P, columns: runs)
+    g = pred(_P_GRID[:, None], d.factor[None, :])
+    w = 1.0 / (d.sigma[None, :] ** 2 + (NEED_REL * g * (g < 1.0)) ** 2)
+    if scaled:
+        den = (g * g * w).sum(axis=1)
+        s_all = np.clip((d.ratio * g * w).sum(axis=1) / np.where(den > 0, den, 1.0),
+                        *SCALE_RANGE)
+        s_all = np.where(den > 0, s_all, 1.0)
+    else:
+        s_all = np.ones(len(_P_GRID))
+    chi2_all = (((d.ratio[None, :] - s_all[:, None] * g) ** 2) * w).sum(axis=1)
+    k = int(np.argmin(chi2_all))  # the first of equal minima: the lowest P
+    best = (float(chi2_all[k]), float(_P_GRID[k]), float(k))
+    if 0 < k < len(_P_GRID) - 1 and pred is _torque_pred:  # between grid points: refine
+        lo, hi = math.log(float(_P_GRID[k - 1])), math.log(float(_P_GRID[k + 1]))
+        r = minimize_scalar(lambda x: at(math.exp(x))[0], bounds=(lo, hi), method="bounded",
+                            options={"xatol": 1e-7})
+        if float(r.fun) < best[0]:
+            return math.exp(float(r.x)), at(math.exp(float(r.x)))[1]
+    return best[1], at(best[1])[1]
+
+
+def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
+    """Fit ``law`` (with or without the scale) to the runs of ``d``."""
+    if law == "none":
+        s = _clip_scale(_wmean(d.ratio, 1.0 / d.sigma ** 2)) if scaled else 1.0
+        return Candidate(law, scaled, {"s": s}, int(scaled))
+    if law in ("torque", "stall"):
+        p_nm, s = _profile(d, _torque_pred if law == "torque" else _stall_pred, scaled)
+        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
+    # duty: the threshold that fits best, the shares above it per direction
+    best: tuple[float, Candidate] | None = None
+    duties = {float(x) for x in d.duty}
+    for thr in sorted(duties | {99.0, min(duties) - 1.0}):
+        below = d.duty <= thr
+        w = 1.0 / d.sigma ** 2
+        s = _clip_scale(_wmean(d.ratio[below], w[below])) if scaled and below.any() else 1.0
+        params = {"s": s, "loss_above_duty": thr}
+        pred = np.full_like(d.ratio, s)
+        for key, sign in (("loss_plus", 1.0), ("loss_minus", -1.0)):
+            above = (~below) & (d.direction == sign)
+            share = 1.0 - _wmean(d.ratio[above] / s, w[above]) if above.any() else 0.0
+            share = min(0.9, max(0.0, share))
+            params[key] = share
+            pred[above] = s * (1.0 - share)
+        chi2 = float((((d.ratio - pred) ** 2) * w).sum())
+        if best is None or chi2 < best[0] - 1e-12:
+            best = (chi2, Candidate(law, scaled, params, 3 + int(scaled)))
+    assert best is not None
+    return best[1]
+
+
+def predict(c: Candidate, d: JointSpeeds) -> FloatArray:
+    """The ratio ``c`` predicts for every run of ``d``."""
+    s = c.params["s"]
+    if c.law == "none":
+        return np.full_like(d.ratio, s)
+    if c.law == "torque":
+        return s * _torque_pred(c.params["pullout_nm"], d.factor)
+    if c.law == "stall":
+        return s * _stall_pred(c.params["pullout_nm"], d.factor)
+    pred = np.full_like(d.ratio, s)
+    above = d.duty > c.params["loss_above_duty"]
+    pred[above & (d.direction > 0)] *= 1.0 - c.params["loss_plus"]
+    pred[above & (d.direction < 0)] *= 1.0 - c.params["loss_minus"]
+    return pred
+
+
+def prior_prediction(p: JointPhysics, d: JointSpeeds) -> FloatArray:
+    """The prior twin's ratio for every run (its own law and pull-out torque, no scale)."""
+    if p.loss_law == "torque":
+        return _torque_pred(p.pullout_nm, d.factor)
+    if p.loss_law == "stall":
+        return _stall_pred(p.pullout_nm, d.factor)
+    if p.loss_law == "none":
+        return np.ones_like(d.ratio)
+    c = Candidate("duty", False, {"s": 1.0, "loss_above_duty": p.loss_above_duty,
+                                  "loss_plus": p.loss_plus, "loss_minus": p.loss_minus}, 0)
+    return predict(c, d)
+
+
+def _subset(d: JointSpeeds, keep: npt.NDArray[np.bool_]) -> JointSpeeds:
+    return JointSpeeds(d.ratio[keep], d.sigma[keep], d.duty[keep], d.direction[keep],
+                       d.factor[keep])
+
+
+def at_bound(c: Candidate) -> bool:
+    """Whether a fit ran into the edge of what it may return (a scale a quarter off, a pull-out
+    torque at the settings' band): it then stands in for something else and predicts nothing."""
+    s = c.params["s"]
+    p_nm = c.params.get("pullout_nm")
+    return (c.scaled and s in SCALE_RANGE) or (
+        p_nm is not None and p_nm in (float(_P_GRID[0]), float(_P_GRID[-1])))
+
+
+def held_out_chi2(d: JointSpeeds, law: str, scaled: bool) -> float:
+    """Leave-one-out χ² of ``law``: each run predicted by the fit to all the others (infinite
+    when a fit runs into its bounds: :func:`at_bound`)."""
+    n = len(d.ratio)
+    total = 0.0
+    if at_bound(_fit(d, law, scaled)):
+        return math.inf
+    for i in range(n):
+        keep = np.ones(n, dtype=bool)
+        keep[i] = False
+        c = _fit(_subset(d, keep), law, scaled)
+        one = _subset(d, ~keep)
+        pred = predict(c, one)
+        shape = pred / c.params["s"] if c.params["s"] else pred
+        total += float((((one.ratio - pred) / _sigma_total(one, shape)) ** 2).sum())
+    return total
+
+
+def _param_sigma(d: JointSpeeds, c: Candidate, key: str, step: float) -> float:
+    """Standard error of ``c.params[key]`` from the χ² curvature (central differences),
+    scaled by the reduced χ² when the fit is worse than the runs' errors."""
+
+    def chi2(v: float) -> float:
+        params = dict(c.params)
+        params[key] = v
+        pred = predict(Candidate(c.law, c.scaled, params, c.n_params), d)
+        return float((((d.ratio - pred) / _sigma_total(d, pred / params["s"])) ** 2).sum())
+
+    v0 = c.params[key]
+    curv = (chi2(v0 + step) - 2.0 * chi2(v0) + chi2(v0 - step)) / step ** 2
+    if curv <= 0:
+        return math.inf
+    dof = max(1, len(d.ratio) - c.n_params)
+    return math.sqrt(2.0 / curv * max(1.0, chi2(v0) / dof))
+
+
+def _jkey(j: int, name: str) -> str:
+    return f"emulator.physics.j{j + 1}.{name}"
+
+
+def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                     link_of: Callable[[Sequence[float]], list[float]]) -> list[Fitted]:
+    """Per joint: the step-loss law and its parameters, and the gear ratio, as :class:`Fitted`
+    values (the law as ``choice``); a joint whose runs do not show a better structure than the
+    prior's beyond the noise keeps the prior, and says why."""
+    out: list[Fitted] = []
+    for j, spec in enumerate(base.joints):
+        p = prior.joints[j]
+        d = run_table(obs, base, prior, j, link_of)
+        out.extend(_joint_models(j, spec.gear_ratio, p, d))
+    return out
+
+
+def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
+    return [Fitted(_jkey(j, "loss_law"), math.nan, None, "", False, reason, choice=p.loss_law),
+            Fitted(_jkey(j, "pullout_nm"), p.pullout_nm, None, "N·m", False, reason,
+                   p.pullout_nm),
+            Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
+
+
+def _joint_models(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[Fitted]:
+    n = len(d.ratio)
+    if n < 3:
+        return _kept(j, gear, p, f"{n} speed runs: too few to hold any out")
+    prior_pred = prior_prediction(p, d)
+    prior_chi2 = float((((d.ratio - prior_pred) / _sigma_total(d, prior_pred)) ** 2).sum())
+    laws = ["none", "torque", "duty"] + (["stall"] if (d.ratio < STALLED_RATIO).any() else [])
+    scores: dict[tuple[str, bool], float] = {}
+    sizes: dict[tuple[str, bool], int] = {}
+    for law in laws:
+        for scaled in (False, True):
+            scores[(law, scaled)] = held_out_chi2(d, law, scaled)
+            sizes[(law, scaled)] = {"none": 0, "torque": 1, "stall": 1, "duty": 3}[law] + scaled
+    best = min(scores.values())
+    simple = min((k for k, v in scores.items() if v <= best + PARSIMONY),
+                 key=lambda k: (sizes[k], scores[k]))
+    everything = {"prior": prior_chi2, **{_name(k): v for k, v in scores.items()}}
+    low = min(everything.values())
+    weights = {k: math.exp(-0.5 * (v - low)) for k, v in everything.items()}
+    total_w = sum(weights.values())
+    table = ", ".join(f"{k} {v:.3g}" for k, v in sorted(everything.items(), key=lambda kv: kv[1]))
+    if prior_chi2 - scores[simple] <= MARGIN:
+        return _kept(j, gear, p, f"no structure predicts the {n} held-out runs better than the "
+                                 f"prior beyond the noise (held-out χ²: {table})")
+    c = _fit(d, *simple)
+    sure = weights[_name(simple)] / total_w
+    why = (f"{c.name} chosen by held-out prediction of {n} speed runs (weight {sure:.2f}; "
+           f"held-out χ²: {table})")
+    out = [Fitted(_jkey(j, "loss_law"), math.nan, None, "", True, why, choice=c.law)]
+    unit_ranges = {"pullout_nm": ("N·m", 0.01), "loss_above_duty": ("", 0.5),
+                   "loss_plus": ("", 1e-4), "loss_minus": ("", 1e-4)}
+    for key, (unit, step) in unit_ranges.items():
+        if key not in c.params:
+            continue
+        value = c.params[key]
+        prior_value = float(getattr(p, key))
+        if key == "loss_above_duty":
+            duties = sorted({float(x) for x in d.duty})
+            above = [x for x in duties if x > value]
+            reason = (f"no loss at duty {value:g} and below" + (
+                f", loss from {above[0]:g} on" if above else ""))
+            out.append(Fitted(_jkey(j, key), value, None, unit, True, reason, prior_value))
+            continue
+        sigma = _param_sigma(d, c, key, step * max(1.0, abs(value)))
+        if key == "pullout_nm":  # the masses' error is common to every run: it does not average
+            sigma = math.hypot(sigma, NEED_REL * value)
+        if key == "pullout_nm" and not (d.factor > value).any():
+            out.append(Fitted(_jkey(j, key), max(value, prior_value), None, unit, False,
+                              "no run needed more than the pull-out torque: only a lower bound",
+                              prior_value, float(d.factor.max())))
+            continue
+        ok = math.isfinite(sigma) and (sigma <= 0.5 * abs(value) if key == "pullout_nm"
+                                       else sigma <= 0.05)
+        if not ok:
+            out.append(Fitted(_jkey(j, key), prior_value, None, unit, False,
+                              f"not identified: {value:.3g} ± {sigma:.2g} (the interval is wider "
+                              "than the value)", prior_value))
+            return _kept(j, gear, p, f"{c.name} was best but its {key} is not identified "
+                                     f"({value:.3g} ± {sigma:.2g})")
+        low_r, high_r = JOINT_RANGES[key]
+        note = ("" if low_r <= value <= high_r else
+                f"; OUTSIDE the documented range {low_r:g}..{high_r:g}")
+        out.append(Fitted(_jkey(j, key), value, sigma, unit, True, why + note, prior_value))
+    if c.scaled:
+        s = c.params["s"]
+        sigma_s = _param_sigma(d, c, "s", 1e-5)
+        out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear / s, gear * sigma_s / s ** 2, "",
+                          True, f"speed scale {s:.5g} ± {sigma_s:.2g} against law (12) with the "
+                                f"nominal ratio {gear:g}", gear))
+    else:
+        out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False,
+                          "no speed scale beyond the noise", gear))
+    return out
+
+
+def _name(k: tuple[str, bool]) -> str:
+    return k[0] + ("+scale" if k[1] else "")
