@@ -123,6 +123,7 @@ class Observations:
     approaches: list[Approach] = field(default_factory=list)
     holds: list[Hold] = field(default_factory=list)
     speeds: list[SpeedRun] = field(default_factory=list)
+    stalls: list[dict[str, Any]] = field(default_factory=list)
     phases_done: list[str] = field(default_factory=list)
     phases_skipped: dict[str, str] = field(default_factory=dict)
     robot_time_s: float = 0.0

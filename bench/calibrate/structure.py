@@ -18,7 +18,8 @@ arm's own noise in this session. Each candidate structure predicts ``r`` for a r
 
 each with ``s = 1`` or with ``s`` fitted (the speed scale: the gear ratio is the nominal over
 ``s``). Every candidate is fitted leaving one run out and scored on that run (leave-one-out
-cross-validation, the squared error over the run's standard error, summed): the held-out χ².
+cross-validation, the squared error over the run's standard error, summed, each run's at most
+:data:`MISS_Z2`): the held-out χ².
 The prior is replaced only when the best candidate's held-out χ² is lower by more than
 :data:`MARGIN` (about two standard errors of evidence); among candidates within
 :data:`PARSIMONY` of the best the one with the fewest parameters wins. Each candidate's weight
@@ -30,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
@@ -41,7 +42,8 @@ from armbench.bench.calibrate.model import Fitted, Observations, SpeedRun
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import JOINT_RANGES, ArmPhysics, JointPhysics, Mechanism
 
-__all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "fit_speed_models", "run_table"]
+__all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "choose_joint", "fit_speed_models",
+           "run_table", "session_scatter"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -49,6 +51,8 @@ FloatArray = npt.NDArray[np.float64]
 MARGIN: Final = 4.0
 #: Candidates within this held-out χ² of the best count as equally good: the simplest is taken.
 PARSIMONY: Final = 2.0
+#: Largest share of the held-out χ² one run can take (a miss by five standard errors or more).
+MISS_Z2: Final = 25.0
 #: Relative standard error of a run's needed torque (masses and angles of the prior): the torque
 #: and stall fits add it to each lossy run's ratio error, and to the pull-out torque's.
 NEED_REL: Final = 0.01
@@ -81,9 +85,32 @@ def _run_sigma(run: SpeedRun) -> float:
     return math.sqrt(slope ** 2 + (1.0 / max(run.steps, 1.0)) ** 2 + 1e-5 ** 2)
 
 
+def session_scatter(obs: Observations) -> tuple[float, int]:
+    """How much more the runs scatter than their own standard errors say, from the runs made
+    twice (same joint, duty and direction): ``k = sqrt(mean z²)`` of their differences over
+    their combined error, at least 1, and the number of pairs (1 without any)."""
+    first: dict[tuple[int, int, int], SpeedRun] = {}
+    z2: list[float] = []
+    for run in obs.speeds:
+        if run.samples == 0:  # a stall: no slope
+            continue
+        key = (run.joint, run.duty, run.direction)
+        other = first.get(key)
+        if other is None:
+            first[key] = run
+            continue
+        z2.append((run.ratio - other.ratio) ** 2 / (_run_sigma(run) ** 2
+                                                    + _run_sigma(other) ** 2))
+    if not z2:
+        return 1.0, 0
+    return max(1.0, math.sqrt(float(np.mean(z2)))), len(z2)
+
+
 def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
-              link_of: Callable[[Sequence[float]], list[float]]) -> JointSpeeds:
-    """Joint ``j``'s (0-based) runs; ``link_of`` estimates the link angles at a run's start."""
+              link_of: Callable[[Sequence[float]], list[float]],
+              scatter: float = 1.0) -> JointSpeeds:
+    """Joint ``j``'s (0-based) runs; ``link_of`` estimates the link angles at a run's start;
+    each run's standard error is multiplied by the session's ``scatter``."""
     spec = base.joints[j]
     p = prior.joints[j]
     mech = Mechanism(prior, base, lambda: [0.0] * 4)
@@ -94,7 +121,7 @@ def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
         rate = run.law_rad_s * spec.steps_per_rad
         tau = mech.gravity_nm(link_of(run.start_rad))[j]
         need = p.required_nm(tau, run.direction, spec.gear_ratio, rate, spec.steps_per_motor_rev)
-        rows.append((run.ratio, _run_sigma(run), run.duty, run.direction,
+        rows.append((run.ratio, scatter * _run_sigma(run), run.duty, run.direction,
                      need * (1.0 + rate / p.corner_steps_per_s)))
     a = np.asarray(rows, dtype=np.float64).reshape(-1, 5)
     return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
@@ -178,8 +205,17 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
     if law == "none":
         s = _clip_scale(_wmean(d.ratio, 1.0 / d.sigma ** 2)) if scaled else 1.0
         return Candidate(law, scaled, {"s": s}, int(scaled))
-    if law in ("torque", "stall"):
-        p_nm, s = _profile(d, _torque_pred if law == "torque" else _stall_pred, scaled)
+    if law == "torque":
+        p_nm, s = _profile(d, _torque_pred, scaled)
+        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
+    if law == "stall":  # the middle of the interval between the runs that moved and stalled
+        p_nm, sigma = _stall_interval(d)
+        moved = d.ratio >= STALLED_RATIO
+        s = 1.0
+        if math.isinf(sigma):
+            p_nm, s = _profile(d, _stall_pred, scaled)
+        elif scaled and moved.any():
+            s = _clip_scale(_wmean(d.ratio[moved], 1.0 / d.sigma[moved] ** 2))
         return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
     # duty: the threshold that fits best, the shares above it per direction
     best: tuple[float, Candidate] | None = None
@@ -237,6 +273,13 @@ def _subset(d: JointSpeeds, keep: npt.NDArray[np.bool_]) -> JointSpeeds:
                        d.factor[keep])
 
 
+def _robust(z2: FloatArray) -> float:
+    """Sum of squared standardised errors, each at most :data:`MISS_Z2`: a run predicted wrong
+    by far (a stall on the wrong side of its boundary, a run the link's hiccup slowed) counts
+    as one miss, not as its distance in standard errors."""
+    return float(np.minimum(z2, MISS_Z2).sum())
+
+
 def at_bound(c: Candidate) -> bool:
     """Whether a fit ran into the edge of what it may return (a scale a quarter off, a pull-out
     torque at the settings' band): it then stands in for something else and predicts nothing."""
@@ -260,7 +303,7 @@ def held_out_chi2(d: JointSpeeds, law: str, scaled: bool) -> float:
         one = _subset(d, ~keep)
         pred = predict(c, one)
         shape = pred / c.params["s"] if c.params["s"] else pred
-        total += float((((one.ratio - pred) / _sigma_total(one, shape)) ** 2).sum())
+        total += _robust(((one.ratio - pred) / _sigma_total(one, shape)) ** 2)
     return total
 
 
@@ -292,10 +335,14 @@ def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     values (the law as ``choice``); a joint whose runs do not show a better structure than the
     prior's beyond the noise keeps the prior, and says why."""
     out: list[Fitted] = []
+    scatter, pairs = session_scatter(obs)
+    noise = (f"; runs' errors × {scatter:.3g} (the scatter of {pairs} repeated runs)" if pairs
+             else "; no repeated run: the runs' own errors")
     for j, spec in enumerate(base.joints):
         p = prior.joints[j]
-        d = run_table(obs, base, prior, j, link_of)
-        out.extend(_joint_models(j, spec.gear_ratio, p, d))
+        d = run_table(obs, base, prior, j, link_of, scatter)
+        out.extend(replace(f, reason=f.reason + noise) if f.key.endswith("loss_law") else f
+                   for f in choose_joint(j, spec.gear_ratio, p, d))
     return out
 
 
@@ -306,12 +353,14 @@ def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
             Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
 
 
-def _joint_models(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[Fitted]:
+def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[Fitted]:
+    """Joint ``j``'s (0-based) speed model from its runs ``d`` against the prior ``p`` (nominal
+    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`."""
     n = len(d.ratio)
     if n < 3:
         return _kept(j, gear, p, f"{n} speed runs: too few to hold any out")
     prior_pred = prior_prediction(p, d)
-    prior_chi2 = float((((d.ratio - prior_pred) / _sigma_total(d, prior_pred)) ** 2).sum())
+    prior_chi2 = _robust(((d.ratio - prior_pred) / _sigma_total(d, prior_pred)) ** 2)
     laws = ["none", "torque", "duty"] + (["stall"] if (d.ratio < STALLED_RATIO).any() else [])
     scores: dict[tuple[str, bool], float] = {}
     sizes: dict[tuple[str, bool], int] = {}
@@ -349,7 +398,10 @@ def _joint_models(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[
                 f", loss from {above[0]:g} on" if above else ""))
             out.append(Fitted(_jkey(j, key), value, None, unit, True, reason, prior_value))
             continue
-        sigma = _param_sigma(d, c, key, step * max(1.0, abs(value)))
+        if key == "pullout_nm" and c.law == "stall":
+            value, sigma = _stall_interval(d)
+        else:
+            sigma = _param_sigma(d, c, key, step * max(1.0, abs(value)))
         if key == "pullout_nm":  # the masses' error is common to every run: it does not average
             sigma = math.hypot(sigma, NEED_REL * value)
         if key == "pullout_nm" and not (d.factor > value).any():
@@ -379,6 +431,19 @@ def _joint_models(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[
         out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False,
                           "no speed scale beyond the noise", gear))
     return out
+
+
+def _stall_interval(d: JointSpeeds) -> tuple[float, float]:
+    """The pull-out torque of a stalling drive lies between the largest torque factor of a run
+    that moved and the smallest of one that stalled: its geometric middle, and the standard error
+    of a uniform variable over that interval (infinite when the runs overlap)."""
+    moved = d.factor[d.ratio >= STALLED_RATIO]
+    stalled = d.factor[d.ratio < STALLED_RATIO]
+    lo = float(moved.max()) if len(moved) else float(_P_GRID[0])
+    hi = float(stalled.min()) if len(stalled) else float(_P_GRID[-1])
+    if hi <= lo:
+        return math.sqrt(abs(lo * hi)), math.inf
+    return math.sqrt(lo * hi), (hi - lo) / (2.0 * math.sqrt(3.0))
 
 
 def _name(k: tuple[str, bool]) -> str:
