@@ -18,7 +18,7 @@ from hidden_arms import draw_hidden, write_hidden
 
 from armbench.bench.calibrate import calibrate_port, load_capture
 from armbench.bench.metrics import error_summary, path_errors, square_yz
-from armbench.bench.twin_check import twin_check
+from armbench.bench.twin_check import replay_twin, twin_check
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.kinematics import tcp_position
@@ -58,10 +58,16 @@ def default_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_same_arm_is_exact(default_capture: Path) -> None:
-    """The default arm's capture replayed into the default twin: bit-identical replies."""
+    """The default arm's capture replayed into the default twin: bit-identical replies, so no
+    divergence and no start shift."""
     settings = RobotSettings()
-    result = twin_check(load_capture(default_capture, settings), settings)
+    data = load_capture(default_capture, settings)
+    twin = run_virtual(replay_twin(data, settings))
+    n = len(data.replies)
+    assert [q for _, q in twin[:n]] == [q for _, q in data.replies]
+    result = twin_check(data, settings)
     assert result.rms_rad == [0.0] * 4 and result.max_rad == [0.0] * 4
+    assert max(abs(s) for s in result.shifts_s) < 1e-12
     assert result.verdict == "pass"
     assert result.replies_compared > 1000
     assert all(abs(dt) < 1e-9 for dt in result.arrival_dt_s)

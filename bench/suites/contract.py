@@ -418,7 +418,23 @@ class TwinCheckNames:
     arm_only: str = "arrival.arm_only"
     twin_only: str = "arrival.twin_only"
     replies: str = "replies_compared"
+    untimed: str = "replies_untimed"
     sessions: str = "sessions"
+    # the floor and the verdict relative to it (twin.j<N>.<figure>, twin.<figure>)
+    floor_counts: str = "floor_counts"
+    allowed_counts: str = "allowed_counts"
+    per_allowed: str = "rms_per_allowed"
+    settled_counts: str = "settled_counts"
+    rms_dt: str = "arrival.rms_dt_s"
+    floor_dt: str = "arrival.floor_s"
+    arrival_per_allowed: str = "arrival.rms_per_allowed"
+    scatter: str = "timing_scatter_s"
+    reaction: str = "reaction_scatter_s"
+    shift_mean: str = "start_shift.mean_s"
+    shift_max: str = "start_shift.max_abs_s"
+    tcp_floor: str = "tcp.floor_mm"
+    tcp_per_allowed: str = "tcp.rms_per_allowed"
+    tcp_samples: str = "tcp.samples"
     tcp_rms: str = "tcp.rms_mm"
     tcp_max: str = "tcp.max_mm"
 
@@ -435,6 +451,8 @@ class TwinCheckNames:
         p = self.prefix
         return (
             Headline("worst joint RMS divergence", f"{p}.j*.{self.rms_counts}", worst_of=True),
+            Headline("worst joint RMS over its allowance", f"{p}.j*.{self.per_allowed}",
+                     worst_of=True),
             Headline("worst joint largest divergence", f"{p}.j*.{self.max_counts}",
                      worst_of=True),
             Headline("largest arrival-time difference", self.metric(self.max_abs_dt)),

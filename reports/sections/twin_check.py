@@ -1,7 +1,8 @@
 """The twin-check section (``armbench twin-check --out``): how well the twin predicts an arm's
 capture. The overlay (per joint the arm's and the twin's reported angle over the capture, and
-their divergence in encoder counts against the tolerance), a per-joint table of the RMS and
-largest divergence, the arrival-time table, and the inputs the check read.
+their divergence in encoder counts against the allowed RMS), a per-joint table of the RMS and
+largest divergence beside the floor (what a perfect twin would score on this capture) and the
+allowance, the arrival-time and TCP tables, and the inputs the check read.
 
 Names come from the suite contract (:data:`armbench.bench.suites.contract.TWIN_CHECK`); every
 figure in the tables is one the record holds; the plot draws the series the record kept (a
@@ -37,6 +38,8 @@ class JointRow:
     max_counts: str
     rms_rad: str
     max_rad: str
+    floor: str
+    allowed: str
     limit: str
     outcome: str
 
@@ -55,6 +58,7 @@ class TwinView:
     arrival_summary: list[tuple[str, str]]
     arrivals: list[ArrivalRow]
     inputs: list[tuple[str, str]]
+    tcp: list[tuple[str, str]]
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,9 +91,9 @@ def _series(samples: Sequence[Mapping[str, Any]]) -> list[JointSeries]:
     return out
 
 
-def overlay_plot(series: Sequence[JointSeries], tolerance_counts: float | None) -> Figure:
+def overlay_plot(series: Sequence[JointSeries], tolerance_counts: Mapping[int, float]) -> Figure:
     """One row per joint: left the arm's (solid) and the twin's (dashed) reported angle over the
-    capture, right their divergence in counts with the tolerance (dotted, ±)."""
+    capture, right their divergence in counts with the joint's allowed RMS (dotted, ±)."""
     with plot_style():
         rows = max(1, len(series))
         fig = new_figure(7.2, 1.35 * rows + 0.6, left=0.1, bottom=0.6 / (1.35 * rows + 0.6),
@@ -102,10 +106,11 @@ def overlay_plot(series: Sequence[JointSeries], tolerance_counts: float | None) 
             left.set_ylabel(f"j{s.joint} (rad)")
             right.plot(s.t_s, s.divergence_counts, color=COLOURS[2], linewidth=0.8,
                        label="arm - twin")
-            if tolerance_counts is not None:
+            tolerance = tolerance_counts.get(s.joint)
+            if tolerance is not None:
                 for sign in (1.0, -1.0):
-                    right.axhline(sign * tolerance_counts, color="black", linestyle=":",
-                                  linewidth=1.1, label="tolerance" if sign > 0 else None)
+                    right.axhline(sign * tolerance, color="black", linestyle=":",
+                                  linewidth=1.1, label="allowed RMS" if sign > 0 else None)
             right.set_ylabel("counts")
         axes[0][0].set_title("reported angle")
         axes[0][1].set_title("divergence (arm - twin)")
@@ -116,16 +121,35 @@ def overlay_plot(series: Sequence[JointSeries], tolerance_counts: float | None) 
     return fig
 
 
-def _tolerance(ms: Mapping[str, Measurement]) -> tuple[float | None, str]:
-    """The RMS tolerance (counts) the plot draws: the tightest high bound of the joints'
-    ``rms_counts`` limits, and its description."""
-    limits = [m.limit for j in range(1, 5)
-              if (m := ms.get(TWIN_CHECK.joint_metric(j, TWIN_CHECK.rms_counts))) is not None
-              and m.limit is not None and m.limit.high is not None]
-    if not limits:
-        return None, "-"
-    tightest = min(limits, key=lambda lim: lim.high if lim.high is not None else np.inf)
-    return tightest.high, tightest.describe()
+def _tolerance(ms: Mapping[str, Measurement]) -> tuple[dict[int, float], str]:
+    """Per joint, the RMS (counts) the verdict allows: the allowance times the high bound of the
+    joint's ``rms_per_allowed`` limit, else the high bound of an absolute ``rms_counts`` limit;
+    and a description."""
+    n = TWIN_CHECK
+    out: dict[int, float] = {}
+    text_ = "-"
+    for j in range(1, 5):
+        ratio = ms.get(n.joint_metric(j, n.per_allowed))
+        allowed = ms.get(n.joint_metric(j, n.allowed_counts))
+        absolute = ms.get(n.joint_metric(j, n.rms_counts))
+        if ratio is not None and allowed is not None and ratio.limit is not None \
+                and ratio.limit.high is not None:
+            out[j] = allowed.value * ratio.limit.high
+            text_ = "k x floor + abs"
+        elif absolute is not None and absolute.limit is not None \
+                and absolute.limit.high is not None:
+            out[j] = absolute.limit.high
+            text_ = absolute.limit.describe()
+    return out, text_
+
+
+def _outcome(ms: Mapping[str, Measurement], joint: int) -> str:
+    """The joint's outcome: fail when any of its judged figures fails, pass when one is judged."""
+    outcomes = [m.outcome for name, m in ms.items()
+                if name.startswith(TWIN_CHECK.joint_metric(joint, ""))]
+    if "fail" in outcomes:
+        return "fail"
+    return "pass" if "pass" in outcomes else "unjudged"
 
 
 def _value(ms: Mapping[str, Measurement], name: str) -> str:
@@ -142,11 +166,16 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         rms = ms.get(n.joint_metric(j, n.rms_counts))
         if rms is None:
             continue
+        judged = [m for m in (ms.get(n.joint_metric(j, n.per_allowed)), rms)
+                  if m is not None and m.limit is not None]
         joints.append(JointRow(
             f"j{j}", format_value(rms.value, rms.unit),
             _value(ms, n.joint_metric(j, n.max_counts)), _value(ms, n.joint_metric(j, n.rms_rad)),
             _value(ms, n.joint_metric(j, n.max_rad)),
-            "-" if rms.limit is None else rms.limit.describe(), rms.outcome))
+            _value(ms, n.joint_metric(j, n.floor_counts)),
+            _value(ms, n.joint_metric(j, n.allowed_counts)),
+            "; ".join(f"{m.name.rsplit('.', 1)[-1]} {m.limit.describe()}" for m in judged
+                      if m.limit is not None) or "-", _outcome(ms, j)))
     samples = [s for t in suite.trials for s in t.samples]
     series = _series(samples)
     tolerance, tolerance_text = _tolerance(ms)
@@ -158,7 +187,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
             "Arm against twin: reported angle and divergence per joint",
             "Left, per joint, the angle the arm reported (solid) and the one the twin reported "
             "when the same commands were replayed into it (dashed); right, their difference in "
-            f"encoder counts, the RMS tolerance dotted ({tolerance_text}). The series are the "
+            f"encoder counts, the allowed RMS dotted ({tolerance_text}). The series are the "
             "record's: a min/max envelope of each, so no spike is lost.",
             f"largest divergence {float(np.max(np.abs(worst.divergence_counts))):.3g} counts "
             f"on j{worst.joint}"))
@@ -169,7 +198,17 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         ("commands replayed", n.moves), ("moves both arrived at", n.compared),
         ("only the arm arrived", n.arm_only), ("only the twin arrived", n.twin_only),
         ("mean difference, twin - arm", n.mean_dt), ("largest |difference|", n.max_abs_dt),
-        ("replies compared", n.replies), ("sessions", n.sessions))]
+        ("RMS difference, twin - arm", n.rms_dt), ("floor (a perfect twin's RMS)", n.floor_dt),
+        ("RMS over allowed RMS", n.arrival_per_allowed),
+        ("timing scatter of the replies", n.scatter),
+        ("scatter of the arm's reaction to commands", n.reaction),
+        ("mean start shift, arm - twin", n.shift_mean), ("largest |start shift|", n.shift_max),
+        ("replies compared", n.replies), ("replies left out (read in a burst)", n.untimed),
+        ("sessions", n.sessions))]
+    tcp = [(label, _value(ms, n.metric(figure))) for label, figure in (
+        ("RMS divergence", n.tcp_rms), ("largest divergence", n.tcp_max),
+        ("floor (a perfect twin's RMS)", n.tcp_floor), ("RMS over allowed RMS", n.tcp_per_allowed),
+        ("truth samples compared", n.tcp_samples)) if n.metric(figure) in ms]
     p = suite.params
     inputs = [(label, text(p.get(key), 300)) for label, key in (
         ("capture", n.capture), ("capture SHA-256", n.capture_sha256),
@@ -182,4 +221,5 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
             ArrivalRow(format_value(num(s.get(SAMPLE.t)), "s"),
                        format_value(num(s.get(n.arm_arrival)), "s"),
                        format_value(num(s.get(n.twin_arrival)), "s"),
-                       format_value(num(s.get(n.arrival_dt)), "s")) for s in arrivals], inputs))
+                       format_value(num(s.get(n.arrival_dt)), "s")) for s in arrivals], inputs,
+            tcp))

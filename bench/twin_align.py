@@ -1,0 +1,250 @@
+"""Timing-robust comparison of two reply streams (an arm's capture and its twin's replay), and
+the floor of that comparison: what a perfect twin would score on this capture.
+
+A real-time capture stamps each reply when the host read it and each command when the host wrote
+it; the arm acts on a command a little later, and reports its pose a little before the stamp. None
+of that is the model's doing. So:
+
+* the twin's stream is a trajectory (its replies joined by straight lines), read at the time of
+  each of the arm's replies, not its newest reply then (which would be up to one reply interval
+  stale);
+* each move that starts from rest is aligned at its start: the time the arm's joint left its
+  pose (its first replies beyond :data:`ONSET_TICKS`, traced back along the joint's nominal speed)
+  against the twin's; commands sent while the arm moves (a streamed path) keep the shift of the
+  move they continue. A twin that is too slow or loses steps still diverges: only the start is
+  aligned, not the motion;
+* the floor comes from the capture itself. The arm's own replies, where a joint moves steadily,
+  scatter around the straight line through their neighbours by the link's timing scatter times
+  the joint's speed: that scatter (s, a robust spread of those residuals in time units) times the
+  twin's speed, for the replies and again for the commands, plus the quantisation of the wire
+  angle and of the encoder on both sides, is the per-joint floor (RMS, rad). A perfect twin
+  scores about the floor; the verdict allows ``k × floor + abs``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from armbench.drivers.motion import joint_speed_rad_s
+from armbench.drivers.protocol import TICKS_PER_RAD, Command
+from armbench.drivers.settings import RobotSettings
+
+__all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
+           "move_shifts", "timing_scatter_s"]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Times closer than this (s) are the same instant (a capture stores them to the nanosecond): a
+#: reply at a command's instant shows the pose before it.
+SAME_INSTANT_S: Final = 1e-6
+#: One wire tick (rad): the resolution of a reported angle.
+TICK_RAD: Final = 1.0 / TICKS_PER_RAD
+#: A joint has left its pose when it is this many ticks from it: beyond the quantisation and
+#: the scatter of a pose at rest.
+ONSET_TICKS: Final = 4.0
+#: Replies a move's start is traced back from.
+ONSET_REPLIES: Final = 5
+#: A joint whose move is shorter than this (ticks) does not time a move's start.
+MIN_WAY_TICKS: Final = 30.0
+#: The arm is at rest at a command when its last replies before it differ by at most this.
+REST_TICKS: Final = 1.5
+#: The largest start shift taken (s): a twin that starts later than this is not a timing matter.
+MAX_SHIFT_S: Final = 0.06
+#: Steady motion for the timing scatter: the two neighbours of a reply this many ticks apart.
+STEADY_TICKS: Final = 20.0
+#: Fewer residuals than this: the timing scatter is taken from the reply intervals instead.
+MIN_RESIDUALS: Final = 20
+#: Robust standard deviation from the median absolute value of a centred normal sample.
+MAD_TO_SIGMA: Final = 1.4826
+
+
+@dataclass(frozen=True, slots=True)
+class Track:
+    """A reply stream: times (s, increasing) and the reported angles (``(n, 4)`` rad)."""
+
+    t_s: FloatArray
+    q_rad: FloatArray
+
+    @classmethod
+    def of(cls, replies: Sequence[tuple[float, Sequence[float]]]) -> Track:
+        return cls(np.asarray([r[0] for r in replies], dtype=np.float64),
+                   np.asarray([r[1] for r in replies], dtype=np.float64).reshape(-1, 4))
+
+    def at(self, t_s: FloatArray) -> FloatArray:
+        """The stream read as a trajectory (straight lines between replies, held beyond its
+        ends; a reply's own value at its instant) at the times ``t_s``: ``(len(t_s), 4)``."""
+        cols = [np.interp(t_s, self.t_s, self.q_rad[:, j]) for j in range(self.q_rad.shape[1])]
+        out = np.column_stack(cols) if cols else np.zeros((len(t_s), 0))
+        # at a reply's own instant, its value as it is (no rounding of the interpolation)
+        i = np.clip(np.searchsorted(self.t_s, t_s - SAME_INSTANT_S), 0, len(self.t_s) - 1)
+        same = np.abs(self.t_s[i] - t_s) <= SAME_INSTANT_S
+        out[same] = self.q_rad[i[same]]
+        return out
+
+    def speed_at(self, t_s: FloatArray) -> FloatArray:
+        """The trajectory's speed (rad/s, per joint) at the times ``t_s``: the slope of the line
+        the time falls on."""
+        if len(self.t_s) < 2:
+            return np.zeros((len(t_s), self.q_rad.shape[1]))
+        dt = np.diff(self.t_s)
+        slope = np.diff(self.q_rad, axis=0) / np.where(dt > 0, dt, np.inf)[:, None]
+        i = np.clip(np.searchsorted(self.t_s, t_s, side="right") - 1, 0, len(dt) - 1)
+        inside = (t_s >= self.t_s[0]) & (t_s <= self.t_s[-1])
+        return np.where(inside[:, None], slope[i], 0.0)
+
+
+def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float
+             ) -> float | None:
+    """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``): each of the
+    first :data:`ONSET_REPLIES` replies :data:`ONSET_TICKS` or more away from the pose at the
+    command, traced back at ``speed_rad_s``; their median (a reply composed before a stall of
+    the sender's loop and sent after it is stale: one such reply does not move the median).
+    None when it did not leave."""
+    t, q = track.t_s, track.q_rad[:, joint]
+    i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
+    i1 = int(np.searchsorted(t, t1_s + SAME_INSTANT_S))
+    if i0 == 0 or i1 <= i0:
+        return None
+    pose = q[i0 - 1]
+    away = np.abs(q[i0:i1] - pose)
+    moved = np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:ONSET_REPLIES]
+    if len(moved) == 0:
+        return None
+    k = i0 + moved
+    return float(np.median(t[k] - np.abs(q[k] - pose) / speed_rad_s))
+
+
+def _at_rest(track: Track, t_s: float) -> npt.NDArray[np.bool_]:
+    """Per joint, whether the stream's last two replies before ``t_s`` show no motion."""
+    i = int(np.searchsorted(track.t_s, t_s + SAME_INSTANT_S))
+    if i < 2:
+        return np.full(track.q_rad.shape[1], i == 1)
+    return np.asarray(np.abs(track.q_rad[i - 1] - track.q_rad[i - 2]) <= REST_TICKS * TICK_RAD)
+
+
+@dataclass(frozen=True, slots=True)
+class Shifts:
+    """The start shifts: per command and joint (``(n, 4)``, s), and the measured ones
+    (joint, s)."""
+
+    per_joint_s: FloatArray
+    measured: list[tuple[int, float]]
+
+    def scatter_s(self) -> float | None:
+        """The spread (s, robust standard deviation) of the measured shifts about each joint's
+        median: how much the arm's reaction to a command varies against the twin's, which the
+        shifts of commands sent while moving (not measurable) inherit. None with fewer than
+        three."""
+        if len(self.measured) < 3:
+            return None
+        dev = []
+        for j in {j for j, _ in self.measured}:
+            values = np.asarray([v for i, v in self.measured if i == j])
+            dev.extend(np.abs(values - np.median(values)))
+        return float(MAD_TO_SIGMA * np.median(dev))
+
+
+def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command]],
+                settings: RobotSettings) -> Shifts:
+    """Per command and joint (``(n, 4)``), the time (s) the arm's joint started moving after the
+    twin's (arm − twin): measured, at each command, on each joint that was at rest (in both
+    streams) and has a way of :data:`MIN_WAY_TICKS` or more (the firmware passes a command on
+    to each joint's board in turn: each joint has its own delay); carried over from the move
+    before otherwise (0 before the first measured start, or when a stream did not move). Within
+    ±:data:`MAX_SHIFT_S`."""
+    out = np.zeros((len(commands), 4))
+    shift = np.zeros(4)
+    measured: list[tuple[int, float]] = []
+    times = [c[0] for c in commands] + [math.inf]
+    lower, upper = settings.lower_rad, settings.upper_rad
+    for k, (t_c, cmd) in enumerate(commands):
+        i = int(np.searchsorted(arm.t_s, t_c + SAME_INSTANT_S))
+        if i > 0:
+            way = np.abs(np.asarray(cmd.angles_rad(lower, upper)) - arm.q_rad[i - 1])
+            for j in np.flatnonzero((way >= MIN_WAY_TICKS * TICK_RAD)
+                                    & (np.asarray(cmd.duties) > 0)
+                                    & _at_rest(arm, t_c) & _at_rest(twin, t_c)):
+                speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
+                a = _onset_s(arm, t_c, times[k + 1], int(j), speed)
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed)
+                if a is not None and b is not None:
+                    shift[j] = float(np.clip(a - b, -MAX_SHIFT_S, MAX_SHIFT_S))
+                    measured.append((int(j), float(shift[j])))
+        out[k] = shift
+    return Shifts(out, measured)
+
+
+def command_shifts(shifts: FloatArray, commands: Sequence[tuple[float, Command]],
+                   arm: Track, settings: RobotSettings) -> FloatArray:
+    """Per command, the start shift of its joint with the longest way (the one that decides
+    when the move arrives)."""
+    out = np.zeros(len(commands))
+    for k, (t_c, cmd) in enumerate(commands):
+        i = max(0, int(np.searchsorted(arm.t_s, t_c + SAME_INSTANT_S)) - 1)
+        way = np.abs(np.asarray(cmd.angles_rad(settings.lower_rad, settings.upper_rad))
+                     - arm.q_rad[i])
+        out[k] = shifts[k, int(np.argmax(way))]
+    return out
+
+
+def timing_scatter_s(arm: Track, command_times: Sequence[float]) -> float:
+    """The link's timing scatter (s, a standard deviation) as the capture shows it: where a
+    joint moves steadily (its two neighbouring replies at least :data:`STEADY_TICKS` apart, no
+    command between them), the reply's distance from the straight line through its neighbours,
+    in time units (divided by the speed, scaled for the neighbours' own scatter); a robust
+    spread of all of them. With too few, the spread of the reply intervals over √2 (a steady
+    reply rate assumed: an overestimate otherwise)."""
+    t, q = arm.t_s, arm.q_rad
+    if len(t) < 3:
+        return 0.0
+    span = t[2:] - t[:-2]
+    ok_t = span > 0
+    w = np.where(ok_t, (t[1:-1] - t[:-2]) / np.where(ok_t, span, 1.0), 0.5)
+    ct = np.asarray(sorted(command_times))
+    # no command between the outer neighbours (the arm may change course there)
+    same = np.searchsorted(ct, t[:-2], side="right") == np.searchsorted(ct, t[2:], side="right")
+    scale = np.sqrt(1.0 + w * w + (1.0 - w) ** 2)
+    pooled = []
+    for j in range(q.shape[1]):
+        dq = q[2:, j] - q[:-2, j]
+        steady = ok_t & same & (np.abs(dq) >= STEADY_TICKS * TICK_RAD)
+        if not steady.any():
+            continue
+        v = dq[steady] / span[steady]
+        r = q[1:-1, j][steady] - (q[:-2, j][steady] + w[steady] * dq[steady])
+        pooled.append(r / v / scale[steady])
+    e = np.concatenate(pooled) if pooled else np.zeros(0)
+    if len(e) >= MIN_RESIDUALS:
+        return float(MAD_TO_SIGMA * np.median(np.abs(e)))
+    gaps = np.diff(t)
+    return float(MAD_TO_SIGMA * np.median(np.abs(gaps - np.median(gaps))) / math.sqrt(2.0))
+
+
+def floor_rad(speed_rad_s: FloatArray, reply_scatter_s: float, command_scatter_s: float,
+              counts_per_rad: FloatArray) -> FloatArray:
+    """Per joint, the RMS divergence (rad) a perfect twin would show on this capture: the timing
+    scatter of the replies and of the arm's reaction to commands, times the twin's speed at the
+    compared replies (``(n, 4)`` rad/s), and the quantisation of the wire angle and of the
+    encoder, on both streams."""
+    mean_v2 = np.mean(speed_rad_s * speed_rad_s, axis=0) if len(speed_rad_s) else 0.0
+    quant = 2.0 * (TICK_RAD ** 2 + (1.0 / counts_per_rad) ** 2) / 12.0
+    timing2 = reply_scatter_s ** 2 + command_scatter_s ** 2
+    return np.asarray(np.sqrt(timing2 * mean_v2 + quant), dtype=np.float64)
+
+
+def interval_floor_s(arm: Track, twin: Track, reply_scatter_s: float,
+                     command_scatter_s: float) -> float:
+    """The RMS difference (s) of two arrival times a perfect twin would show: an arrival is
+    seen at the first reply after it (late by up to one reply interval, uniform), on both
+    streams, plus the timing scatter of the replies and of the reaction to commands."""
+    def interval(track: Track) -> float:
+        gaps = np.diff(track.t_s)
+        return float(np.percentile(gaps, 95)) if len(gaps) else 0.0
+    return math.sqrt((interval(arm) ** 2 + interval(twin) ** 2) / 12.0 + reply_scatter_s ** 2
+                     + command_scatter_s ** 2)
