@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from armbench.bench.calibrate.capture import load_capture, observations_from_capture
-from armbench.bench.calibrate.fit import fit_all
+from armbench.bench.calibrate.fit import chosen_structures, fit_all
 from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
 from armbench.bench.calibrate.output import CalibrationResult, apply_fit, write_outputs
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
@@ -27,8 +27,10 @@ def finish(obs: Observations, base: RobotSettings, out: Path,
            error: str | None = None) -> CalibrationResult:
     """Fit ``obs``, write the settings, the fit and the page next to ``out``."""
     fitted = fit_all(obs, base)
+    structures = chosen_structures(fitted)
     result = CalibrationResult(obs, fitted, apply_fit(base, fitted), error,
-                               sensitivity(obs, base, fitted, fit_all))
+                               sensitivity(obs, base, fitted,
+                                           lambda o, b: fit_all(o, b, structures)))
     write_outputs(result, out)
     return result
 

@@ -30,7 +30,7 @@ is.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Final
 
@@ -330,10 +330,13 @@ def _jkey(j: int, name: str) -> str:
 
 
 def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
-                     link_of: Callable[[Sequence[float]], list[float]]) -> list[Fitted]:
+                     link_of: Callable[[Sequence[float]], list[float]],
+                     fixed: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
     """Per joint: the step-loss law and its parameters, and the gear ratio, as :class:`Fitted`
     values (the law as ``choice``); a joint whose runs do not show a better structure than the
-    prior's beyond the noise keeps the prior, and says why."""
+    prior's beyond the noise keeps the prior, and says why. ``fixed``: the structure per joint
+    (0-based; None: the prior) taken as chosen instead of choosing it (a refit on another base:
+    the sensitivity table)."""
     out: list[Fitted] = []
     scatter, pairs = session_scatter(obs)
     noise = (f"; runs' errors × {scatter:.3g} (the scatter of {pairs} repeated runs)" if pairs
@@ -341,8 +344,9 @@ def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     for j, spec in enumerate(base.joints):
         p = prior.joints[j]
         d = run_table(obs, base, prior, j, link_of, scatter)
+        structure = None if fixed is None else (fixed.get(j) or ("prior", False))
         out.extend(replace(f, reason=f.reason + noise) if f.key.endswith("loss_law") else f
-                   for f in choose_joint(j, spec.gear_ratio, p, d))
+                   for f in choose_joint(j, spec.gear_ratio, p, d, structure))
     return out
 
 
@@ -353,12 +357,18 @@ def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
             Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
 
 
-def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[Fitted]:
+def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
+                 fixed: tuple[str, bool] | None = None) -> list[Fitted]:
     """Joint ``j``'s (0-based) speed model from its runs ``d`` against the prior ``p`` (nominal
-    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`."""
+    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`.
+    ``fixed``: take this ``(law, scaled)`` as chosen (``("prior", False)``: keep the prior)."""
     n = len(d.ratio)
     if n < 3:
         return _kept(j, gear, p, f"{n} speed runs: too few to hold any out")
+    if fixed is not None:
+        if fixed[0] == "prior":
+            return _kept(j, gear, p, "the prior (structure fixed)")
+        return _emit(j, gear, p, d, _fit(d, *fixed), "structure fixed", n)
     prior_pred = prior_prediction(p, d)
     prior_chi2 = _robust(((d.ratio - prior_pred) / _sigma_total(d, prior_pred)) ** 2)
     laws = ["none", "torque", "duty"] + (["stall"] if (d.ratio < STALLED_RATIO).any() else [])
@@ -383,6 +393,12 @@ def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds) -> list[F
     sure = weights[_name(simple)] / total_w
     why = (f"{c.name} chosen by held-out prediction of {n} speed runs (weight {sure:.2f}; "
            f"held-out χ²: {table})")
+    return _emit(j, gear, p, d, c, why, n)
+
+
+def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, why: str,
+          n: int) -> list[Fitted]:
+    """The :class:`Fitted` values of the structure ``c`` fitted to all ``n`` runs ``d``."""
     out = [Fitted(_jkey(j, "loss_law"), math.nan, None, "", True, why, choice=c.law)]
     unit_ranges = {"pullout_nm": ("N·m", 0.01), "loss_above_duty": ("", 0.5),
                    "loss_plus": ("", 1e-4), "loss_minus": ("", 1e-4)}
