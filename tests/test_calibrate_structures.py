@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from test_twin_check import _lap
 
 from armbench.bench.calibrate import calibrate_port
@@ -163,3 +164,29 @@ def test_tracker_errors_are_one_line(spec: str, tmp_path: Path,
     err = capsys.readouterr().err
     assert "--tracker" in err and "Traceback" not in err
     assert not (tmp_path / "r.toml").exists()
+
+
+def _real_time_rms(capture: Path, settings: RobotSettings) -> list[float]:
+    return twin_check(load_capture(capture, settings), settings).rms_counts
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shared_arm_script() is None, reason=SHARED_MISSING)
+def test_foreign_arm_over_tcp_never_worse(tmp_path: Path) -> None:
+    """The shared foreign arm (another gear set, a duty-threshold loss; its own simulator, real
+    time over TCP): calibrated in 90 s of robot time, its twin predicts a held-out accuracy run
+    no worse than the default twin on any joint, and better on the ones that move."""
+    with foreign_arm("shared", "--physics") as arm:
+        out = tmp_path / "fitted.toml"
+        assert main(["calibrate", "--port", arm.url, "--budget-s", "90", "--out", str(out)]) == 0
+        held = tmp_path / "held"
+        assert main(["run", "accuracy", "--port", arm.url, "--out", str(held)]) == 0
+    fitted = {f["key"]: f for f in json.loads(out.with_suffix(".json").read_text())["fitted"]}
+    assert fitted["joints.j4.gear_ratio"]["identified"]
+    assert abs(fitted["joints.j4.gear_ratio"]["value"] - 30.0) < 0.1
+    assert fitted["emulator.physics.j2.loss_law"]["choice"] == "duty"
+    capture = held / "capture.mcap"
+    calibrated = _real_time_rms(capture, load_settings(out))
+    default = _real_time_rms(capture, RobotSettings())
+    assert all(c <= d for c, d in zip(calibrated, default, strict=True)), (calibrated, default)
+    assert sum(calibrated) < 0.5 * sum(default), (calibrated, default)
