@@ -214,3 +214,27 @@ def test_foreign_arm_over_tcp_never_worse(tmp_path: Path) -> None:
     default = _real_time_rms(capture, RobotSettings())
     assert all(c <= d for c, d in zip(calibrated, default, strict=True)), (calibrated, default)
     assert sum(calibrated) < 0.5 * sum(default), (calibrated, default)
+
+
+def test_a_stalling_arm_is_recovered_and_its_law_found(tmp_path: Path) -> None:
+    """Joint 2 loses synchronism (stall law, pull-out 2.0 N·m): lifting from the ladder's start
+    at duty 99 stalls; the procedure holds it and goes on slower, records the stalls, and the
+    fit chooses the stall law with the pull-out torque bracketed; on a held-out lap the twin
+    is no worse than the default on any joint."""
+    hidden = tmp_path / "hidden.toml"
+    hidden.write_text('[emulator.physics.j2]\nloss_law = "stall"\npullout_nm = 2.0\n')
+    out = tmp_path / "robot.toml"
+    result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out,
+                                        budget_s=200))
+    obs = result.observations
+    assert any(s["joint"] == 2 and s["phase"] == "ladder" for s in obs.stalls)
+    assert any(s.joint == 2 and s.ratio == 0.0 for s in obs.speeds)
+    fitted = {f.key: f for f in result.fitted}
+    assert fitted["emulator.physics.j2.loss_law"].choice == "stall"
+    assert fitted["emulator.physics.j2.pullout_nm"].covers(2.0)
+    capture = tmp_path / "held_out.jsonl"
+    run_virtual(_lap(f"fake://?settings={hidden}", capture))
+    calibrated = _rms(capture, load_settings(out))
+    default = _rms(capture, RobotSettings())
+    assert all(c <= d + 1e-9 for c, d in zip(calibrated, default, strict=True)), (
+        calibrated, default)

@@ -246,8 +246,23 @@ class Procedure:
                         self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
                                                              f" of joint {joint}")
                         return
-                    await self._move(start, MAX_DUTY)
-                    await self._speed_run(joint, start, target, duty)
+                    stalls = len(self.obs.stalls)
+                    try:
+                        await self._move(start, MAX_DUTY)
+                        await self._speed_run(joint, start, target, duty)
+                    except ArmDoesNotMoveError as exc:
+                        if len(self.obs.stalls) == stalls:
+                            raise  # blocked, not stalled: nothing here explains it
+                        # the drive stalls here at every duty tried: the ladder cannot go on
+                        # from this pose (the stalls are observations), the fit can
+                        self.obs.phases_skipped["ladder"] = (
+                            f"joint {exc.joint} stalled at every duty down to "
+                            f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
+                            f"{exc.target_rad:+.4f} rad): the ladder stopped there, and the arm "
+                            "was left at that pose")
+                        self.progress(f"calibrate: {self.obs.phases_skipped['ladder']}")
+                        self._stamp()
+                        return
             self._stamp()
 
     async def _speed_run(self, joint: int, start: list[float], target: list[float],
