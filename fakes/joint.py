@@ -524,7 +524,10 @@ class JointModel:
             self._update_load()
         self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
-        if self._stalled or self._s == limit or self._loses_synchronism(d, period):
+        physics = self._physics
+        if (self._stalled or self._s == limit
+                or (physics is not None and physics.loss_law == "stall"
+                    and self._loses_synchronism(d, period))):
             return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
                         False)
         steps = d * (limit - self._s)

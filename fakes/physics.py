@@ -151,18 +151,16 @@ class JointPhysics:
         ``loss_plus`` or ``loss_minus`` by the direction above ``loss_above_duty``. ``"stall"``:
         0 (a stalled run loses every pulse: :meth:`stalls`); ``"none"``: 0."""
         law = self.loss_law
-        if law == "duty":
-            if duty <= self.loss_above_duty:
+        if law == "torque":
+            need = self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
+                                    steps_per_motor_rev)
+            have = self.pullout_at_nm(steps_per_s)
+            if need <= have:
                 return 0.0
+            return min(0.9, 1.0 - have / need)
+        if law == "duty" and duty > self.loss_above_duty:
             return min(0.9, self.loss_plus if direction > 0 else self.loss_minus)
-        if law == "stall" or law == "none":
-            return 0.0
-        need = self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
-                                steps_per_motor_rev)
-        have = self.pullout_at_nm(steps_per_s)
-        if need <= have:
-            return 0.0
-        return min(0.9, 1.0 - have / need)
+        return 0.0
 
     def stalls(self, load_nm: float, direction: int, gear_ratio: float, steps_per_s: float,
                steps_per_motor_rev: int) -> bool:
