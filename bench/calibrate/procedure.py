@@ -72,12 +72,13 @@ LADDER_DUTIES: Final = (99, 90, 99, 95, 97, 93, 98, 96)
 #: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
 #: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
 #: step here loses none elsewhere at these duties); 1 and 4 carry no gravity load and get the two
-#: top duties only.
+#: top duties only. Within a duty joint 2, the heaviest lift, comes last: a drive that cannot
+#: lift it at any duty leaves the arm there, and the others are measured first.
 LADDER_RANGES: Final = {
-    2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
-    3: ((0.0, 0.6, 1.0, 0.0), 1.0, 0.7),
     1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
     4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
+    3: ((0.0, 0.6, 1.0, 0.0), 1.0, 0.7),
+    2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
 }
 UNLOADED_DUTIES: Final = (99, 95)
 #: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
@@ -122,6 +123,9 @@ class Procedure:
         sample = arm.ground_truth()
         obs.motor_truth = getattr(sample, "motor_rad", None) is not None
         self._phase = "timing"
+        #: The duty, loop time and angles of the latest attempt of a move (a stalled move is
+        #: sent again slower: the run that arrived is that one).
+        self._last_attempt: tuple[int, float, list[float]] = (0, 0.0, [0.0] * 4)
 
     # --- budget --------------------------------------------------------------------------------
     def elapsed_s(self) -> float:
@@ -290,6 +294,17 @@ class Procedure:
                         joint_speed_rad_s(d, spec.steps_per_rad), 0.0, 0, steps,
                         STALL_SIGMA * joint_speed_rad_s(d, spec.steps_per_rad)))
         if stalled:
+            # the attempt that arrived, at a lower duty, from where the joint had stood: a run
+            # too (the duty where the drive keeps up brackets the stall from below)
+            d_final, t_from, q_from = self._last_attempt
+            after = [st for st in states if st.t_s >= t_from]
+            again = speed_of(after, j, q_from[j], target[j])
+            if d_final < duty and again is not None:
+                rate, n, sigma = again
+                self.obs.speeds.append(SpeedRun(
+                    joint, d_final, direction, [float(v) for v in q_from],
+                    joint_speed_rad_s(d_final, spec.steps_per_rad), rate, n,
+                    abs(target[j] - q_from[j]) * spec.steps_per_rad, sigma))
             return
         run = speed_of(states, j, start[j], target[j])
         if run is None:
@@ -343,6 +358,7 @@ class Procedure:
             return all(abs(q - g) <= e for q, g, e in zip(state.q_rad, goal, tol, strict=True))
 
         began_s = self._loop.time()
+        self._last_attempt = (duty, began_s, start)
         await arm.move_joints(goal, duty, wait=False)
         last = start
         while True:
