@@ -90,6 +90,8 @@ STALL_MOVED_RAD: Final = 3e-4
 #: Shortest watch interval (s): long enough for the slowest moving joint of the procedure (duty 60
 #: losing 90 % of its steps) to cross ``STALL_MOVED_RAD`` with room for the link's latency.
 STALL_WATCH_S: Final = 0.5
+#: Steps (rad) joint 2 is raised in when it leaves a pose it could not lift from.
+ESCAPE_STEP_RAD: Final = 0.15
 #: Standard error of a stalled run's ratio (of 0): it moved at most a few counts.
 STALL_SIGMA: Final = 0.01
 #: Share of a move at each end left out of the speed fit (start-up and arrival).
@@ -235,9 +237,10 @@ class Procedure:
 
     async def ladder(self) -> None:
         """Moves at a ladder of duties, up and down, per joint: effective speed vs duty."""
+        dropped: set[int] = set()
         for duty in LADDER_DUTIES:
             for joint, (base, high, low) in LADDER_RANGES.items():
-                if joint in (1, 4) and duty not in UNLOADED_DUTIES:
+                if joint in dropped or (joint in (1, 4) and duty not in UNLOADED_DUTIES):
                     continue
                 for a, b in ((high, low), (low, high)):
                     start = list(base)
@@ -257,17 +260,46 @@ class Procedure:
                     except ArmDoesNotMoveError as exc:
                         if len(self.obs.stalls) == stalls:
                             raise  # blocked, not stalled: nothing here explains it
-                        # the drive stalls here at every duty tried: the ladder cannot go on
-                        # from this pose (the stalls are observations), the fit can
-                        self.obs.phases_skipped["ladder"] = (
-                            f"joint {exc.joint} stalled at every duty down to "
-                            f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
-                            f"{exc.target_rad:+.4f} rad): the ladder stopped there, and the arm "
-                            "was left at that pose")
-                        self.progress(f"calibrate: {self.obs.phases_skipped['ladder']}")
-                        self._stamp()
-                        return
+                        # the drive stalls here at every duty tried (the stalls are
+                        # observations): leave this joint's ladder, and the pose if the arm can
+                        why = (f"joint {exc.joint} stalled at every duty down to "
+                               f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
+                               f"{exc.target_rad:+.4f} rad)")
+                        self.progress(f"calibrate: {why}")
+                        dropped.add(joint)
+                        if not await self._escape():
+                            self.obs.phases_skipped["ladder"] = (
+                                why + ": the ladder stopped there, and the arm was left at "
+                                "that pose")
+                            self._stamp()
+                            return
+                        self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
+                            "was left; the arm folded its forearm upright and was raised slowly"
+                        break
             self._stamp()
+
+    async def _escape(self) -> bool:
+        """Bring the arm from a pose joint 2 cannot lift from back to the zero pose: the forearm
+        upright over joint 2 first (q3 = −q2: the least torque joint 2 can carry there), then
+        joint 2 up in steps of :data:`ESCAPE_STEP_RAD` (each at the highest recovery duty that
+        moves it), then the rest. False when that stalls too."""
+        q = list(self.arm.state.q_rad)
+        spec = self.settings.joints[2]
+        fold = q.copy()
+        fold[2] = min(max(-q[1], spec.lower_rad), spec.upper_rad)
+        try:
+            await self._move(fold, RECOVERY_DUTIES[0])
+            # up in steps, each tried at the highest recovery duty first: the lighter the load,
+            # the faster the drive keeps up
+            steps = max(1, math.ceil(abs(fold[1]) / ESCAPE_STEP_RAD))
+            for k in range(steps - 1, -1, -1):
+                up = fold.copy()
+                up[1] = fold[1] * k / steps
+                await self._move(up, RECOVERY_DUTIES[0])
+            await self._move([0.0, 0.0, 0.0, 0.0], RECOVERY_DUTIES[0])
+        except ArmDoesNotMoveError:
+            return False
+        return True
 
     async def _speed_run(self, joint: int, start: list[float], target: list[float],
                          duty: int) -> None:
