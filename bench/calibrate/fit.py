@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Final
 
@@ -21,21 +21,22 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import TICKS_PER_RAD
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.physics import ArmPhysics, JointPhysics, Mechanism
+from armbench.fakes.physics import ArmPhysics, Mechanism
 from armbench.fakes.settings import emulator_settings
 
 __all__ = [
     "INSTRUMENT_SIGMA_M",
     "LOADED_NM",
     "base_physics",
+    "chosen_structures",
     "fit_all",
     "fit_hall",
     "fit_kinematics",
     "fit_play",
-    "fit_pullout",
     "fit_stiffness",
     "fit_timing",
     "link_estimate",
@@ -52,20 +53,6 @@ INSTRUMENT_SIGMA_M: Final = 1e-5
 LOADED_NM: Final = 2.5
 #: Floor of an angle's standard error (rad): what float arithmetic of the truth can resolve.
 SIGMA_FLOOR_RAD: Final = 1e-7
-#: Relative standard error of the needed torque the pull-out fit divides by (the gravity torque is
-#: taken at the reported angle, which differs from the link's by the play and the Hall error).
-PULLOUT_MODEL_REL: Final = 0.01
-#: A parameter only bounded from below by the data is set this far above its bound when the prior
-#: lies below it: the twin then does not lose steps where the arm lost none.
-BOUND_MARGIN: Final = 1.2
-#: A speed run bounds the pull-out torque from below at or above this ratio of effective to
-#: commanded speed (no step lost: the slope of a lossless run is 1 within a few 1e-5), and gives an
-#: estimate of it below: the step loss is a function of the torque deficit (``fakes/physics.py``),
-#: so even a small loss measures the pull-out torque.
-LOSSLESS_RATIO: Final = 0.9995
-#: Standard error of a speed run's ratio besides the lost pulses' rounding (one in ``steps``): the
-#: slope fitted over the middle of the move (lossless runs scatter about 1 by a few 1e-5).
-RATIO_SIGMA: Final = 1e-4
 _KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
 
 
@@ -377,56 +364,17 @@ def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics) ->
     return [*out, *kept]
 
 
-def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
-                fitted_before: Sequence[Fitted] = ()) -> list[Fitted]:
-    """Pull-out torque per joint from the speed ladder: a run that lost steps moved at
-    ``ratio = have / need``, so ``P = ratio · need · (1 + rate / corner)`` with the needed torque
-    from the prior (gravity through the worm gear, friction, spin-up); weighted mean over the lossy
-    runs, each weighted by the precision of its ratio (the slope's and the lost pulses'
-    rounding)."""
-    mech = Mechanism(prior, base, lambda: [0.0] * 4)
-    out: list[Fitted] = []
-    for j, spec in enumerate(base.joints):
-        p: JointPhysics = prior.joints[j]
-        key = _jkey(j, "pullout_nm")
-        estimates, weights, bounds = [], [], []
-        for run in obs.speeds:
-            if run.joint != j + 1:
-                continue
-            rate = run.law_rad_s * spec.steps_per_rad
-            tau = mech.gravity_nm(link_estimate(run.start_rad, fitted_before, prior, mech))[j]
-            need = p.required_nm(tau, run.direction, spec.gear_ratio, rate,
-                                 spec.steps_per_motor_rev)
-            factor = need * (1.0 + rate / p.corner_steps_per_s)
-            ratio = run.ratio
-            if ratio >= LOSSLESS_RATIO:
-                bounds.append(factor)
-                continue
-            if ratio <= 0.12:
-                continue
-            sd = math.hypot(RATIO_SIGMA, 1.0 / max(run.steps, 1.0))
-            estimates.append(ratio * factor)
-            weights.append(1.0 / (sd * factor) ** 2)
-        if len(estimates) < 1:
-            if not bounds:
-                out.append(Fitted(key, p.pullout_nm, None, "N·m", False, "no speed runs",
-                                  p.pullout_nm))
-                continue
-            low = max(bounds)
-            value = max(p.pullout_nm, BOUND_MARGIN * low)
-            out.append(Fitted(key, value, None, "N·m", False,
-                              f"no steps lost at any duty: pull-out ≥ {low:.3g} N·m; set to "
-                              f"the larger of the prior and {BOUND_MARGIN:g} × that bound",
-                              p.pullout_nm, low))
-            continue
-        e, w = np.asarray(estimates), np.asarray(weights)
-        mean = float((e * w).sum() / w.sum())
-        sigma = math.hypot(math.sqrt(1.0 / float(w.sum())), PULLOUT_MODEL_REL * mean)
-        if len(e) > 1:
-            chi2 = float((w * (e - mean) ** 2).sum()) / (len(e) - 1)
-            sigma *= math.sqrt(max(1.0, chi2))
-        out.append(Fitted(key, mean, sigma, "N·m", True,
-                          f"{len(e)} runs that lost steps (speed ladder)", p.pullout_nm))
+def chosen_structures(fitted: Sequence[Fitted]) -> dict[int, tuple[str, bool] | None]:
+    """Each joint's speed model as :func:`fit_all` chose it (None: the prior kept)."""
+    out: dict[int, tuple[str, bool] | None] = {}
+    values = {f.key: f for f in fitted}
+    for j in range(4):
+        law = values.get(_jkey(j, "loss_law"))
+        gear = values.get(f"joints.j{j + 1}.gear_ratio")
+        if law is None or not law.identified or law.choice is None:
+            out[j] = None
+        else:
+            out[j] = (law.choice, gear is not None and gear.identified)
     return out
 
 
@@ -443,14 +391,19 @@ def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
     return replace(prior, geometry_error=ge, joints=joints)
 
 
-def fit_all(obs: Observations, base: RobotSettings) -> list[Fitted]:
+def fit_all(obs: Observations, base: RobotSettings,
+            structures: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
     """Every fit, in the order of the settings file (the kinematics first: the torque models of
-    the others use it)."""
+    the others use it). ``structures``: each joint's speed model taken as chosen (see
+    :func:`~armbench.bench.calibrate.structure.fit_speed_models`)."""
     prior = base_physics(base)
     kinematics = fit_kinematics(obs, base, prior)
     model = with_kinematics(prior, kinematics)
     play = fit_play(obs, base, prior)
     hall = fit_hall(obs, base, prior)
     before = [*play, *hall]
+    mech = Mechanism(model, base, lambda: [0.0] * 4)
+    speeds = fit_speed_models(obs, base, model,
+                              lambda q: link_estimate(q, before, model, mech), structures)
     return [*fit_timing(obs), *play, *hall, *fit_stiffness(obs, base, model, play, before),
-            *fit_pullout(obs, base, model, before), *kinematics]
+            *speeds, *kinematics]

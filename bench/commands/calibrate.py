@@ -21,6 +21,7 @@ from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibr
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.commands.monitor import run_on_port
 from armbench.bench.outputs import check_out_files
+from armbench.bench.truth import load_tracker
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 
@@ -50,6 +51,10 @@ def register(sub: Any) -> None:
     p.add_argument("--settings", metavar="FILE",
                    help="base settings: the nominal model and the priors (masses, payload) the "
                         "fit starts from (default: the default arm)")
+    p.add_argument("--tracker", metavar="MODULE:CLASS",
+                   help="reference instrument plug-in (a laser tracker driver implementing "
+                        "PoseSource, as for run): the link side (play, stiffness, DH errors) "
+                        "is then identified over any port")
     p.set_defaults(func=_run)
 
 
@@ -64,9 +69,10 @@ def _run(args: argparse.Namespace) -> int:
         result = calibrate_capture(args.capture, base, out)
     else:
         port: str = args.port
+        tracker = None if args.tracker is None else load_tracker(args.tracker, base)
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
-            progress=lambda m: print(m, file=sys.stderr, flush=True)))
+            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker))
     _summary(result, output_paths(out, observations=args.port is not None))
     return 0
 
@@ -77,7 +83,10 @@ def _summary(result: CalibrationResult, written: list[Path]) -> None:
           f"identified, {len(result.fitted) - len(identified)} kept "
           f"({result.observations.robot_time_s:.1f} s of robot time)")
     for f in identified:
-        print(f"  {f.key:<48} {f.value:>12.6g} ± {f.sigma or 0:.2g} {f.unit}")
+        if f.choice is not None:
+            print(f"  {f.key:<48} {f.choice:>12}")
+        else:
+            print(f"  {f.key:<48} {f.value:>12.6g} ± {f.sigma or 0:.2g} {f.unit}")
     for path in written:
         print(f"  wrote {path}")
     sys.stdout.flush()
