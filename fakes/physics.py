@@ -252,16 +252,17 @@ def arm_physics(table: Mapping[str, Any] | None, where: str = "emulator.physics"
         if not isinstance(jt, Mapping):
             raise SettingsError(f"{where}.{name}", jt, "is not a table")
         joints[k] = _joint_physics(joints[k], jt, f"{where}.{name}")
-    ge = table.pop("geometry_error", {})
-    if not isinstance(ge, Mapping):
-        raise SettingsError(f"{where}.geometry_error", ge, "is not a table")
+    ge_table = table.pop("geometry_error", {})
+    if not isinstance(ge_table, Mapping):
+        raise SettingsError(f"{where}.geometry_error", ge_table, "is not a table")
+    ge: dict[str, float] = {}
     known_ge = {f.name for f in fields(GeometryError)}
     low, high = ARM_RANGES["geometry_error_m"]
-    for k, v in ge.items():
-        if k not in known_ge:
-            raise SettingsError(f"{where}.geometry_error.{k}", v, "is not a known setting")
-        _in_range(f"{where}.geometry_error.{k}", v, low * 5, high * 5)
-    geometry_error = replace(default.geometry_error, **dict(ge))
+    for ge_key, v in ge_table.items():
+        if ge_key not in known_ge:
+            raise SettingsError(f"{where}.geometry_error.{ge_key}", v, "is not a known setting")
+        ge[str(ge_key)] = _in_range(f"{where}.geometry_error.{ge_key}", v, low * 5, high * 5)
+    geometry_error = replace(default.geometry_error, **ge)
     arm: dict[str, Any] = {}
     for key, v in table.items():
         if key not in ("payload_kg", "noise_per_count", "gravity_m_s2"):
@@ -297,9 +298,10 @@ def _in_range(path: str, v: object, low: float, high: float) -> float:
     """``v`` as a float within [low, high] (a generous band around the plausible range)."""
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise SettingsError(path, v, "is not a finite number")
-    if not low <= v <= high:
+    x = float(v)  # a plain float: a numpy scalar would compare to a numpy bool
+    if not low <= x <= high:
         raise SettingsError(path, v, f"is outside {low:g}..{high:g}")
-    return float(v)
+    return x
 
 
 class Mechanism:
