@@ -24,9 +24,10 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Final, Literal, NamedTuple
+from operator import index
+from typing import Final, Literal, NamedTuple, SupportsFloat, SupportsIndex
 
 from armbench.drivers.errors import FrameValueError, ProtocolError
 
@@ -58,17 +59,23 @@ COMMAND_LEN: Final = 37
 TWO_PI: Final = 2.0 * math.pi
 
 
-def rad_to_ticks(q_rad: float, joint: int | None = None) -> int:
-    """Wire ticks (0..62832) of an angle in radians; see the module docstring for the rule."""
+def rad_to_ticks(q_rad: SupportsFloat, joint: int | None = None) -> int:
+    """Wire ticks (0..62832) of an angle in radians; see the module docstring for the rule.
+
+    The angle may be any real number (a numpy integer too: it is made a float here, so the
+    compiled build, whose ``float`` takes no numpy integer, reads it as the source does)."""
     if not math.isfinite(q_rad):
         raise FrameValueError(joint, "position", q_rad, "is not a finite angle")
-    wrapped = q_rad % TWO_PI
+    wrapped = float(q_rad) % TWO_PI
     return math.floor(wrapped * TICKS_PER_RAD + 0.5)
 
 
-def ticks_to_rad(ticks: int, lower_rad: float = 0.0, upper_rad: float = TWO_PI) -> float:
-    """Angle in radians of wire ticks, mapped into the window centred on the joint's limits."""
-    return ticks / TICKS_PER_RAD - TWO_PI * _k_of(ticks, 0.5 * (lower_rad + upper_rad))
+def ticks_to_rad(ticks: SupportsIndex, lower_rad: SupportsFloat = 0.0,
+                 upper_rad: SupportsFloat = TWO_PI) -> float:
+    """Angle in radians of wire ticks (a whole number: Python's or numpy's), mapped into the
+    window centred on the joint's limits."""
+    t = index(ticks)
+    return t / TICKS_PER_RAD - TWO_PI * _k_of(t, 0.5 * (float(lower_rad) + float(upper_rad)))
 
 
 class AngleDecoder:
@@ -84,10 +91,12 @@ class AngleDecoder:
     __slots__ = ("_a1", "_a2", "_a3", "_a4", "_b1", "_b2", "_b3", "_b4",
                  "_k1", "_k2", "_k3", "_k4")
 
-    def __init__(self, lower_rad: Sequence[float], upper_rad: Sequence[float]) -> None:
+    def __init__(self, lower_rad: Sequence[SupportsFloat],
+                 upper_rad: Sequence[SupportsFloat]) -> None:
         _check_count("lower_rad", lower_rad)
         _check_count("upper_rad", upper_rad)
-        steps = [_k_steps(0.5 * (lo + up)) for lo, up in zip(lower_rad, upper_rad, strict=True)]
+        steps = [_k_steps(0.5 * (float(lo) + float(up)))
+                 for lo, up in zip(lower_rad, upper_rad, strict=True)]
         (self._k1, self._a1, self._b1), (self._k2, self._a2, self._b2) = steps[0], steps[1]
         (self._k3, self._a3, self._b3), (self._k4, self._a4, self._b4) = steps[2], steps[3]
 
@@ -140,12 +149,16 @@ def _check_count(name: str, values: Sequence[object]) -> None:
                               f"has {len(values)} values; the arm has {JOINTS} joints")
 
 
-def _check_ticks(ticks: Sequence[int]) -> tuple[int, int, int, int]:
+def _check_ticks(ticks: Sequence[object]) -> tuple[int, int, int, int]:
+    # values of any type (Sequence[object]: a compiled ``int`` would raise a TypeError on them
+    # before this check could name the joint)
     _check_count("positions", ticks)
+    valid: list[int] = []
     for i, t in enumerate(ticks, 1):
         if isinstance(t, bool) or not isinstance(t, int) or not 0 <= t <= MAX_TICKS:
             raise FrameValueError(i, "position", t, f"is not a tick count 0..{MAX_TICKS}")
-    return (ticks[0], ticks[1], ticks[2], ticks[3])
+        valid.append(t)
+    return (valid[0], valid[1], valid[2], valid[3])
 
 
 def encode_reply(j1: int, j2: int, j3: int, j4: int) -> bytes:
@@ -163,18 +176,18 @@ class Reply(NamedTuple):
     j4: int
 
     @classmethod
-    def from_ticks(cls, ticks: Sequence[int]) -> Reply:
+    def from_ticks(cls, ticks: Sequence[object]) -> Reply:
         """A validated reply from four tick counts."""
         return cls(*_check_ticks(ticks))
 
     @classmethod
-    def from_rad(cls, q_rad: Sequence[float]) -> Reply:
+    def from_rad(cls, q_rad: Sequence[SupportsFloat]) -> Reply:
         """A reply from four joint angles in radians (wrapped and rounded as documented)."""
         _check_count("positions", q_rad)
         return cls(*(rad_to_ticks(q, i) for i, q in enumerate(q_rad, 1)))
 
-    def angles_rad(self, lower_rad: Sequence[float], upper_rad: Sequence[float]) -> tuple[
-            float, float, float, float]:
+    def angles_rad(self, lower_rad: Sequence[SupportsFloat],
+                   upper_rad: Sequence[SupportsFloat]) -> tuple[float, float, float, float]:
         """Joint angles in radians, each mapped into its joint's window."""
         return (ticks_to_rad(self.j1, lower_rad[0], upper_rad[0]),
                 ticks_to_rad(self.j2, lower_rad[1], upper_rad[1]),
@@ -200,22 +213,24 @@ class Command:
             _check_duty(d, i)
 
     @classmethod
-    def from_rad(cls, q_rad: Sequence[float], duty: int | Sequence[int]) -> Command:
+    def from_rad(cls, q_rad: Sequence[SupportsFloat], duty: int | Sequence[int]) -> Command:
         """Build from joint angles in radians and one duty for all joints or one per joint.
 
         Raises :class:`FrameValueError` naming the joint for NaN/inf angles, duties outside
         0..99 and a wrong number of joints.
         """
         _check_count("positions", q_rad)
-        # values of any type: checked one by one below, with an error naming the joint
-        duties: list[object] = [duty] * JOINTS if isinstance(duty, int) else list(duty)
+        # values of any type: checked one by one below, with an error naming the joint (as
+        # ``object``: narrowed to ``int``, the compiled build would make a boolean 0 or 1)
+        value: object = duty
+        duties: list[object] = [*value] if isinstance(value, Iterable) else [value] * JOINTS
         _check_count("duties", duties)
         ticks = tuple(rad_to_ticks(q, i) for i, q in enumerate(q_rad, 1))
         d = tuple(_check_duty(v, i) for i, v in enumerate(duties, 1))
         return cls((ticks[0], ticks[1], ticks[2], ticks[3]), (d[0], d[1], d[2], d[3]))
 
-    def angles_rad(self, lower_rad: Sequence[float], upper_rad: Sequence[float]) -> tuple[
-            float, float, float, float]:
+    def angles_rad(self, lower_rad: Sequence[SupportsFloat],
+                   upper_rad: Sequence[SupportsFloat]) -> tuple[float, float, float, float]:
         """Target angles in radians, each mapped into its joint's window."""
         return Reply(*self.ticks).angles_rad(lower_rad, upper_rad)
 

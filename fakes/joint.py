@@ -345,11 +345,12 @@ class JointModel:
         return (self._offset + s * self._num // self._den, (s - self._gap - self._stick) / spr,
                 s / spr)
 
-    def set_reference(self, tick: int, target_counts: int, duty: int) -> None:
+    def set_reference(self, tick: int, target_counts: int, duty: object) -> None:
         """New position (encoder counts) and velocity (duty 0..99) reference from tick on.
 
         Raises RuntimeError while homing: the firmware takes no reference before its
-        initialisation is done (paper §5.2).
+        initialisation is done (paper §5.2); ValueError for a duty that is not a whole number
+        0..99 (of any type: ``object``, as in :func:`step_period_ticks`).
         """
         if isinstance(duty, bool) or not isinstance(duty, int) or not 0 <= duty <= MAX_DUTY:
             raise ValueError(f"duty {duty!r} is not a whole number 0..{MAX_DUTY}")

@@ -8,6 +8,7 @@ default: the plausible arm of ``[emulator.physics]``, ``docs/robot-model.md``) o
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Literal
@@ -79,6 +80,10 @@ class EmulatorSettings:
 MAX_TIMES_S: dict[str, float] = {"loop_overhead_s": 1.0, "eeprom_write_s_per_byte": 1.0,
                                  "boot_s": 60.0}
 
+#: The ``float`` fields: made plain floats, as the compiled boards read them.
+_FLOATS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("float", float))
+#: The ``int`` fields: a whole number of any int type is made a plain int.
+_INTS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("int", int))
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
                            "profile": str}
 
@@ -104,12 +109,14 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
         if not isinstance(effects_in, Mapping):
             raise SettingsError("emulator.effects", effects_in, "is not a table")
         known_fx = {f.name for f in fields(PhysicalEffects)}
+        values: dict[str, Any] = {}
         for k, v in effects_in.items():
             if k not in known_fx:
                 raise SettingsError(f"emulator.effects.{k}", v, "is not a known setting")
             _check_number(f"emulator.effects.{k}", v)
-        try:
-            effects = PhysicalEffects(**effects_in)
+            values[k] = _whole(f"emulator.effects.{k}", v) if k == "miss_above_duty" else float(v)
+        try:  # plain ints and floats: the compiled class takes no numpy integer, keeps no int
+            effects = PhysicalEffects(**values)
         except ValueError as exc:
             raise SettingsError("emulator.effects", dict(effects_in), str(exc)) from None
     physics_in = table.pop("physics", {})
@@ -139,6 +146,10 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
                 raise SettingsError(f"emulator.{k}", v, "is not true or false")
         else:
             _check_number(f"emulator.{k}", v)
+            if k in _FLOATS:  # a plain float for the compiled boards (no numpy integer)
+                table[k] = float(v)
+            elif k in _INTS and isinstance(v, numbers.Integral):  # numpy's too: a plain int
+                table[k] = int(v)
     s = replace(EmulatorSettings(), effects=effects, physics=physics, **table)
     _validate(s)
     return s
@@ -180,6 +191,13 @@ def _check_number(path: str, v: object) -> None:
     number = finite_float(v)
     if number is None or abs(number) > 1e12:
         raise SettingsError(path, v, "is not a finite number within ±1e12")
+
+
+def _whole(path: str, v: object) -> int:
+    """``v`` (a real number) as a plain int, if it is a whole number of any int type."""
+    if not isinstance(v, numbers.Integral):
+        raise SettingsError(path, v, "must be a whole number")
+    return int(v)
 
 
 def _validate(s: EmulatorSettings) -> None:

@@ -57,10 +57,12 @@ class Transition(NamedTuple):
     counter: int
 
 
-def step_period_ticks(duty: int) -> int:
+def step_period_ticks(duty: object) -> int:
     """Control cycles between two steps of a moving joint at ``duty`` 1..99: ``101 − duty``.
 
-    Speed law (12): ``1e6 / (80 × (101 − v))`` steps per second.
+    Speed law (12): ``1e6 / (80 × (101 − v))`` steps per second. ``duty`` is checked here, so it
+    is annotated ``object``: a compiled ``int`` would take a boolean as 0 or 1 and reject
+    anything else with mypyc's ``TypeError`` before this check names it.
     """
     if isinstance(duty, bool) or not isinstance(duty, int) or not 1 <= duty <= MAX_DUTY:
         raise ValueError(f"duty {duty!r} is not a whole number 1..{MAX_DUTY}")

@@ -71,6 +71,15 @@ def armbench_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def compiled_tree(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The release wheel's installed tree, as pip lays it out in site-packages (skips where
+    there is no C compiler: the wheel would be plain Python)."""
+    if shutil.which(os.environ.get("CC", "cc")) is None:
+        pytest.skip("no C compiler: a wheel build installs plain Python")
+    return unpack(armbench_wheel, tmp_path_factory.mktemp("installed"))
+
+
+@pytest.fixture(scope="session")
 def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The plain-Python build of this checkout (``ARMBENCH_PURE_PYTHON=1``), unpacked as pip
     installs it: what the compiled build is compared with."""

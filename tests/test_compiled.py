@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from conftest import unpack
 
 import armbench
 from armbench.hot_modules import HOT_MODULES, build_name
@@ -37,14 +35,6 @@ def _run_trace(path: Path) -> dict[str, object]:
     assert done.returncode == 0, done.stderr
     trace: dict[str, object] = json.loads(done.stdout)
     return trace
-
-
-@pytest.fixture(scope="module")
-def compiled_tree(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The installed tree of the wheel, as pip lays it out in site-packages."""
-    if shutil.which(os.environ.get("CC", "cc")) is None:
-        pytest.skip("no C compiler: a wheel build installs plain Python")
-    return unpack(armbench_wheel, tmp_path_factory.mktemp("installed"))
 
 
 @pytest.mark.slow

@@ -100,3 +100,22 @@ def test_emulator_fused_bus_is_a_boolean(tmp_path: Path) -> None:
     with pytest.raises(SettingsError) as info:
         emulator_settings(load_settings(f))
     assert info.value.field == "emulator.fused_bus" and "true or false" in str(info.value)
+
+
+def test_emulator_numbers_become_plain_python_numbers() -> None:
+    """A float setting given as a TOML int, or any number a caller took from numpy, reaches the
+    emulator as a plain float or int: the compiled boards and ``PhysicalEffects`` take no numpy
+    integer and store an int given for a float as a float, where Python would keep it."""
+    np = pytest.importorskip("numpy")
+    robot = RobotSettings(sections={"emulator": {
+        "boot_s": np.int64(0), "loop_overhead_s": 0, "eeprom_write_s_per_byte": np.float64(0.003),
+        "effects": {"miss_probability": np.float64(0.1), "miss_above_duty": np.int64(40),
+                    "backlash_rad": 0, "noise_rate_hz": np.int64(2)}}})
+    s = emulator_settings(robot)
+    for value in (s.boot_s, s.loop_overhead_s, s.eeprom_write_s_per_byte,
+                  s.effects.miss_probability, s.effects.backlash_rad, s.effects.noise_rate_hz):
+        assert type(value) is float, value
+    assert type(s.effects.miss_above_duty) is int and s.effects.miss_above_duty == 40
+    robot = RobotSettings(sections={"emulator": {"effects": {"miss_above_duty": 40.0}}})
+    with pytest.raises(SettingsError, match=r"miss_above_duty: 40\.0 must be a whole number"):
+        emulator_settings(robot)
