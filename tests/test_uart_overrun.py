@@ -27,6 +27,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armbench.drivers.arm import Arm
+from armbench.drivers.errors import PortLostError
 from armbench.drivers.motion import joint_times_s
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.server_notes import MAX_NOTE_BYTES, ServerNotes, note_line
@@ -271,18 +272,40 @@ def flood_tcp(host: str, port: int, seconds: float) -> tuple[int, bytes]:
     return sent, bytes(lines)
 
 
+#: How long a client waits for a departed flooder's slot: the server reads and drops what the
+#: flooder's socket still held (megabytes in the kernel's buffers) before it sees the close.
+SLOT_FREED_WITHIN_S = 60.0
+
+
+async def _connect_when_free(port: str) -> Arm:
+    """An open ``Arm.connect(port)``, tried again while the server says its slot is busy
+    (bounded in time); the caller closes it."""
+    loop = asyncio.get_running_loop()
+    give_up = loop.time() + SLOT_FREED_WITHIN_S
+    while True:
+        try:
+            return await Arm.connect(port)
+        except PortLostError as exc:
+            if "busy" not in str(exc) or loop.time() > give_up:
+                raise
+            await asyncio.sleep(0.2)
+
+
 def move_time_s(port: str) -> tuple[float, float]:
-    """A normal client's connection and move to ``TARGET``: (seconds it took, law (12)'s
+    """A normal client's connection and move to ``TARGET``: (seconds the move took, law (12)'s
     prediction). Raises if the move fails."""
     async def body() -> tuple[float, float]:
         loop = asyncio.get_running_loop()
-        async with Arm.connect(port) as arm:
+        arm = await _connect_when_free(port)
+        try:
             start = arm.state.q_rad
             t0 = loop.time()
             done = await arm.move_joints(TARGET, 99)
             assert done is not None
             predicted = max(joint_times_s(start, TARGET, (99,) * 4, RobotSettings()))
             return done.t_s - t0, predicted
+        finally:
+            await arm.close()
 
     return asyncio.run(body())
 
