@@ -493,7 +493,8 @@ class JointModel:
         p_fx = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
         physics, joint, bits = self._physics, self._joint, self._miss_bits
         p = 0.0 if physics is None else physics.loss_fraction(
-            self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S), joint.steps_per_motor_rev)
+            self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S), joint.steps_per_motor_rev,
+            101 - period)
         if p_fx > p and bits is not None:
             return int(np.random.Generator(bits).negative_binomial(steps, 1.0 - p_fx))
         if physics is None or p <= 0.0:
@@ -505,6 +506,17 @@ class JointModel:
         self._lost_carry = owed - misses
         return misses
 
+    def _loses_synchronism(self, d: int, period: int) -> bool:
+        """Whether a run towards ``d`` every ``period`` cycles stalls the rotor (``loss_law =
+        "stall"``): it then stands, humming, every pulse lost, until a new reference (another
+        rate or load) plans the next run."""
+        physics = self._physics
+        if physics is None or physics.loss_law != "stall":
+            return False
+        joint = self._joint
+        return physics.stalls(self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S),
+                              joint.steps_per_motor_rev)
+
     def _plan(self, d: int) -> Run:
         """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
         period = 101 - self._duty
@@ -512,7 +524,7 @@ class JointModel:
             self._update_load()
         self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
-        if self._stalled or self._s == limit:
+        if self._stalled or self._s == limit or self._loses_synchronism(d, period):
             return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
                         False)
         steps = d * (limit - self._s)

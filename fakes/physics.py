@@ -32,6 +32,7 @@ from armbench.drivers.settings import Geometry, RobotSettings, SettingsError
 
 __all__ = [
     "DEFAULT_JOINT_PHYSICS",
+    "LOSS_LAWS",
     "PROFILES",
     "ArmPhysics",
     "GeometryError",
@@ -93,6 +94,13 @@ class JointPhysics:
     Hall position minus the nominal ones. ``loss_jitter``: relative standard deviation of a run's
     lost fraction about :meth:`loss_fraction` (seeded; 0: the same move under the same load loses
     the same steps).
+
+    ``loss_law`` picks how the drive loses steps (``LOSS_LAWS``): ``"torque"`` (the default) loses
+    the share of the torque deficit; ``"stall"`` loses synchronism where the needed torque exceeds
+    the pull-out torque at the rate, and the rotor stops (every pulse lost) until the rate falls;
+    ``"duty"`` loses a fixed share above a duty, whatever the load: ``loss_plus`` moving towards
+    +q and ``loss_minus`` towards −q at duties above ``loss_above_duty``; ``"none"``: no step is
+    lost (an arm that showed no loss wherever it was driven).
     """
 
     mass_kg: float = 0.0
@@ -111,6 +119,10 @@ class JointPhysics:
     offset_error_rad: float = 0.0
     hall_error_rad: float = 0.0
     loss_jitter: float = 0.0
+    loss_law: str = "torque"
+    loss_above_duty: float = 99.0
+    loss_plus: float = 0.0
+    loss_minus: float = 0.0
 
     def pullout_at_nm(self, steps_per_s: float) -> float:
         """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s."""
@@ -131,16 +143,35 @@ class JointPhysics:
         return gravity + self.friction_nm + self.inertia_kgm2 * omega / self.spinup_s
 
     def loss_fraction(self, load_nm: float, direction: int, gear_ratio: float,
-                      steps_per_s: float, steps_per_motor_rev: int) -> float:
-        """Fraction of the pulses lost when the needed torque exceeds the pull-out torque at the
-        rate (the motor slips until the mean rate is what its torque allows); 0 otherwise, at
-        most 0.9."""
+                      steps_per_s: float, steps_per_motor_rev: int, duty: int = 0) -> float:
+        """Fraction of the pulses lost by a run at ``duty`` (``steps_per_s``), at most 0.9.
+
+        ``"torque"``: when the needed torque exceeds the pull-out torque at the rate the motor
+        slips until the mean rate is what its torque allows (0 otherwise). ``"duty"``:
+        ``loss_plus`` or ``loss_minus`` by the direction above ``loss_above_duty``. ``"stall"``:
+        0 (a stalled run loses every pulse: :meth:`stalls`); ``"none"``: 0."""
+        law = self.loss_law
+        if law == "duty":
+            if duty <= self.loss_above_duty:
+                return 0.0
+            return min(0.9, self.loss_plus if direction > 0 else self.loss_minus)
+        if law == "stall" or law == "none":
+            return 0.0
         need = self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
                                 steps_per_motor_rev)
         have = self.pullout_at_nm(steps_per_s)
         if need <= have:
             return 0.0
         return min(0.9, 1.0 - have / need)
+
+    def stalls(self, load_nm: float, direction: int, gear_ratio: float, steps_per_s: float,
+               steps_per_motor_rev: int) -> bool:
+        """Whether a run loses synchronism and stops (``loss_law = "stall"``): the needed torque
+        exceeds the pull-out torque at the rate."""
+        if self.loss_law != "stall":
+            return False
+        return (self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
+                                 steps_per_motor_rev) > self.pullout_at_nm(steps_per_s))
 
     def jittered(self, fraction: float, normal: float) -> float:
         """A run's lost ``fraction`` scattered by ``loss_jitter`` times the standard normal draw
@@ -204,7 +235,12 @@ JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "offset_error_rad": (_deg(-0.5), _deg(0.5)),
     "hall_error_rad": (_deg(-0.1), _deg(0.1)),
     "loss_jitter": (0.0, 0.05),
+    "loss_above_duty": (0.0, 99.0),
+    "loss_plus": (0.0, 0.9),
+    "loss_minus": (0.0, 0.9),
 }
+#: The step-loss laws of ``JointPhysics.loss_law`` (``docs/robot-model.md``, Step loss).
+LOSS_LAWS: Final = ("torque", "stall", "duty", "none")
 #: Ranges of the arm-wide settings.
 ARM_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "payload_kg": (0.0, 3.0),
@@ -278,11 +314,16 @@ _DEG_KEYS: Final = {"backlash_deg": "backlash_rad", "stick_deg": "stick_rad",
 
 def _joint_physics(base: JointPhysics, table: Mapping[str, Any], where: str) -> JointPhysics:
     known = {f.name for f in fields(JointPhysics)} - set(_DEG_KEYS.values()) | set(_DEG_KEYS)
-    out: dict[str, float] = {}
+    out: dict[str, Any] = {}
     for k, v in table.items():
         if k not in known:
             raise SettingsError(f"{where}.{k}", v, f"is not a known setting (known: "
                                                   f"{', '.join(sorted(known))})")
+        if k == "loss_law":
+            if v not in LOSS_LAWS:
+                raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(LOSS_LAWS)}")
+            out[k] = str(v)
+            continue
         attr = _DEG_KEYS.get(k, k)
         low, high = JOINT_RANGES[attr]
         if attr in _DEG_KEYS.values():

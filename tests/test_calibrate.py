@@ -194,8 +194,12 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_calibrate_from_capture(capture: Path, tmp_path: Path) -> None:
     """The traffic shows the reply period, the latency and the speeds: joint 2 lifting at full
-    duty loses steps, so its pull-out torque is fitted (to the default arm's)."""
-    result = calibrate_capture(capture, RobotSettings(), tmp_path / "r.toml")
+    duty loses steps, so from a base whose pull-out torque is wrong it is fitted (to the default
+    arm's); from the default arm's own base nothing predicts the runs better than the prior,
+    which is kept."""
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("[emulator.physics.j2]\npullout_nm = 1.0\n")
+    result = calibrate_capture(capture, load_settings(wrong), tmp_path / "r.toml")
     fitted = {f.key: f for f in result.fitted}
     assert fitted["timing.reply_period_s"].value == pytest.approx(0.00238, rel=0.05)
     assert fitted["timing.latency_s"].identified
@@ -204,6 +208,10 @@ def test_calibrate_from_capture(capture: Path, tmp_path: Path) -> None:
     assert pull.identified and pull.covers(DEFAULT_JOINT_PHYSICS[1].pullout_nm)
     assert not fitted["emulator.physics.j1.backlash_deg"].identified
     assert load_settings(tmp_path / "r.toml")
+    own = calibrate_capture(capture, RobotSettings(), tmp_path / "own.toml")
+    kept = {f.key: f for f in own.fitted}["emulator.physics.j2.pullout_nm"]
+    assert not kept.identified and kept.value == DEFAULT_JOINT_PHYSICS[1].pullout_nm
+    assert "better than the prior" in kept.reason
 
 
 def test_capture_truncated(capture: Path, tmp_path: Path) -> None:

@@ -150,7 +150,7 @@ def observations_from_capture(data: CaptureData, settings: RobotSettings) -> Obs
             obs.speeds.append(SpeedRun(j + 1, duty, 1 if span > 0 else -1,
                                        [float(v) for v in start],
                                        joint_speed_rad_s(duty, spec.steps_per_rad), run[0],
-                                       run[1], abs(span) * spec.steps_per_rad))
+                                       run[1], abs(span) * spec.steps_per_rad, run[2]))
     obs.phases_done = ["capture"]
     obs.robot_time_s = float(t[-1] - t[0]) if len(t) else 0.0
     return obs

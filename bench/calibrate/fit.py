@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Final
 
@@ -21,6 +21,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import TICKS_PER_RAD
 from armbench.drivers.settings import RobotSettings
@@ -31,6 +32,7 @@ __all__ = [
     "INSTRUMENT_SIGMA_M",
     "LOADED_NM",
     "base_physics",
+    "chosen_structures",
     "fit_all",
     "fit_hall",
     "fit_kinematics",
@@ -430,6 +432,20 @@ def fit_pullout(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     return out
 
 
+def chosen_structures(fitted: Sequence[Fitted]) -> dict[int, tuple[str, bool] | None]:
+    """Each joint's speed model as :func:`fit_all` chose it (None: the prior kept)."""
+    out: dict[int, tuple[str, bool] | None] = {}
+    values = {f.key: f for f in fitted}
+    for j in range(4):
+        law = values.get(_jkey(j, "loss_law"))
+        gear = values.get(f"joints.j{j + 1}.gear_ratio")
+        if law is None or not law.identified or law.choice is None:
+            out[j] = None
+        else:
+            out[j] = (law.choice, gear is not None and gear.identified)
+    return out
+
+
 def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
     """``prior`` with the identified DH length and joint offset errors: the gravity torques the
     stiffness and pull-out fits divide by are then those of the real arm's geometry."""
@@ -443,14 +459,19 @@ def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
     return replace(prior, geometry_error=ge, joints=joints)
 
 
-def fit_all(obs: Observations, base: RobotSettings) -> list[Fitted]:
+def fit_all(obs: Observations, base: RobotSettings,
+            structures: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
     """Every fit, in the order of the settings file (the kinematics first: the torque models of
-    the others use it)."""
+    the others use it). ``structures``: each joint's speed model taken as chosen (see
+    :func:`~armbench.bench.calibrate.structure.fit_speed_models`)."""
     prior = base_physics(base)
     kinematics = fit_kinematics(obs, base, prior)
     model = with_kinematics(prior, kinematics)
     play = fit_play(obs, base, prior)
     hall = fit_hall(obs, base, prior)
     before = [*play, *hall]
+    mech = Mechanism(model, base, lambda: [0.0] * 4)
+    speeds = fit_speed_models(obs, base, model,
+                              lambda q: link_estimate(q, before, model, mech), structures)
     return [*fit_timing(obs), *play, *hall, *fit_stiffness(obs, base, model, play, before),
-            *fit_pullout(obs, base, model, before), *kinematics]
+            *speeds, *kinematics]

@@ -91,7 +91,9 @@ class Hold:
 class SpeedRun:
     """One move of one joint at ``duty`` towards ``direction`` from ``start_rad`` (all joints):
     the speed law (12) predicts ``law_rad_s``; the replies gave ``rate_rad_s`` (slope over the
-    middle of the move, ``samples`` replies) and ``steps`` microsteps were travelled."""
+    middle of the move, ``samples`` replies) and ``steps`` microsteps were travelled.
+    ``rate_sigma_rad_s``: the slope's standard error from the scatter of those replies about it
+    (the link's and the host's timing jitter included: the arm's own noise)."""
 
     joint: int
     duty: int
@@ -101,6 +103,7 @@ class SpeedRun:
     rate_rad_s: float
     samples: int
     steps: float
+    rate_sigma_rad_s: float | None = None
 
     @property
     def ratio(self) -> float:
@@ -120,6 +123,7 @@ class Observations:
     approaches: list[Approach] = field(default_factory=list)
     holds: list[Hold] = field(default_factory=list)
     speeds: list[SpeedRun] = field(default_factory=list)
+    stalls: list[dict[str, Any]] = field(default_factory=list)
     phases_done: list[str] = field(default_factory=list)
     phases_skipped: dict[str, str] = field(default_factory=dict)
     robot_time_s: float = 0.0
@@ -153,7 +157,8 @@ class Fitted:
     ``value`` and ``sigma`` (one standard error) in ``unit``; ``identified``: whether the data
     determined it (else ``value`` is the prior kept, and ``reason`` says why); ``reason`` also
     says what determined it. ``lower_bound``: what the data do say about a parameter they did not
-    determine (``value`` is then raised to be consistent with it, and written).
+    determine (``value`` is then raised to be consistent with it, and written). ``choice``: the
+    value of a categorical parameter (a step-loss law), written instead of ``value``.
     """
 
     key: str
@@ -164,6 +169,7 @@ class Fitted:
     reason: str
     prior: float | None = None
     lower_bound: float | None = None
+    choice: str | None = None
 
     @property
     def written(self) -> bool:

@@ -22,14 +22,21 @@ from markupsafe import Markup
 from matplotlib.figure import Figure
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.sensitivity import Sensitivity
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
 from armbench.reports.format import jinja_environment
 from armbench.reports.plots import to_svg
 
-__all__ = ["CalibrationResult", "apply_fit", "render_page", "toml_text", "write_outputs"]
+__all__ = ["CalibrationResult", "apply_fit", "render_page", "toml_text", "write_outputs",
+           "written_value"]
 
 _BARE_KEY: Final = re.compile(r"[A-Za-z0-9_-]+")
+#: What a calibration without a reference instrument cannot tell (the header and the page say it).
+NO_TRUTH: Final = ("the link-side figures (gear play, stick-slip, Hall position errors, "
+                   "stiffness, DH lengths and joint offsets) are the prior's and cannot be "
+                   "trusted beyond it; give a reference instrument with --tracker to identify "
+                   "them")
 _HERE: Final = Path(__file__).resolve().parent
 
 
@@ -41,6 +48,7 @@ class CalibrationResult:
     fitted: list[Fitted]
     settings: RobotSettings
     error: str | None = None
+    sensitivity: Sensitivity | None = None
 
 
 def _range_of(key: str) -> tuple[float, float] | None:
@@ -58,24 +66,37 @@ def _range_of(key: str) -> tuple[float, float] | None:
 
 
 def apply_fit(base: RobotSettings, fitted: Sequence[Fitted]) -> RobotSettings:
-    """``base`` with every identified ``emulator.*`` value set (clamped to its range) and the
-    physical profile."""
+    """``base`` with every identified ``emulator.*`` and ``joints.*`` value set and the physical
+    profile. A value outside the documented range of its setting is written as fitted (its
+    comment says so, :func:`written_value`) unless the settings file would refuse it."""
     data = base.to_mapping()
     emulator = data.setdefault("emulator", {})
     emulator["profile"] = "physical"
     for f in fitted:
-        if not (f.written and f.key.startswith("emulator.")):
+        if not (f.written and f.key.startswith(("emulator.", "joints."))):
             continue
         parts = f.key.split(".")
         table = data
         for part in parts[:-1]:
             table = table.setdefault(part, {})
-        value = f.value
-        rng = _range_of(f.key)
-        if rng is not None:
-            value = min(max(value, rng[0]), rng[1])
-        table[parts[-1]] = value
+        table[parts[-1]] = f.choice if f.choice is not None else written_value(f)
     return RobotSettings.from_mapping(data)
+
+
+def written_value(f: Fitted) -> float:
+    """The value the settings file gets for ``f``: the fitted one, within the band the settings
+    loader accepts around the documented range (ten times wider; five for angles and lengths).
+    Plays and bands below 0 become 0 (a width cannot be negative)."""
+    value = f.value
+    rng = _range_of(f.key)
+    if rng is None:
+        return value
+    low, high = rng
+    wide = 5.0 if f.key.endswith(("_deg", "_m")) else 10.0
+    if f.key.endswith(("backlash_deg", "stick_deg")):
+        return min(max(value, 0.0), high * wide)
+    band_low = low * wide if low < 0 else low / wide
+    return min(max(value, band_low), high * wide)
 
 
 def _toml_key(key: str) -> str:
@@ -127,6 +148,12 @@ def toml_text(data: Mapping[str, Any], comments: Mapping[str, str] | None = None
 
 
 def _sigma_text(f: Fitted) -> str:
+    written = written_value(f) if f.choice is None else f.value
+    if f.choice is None and f.written and written != f.value:
+        return (f"CLAMPED from the fit's {f.value:.6g} {f.unit} (± {f.sigma or 0:.3g}), which "
+                f"the settings file cannot hold; {f.reason}")
+    if f.identified and f.choice is not None:
+        return f"chosen: {f.reason}"
     if f.identified and f.sigma is not None:
         return f"fitted: ± {f.sigma:.3g} {f.unit} (1 σ); {f.reason}"
     if f.lower_bound is not None:
@@ -145,9 +172,12 @@ def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
               "See docs/calibration.md and the .html page beside this file.")
     if result.error:
         header += f"\nPARTIAL: {result.error}"
+    if not result.observations.truth:
+        header += f"\nNO REFERENCE INSTRUMENT: {NO_TRUTH}"
     for f in result.fitted:
         if not f.written and not f.key.startswith("timing."):
-            header += f"\nkept: {f.key} = {f.value:.6g} {f.unit} ({f.reason})"
+            shown = f.choice if f.choice is not None else f"{f.value:.6g} {f.unit}"
+            header += f"\nkept: {f.key} = {shown} ({f.reason})"
     timing = [f for f in result.fitted if f.key.startswith("timing.") and f.identified]
     for f in timing:
         header += f"\n{f.key} = {f.value:.6g} {f.unit} ± {f.sigma:.2g} (measured)"
@@ -157,6 +187,7 @@ def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
     fit_path.write_text(json.dumps({
         "source": result.observations.source, "error": result.error,
         "fitted": [f.to_json() for f in result.fitted],
+        "sensitivity": None if result.sensitivity is None else result.sensitivity.to_json(),
         "observations": result.observations.to_json()}, indent=1) + "\n", encoding="utf-8")
     paths["fit"] = fit_path
     page = out.with_suffix(".html")
@@ -220,7 +251,8 @@ def render_page(result: CalibrationResult) -> str:
                                                     base.loader or jinja2.BaseLoader()]))
     template = env.get_template("calibration.html.j2")
     return template.render(
-        obs=result.observations, error=result.error,
+        obs=result.observations, error=result.error, NO_TRUTH=NO_TRUTH,
+        sensitivity=result.sensitivity,
         identified=[f for f in result.fitted if f.identified],
         kept=[f for f in result.fitted if not f.identified],
         figures=_figures(result), kinematic_mm=_kinematic_residuals_mm(result),

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import math
 from collections.abc import Callable, Sequence
 from typing import Any, Final
 
@@ -35,9 +36,10 @@ from armbench.bench.calibrate.model import (
     Observations,
     SpeedRun,
 )
+from armbench.bench.suites.base import PoseSource
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm, JointState
-from armbench.drivers.errors import MoveTimeoutError
+from armbench.drivers.errors import WaitTimeoutError
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings
@@ -62,8 +64,10 @@ HOLD_POSES_RAD: Final = (
     (-0.4, 0.3, 0.9, 1.5), (1.2, 1.0, -0.4, 0.0), (-1.2, -0.7, 0.8, 0.8), (0.0, 0.7, -1.2, 1.8),
     (2.0, 0.2, 0.5, -0.3), (-2.0, -0.2, -0.6, 0.6), (0.6, 1.1, -0.2, 1.2), (-0.6, -0.5, 0.95, 0.4),
 )
-#: Duties of the speed ladder, the most informative first (full duty is where steps are lost).
-LADDER_DUTIES: Final = (99, 97, 95, 98, 96, 93, 90)
+#: Duties of the speed ladder, the most informative first: full duty (where steps are lost), the
+#: lowest (a speed scale without loss: a gear ratio off the nominal), full duty again (the
+#: repeated runs measure the session's scatter, the link's jitter included), then between.
+LADDER_DUTIES: Final = (99, 90, 99, 95, 97, 93, 98, 96)
 #: Per joint: the start pose of its ladder and the range its moves span (protocol rad): joints 2
 #: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
 #: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
@@ -76,6 +80,17 @@ LADDER_RANGES: Final = {
     4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
 }
 UNLOADED_DUTIES: Final = (99, 95)
+#: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
+#: stands until its rate falls below the pull-in rate).
+RECOVERY_DUTIES: Final = (90, 80, 60)
+#: A joint that moved less than this (rad, about 5 encoder counts) in a watch interval short of
+#: its target stands still.
+STALL_MOVED_RAD: Final = 3e-4
+#: Shortest watch interval (s): long enough for the slowest moving joint of the procedure (duty 60
+#: losing 90 % of its steps) to cross ``STALL_MOVED_RAD`` with room for the link's latency.
+STALL_WATCH_S: Final = 0.5
+#: Standard error of a stalled run's ratio (of 0): it moved at most a few counts.
+STALL_SIGMA: Final = 0.01
 #: Share of a move at each end left out of the speed fit (start-up and arrival).
 RATE_MARGIN: Final = 0.2
 
@@ -87,7 +102,8 @@ class Procedure:
 
     def __init__(self, arm: Arm, settings: RobotSettings, obs: Observations, *,
                  budget_s: float = DEFAULT_BUDGET_S, save: Callable[[], None] = lambda: None,
-                 progress: Callable[[str], None] = lambda message: None) -> None:
+                 progress: Callable[[str], None] = lambda message: None,
+                 tracker: PoseSource | None = None) -> None:
         self.arm = arm
         self.settings = settings
         self.obs = obs
@@ -98,7 +114,10 @@ class Procedure:
         self._t0 = self._loop.time()
         self._slowdown = 1.6
         self._overhead_s = 0.05
-        self._truth = EmulatorTruth(arm) if arm.ground_truth() is not None else None
+        self._truth: PoseSource | None = (
+            tracker if tracker is not None
+            else EmulatorTruth(arm) if arm.ground_truth() is not None else None)
+        self._tracker = tracker
         obs.truth = self._truth is not None
         sample = arm.ground_truth()
         obs.motor_truth = getattr(sample, "motor_rad", None) is not None
@@ -236,47 +255,119 @@ class Procedure:
         arm = self.arm
         j = joint - 1
         spec = self.settings.joints[j]
-        with arm.record_states() as states:
-            await self._move(target, duty)
+        law = joint_speed_rad_s(duty, spec.steps_per_rad)
+        direction = 1 if target[j] > start[j] else -1
+        steps = abs(target[j] - start[j]) * spec.steps_per_rad
+        before = len(self.obs.stalls)
+        try:
+            with arm.record_states() as states:
+                stalled = await self._move(target, duty)
+        except ArmDoesNotMoveError:
+            stalled = True
+            raise
+        finally:
+            # every duty this run stalled at is a run of ratio 0 (the rotor stood, humming)
+            for stall in self.obs.stalls[before:]:
+                if stall["joint"] == joint and stall["duty"] <= duty:
+                    d = int(stall["duty"])
+                    self.obs.speeds.append(SpeedRun(
+                        joint, d, direction, [float(v) for v in start],
+                        joint_speed_rad_s(d, spec.steps_per_rad), 0.0, 0, steps,
+                        STALL_SIGMA * joint_speed_rad_s(d, spec.steps_per_rad)))
+        if stalled:
+            return
         run = speed_of(states, j, start[j], target[j])
         if run is None:
             return
-        rate, n = run
-        self.obs.speeds.append(SpeedRun(joint, duty, 1 if target[j] > start[j] else -1,
-                                        [float(v) for v in start],
-                                        joint_speed_rad_s(duty, spec.steps_per_rad), rate, n,
-                                        abs(target[j] - start[j]) * spec.steps_per_rad))
+        rate, n, sigma = run
+        self.obs.speeds.append(SpeedRun(joint, duty, direction, [float(v) for v in start],
+                                        law, rate, n, steps, sigma))
 
     # --- primitives ----------------------------------------------------------------------------
-    async def _move(self, target: Sequence[float], duty: int) -> JointState:
-        start = self.arm.state.q_rad
-        # the drive may lose up to 90 % of its steps against a load (docs/robot-model.md): give
-        # a move ten times its law (12) time before calling the joint stuck
-        timeout_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
+    async def _move(self, target: Sequence[float], duty: int) -> bool:
+        """Move to ``target`` at ``duty``. A joint that stops dead on the way (a stepper that lost
+        synchronism stands humming until its rate falls) is held and sent again at the next
+        lower of :data:`RECOVERY_DUTIES`; the stall is recorded. Returns whether the move stalled
+        at ``duty``. Raises :class:`ArmDoesNotMoveError` when no duty moves it."""
+        stalled_at_duty = False
+        # the first retry is at the same duty: a command lost on the link looks like a stall
+        for attempt, d in enumerate((duty, duty, *(x for x in RECOVERY_DUTIES if x < duty))):
+            stuck = await self._move_once(target, d)
+            if stuck is None:
+                return stalled_at_duty
+            if attempt == 0:
+                continue
+            stalled_at_duty = stalled_at_duty or d == duty
+            j, now = stuck
+            self.obs.stalls.append({"phase": self._phase, "joint": j + 1, "duty": d,
+                                    "at_rad": [float(v) for v in now],
+                                    "target_rad": [float(v) for v in target]})
+            self.progress(f"calibrate: joint {j + 1} stalled at duty {d} ({self._phase}); "
+                          "held, sent again slower")
+        now = list(self.arm.state.q_rad)
+        errors = [abs(t - q) for t, q in zip(target, now, strict=True)]
+        j = int(np.argmax(errors))
+        self._stamp()
+        raise ArmDoesNotMoveError(j + 1, float(target[j]), float(now[j]), self._phase)
+
+    async def _move_once(self, target: Sequence[float],
+                         duty: int) -> tuple[int, list[float]] | None:
+        """One attempt: None on arrival, ``(joint, angles)`` when a joint stood still for a whole
+        watch interval short of its target (after a hold was sent). A joint still moving, however
+        slowly, is given ten times its law (12) time plus 2 s (the drive may lose up to 90 % of
+        its steps against a load) before :class:`ArmDoesNotMoveError`."""
+        arm = self.arm
+        start = list(arm.state.q_rad)
         law_s = self._law_s(start, target, duty)
+        deadline_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
+        watch_s = max(STALL_WATCH_S, 0.25 * law_s)
+        tol = [t + 1e-4 for t in arm.default_tolerance_rad()]
+        goal = list(target)
+
+        def arrived(state: JointState) -> bool:
+            return all(abs(q - g) <= e for q, g, e in zip(state.q_rad, goal, tol, strict=True))
+
         began_s = self._loop.time()
-        try:
-            state = await self.arm.move_joints(list(target), duty, timeout_s=timeout_s)
-        except MoveTimeoutError as exc:
-            now = exc.last_state.q_rad if exc.last_state is not None else self.arm.state.q_rad
-            errors = [abs(t - q) for t, q in zip(target, now, strict=True)]
-            j = int(np.argmax(errors))
-            self._stamp()
-            raise ArmDoesNotMoveError(j + 1, float(target[j]), float(now[j]),
-                                      self._phase) from exc
-        assert state is not None
+        await arm.move_joints(goal, duty, wait=False)
+        last = start
+        while True:
+            chunk_s = self._loop.time()
+            try:
+                state = await arm.wait_state(arrived, timeout_s=watch_s)
+                break
+            except WaitTimeoutError:
+                if arm.state.t_s < chunk_s + 0.5 * watch_s:
+                    continue  # no fresh reply (a stalled host or link): not evidence
+                now = list(arm.state.q_rad)
+                left = [abs(g - q) > e for q, g, e in zip(now, goal, tol, strict=True)]
+                still = [k for k in range(4)
+                         if left[k] and abs(now[k] - last[k]) < STALL_MOVED_RAD]
+                if still:
+                    await arm.stop()
+                    return still[0], now
+                if self._loop.time() - began_s > deadline_s:
+                    j = int(np.argmax([abs(g - q) for q, g in zip(now, goal, strict=True)]))
+                    self._stamp()
+                    raise ArmDoesNotMoveError(j + 1, float(goal[j]), float(now[j]),
+                                              self._phase) from None
+                last = now
         took_s = self._loop.time() - began_s
         if law_s > 0.2:
             self._slowdown = max(self._slowdown, (took_s - self._overhead_s) / law_s)
         self._overhead_s = max(self._overhead_s, took_s - self._slowdown * law_s)
-        return state
+        del state
+        return None
 
     async def _rest(self) -> tuple[JointState, dict[str, list[float]]]:
         """Wait the settling time; the first reply after it and the truth beside it."""
         await asyncio.sleep(SETTLE_S)
         t = self._loop.time()
         state = await self.arm.wait_state(lambda s: s.t_s >= t, timeout_s=2.0)
-        return state, truth_of(self.arm)
+        truth = truth_of(self.arm)
+        if self._tracker is not None:
+            q = self._tracker.true_joints_rad()
+            truth = {} if q is None else {"true_rad": [float(v) for v in q]}
+        return state, truth
 
 
 def _ticks_changed(before: int) -> Callable[[JointState], bool]:
@@ -299,9 +390,10 @@ def truth_of(arm: Arm) -> dict[str, list[float]]:
 
 
 def speed_of(states: Sequence[JointState], j: int, start: float,
-             target: float) -> tuple[float, int] | None:
+             target: float) -> tuple[float, int, float] | None:
     """Slope (rad/s, unsigned) of joint ``j`` over the middle of a move from ``start`` to
-    ``target``, fitted to the replies; None with fewer than 5 replies there."""
+    ``target``, fitted to the replies, the number of replies and the slope's standard error
+    from their scatter about the line; None with fewer than 5 replies there."""
     span = target - start
     if span == 0:
         return None
@@ -313,6 +405,11 @@ def speed_of(states: Sequence[JointState], j: int, start: float,
             q.append(s.q_rad[j])
     if len(t) < 5:
         return None
-    slope = float(np.polyfit(np.asarray(t) - t[0], np.asarray(q), 1)[0])
-    return abs(slope), len(t)
+    ta = np.asarray(t) - t[0]
+    qa = np.asarray(q)
+    slope, icept = (float(c) for c in np.polyfit(ta, qa, 1))
+    resid = qa - (slope * ta + icept)
+    sxx = float(((ta - ta.mean()) ** 2).sum())
+    sigma = math.sqrt(float(resid @ resid) / (len(t) - 2) / sxx) if sxx > 0 else math.inf
+    return abs(slope), len(t), sigma
 

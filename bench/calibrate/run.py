@@ -10,10 +10,13 @@ from collections.abc import Callable
 from pathlib import Path
 
 from armbench.bench.calibrate.capture import load_capture, observations_from_capture
-from armbench.bench.calibrate.fit import fit_all
+from armbench.bench.calibrate.fit import chosen_structures, fit_all
 from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
 from armbench.bench.calibrate.output import CalibrationResult, apply_fit, write_outputs
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
+from armbench.bench.calibrate.sensitivity import sensitivity
+from armbench.bench.suites.base import PoseSource
+from armbench.bench.truth import aclose_source, aopen_source
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings
 
@@ -24,31 +27,41 @@ def finish(obs: Observations, base: RobotSettings, out: Path,
            error: str | None = None) -> CalibrationResult:
     """Fit ``obs``, write the settings, the fit and the page next to ``out``."""
     fitted = fit_all(obs, base)
-    result = CalibrationResult(obs, fitted, apply_fit(base, fitted), error)
+    structures = chosen_structures(fitted)
+    result = CalibrationResult(obs, fitted, apply_fit(base, fitted), error,
+                               sensitivity(obs, base, fitted,
+                                           lambda o, b: fit_all(o, b, structures)))
     write_outputs(result, out)
     return result
 
 
 async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                          budget_s: float = DEFAULT_BUDGET_S,
-                         progress: Callable[[str], None] = lambda message: None
-                         ) -> CalibrationResult:
-    """Run the procedure on ``port`` and write the outputs. A joint that does not move ends the
-    procedure: what was measured is fitted and written, then :class:`ArmDoesNotMoveError` is
-    raised."""
+                         progress: Callable[[str], None] = lambda message: None,
+                         tracker: PoseSource | None = None) -> CalibrationResult:
+    """Run the procedure on ``port`` and write the outputs. ``tracker``: a reference instrument
+    (``--tracker``, ``bench/truth.py``) measuring the true joints and TCP at rest, opened and
+    closed around the procedure. A joint that does not move ends the procedure: what was measured
+    is fitted and written, then :class:`ArmDoesNotMoveError` is raised."""
     out = Path(out)
     obs = Observations(source=port)
     raw = out.with_suffix(".observations.json")
     failure: ArmDoesNotMoveError | None = None
-    async with Arm.connect(port, base) as arm:
-        procedure = Procedure(arm, base, obs, budget_s=budget_s, save=lambda: obs.save(raw),
-                              progress=progress)
-        try:
-            await procedure.run()
-        except ArmDoesNotMoveError as exc:
-            failure = exc
-            obs.error = str(exc)
-        obs.save(raw)
+    if tracker is not None:
+        await aopen_source(tracker)
+    try:
+        async with Arm.connect(port, base) as arm:
+            procedure = Procedure(arm, base, obs, budget_s=budget_s, save=lambda: obs.save(raw),
+                                  progress=progress, tracker=tracker)
+            try:
+                await procedure.run()
+            except ArmDoesNotMoveError as exc:
+                failure = exc
+                obs.error = str(exc)
+            obs.save(raw)
+    finally:
+        if tracker is not None:
+            await aclose_source(tracker)
     result = finish(obs, base, out, obs.error)
     if failure is not None:
         raise failure

@@ -18,6 +18,7 @@ from typing import Any
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
 from armbench.bench.calibrate.output import CalibrationResult
 from armbench.bench.commands.monitor import run_on_port
+from armbench.bench.truth import load_tracker
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 
@@ -44,6 +45,10 @@ def register(sub: Any) -> None:
     p.add_argument("--settings", metavar="FILE",
                    help="base settings: the nominal model and the priors (masses, payload) the "
                         "fit starts from (default: the default arm)")
+    p.add_argument("--tracker", metavar="MODULE:CLASS",
+                   help="reference instrument plug-in (a laser tracker driver implementing "
+                        "PoseSource, as for run): the link side (play, stiffness, DH errors) "
+                        "is then identified over any port")
     p.set_defaults(func=_run)
 
 
@@ -56,9 +61,10 @@ def _run(args: argparse.Namespace) -> int:
         result = calibrate_capture(args.capture, base, out)
     else:
         port: str = args.port
+        tracker = None if args.tracker is None else load_tracker(args.tracker, base)
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
-            progress=lambda m: print(m, file=sys.stderr, flush=True)))
+            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker))
     _summary(result, out)
     return 0
 
@@ -69,7 +75,10 @@ def _summary(result: CalibrationResult, out: Path) -> None:
           f"identified, {len(result.fitted) - len(identified)} kept "
           f"({result.observations.robot_time_s:.1f} s of robot time)")
     for f in identified:
-        print(f"  {f.key:<48} {f.value:>12.6g} ± {f.sigma or 0:.2g} {f.unit}")
+        if f.choice is not None:
+            print(f"  {f.key:<48} {f.choice:>12}")
+        else:
+            print(f"  {f.key:<48} {f.value:>12.6g} ± {f.sigma or 0:.2g} {f.unit}")
     for suffix in ("", ".json", ".html"):
         print(f"  wrote {out.with_suffix(suffix) if suffix else out}")
     sys.stdout.flush()

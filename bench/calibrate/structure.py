@@ -1,0 +1,500 @@
+"""The drive's speed model of each joint, chosen by held-out prediction: how it loses steps (the
+step-loss law of ``docs/robot-model.md``) and whether its speed is scaled (a gear ratio other than
+the nominal one).
+
+Every speed run of the ladder (or of a capture) gives the ratio ``r`` of its effective speed to
+law (12), with a standard error from the scatter of its own replies about the fitted slope (the
+link's and the host's timing jitter included) and the rounding of one pulse in its steps: the
+arm's own noise in this session. Each candidate structure predicts ``r`` for a run:
+
+* ``prior`` — the base settings' twin as it is (nothing fitted);
+* ``none`` — no step lost: ``r = s``;
+* ``torque`` — the torque deficit's share is lost: ``r = s · clip(P / f, 0.1, 1)`` with ``f`` the
+  torque the run needs (the prior's masses, worm gear, friction, spin-up) times
+  ``1 + rate / corner``: one parameter, the pull-out torque ``P``;
+* ``stall`` — the rotor stops where ``f > P``: ``r = s`` or 0 (only when a run stalled);
+* ``duty`` — a fixed share is lost above a duty, per direction: ``r = s (1 − share±)`` above the
+  threshold, ``s`` below it;
+
+each with ``s = 1`` or with ``s`` fitted (the speed scale: the gear ratio is the nominal over
+``s``). Every candidate is fitted leaving one run out and scored on that run (leave-one-out
+cross-validation, the squared error over the run's standard error, summed, each run's at most
+:data:`MISS_Z2`): the held-out χ².
+Starting from the simplest, a candidate with more parameters is taken only when its held-out χ²
+is lower by more than :data:`MARGIN` (about two standard errors of evidence), and the prior is
+replaced only when the candidate taken beats it by as much. Each candidate's weight
+(``exp(−χ²/2)`` normalised, an Akaike-style weight of held-out evidence) says how sure the choice
+is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import minimize_scalar
+
+from armbench.bench.calibrate.model import Fitted, Observations, SpeedRun
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.physics import JOINT_RANGES, ArmPhysics, JointPhysics, Mechanism
+
+__all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "choose_joint", "fit_speed_models",
+           "run_table", "session_scatter"]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Held-out χ² the best structure must gain over the prior's to replace it.
+MARGIN: Final = 4.0
+#: Candidates within this held-out χ² of the best count as equally good: the simplest is taken.
+PARSIMONY: Final = 2.0
+#: Largest share of the held-out χ² one run can take (a miss by five standard errors or more).
+MISS_Z2: Final = 25.0
+#: Relative standard error of a run's needed torque (masses and angles of the prior): the torque
+#: fit adds it to each lossy run's ratio error in its weights, and to the pull-out torque's; the
+#: held-out scores use the runs' own errors only (a model cannot excuse its misses).
+NEED_REL: Final = 0.01
+#: A run slower than this ratio stalled (the torque law never loses more than 90 %).
+STALLED_RATIO: Final = 0.12
+#: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
+#: accepts around the documented range (``fakes/physics.py``).
+_P_GRID: Final = np.geomspace(0.03, 30.0, 481)
+#: Speed scales a fit may return: another gear set of the same arm (a quarter off the nominal
+#: ratio at most); beyond that a scale would stand in for any step loss.
+SCALE_RANGE: Final = (0.75, 1.33)
+
+
+@dataclass(frozen=True, slots=True)
+class JointSpeeds:
+    """One joint's speed runs as the fits need them: the ratio, its standard error, duty,
+    direction and the torque factor ``f`` (N·m) of each run."""
+
+    ratio: FloatArray
+    sigma: FloatArray
+    duty: FloatArray
+    direction: FloatArray
+    factor: FloatArray
+
+
+def _run_sigma(run: SpeedRun) -> float:
+    slope = (run.rate_sigma_rad_s or 0.0) / run.law_rad_s
+    if not math.isfinite(slope):
+        slope = 1.0
+    return math.sqrt(slope ** 2 + (1.0 / max(run.steps, 1.0)) ** 2 + 1e-5 ** 2)
+
+
+def session_scatter(obs: Observations) -> tuple[float, int]:
+    """How much more the runs scatter than their own standard errors say, from the runs made
+    twice (same joint, duty and direction): ``k = sqrt(mean z²)`` of their differences over
+    their combined error, at least 1, and the number of pairs (1 without any)."""
+    first: dict[tuple[int, int, int], SpeedRun] = {}
+    z2: list[float] = []
+    for run in obs.speeds:
+        if run.samples == 0:  # a stall: no slope
+            continue
+        key = (run.joint, run.duty, run.direction)
+        other = first.get(key)
+        if other is None:
+            first[key] = run
+            continue
+        z2.append((run.ratio - other.ratio) ** 2 / (_run_sigma(run) ** 2
+                                                    + _run_sigma(other) ** 2))
+    if not z2:
+        return 1.0, 0
+    return max(1.0, math.sqrt(float(np.mean(z2)))), len(z2)
+
+
+def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
+              link_of: Callable[[Sequence[float]], list[float]],
+              scatter: float = 1.0) -> JointSpeeds:
+    """Joint ``j``'s (0-based) runs; ``link_of`` estimates the link angles at a run's start;
+    each run's standard error is multiplied by the session's ``scatter``."""
+    spec = base.joints[j]
+    p = prior.joints[j]
+    mech = Mechanism(prior, base, lambda: [0.0] * 4)
+    rows = []
+    for run in obs.speeds:
+        if run.joint != j + 1 or run.law_rad_s <= 0:
+            continue
+        rate = run.law_rad_s * spec.steps_per_rad
+        tau = mech.gravity_nm(link_of(run.start_rad))[j]
+        need = p.required_nm(tau, run.direction, spec.gear_ratio, rate, spec.steps_per_motor_rev)
+        rows.append((run.ratio, scatter * _run_sigma(run), run.duty, run.direction,
+                     need * (1.0 + rate / p.corner_steps_per_s)))
+    a = np.asarray(rows, dtype=np.float64).reshape(-1, 5)
+    return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """A fitted structure: its name, whether ``s`` is fitted, the parameters and the
+    predictions of the runs it was fitted on."""
+
+    law: str
+    scaled: bool
+    params: dict[str, float]
+    n_params: int
+
+    @property
+    def name(self) -> str:
+        """``law`` with ``+scale`` when the speed scale is fitted."""
+        return self.law + ("+scale" if self.scaled else "")
+
+
+def _wmean(x: FloatArray, w: FloatArray) -> float:
+    return float((x * w).sum() / w.sum()) if len(x) and w.sum() > 0 else math.nan
+
+
+def _clip_scale(s: float) -> float:
+    return min(SCALE_RANGE[1], max(SCALE_RANGE[0], s))
+
+
+def _torque_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
+    out: FloatArray = np.clip(p_nm / factor, 0.1, 1.0)
+    return out
+
+
+def _stall_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
+    out: FloatArray = (factor <= p_nm).astype(np.float64)
+    return out
+
+
+def _model_error(shape: FloatArray) -> FloatArray:
+    """The ratio error a 1 % error of the needed torque makes: ``NEED_REL · r`` on a run that
+    loses steps, but never more than its loss (a run barely losing is as near to losing none:
+    the error cannot excuse a model that makes every run lose a hair)."""
+    out: FloatArray = np.minimum(NEED_REL * shape, 1.0 - shape) * (shape < 1.0)
+    return out
+
+
+def _sigma_total(d: JointSpeeds, shape: FloatArray) -> FloatArray:
+    """Each run's ratio error plus the needed torque's relative error where it loses steps."""
+    out: FloatArray = np.sqrt(d.sigma ** 2 + _model_error(shape) ** 2)
+    return out
+
+
+def _profile(d: JointSpeeds, pred: Callable[[float | FloatArray, FloatArray], FloatArray],
+             scaled: bool) -> tuple[float, float]:
+    """Best ``P`` (and ``s``) of a one-parameter shape ``s · pred(P, f)``: a grid over log P,
+    ``s`` in closed form at each."""
+    def at(p_nm: float) -> tuple[float, float]:
+        g = pred(p_nm, d.factor)
+        w = 1.0 / _sigma_total(d, g) ** 2
+        s = (_clip_scale(float((d.ratio * g * w).sum() / (g * g * w).sum()))
+             if scaled and (g > 0).any() else 1.0)
+        return float((((d.ratio - s * g) ** 2) * w).sum()), s
+
+    # the whole grid at once (rows: P, columns: runs)
+    g = pred(_P_GRID[:, None], d.factor[None, :])
+    w = 1.0 / (d.sigma[None, :] ** 2 + _model_error(g) ** 2)
+    if scaled:
+        den = (g * g * w).sum(axis=1)
+        s_all = np.clip((d.ratio * g * w).sum(axis=1) / np.where(den > 0, den, 1.0),
+                        *SCALE_RANGE)
+        s_all = np.where(den > 0, s_all, 1.0)
+    else:
+        s_all = np.ones(len(_P_GRID))
+    chi2_all = (((d.ratio[None, :] - s_all[:, None] * g) ** 2) * w).sum(axis=1)
+    k = int(np.argmin(chi2_all))  # the first of equal minima: the lowest P
+    best = (float(chi2_all[k]), float(_P_GRID[k]), float(k))
+    if 0 < k < len(_P_GRID) - 1 and pred is _torque_pred:  # between grid points: refine
+        lo, hi = math.log(float(_P_GRID[k - 1])), math.log(float(_P_GRID[k + 1]))
+        r = minimize_scalar(lambda x: at(math.exp(x))[0], bounds=(lo, hi), method="bounded",
+                            options={"xatol": 1e-7})
+        if float(r.fun) < best[0]:
+            return math.exp(float(r.x)), at(math.exp(float(r.x)))[1]
+    return best[1], at(best[1])[1]
+
+
+def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
+    """Fit ``law`` (with or without the scale) to the runs of ``d``."""
+    if law == "none":
+        s = _clip_scale(_wmean(d.ratio, 1.0 / d.sigma ** 2)) if scaled else 1.0
+        return Candidate(law, scaled, {"s": s}, int(scaled))
+    if law == "torque":
+        p_nm, s = _profile(d, _torque_pred, scaled)
+        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
+    if law == "stall":  # the middle of the interval between the runs that moved and stalled
+        p_nm, sigma = _stall_interval(d)
+        moved = d.ratio >= STALLED_RATIO
+        s = 1.0
+        if math.isinf(sigma):
+            p_nm, s = _profile(d, _stall_pred, scaled)
+        elif scaled and moved.any():
+            s = _clip_scale(_wmean(d.ratio[moved], 1.0 / d.sigma[moved] ** 2))
+        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
+    # duty: the threshold that fits best, the shares above it per direction
+    best: tuple[float, Candidate] | None = None
+    duties = {float(x) for x in d.duty}
+    for thr in sorted(duties | {99.0, min(duties) - 1.0}):
+        below = d.duty <= thr
+        w = 1.0 / d.sigma ** 2
+        s = _clip_scale(_wmean(d.ratio[below], w[below])) if scaled and below.any() else 1.0
+        params = {"s": s, "loss_above_duty": thr}
+        pred = np.full_like(d.ratio, s)
+        for key, sign in (("loss_plus", 1.0), ("loss_minus", -1.0)):
+            above = (~below) & (d.direction == sign)
+            share = 1.0 - _wmean(d.ratio[above] / s, w[above]) if above.any() else 0.0
+            share = min(0.9, max(0.0, share))
+            params[key] = share
+            pred[above] = s * (1.0 - share)
+        if not below.any() and _same_both_ways(d, w):
+            continue  # one share at every duty, both ways: a speed scale, not a duty threshold
+        chi2 = float((((d.ratio - pred) ** 2) * w).sum())
+        if best is None or chi2 < best[0] - 1e-12:
+            best = (chi2, Candidate(law, scaled, params, 3 + int(scaled)))
+    if best is None:  # no threshold left: loss nowhere
+        return Candidate(law, scaled, {"s": 1.0, "loss_above_duty": 99.0, "loss_plus": 0.0,
+                                       "loss_minus": 0.0}, 3 + int(scaled))
+    return best[1]
+
+
+def _same_both_ways(d: JointSpeeds, w: FloatArray) -> bool:
+    """Whether the runs towards + and towards − have the same mean ratio within three standard
+    errors of the difference (or one direction has no run)."""
+    plus, minus = d.direction > 0, d.direction < 0
+    if not plus.any() or not minus.any():
+        return True
+    diff = _wmean(d.ratio[plus], w[plus]) - _wmean(d.ratio[minus], w[minus])
+    return abs(diff) <= 3.0 * math.sqrt(1.0 / w[plus].sum() + 1.0 / w[minus].sum())
+
+
+def predict(c: Candidate, d: JointSpeeds) -> FloatArray:
+    """The ratio ``c`` predicts for every run of ``d``."""
+    s = c.params["s"]
+    if c.law == "none":
+        return np.full_like(d.ratio, s)
+    if c.law == "torque":
+        return s * _torque_pred(c.params["pullout_nm"], d.factor)
+    if c.law == "stall":
+        return s * _stall_pred(c.params["pullout_nm"], d.factor)
+    pred = np.full_like(d.ratio, s)
+    above = d.duty > c.params["loss_above_duty"]
+    pred[above & (d.direction > 0)] *= 1.0 - c.params["loss_plus"]
+    pred[above & (d.direction < 0)] *= 1.0 - c.params["loss_minus"]
+    return pred
+
+
+def prior_prediction(p: JointPhysics, d: JointSpeeds) -> FloatArray:
+    """The prior twin's ratio for every run (its own law and pull-out torque, no scale)."""
+    if p.loss_law == "torque":
+        return _torque_pred(p.pullout_nm, d.factor)
+    if p.loss_law == "stall":
+        return _stall_pred(p.pullout_nm, d.factor)
+    if p.loss_law == "none":
+        return np.ones_like(d.ratio)
+    c = Candidate("duty", False, {"s": 1.0, "loss_above_duty": p.loss_above_duty,
+                                  "loss_plus": p.loss_plus, "loss_minus": p.loss_minus}, 0)
+    return predict(c, d)
+
+
+def _subset(d: JointSpeeds, keep: npt.NDArray[np.bool_]) -> JointSpeeds:
+    return JointSpeeds(d.ratio[keep], d.sigma[keep], d.duty[keep], d.direction[keep],
+                       d.factor[keep])
+
+
+def _robust(z2: FloatArray) -> float:
+    """Sum of squared standardised errors, each at most :data:`MISS_Z2`: a run predicted wrong
+    by far (a stall on the wrong side of its boundary, a run the link's hiccup slowed) counts
+    as one miss, not as its distance in standard errors."""
+    return float(np.minimum(z2, MISS_Z2).sum())
+
+
+def at_bound(c: Candidate) -> bool:
+    """Whether a fit ran into the edge of what it may return (a scale a quarter off, a pull-out
+    torque at the settings' band): it then stands in for something else and predicts nothing."""
+    s = c.params["s"]
+    p_nm = c.params.get("pullout_nm")
+    return (c.scaled and s in SCALE_RANGE) or (
+        p_nm is not None and p_nm in (float(_P_GRID[0]), float(_P_GRID[-1])))
+
+
+def held_out_chi2(d: JointSpeeds, law: str, scaled: bool) -> float:
+    """Leave-one-out χ² of ``law``: each run predicted by the fit to all the others (infinite
+    when a fit runs into its bounds: :func:`at_bound`)."""
+    n = len(d.ratio)
+    total = 0.0
+    if at_bound(_fit(d, law, scaled)):
+        return math.inf
+    for i in range(n):
+        keep = np.ones(n, dtype=bool)
+        keep[i] = False
+        c = _fit(_subset(d, keep), law, scaled)
+        one = _subset(d, ~keep)
+        pred = predict(c, one)
+        total += _robust(((one.ratio - pred) / one.sigma) ** 2)
+    return total
+
+
+def _param_sigma(d: JointSpeeds, c: Candidate, key: str, step: float) -> float:
+    """Standard error of ``c.params[key]`` from the χ² curvature (central differences),
+    scaled by the reduced χ² when the fit is worse than the runs' errors."""
+
+    def chi2(v: float) -> float:
+        params = dict(c.params)
+        params[key] = v
+        pred = predict(Candidate(c.law, c.scaled, params, c.n_params), d)
+        return float((((d.ratio - pred) / _sigma_total(d, pred / params["s"])) ** 2).sum())
+
+    v0 = c.params[key]
+    curv = (chi2(v0 + step) - 2.0 * chi2(v0) + chi2(v0 - step)) / step ** 2
+    if curv <= 0:
+        return math.inf
+    dof = max(1, len(d.ratio) - c.n_params)
+    return math.sqrt(2.0 / curv * max(1.0, chi2(v0) / dof))
+
+
+def _jkey(j: int, name: str) -> str:
+    return f"emulator.physics.j{j + 1}.{name}"
+
+
+def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                     link_of: Callable[[Sequence[float]], list[float]],
+                     fixed: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
+    """Per joint: the step-loss law and its parameters, and the gear ratio, as :class:`Fitted`
+    values (the law as ``choice``); a joint whose runs do not show a better structure than the
+    prior's beyond the noise keeps the prior, and says why. ``fixed``: the structure per joint
+    (0-based; None: the prior) taken as chosen instead of choosing it (a refit on another base:
+    the sensitivity table)."""
+    out: list[Fitted] = []
+    scatter, pairs = session_scatter(obs)
+    noise = (f"; runs' errors × {scatter:.3g} (the scatter of {pairs} repeated runs)" if pairs
+             else "; no repeated run: the runs' own errors")
+    for j, spec in enumerate(base.joints):
+        p = prior.joints[j]
+        d = run_table(obs, base, prior, j, link_of, scatter)
+        structure = None if fixed is None else (fixed.get(j) or ("prior", False))
+        out.extend(replace(f, reason=f.reason + noise) if f.key.endswith("loss_law") else f
+                   for f in choose_joint(j, spec.gear_ratio, p, d, structure))
+    return out
+
+
+def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
+    return [Fitted(_jkey(j, "loss_law"), math.nan, None, "", False, reason, choice=p.loss_law),
+            Fitted(_jkey(j, "pullout_nm"), p.pullout_nm, None, "N·m", False, reason,
+                   p.pullout_nm),
+            Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
+
+
+def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
+                 fixed: tuple[str, bool] | None = None) -> list[Fitted]:
+    """Joint ``j``'s (0-based) speed model from its runs ``d`` against the prior ``p`` (nominal
+    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`.
+    ``fixed``: take this ``(law, scaled)`` as chosen (``("prior", False)``: keep the prior)."""
+    n = len(d.ratio)
+    if n < 3:
+        return _kept(j, gear, p, f"{n} speed runs: too few to hold any out")
+    if fixed is not None:
+        if fixed[0] == "prior":
+            return _kept(j, gear, p, "the prior (structure fixed)")
+        return _emit(j, gear, p, d, _fit(d, *fixed), "structure fixed", n)
+    prior_pred = prior_prediction(p, d)
+    prior_chi2 = _robust(((d.ratio - prior_pred) / d.sigma) ** 2)
+    laws = ["none", "torque", "duty"] + (["stall"] if (d.ratio < STALLED_RATIO).any() else [])
+    scores: dict[tuple[str, bool], float] = {}
+    sizes: dict[tuple[str, bool], int] = {}
+    for law in laws:
+        for scaled in (False, True):
+            scores[(law, scaled)] = held_out_chi2(d, law, scaled)
+            sizes[(law, scaled)] = {"none": 0, "torque": 1, "stall": 1, "duty": 3}[law] + scaled
+    simple = _step_up(scores, sizes)
+    everything = {"prior": prior_chi2, **{_name(k): v for k, v in scores.items()}}
+    low = min(everything.values())
+    weights = {k: math.exp(-0.5 * (v - low)) for k, v in everything.items()}
+    total_w = sum(weights.values())
+    table = ", ".join(f"{k} {v:.3g}" for k, v in sorted(everything.items(), key=lambda kv: kv[1]))
+    if prior_chi2 - scores[simple] <= MARGIN:
+        return _kept(j, gear, p, f"no structure predicts the {n} held-out runs better than the "
+                                 f"prior beyond the noise (held-out χ²: {table})")
+    c = _fit(d, *simple)
+    sure = weights[_name(simple)] / total_w
+    why = (f"{c.name} chosen by held-out prediction of {n} speed runs (weight {sure:.2f}; "
+           f"held-out χ²: {table})")
+    return _emit(j, gear, p, d, c, why, n)
+
+
+def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, why: str,
+          n: int) -> list[Fitted]:
+    """The :class:`Fitted` values of the structure ``c`` fitted to all ``n`` runs ``d``."""
+    out = [Fitted(_jkey(j, "loss_law"), math.nan, None, "", True, why, choice=c.law)]
+    unit_ranges = {"pullout_nm": ("N·m", 0.01), "loss_above_duty": ("", 0.5),
+                   "loss_plus": ("", 1e-4), "loss_minus": ("", 1e-4)}
+    for key, (unit, step) in unit_ranges.items():
+        if key not in c.params:
+            continue
+        value = c.params[key]
+        prior_value = float(getattr(p, key))
+        if key == "loss_above_duty":
+            duties = sorted({float(x) for x in d.duty})
+            above = [x for x in duties if x > value]
+            reason = (f"no loss at duty {value:g} and below" + (
+                f", loss from {above[0]:g} on" if above else ""))
+            out.append(Fitted(_jkey(j, key), value, None, unit, True, reason, prior_value))
+            continue
+        if key == "pullout_nm" and c.law == "stall":
+            value, sigma = _stall_interval(d)
+        else:
+            sigma = _param_sigma(d, c, key, step * max(1.0, abs(value)))
+        if key == "pullout_nm":  # the masses' error is common to every run: it does not average
+            sigma = math.hypot(sigma, NEED_REL * value)
+        if key == "pullout_nm" and not (d.factor > value).any():
+            out.append(Fitted(_jkey(j, key), max(value, prior_value), None, unit, False,
+                              "no run needed more than the pull-out torque: only a lower bound",
+                              prior_value, float(d.factor.max())))
+            continue
+        ok = math.isfinite(sigma) and (sigma <= 0.5 * abs(value) if key == "pullout_nm"
+                                       else sigma <= 0.05)
+        if not ok:
+            out.append(Fitted(_jkey(j, key), prior_value, None, unit, False,
+                              f"not identified: {value:.3g} ± {sigma:.2g} (the interval is wider "
+                              "than the value)", prior_value))
+            return _kept(j, gear, p, f"{c.name} was best but its {key} is not identified "
+                                     f"({value:.3g} ± {sigma:.2g})")
+        low_r, high_r = JOINT_RANGES[key]
+        note = ("" if low_r <= value <= high_r else
+                f"; OUTSIDE the documented range {low_r:g}..{high_r:g}")
+        out.append(Fitted(_jkey(j, key), value, sigma, unit, True, why + note, prior_value))
+    if c.scaled:
+        s = c.params["s"]
+        sigma_s = _param_sigma(d, c, "s", 1e-5)
+        out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear / s, gear * sigma_s / s ** 2, "",
+                          True, f"speed scale {s:.5g} ± {sigma_s:.2g} against law (12) with the "
+                                f"nominal ratio {gear:g}", gear))
+    else:
+        out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False,
+                          "no speed scale beyond the noise", gear))
+    return out
+
+
+def _step_up(scores: Mapping[tuple[str, bool], float],
+             sizes: Mapping[tuple[str, bool], int]) -> tuple[str, bool]:
+    """From the simplest candidate (fewest parameters, then the best score among those within
+    :data:`PARSIMONY` of the best of that size), step to one with more parameters only when it
+    predicts the held-out runs better by more than :data:`MARGIN`."""
+    order = sorted(scores, key=lambda k: (sizes[k], scores[k]))
+    current = order[0]
+    for k in order[1:]:
+        need = MARGIN if sizes[k] > sizes[current] else PARSIMONY
+        if scores[k] < scores[current] - need:
+            current = k
+    return current
+
+
+def _stall_interval(d: JointSpeeds) -> tuple[float, float]:
+    """The pull-out torque of a stalling drive lies between the largest torque factor of a run
+    that moved and the smallest of one that stalled: its geometric middle, and the standard error
+    of a uniform variable over that interval (infinite when the runs overlap)."""
+    moved = d.factor[d.ratio >= STALLED_RATIO]
+    stalled = d.factor[d.ratio < STALLED_RATIO]
+    lo = float(moved.max()) if len(moved) else float(_P_GRID[0])
+    hi = float(stalled.min()) if len(stalled) else float(_P_GRID[-1])
+    if hi <= lo:
+        return math.sqrt(abs(lo * hi)), math.inf
+    return math.sqrt(lo * hi), (hi - lo) / (2.0 * math.sqrt(3.0))
+
+
+def _name(k: tuple[str, bool]) -> str:
+    return k[0] + ("+scale" if k[1] else "")
