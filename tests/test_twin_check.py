@@ -193,6 +193,17 @@ def test_run_capture_in_sessions(tmp_path: Path) -> None:
     assert 0.0 < result.tcp["rms_mm"] < 1.0, result.tcp
     names = {m.name for m in result.measurements}
     assert {"twin.tcp.rms_mm", "twin.tcp.max_mm"} <= names, names
+    # a twin whose links are 4 mm off and whose zeros are 0.4 deg off reports the same angles;
+    # the truth, taken through the arm's own actual model (the run's record names it), fails it
+    off = RobotSettings.from_mapping({"emulator": {"physics": {
+        "geometry_error": {"a2_m": 0.0048, "a3_m": -0.0045},
+        **{f"j{j}": {"offset_error_deg": d} for j, d in ((1, 0.45), (2, -0.55), (3, 0.6),
+                                                         (4, 0.4))}}}})
+    wrong = twin_check(load_capture(out / "capture.mcap", off), off)
+    assert wrong.tcp is not None and wrong.tcp["rms_mm"] > 2.0, wrong.tcp
+    judged = {m.name: m.outcome for m in wrong.measurements}
+    assert judged["twin.tcp.rms_per_allowed"] == "fail"
+    assert wrong.verdict == "fail"
 
 
 # --- foreign arms: simulators written apart from armbench, captured in real time ----------------
