@@ -254,9 +254,11 @@ def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
 
 
 def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
-    """The replies whose stamp is their time: not read in one go with the next one."""
+    """The replies whose stamp is their time: not read in one go with the one before or after
+    (the last of a burst too was stamped when the host woke)."""
     t = np.asarray([r[0] for r in replies])
-    keep = np.append(np.diff(t) >= BURST_S, True)
+    apart = np.diff(t) >= BURST_S
+    keep = np.append(apart, True) & np.insert(apart, 0, True)
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 

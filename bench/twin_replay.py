@@ -114,7 +114,10 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
             await asyncio.sleep(0.001)
         offset = out[0][0] - data.replies[0][0]
         if in_flight is not None:
+            # the arm was moving when the session began; the twin starts from rest when it
+            # reads the command: its clock starts where it leaves the pose
             emulator.host_write(in_flight.encode())
+            offset = await _left_pose(out, loop) - data.replies[0][0]
         shifted = [c[0] + (0.0 if offsets_s is None else offsets_s[k])
                    for k, c in enumerate(data.commands)]
         for t_s, (_, command) in zip(itertools.accumulate(shifted, max), data.commands,
@@ -131,6 +134,20 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
         n = len(truth.t_s) - len(out)
         truth.t_s[n:] = [t - offset for t in truth.t_s[n:]]
     return [(t - offset, q) for t, q in out]
+
+
+async def _left_pose(out: list[tuple[float, Vec4]], loop: asyncio.AbstractEventLoop) -> float:
+    """The time of the twin's last reply at its first reply's pose (within 1.5 ticks) before
+    one that left it, as its replies come in (``out``); the newest reply's after
+    :data:`BOOT_TIMEOUT_S`."""
+    give_up = loop.time() + BOOT_TIMEOUT_S
+    while loop.time() < give_up:
+        for k in range(1, len(out)):
+            if any(abs(a - b) > 1.5 * TICK_RAD for a, b in zip(out[k][1], out[0][1],
+                                                               strict=True)):
+                return out[k - 1][0]
+        await asyncio.sleep(0.001)
+    return out[-1][0]
 
 
 def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
