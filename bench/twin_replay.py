@@ -45,6 +45,8 @@ BURST_S: Final = 2e-4
 BOOT_TICKS: Final = 3.0
 #: Longest wait for the twin to report that pose (s, virtual).
 BOOT_TIMEOUT_S: Final = 2.0
+#: Longest wait for a resumed twin to leave its pose on the command in flight (s, virtual).
+LEAVE_TIMEOUT_S: Final = 0.3
 
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
@@ -114,10 +116,12 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
             await asyncio.sleep(0.001)
         offset = out[0][0] - data.replies[0][0]
         if in_flight is not None:
-            # the arm was moving when the session began; the twin starts from rest when it
-            # reads the command: its clock starts where it leaves the pose
             emulator.host_write(in_flight.encode())
-            offset = await _left_pose(out, loop) - data.replies[0][0]
+            if _moving(data):
+                # the arm was moving when the session began; the twin starts from rest when it
+                # reads the command: its clock starts where it leaves the pose
+                left = await _left_pose(out, loop)
+                offset = offset if left is None else left - data.replies[0][0]
         shifted = [c[0] + (0.0 if offsets_s is None else offsets_s[k])
                    for k, c in enumerate(data.commands)]
         for t_s, (_, command) in zip(itertools.accumulate(shifted, max), data.commands,
@@ -136,18 +140,27 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
     return [(t - offset, q) for t, q in out]
 
 
-async def _left_pose(out: list[tuple[float, Vec4]], loop: asyncio.AbstractEventLoop) -> float:
+def _moving(data: CaptureData) -> bool:
+    """Whether the arm moved between the session's first two replies (by more than a tick)."""
+    if len(data.replies) < 2:
+        return False
+    return any(abs(a - b) > 1.5 * TICK_RAD for a, b in zip(data.replies[0][1],
+                                                           data.replies[1][1], strict=True))
+
+
+async def _left_pose(out: list[tuple[float, Vec4]], loop: asyncio.AbstractEventLoop
+                     ) -> float | None:
     """The time of the twin's last reply at its first reply's pose (within 1.5 ticks) before
-    one that left it, as its replies come in (``out``); the newest reply's after
-    :data:`BOOT_TIMEOUT_S`."""
-    give_up = loop.time() + BOOT_TIMEOUT_S
+    one that left it, as its replies come in (``out``); None when it has not left within
+    :data:`LEAVE_TIMEOUT_S`."""
+    give_up = loop.time() + LEAVE_TIMEOUT_S
     while loop.time() < give_up:
         for k in range(1, len(out)):
             if any(abs(a - b) > 1.5 * TICK_RAD for a, b in zip(out[k][1], out[0][1],
                                                                strict=True)):
                 return out[k - 1][0]
         await asyncio.sleep(0.001)
-    return out[-1][0]
+    return None
 
 
 def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
