@@ -25,8 +25,10 @@ compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``abs`` in the config's ``[suites."twin-check"]``
 table, else :class:`Allowance`'s defaults): each ``*.rms_per_allowed`` figure is the RMS over
 its allowance, judged against the limits of a bench config (``--config``, else the packaged
-``twin_check.toml``, ``high = 1``). The verdict is ``pass`` when every judged figure is within,
-else ``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
+``twin_check.toml``, ``high = 1``). Where moves settled and where the twin rests no timing
+enters: there the floor is the quantisation alone (``settled_per_allowed``, and the TCP at rest
+against ``tcp_abs_mm``). The verdict is ``pass`` when every judged figure is within, else
+``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
 
 A capture of several sessions (a run's capture holds one emulator per trial, a foreign arm
 restarts at each connection) is cut where the replies jump further than the joints can move, or
