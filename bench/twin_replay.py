@@ -167,9 +167,10 @@ def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
     """The capture cut where the arm it recorded was another one: a reply that jumps further
     than the joints can move at full speed in the time since the previous one (and a stall of the
     loop), or a silence longer than :data:`SILENCE_S` (a run's capture holds one emulator per
-    trial, each booting at its own pose) that does not end in a burst (:data:`BURST_S`: then the
-    host was silent, not the arm). Each session after the first carries the command in
-    flight at its start; sessions without commands are left out."""
+    trial, each booting at its own pose) with the arm at rest on both sides, that does not end in
+    a burst (:data:`BURST_S`: then the host was silent, not the arm). Each session after a
+    silence carries the command in flight at its start; sessions without commands are left
+    out."""
     t = np.asarray([r[0] for r in data.replies])
     q = np.asarray([r[1] for r in data.replies])
     if len(t) < 2:
@@ -179,7 +180,11 @@ def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
     reach = 1.5 * speed * (dt[:, None] + STALL_S) + JUMP_SLACK_RAD
     jump = np.abs(np.diff(q, axis=0)) > reach
     burst = np.append(dt < BURST_S, False)          # per reply: read together with the next
-    silent = (dt > SILENCE_S) & ~burst[1:]
+    # at rest on both sides of it (the last two replies before, the first two after): an arm
+    # that moved through a silence is the same arm going on, and its twin goes on with it
+    still = np.append(np.all(np.abs(np.diff(q, axis=0)) <= 1.5 * TICK_RAD, axis=1), True)
+    rest_before = np.insert(still[:-1], 0, True)[:-1]
+    silent = (dt > SILENCE_S) & ~burst[1:] & rest_before & still[1:]
     cuts = [0, *(np.flatnonzero(jump.any(axis=1) | silent) + 1), len(t)]
     out = []
     for a, b in itertools.pairwise(cuts):
