@@ -259,17 +259,22 @@ def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
 
 def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
              ) -> FloatArray:
-    """Per command after which the arm came to rest (its last two replies before the next
-    command equal within a tick), arm minus twin (rad) at the last of them: where the move
-    settled (``(m, 4)``)."""
+    """Per command after which both came to rest (the arm's last three replies before the next
+    command equal within 1.5 ticks, the twin still over the same aligned instants), arm minus
+    twin (rad) at the last of them: where the move settled (``(m, 4)``)."""
     ends = [*times[1:], math.inf]
     rows = []
     for k, (t0, t1) in enumerate(zip(times, ends, strict=True)):
         i = int(np.searchsorted(arm.t_s, t1 - TIME_SLACK_S)) - 1
-        if i >= 1 and arm.t_s[i - 1] >= t0 and np.all(
-                np.abs(arm.q_rad[i] - arm.q_rad[i - 1]) <= TICK_RAD * 1.5):
-            twin_q = [twin.at(np.asarray([arm.t_s[i] - shifts[k, j]]))[0, j] for j in range(4)]
-            rows.append(arm.q_rad[i] - np.asarray(twin_q))
+        if i < 2 or arm.t_s[i - 2] < t0:
+            continue
+        if np.any(np.abs(np.diff(arm.q_rad[i - 2:i + 1], axis=0)) > 1.5 * TICK_RAD):
+            continue
+        at = arm.t_s[i - 2:i + 1, None] - shifts[k][None, :]
+        twin_q = np.column_stack([twin.at(at[:, j])[:, j] for j in range(4)])
+        if np.any(np.abs(np.diff(twin_q, axis=0)) > 1.5 * TICK_RAD):
+            continue
+        rows.append(arm.q_rad[i] - twin_q[-1])
     return np.asarray(rows).reshape(-1, 4)
 
 
