@@ -52,6 +52,9 @@ TICK_RAD: Final = 1.0 / TICKS_PER_RAD
 ONSET_TICKS: Final = 4.0
 #: Replies a move's start is traced back from.
 ONSET_REPLIES: Final = 5
+#: The speed a start is traced back with: the stream's own, when within this band of the
+#: nominal one (times the nominal).
+SPEED_BAND: Final = (0.3, 1.5)
 #: A joint whose move is shorter than this (ticks) does not time a move's start.
 MIN_WAY_TICKS: Final = 30.0
 #: The arm is at rest at a command when its last replies before it differ by at most this.
@@ -105,8 +108,9 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
              ) -> float | None:
     """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``): each of the
     first :data:`ONSET_REPLIES` replies :data:`ONSET_TICKS` or more away from the pose at the
-    command, traced back at ``speed_rad_s``; their median (a reply composed before a stall of
-    the sender's loop and sent after it is stale: one such reply does not move the median).
+    command, traced back at the speed they show (``speed_rad_s``, the nominal one, if that is
+    outside :data:`SPEED_BAND`); their median (a reply composed before a stall of the sender's
+    loop and sent after it is stale: one such reply does not move the median).
     None when it did not leave."""
     t, q = track.t_s, track.q_rad[:, joint]
     i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
@@ -119,7 +123,15 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     if len(moved) == 0:
         return None
     k = i0 + moved
-    return float(np.median(t[k] - np.abs(q[k] - pose) / speed_rad_s))
+    # the stream's own speed there (a joint that loses steps is slower than its law): the
+    # median of its replies' slopes (one stale reply does not move it); the nominal one when
+    # they do not say
+    dt = np.diff(t[k])
+    slopes = np.abs(np.diff(q[k]))[dt > 0] / dt[dt > 0]
+    speed = float(np.median(slopes)) if len(slopes) else speed_rad_s
+    if not SPEED_BAND[0] * speed_rad_s <= speed <= SPEED_BAND[1] * speed_rad_s:
+        speed = speed_rad_s
+    return float(np.median(t[k] - np.abs(q[k] - pose) / speed))
 
 
 def _at_rest(track: Track, t_s: float) -> npt.NDArray[np.bool_]:

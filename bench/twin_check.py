@@ -25,8 +25,10 @@ compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``abs`` in the config's ``[suites."twin-check"]``
 table, else :class:`Allowance`'s defaults): each ``*.rms_per_allowed`` figure is the RMS over
 its allowance, judged against the limits of a bench config (``--config``, else the packaged
-``twin_check.toml``, ``high = 1``). The verdict is ``pass`` when every judged figure is within,
-else ``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
+``twin_check.toml``, ``high = 1``). Where moves settled and where the twin rests no timing
+enters: there the floor is the quantisation alone (``settled_per_allowed``, and the TCP at rest
+against ``tcp_abs_mm``). The verdict is ``pass`` when every judged figure is within, else
+``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
 
 A capture of several sessions (a run's capture holds one emulator per trial, a foreign arm
 restarts at each connection) is cut where the replies jump further than the joints can move, or
@@ -83,6 +85,14 @@ DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
 #: An arrival seen after a gap of more than this many median reply intervals is not compared.
 SEEN_LATE: Final = 5.0
+#: The twin counts as at rest where its TCP moves slower than this (m/s) now and
+#: REST_WINDOW_S before and after.
+REST_SPEED_M_S: Final = 1e-3
+REST_WINDOW_S: Final = 0.05
+#: A start shift further than this (s) from its joint's median is a start the onset did not
+#: time well (a stale or a late-read reply), not a reaction a streamed command meets: the draws
+#: take it as this much.
+MAX_REACTION_S: Final = 0.02
 #: Seed of the reaction draws of the floor's replays, and how many replays it averages.
 REACTION_SEED: Final = 0
 REACTION_REPLAYS: Final = 2
@@ -208,8 +218,18 @@ def tcp_divergence(arm_tcp: Sequence[tuple[float, Sequence[float]]], twin: TwinT
     d_mm = 1e3 * np.linalg.norm(np.asarray([r[1] for r in rows]) - twin_p, axis=1)
     v = track.speed_at(at)[:, :3]
     floor_mm = 1e3 * math.sqrt(scatter_s ** 2 * float(np.mean(np.sum(v * v, axis=1))))
-    return {"rms_mm": float(np.sqrt(np.mean(d_mm * d_mm))), "max_mm": float(d_mm.max()),
-            "floor_mm": floor_mm, "samples": float(len(rows))}
+    out = {"rms_mm": float(np.sqrt(np.mean(d_mm * d_mm))), "max_mm": float(d_mm.max()),
+           "floor_mm": floor_mm, "samples": float(len(rows))}
+    # at rest (the twin still for REST_WINDOW_S either side): no timing in it, what is left is
+    # the model's statics (lengths, offsets, play, sag) and the arm's scatter at rest
+    rest = np.ones(len(at), dtype=bool)
+    for dt in (-REST_WINDOW_S, 0.0, REST_WINDOW_S):
+        speed = np.linalg.norm(track.speed_at(at + dt)[:, :3], axis=1)
+        rest &= speed <= REST_SPEED_M_S
+    if rest.any():
+        out["rest_rms_mm"] = float(np.sqrt(np.mean(d_mm[rest] ** 2)))
+        out["rest_samples"] = float(rest.sum())
+    return out
 
 
 def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
@@ -239,24 +259,31 @@ def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
 
 def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
              ) -> FloatArray:
-    """Per command after which the arm came to rest (its last two replies before the next
-    command equal within a tick), arm minus twin (rad) at the last of them: where the move
-    settled (``(m, 4)``)."""
+    """Per command after which both came to rest (the arm's last three replies before the next
+    command equal within 1.5 ticks, the twin still over the same aligned instants), arm minus
+    twin (rad) at the last of them: where the move settled (``(m, 4)``)."""
     ends = [*times[1:], math.inf]
     rows = []
     for k, (t0, t1) in enumerate(zip(times, ends, strict=True)):
         i = int(np.searchsorted(arm.t_s, t1 - TIME_SLACK_S)) - 1
-        if i >= 1 and arm.t_s[i - 1] >= t0 and np.all(
-                np.abs(arm.q_rad[i] - arm.q_rad[i - 1]) <= TICK_RAD * 1.5):
-            twin_q = [twin.at(np.asarray([arm.t_s[i] - shifts[k, j]]))[0, j] for j in range(4)]
-            rows.append(arm.q_rad[i] - np.asarray(twin_q))
+        if i < 2 or arm.t_s[i - 2] < t0:
+            continue
+        if np.any(np.abs(np.diff(arm.q_rad[i - 2:i + 1], axis=0)) > 1.5 * TICK_RAD):
+            continue
+        at = arm.t_s[i - 2:i + 1, None] - shifts[k][None, :]
+        twin_q = np.column_stack([twin.at(at[:, j])[:, j] for j in range(4)])
+        if np.any(np.abs(np.diff(twin_q, axis=0)) > 1.5 * TICK_RAD):
+            continue
+        rows.append(arm.q_rad[i] - twin_q[-1])
     return np.asarray(rows).reshape(-1, 4)
 
 
 def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
-    """The replies whose stamp is their time: not read in one go with the next one."""
+    """The replies whose stamp is their time: not read in one go with the one before or after
+    (the last of a burst too was stamped when the host woke)."""
     t = np.asarray([r[0] for r in replies])
-    keep = np.append(np.diff(t) >= BURST_S, True)
+    apart = np.diff(t) >= BURST_S
+    keep = np.append(apart, True) & np.insert(apart, 0, True)
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 
@@ -362,6 +389,9 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     per_command = command_shifts(shifts, data.commands, whole, settings)
     settled = _settled(arm, twin_track, times, shifts)
     settled_rms = np.sqrt(np.mean(settled * settled, axis=0)) if len(settled) else np.zeros(4)
+    # where moves settled no timing enters: the floor there is the quantisation alone
+    settled_allowed = allow.floor_factor * floor_rad(np.zeros((0, 4)), 0.0, 0.0, counts) * counts \
+        + allow.abs_counts
     arm_arrivals = _arrivals(data.replies, data, settings)
     twin_arrivals = [a for a, _ in _arrivals(twin, data, settings, per_command)]
     pairs = [(a, b) for (a, _), b in zip(arm_arrivals, twin_arrivals, strict=True)]
@@ -377,7 +407,8 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         dt_floor = math.hypot(interval_floor_s(whole, twin_track, scatter, 0.0),
                               floor_by_replay.dt_s)
     n = TWIN_CHECK
-    measurements = _joint_measurements(rms, peak, counts, floor, allowed, settled_rms, limits)
+    measurements = _joint_measurements(rms, peak, counts, floor, allowed, settled_rms,
+                                       settled_allowed if len(settled) else None, limits)
     measurements += _arrival_measurements(dts, dt_floor, allow, limits)
     for figure, value, unit, what in (
             (n.scatter, scatter, "s", "timing scatter of the link, from the arm's replies"),
@@ -413,6 +444,7 @@ def _verdict(measurements: Sequence[Measurement]) -> str:
 
 def _joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
                         floor: FloatArray, allowed: FloatArray, settled: FloatArray,
+                        settled_allowed: FloatArray | None,
                         limits: LimitsConfig | None) -> list[Measurement]:
     """Per joint: the RMS and largest divergence (counts, rad), the floor and the allowance
     (counts), the RMS over its allowance (the judged figure), where moves settled (counts)."""
@@ -431,6 +463,11 @@ def _joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
                  "RMS divergence where the moves settled")):
             out.append(judge(n.joint_metric(j + 1, figure), float(value), unit, limits,
                              better="lower", description=f"{what} of the reported angle"))
+        if settled_allowed is not None:
+            out.append(judge(n.joint_metric(j + 1, n.settled_per_allowed),
+                             float(settled[j] * counts[j] / settled_allowed[j]), "", limits,
+                             better="lower", description="RMS divergence where the moves "
+                             "settled over k x quantisation + abs"))
     return out
 
 
@@ -471,6 +508,12 @@ def _judge_tcp(tcp: dict[str, float] | None, allow: Allowance,
                                    (n.tcp_floor, "floor_mm", "floor of the RMS divergence"))]
     out.append(judge(n.metric(n.tcp_per_allowed), tcp["rms_mm"] / allowed, "", limits,
                      better="lower", description="RMS TCP divergence over its allowance"))
+    if "rest_rms_mm" in tcp:
+        out.append(judge(n.metric(n.tcp_rest), tcp["rest_rms_mm"], "mm", limits,
+                         better="lower", description="RMS TCP divergence where the twin rests"))
+        out.append(judge(n.metric(n.tcp_rest_per_allowed), tcp["rest_rms_mm"] / allow.tcp_abs_mm,
+                         "", limits, better="lower",
+                         description="RMS TCP divergence at rest over its allowance (abs)"))
     out.append(judge(n.metric(n.tcp_samples), tcp["samples"], "", limits,
                      description="truth samples compared"))
     return out
@@ -518,11 +561,12 @@ def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
 
 def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> FloatArray:
     """Per command, a draw (s) of the arm's reaction scatter: one of the measured start shifts'
-    deviations from their joint's median, drawn with replacement (from a seeded generator: the
-    check is reproducible); the reply timing scatter as a normal spread without three of
-    them."""
+    deviations from their joint's median, within ±:data:`MAX_REACTION_S`, drawn with
+    replacement (from a seeded generator: the check is reproducible); the reply timing scatter
+    as a normal spread without three of them."""
     if len(result.shift_deviations_s) >= 3:
-        return np.asarray(rng.choice(np.asarray(result.shift_deviations_s), size=n))
+        pool = np.clip(result.shift_deviations_s, -MAX_REACTION_S, MAX_REACTION_S)
+        return np.asarray(rng.choice(pool, size=n))
     return np.asarray(rng.normal(0.0, result.scatter_s, size=n))
 
 

@@ -51,7 +51,7 @@ __all__ = ["ARRIVAL_BUCKETS", "SERIES_BUCKETS", "VERSION", "TwinInputs", "check_
            "file_sha256", "twin_record", "write_twin_record"]
 
 #: The suite's version in the record (its figures and samples as described above).
-VERSION: Final = "1"
+VERSION: Final = "2"
 #: Buckets of each joint's kept series: at most 2 × 3 points per bucket (the lowest and highest
 #: of the arm's angle, the twin's and their divergence), so at most 1200 points per joint.
 SERIES_BUCKETS: Final = 200

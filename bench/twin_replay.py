@@ -45,6 +45,8 @@ BURST_S: Final = 2e-4
 BOOT_TICKS: Final = 3.0
 #: Longest wait for the twin to report that pose (s, virtual).
 BOOT_TIMEOUT_S: Final = 2.0
+#: Longest wait for a resumed twin to leave its pose on the command in flight (s, virtual).
+LEAVE_TIMEOUT_S: Final = 0.3
 
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
@@ -115,6 +117,11 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
         offset = out[0][0] - data.replies[0][0]
         if in_flight is not None:
             emulator.host_write(in_flight.encode())
+            if _moving(data):
+                # the arm was moving when the session began; the twin starts from rest when it
+                # reads the command: its clock starts where it leaves the pose
+                left = await _left_pose(out, loop)
+                offset = offset if left is None else left - data.replies[0][0]
         shifted = [c[0] + (0.0 if offsets_s is None else offsets_s[k])
                    for k, c in enumerate(data.commands)]
         for t_s, (_, command) in zip(itertools.accumulate(shifted, max), data.commands,
@@ -133,13 +140,37 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
     return [(t - offset, q) for t, q in out]
 
 
+def _moving(data: CaptureData) -> bool:
+    """Whether the arm moved between the session's first two replies (by more than a tick)."""
+    if len(data.replies) < 2:
+        return False
+    return any(abs(a - b) > 1.5 * TICK_RAD for a, b in zip(data.replies[0][1],
+                                                           data.replies[1][1], strict=True))
+
+
+async def _left_pose(out: list[tuple[float, Vec4]], loop: asyncio.AbstractEventLoop
+                     ) -> float | None:
+    """The time of the twin's last reply at its first reply's pose (within 1.5 ticks) before
+    one that left it, as its replies come in (``out``); None when it has not left within
+    :data:`LEAVE_TIMEOUT_S`."""
+    give_up = loop.time() + LEAVE_TIMEOUT_S
+    while loop.time() < give_up:
+        for k in range(1, len(out)):
+            if any(abs(a - b) > 1.5 * TICK_RAD for a, b in zip(out[k][1], out[0][1],
+                                                               strict=True)):
+                return out[k - 1][0]
+        await asyncio.sleep(0.001)
+    return None
+
+
 def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
     """The capture cut where the arm it recorded was another one: a reply that jumps further
     than the joints can move at full speed in the time since the previous one (and a stall of the
     loop), or a silence longer than :data:`SILENCE_S` (a run's capture holds one emulator per
-    trial, each booting at its own pose) that does not end in a burst (:data:`BURST_S`: then the
-    host was silent, not the arm). Each session after the first carries the command in
-    flight at its start; sessions without commands are left out."""
+    trial, each booting at its own pose) with the arm at rest on both sides, that does not end in
+    a burst (:data:`BURST_S`: then the host was silent, not the arm). Each session after a
+    silence carries the command in flight at its start; sessions without commands are left
+    out."""
     t = np.asarray([r[0] for r in data.replies])
     q = np.asarray([r[1] for r in data.replies])
     if len(t) < 2:
@@ -149,7 +180,11 @@ def sessions(data: CaptureData, settings: RobotSettings) -> list[Session]:
     reach = 1.5 * speed * (dt[:, None] + STALL_S) + JUMP_SLACK_RAD
     jump = np.abs(np.diff(q, axis=0)) > reach
     burst = np.append(dt < BURST_S, False)          # per reply: read together with the next
-    silent = (dt > SILENCE_S) & ~burst[1:]
+    # at rest on both sides of it (the last two replies before, the first two after): an arm
+    # that moved through a silence is the same arm going on, and its twin goes on with it
+    still = np.append(np.all(np.abs(np.diff(q, axis=0)) <= 1.5 * TICK_RAD, axis=1), True)
+    rest_before = np.insert(still[:-1], 0, True)[:-1]
+    silent = (dt > SILENCE_S) & ~burst[1:] & rest_before & still[1:]
     cuts = [0, *(np.flatnonzero(jump.any(axis=1) | silent) + 1), len(t)]
     out = []
     for a, b in itertools.pairwise(cuts):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import subprocess
 import sys
@@ -22,7 +23,7 @@ from hidden_arms import draw_hidden, write_hidden
 
 from armbench.bench.calibrate import calibrate_port, load_capture
 from armbench.bench.metrics import error_summary, path_errors, square_yz
-from armbench.bench.twin_check import TwinCheck, replay_twin, twin_check
+from armbench.bench.twin_check import TwinCheck, replay_twin, sessions, twin_check
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.kinematics import tcp_position
@@ -193,6 +194,17 @@ def test_run_capture_in_sessions(tmp_path: Path) -> None:
     assert 0.0 < result.tcp["rms_mm"] < 1.0, result.tcp
     names = {m.name for m in result.measurements}
     assert {"twin.tcp.rms_mm", "twin.tcp.max_mm"} <= names, names
+    # a twin whose links are 4 mm off and whose zeros are 0.4 deg off reports the same angles;
+    # the truth, taken through the arm's own actual model (the run's record names it), fails it
+    off = RobotSettings.from_mapping({"emulator": {"physics": {
+        "geometry_error": {"a2_m": 0.0048, "a3_m": -0.0045},
+        **{f"j{j}": {"offset_error_deg": d} for j, d in ((1, 0.45), (2, -0.55), (3, 0.6),
+                                                         (4, 0.4))}}}})
+    wrong = twin_check(load_capture(out / "capture.mcap", off), off)
+    assert wrong.tcp is not None and wrong.tcp["rms_mm"] > 2.0, wrong.tcp
+    judged = {m.name: m.outcome for m in wrong.measurements}
+    assert judged["twin.tcp.rms_per_allowed"] == "fail"
+    assert wrong.verdict == "fail"
 
 
 # --- foreign arms: simulators written apart from armbench, captured in real time ----------------
@@ -326,3 +338,101 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
             if result.verdict != expected:
                 wrong.append(f"{name} {args} {label}: {result.verdict}")
     assert not wrong, wrong
+
+
+# --- artefacts of a real-time capture, made on an exact one ------------------------------------
+
+@pytest.fixture(scope="module")
+def ideal_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The lap on the ideal arm (law (12) alone): its ideal twin replays it to the count."""
+    path = tmp_path_factory.mktemp("ideal") / "capture.jsonl"
+    run_virtual(_lap("fake://?profile=ideal", path))
+    return path
+
+
+IDEAL = RobotSettings.from_mapping({"emulator": {"profile": "ideal"}})
+
+
+def _records(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def _write(records: list[dict[str, Any]], path: Path) -> Path:
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return path
+
+
+def _moving_window(records: list[dict[str, Any]], span_s: float) -> tuple[float, float]:
+    """A window of ``span_s`` inside a move of the lap (replies changing, no command in it)."""
+    out = [r["t_s"] for r in records if r["dir"] == "out"]
+    gaps = sorted(itertools.pairwise(out), key=lambda g: g[0] - g[1])
+    a, b = gaps[0]                      # the longest stretch without a command: a long move
+    assert b - a > span_s + 0.2
+    return a + 0.1, a + 0.1 + span_s
+
+
+def test_capture_starting_at_a_pose_skips_the_twins_boot_replies(ideal_capture: Path,
+                                                                 tmp_path: Path) -> None:
+    """A capture that starts with the arm at a pose away from zero (the first command and
+    replies cut off): the twin boots at that pose, but its first reply reports joints 2-4 at 0;
+    that reply is not the model's and is not compared."""
+    records = _records(ideal_capture)
+    out = [r["t_s"] for r in records if r["dir"] == "out"]
+    cut = out[1] - 1e-4                 # after the first move, before the second command
+    path = _write([r for r in records if r["t_s"] >= cut], tmp_path / "late.jsonl")
+    data = load_capture(path, IDEAL)
+    assert max(abs(v) for v in data.replies[0][1][1:]) > 0.05
+    result = twin_check(data, IDEAL)
+    # the twin is a fresh emulator here, its loop's phase and EEPROM records its own: tens of
+    # counts for a moment; its boot reply would be thousands (joints 2-4 at 0)
+    assert max(result.max_counts) < 200, result.max_counts
+    assert max(result.rms_counts) < 5, result.rms_counts
+    assert result.verdict == "pass"
+
+
+def test_silence_mid_move_resumes_with_the_command_in_flight(ideal_capture: Path,
+                                                             tmp_path: Path) -> None:
+    """150 ms without replies in the middle of a move (the arm's process starved, a cable
+    pulled and put back): the arm moved through it, so it is the same arm going on, and so does
+    its twin. At rest on both sides the capture is cut there (a new arm may have booted at the
+    same pose), and the second session's twin is given the command in flight."""
+    records = _records(ideal_capture)
+    a, b = _moving_window(records, 0.15)
+    path = _write([r for r in records if not (a <= r["t_s"] < b and r["dir"] == "in")],
+                  tmp_path / "silent.jsonl")
+    result = twin_check(load_capture(path, IDEAL), IDEAL)
+    assert result.sessions == 1
+    # a fresh twin mid-move: its loop's phase its own (a moment of tens of counts); without the
+    # command in flight it would stand still for the rest of the move (over a thousand)
+    assert max(result.max_counts) < 300, result.max_counts
+    assert max(result.rms_counts) < 5, result.rms_counts
+    assert result.verdict == "pass"
+    # at rest: the silence before the next command cuts, and the command in flight is resent
+    replies = [r for r in records if r["dir"] == "in"]
+
+    def resting(c: float) -> bool:
+        return len({r["frame"] for r in replies if c - 0.16 < r["t_s"] < c}) == 1
+    c = next(r["t_s"] for r in records[10:] if r["dir"] == "out" and resting(r["t_s"]))
+    path = _write([r for r in records if not (c - 0.13 <= r["t_s"] < c - 0.02
+                                              and r["dir"] == "in")], tmp_path / "rest.jsonl")
+    data = load_capture(path, IDEAL)
+    assert [s.in_flight is not None for s in sessions(data, IDEAL)] == [False, True]
+    result = twin_check(data, IDEAL)
+    assert result.sessions == 2 and result.verdict == "pass"
+
+
+def test_replies_read_in_a_burst_are_left_out(ideal_capture: Path, tmp_path: Path) -> None:
+    """The host stalled for 0.3 s in a move: the replies of that time were read in one go and
+    stamped alike. They are not compared, and the silence before them cuts nothing."""
+    records = _records(ideal_capture)
+    a, b = _moving_window(records, 0.3)
+    late = [r for r in records if a <= r["t_s"] < b and r["dir"] == "in"]
+    for k, r in enumerate(late):
+        r["t_s"] = round(b + 1e-6 * k, 9)       # in order, microseconds apart
+    path = _write(sorted(records, key=lambda r: r["t_s"]), tmp_path / "burst.jsonl")
+    result = twin_check(load_capture(path, IDEAL), IDEAL)
+    assert result.sessions == 1
+    untimed = {m.name: m.value for m in result.measurements}["twin.replies_untimed"]
+    assert untimed > 50
+    assert max(result.max_counts) <= 2.0, result.max_counts
+    assert result.verdict == "pass"

@@ -425,6 +425,7 @@ class TwinCheckNames:
     allowed_counts: str = "allowed_counts"
     per_allowed: str = "rms_per_allowed"
     settled_counts: str = "settled_counts"
+    settled_per_allowed: str = "settled_per_allowed"
     rms_dt: str = "arrival.rms_dt_s"
     floor_dt: str = "arrival.floor_s"
     arrival_per_allowed: str = "arrival.rms_per_allowed"
@@ -435,6 +436,8 @@ class TwinCheckNames:
     tcp_floor: str = "tcp.floor_mm"
     tcp_per_allowed: str = "tcp.rms_per_allowed"
     tcp_samples: str = "tcp.samples"
+    tcp_rest: str = "tcp.rest_rms_mm"
+    tcp_rest_per_allowed: str = "tcp.rest_rms_per_allowed"
     tcp_rms: str = "tcp.rms_mm"
     tcp_max: str = "tcp.max_mm"
 

@@ -208,6 +208,8 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
     tcp = [(label, _value(ms, n.metric(figure))) for label, figure in (
         ("RMS divergence", n.tcp_rms), ("largest divergence", n.tcp_max),
         ("floor (a perfect twin's RMS)", n.tcp_floor), ("RMS over allowed RMS", n.tcp_per_allowed),
+        ("RMS divergence where the twin rests", n.tcp_rest),
+        ("at rest, over its allowance", n.tcp_rest_per_allowed),
         ("truth samples compared", n.tcp_samples)) if n.metric(figure) in ms]
     p = suite.params
     inputs = [(label, text(p.get(key), 300)) for label, key in (
