@@ -38,9 +38,7 @@ that was in flight at the cut written first.
 
 from __future__ import annotations
 
-import json
 import math
-import urllib.parse
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -70,11 +68,8 @@ from armbench.bench.twin_replay import (
     replay_twin,
     sessions,
 )
-from armbench.drivers.capture_read import read_attachment, read_joint_states
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.settings import actual_robot
+from armbench.bench.twin_tcp import arm_tcp_from_capture, tcp_divergence
+from armbench.drivers.settings import RobotSettings, SettingsError
 
 __all__ = ["DEFAULT_CONFIG", "Aligned", "Allowance", "Session", "TwinCheck", "compare",
            "replay_floor", "replay_twin", "sessions", "tcp_divergence", "twin_check"]
@@ -85,10 +80,6 @@ DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
 #: An arrival seen after a gap of more than this many median reply intervals is not compared.
 SEEN_LATE: Final = 5.0
-#: The twin counts as at rest where its TCP moves slower than this (m/s) now and
-#: REST_WINDOW_S before and after.
-REST_SPEED_M_S: Final = 1e-3
-REST_WINDOW_S: Final = 0.05
 #: A start shift further than this (s) from its joint's median is a start the onset did not
 #: time well (a stale or a late-read reply), not a reaction a streamed command meets: the draws
 #: take it as this much.
@@ -197,39 +188,6 @@ class TwinCheck:
                               "outcome": m.outcome} for m in self.measurements],
             "verdict": self.verdict,
         }
-
-
-def tcp_divergence(arm_tcp: Sequence[tuple[float, Sequence[float]]], twin: TwinTruth,
-                   shift_at: Any, scatter_s: float) -> dict[str, float] | None:
-    """RMS and largest distance (mm) between the arm's true TCP (m, at its truth times) and the
-    twin's true TCP at the aligned instants (its truth read as a trajectory), and the floor
-    (mm): the timing scatter (``scatter_s``: replies and reactions) times the TCP's speed. None
-    without truth on both sides, or none inside the twin's replay."""
-    if not arm_tcp or len(twin.t_s) < 2:
-        return None
-    track = Track(np.asarray(twin.t_s), np.column_stack([np.asarray(twin.tcp_m),
-                                                         np.zeros(len(twin.t_s))]))
-    rows = [(t, p) for t, p in arm_tcp if track.t_s[0] <= t <= track.t_s[-1]]
-    if not rows:
-        return None
-    t = np.asarray([r[0] for r in rows])
-    at = t - shift_at(t)
-    twin_p = track.at(at)[:, :3]
-    d_mm = 1e3 * np.linalg.norm(np.asarray([r[1] for r in rows]) - twin_p, axis=1)
-    v = track.speed_at(at)[:, :3]
-    floor_mm = 1e3 * math.sqrt(scatter_s ** 2 * float(np.mean(np.sum(v * v, axis=1))))
-    out = {"rms_mm": float(np.sqrt(np.mean(d_mm * d_mm))), "max_mm": float(d_mm.max()),
-           "floor_mm": floor_mm, "samples": float(len(rows))}
-    # at rest (the twin still for REST_WINDOW_S either side): no timing in it, what is left is
-    # the model's statics (lengths, offsets, play, sag) and the arm's scatter at rest
-    rest = np.ones(len(at), dtype=bool)
-    for dt in (-REST_WINDOW_S, 0.0, REST_WINDOW_S):
-        speed = np.linalg.norm(track.speed_at(at + dt)[:, :3], axis=1)
-        rest &= speed <= REST_SPEED_M_S
-    if rest.any():
-        out["rest_rms_mm"] = float(np.sqrt(np.mean(d_mm[rest] ** 2)))
-        out["rest_samples"] = float(rest.sum())
-    return out
 
 
 def _arrivals(replies: Sequence[tuple[float, Vec4]], data: CaptureData,
@@ -519,37 +477,6 @@ def _judge_tcp(tcp: dict[str, float] | None, allow: Allowance,
     return out
 
 
-def _arm_model(path: str, settings: RobotSettings) -> RobotSettings:
-    """The actual robot model of the arm an MCAP capture recorded, as far as the capture says:
-    a run's capture of ``fake://`` attaches its record, whose environment names the port (and
-    its ``?settings=`` file) and the run's settings, from which the emulator built its arm.
-    Otherwise the twin's own actual model (then the link lengths and offsets cannot be judged:
-    they cancel)."""
-    raw = read_attachment(path, "results.json")
-    try:
-        env = json.loads(raw)["environment"] if raw is not None else {}
-        port = str(env.get("port") or "")
-        if not port.startswith("fake://"):
-            return actual_robot(settings)
-        query = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query)
-        if "settings" in query:
-            return actual_robot(load_settings(query["settings"][0]))
-        return actual_robot(RobotSettings.from_mapping(env["settings"]))
-    except (ValueError, KeyError, TypeError, AttributeError, OSError, ArmbenchError):
-        return actual_robot(settings)
-
-
-def _arm_tcp(path: str, settings: RobotSettings) -> list[tuple[float, Vec3]]:
-    """The arm's true TCP from an MCAP capture's truth joints, through the arm's actual model
-    (:func:`_arm_model`)."""
-    truth = read_joint_states(path)
-    if not truth:
-        return []
-    p = tcp_position(np.asarray([q for _, q in truth]), _arm_model(path, settings))
-    return [(t, (float(x), float(y), float(z))) for (t, _), (x, y, z) in zip(truth, p,
-                                                                              strict=True)]
-
-
 def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
     """The RMS over several replays' floors."""
     tcp = [f.tcp_mm for f in floors if f.tcp_mm is not None]
@@ -582,7 +509,7 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     limits = load_limits(config if config is not None else DEFAULT_CONFIG)
     allow = Allowance.of(limits.suite_params(TWIN_CHECK.suite))
     parts = sessions(data, settings)
-    truth_tcp = list(arm_tcp) if arm_tcp is not None else _arm_tcp(data.path, settings)
+    truth_tcp = list(arm_tcp) if arm_tcp is not None else arm_tcp_from_capture(data.path, settings)
     # the twin's truth only when there is the arm's to compare it with: reading it syncs the
     # joint boards, which a replay without it does not do (the replies stay bit-identical)
     twin_truth = TwinTruth() if truth_tcp else None

@@ -70,9 +70,8 @@ _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", 
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
            "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits", "_noise_p",
-           "_lost_carry", "_glitched",
-           "transitions", "pulses", "steps_taken", "steps_missed", "steps_blocked",
-           "spurious_counts", "iterations")
+           "_lost_carry", "_glitched", "transitions", "pulses", "steps_taken", "steps_missed",
+           "steps_blocked", "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 
 
@@ -281,8 +280,7 @@ class JointModel:
 
     def next_event_tick(self) -> int | None:
         """First tick at which ``motion`` will have changed or homing completed, assuming no new
-        reference; None if nothing is pending (idle, or pushing against a limit or stall forever).
-        """
+        reference; None if nothing is pending (idle, or against a limit or a stall for ever)."""
         probe = copy.deepcopy(self)
         probe.transitions = []  # the first one it records is the answer
         return probe._run_until(FOREVER, probe=True)
@@ -350,8 +348,7 @@ class JointModel:
 
         Raises RuntimeError while homing: the firmware takes no reference before its
         initialisation is done (paper §5.2); ValueError for a duty that is not a whole number
-        0..99 (of any type: ``object``, as in :func:`step_period_ticks`).
-        """
+        0..99 (of any type: ``object``, as in :func:`step_period_ticks`)."""
         if isinstance(duty, bool) or not isinstance(duty, int) or not 0 <= duty <= MAX_DUTY:
             raise ValueError(f"duty {duty!r} is not a whole number 0..{MAX_DUTY}")
         self.advance(tick)
@@ -366,8 +363,7 @@ class JointModel:
     def home(self, tick: int, direction: int, duty: int) -> None:
         """Start the startup recovery at ``tick``: drive ``direction`` (+1 CW, −1 CCW) at ``duty``
         until the motor steps onto the Hall position, where the counter becomes ``hall_count`` and
-        the target too (the joint stops there). On the Hall position already, it completes at once.
-        """
+        the target too (the joint stops there); on the Hall position already, at once."""
         if direction not in (1, -1):
             raise ValueError(f"direction {direction!r} is not +1 or -1")
         step_period_ticks(duty)  # validates 1..99: duty 0 would never move
@@ -485,11 +481,9 @@ class JointModel:
             self._stick = -self._dir * band * float(np.random.Generator(bits).random())
 
     def _misses(self, d: int, period: int, steps: int) -> int:
-        """Pulses lost while ``steps`` steps are made towards ``d`` every ``period`` cycles: the
-        share of the torque deficit (``JointPhysics.loss_fraction``), the fraction of a pulse
-        carried to the next run (error diffusion: the same move under the same load loses the
-        same steps), scattered by ``loss_jitter``; or, when it loses more, the static-friction
-        effect's draw per pulse."""
+        """Pulses lost making ``steps`` steps towards ``d`` every ``period`` cycles: the loss
+        law's share (``JointPhysics.loss_fraction``; a pulse's fraction carried to the next run,
+        scattered by ``loss_jitter``), or the static-friction draw per pulse if that loses more."""
         fx = self._effects
         p_fx = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
         physics, joint, bits = self._physics, self._joint, self._miss_bits
@@ -507,17 +501,6 @@ class JointModel:
         self._lost_carry = owed - misses
         return misses
 
-    def _loses_synchronism(self, d: int, period: int) -> bool:
-        """Whether a run towards ``d`` every ``period`` cycles stalls the rotor (``loss_law =
-        "stall"``): it then stands, humming, every pulse lost, until a new reference (another
-        rate or load) plans the next run."""
-        physics = self._physics
-        if physics is None or physics.loss_law != "stall":
-            return False
-        joint = self._joint
-        return physics.stalls(self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S),
-                              joint.steps_per_motor_rev)
-
     def _plan(self, d: int) -> Run:
         """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
         period = 101 - self._duty
@@ -526,9 +509,10 @@ class JointModel:
         self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
         physics = self._physics
-        if (self._stalled or self._s == limit
-                or (physics is not None and physics.loss_law == "stall"
-                    and self._loses_synchronism(d, period))):
+        if self._stalled or self._s == limit or (  # loss_law "stall": the rotor stands, humming
+                physics is not None and physics.stalls(
+                    self._load_nm, d, self._joint.gear_ratio, 1.0 / (period * CYCLE_S),
+                    self._joint.steps_per_motor_rev)):
             return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
                         False)
         steps = d * (limit - self._s)
