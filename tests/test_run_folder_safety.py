@@ -327,11 +327,10 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     """An installed armbench has no ``firmware/`` beside it: a copy of the package without it,
     and no cached build."""
     tree = tmp_path / "site"
-    tree.mkdir()
+    package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
+    shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
     for name in ("bench", "drivers", "fakes", "reports"):
-        shutil.copytree(ROOT / name, tree / name, ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copytree(ROOT / "armbench", tree / "armbench", symlinks=True,
-                    ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,
                      env={**os.environ, "PYTHONPATH": str(tree),
