@@ -1,0 +1,130 @@
+"""Honest headlines, checked on real ``fake://`` runs: the scorecard's accuracy and repeatability
+figures are the record's true ones (the firmware's beside them), and in headless Chromium at
+1 280 × 800 a regressed run's report shows every regressed metric on the first screen.
+Screenshots go to ``test-artifacts/``."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+from pathlib import Path
+
+import pytest
+from chromium import CHROMIUM, Chromium
+from test_report import cells, parse
+
+from armbench.bench.record import RunRecord, load_record
+from armbench.bench.reporting import write_reports
+from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.suites.contract import ACCURACY
+from armbench.reports.format import format_value
+from armbench.reports.scorecard import HEADLINES, true_name
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """An accuracy run on the ideal emulator (the baseline) and one on the default emulator
+    against it: the second regresses."""
+    root = tmp_path_factory.mktemp("runs")
+    ideal = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "ideal", seed=0,
+                                port="fake://?profile=ideal"), progress=io.StringIO())
+    write_reports(ideal.record, ideal.out_dir)
+    worse = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "worse", seed=0,
+                                baseline=root / "ideal" / "results.json"),
+                     progress=io.StringIO())
+    write_reports(worse.record, worse.out_dir)
+    return root
+
+
+def _card(page: Path) -> dict[str, list[str]]:
+    """The scorecard's rows by their metric (the label cell's title)."""
+    doc = parse(page.read_text(encoding="utf-8"))
+    card = doc.by_id("scorecard")
+    assert card is not None
+    rows: dict[str, list[str]] = {}
+    for tr in card.iter("tr"):
+        tds = list(tr.iter("td"))
+        if tds and tds[0].attrs.get("title"):
+            rows[str(tds[0].attrs["title"])] = cells(tr)
+    return rows
+
+
+def test_headlines_are_the_true_figures(runs: Path) -> None:
+    record: RunRecord = load_record(runs / "worse" / "results.json")
+    suite = record.suites[ACCURACY.suite]
+    by_name = {m.name: m for m in suite.measurements}
+    rows = _card(runs / "worse" / "report.html")
+    checked = 0
+    for h in HEADLINES[ACCURACY.suite]:
+        if h.worst_of:
+            continue
+        true = by_name.get(true_name(h.metric))
+        if true is None:
+            continue
+        row = rows[true.name]  # the row shows the true figure ...
+        assert row[1] == format_value(true.value, true.unit), (h.label, row)
+        reported = by_name[h.metric]  # ... and what the firmware believes beside it
+        assert row[2] == format_value(reported.value, reported.unit), (h.label, row)
+        checked += 1
+    assert checked >= 3
+    # the reported mean is far from the truth on the default emulator: the card must not lead
+    # with it
+    coordinated = by_name[ACCURACY.metric(ACCURACY.coordinated, ACCURACY.mean)]
+    assert ACCURACY.metric(ACCURACY.coordinated, ACCURACY.mean) not in rows
+    assert by_name[true_name(coordinated.name)].value > 5 * coordinated.value
+
+
+def test_every_regression_has_a_scorecard_row(runs: Path) -> None:
+    record = load_record(runs / "worse" / "results.json")
+    assert record.baseline is not None and record.verdict == "regression"
+    regressed = {r.name for r in record.baseline.regressions}
+    assert len(regressed) >= 3
+    rows = _card(runs / "worse" / "report.html")
+    for name in regressed:
+        assert name in rows, name
+        assert "worse" in rows[name][-1] and "▲" in rows[name][0], rows[name]
+    for name, row in rows.items():  # and a row not regressed is not marked
+        if name not in regressed:
+            assert "▲" not in row[0], (name, row)
+
+
+def test_figures_without_a_limit_say_why(runs: Path) -> None:
+    for row in _card(runs / "worse" / "report.html").values():
+        assert row[-3] not in ("", "-", "none"), row  # limit, margin, vs baseline
+
+
+REGRESSED_ROWS = """JSON.stringify(Array.from(document.querySelectorAll('#scorecard td[title]'))
+  .filter(td => td.closest('tr').classList.contains('row-regressed'))
+  .map(td => [td.title, td.getBoundingClientRect().bottom,
+              td.closest('tr').getBoundingClientRect().right]))"""
+
+
+@pytest.mark.skipif(CHROMIUM is None or not hasattr(os, "posix_spawn"),
+                    reason="headless Chromium not installed (apt-get install chromium)")
+def test_regressed_run_shows_each_regression_on_the_first_screen(runs: Path,
+                                                                 tmp_path: Path) -> None:
+    record = load_record(runs / "worse" / "results.json")
+    assert record.baseline is not None
+    regressed = {r.name for r in record.baseline.regressions}
+    chrome = Chromium(tmp_path)
+    try:
+        chrome.open_page()
+        page = runs / "worse" / "report.html"
+        chrome.load(page.as_uri(), 1280, 800)
+        reply = chrome.call("Runtime.evaluate", {"expression": REGRESSED_ROWS,
+                                                 "returnByValue": True})
+        shown = json.loads(reply["result"]["value"])
+        assert {title for title, _, _ in shown} == regressed
+        for title, bottom, right in shown:
+            assert bottom <= 800 and right <= 1280, (title, bottom, right)
+        facts = chrome.probe()
+        assert facts["scrollWidth"] <= facts["innerWidth"]
+        ARTIFACTS.mkdir(exist_ok=True)
+        chrome.screenshot(ARTIFACTS / "regressed-first-screen.png", max_height=800)
+        assert chrome.problems() == []
+    finally:
+        chrome.close()
+
