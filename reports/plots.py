@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -133,7 +134,9 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
     """Fig. 11: the attained paths in the YZ plane against the reference square (corners
     ``(4, 3)`` mm, drawn closed and dashed), one subplot per panel."""
     with plot_style():
-        fig = new_figure(7.2, 3.6 if len(panels) > 1 else 4.2, bottom=0.13, top=0.92)
+        # narrow enough to be drawn near its own size beside the scorecard (the page's lead
+        # plot), its legend shared below the panels at the text's size
+        fig = new_figure(5.6, 3.7 if len(panels) > 1 else 4.3, left=0.11, bottom=0.25, top=0.92)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False)[0]
         for ax, panel in zip(axes, panels, strict=False):
             if square_mm is not None:
@@ -153,7 +156,13 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
             ax.set_xlabel("y (mm)")
             ax.set_ylabel("z (mm)")
             ax.set_aspect("equal", adjustable="datalim")
-            legend(ax, loc="center", fontsize=6.5)
+        seen: dict[str, Artist] = {}
+        for ax in axes:
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                seen.setdefault(label, handle)
+        if seen:
+            fig.legend(list(seen.values()), list(seen), loc="lower center",
+                       ncols=min(3, len(seen)), fontsize=8.5)
     return fig
 
 
@@ -288,8 +297,9 @@ def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z",
     a, b = plane.split("-")
     with plot_style():
         height = 1.75 * rows + 0.6
-        fig = new_figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.07,
-                      wspace=0.45, hspace=0.55)
+        # room left of each panel for tick labels such as "-0.025" and, on the first, the label
+        fig = new_figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.11,
+                         wspace=0.75, hspace=0.55)
         axes = fig.subplots(rows, cols, squeeze=False)
         for k, ax in enumerate(axes.flat):
             if k >= len(poses):

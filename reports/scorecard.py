@@ -46,7 +46,7 @@ LIFE_WARN_YEARS = 5.0
 _YEAR_S = 365.25 * 86400.0
 #: Why a headline figure has no limit, by metric name (others: :data:`_NO_LIMIT`).
 NO_LIMIT_REASONS: Mapping[str, str] = {
-    STARTUP.success_rate: "none: §5.2 cannot recover all; next row",
+    STARTUP.success_rate: "none: §5.2 can't recover all",
     STARTUP.eeprom_life_years: f"none: warns < {LIFE_WARN_YEARS:g} y",
 }
 _NO_LIMIT = "none set"
