@@ -11,6 +11,7 @@ anyway (matplotlib escapes SVG text too; math text is switched off). The style, 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -449,9 +450,9 @@ def compare_bars(panels: Sequence[PairPanel], labels: tuple[str, str]) -> Figure
     cols = min(4, max(1, len(panels)))
     rows = max(1, math.ceil(len(panels) / cols))
     with plot_style():
-        height = 1.9 * rows + 0.3
-        fig = new_figure(7.2, height, left=0.07, bottom=0.35 / height, top=1 - 0.35 / height,
-                         wspace=0.6, hspace=0.8)
+        height = 2.1 * rows + 0.3
+        fig = new_figure(7.2, height, left=0.07, bottom=0.35 / height, top=1 - 0.5 / height,
+                         wspace=0.6, hspace=1.0)
         axes = fig.subplots(rows, cols, squeeze=False)
         for k, ax in enumerate(axes.flat):
             if k >= len(panels):
@@ -465,7 +466,9 @@ def compare_bars(panels: Sequence[PairPanel], labels: tuple[str, str]) -> Figure
             if p.limit is not None:
                 ax.axhline(p.limit, color="black", linestyle="--", linewidth=1.0)
             ax.xaxis.grid(False)
-            ax.set_title(safe_label(p.title, 34), fontsize=7.5)
+            # wrapped on two lines, never cut: "improvement (paper-style / coordinated)"
+            ax.set_title(textwrap.fill(safe_label(p.title, 60), 26, max_lines=2,
+                                       placeholder="…"), fontsize=7.5)
             ax.set_ylabel(safe_label(p.unit or "value", 12))
     return fig
 
@@ -479,6 +482,8 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
                  errors: FloatArray, resyncs: FloatArray, bin_s: float) -> Figure:
     """Frames per second in each direction over the capture (bins of ``bin_s`` starting at
     ``t_s``), and below the framing errors and resynchronisations per bin."""
+    if not np.any(errors) and not np.any(resyncs):
+        return _rate_only(t_s, rate_in, rate_out, bin_s)
     with plot_style():
         fig = new_figure(7.2, 3.3, bottom=0.14, top=0.91, hspace=0.15)
         top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1), squeeze=False)[:, 0]
@@ -502,6 +507,27 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
         bottom.set_ylim(bottom=0)
         bottom.yaxis.set_major_locator(MaxNLocator(3, integer=True))
         legend(bottom, loc="upper right", ncols=2)
+    return fig
+
+
+def _rate_only(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
+               bin_s: float) -> Figure:
+    """The frame rate alone: a capture without framing errors or resyncs gets no empty panel
+    for them (the title says there were none)."""
+    with plot_style():
+        fig = new_figure(7.2, 2.5, bottom=0.19, top=0.88)
+        ax = fig.subplots(1, 1)
+        if len(t_s):
+            edges = np.append(t_s, t_s[-1] + bin_s)
+            ax.stairs(rate_out, edges, color=COLOURS[0], linewidth=1.0, label="out (host → arm)")
+            ax.stairs(rate_in, edges, color=COLOURS[1], linestyle="--", linewidth=1.0,
+                      label="in (arm → host)")
+        ax.set_ylabel("frames/s")
+        ax.set_xlabel("capture time (s)")
+        ax.set_ylim(bottom=0)
+        legend(ax, loc="center right", ncols=2)
+        ax.set_title(safe_label(f"frame rate (bins of {bin_s:g} s); no framing errors, "
+                                "no resyncs", 80))
     return fig
 
 

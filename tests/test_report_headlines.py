@@ -10,6 +10,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
@@ -18,6 +19,7 @@ from armbench.bench.record import RunRecord, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.contract import ACCURACY
+from armbench.reports import plots
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, true_name
 
@@ -128,3 +130,24 @@ def test_regressed_run_shows_each_regression_on_the_first_screen(runs: Path,
     finally:
         chrome.close()
 
+
+
+def test_plot_details() -> None:
+    """The traffic plot has no empty error panel when there were none; a compare panel's
+    title is wrapped, not cut; the YZ paths' legend is one, below the panels, at the text's
+    size (it is drawn again small beside the scorecard)."""
+    t = np.arange(5.0)
+    rate = np.full(5, 10.0)
+    none = np.zeros(5)
+    assert len(plots.traffic_plot(t, rate, rate, none, none, 1.0).axes) == 1
+    assert len(plots.traffic_plot(t, rate, rate, np.array([0, 1.0, 0, 0, 0]), none,
+                                  1.0).axes) == 2
+    title = "improvement (paper-style / coordinated)"
+    fig = plots.compare_bars([plots.PairPanel(title, "", 200.0, 6.0)], ("A", "B"))
+    assert fig.axes[0].get_title().replace("\n", " ") == title
+    square = np.array([[0.0, -75, 725], [0, 75, 725], [0, 75, 875], [0, -75, 875]])
+    path = plots.AttainedPath("lap 0", square)
+    fig = plots.paths_yz([plots.PathPanel("a", [path]), plots.PathPanel("b", [path])],
+                         square)
+    assert [ax.get_legend() for ax in fig.axes] == [None, None] and len(fig.legends) == 1
+    assert min(float(t.get_fontsize()) for t in fig.legends[0].get_texts()) >= 8.5
