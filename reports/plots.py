@@ -547,6 +547,9 @@ class TrendPanel:
     values: Sequence[float | None]
     failed: Sequence[bool]
     limit: float | None = None
+    regressed: Sequence[bool] = ()
+    """``regressed[i]`` when run ``runs[i]`` found this metric regressed against its baseline
+    (empty: none did)."""
 
 
 def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
@@ -566,10 +569,19 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
                 ax.plot(xs, ys, color=COLOURS[0], linewidth=1.0)
                 good = np.array([not f for _, _, f in pts])
                 ax.plot(xs[good], ys[good], linestyle="none", marker="o", markersize=4,
-                        color=COLOURS[0], label="within limit")
+                        color=COLOURS[0],
+                        label="within limit" if p.limit is not None else "value (no limit)")
                 if (~good).any():
                     ax.plot(xs[~good], ys[~good], linestyle="none", marker="X", markersize=7,
                             color=COLOURS[1], label="outside limit")
+                worse = [(r, v) for r, v, k in zip(p.runs, p.values, p.regressed or
+                                                   [False] * len(p.runs), strict=True)
+                         if k and v is not None]
+                if worse:  # a ring around the point, so it reads without colour too
+                    ax.plot([r for r, _ in worse], [v for _, v in worse], linestyle="none",
+                            marker="o", markersize=10, markerfacecolor="none",
+                            markeredgewidth=1.4, color="black",
+                            label="regressed vs baseline")
             if p.limit is not None:
                 ax.axhline(p.limit, color="black", linestyle="--", linewidth=1.0,
                            label=safe_label(f"limit {p.limit:g} {p.unit}"))

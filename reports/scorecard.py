@@ -28,7 +28,7 @@ from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
 __all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "NO_LIMIT_REASONS",
-           "change_text", "headline_measurement", "score_rows", "true_name"]
+           "change_text", "headline_figure", "headline_measurement", "score_rows", "true_name"]
 
 #: The headline figures of each suite the contract knows, by suite name.
 HEADLINES: Mapping[str, Sequence[Headline]] = {
@@ -82,6 +82,17 @@ def _true_of(suite: SuiteRecord, headline: Headline, reported: Measurement) -> M
         return next((m for m in suite.measurements if m.name == name), None)
     return headline_measurement(suite, Headline(headline.label, true_name(headline.metric),
                                                 True, headline.higher_is_worse))
+
+
+def headline_figure(suite: SuiteRecord,
+                    headline: Headline) -> tuple[Measurement, Measurement | None] | None:
+    """What a headline shows: (the true figure, the firmware's beside it) where the record
+    holds both, else (the recorded figure, None); None when the suite lacks it."""
+    found = headline_measurement(suite, headline)
+    if found is None:
+        return None
+    true = _true_of(suite, headline, found)
+    return (found, None) if true is None else (true, found)
 
 
 def _human_value(m: Measurement) -> str:

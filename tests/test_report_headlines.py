@@ -19,7 +19,7 @@ from armbench.bench.record import RunRecord, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.contract import ACCURACY
-from armbench.reports import plots
+from armbench.reports import plots, render_index
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, true_name
 
@@ -151,3 +151,40 @@ def test_plot_details() -> None:
                          square)
     assert [ax.get_legend() for ax in fig.axes] == [None, None] and len(fig.legends) == 1
     assert min(float(t.get_fontsize()) for t in fig.legends[0].get_texts()) >= 8.5
+
+
+INDEX_FACTS = """JSON.stringify({
+  runs: document.getElementById('runs').getBoundingClientRect().top,
+  trends: document.getElementById('trends').getBoundingClientRect().top,
+  table: document.querySelector('#runs table').getBoundingClientRect().bottom,
+  scroll: document.documentElement.scrollWidth, width: window.innerWidth})"""
+
+
+def test_index_leads_with_the_runs_and_marks_regressions(runs: Path, tmp_path: Path) -> None:
+    index = render_index(runs, tmp_path / "index.html")
+    doc = parse(index.read_text(encoding="utf-8"))
+    table = next(doc.iter("table"))
+    body = [cells(r) for r in table.iter("tr")][1:]
+    assert [r[3] for r in body] == ["✔ PASS", "▼ REGRESSION"]  # ideal, then the worse run
+    worse = load_record(runs / "worse" / "results.json")
+    assert worse.baseline is not None
+    assert body[1][4] == f"▲ {len(worse.baseline.regressions)}"
+    # the coordinated mean's trend is the true figure, the worse run's point ringed
+    panel = next(f for f in doc.iter("figure") if "coordinated mean path error" in f.text())
+    assert "(true)" in panel.text() and "regressed vs baseline" in panel.text()
+    if CHROMIUM is None or not hasattr(os, "posix_spawn"):
+        return
+    chrome = Chromium(tmp_path)
+    try:
+        chrome.open_page()
+        chrome.load(index.as_uri(), 1280, 800)
+        reply = chrome.call("Runtime.evaluate", {"expression": INDEX_FACTS,
+                                                 "returnByValue": True})
+        facts = json.loads(reply["result"]["value"])
+        assert facts["runs"] < facts["trends"] and facts["table"] <= 800, facts
+        assert facts["scroll"] <= facts["width"], facts
+        ARTIFACTS.mkdir(exist_ok=True)
+        chrome.screenshot(ARTIFACTS / "index-first-screen.png", max_height=800)
+        assert chrome.problems() == []
+    finally:
+        chrome.close()
