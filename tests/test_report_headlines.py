@@ -15,11 +15,13 @@ import pytest
 from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
 
+from armbench.bench.baseline import compare
 from armbench.bench.record import RunRecord, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.contract import ACCURACY
 from armbench.reports import plots, render_index
+from armbench.reports.compare import render_compare
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, true_name
 
@@ -188,3 +190,17 @@ def test_index_leads_with_the_runs_and_marks_regressions(runs: Path, tmp_path: P
         assert chrome.problems() == []
     finally:
         chrome.close()
+
+
+def test_compare_page_lists_every_regression(runs: Path, tmp_path: Path) -> None:
+    a = load_record(runs / "ideal" / "results.json")
+    b = load_record(runs / "worse" / "results.json")
+    comparison = compare(b, a)
+    assert comparison.regressions
+    out = render_compare(a, b, comparison, tmp_path / "compare.html")
+    rows = _card(out)
+    for r in comparison.regressions:
+        assert "worse" in rows[r.name][-1], rows.get(r.name)
+    names = {m.name for m in b.suites[ACCURACY.suite].measurements}
+    coordinated = true_name(ACCURACY.metric(ACCURACY.coordinated, ACCURACY.mean))
+    assert coordinated in names and "(true)" in rows[coordinated][0]  # the true headline
