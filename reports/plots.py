@@ -570,7 +570,7 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
                 good = np.array([not f for _, _, f in pts])
                 ax.plot(xs[good], ys[good], linestyle="none", marker="o", markersize=4,
                         color=COLOURS[0],
-                        label="within limit" if p.limit is not None else "value (no limit)")
+                        label="within limit" if p.limit is not None else "value")
                 if (~good).any():
                     ax.plot(xs[~good], ys[~good], linestyle="none", marker="X", markersize=7,
                             color=COLOURS[1], label="outside limit")
@@ -592,7 +592,7 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
             if p.runs:
                 ax.set_xlim(min(p.runs) - 0.5, max(p.runs) + 0.5)
             if pts or p.limit is not None:
-                legend(ax, loc="best", fontsize=6.5)
+                legend(ax, loc="best", fontsize=7.5)
             else:
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center",
                         va="center")
