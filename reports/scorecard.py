@@ -128,6 +128,8 @@ def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | N
         limit = _TRUE_LIMIT
     else:
         limit = NO_LIMIT_REASONS.get(m.name, _NO_LIMIT)
+    if not view and m.name.rpartition(".")[2].startswith("true_"):
+        view = "true"  # a true figure on its own (a regressed one, say)
     warning = ""
     if m.unit == "years" and m.value < LIFE_WARN_YEARS:
         warning = f"⚠ < {LIFE_WARN_YEARS:g} years"
