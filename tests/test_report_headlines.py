@@ -100,8 +100,8 @@ def test_figures_without_a_limit_say_why(runs: Path) -> None:
         assert row[-3] not in ("", "-", "none"), row  # limit, margin, vs baseline
 
 
-REGRESSED_ROWS = """JSON.stringify(Array.from(document.querySelectorAll('#scorecard td[title]'))
-  .filter(td => td.closest('tr').classList.contains('row-regressed'))
+REGRESSED_ROWS = """JSON.stringify(Array.from(document.querySelectorAll(
+    '#scorecard tr.row-regressed > td:first-child'))
   .map(td => [td.title, td.getBoundingClientRect().bottom,
               td.closest('tr').getBoundingClientRect().right]))"""
 
