@@ -28,7 +28,8 @@ from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
 __all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "NO_LIMIT_REASONS",
-           "change_text", "headline_figure", "headline_measurement", "score_rows", "true_name"]
+           "TRUTH_SUITES", "change_text", "headline_figure", "headline_measurement", "score_rows",
+           "true_name"]
 
 #: The headline figures of each suite the contract knows, by suite name.
 HEADLINES: Mapping[str, Sequence[Headline]] = {
@@ -49,6 +50,9 @@ NO_LIMIT_REASONS: Mapping[str, str] = {
     STARTUP.success_rate: "none: §5.2 can't recover all",
     STARTUP.eeprom_life_years: f"none: warns < {LIFE_WARN_YEARS:g} y",
 }
+#: Suites that record a ``true_`` figure beside each reported position figure when the run has
+#: ground truth: without one, their position figures are the encoders' view.
+TRUTH_SUITES = frozenset({ACCURACY.suite, REPEATABILITY.suite, JOINTS.suite})
 _NO_LIMIT = "none set"
 _TRUE_LIMIT = "none set"
 
@@ -169,7 +173,8 @@ def score_rows(record: RunRecord, suite: SuiteRecord,
                 rows.append(_row(h.label, true, cmp_rows.get(true.name), paper,
                                  reported=found, view="true"))
             else:
-                view = "" if has_truth or not _positional(found) else "encoders"
+                view = ("encoders" if suite.name in TRUTH_SUITES and not has_truth
+                        and _positional(found) else "")
                 rows.append(_row(h.label, found, cmp_rows.get(found.name), paper, view=view))
     shown = {r.metric for r in rows}
     by_name = {m.name: m for m in suite.measurements}

@@ -20,10 +20,10 @@ from armbench.bench.record import RunRecord, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.contract import ACCURACY
-from armbench.reports import plots, render_index
+from armbench.reports import plots, render_index, render_report
 from armbench.reports.compare import render_compare
 from armbench.reports.format import format_value
-from armbench.reports.scorecard import HEADLINES, true_name
+from armbench.reports.scorecard import HEADLINES, score_rows, true_name
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
@@ -204,3 +204,15 @@ def test_compare_page_lists_every_regression(runs: Path, tmp_path: Path) -> None
     names = {m.name for m in b.suites[ACCURACY.suite].measurements}
     coordinated = true_name(ACCURACY.metric(ACCURACY.coordinated, ACCURACY.mean))
     assert coordinated in names and "(true)" in rows[coordinated][0]  # the true headline
+
+
+def test_without_truth_the_headline_says_it_is_the_encoders_view(runs: Path) -> None:
+    record = load_record(runs / "worse" / "results.json")
+    suite = record.suites[ACCURACY.suite]
+    suite.measurements[:] = [m for m in suite.measurements
+                             if not m.name.rpartition(".")[2].startswith("true_")]
+    rows = {r.metric: r for r in score_rows(record, suite, HEADLINES[ACCURACY.suite], {})}
+    mean = ACCURACY.metric(ACCURACY.coordinated, ACCURACY.mean)
+    assert rows[mean].view == "encoders" and not rows[mean].reported
+    html = render_report(record, runs / "no-truth.html").read_text(encoding="utf-8")
+    assert "no reference" in html
