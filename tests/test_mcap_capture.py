@@ -401,6 +401,10 @@ def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
             assert summary.statistics.attachment_count == 2
             assert {i.name for i in summary.attachment_indexes} == {"results.json.zst",
                                                                       "report.html.zst"}
+            # both at the run's start on the wall clock, as the messages' times count from it
+            start_ns = capture_start_ns(path)
+            assert start_ns > 0
+            assert {i.log_time for i in summary.attachment_indexes} == {start_ns}
             assert read_attachment(path, "report.html") == (here / "report.html").read_bytes()
             assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
         with path.open("rb") as fh:
