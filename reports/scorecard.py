@@ -105,6 +105,8 @@ def _human_value(m: Measurement) -> str:
         return f"{format_duration(m.value * _YEAR_S)} ({format_value(m.value, m.unit)})"
     if m.unit == "h" and m.value >= 48.0:
         return f"{m.value / 24.0:.3g} days"
+    if m.unit == "s" and m.value >= 60.0:
+        return format_duration(m.value)
     return format_value(m.value, m.unit)
 
 

@@ -16,16 +16,17 @@ from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
 
 from armbench.bench.baseline import compare
-from armbench.bench.record import RunRecord, load_record
+from armbench.bench.record import Measurement, RunRecord, SuiteRecord, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
-from armbench.bench.suites.contract import ACCURACY
+from armbench.bench.suites.contract import ACCURACY, STARTUP
 from armbench.reports import plots, render_index, render_report
 from armbench.reports.compare import render_compare
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, score_rows, true_name
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+RECORDS = Path(__file__).parent / "fixtures" / "records"
 
 
 @pytest.fixture(scope="module")
@@ -216,3 +217,23 @@ def test_without_truth_the_headline_says_it_is_the_encoders_view(runs: Path) -> 
     assert rows[mean].view == "encoders" and not rows[mean].reported
     html = render_report(record, runs / "no-truth.html").read_text(encoding="utf-8")
     assert "no reference" in html
+
+
+def test_lifetimes_and_durations_read_in_human_units() -> None:
+    """EEPROM life of 0.0015 years is 13 hours of the calendar: said so, and flagged; a
+    long duration in minutes, not thousands of seconds."""
+    def row(name: str, value: float, unit: str) -> list[str]:
+        suite = SuiteRecord(name=STARTUP.suite, version="1", measurements=[
+            Measurement(name, value, unit, None, "unjudged", "higher")])
+        record = load_record(RECORDS / "passing.json")
+        rows = score_rows(record, suite, HEADLINES[STARTUP.suite], {})
+        assert len(rows) == 1
+        r = rows[0]
+        return [r.value, r.warning, r.limit]
+
+    value, warning, limit = row(STARTUP.eeprom_life_years, 0.0014979, "years")
+    assert value.startswith("13 h 07 min") and warning.startswith("⚠") and "warns" in limit
+    value, warning, _ = row(STARTUP.eeprom_life_years, 12.0, "years")
+    assert value == "12 years" and warning == ""
+    value, _, limit = row(STARTUP.recovery_time_max, 125.0, "s")
+    assert value == "2 min 05 s" and limit == "none set"
