@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import datetime
 import json
 import os
 from collections.abc import Mapping
@@ -28,7 +29,7 @@ from armbench.drivers.capture import CaptureError, read_capture
 from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, zstd_attachment
 from armbench.drivers.capture_mcap import McapCapture
 from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import iter_events, iter_messages
+from armbench.drivers.capture_read import capture_start_ns, iter_events, iter_messages
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
@@ -146,14 +147,20 @@ class RunCapture:
             earlier = self.path.with_name(f".{self.path.name}.earlier")
             if self.path.exists():
                 os.replace(self.path, earlier)
-            self.sink = McapCapture(self.path, self.settings, metadata=self._metadata())
+            start_ns = run_start_ns(self.record.created)
+            if earlier.exists():  # the file keeps the start its earlier part counted from
+                with contextlib.suppress(Exception):
+                    start_ns = capture_start_ns(earlier) or start_ns
+            self.sink = McapCapture(self.path, self.settings, start_ns=start_ns,
+                                    metadata=self._metadata())
             legacy = self.path.with_name(LEGACY_CAPTURE_FILE)
             if legacy.exists() and not _holds_frames(earlier):
                 self._carry_legacy(legacy)
             if earlier.exists():
                 with contextlib.suppress(Exception):
+                    earlier_ns = capture_start_ns(earlier)
                     for event in iter_events(earlier):
-                        self.carried_events.add(_event_key(event))
+                        self.carried_events.add(_event_key(event, earlier_ns))
                 with contextlib.suppress(Exception):
                     self.sink.copy_messages(iter_messages(earlier))
                 earlier.unlink()
@@ -249,10 +256,23 @@ class RunCapture:
             self._release()
 
 
-def _event_key(event: Any) -> tuple[str, str, int, int]:
+def _event_key(event: Any, start_ns: int) -> tuple[str, str, int, int]:
+    """(kind, suite, trial, run-clock ns) of a carried event (its stamp less the start)."""
     stamp = event.stamp
     return (str(event.kind), str(event.suite), int(event.trial),
-            int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec))
+            int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec) - start_ns)
+
+
+def run_start_ns(created: str) -> int:
+    """Nanoseconds since the epoch of a record's ``created`` label (the run clock's zero in the
+    capture); 0 when the label is not an ISO 8601 time (the capture then counts from 0)."""
+    try:
+        when = datetime.datetime.fromisoformat(created)
+    except ValueError:
+        return 0
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.UTC)
+    return max(0, round(when.timestamp() * 1e6) * 1000)
 
 
 def _holds_frames(capture: Path) -> bool:

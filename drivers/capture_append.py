@@ -27,6 +27,9 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader
 
+from armbench.drivers.capture import CaptureError
+from armbench.drivers.capture_walk import capture_start_ns
+
 __all__ = ["ZSTD_MEDIA_TYPE", "append_attachment", "zstd_attachment"]
 
 #: Media type of a file attached zstd-compressed (``<name>.zst``).
@@ -58,9 +61,15 @@ def zstd_attachment(name: str, path: Path) -> tuple[str, bytes]:
 
 
 def append_attachment(path: Path, name: str, data: bytes, media_type: str,
-                      log_time_ns: int = 0) -> bool:
-    """Attach ``data`` as ``name`` to the finished MCAP file at ``path``. False (the file left
-    as it is) when the file has no summary to extend (a killed run's) or is not MCAP."""
+                      log_time_ns: int | None = None) -> bool:
+    """Attach ``data`` as ``name`` to the finished MCAP file at ``path`` (at ``log_time_ns``,
+    by default the run's start the capture counts from). False (the file left as it is) when
+    the file has no summary to extend (a killed run's) or is not MCAP."""
+    if log_time_ns is None:
+        try:
+            log_time_ns = capture_start_ns(path)
+        except CaptureError:
+            return False
     with path.open("r+b") as fh:
         size = fh.seek(0, os.SEEK_END)
         if size < 2 * len(_MAGIC) + _FOOTER_BYTES + _DATA_END_BYTES:

@@ -11,11 +11,15 @@ Channels (CDR, ``ros2msg`` schemas of :mod:`armbench.drivers.ros2`):
   while they change (and once a second while they do not) — at the full reply rate these would
   be ~25 MB more per hour; the raw frames keep everything;
 - ``/joint_states_goal``: every command sent, positions in rad and the PWM duty in ``effort``;
-- ``/tf_static``, ``/robot_description`` (the URDF): once, at time 0;
+- ``/tf_static``, ``/robot_description`` (the URDF): once, at the run's start;
 - ``/bench/events``: trial start/end, faults, power cuts.
 
-Times (``log_time``, and each message's stamp) are nanoseconds of the capture's clock: the run
-clock (virtual seconds on ``fake://``, real ones on hardware). Chunks are zstd-compressed; a file
+Times (``log_time``, ``publish_time`` and each message's stamp) are nanoseconds since the Unix
+epoch: the wall-clock time of the run's start (``start_ns``, kept as ``start_ns`` in the
+``armbench`` metadata record) plus the run clock (virtual seconds on ``fake://``, real ones on
+hardware), so the capture lines up with other recordings of the same hour; readers subtract
+``start_ns`` to get the run clock back (:func:`armbench.drivers.capture_read.capture_start_ns`).
+The traffic's tally counts on the run clock. Chunks are zstd-compressed; a file
 cut short (a killed run) reads up to its last complete chunk (:mod:`armbench.drivers.capture_read`).
 Frames come in blocks of capture parts (:mod:`armbench.drivers.capture_part`) and are turned into
 messages with numpy, a block at a time; the traffic's tally for the report is counted on the way
@@ -37,11 +41,13 @@ from armbench.drivers.capture import CaptureError, Direction
 from armbench.drivers.capture_part import ERROR_FLAG, IN_FLAG, TRUTH_PERIOD_S, read_part
 from armbench.drivers.capture_read import decode_uart_frames
 from armbench.drivers.capture_stats import TALLY_METADATA, TrafficCounter
+from armbench.drivers.capture_walk import START_KEY, START_METADATA
 from armbench.drivers.protocol import REPLY_LEN, AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["BATCH_FRAMES", "BATCH_SPAN_S", "DISPLAY_PERIOD_S", "McapCapture"]
+__all__ = ["BATCH_FRAMES", "BATCH_SPAN_S", "DISPLAY_PERIOD_S", "START_KEY", "START_METADATA",
+           "McapCapture"]
 
 #: Frames per ``UartFrames`` message at most.
 BATCH_FRAMES: Final = 256
@@ -101,16 +107,20 @@ class _Sampler:
 
 class McapCapture:
     """Writes one capture file. Times given to its methods are seconds on the capture's clock
-    (``t0_s`` is its zero). ``metadata`` (run id, seed, settings, ...) becomes the ``armbench``
-    metadata record."""
+    (``t0_s`` is its zero); they are stored as nanoseconds since the epoch, ``start_ns`` (the
+    wall-clock time of the run's start) plus the capture's clock. ``metadata`` (run id, seed,
+    settings, ...) and ``start_ns`` become the ``armbench`` metadata record."""
 
     def __init__(self, path: str | Path, settings: RobotSettings, *, t0_s: float = 0.0,
-                 metadata: Mapping[str, str] | None = None,
+                 start_ns: int = 0, metadata: Mapping[str, str] | None = None,
                  display_period_s: float = DISPLAY_PERIOD_S,
                  chunk_bytes: int = CHUNK_BYTES) -> None:
         self.path = Path(path)
         self.settings = settings
         self.t0_s = t0_s
+        if start_ns < 0:
+            raise ValueError(f"start_ns {start_ns} is before the epoch")
+        self.start_ns = start_ns
         try:
             self._fh: IO[bytes] | None = self.path.open("wb")
         except OSError as exc:
@@ -143,16 +153,17 @@ class McapCapture:
         """Frames written so far (both directions)."""
         self.messages: dict[str, int] = dict.fromkeys(_TOPICS, 0)
         """Messages written so far per topic."""
-        if metadata:
-            self._writer.add_metadata("armbench", dict(metadata))
-        self._add("/robot_description", 0, ros2.encode_string(robot_urdf(settings)))
-        self._add("/tf_static", 0, ros2.TfEncoder(ros2.STATIC_PAIRS).encode(
-            0, ros2.static_transforms(settings)))
+        self._writer.add_metadata(START_METADATA, {**(metadata or {}),
+                                                   START_KEY: str(start_ns)})
+        self._add("/robot_description", start_ns, ros2.encode_string(robot_urdf(settings)))
+        self._add("/tf_static", start_ns, ros2.TfEncoder(ros2.STATIC_PAIRS).encode(
+            start_ns, ros2.static_transforms(settings)))
 
     # -- messages ---------------------------------------------------------------------------
 
     def _ns(self, t_s: float) -> int:
-        return max(0, round((t_s - self.t0_s) * 1e9))
+        """Nanoseconds since the epoch of capture-clock second ``t_s``."""
+        return self.start_ns + max(0, round((t_s - self.t0_s) * 1e9))
 
     def _add(self, topic: str, t_ns: int, data: bytes) -> None:
         if self._fh is None:
@@ -193,13 +204,15 @@ class McapCapture:
         self._reported.new_part()
         self._true.new_part()
         for block in read_part(path):
-            t_ns = np.maximum(np.rint((block.t_s + shift) * 1e9), 0).astype(np.int64)
+            t_ns = np.maximum(np.rint((block.t_s + shift) * 1e9), 0).astype(np.int64) \
+                + self.start_ns
             errors = {int(x["i"]): str(x["error"]) for x in block.extra if "error" in x}
             self._frames(t_ns, block.flags, _Frames(block.blob, block.starts, block.lengths),
                          errors, _clock_ns(block.t_s))
             if len(block.truth_t_s):
                 self._truth(np.maximum(np.rint((block.truth_t_s + shift) * 1e9), 0)
-                            .astype(np.int64), block.truth_rad, _clock_ns(block.truth_t_s))
+                            .astype(np.int64) + self.start_ns, block.truth_rad,
+                            _clock_ns(block.truth_t_s))
             for x in block.extra:
                 if "event" in x and "t_s" in x:
                     self.event(float(x["t_s"]) + offset_s, str(x["event"]),
@@ -211,11 +224,11 @@ class McapCapture:
     def _frames(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
                 frames: _Frames, errors: dict[int, str],
                 clock_ns: npt.NDArray[np.int64]) -> None:
-        """A block of frames in time order (``t_ns``; ``clock_ns`` on their part's clock): raw
-        batches per direction, goals, reported states."""
+        """A block of frames in time order (``t_ns`` since the epoch; ``clock_ns`` on their
+        part's clock): raw batches per direction, goals, reported states."""
         if not len(t_ns):
             return
-        self.traffic.add(t_ns, flags, frames.get, errors)
+        self.traffic.add(t_ns - self.start_ns, flags, frames.get, errors)
         self.frames += len(t_ns)
         inbound = (flags & IN_FLAG) != 0
         valid = (flags & ERROR_FLAG) == 0
@@ -301,7 +314,9 @@ class McapCapture:
     def copy_messages(self, messages: Iterable[Any]) -> None:
         """Add the messages of an earlier capture (``RawMessage``s of
         :func:`armbench.drivers.capture_read.iter_messages`) as they are, but for the ones this
-        file starts with (``/robot_description``, ``/tf_static``); their frames are counted."""
+        file starts with (``/robot_description``, ``/tf_static``); their frames are counted. The
+        earlier capture must have this one's ``start_ns`` (a resumed run's does: it is the
+        run's start)."""
         for msg in messages:
             if msg.topic in self._channels and msg.topic not in _ONCE:
                 self._add(msg.topic, msg.log_time_ns, msg.data)
@@ -309,7 +324,8 @@ class McapCapture:
                     times, frames, errors = decode_uart_frames(msg.data)
                     flags = np.array([(IN_FLAG if msg.topic == "/uart/rx" else 0)
                                       | (ERROR_FLAG if e else 0) for e in errors], dtype=np.uint8)
-                    self.traffic.add(np.array(times, dtype=np.int64), flags, frames.__getitem__,
+                    self.traffic.add(np.array(times, dtype=np.int64) - self.start_ns, flags,
+                                     frames.__getitem__,
                                      {i: e.decode("utf-8", "backslashreplace")
                                       for i, e in enumerate(errors) if e})
                     self.frames += len(frames)
@@ -320,7 +336,7 @@ class McapCapture:
         """Attach a file (``results.json``, ``report.html``)."""
         if self._fh is None:
             return
-        t_ns = 0 if t_s is None else self._ns(t_s)
+        t_ns = self.start_ns if t_s is None else self._ns(t_s)
         self._writer.add_attachment(t_ns, t_ns, name, media_type, data)
 
     def flush(self) -> None:

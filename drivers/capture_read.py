@@ -44,6 +44,7 @@ from armbench.drivers.capture_walk import (
     MCAP_MAGIC,
     McapLayout,
     RawMessage,
+    capture_start_ns,
     iter_messages,
     mcap_layout,
 )
@@ -56,6 +57,7 @@ __all__ = [
     "McapLayout",
     "RawMessage",
     "capture_lines",
+    "capture_start_ns",
     "capture_stopped",
     "decode_uart_frames",
     "is_mcap",
@@ -129,11 +131,15 @@ def decode_uart_frames(data: bytes) -> tuple[list[int], list[bytes], list[bytes]
 
 
 def _batches(path: Path, topic: str) -> Iterator[tuple[list[int], list[bytes], list[bytes]]]:
+    """Each ``UartFrames`` message of ``topic`` as (run-clock ns, frames, errors): its stamps
+    less the run's start (:func:`capture_start_ns`)."""
+    start_ns = capture_start_ns(path)
     for msg in iter_messages(path, (topic,)):
         try:
-            yield decode_uart_frames(msg.data)
+            times, frames, errors = decode_uart_frames(msg.data)
         except ValueError as exc:
             raise CaptureError(str(path), None, f"{topic} at {msg.log_time_ns} ns: {exc}") from None
+        yield [t - start_ns for t in times] if start_ns else times, frames, errors
 
 
 def _direction(path: Path, topic: str) -> Iterator[CaptureRecord]:
@@ -219,7 +225,8 @@ def capture_stopped(path: str | Path) -> bool:
 
 def iter_events(path: str | Path) -> Iterator[Any]:
     """The bench events (``armbench_msgs/msg/BenchEvent``: ``kind``, ``suite``, ``trial``,
-    ``detail``) on ``/bench/events`` of an MCAP capture, in file order, decoded."""
+    ``detail``) on ``/bench/events`` of an MCAP capture, in file order, decoded (their stamps on
+    the wall clock: less :func:`capture_start_ns` they are on the run clock)."""
     decode = _event_decoder()
     for msg in iter_messages(path, ("/bench/events",)):
         yield decode(msg.data)
@@ -227,14 +234,16 @@ def iter_events(path: str | Path) -> Iterator[Any]:
 
 def read_joint_states(path: str | Path,
                       topic: str = "/joint_states/true") -> list[tuple[float, tuple[float, ...]]]:
-    """The (log time s, positions rad) of every ``sensor_msgs/msg/JointState`` on ``topic`` of an
-    MCAP capture (by default the truth beside the replies); empty for a JSON Lines capture, which
-    carries no truth."""
+    """The (run-clock s, positions rad) of every ``sensor_msgs/msg/JointState`` on ``topic`` of
+    an MCAP capture (by default the truth beside the replies): its log time less the run's start;
+    empty for a JSON Lines capture, which carries no truth."""
     p = Path(path)
     if not is_mcap(p):
         return []
     decode = _joint_state_decoder()
-    return [(msg.log_time_ns * 1e-9, tuple(float(v) for v in decode(msg.data).position))
+    start_ns = capture_start_ns(p)
+    return [((msg.log_time_ns - start_ns) * 1e-9,
+             tuple(float(v) for v in decode(msg.data).position))
             for msg in iter_messages(p, (topic,))]
 
 

@@ -45,10 +45,15 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from armbench.drivers.capture import CaptureError
 
-__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "McapLayout", "RawMessage", "iter_messages",
-           "mcap_layout"]
+__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
+           "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout"]
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+#: The metadata record holding the run's identity and, under :data:`START_KEY`, the wall-clock
+#: nanoseconds since the epoch of the run's start: the zero of the run clock, which every time
+#: in the capture counts from.
+START_METADATA: Final = "armbench"
+START_KEY: Final = "start_ns"
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 _OP_CHANNEL: Final = int(Opcode.CHANNEL)
 _OP_CHUNK: Final = int(Opcode.CHUNK)
@@ -202,6 +207,25 @@ def mcap_layout(path: str | Path) -> McapLayout:
     with _open(p) as fh:
         chunks = sum(isinstance(r, Chunk) for _, r in _records(p, fh))
         return McapLayout(chunks, _closed(fh))
+
+
+def capture_start_ns(path: str | Path) -> int:
+    """The wall-clock nanoseconds of the run's start that a capture's times count from (its
+    ``armbench`` metadata record, written before any message); 0 for a capture written before
+    the times were on the wall clock (they count from 0) or one cut short before it."""
+    p = Path(path)
+    with _open(p) as fh:
+        for _, record in _records(p, fh):
+            if isinstance(record, Metadata) and record.name == START_METADATA:
+                try:
+                    return max(0, int(record.metadata.get(START_KEY, "0")))
+                except ValueError:
+                    raise CaptureError(str(p), None, f"metadata {START_KEY} "
+                                       f"{record.metadata[START_KEY]!r} is not a "
+                                       "number of nanoseconds") from None
+            if isinstance(record, (Chunk, Message)):
+                break
+    return 0
 
 
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:

@@ -11,15 +11,27 @@ from pathlib import Path
 
 import numpy as np
 
-from armbench.bench.record import Comparison, RunRecord, atomic_write_bytes
-from armbench.bench.suites.contract import ACCURACY, SAMPLE
+from armbench.bench.record import (
+    Comparison,
+    Measurement,
+    RunRecord,
+    SuiteRecord,
+    atomic_write_bytes,
+)
+from armbench.bench.suites.contract import ACCURACY, SAMPLE, Headline
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.scorecard import HEADLINES, change_text, headline_measurement
+from armbench.reports.scorecard import HEADLINES, change_text, headline_figure
 from armbench.reports.summary import measurement_row, missing_row, with_comparison
 from armbench.reports.views import Figures, FigureView, MeasurementRow, ScoreRow, vec3
 
 __all__ = ["build_compare_html", "render_compare"]
+
+
+def _shown(suite: SuiteRecord, h: Headline) -> Measurement | None:
+    """The figure a headline shows (the true one where the record holds it, as the run page)."""
+    found = headline_figure(suite, h)
+    return None if found is None else found[0]
 
 
 def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
@@ -37,18 +49,20 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
         rows: list[ScoreRow] = []
         panels: list[plots.PairPanel] = []
         for h in headlines:
-            mb = headline_measurement(sb, h)
-            ma = headline_measurement(sa, h)
+            mb = _shown(sb, h)
+            ma = _shown(sa, h)
             ref = mb if mb is not None else ma
             if ref is None:
                 continue
             unit = ref.unit
             row = cmp.get(mb.name) if mb is not None else None
             change, direction = ("-", "") if row is None else change_text(row)
+            true = ref.name.rpartition(".")[2].startswith("true_")
             rows.append(ScoreRow(
-                label=h.label, metric=ref.name,
+                label=h.label + (" (true)" if true else ""), metric=ref.name,
                 value="-" if mb is None else format_value(mb.value, unit),
-                limit="-" if mb is None or mb.limit is None else mb.limit.describe(),
+                limit="-" if mb is None else (
+                    "none set" if mb.limit is None else mb.limit.describe()),
                 margin="", outcome="unjudged" if mb is None else mb.outcome,
                 change=change, direction=direction,
                 paper="-" if ma is None else format_value(ma.value, unit)))
@@ -56,6 +70,19 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
                 mb.limit.high if mb.limit.high is not None else mb.limit.low)
             panels.append(plots.PairPanel(h.label, unit, None if ma is None else ma.value,
                                           None if mb is None else mb.value, limit))
+        shown = {r.metric for r in rows}
+        current = {m.name: m for m in sb.measurements}
+        for r in comparison.regressions:  # every regression of the suite on the first screen
+            m = current.get(r.name)
+            if m is None or m.name in shown:
+                continue
+            change, direction = change_text(r)
+            rows.append(ScoreRow(
+                label=m.name.split(".", 1)[-1], metric=m.name,
+                value=format_value(m.value, m.unit),
+                limit="none set" if m.limit is None else m.limit.describe(), margin="",
+                outcome=m.outcome, change=change, direction=direction,
+                paper="-" if r.baseline is None else format_value(r.baseline, m.unit)))
         out.append((name, rows))
         if panels:
             figures.append(figs.make(
@@ -105,8 +132,8 @@ def build_compare_html(a: RunRecord, b: RunRecord, comparison: Comparison) -> st
             measurement_row(m, None, None), r))
     regressed = [r.name for r in comparison.regressions]
     verdict = "regression" if regressed else "pass"
-    reasons = ([f"{len(regressed)} metric(s) regressed beyond tolerance: "
-                + ", ".join(regressed[:6]) + (" …" if len(regressed) > 6 else "")]
+    reasons = ([f"{len(regressed)} metric(s) regressed beyond tolerance: each is a row marked "
+                "▲ worse below"]
                if regressed else ["no metric regressed beyond its tolerance"])
     counts = {s: sum(r.status == s for r in comparison.rows) for s in ("compared", "new",
                                                                         "missing")}

@@ -21,7 +21,7 @@ from armbench.bench.record import RESULTS_FILE, RecordError, RunRecord, atomic_w
 from armbench.bench.suites.contract import Headline
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.page import REPORT_FILE
-from armbench.reports.scorecard import HEADLINES, change_text, headline_measurement
+from armbench.reports.scorecard import HEADLINES, change_text, headline_figure
 
 __all__ = ["FLEET_PAGE", "ArmRow", "Cell", "HeadlineRow", "build_fleet_html", "render_fleet"]
 
@@ -116,12 +116,16 @@ def _headline_row(suite_name: str, h: Headline,
     cells: list[Cell] = []
     values: list[float] = []
     unit = ""
+    true = False
     for record in records:
         suite = None if record is None else record.suites.get(suite_name)
-        m = None if suite is None else headline_measurement(suite, h)
-        if record is None or m is None:
+        shown = None if suite is None else headline_figure(suite, h)
+        if record is None or shown is None:
             cells.append(Cell("-"))
             continue
+        m, reported = shown  # the true figure where the arm's run has one, as its scorecard
+        true = true or reported is not None
+        judged = m if reported is None or m.limit is not None else reported
         unit = m.unit
         values.append(m.value)
         change = direction = ""
@@ -129,10 +133,11 @@ def _headline_row(suite_name: str, h: Headline,
             cmp = next((r for r in record.baseline.rows if r.name == m.name), None)
             if cmp is not None:
                 change, direction = change_text(cmp)
-        cells.append(Cell(format_value(m.value, m.unit), m.outcome == "fail", change, direction))
+        cells.append(Cell(format_value(m.value, m.unit), judged.outcome == "fail", change,
+                          direction))
     if not values:
         return None
-    row = HeadlineRow(suite_name, h.label, h.metric, cells)
+    row = HeadlineRow(suite_name, h.label + (" (true)" if true else ""), h.metric, cells)
     _spread(row, values, unit)
     return row
 

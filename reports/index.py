@@ -28,7 +28,7 @@ from armbench.bench.record import (
 from armbench.bench.suites.contract import Headline
 from armbench.reports import plots
 from armbench.reports.format import format_value, jinja_environment
-from armbench.reports.scorecard import HEADLINES, headline_measurement
+from armbench.reports.scorecard import HEADLINES, headline_figure
 from armbench.reports.views import FigureView
 
 __all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
@@ -53,6 +53,8 @@ class KeyMetric:
     failed: bool = False
     limit: float | None = None
     source: str = ""
+    regressed: bool = False
+    """Whether the run found this metric regressed against its baseline."""
 
     @property
     def text(self) -> str:
@@ -74,6 +76,8 @@ class IndexRow:
     href: str
     has_report: bool
     error: str | None = None
+    regressions: int = 0
+    """Metrics the run found regressed against its baseline."""
 
 
 def _bound(m: Measurement) -> float | None:
@@ -84,13 +88,21 @@ def _bound(m: Measurement) -> float | None:
 
 def key_metrics(record: RunRecord) -> list[KeyMetric]:
     """The index's key metrics of ``record``, in :data:`KEY_METRICS` order: the recorded
-    suite-level figure of each headline (None when the run lacks it)."""
+    suite-level figure of each headline, the true one where the record holds it (as the
+    scorecard shows; its limit then judges the firmware's figure and is not drawn), None when
+    the run lacks it."""
     out = []
+    worse = set() if record.baseline is None else {r.name for r in record.baseline.regressions}
     for suite_name, h in KEY_METRICS:
         suite = record.suites.get(suite_name)
-        m = None if suite is None else headline_measurement(suite, h)
-        out.append(KeyMetric(None, "") if m is None else
-                   KeyMetric(m.value, m.unit, m.outcome == "fail", _bound(m), m.name))
+        shown = None if suite is None else headline_figure(suite, h)
+        if shown is None:
+            out.append(KeyMetric(None, ""))
+            continue
+        m, reported = shown  # the true figure where the run has one, as the scorecard shows
+        judged = m if reported is None or m.limit is not None else reported
+        out.append(KeyMetric(m.value, m.unit, judged.outcome == "fail",
+                             _bound(m) if judged is m else None, m.name, m.name in worse))
     return out
 
 
@@ -159,6 +171,7 @@ def render_index(runs_dir: str | os.PathLike[str],
             verdict=rec.verdict, port=rec.environment.port or "-",
             suites=", ".join(rec.suites) or "-",
             metrics=key_metrics(rec),
+            regressions=0 if rec.baseline is None else len(rec.baseline.regressions),
             href=_href(report, out.parent), has_report=report.is_file()))
 
     figures = []
@@ -168,11 +181,13 @@ def render_index(runs_dir: str | os.PathLike[str],
             continue
         unit = next(m.unit for m in values if m.value is not None)
         limits = [m.limit for m in values if m.limit is not None]
+        true = any(m.source.rpartition(".")[2].startswith("true_") for m in values)
         panel = plots.TrendPanel(
-            title=h.label, unit=unit, runs=[r.number for r in rows],
+            title=h.label + (" (true)" if true else ""), unit=unit, runs=[r.number for r in rows],
             values=[m.value if m.value is not None and math.isfinite(m.value) else None
                     for m in values],
-            failed=[m.failed for m in values], limit=limits[-1] if limits else None)
+            failed=[m.failed for m in values], limit=limits[-1] if limits else None,
+            regressed=[m.regressed for m in values])
         shown = [f"run {r.number}: {m.text}" for r, m in zip(rows, values, strict=True)
                  if m.value is not None]
         figures.append(FigureView(

@@ -16,8 +16,10 @@ record text HTML-escaped by the templates (Jinja2 autoescaping; record text neve
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
+import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO
@@ -51,6 +53,7 @@ from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionV
 __all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "report_chunks",
            "suite_sections"]
 
+_FIG_NUMBER = re.compile(r"^Fig\. \d+: ")
 SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
 #: The section of each suite the report knows, by the suite's name; any other suite gets
 #: :func:`armbench.reports.sections.generic.build`.
@@ -97,7 +100,10 @@ def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
 def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:
     """The first plot of the page, shown again beside the scorecard."""
     first = next((s.figures[0] for s in sections if s.figures), None)
-    return None if first is None else figs.copy(first)
+    if first is None:
+        return None
+    lead = figs.copy(first)  # the paper's numbering means nothing beside the scorecard
+    return dataclasses.replace(lead, title=_FIG_NUMBER.sub("", lead.title))
 
 
 def build_report_html(record: RunRecord, *, capture: Path | None = None,

@@ -11,10 +11,12 @@ anyway (matplotlib escapes SVG text too; math text is switched off). The style, 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -133,7 +135,9 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
     """Fig. 11: the attained paths in the YZ plane against the reference square (corners
     ``(4, 3)`` mm, drawn closed and dashed), one subplot per panel."""
     with plot_style():
-        fig = new_figure(7.2, 3.6 if len(panels) > 1 else 4.2, bottom=0.13, top=0.92)
+        # narrow enough to be drawn near its own size beside the scorecard (the page's lead
+        # plot), its legend shared below the panels at the text's size
+        fig = new_figure(5.6, 3.7 if len(panels) > 1 else 4.3, left=0.11, bottom=0.25, top=0.92)
         axes = fig.subplots(1, max(1, len(panels)), squeeze=False)[0]
         for ax, panel in zip(axes, panels, strict=False):
             if square_mm is not None:
@@ -153,7 +157,13 @@ def paths_yz(panels: Sequence[PathPanel], square_mm: FloatArray | None) -> Figur
             ax.set_xlabel("y (mm)")
             ax.set_ylabel("z (mm)")
             ax.set_aspect("equal", adjustable="datalim")
-            legend(ax, loc="center", fontsize=6.5)
+        seen: dict[str, Artist] = {}
+        for ax in axes:
+            for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+                seen.setdefault(label, handle)
+        if seen:
+            fig.legend(list(seen.values()), list(seen), loc="lower center",
+                       ncols=min(3, len(seen)), fontsize=8.5)
     return fig
 
 
@@ -288,8 +298,9 @@ def pose_scatter(poses: Sequence[PoseScatter], plane: str = "y-z",
     a, b = plane.split("-")
     with plot_style():
         height = 1.75 * rows + 0.6
-        fig = new_figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.07,
-                      wspace=0.45, hspace=0.55)
+        # room left of each panel for tick labels such as "-0.025" and, on the first, the label
+        fig = new_figure(7.2, height, bottom=0.75 / height, top=1 - 0.28 / height, left=0.11,
+                         wspace=0.75, hspace=0.55)
         axes = fig.subplots(rows, cols, squeeze=False)
         for k, ax in enumerate(axes.flat):
             if k >= len(poses):
@@ -439,9 +450,9 @@ def compare_bars(panels: Sequence[PairPanel], labels: tuple[str, str]) -> Figure
     cols = min(4, max(1, len(panels)))
     rows = max(1, math.ceil(len(panels) / cols))
     with plot_style():
-        height = 1.9 * rows + 0.3
-        fig = new_figure(7.2, height, left=0.07, bottom=0.35 / height, top=1 - 0.35 / height,
-                         wspace=0.6, hspace=0.8)
+        height = 2.1 * rows + 0.3
+        fig = new_figure(7.2, height, left=0.07, bottom=0.35 / height, top=1 - 0.5 / height,
+                         wspace=0.6, hspace=1.0)
         axes = fig.subplots(rows, cols, squeeze=False)
         for k, ax in enumerate(axes.flat):
             if k >= len(panels):
@@ -455,7 +466,9 @@ def compare_bars(panels: Sequence[PairPanel], labels: tuple[str, str]) -> Figure
             if p.limit is not None:
                 ax.axhline(p.limit, color="black", linestyle="--", linewidth=1.0)
             ax.xaxis.grid(False)
-            ax.set_title(safe_label(p.title, 34), fontsize=7.5)
+            # wrapped on two lines, never cut: "improvement (paper-style / coordinated)"
+            ax.set_title(textwrap.fill(safe_label(p.title, 60), 26, max_lines=2,
+                                       placeholder="…"), fontsize=7.5)
             ax.set_ylabel(safe_label(p.unit or "value", 12))
     return fig
 
@@ -469,6 +482,8 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
                  errors: FloatArray, resyncs: FloatArray, bin_s: float) -> Figure:
     """Frames per second in each direction over the capture (bins of ``bin_s`` starting at
     ``t_s``), and below the framing errors and resynchronisations per bin."""
+    if not np.any(errors) and not np.any(resyncs):
+        return _rate_only(t_s, rate_in, rate_out, bin_s)
     with plot_style():
         fig = new_figure(7.2, 3.3, bottom=0.14, top=0.91, hspace=0.15)
         top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(2, 1), squeeze=False)[:, 0]
@@ -495,6 +510,27 @@ def traffic_plot(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
     return fig
 
 
+def _rate_only(t_s: FloatArray, rate_in: FloatArray, rate_out: FloatArray,
+               bin_s: float) -> Figure:
+    """The frame rate alone: a capture without framing errors or resyncs gets no empty panel
+    for them (the title says there were none)."""
+    with plot_style():
+        fig = new_figure(7.2, 2.5, bottom=0.19, top=0.88)
+        ax = fig.subplots(1, 1)
+        if len(t_s):
+            edges = np.append(t_s, t_s[-1] + bin_s)
+            ax.stairs(rate_out, edges, color=COLOURS[0], linewidth=1.0, label="out (host → arm)")
+            ax.stairs(rate_in, edges, color=COLOURS[1], linestyle="--", linewidth=1.0,
+                      label="in (arm → host)")
+        ax.set_ylabel("frames/s")
+        ax.set_xlabel("capture time (s)")
+        ax.set_ylim(bottom=0)
+        legend(ax, loc="center right", ncols=2)
+        ax.set_title(safe_label(f"frame rate (bins of {bin_s:g} s); no framing errors, "
+                                "no resyncs", 80))
+    return fig
+
+
 # --------------------------------------------------------------------------------------------
 # Trends across runs (the run index)
 # --------------------------------------------------------------------------------------------
@@ -511,6 +547,9 @@ class TrendPanel:
     values: Sequence[float | None]
     failed: Sequence[bool]
     limit: float | None = None
+    regressed: Sequence[bool] = ()
+    """``regressed[i]`` when run ``runs[i]`` found this metric regressed against its baseline
+    (empty: none did)."""
 
 
 def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
@@ -530,10 +569,19 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
                 ax.plot(xs, ys, color=COLOURS[0], linewidth=1.0)
                 good = np.array([not f for _, _, f in pts])
                 ax.plot(xs[good], ys[good], linestyle="none", marker="o", markersize=4,
-                        color=COLOURS[0], label="within limit")
+                        color=COLOURS[0],
+                        label="within limit" if p.limit is not None else "value")
                 if (~good).any():
                     ax.plot(xs[~good], ys[~good], linestyle="none", marker="X", markersize=7,
                             color=COLOURS[1], label="outside limit")
+                worse = [(r, v) for r, v, k in zip(p.runs, p.values, p.regressed or
+                                                   [False] * len(p.runs), strict=True)
+                         if k and v is not None]
+                if worse:  # a ring around the point, so it reads without colour too
+                    ax.plot([r for r, _ in worse], [v for _, v in worse], linestyle="none",
+                            marker="o", markersize=10, markerfacecolor="none",
+                            markeredgewidth=1.4, color="black",
+                            label="regressed vs baseline")
             if p.limit is not None:
                 ax.axhline(p.limit, color="black", linestyle="--", linewidth=1.0,
                            label=safe_label(f"limit {p.limit:g} {p.unit}"))
@@ -544,7 +592,7 @@ def trend_plots(panels: Sequence[TrendPanel], width_in: float = 7.2,
             if p.runs:
                 ax.set_xlim(min(p.runs) - 0.5, max(p.runs) + 0.5)
             if pts or p.limit is not None:
-                legend(ax, loc="best", fontsize=6.5)
+                legend(ax, loc="best", fontsize=7.5)
             else:
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center",
                         va="center")

@@ -1,9 +1,17 @@
 """The scorecard: per suite its headline figures (from the suite contract), each with its limit,
 margin, outcome, change against the baseline and the paper's figure, all as the record holds them.
-A headline that names a pattern shows the worst recorded metric that matches it."""
+A headline that names a pattern shows the worst recorded metric that matches it.
+
+Honest headlines: where the record holds the true figure beside the one the encoders report (the
+``true_`` metric a run with ground truth records: the emulator, a reference instrument), the
+headline is the true figure and the reported one is shown as what the firmware believes; without
+one, the row says it is the encoders' view. Every metric that regressed against the baseline gets
+a row of its own, every figure without a limit says why, and lifetimes print in human units with
+a warning below :data:`LIFE_WARN_YEARS`."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
@@ -16,10 +24,12 @@ from armbench.bench.suites.contract import (
     TWIN_CHECK,
     Headline,
 )
-from armbench.reports.format import format_value, margin
+from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
-__all__ = ["GENERIC_HEADLINES", "HEADLINES", "change_text", "headline_measurement", "score_rows"]
+__all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "NO_LIMIT_REASONS",
+           "TRUTH_SUITES", "change_text", "headline_figure", "headline_measurement", "score_rows",
+           "true_name"]
 
 #: The headline figures of each suite the contract knows, by suite name.
 HEADLINES: Mapping[str, Sequence[Headline]] = {
@@ -32,6 +42,19 @@ HEADLINES: Mapping[str, Sequence[Headline]] = {
 #: Headlines of a suite the contract does not know (the pytest plugin's): its failed
 #: measurements first, then its judged ones, at most this many.
 GENERIC_HEADLINES = 4
+#: A projected lifetime below this many years is flagged (a bench arm is kept for years).
+LIFE_WARN_YEARS = 5.0
+_YEAR_S = 365.25 * 86400.0
+#: Why a headline figure has no limit, by metric name (others: :data:`_NO_LIMIT`).
+NO_LIMIT_REASONS: Mapping[str, str] = {
+    STARTUP.success_rate: "none: §5.2 can't recover all",
+    STARTUP.eeprom_life_years: f"none: warns < {LIFE_WARN_YEARS:g} y",
+}
+#: Suites that record a ``true_`` figure beside each reported position figure when the run has
+#: ground truth: without one, their position figures are the encoders' view.
+TRUTH_SUITES = frozenset({ACCURACY.suite, REPEATABILITY.suite, JOINTS.suite})
+_NO_LIMIT = "none set"
+_TRUE_LIMIT = "none set"
 
 
 def headline_measurement(suite: SuiteRecord, headline: Headline) -> Measurement | None:
@@ -46,6 +69,47 @@ def headline_measurement(suite: SuiteRecord, headline: Headline) -> Measurement 
     return pick(matching, key=lambda m: m.value)
 
 
+def true_name(metric: str) -> str:
+    """The name of the true figure beside a reported one (``accuracy.paper.mean_mm`` ->
+    ``accuracy.paper.true_mean_mm``): ``true_`` before the last part of the name, as the suites
+    record it."""
+    head, dot, last = metric.rpartition(".")
+    return f"{head}{dot}true_{last}"
+
+
+def _true_of(suite: SuiteRecord, headline: Headline, reported: Measurement) -> Measurement | None:
+    """The true figure beside ``reported`` (for a pattern: the worst true figure matching it)."""
+    if reported.name.rpartition(".")[2].startswith("true_"):
+        return None
+    if not headline.worst_of:
+        name = true_name(reported.name)
+        return next((m for m in suite.measurements if m.name == name), None)
+    return headline_measurement(suite, Headline(headline.label, true_name(headline.metric),
+                                                True, headline.higher_is_worse))
+
+
+def headline_figure(suite: SuiteRecord,
+                    headline: Headline) -> tuple[Measurement, Measurement | None] | None:
+    """What a headline shows: (the true figure, the firmware's beside it) where the record
+    holds both, else (the recorded figure, None); None when the suite lacks it."""
+    found = headline_measurement(suite, headline)
+    if found is None:
+        return None
+    true = _true_of(suite, headline, found)
+    return (found, None) if true is None else (true, found)
+
+
+def _human_value(m: Measurement) -> str:
+    """The value in its unit, a lifetime or duration in units people read (``13.1 h``)."""
+    if m.unit == "years" and m.value < 2.0:
+        return f"{format_duration(m.value * _YEAR_S)} ({format_value(m.value, m.unit)})"
+    if m.unit == "h" and m.value >= 48.0:
+        return f"{m.value / 24.0:.3g} days"
+    if m.unit == "s" and m.value >= 60.0:
+        return format_duration(m.value)
+    return format_value(m.value, m.unit)
+
+
 def change_text(cmp: ComparisonRow) -> tuple[str, str]:
     """``("+1.2 mm", "worse")``: the change against the baseline and its direction in a word
     (``worse``, ``better``, ``same`` within tolerance, ``new``, ``missing``)."""
@@ -56,15 +120,33 @@ def change_text(cmp: ComparisonRow) -> tuple[str, str]:
     return format_value(cmp.change_abs, cmp.unit, signed=True), word
 
 
-def _row(label: str, m: Measurement, cmp: ComparisonRow | None,
-         paper: float | None) -> ScoreRow:
+def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | None, *,
+         reported: Measurement | None = None, view: str = "") -> ScoreRow:
+    """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m`` (its limit
+    and outcome judge the row, as the run judged it)."""
     change, direction = ("", "") if cmp is None else change_text(cmp)
+    judged = reported if reported is not None and m.limit is None else m
+    if judged.limit is not None:
+        limit = judged.limit.describe()
+        if judged is reported:
+            limit += "*"
+    elif reported is not None:
+        limit = _TRUE_LIMIT
+    else:
+        limit = NO_LIMIT_REASONS.get(m.name, _NO_LIMIT)
+    if not view and m.name.rpartition(".")[2].startswith("true_"):
+        view = "true"  # a true figure on its own (a regressed one, say)
+    warning = ""
+    if m.unit == "years" and m.value < LIFE_WARN_YEARS:
+        warning = f"⚠ < {LIFE_WARN_YEARS:g} years"
     return ScoreRow(
-        label=label, metric=m.name, value=format_value(m.value, m.unit),
-        limit="-" if m.limit is None else m.limit.describe(),
-        margin=format_value(margin(m), m.unit, signed=True) if m.limit is not None else "-",
-        outcome=m.outcome, change=change, direction=direction,
-        paper="" if paper is None else format_value(paper, m.unit))
+        label=label, metric=m.name, value=_human_value(m), limit=limit,
+        margin=(format_value(margin(judged), judged.unit, signed=True)
+                if judged.limit is not None else "-"),
+        outcome=judged.outcome, change=change, direction=direction,
+        paper="" if paper is None else format_value(paper, m.unit),
+        reported="" if reported is None else format_value(reported.value, reported.unit),
+        view=view, warning=warning)
 
 
 def score_rows(record: RunRecord, suite: SuiteRecord,
@@ -78,11 +160,36 @@ def score_rows(record: RunRecord, suite: SuiteRecord,
                         key=lambda m: m.outcome != "fail")
         for m in judged[:GENERIC_HEADLINES]:
             rows.append(_row(m.description or m.name, m, cmp_rows.get(m.name), None))
-        return rows
-    for h in headlines:
-        found = headline_measurement(suite, h)
-        if found is None:
-            continue
-        paper = None if h.paper is None else record.reference.get(h.paper)
-        rows.append(_row(h.label, found, cmp_rows.get(found.name), paper))
+    else:
+        has_truth = any(m.name.rpartition(".")[2].startswith("true_")
+                        for m in suite.measurements)
+        for h in headlines:
+            found = headline_measurement(suite, h)
+            if found is None:
+                continue
+            paper = None if h.paper is None else record.reference.get(h.paper)
+            true = _true_of(suite, h, found)
+            if (true or found).name in {r.metric for r in rows}:
+                continue  # the true figure another headline already shows
+            if true is not None:
+                rows.append(_row(h.label, true, cmp_rows.get(true.name), paper,
+                                 reported=found, view="true"))
+            else:
+                view = ("encoders" if suite.name in TRUTH_SUITES and not has_truth
+                        and _positional(found) else "")
+                rows.append(_row(h.label, found, cmp_rows.get(found.name), paper, view=view))
+    shown = {r.metric for r in rows}
+    by_name = {m.name: m for m in suite.measurements}
+    for cmp in cmp_rows.values():  # every regression of this suite gets a row of its own
+        got = by_name.get(cmp.name)
+        if cmp.result == "REGRESSED" and got is not None and got.name not in shown:
+            row = _row(got.name.split(".", 1)[-1], got, cmp, None)
+            rows.append(row if got.limit is not None
+                        else dataclasses.replace(row, limit=_NO_LIMIT))
     return rows
+
+
+def _positional(m: Measurement) -> bool:
+    """Whether ``m`` is a position or angle figure the encoders report (one a true reference
+    would measure otherwise)."""
+    return m.unit in ("mm", "mrad", "m", "rad", "deg") or m.name.endswith("ratio")

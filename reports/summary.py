@@ -85,9 +85,9 @@ def verdict_reasons(record: RunRecord) -> list[str]:
     if record.baseline is not None:
         regressed = [r.name for r in record.baseline.regressions]
         if regressed:
-            shown = ", ".join(regressed[:6])
             reasons.append(f"{len(regressed)} metric(s) regressed against baseline "
-                           f"{record.baseline.baseline_run_id}: {shown}")
+                           f"{record.baseline.baseline_run_id}: each is marked ▲ regressed "
+                           "in the scorecard")
     disturbed = record.disturbance_note()
     if not reasons:
         reasons.append("every measurement within its limits" +

@@ -200,6 +200,13 @@ class ScoreRow:
     change: str = ""
     direction: str = ""
     paper: str = ""
+    reported: str = ""
+    """The firmware's (encoders') figure beside a true ``value``; empty when ``value`` is it."""
+    view: str = ""
+    """``true`` (``value`` is the true figure), ``encoders`` (the encoders' view, no truth in the
+    run) or empty (not a position figure)."""
+    warning: str = ""
+    """A warning beside the value (a short lifetime)."""
 
 
 @dataclass(slots=True)

@@ -5,6 +5,7 @@ and the emulators' counters; the same records from MCAP and JSON Lines; a run ki
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import io
 import json
 import os
@@ -32,9 +33,11 @@ from armbench.drivers.capture_mcap import McapCapture
 from armbench.drivers.capture_part import PartWriter
 from armbench.drivers.capture_read import (
     capture_lines,
+    capture_start_ns,
     is_mcap,
     open_capture,
     read_attachment,
+    read_joint_states,
     replay_capture,
 )
 from armbench.drivers.kinematics import fk
@@ -124,6 +127,14 @@ def test_every_channel_decodes_and_matches_the_record(run_dir: tuple[Path, _Emul
     settings = RobotSettings.from_mapping(record.environment.settings)
     messages, summary = _read_all(path)
     assert set(messages) == TOPICS
+    # times are the wall clock: the run's start (its record's creation, to the microsecond)
+    # plus the run clock, and the start is stored in the file
+    start_ns = capture_start_ns(path)
+    created = datetime.datetime.fromisoformat(record.created)
+    assert abs(start_ns - created.timestamp() * 1e9) < 1e3
+    assert datetime.datetime.fromtimestamp(
+        min(t for items in messages.values() for t, _ in items) / 1e9, datetime.UTC
+    ).date() == created.date()
     counts = Counter({summary.channels[c].topic: n
                       for c, n in summary.statistics.channel_message_counts.items()})
     assert counts == Counter({t: len(m) for t, m in messages.items()})
@@ -178,7 +189,7 @@ def test_every_channel_decodes_and_matches_the_record(run_dir: tuple[Path, _Emul
     # (encoder and backlash apart; start-up recovery's cold boots report 0 wherever the arm is).
     truth = messages["/joint_states/true"]
     assert len(truth) > 50
-    spans = [(round(t.started_s * 1e9), round(t.ended_s * 1e9))
+    spans = [(start_ns + round(t.started_s * 1e9), start_ns + round(t.ended_s * 1e9))
              for t in record.suites["accuracy"].trials]
     reported = np.array([t for t, _ in states])
     near = 0
@@ -199,8 +210,8 @@ def test_every_channel_decodes_and_matches_the_record(run_dir: tuple[Path, _Emul
             if m.kind == "trial_end"}
     assert len(starts) == len(ends) == len(trials)
     for name, tr in trials:
-        assert starts[(name, tr.index)] == round(tr.started_s * 1e9)
-        assert ends[(name, tr.index)][0] == round(tr.ended_s * 1e9)
+        assert starts[(name, tr.index)] == start_ns + round(tr.started_s * 1e9)
+        assert ends[(name, tr.index)][0] == start_ns + round(tr.ended_s * 1e9)
         assert ends[(name, tr.index)][1]["status"] == tr.status
     kinds = Counter(m.kind for _, m in events)
     assert kinds["power_off"] >= 2 and kinds["power_on"] >= 2
@@ -212,6 +223,7 @@ def test_every_channel_decodes_and_matches_the_record(run_dir: tuple[Path, _Emul
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         attached = {a.name: a.data for a in reader.iter_attachments()}
     assert meta["armbench"]["run_id"] == record.run_id
+    assert meta["armbench"]["start_ns"] == str(start_ns)
     assert meta["armbench"]["seed"] == "5"
     assert RobotSettings.from_mapping(json.loads(meta["armbench"]["settings"])) == settings
     assert zstandard.ZstdDecompressor().decompressobj().decompress(
@@ -234,6 +246,11 @@ def test_reader_gives_the_records_of_the_run(run_dir: tuple[Path, _Emulators]) -
     records = list(open_capture(out / "capture.mcap"))
     times = [r.t_s for r in records]
     assert times == sorted(times) and {r.dir for r in records} == {"in", "out"}
+    # on the run clock, as the record's times: the file's wall-clock start taken off
+    end_s = load_record(out / "results.json").end_s
+    assert times[0] >= 0.0 and times[-1] <= end_s + 1e-6, (times[0], times[-1], end_s)
+    truth = read_joint_states(out / "capture.mcap")
+    assert truth and truth[0][0] >= 0.0 and truth[-1][0] <= end_s + 1e-6
     assert list(open_capture(out / "capture.mcap")) == records
     summary = summarize_capture(out / "capture.mcap")
     assert summary.records == len(records) and summary.bad_lines == 0
@@ -384,6 +401,10 @@ def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
             assert summary.statistics.attachment_count == 2
             assert {i.name for i in summary.attachment_indexes} == {"results.json.zst",
                                                                       "report.html.zst"}
+            # both at the run's start on the wall clock, as the messages' times count from it
+            start_ns = capture_start_ns(path)
+            assert start_ns > 0
+            assert {i.log_time for i in summary.attachment_indexes} == {start_ns}
             assert read_attachment(path, "report.html") == (here / "report.html").read_bytes()
             assert sum(1 for _ in reader.iter_messages()) == summary.statistics.message_count
         with path.open("rb") as fh:

@@ -13,6 +13,7 @@ process may not mount one).
 from __future__ import annotations
 
 import contextlib
+import datetime
 import json
 import os
 import shutil
@@ -29,7 +30,7 @@ import pytest
 import armbench.bench.cli
 from armbench.bench.record import load_record
 from armbench.drivers.capture import CaptureRecord, CaptureWriter
-from armbench.drivers.capture_read import iter_events, open_capture
+from armbench.drivers.capture_read import capture_start_ns, iter_events, open_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = "3"
@@ -91,7 +92,9 @@ class Capture:
 
 def _capture(run: Path) -> Capture:
     path = run / "capture.mcap"
-    events = [(e.kind, e.suite, e.trial, e.stamp.sec * 1_000_000_000 + e.stamp.nanosec)
+    start_ns = capture_start_ns(path)  # event stamps are on the wall clock: the run's start on
+    events = [(e.kind, e.suite, e.trial,  # the run clock, which resumed runs must equal
+               e.stamp.sec * 1_000_000_000 + e.stamp.nanosec - start_ns)
               for e in iter_events(path)]
     check = _bench("twin-check", "--json", str(path))
     assert check.returncode in (0, 1), check.stderr
@@ -214,6 +217,10 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
     got = _capture(out)
     times = [r.t_s for r in got.frames]
     assert times == sorted(times)
+    # one time base over both sessions: the wall clock of the run's (first) start
+    created = json.loads((out / "results.json").read_text())["created"]
+    start_ns = capture_start_ns(out / "capture.mcap")
+    assert abs(start_ns / 1e9 - datetime.datetime.fromisoformat(created).timestamp()) < 1e-3
     assert len(got.frames) == len(whole_run.frames)
     assert got.frames == whole_run.frames
     assert got.events == whole_run.events

@@ -75,8 +75,10 @@ def traffic_section(capture: Path, out_dir: Path, figs: Figures) -> TrafficView 
             plots.traffic_plot(c.bin_start_s, c.rate_in, c.rate_out, c.errors_per_bin,
                                c.resyncs_per_bin, c.bin_s),
             "Traffic over time",
-            "Frames per second in each direction over the capture; below, framing errors and "
-            "resynchronisations per bin."))
+            "Frames per second in each direction over the capture"
+            + ("; below, framing errors and resynchronisations per bin."
+               if bool(c.errors_per_bin.any() or c.resyncs_per_bin.any())
+               else " (no framing error and no resynchronisation: no panel for them).")))
     return TrafficView(figures=figures, href=href, name=capture.name, size=_size(c.size_bytes),
                        stats=stats, reasons=c.reasons, head=c.head,
                        first_errors=c.first_errors, notes=notes)
