@@ -19,7 +19,7 @@ from armbench.bench.record import (
     atomic_write_bytes,
 )
 from armbench.bench.suites.contract import ACCURACY, SAMPLE, Headline
-from armbench.reports import plots
+from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, change_text, headline_figure
 from armbench.reports.summary import measurement_row, missing_row, with_comparison
@@ -47,7 +47,7 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
         if sa is None or sb is None:
             continue
         rows: list[ScoreRow] = []
-        panels: list[plots.PairPanel] = []
+        panels: list[plots_over_runs.PairPanel] = []
         for h in headlines:
             mb = _shown(sb, h)
             ma = _shown(sa, h)
@@ -68,7 +68,7 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
                 paper="-" if ma is None else format_value(ma.value, unit)))
             limit = None if mb is None or mb.limit is None else (
                 mb.limit.high if mb.limit.high is not None else mb.limit.low)
-            panels.append(plots.PairPanel(h.label, unit, None if ma is None else ma.value,
+            panels.append(plots_over_runs.PairPanel(h.label, unit, None if ma is None else ma.value,
                                           None if mb is None else mb.value, limit))
         shown = {r.metric for r in rows}
         current = {m.name: m for m in sb.measurements}
@@ -86,7 +86,8 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
         out.append((name, rows))
         if panels:
             figures.append(figs.make(
-                plots.compare_bars(panels, ("A", "B")), f"{name}: headline figures, A and B",
+                plots_over_runs.compare_bars(panels, ("A", "B")),
+                f"{name}: headline figures, A and B",
                 f"{name}: each headline figure in run A (hatched) and run B, the limit dashed.",
                 "; ".join(f"{r.label}: A {r.paper}, B {r.value}" for r in rows)))
     return out, figures, figs

@@ -26,7 +26,7 @@ from armbench.bench.record import (
     atomic_write_bytes,
 )
 from armbench.bench.suites.contract import Headline
-from armbench.reports import plots
+from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, headline_figure
 from armbench.reports.views import FigureView
@@ -182,7 +182,7 @@ def render_index(runs_dir: str | os.PathLike[str],
         unit = next(m.unit for m in values if m.value is not None)
         limits = [m.limit for m in values if m.limit is not None]
         true = any(m.source.rpartition(".")[2].startswith("true_") for m in values)
-        panel = plots.TrendPanel(
+        panel = plots_over_runs.TrendPanel(
             title=h.label + (" (true)" if true else ""), unit=unit, runs=[r.number for r in rows],
             values=[m.value if m.value is not None and math.isfinite(m.value) else None
                     for m in values],
@@ -191,7 +191,7 @@ def render_index(runs_dir: str | os.PathLike[str],
         shown = [f"run {r.number}: {m.text}" for r, m in zip(rows, values, strict=True)
                  if m.value is not None]
         figures.append(FigureView(
-            plots.to_svg(plots.trend_plots([panel], 3.6, 2.3), f"t{k + 1}",
+            plots.to_svg(plots_over_runs.trend_plots([panel], 3.6, 2.3), f"t{k + 1}",
                          f"{suite_name}: {h.label} across runs. " + "; ".join(shown)),
             f"{suite_name}: {h.label}", h.label))
     columns = [(s, h.label) for s, hs in HEADLINES.items() for h in hs[:TABLE_HEADLINES]]

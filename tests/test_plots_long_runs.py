@@ -27,8 +27,9 @@ def test_paths_of_200_laps_draw_every_lap_with_bounded_artists() -> None:
     drawn = sum(len(c.get_segments()) for c in ax.collections if isinstance(c, LineCollection))
     assert drawn == 2 * (laps - LEGEND_RUNS)
     assert len(ax.collections) <= 2 * 4 * len(COLOURS)
-    legend = ax.get_legend()
-    assert legend is not None
+    # one legend for the figure, below its panels
+    assert ax.get_legend() is None and len(fig.legends) == 1
+    legend = fig.legends[0]
     labels = [t.get_text() for t in legend.get_texts()]
     assert labels[-1] == f"and {laps - LEGEND_RUNS} more"
     assert len(labels) == 2 * LEGEND_RUNS + 1

@@ -20,7 +20,7 @@ from armbench.bench.record import Measurement, RunRecord, SuiteRecord, load_reco
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.contract import ACCURACY, STARTUP
-from armbench.reports import plots, render_index, render_report
+from armbench.reports import plots, plots_over_runs, render_index, render_report
 from armbench.reports.compare import render_compare
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, score_rows, true_name
@@ -146,7 +146,8 @@ def test_plot_details() -> None:
     assert len(plots.traffic_plot(t, rate, rate, np.array([0, 1.0, 0, 0, 0]), none,
                                   1.0).axes) == 2
     title = "improvement (paper-style / coordinated)"
-    fig = plots.compare_bars([plots.PairPanel(title, "", 200.0, 6.0)], ("A", "B"))
+    fig = plots_over_runs.compare_bars([plots_over_runs.PairPanel(title, "", 200.0, 6.0)],
+                                       ("A", "B"))
     assert fig.axes[0].get_title().replace("\n", " ") == title
     square = np.array([[0.0, -75, 725], [0, 75, 725], [0, 75, 875], [0, -75, 875]])
     path = plots.AttainedPath("lap 0", square)
