@@ -34,6 +34,7 @@ __all__ = [
     "board_specs",
     "build",
     "cache_dir",
+    "data_symbols",
     "find_images",
     "stats_address",
 ]
@@ -44,7 +45,8 @@ FIRMWARE_SOURCE = Path(__file__).resolve().parents[1] / "firmware"
 #: Debian packages of the toolchain, named in the error when one is missing.
 DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev gcc"
 
-_AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-std=gnu11", "-Wall",
+# -g: line tables for the fuzzer's coverage (fuzz/fuzz_differential.py); the code is the same
+_AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-g", "-std=gnu11", "-Wall",
                "-Wextra", "-Werror")
 _AVR_SOURCES = ("main.c", "joint.c", "master.c", "slave.c")
 HARNESS_NAME = "armfw-harness"
@@ -61,7 +63,7 @@ def cache_dir() -> Path:
 
 
 def _source_digest(src: Path) -> str:
-    h = hashlib.sha256()
+    h = hashlib.sha256(" ".join(_AVR_CFLAGS).encode())
     for path in sorted(src.rglob("*")):
         if path.suffix in (".c", ".h") and path.is_file():
             h.update(str(path.relative_to(src)).encode())
@@ -154,6 +156,20 @@ def stats_address(image: Path) -> int:
                          check=False).stdout
     m = re.search(r"^([0-9a-fA-F]+) [bBdD] fw_stats$", out, re.MULTILINE)
     return int(m.group(1), 16) & 0xFFFF if m else 0
+
+
+def data_symbols(image: Path, names: Sequence[str]) -> dict[str, int]:
+    """Data addresses of the named variables of an ELF image (static ones too), from its symbol
+    table; names it lacks are left out (a .hex has none)."""
+    if image.suffix != ".elf" or shutil.which("avr-nm") is None:
+        return {}
+    out = subprocess.run(["avr-nm", str(image)], capture_output=True, text=True,
+                         check=False).stdout
+    found = {}
+    for m in re.finditer(r"^([0-9a-fA-F]+) [bBdD] (\w+)$", out, re.MULTILINE):
+        if m.group(2) in names:
+            found[m.group(2)] = int(m.group(1), 16) & 0xFFFF
+    return found
 
 
 def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:

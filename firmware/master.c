@@ -112,6 +112,7 @@ static uint8_t uart_poll(void)
             in_frame = 0;
             if (parse_frame()) {
                 got = 1;
+                fw_stats.commands++;
             } else {
                 fw_stats.bad_frames++;
             }
