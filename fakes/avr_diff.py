@@ -29,6 +29,8 @@ __all__ = ["DEFAULT_SCRIPT", "DiffResult", "compare", "run_emulator", "run_firmw
 Timed = list[tuple[float, Reply]]
 TICKS_TURN = 62832
 TICKS_HALF_TURN = TICKS_TURN // 2
+#: The longest stall of a master's loop: an EEPROM record of five changed cells.
+STALL_MAX_S = 0.025
 
 #: Moves at full, middle and low duty, a reversal and a hold: (time s, angles rad, duty).
 DEFAULT_SCRIPT: tuple[tuple[float, tuple[float, float, float, float], int], ...] = (
@@ -117,7 +119,8 @@ def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None
     for good). ``stall_s``, when given: a firmware reply more than that after the one before
     followed a stall of its loop (an EEPROM record) and carries a position sampled before it;
     its window reaches back to the reply before (the stall's length depends on how many bytes
-    of the record changed, which a few counts' difference at a byte boundary changes)."""
+    of the record changed, which a few counts' difference at a byte boundary changes); likewise
+    an emulator reply after a stall of its own brings the next one into the window."""
     robot = robot if robot is not None else RobotSettings()
     per_tick = [j.counts_per_rad / 1e4 for j in robot.joints]  # counts per wire tick
     lo = 0
@@ -129,7 +132,9 @@ def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None
         w = window_s + (widen_s(t) if widen_s is not None else 0.0)
         begin = t - w
         if stall_s is not None and t - previous > stall_s:
-            begin = previous - w  # sampled before the stall, which may be longer on one side
+            # sampled before the stall, which may be longer on one side (no further back than
+            # the longest stall: not across a power cut)
+            begin = max(previous, t - STALL_MAX_S) - w
         previous = t
         while lo > 0 and emulator[lo - 1][0] >= begin:
             lo -= 1
@@ -139,6 +144,12 @@ def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None
         k = lo
         while k < len(emulator) and emulator[k][0] <= t + w:
             window.append(emulator[k][1])
+            if (stall_s is not None and k > 0 and k + 1 < len(emulator)
+                    and emulator[k][0] - emulator[k - 1][0] > stall_s
+                    and emulator[k + 1][0] > t + w):
+                # the emulator's reply after its own stall is old too: its next one is the
+                # first sampled after the stall
+                window.append(emulator[k + 1][1])
             k += 1
         if not window:
             continue

@@ -51,6 +51,18 @@ def test_no_byte_lands_on_a_receiver_edge() -> None:
     assert cut[0] in kept and cut[1] in kept
 
 
+def test_no_frame_ends_just_before_a_power_cut() -> None:
+    """A frame completing 2.4 ms before a cut is taken by the emulator's loop (2.4 ms) and not by
+    the firmware's (3.0 ms), or the other way round: such writes are left out of sessions."""
+    ending = Write(0.180358, b",99#")
+    session = Session((Write(0.169287, b"$02268,73,01807,99,02665,00,02"), ending,
+                       Power(0.183064, False)), 0.3883)
+    kept = normalise(session).events
+    assert ending not in kept and len(kept) == 2
+    assert Write(0.150, b",99#") in normalise(Session((Write(0.150, b",99#"), *kept[1:]),
+                                                      0.3883)).events
+
+
 def test_a_fixed_seed_campaign_finds_no_divergence() -> None:
     """Eight sessions of seed 2026 (generated, then mutated from the corpus), both sides."""
     campaign = Campaign(2026)
