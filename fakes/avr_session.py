@@ -295,8 +295,9 @@ def _take_lag(emu: Outcome, fw: Outcome) -> Callable[[float], float]:
     """At time t, how far apart the two masters took a command, the most over those taken by
     t: a move set off that much later on one side runs that far behind the other, and a hold
     taken that much later stops the joint that much further on until a later move ends."""
-    pairs = sorted((min(a, b), abs(a - b))
-                   for (a, _), (b, _) in zip(emu.taken, fw.taken, strict=False))
+    matched = itertools.takewhile(lambda pair: pair[0][1] == pair[1][1],
+                                  zip(emu.taken, fw.taken, strict=False))
+    pairs = sorted((min(a, b), abs(a - b)) for (a, _), (b, _) in matched)
     starts = [p[0] for p in pairs]
     worst = list(itertools.accumulate((p[1] for p in pairs), max))
 

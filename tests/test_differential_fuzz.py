@@ -63,6 +63,22 @@ def test_no_frame_ends_just_before_a_power_cut() -> None:
                                                       0.3883)).events
 
 
+@pytest.mark.parametrize(("noise", "taken"), [(26, 2), (27, 1)])
+def test_both_receive_buffers_hold_63_bytes(noise: int, taken: int) -> None:
+    """While the master recovers after a cut (its loop not reading), 26 bytes of noise and a
+    command (63 bytes) all wait in the receive buffer and the command is taken afterwards; with
+    27 the command's '#' is the 64th byte and is dropped, on both sides: the Arduino core's ring
+    of 64 holds 63 (the emulator once held 64)."""
+    frame = b"$00100,10,00000,00,00000,00,00000,00#"
+    session = Session((Write(0.11, b"$01500,99,00000,00,00000,00,00000,00#"),
+                       Power(0.2, False), Power(0.21, True),
+                       Write(0.315, b"x" * noise + frame)), 0.9)
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert [c for _, c in emu.taken] == [c for _, c in fw.taken]
+    assert len(emu.taken) == taken
+    assert bool(emu.overflows) == bool(fw.overflows) == (taken == 1)
+
+
 def test_a_fixed_seed_campaign_finds_no_divergence() -> None:
     """Eight sessions of seed 2026 (generated, then mutated from the corpus), both sides."""
     campaign = Campaign(2026)
