@@ -292,18 +292,20 @@ def _silences(a: list[tuple[float, Reply]], b: list[tuple[float, Reply]], name: 
 
 
 def _take_lag(emu: Outcome, fw: Outcome) -> Callable[[float], float]:
-    """At time t, how far apart the two masters took a command, the most over those taken by
-    t: a move set off that much later on one side runs that far behind the other, and a hold
-    taken that much later stops the joint that much further on until a later move ends."""
+    """At time t, how far apart in time the two sides' joints may be: the sum, over the commands
+    taken by t, of how far apart the two masters took each (and :data:`TRANSACTION_S`). A move
+    set off that much later on one side runs that far behind; a hold or a reversal taken that
+    much later or earlier adds its own difference, and the joint stops that much further on
+    until a later move reaches its target."""
     matched = itertools.takewhile(lambda pair: pair[0][1] == pair[1][1],
                                   zip(emu.taken, fw.taken, strict=False))
-    pairs = sorted((min(a, b), abs(a - b)) for (a, _), (b, _) in matched)
+    pairs = sorted((min(a, b), abs(a - b) + TRANSACTION_S) for (a, _), (b, _) in matched)
     starts = [p[0] for p in pairs]
-    worst = list(itertools.accumulate((p[1] for p in pairs), max))
+    total = list(itertools.accumulate(p[1] for p in pairs))
 
     def lag(t: float) -> float:
         k = bisect.bisect_right(starts, t)
-        return worst[k - 1] + TRANSACTION_S if k else 0.0
+        return total[k - 1] if k else 0.0
 
     return lag
 
@@ -335,5 +337,5 @@ def divergences(session: Session, emu: Outcome, fw: Outcome) -> list[str]:
         if excess > 0:
             found.append(f"joint {j + 1}: the firmware's position at {at:.4f} s is {excess:.1f} "
                          f"counts outside the emulator's (tolerance {TOL_COUNTS:.0f} counts over "
-                         f"±{WINDOW_S * 1e3:.1f} ms)")
+                         f"±{WINDOW_S * 1e3:.1f} ms, widened by the take lags)")
     return found

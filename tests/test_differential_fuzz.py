@@ -1,7 +1,8 @@
 """The differential fuzzer of the UART (``fakes/avr_fuzz.py``, ``fakes/avr_session.py``): a few
 sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
-(minimised divergences, fixed) replay without divergence; and the comparison does catch a
-firmware that takes a frame the emulator rejects (the old 16-bit position sum, rebuilt here)."""
+(minimised divergences, fixed or explained) replay without divergence; and the comparison does
+catch the firmware bugs it found (the old 16-bit position sum and the slave that waited for its
+EEPROM record, rebuilt here)."""
 
 from __future__ import annotations
 
@@ -99,7 +100,8 @@ def test_kept_divergences_replay_clean() -> None:
 
 @pytest.fixture(scope="module")
 def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The firmware as it was: the five digits of a position summed in 16 bits."""
+    """The firmware as it was: the five digits of a position summed in 16 bits, and a slave that
+    took a new reference only after its EEPROM record."""
     src = tmp_path_factory.mktemp("old-firmware")
     for path in FIRMWARE_SOURCE.rglob("*"):
         if path.is_file() and path.suffix in (".c", ".h"):
@@ -109,6 +111,11 @@ def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
     text = master.read_text()
     assert "uint32_t t = 0;" in text
     master.write_text(text.replace("uint32_t t = 0;", "uint16_t t = 0;"))
+    slave = src / "slave.c"
+    text = slave.read_text()
+    waits = "    refresh_position();\n    take_reference();\n}"
+    assert waits in text
+    slave.write_text(text.replace(waits, "    refresh_position();\n}"))
     return build(src, src / "build")
 
 
@@ -127,3 +134,14 @@ def test_the_comparison_catches_a_frame_only_the_firmware_takes(old_firmware: Pa
     small = minimise(session, check, budget=10)
     assert len(small.events) == 1 and OVERFLOW_FRAME in small.events[0].data  # type: ignore[union-attr]
     assert not divergences(session, run_emulator_session(session), run_firmware_session(session))
+
+
+def test_the_comparison_catches_a_slave_that_waits_for_its_record(old_firmware: Path) -> None:
+    """The kept session of the slave that took a command only after its EEPROM record diverges
+    on the old firmware (joint 3 ran on at the old duty) and agrees on the current one."""
+    session = Session.from_text((CORPUS / "slave-reference-during-eeprom-record.session")
+                                .read_text())
+    emu = run_emulator_session(session)
+    found = divergences(session, emu, run_firmware_session(session, firmware=str(old_firmware)))
+    assert any(line.startswith("joint 3") for line in found), found
+    assert divergences(session, emu, run_firmware_session(session)) == []
