@@ -12,6 +12,7 @@ talks to its control channel (power, re-referencing, statistics).
 from __future__ import annotations
 
 import asyncio
+import functools
 import hashlib
 import json
 import os
@@ -148,28 +149,27 @@ def find_images(firmware: str | Path | None) -> list[Path]:
     return images
 
 
+@functools.lru_cache(maxsize=64)
+def _symbols(image: str, mtime_ns: int) -> dict[str, int]:
+    """Data addresses of an ELF image's variables (avr-nm, once per image and version)."""
+    del mtime_ns  # part of the cache key: a rebuilt image is read again
+    out = subprocess.run(["avr-nm", image], capture_output=True, text=True, check=False).stdout
+    return {m.group(2): int(m.group(1), 16) & 0xFFFF
+            for m in re.finditer(r"^([0-9a-fA-F]+) [bBdD] (\w+)$", out, re.MULTILINE)}
+
+
 def stats_address(image: Path) -> int:
     """Data address of the firmware's ``fw_stats`` (0 when unknown: a .hex or no such symbol)."""
-    if image.suffix != ".elf" or shutil.which("avr-nm") is None:
-        return 0
-    out = subprocess.run(["avr-nm", str(image)], capture_output=True, text=True,
-                         check=False).stdout
-    m = re.search(r"^([0-9a-fA-F]+) [bBdD] fw_stats$", out, re.MULTILINE)
-    return int(m.group(1), 16) & 0xFFFF if m else 0
+    return data_symbols(image, ("fw_stats",)).get("fw_stats", 0)
 
 
 def data_symbols(image: Path, names: Sequence[str]) -> dict[str, int]:
     """Data addresses of the named variables of an ELF image (static ones too), from its symbol
     table; names it lacks are left out (a .hex has none)."""
-    if image.suffix != ".elf" or shutil.which("avr-nm") is None:
+    if image.suffix != ".elf" or shutil.which("avr-nm") is None or not image.is_file():
         return {}
-    out = subprocess.run(["avr-nm", str(image)], capture_output=True, text=True,
-                         check=False).stdout
-    found = {}
-    for m in re.finditer(r"^([0-9a-fA-F]+) [bBdD] (\w+)$", out, re.MULTILINE):
-        if m.group(2) in names:
-            found[m.group(2)] = int(m.group(1), 16) & 0xFFFF
-    return found
+    found = _symbols(str(image), image.stat().st_mtime_ns)
+    return {name: found[name] for name in names if name in found}
 
 
 def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:
