@@ -244,10 +244,12 @@ def run_firmware_session(session: Session, *, coverage: bool = False,
         return out
 
 
-def _taken_differences(emu: Outcome, fw: Outcome) -> list[str]:
-    """The commands taken, compared exactly; once either side's receive buffer has dropped
-    bytes (at a moment each side's loop timing decides), only the commands before that."""
-    cut = min([*emu.overflows, *fw.overflows], default=float("inf")) - TAKE_LAG_S
+def _taken_differences(emu: Outcome, fw: Outcome, until_s: float) -> list[str]:
+    """The commands taken, compared exactly: each one a side took must be the other's command
+    of the same rank. Not those taken in the session's last :data:`TAKE_LAG_S` (the other side
+    may take them after the end), nor once either side's receive buffer has dropped bytes (at a
+    moment each side's loop timing decides)."""
+    cut = min([*emu.overflows, *fw.overflows, until_s]) - TAKE_LAG_S
     found = []
     for name, a, b in (("emulator", emu.taken, fw.taken), ("firmware", fw.taken, emu.taken)):
         other = "firmware" if name == "emulator" else "emulator"
@@ -268,9 +270,6 @@ def _taken_differences(emu: Outcome, fw: Outcome) -> list[str]:
                 found.append(f"command {k + 1} {command.encode().decode()}: taken at {t:.4f} s "
                              f"by the {name}, {t_b:.4f} s by the {other}")
                 return found
-    if cut == float("inf") and len(emu.taken) != len(fw.taken):
-        found.append(f"the emulator took {len(emu.taken)} commands, the firmware "
-                     f"{len(fw.taken)}")
     return found
 
 
@@ -322,14 +321,26 @@ def _speeds(replies: list[tuple[float, Reply]]) -> list[float]:
     return fastest
 
 
+def _agree_until(emu: Outcome, fw: Outcome, until_s: float) -> float:
+    """Until when the two masters had taken the same commands (the end of the session if they
+    always had): the replies are compared up to then. Commands taken differently after an
+    overflow are excused (:func:`_taken_differences`), and so are the motions that follow."""
+    for k in range(max(len(emu.taken), len(fw.taken))):
+        a = emu.taken[k] if k < len(emu.taken) else None
+        b = fw.taken[k] if k < len(fw.taken) else None
+        if a is None or b is None or a[1] != b[1]:
+            return min(pair[0] for pair in (a, b) if pair is not None)
+    return until_s
+
+
 def divergences(session: Session, emu: Outcome, fw: Outcome) -> list[str]:
     """Where the firmware and the emulator differ on ``session``: an empty list when they agree
     (commands taken exactly, replies within the differential check's tolerances)."""
-    found = _taken_differences(emu, fw)
-    found += _silences(fw.replies, emu.replies, "firmware", session.until_s)
-    found += _silences([(t, r) for t, r in emu.replies if t <= session.until_s], fw.replies,
-                       "emulator", session.until_s)
-    shown = [(t, r) for t, r in fw.replies if t <= session.until_s]
+    found = _taken_differences(emu, fw, session.until_s)
+    end = min(session.until_s, _agree_until(emu, fw, session.until_s))
+    found += _silences(fw.replies, emu.replies, "firmware", end)
+    found += _silences([(t, r) for t, r in emu.replies if t <= end], fw.replies, "emulator", end)
+    shown = [(t, r) for t, r in fw.replies if t <= end]
     diff = compare(shown, emu.replies, window_s=WINDOW_S, tol_counts=TOL_COUNTS,
                    widen_s=_take_lag(emu, fw), speed_counts_per_s=_speeds(emu.replies),
                    stall_s=STALL_S)
