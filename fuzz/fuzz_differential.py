@@ -11,8 +11,10 @@ time and to the firmware in the harness, and the two outcomes are compared
 differential check's tolerances. Sessions reaching new firmware code (the harness's
 ``--coverage``) join the corpus and are mutated. A divergence is minimised and saved as
 ``WORKDIR/divergences/<n>.session`` (a harness script; replay it with ``--replay``) with what
-differed in ``<n>.txt``. Every ``--report-s`` seconds a progress line: sessions, sessions per
-second, corpus, features, firmware lines reached. Exit status 1 if anything diverged.
+differed in ``<n>.txt``; the corpus goes to ``WORKDIR/corpus`` (give it to ``--seeds-from`` to
+go on from it) and the firmware lines never reached to ``WORKDIR/lines-not-reached.txt``.
+Every ``--report-s`` seconds a progress line: sessions, sessions per second, corpus, features,
+firmware lines reached. Exit status 1 if anything diverged.
 
 Not an atheris target: libFuzzer cannot take the firmware's coverage (it lives in the harness
 process), so the loop is this file's own; ``fuzz_emulator_uart.py`` covers the emulator alone
@@ -83,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ignored (libFuzzer flags): {' '.join(unknown)}", file=sys.stderr)
     out = args.workdir / "divergences"
     out.mkdir(parents=True, exist_ok=True)
+    corpus_out = args.workdir / "corpus"
+    corpus_out.mkdir(exist_ok=True)
     c = Campaign(args.seed)
     seeds = sorted(args.seeds_from.glob("*.session")) if args.seeds_from.is_dir() else []
     queue = [Session.from_text(p.read_text()) for p in seeds]
@@ -91,8 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     with progress.open("a") as log:
         while time.monotonic() - c.started < seconds and (args.sessions is None
                                                            or c.sessions < args.sessions):
-            before = len(c.findings)
+            before, kept = len(c.findings), len(c.corpus)
             c.run_one(queue.pop(0) if queue else None)
+            if len(c.corpus) > kept:
+                (corpus_out / f"{len(c.corpus)}.session").write_text(c.corpus[-1].to_text())
             for k, finding in enumerate(c.findings[before:], before + 1):
                 (out / f"{k}.session").write_text(finding.session.to_text())
                 (out / f"{k}.txt").write_text("\n".join(finding.differences) + "\n\noriginal:\n"
@@ -109,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         final["final"] = True
         final["seed"] = args.seed
         log.write(json.dumps(final) + "\n")
+    reached, every = firmware_lines(c.pcs)
+    (args.workdir / "lines-not-reached.txt").write_text(
+        "".join(f"{name}:{line}\n" for name, line in sorted(every - reached)))
     print(json.dumps(final), flush=True)
     return 1 if c.findings else 0
 
