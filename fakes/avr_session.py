@@ -62,6 +62,9 @@ TRANSACTION_S = 0.6e-3
 #: A firmware reply this long after the one before followed a stall of the loop (its period is
 #: 3.0 ms; an EEPROM record stalls it 3.3 ms a changed byte).
 STALL_S = 4.5e-3
+#: A joint that moved this shortly before a power cut may have stopped (or started) before it on
+#: one side and not on the other (see ``_clear_cuts_until``).
+SETTLE_S = 0.03
 #: A reply on one side must have one on the other side within this (the longest stall above).
 SILENCE_S = 0.025
 
@@ -333,11 +336,39 @@ def _agree_until(emu: Outcome, fw: Outcome, until_s: float) -> float:
     return until_s
 
 
+def _moving(replies: list[tuple[float, Reply]], cut_s: float) -> list[tuple[bool, bool]]:
+    """Per joint, whether it moved in the :data:`SETTLE_S` before a cut, and whether it was still
+    moving at the cut (its last two replies differ)."""
+    before = [r for t, r in replies if cut_s - SETTLE_S - 0.005 <= t <= cut_s]
+    out = []
+    for j in range(4):
+        values = [r[j] for r in before]
+        moved = len(set(values)) > 1
+        out.append((moved, moved and values[-1] != values[-2]))
+    return out
+
+
+def _clear_cuts_until(session: Session, emu: Outcome, fw: Outcome) -> float:
+    """The first power cut at which a joint may have stopped or started on one side and not yet
+    on the other (it moved shortly before the cut, and was not moving at the cut on both sides):
+    its EEPROM record then says "stopped" on one side and "moving" on the other, and after the
+    power-up one side drives to the Hall and the other does not. Compared up to there."""
+    for event in session.events:
+        if isinstance(event, Power) and not event.on:
+            a, b = _moving(emu.replies, event.at_s), _moving(fw.replies, event.at_s)
+            for (moved_a, at_cut_a), (moved_b, at_cut_b) in zip(a, b, strict=True):
+                if (moved_a or moved_b) and not (at_cut_a and at_cut_b):
+                    return event.at_s
+    return session.until_s
+
+
 def divergences(session: Session, emu: Outcome, fw: Outcome) -> list[str]:
     """Where the firmware and the emulator differ on ``session``: an empty list when they agree
     (commands taken exactly, replies within the differential check's tolerances)."""
-    found = _taken_differences(emu, fw, session.until_s)
-    end = min(session.until_s, _agree_until(emu, fw, session.until_s))
+    found = _taken_differences(emu, fw, min(session.until_s, _clear_cuts_until(session, emu,
+                                                                               fw)))
+    end = min(session.until_s, _agree_until(emu, fw, session.until_s),
+              _clear_cuts_until(session, emu, fw))
     found += _silences(fw.replies, emu.replies, "firmware", end)
     found += _silences([(t, r) for t, r in emu.replies if t <= end], fw.replies, "emulator", end)
     cuts = [e.at_s for e in session.events if isinstance(e, Power) and not e.on]
