@@ -336,26 +336,54 @@ def _agree_until(emu: Outcome, fw: Outcome, until_s: float) -> float:
     return until_s
 
 
-def _moving(replies: list[tuple[float, Reply]], cut_s: float) -> list[tuple[bool, bool]]:
-    """Per joint, whether it moved in the :data:`SETTLE_S` before a cut, and whether it was still
-    moving at the cut (its last two replies differ)."""
-    before = [r for t, r in replies if cut_s - SETTLE_S - 0.005 <= t <= cut_s]
+def _moving(replies: list[tuple[float, Reply]], cut_s: float,
+            target: Command | None) -> list[tuple[bool, bool]]:
+    """Per joint, whether it moved in the :data:`SETTLE_S` before a cut, and whether it surely
+    moved through the cut: its last two replies differ and, at the speed between them, it was
+    more than :data:`SETTLE_S` / 3 from its target."""
+    before = [(t, r) for t, r in replies if cut_s - SETTLE_S - 0.005 <= t <= cut_s]
     out = []
     for j in range(4):
-        values = [r[j] for r in before]
+        values = [r[j] for _, r in before]
         moved = len(set(values)) > 1
-        out.append((moved, moved and values[-1] != values[-2]))
+        through = moved and values[-1] != values[-2]
+        if through and target is not None:
+            (t0, r0), (t1, r1) = before[-2], before[-1]
+            speed = abs(_ticks_apart(r1[j], r0[j])) / max(t1 - t0, 1e-6)
+            left = abs(_ticks_apart(target.ticks[j], r1[j]))
+            through = left > speed * (cut_s - t1 + SETTLE_S / 3)
+        out.append((moved, through))
     return out
+
+
+def _ticks_apart(a: int, b: int) -> int:
+    """a - b on the circle of wire ticks."""
+    return (a - b + TICKS_HALF_TURN) % TICKS_TURN - TICKS_HALF_TURN
+
+
+def _in_force(side: Outcome, t_s: float) -> Command | None:
+    """The last command a side took by ``t_s``."""
+    taken = [c for t, c in side.taken if t <= t_s]
+    return taken[-1] if taken else None
 
 
 def _clear_cuts_until(session: Session, emu: Outcome, fw: Outcome) -> float:
     """The first power cut at which a joint may have stopped or started on one side and not yet
     on the other (it moved shortly before the cut, and was not moving at the cut on both sides):
     its EEPROM record then says "stopped" on one side and "moving" on the other, and after the
-    power-up one side drives to the Hall and the other does not. Compared up to there."""
+    power-up one side drives to the Hall and the other does not. Or a cut while either master's
+    loop was stalled writing its record: the firmware writes it cell by cell (3.3 ms each, as
+    the chip), so a cut leaves it torn, where the emulator stores it whole; an open difference
+    (docs/fuzzing.md), kept out of the comparison until the emulator models it. Compared up to
+    there."""
     for event in session.events:
         if isinstance(event, Power) and not event.on:
-            a, b = _moving(emu.replies, event.at_s), _moving(fw.replies, event.at_s)
+            last = [max((t for t, _ in side.replies if t <= event.at_s), default=-1.0)
+                    for side in (emu, fw)]
+            if min(last) < event.at_s - STALL_S:
+                return event.at_s  # a loop stalled at the cut: a record being written (open)
+            a = _moving(emu.replies, event.at_s, _in_force(emu, event.at_s))
+            b = _moving(fw.replies, event.at_s, _in_force(fw, event.at_s))
             for (moved_a, at_cut_a), (moved_b, at_cut_b) in zip(a, b, strict=True):
                 if (moved_a or moved_b) and not (at_cut_a and at_cut_b):
                     return event.at_s
