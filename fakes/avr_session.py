@@ -404,7 +404,10 @@ def divergences(session: Session, emu: Outcome, fw: Outcome) -> list[str]:
     shown = [(t, r) for t, r in fw.replies
              if t <= end and not any(0 <= cut - t < SILENCE_S for cut in cuts)]
     diff = compare(shown, emu.replies, window_s=WINDOW_S, tol_counts=TOL_COUNTS,
-                   widen_s=_take_lag(emu, fw), speed_counts_per_s=_speeds(emu.replies),
+                   widen_s=_take_lag(emu, fw),
+                   speed_counts_per_s=[max(a, b) for a, b in zip(_speeds(emu.replies),
+                                                                 _speeds(fw.replies),
+                                                                 strict=True)],
                    stall_s=STALL_S)
     for j, (excess, at) in enumerate(zip(diff.excess_counts, diff.at_s, strict=True)):
         if excess > 0:
