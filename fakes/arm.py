@@ -65,7 +65,9 @@ class ArmEmulator:
         steps = [round(q * j.steps_per_rad) for q, j in zip(q0, self.robot.joints, strict=True)]
         self.clock = BusClock()
         self.bus = I2CBus(self.clock, self.settings.i2c_bit_s)
-        self.uart = Uart(self.robot.serial.byte_time_s, self.settings.rx_buffer_bytes,
+        # The Arduino core's receive buffer is a ring of rx_buffer_bytes that holds one byte
+        # fewer (head == tail means empty): 63 of 64, as the reference firmware's.
+        self.uart = Uart(self.robot.serial.byte_time_s, self.settings.rx_buffer_bytes - 1,
                          self.settings.tx_buffer_bytes)
         self.slaves = [SlaveBoard(k + 1, j, self.settings, self.eeproms[k], self.bus, steps[k])
                        for k, j in enumerate(self.robot.joints) if k > 0]

@@ -12,6 +12,7 @@ talks to its control channel (power, re-referencing, statistics).
 from __future__ import annotations
 
 import asyncio
+import functools
 import hashlib
 import json
 import os
@@ -34,6 +35,7 @@ __all__ = [
     "board_specs",
     "build",
     "cache_dir",
+    "data_symbols",
     "find_images",
     "stats_address",
 ]
@@ -44,7 +46,8 @@ FIRMWARE_SOURCE = Path(__file__).resolve().parents[1] / "firmware"
 #: Debian packages of the toolchain, named in the error when one is missing.
 DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev gcc"
 
-_AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-std=gnu11", "-Wall",
+# -g: line tables for the fuzzer's coverage (fuzz/fuzz_differential.py); the code is the same
+_AVR_CFLAGS = ("-mmcu=atmega328p", "-DF_CPU=16000000UL", "-Os", "-g", "-std=gnu11", "-Wall",
                "-Wextra", "-Werror")
 _AVR_SOURCES = ("main.c", "joint.c", "master.c", "slave.c")
 HARNESS_NAME = "armfw-harness"
@@ -61,7 +64,7 @@ def cache_dir() -> Path:
 
 
 def _source_digest(src: Path) -> str:
-    h = hashlib.sha256()
+    h = hashlib.sha256(" ".join(_AVR_CFLAGS).encode())
     for path in sorted(src.rglob("*")):
         if path.suffix in (".c", ".h") and path.is_file():
             h.update(str(path.relative_to(src)).encode())
@@ -146,14 +149,27 @@ def find_images(firmware: str | Path | None) -> list[Path]:
     return images
 
 
+@functools.lru_cache(maxsize=64)
+def _symbols(image: str, mtime_ns: int) -> dict[str, int]:
+    """Data addresses of an ELF image's variables (avr-nm, once per image and version)."""
+    del mtime_ns  # part of the cache key: a rebuilt image is read again
+    out = subprocess.run(["avr-nm", image], capture_output=True, text=True, check=False).stdout
+    return {m.group(2): int(m.group(1), 16) & 0xFFFF
+            for m in re.finditer(r"^([0-9a-fA-F]+) [bBdD] (\w+)$", out, re.MULTILINE)}
+
+
 def stats_address(image: Path) -> int:
     """Data address of the firmware's ``fw_stats`` (0 when unknown: a .hex or no such symbol)."""
-    if image.suffix != ".elf" or shutil.which("avr-nm") is None:
-        return 0
-    out = subprocess.run(["avr-nm", str(image)], capture_output=True, text=True,
-                         check=False).stdout
-    m = re.search(r"^([0-9a-fA-F]+) [bBdD] fw_stats$", out, re.MULTILINE)
-    return int(m.group(1), 16) & 0xFFFF if m else 0
+    return data_symbols(image, ("fw_stats",)).get("fw_stats", 0)
+
+
+def data_symbols(image: Path, names: Sequence[str]) -> dict[str, int]:
+    """Data addresses of the named variables of an ELF image (static ones too), from its symbol
+    table; names it lacks are left out (a .hex has none)."""
+    if image.suffix != ".elf" or shutil.which("avr-nm") is None or not image.is_file():
+        return {}
+    found = _symbols(str(image), image.stat().st_mtime_ns)
+    return {name: found[name] for name in names if name in found}
 
 
 def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +29,8 @@ __all__ = ["DEFAULT_SCRIPT", "DiffResult", "compare", "run_emulator", "run_firmw
 Timed = list[tuple[float, Reply]]
 TICKS_TURN = 62832
 TICKS_HALF_TURN = TICKS_TURN // 2
+#: The longest stall of a master's loop: an EEPROM record of five changed cells.
+STALL_MAX_S = 0.025
 
 #: Moves at full, middle and low duty, a reversal and a hold: (time s, angles rad, duty).
 DEFAULT_SCRIPT: tuple[tuple[float, tuple[float, float, float, float], int], ...] = (
@@ -104,21 +106,50 @@ class DiffResult:
 
 
 def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None,
-            window_s: float = 3.2e-3, tol_counts: float = 0.0) -> DiffResult:
-    """Check each firmware reply against the emulator's within ``window_s`` of it."""
+            window_s: float = 3.2e-3, tol_counts: float = 0.0,
+            widen_s: Callable[[float], float] | None = None,
+            speed_counts_per_s: Sequence[float] | None = None,
+            stall_s: float | None = None) -> DiffResult:
+    """Check each firmware reply against the emulator's within ``window_s`` of it.
+
+    ``widen_s(t)``, when given, is how far apart the two masters took the commands that may
+    still be in force at t (their loops pick a command up at moments up to a loop apart): the
+    window is widened by it, and the tolerance by that time at each joint's
+    ``speed_counts_per_s`` (a hold taken that much later stops the joint that much further on,
+    for good). ``stall_s``, when given: a firmware reply more than that after the one before
+    followed a stall of its loop (an EEPROM record) and carries a position sampled before it;
+    its window reaches back to the reply before (the stall's length depends on how many bytes
+    of the record changed, which a few counts' difference at a byte boundary changes); likewise
+    an emulator reply after a stall of its own brings the next one into the window."""
     robot = robot if robot is not None else RobotSettings()
     per_tick = [j.counts_per_rad / 1e4 for j in robot.joints]  # counts per wire tick
-    lo_i = 0
+    lo = 0
     worst = [0.0] * 4
     at = [0.0] * 4
     compared = 0
+    previous = -float("inf")
     for t, reply in firmware:
-        while lo_i < len(emulator) and emulator[lo_i][0] < t - window_s:
-            lo_i += 1
+        w = window_s + (widen_s(t) if widen_s is not None else 0.0)
+        begin = t - w
+        if stall_s is not None and t - previous > stall_s:
+            # sampled before the stall, which may be longer on one side (no further back than
+            # the longest stall: not across a power cut)
+            begin = max(previous, t - STALL_MAX_S) - w
+        previous = t
+        while lo > 0 and emulator[lo - 1][0] >= begin:
+            lo -= 1
+        while lo < len(emulator) and emulator[lo][0] < begin:
+            lo += 1
         window = []
-        k = lo_i
-        while k < len(emulator) and emulator[k][0] <= t + window_s:
+        k = lo
+        while k < len(emulator) and emulator[k][0] <= t + w:
             window.append(emulator[k][1])
+            if (stall_s is not None and k > 0 and k + 1 < len(emulator)
+                    and emulator[k][0] - emulator[k - 1][0] > stall_s
+                    and emulator[k + 1][0] > t + w):
+                # the emulator's reply after its own stall is old too: its next one is the
+                # first sampled after the stall
+                window.append(emulator[k + 1][1])
             k += 1
         if not window:
             continue
@@ -128,7 +159,10 @@ def compare(firmware: Timed, emulator: Timed, robot: RobotSettings | None = None
             values = [v + (r[j] - v + TICKS_HALF_TURN) % TICKS_TURN - TICKS_HALF_TURN
                       for r in window]
             excess_ticks = max(min(values) - v, v - max(values), 0)
-            excess = excess_ticks * per_tick[j] - tol_counts
+            extra = 0.0
+            if widen_s is not None and speed_counts_per_s is not None:
+                extra = widen_s(t) * speed_counts_per_s[j]
+            excess = excess_ticks * per_tick[j] - tol_counts - extra
             if excess > worst[j]:
                 worst[j], at[j] = excess, t
     return DiffResult((worst[0], worst[1], worst[2], worst[3]), (at[0], at[1], at[2], at[3]),

@@ -26,6 +26,7 @@ struct fw_stats {
     uint16_t bad_frames;     /* '$'...'#' runs that were not a valid command */
     uint16_t i2c_errors;     /* master: NAKs and bus errors */
     uint16_t bad_writes;     /* slave: malformed or out-of-range I2C writes */
+    uint16_t commands;       /* master: valid commands taken */
 };
 extern struct fw_stats fw_stats;
 

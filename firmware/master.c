@@ -70,7 +70,7 @@ static uint8_t parse_frame(void)
     }
     for (uint8_t j = 0; j < 4; j++) {
         const uint8_t *f = frame + 9 * j;
-        uint16_t t = 0;
+        uint32_t t = 0;   /* five digits reach 99 999: 16 bits would wrap (99 999 -> 34 463) */
         for (uint8_t i = 0; i < 5; i++) {
             if (f[i] < '0' || f[i] > '9') {
                 return 0;
@@ -81,7 +81,7 @@ static uint8_t parse_frame(void)
             || (j < 3 && f[8] != ',') || t > MAX_TICKS) {
             return 0;
         }
-        ticks[j] = t;
+        ticks[j] = (uint16_t)t;
         duties[j] = (f[6] - '0') * 10 + (f[7] - '0');
     }
     for (uint8_t j = 0; j < 4; j++) {
@@ -112,6 +112,7 @@ static uint8_t uart_poll(void)
             in_frame = 0;
             if (parse_frame()) {
                 got = 1;
+                fw_stats.commands++;
             } else {
                 fw_stats.bad_frames++;
             }

@@ -1,6 +1,6 @@
 /* Algorithm 2 (joints 2..4): answer the master on I2C with the register layout of docs/i2c.md.
  * The TWI interrupt takes the bytes; the main loop applies a new reference (held while the
- * start-up recovery runs), stores motion changes in the EEPROM, keeps the position register
+ * start-up recovery runs; also while it waits for the EEPROM), stores motion changes in the EEPROM, keeps the position register
  * current and sleeps otherwise. The TWI interrupt is kept short (no arithmetic): while it runs
  * the encoder's A-edge interrupt waits, and channel B must still hold its level when it runs. */
 #if JOINT != 1
@@ -117,11 +117,29 @@ static void refresh_position(void)
     }
 }
 
-/* While the joint's EEPROM record is written (up to 13 ms) the master still reads the position:
- * keep it current, or a moving joint reports a stale one. */
+/* A reference the TWI interrupt took, applied (held while the start-up recovery runs). */
+static void take_reference(void)
+{
+    if (ref_pending && !joint_recovering()) {
+        uint16_t ticks;
+        uint8_t d;
+        cli();
+        ticks = ref_ticks;
+        d = ref_duty;
+        ref_pending = 0;
+        sei();
+        joint_set_reference(ticks, d);
+    }
+}
+
+/* While the joint's EEPROM record is written (up to 13 ms) the master still reads the position
+ * and writes references: keep the position current and take a new reference at once (Wire's
+ * onReceive runs in the interrupt, Algorithm 2 takes it there), or a moving joint reports a stale
+ * position and a new command waits for the record. */
 void role_eeprom_busy(void)
 {
     refresh_position();
+    take_reference();
 }
 
 void role_loop(void)
@@ -135,16 +153,7 @@ void role_loop(void)
         sleep_disable();
     }
     sei();
-    if (ref_pending && !joint_recovering()) {
-        uint16_t ticks;
-        uint8_t d;
-        cli();
-        ticks = ref_ticks;
-        d = ref_duty;
-        ref_pending = 0;
-        sei();
-        joint_set_reference(ticks, d);
-    }
+    take_reference();
     joint_store_motion();
 }
 #endif

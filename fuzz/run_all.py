@@ -4,6 +4,9 @@
     python fuzz/run_all.py -max_total_time=300      # any libFuzzer flag is passed to every target
     python fuzz/run_all.py --targets framer,telnet --workdir runs/fuzz
 
+``differential`` (``fuzz_differential.py``: the firmware in simavr against the emulator) is not an
+atheris target; it gets the same time budget and its saved divergences count as crashes.
+
 Per target the fuzzer writes new inputs to ``WORKDIR/<target>/corpus`` (the committed seeds in
 ``fuzz/corpus/<target>`` are read, never written), crash/timeout/OOM reproducers to
 ``WORKDIR/<target>/`` and its log to ``WORKDIR/<target>.log``. The summary gives executions,
@@ -16,6 +19,7 @@ crash signature is saved to ``WORKDIR/crashes/<target>/`` and counted (see ``_ha
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import subprocess
@@ -26,7 +30,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 FUZZ_DIR = Path(__file__).resolve().parent
-TARGETS = ("framer", "telnet", "config", "emulator_uart")
+TARGETS = ("framer", "telnet", "config", "emulator_uart", "differential")
+#: Not atheris targets: their own loop, given the time budget (``-max_total_time``) and a work
+#: folder; their summary line is the last JSON line of their log.
+OWN_LOOP = ("differential",)
 DEFAULT_FLAGS = {"-max_total_time": "60", "-rss_limit_mb": "512", "-timeout": "30",
                  "-print_final_stats": "1"}
 
@@ -66,7 +73,38 @@ def parse_log(text: str) -> tuple[int | None, int | None, int | None, str | None
     return runs, cov, ft, corpus, exec_s
 
 
+def run_own_loop(target: str, flags: list[str], workdir: Path) -> Result:
+    """A target with a loop of its own (``fuzz_differential.py``): the time budget passed on,
+    the divergences it saved counted as crashes."""
+    out = workdir / target
+    budget = next((f.split("=", 1)[1] for f in flags if f.startswith("-max_total_time=")),
+                  DEFAULT_FLAGS["-max_total_time"])
+    cmd = [sys.executable, str(FUZZ_DIR / f"fuzz_{target}.py"), f"-max_total_time={budget}",
+           "--workdir", str(out)]
+    log = workdir / f"{target}.log"
+    print(f"--- {target}: {' '.join(cmd)}", flush=True)
+    t0 = time.monotonic()
+    with log.open("w") as fh:
+        rc = subprocess.call(cmd, stdout=fh, stderr=subprocess.STDOUT)
+    seconds = time.monotonic() - t0
+    text = log.read_text(errors="replace")
+    final: dict[str, object] = {}
+    for line in text.splitlines():
+        if line.startswith("{"):
+            final = json.loads(line)
+    crashes = sorted(str(p) for p in (out / "divergences").glob("*.session")) \
+        if (out / "divergences").is_dir() else []
+    if rc != 0:
+        print(text[-4000:], flush=True)
+    sessions = final.get("sessions")
+    runs = sessions if isinstance(sessions, int) else None
+    return Result(target, rc, runs, seconds, None, None, str(final.get("corpus", "?")),
+                  round(runs / seconds) if runs and seconds else None, crashes)
+
+
 def run_target(target: str, flags: list[str], workdir: Path, keep_going: bool) -> Result:
+    if target in OWN_LOOP:
+        return run_own_loop(target, flags, workdir)
     out = workdir / target
     corpus = out / "corpus"
     corpus.mkdir(parents=True, exist_ok=True)

@@ -143,6 +143,53 @@ static uint8_t eecr_read(avr_t *avr, avr_io_addr_t addr, void *param)
     return avr->cycle < b->eeprom_busy_until ? (uint8_t)(v | EEPE_BIT) : (uint8_t)(v & ~EEPE_BIT);
 }
 
+/* simavr 1.6 times a UART byte as 11 bits (it counts a parity bit that 8N1 has not), 93 us at
+ * UBRR 16 with U2X instead of the chip's 85 us: bytes fed at the host's 115 200 baud then pile
+ * up in its 64-byte input FIFO over a long stream and are lost there, and replies leave slowly.
+ * After each baud write the byte time is set to the data sheet's: (1 + 8 + 1) bits of
+ * (U2X ? 8 : 16) x (UBRR + 1) cycles. */
+#define R_UBRR0L 0xC4
+#define R_UBRR0H 0xC5
+#define R_UCSR0A 0xC0
+#define U2X0_BIT 0x02
+
+static void ubrr_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
+{
+    board_t *b = NULL;
+    for (int i = 0; i < N_BOARDS; i++) {
+        if (H.boards[i].avr == avr) {
+            b = &H.boards[i];
+        }
+    }
+    int high = addr == AVR_DATA_TO_IO(R_UBRR0H);
+    if (b->ubrr_w[high].c) {
+        b->ubrr_w[high].c(avr, addr, v, b->ubrr_w[high].param);
+    } else {
+        avr->data[addr] = v;
+    }
+    (void)param;
+    avr_uart_t *uart = b->uart;
+    if (uart) {
+        uint32_t ubrr = avr->data[R_UBRR0L] | (uint32_t)(avr->data[R_UBRR0H] & 0x0F) << 8;
+        uint32_t per_bit = (avr->data[R_UCSR0A] & U2X0_BIT ? 8u : 16u) * (ubrr + 1);
+        uart->cycles_per_byte = 10u * per_bit;
+    }
+}
+
+static void fix_uart_timing(board_t *b)
+{
+    for (int high = 0; high < 2; high++) {
+        avr_io_addr_t io = AVR_DATA_TO_IO(high ? R_UBRR0H : R_UBRR0L);
+        b->ubrr_w[high].c = b->avr->io[io].w.c;
+        b->ubrr_w[high].param = b->avr->io[io].w.param;
+        if (b->avr->io[io].w.param && !b->uart) {
+            b->uart = b->avr->io[io].w.param;   /* simavr's UART registered this write */
+        }
+        b->avr->io[io].w.c = ubrr_write;
+        b->avr->io[io].w.param = b;
+    }
+}
+
 void board_setup(board_t *b)
 {
     b->avr = avr_make_mcu_by_name("atmega328p");
@@ -167,6 +214,7 @@ void board_setup(board_t *b)
     b->avr->io[eecr].r.c = eecr_read;
     b->avr->io[eecr].r.param = b;
     if (b->index == 0) {
+        fix_uart_timing(b);
         uint32_t flags = 0;
         avr_ioctl(b->avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
         flags &= ~(uint32_t)AVR_UART_FLAG_STDIO;
@@ -243,6 +291,9 @@ void board_run(board_t *b, uint64_t until)
         int ending = b->isr_depth > 0 && is_reti(avr, pc);
         avr->run(avr);
         b->instructions++;
+        if (coverage_on) {
+            watch_pc(b, pc);
+        }
         time_interrupts(b, pc, ending);
         if (avr->state == cpu_Done || avr->state == cpu_Crashed) {
             fprintf(stderr, "armfw-harness: joint %d stopped (state %d) at pc 0x%x\n",

@@ -51,6 +51,19 @@ void pty_put(uint8_t c)
     }
 }
 
+/* Cut or restore the power of all four boards ("power off", "power on", a script's @power). */
+void power_all(int on)
+{
+    for (int i = 0; i < N_BOARDS; i++) {
+        if (on && !H.boards[i].powered) {
+            board_power_on(&H.boards[i]);
+        } else if (!on && H.boards[i].powered) {
+            board_power_off(&H.boards[i]);
+        }
+    }
+    watch_power(on);
+}
+
 static int all_unpowered(const char *command)
 {
     for (int i = 0; i < N_BOARDS; i++) {
@@ -65,15 +78,9 @@ static int all_unpowered(const char *command)
 static int control(const char *line, double wall_s)
 {
     if (strncmp(line, "power off", 9) == 0) {
-        for (int i = 0; i < N_BOARDS; i++) {
-            board_power_off(&H.boards[i]);
-        }
+        power_all(0);
     } else if (strncmp(line, "power on", 8) == 0) {
-        for (int i = 0; i < N_BOARDS; i++) {
-            if (!H.boards[i].powered) {
-                board_power_on(&H.boards[i]);
-            }
-        }
+        power_all(1);
     } else if (strncmp(line, "eeprom blank", 12) == 0) {
         if (all_unpowered("eeprom blank")) {
             for (int i = 0; i < N_BOARDS; i++) {
@@ -159,12 +166,8 @@ int poll_io(double wall_s)
     if (H.pty_fd >= 0 && FD_ISSET(H.pty_fd, &fds)) {
         uint8_t buf[512];
         ssize_t n = read(H.pty_fd, buf, sizeof buf);
-        for (ssize_t i = 0; i < n; i++) {
-            unsigned next = (H.rx_head + 1) % sizeof H.rx_queue;
-            if (next != H.rx_tail) {
-                H.rx_queue[H.rx_head] = buf[i];
-                H.rx_head = next;
-            }
+        if (n > 0) {
+            uart_queue(buf, (size_t)n);
         }
     }
     if (control_fifo.fd >= 0 && FD_ISSET(control_fifo.fd, &fds)

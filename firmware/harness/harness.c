@@ -3,7 +3,7 @@
  *
  *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
  *                 [--send TEXT] [--script FILE] [--reply-log FILE] [--isr-vector N]
- *                 [--control FIFO]
+ *                 [--control FIFO] [--event-log FILE] [--command-vars T,D] [--coverage FILE]
  *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
  *
  * FILE is an Intel hex or ELF image; LOWER/UPPER/HALL/MOTOR are microsteps (hard limits, Hall
@@ -13,6 +13,8 @@
  * "eeprom blank", "home", "stats" (prints "stats {json}"), "quit"; the end of stdin quits too
  * unless --seconds is given. EEPROM contents survive a power cut and, with --eeprom-dir, the
  * process.
+ *
+ * --event-log, --command-vars and --coverage are for the differential fuzzer (watch.c).
  *
  * This file: the options and the lockstep loop with its real-time pacing. board.c runs a core,
  * twi_bus.c the I2C bus, joint.c the joints, uart.c joint 1's UART, control.c the pty and the
@@ -91,16 +93,20 @@ static void parse_options(int argc, char **argv)
             H.isr_vector = (unsigned)atoi(v) % 26;
             i++;
         } else if (strcmp(a, "--send") == 0 && v) {
-            for (const char *c = argv[++i]; *c; c++) {   /* bytes for joint 1's UART at boot */
-                H.rx_queue[H.rx_head] = (uint8_t)*c;
-                H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
-            }
-            H.rx_next_at = H.boot_cycles + F_CPU_HZ / 1000;
+            const char *text = argv[++i];   /* bytes for joint 1's UART, 1 ms after boot */
+            uart_queue((const uint8_t *)text, strlen(text));
+            H.rx_queued_at = H.boot_cycles + F_CPU_HZ / 1000;
         } else if (strcmp(a, "--control") == 0 && v) {
             /* a FIFO taking the same commands as stdin (e.g. a bench's power commands) */
             open_control_fifo(argv[++i]);
         } else if (strcmp(a, "--script") == 0 && v) {
             load_script(argv[++i]);
+        } else if (strcmp(a, "--event-log") == 0 && v) {
+            watch_open_events(argv[++i]);
+        } else if (strcmp(a, "--command-vars") == 0 && v) {
+            watch_command_vars(argv[++i]);
+        } else if (strcmp(a, "--coverage") == 0 && v) {
+            watch_open_coverage(argv[++i]);
         } else if (strcmp(a, "--reply-log") == 0 && v) {
             reply_log = fopen(argv[++i], "w");
             if (!reply_log) {
@@ -174,6 +180,7 @@ int main(int argc, char **argv)
         twi_service(H.now);
         script_due();
         uart_in();
+        watch_service();
         if (!announced && H.now >= H.boot_cycles + F_CPU_HZ / 1000) {
             announced = 1;
             printf("ready\n");
@@ -193,6 +200,7 @@ int main(int argc, char **argv)
         }
     }
     pty_flush();
+    watch_close();
     if (reply_log) {
         fclose(reply_log);
     }

@@ -10,6 +10,8 @@
 #include <simavr/sim_interrupts.h>
 #include <simavr/sim_io.h>
 
+struct avr_uart_t;
+
 #define N_BOARDS 4
 #define F_CPU_HZ 16000000u
 #define QUANTUM_CYCLES 32u       /* lockstep granularity: 2 us */
@@ -70,6 +72,11 @@ typedef struct board_t {
         avr_io_read_t c;
         void *param;
     } eecr_r;                        /* simavr's own EECR handlers, called by the harness's */
+    struct {
+        avr_io_write_t c;
+        void *param;
+    } ubrr_w[2];                     /* simavr's UBRR0L/H handlers (board.c: UART byte time) */
+    struct avr_uart_t *uart;         /* joint 1's simavr UART */
 } board_t;
 
 /* The bus and the harness's global state */
@@ -80,7 +87,8 @@ typedef struct harness_t {
     int pty_fd;
     uint8_t rx_queue[4096];
     unsigned rx_head, rx_tail;
-    uint64_t rx_next_at;
+    uint64_t rx_next_at;             /* when the line is free for the next byte */
+    uint64_t rx_queued_at;           /* when the host queued bytes to an empty queue */
     uint64_t rx_bytes, rx_lost_power;
     uint64_t tx_bytes, tx_lost, replies;
     uint64_t last_reply_at, period_min, period_max, period_sum, period_n;
@@ -123,10 +131,21 @@ int twi_busy(void);
 extern FILE *reply_log;
 
 void load_script(const char *path);
+void uart_queue(const uint8_t *bytes, size_t n);
+void power_all(int on);
 void script_due(void);
 void uart_out(struct avr_irq_t *irq, uint32_t value, void *param);
 void uart_in(void);
 void print_stats(double wall_s);
+
+void watch_open_events(const char *path);
+void watch_command_vars(const char *spec);
+void watch_open_coverage(const char *path);
+void watch_power(int on);
+void watch_service(void);
+void watch_pc(const board_t *b, uint32_t pc);
+void watch_close(void);
+extern int coverage_on;
 
 void joint_attach(board_t *b);
 void joint_service(board_t *b, uint64_t now);

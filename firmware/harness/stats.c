@@ -35,9 +35,10 @@ void print_stats(double wall_s)
         if (b->stats_addr) {
             const uint8_t *d = b->avr->data + b->stats_addr;
             printf(", \"fw\": {\"loops\": %lu, \"rx_overflows\": %u, \"bad_frames\": %u,"
-                   " \"i2c_errors\": %u, \"bad_writes\": %u}",
+                   " \"i2c_errors\": %u, \"bad_writes\": %u, \"commands\": %u}",
                    (unsigned long)(d[0] | d[1] << 8 | (uint32_t)d[2] << 16 | (uint32_t)d[3] << 24),
-                   d[4] | d[5] << 8, d[6] | d[7] << 8, d[8] | d[9] << 8, d[10] | d[11] << 8);
+                   d[4] | d[5] << 8, d[6] | d[7] << 8, d[8] | d[9] << 8, d[10] | d[11] << 8,
+                   d[12] | d[13] << 8);
         }
         printf("}");
     }

@@ -8,17 +8,68 @@
 
 #include "harness.h"
 
-/* --script FILE: "<seconds> <bytes>" lines, each put on joint 1's UART at that simulated time;
+/* --script FILE, one event a line at a simulated time:
+ *   "<seconds> <text>"        the text's bytes (no white space) on joint 1's UART;
+ *   "<seconds> @hex <hex>"    any bytes, two hex digits each;
+ *   "<seconds> @power off|on" a power cut or its end, all four boards (as the "power" commands).
  * --reply-log FILE: "<seconds> <reply>" for each reply frame (the time its '#' was written). */
-#define MAX_SCRIPT 256
-static struct {
+typedef struct script_event_t {
     uint64_t at;
-    char text[128];
-} script[MAX_SCRIPT];
-static int script_len, script_next;
+    int power;        /* -1: bytes; 0: power off; 1: power on */
+    uint8_t *bytes;
+    size_t n;
+} script_event_t;
+static script_event_t *script;
+static size_t script_len, script_next;
 FILE *reply_log;
 static char reply_buf[64];
 static unsigned reply_len;
+
+static int hex_digit(int c)
+{
+    return c >= '0' && c <= '9' ? c - '0' : c >= 'a' && c <= 'f' ? c - 'a' + 10
+        : c >= 'A' && c <= 'F' ? c - 'A' + 10 : -1;
+}
+
+static void script_line(const char *path, char *line)
+{
+    char *rest;
+    double t = strtod(line, &rest);
+    if (rest == line) {
+        return;   /* blank or not an event */
+    }
+    rest += strspn(rest, " \t");
+    rest[strcspn(rest, "\r\n")] = 0;
+    script_event_t e = {(uint64_t)(t * F_CPU_HZ), -1, NULL, 0};
+    if (strncmp(rest, "@power ", 7) == 0) {
+        e.power = strcmp(rest + 7, "on") == 0;
+        if (!e.power && strcmp(rest + 7, "off") != 0) {
+            die("script: @power wants on or off", path);
+        }
+    } else if (strncmp(rest, "@hex ", 5) == 0) {
+        const char *h = rest + 5;
+        size_t len = strlen(h);
+        e.bytes = malloc(len / 2 + 1);
+        for (size_t i = 0; i + 1 < len + 1 && h[i] && h[i + 1]; i += 2) {
+            int hi = hex_digit(h[i]), lo = hex_digit(h[i + 1]);
+            if (hi < 0 || lo < 0) {
+                die("script: @hex wants pairs of hex digits", path);
+            }
+            e.bytes[e.n++] = (uint8_t)(hi << 4 | lo);
+        }
+    } else {
+        size_t len = strcspn(rest, " \t");
+        e.bytes = malloc(len + 1);
+        memcpy(e.bytes, rest, len);
+        e.n = len;
+    }
+    script_event_t *grown = realloc(script, (script_len + 1) * sizeof *script);
+    if (!grown) {
+        die("script: out of memory", path);
+    }
+    script = grown;
+    script[script_len++] = e;
+}
 
 void load_script(const char *path)
 {
@@ -27,24 +78,42 @@ void load_script(const char *path)
         fprintf(stderr, "armfw-harness: cannot read script %s\n", path);
         exit(2);
     }
-    double t;
-    char text[128];
-    while (script_len < MAX_SCRIPT && fscanf(f, "%lf %127s", &t, text) == 2) {
-        script[script_len].at = (uint64_t)(t * F_CPU_HZ);
-        memcpy(script[script_len].text, text, sizeof text);
-        script_len++;
+    char *line = NULL;
+    size_t cap = 0;
+    while (getline(&line, &cap, f) > 0) {
+        script_line(path, line);
     }
+    free(line);
     fclose(f);
 }
 
 void script_due(void)
 {
     while (script_next < script_len && script[script_next].at <= H.now) {
-        for (const char *c = script[script_next].text; *c; c++) {
-            H.rx_queue[H.rx_head] = (uint8_t)*c;
-            H.rx_head = (H.rx_head + 1) % sizeof H.rx_queue;
+        script_event_t *e = &script[script_next++];
+        if (e->power >= 0) {
+            power_all(e->power);
+        } else {
+            uart_queue(e->bytes, e->n);
         }
-        script_next++;
+    }
+}
+
+/* Host bytes for joint 1's UART: queued behind those still to go on the line (dropped when the
+ * queue is full, as a host's own buffer would). */
+void uart_queue(const uint8_t *bytes, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        unsigned next = (H.rx_head + 1) % sizeof H.rx_queue;
+        if (next == H.rx_tail) {
+            return;
+        }
+        if (H.rx_head == H.rx_tail) {
+            H.rx_queued_at = H.now;   /* nothing waiting: this byte starts now, or when the
+                                         byte on the line has gone */
+        }
+        H.rx_queue[H.rx_head] = bytes[i];
+        H.rx_head = next;
     }
 }
 
@@ -86,15 +155,23 @@ void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
     pty_put(c);
 }
 
+/* Host bytes on joint 1's UART at 115 200 baud, back to back while the host has more. A byte is
+ * handed to simavr's UART as its start bit begins, and simavr raises RXC one byte time later (the
+ * chip's byte time, board.c), when its stop bit is in; a byte that begins while the master is
+ * unpowered or still in reset is lost. */
 void uart_in(void)
 {
     board_t *m = &H.boards[0];
-    if (H.rx_head == H.rx_tail || H.now < H.rx_next_at) {
+    if (H.rx_head == H.rx_tail) {
+        return;
+    }
+    uint64_t start = H.rx_next_at > H.rx_queued_at ? H.rx_next_at : H.rx_queued_at;
+    if (H.now < start) {
         return;
     }
     uint8_t c = H.rx_queue[H.rx_tail];
     H.rx_tail = (H.rx_tail + 1) % sizeof H.rx_queue;
-    H.rx_next_at = H.now + F_CPU_HZ * 10ull / 115200ull;   /* one byte at 115200 8N1 */
+    H.rx_next_at = start + F_CPU_HZ * 10ull / 115200ull;   /* one byte at 115200 8N1 */
     if (!m->powered || H.now < m->boot_at) {
         H.rx_lost_power++;   /* before Serial.begin(): lost */
         return;

@@ -1,0 +1,160 @@
+"""The differential fuzzer of the UART (``fakes/avr_fuzz.py``, ``fakes/avr_session.py``): a few
+sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
+(minimised divergences, fixed or explained) replay without divergence; and the comparison does
+catch the firmware bugs it found (the old 16-bit position sum and the slave that waited for its
+EEPROM record, rebuilt here)."""
+
+from __future__ import annotations
+
+import random
+import shutil
+from pathlib import Path
+
+import pytest
+from test_firmware import needs_toolchain
+
+from armbench.fakes.avr import FIRMWARE_SOURCE, build
+from armbench.fakes.avr_fuzz import Campaign, generate, minimise, normalise
+from armbench.fakes.avr_session import (
+    BOOT_S,
+    BYTE_S,
+    Event,
+    Power,
+    Session,
+    Write,
+    divergences,
+    run_emulator_session,
+    run_firmware_session,
+)
+
+pytestmark = needs_toolchain
+
+CORPUS = Path(__file__).resolve().parents[1] / "fuzz" / "corpus" / "differential"
+OVERFLOW_FRAME = b"$99999,99,00000,00,00000,00,00000,00#"
+
+
+def test_sessions_are_replayable_from_their_seed_and_text() -> None:
+    a = [generate(random.Random(5)) for _ in range(3)]
+    b = [generate(random.Random(5)) for _ in range(3)]
+    assert a == b
+    for session in a:
+        assert Session.from_text(session.to_text()) == session
+
+
+def test_no_byte_lands_on_a_receiver_edge() -> None:
+    """Writes whose bytes would complete within a millisecond of the end of a boot are left out
+    (the two sides start their receivers microseconds apart); others stay."""
+    near = Write(BOOT_S - 10 * BYTE_S, b"$" * 20)
+    clear = Write(BOOT_S + 0.01, b"#")
+    cut: list[Event] = [Power(0.2, False), Power(0.21, True), Write(0.2 - 3 * BYTE_S, b"abcdef")]
+    kept = normalise(Session((near, clear, *cut), 0.3)).events
+    assert near not in kept and clear in kept and cut[2] not in kept
+    assert cut[0] in kept and cut[1] in kept
+
+
+def test_no_frame_ends_just_before_a_power_cut() -> None:
+    """A frame completing 2.4 ms before a cut is taken by the emulator's loop (2.4 ms) and not by
+    the firmware's (3.0 ms), or the other way round: such writes are left out of sessions."""
+    ending = Write(0.180358, b",99#")
+    session = Session((Write(0.169287, b"$02268,73,01807,99,02665,00,02"), ending,
+                       Power(0.183064, False)), 0.3883)
+    kept = normalise(session).events
+    assert ending not in kept and len(kept) == 2
+    assert Write(0.150, b",99#") in normalise(Session((Write(0.150, b",99#"), *kept[1:]),
+                                                      0.3883)).events
+
+
+@pytest.mark.parametrize(("noise", "taken"), [(26, 2), (27, 1)])
+def test_both_receive_buffers_hold_63_bytes(noise: int, taken: int) -> None:
+    """While the master recovers after a cut (its loop not reading), 26 bytes of noise and a
+    command (63 bytes) all wait in the receive buffer and the command is taken afterwards; with
+    27 the command's '#' is the 64th byte and is dropped, on both sides: the Arduino core's ring
+    of 64 holds 63 (the emulator once held 64)."""
+    frame = b"$00100,10,00000,00,00000,00,00000,00#"
+    session = Session((Write(0.11, b"$01500,99,00000,00,00000,00,00000,00#"),
+                       Power(0.2, False), Power(0.21, True),
+                       Write(0.315, b"x" * noise + frame)), 0.9)
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert [c for _, c in emu.taken] == [c for _, c in fw.taken]
+    assert len(emu.taken) == taken
+    assert bool(emu.overflows) == bool(fw.overflows) == (taken == 1)
+
+
+def test_a_fixed_seed_campaign_finds_no_divergence() -> None:
+    """Eight sessions of seed 2026 (generated, then mutated from the corpus), both sides."""
+    campaign = Campaign(2026)
+    for _ in range(8):
+        assert campaign.run_one(minimise_budget=0) == []
+    assert campaign.features  # the harness reported coverage
+
+
+def test_kept_divergences_replay_clean() -> None:
+    """Each minimised divergence the fuzzer found (fixed since) agrees on both sides now."""
+    sessions = sorted(CORPUS.glob("*.session"))
+    assert sessions
+    for path in sessions:
+        session = Session.from_text(path.read_text())
+        assert divergences(session, run_emulator_session(session),
+                           run_firmware_session(session)) == [], path.name
+
+
+@pytest.fixture(scope="module")
+def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The firmware as it was: the five digits of a position summed in 16 bits, and a slave that
+    took a new reference only after its EEPROM record."""
+    src = tmp_path_factory.mktemp("old-firmware")
+    for path in FIRMWARE_SOURCE.rglob("*"):
+        if path.is_file() and path.suffix in (".c", ".h"):
+            (src / path.relative_to(FIRMWARE_SOURCE)).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(path, src / path.relative_to(FIRMWARE_SOURCE))
+    master = src / "master.c"
+    text = master.read_text()
+    assert "uint32_t t = 0;" in text
+    master.write_text(text.replace("uint32_t t = 0;", "uint16_t t = 0;"))
+    slave = src / "slave.c"
+    text = slave.read_text()
+    waits = "    refresh_position();\n    take_reference();\n}"
+    assert waits in text
+    slave.write_text(text.replace(waits, "    refresh_position();\n}"))
+    return build(src, src / "build")
+
+
+def test_the_comparison_catches_a_frame_only_the_firmware_takes(old_firmware: Path) -> None:
+    """The issue's frame on the old firmware: taken there, rejected by the emulator; the
+    divergence survives minimisation down to that one write."""
+    session = Session((Write(0.15, b"\r\n" + OVERFLOW_FRAME + b"##"),
+                       Write(0.2, b"$00100,99,00000,00,00000,00,00000,00#")), 0.3)
+
+    def check(s: Session) -> list[str]:
+        return divergences(s, run_emulator_session(s),
+                           run_firmware_session(s, firmware=str(old_firmware)))
+
+    found = check(session)
+    assert any("34463" in line for line in found), found
+    small = minimise(session, check, budget=10)
+    assert len(small.events) == 1 and OVERFLOW_FRAME in small.events[0].data  # type: ignore[union-attr]
+    assert not divergences(session, run_emulator_session(session), run_firmware_session(session))
+
+
+def test_the_comparison_catches_a_slave_that_waits_for_its_record(old_firmware: Path) -> None:
+    """The kept session of the slave that took a command only after its EEPROM record diverges
+    on the old firmware (joint 3 ran on at the old duty) and agrees on the current one."""
+    session = Session.from_text((CORPUS / "slave-reference-during-eeprom-record.session")
+                                .read_text())
+    emu = run_emulator_session(session)
+    found = divergences(session, emu, run_firmware_session(session, firmware=str(old_firmware)))
+    assert any(line.startswith("joint 3") for line in found), found
+    assert divergences(session, emu, run_firmware_session(session)) == []
+
+
+@pytest.mark.xfail(strict=True, reason="open: the emulator stores an EEPROM record whole; the "
+                   "firmware writes it cell by cell (3.3 ms each), so a cut tears it")
+def test_a_record_torn_by_a_power_cut() -> None:
+    """Joint 1 stops at -43 counts and the cut comes while its record is written: the firmware's
+    record keeps the old low byte of the counter (stopped at -256 counts after the power-up),
+    the emulator's is whole (-43). Until the emulator tears records too, the fuzzer's comparison
+    stops at a cut made while a master's loop is stalled (``_clear_cuts_until``)."""
+    session = Session.from_text((CORPUS / "open-record-torn-by-a-power-cut.session").read_text())
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    after = [r[0] for t, r in emu.replies if t > 0.3], [r[0] for t, r in fw.replies if t > 0.3]
+    assert after[0][0] == after[1][0], after
