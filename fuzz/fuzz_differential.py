@@ -29,7 +29,7 @@ import sys
 import time
 from pathlib import Path
 
-from _harness import ROOT  # first: puts the checkout on sys.path
+from _harness import ROOT
 
 from armbench.fakes.avr_fuzz import Campaign, firmware_lines
 from armbench.fakes.avr_session import Session, run_emulator_session, run_firmware_session
@@ -56,10 +56,11 @@ def replay(paths: list[Path]) -> int:
 def _progress(c: Campaign, every: set[tuple[str, int]] | None) -> dict[str, object]:
     elapsed = time.monotonic() - c.started
     reached, total = firmware_lines(c.pcs) if every is None else (None, every)
-    line = {"elapsed_s": round(elapsed, 1), "sessions": c.sessions,
-            "sessions_per_s": round(c.sessions / elapsed, 2) if elapsed else 0.0,
-            "corpus": len(c.corpus), "features": len(c.features),
-            "diverging_sessions": c.diverging, "divergences": len(c.findings)}
+    line: dict[str, object] = {
+        "elapsed_s": round(elapsed, 1), "sessions": c.sessions,
+        "sessions_per_s": round(c.sessions / elapsed, 2) if elapsed else 0.0,
+        "corpus": len(c.corpus), "features": len(c.features),
+        "diverging_sessions": c.diverging, "divergences": len(c.findings)}
     if reached is not None:
         line["firmware_lines"] = f"{len(reached)}/{len(total)}"
     return line
