@@ -15,6 +15,16 @@ from armbench.bench.limits import LimitsConfig
 from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
+from armbench.bench.verdict import (
+    DEFAULT_CONFIG,
+    EXIT_ERROR,
+    EXIT_FAIL,
+    EXIT_INCOMPLETE,
+    EXIT_INTERRUPTED,
+    EXIT_PASS,
+    EXIT_REGRESSION,
+    exit_status,
+)
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 
@@ -25,13 +35,12 @@ if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
 
 __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",
-    "EXIT_INTERRUPTED", "EXIT_PASS", "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
+    "EXIT_INCOMPLETE", "EXIT_INTERRUPTED", "EXIT_PASS", "EXIT_REGRESSION", "JUNIT_FILE",
+    "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
     "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
     "derive_seed", "exit_status", "in_shard",
 ]
 
-#: The limits file used when ``--config`` is not given (shipped with the package).
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "default_bench.toml"
 #: Files of a run directory besides ``results.json`` (``REPORT_FILE`` and ``CAPTURE_FILE``: the
 #: record's ``files``).
 JUNIT_FILE = "junit.xml"
@@ -42,15 +51,6 @@ RUNNER_FILE = "runner.json"
 #: re-enumeration or a ser2net restarted by systemd takes a few seconds.
 DEFAULT_OUTAGE_TIMEOUT_S = 10.0
 
-EXIT_PASS = 0
-EXIT_FAIL = 1
-EXIT_ERROR = 2
-EXIT_INTERRUPTED = 130
-
-_EXIT_BY_VERDICT: dict[Verdict, int] = {
-    "pass": EXIT_PASS, "fail": EXIT_FAIL, "regression": EXIT_FAIL,
-    "error": EXIT_ERROR, "incomplete": EXIT_ERROR,
-}
 
 Isolation = Literal["trial", "run"]
 
@@ -63,12 +63,6 @@ def in_shard(index: int, shard: tuple[int, int] | None) -> bool:
     """Whether trial ``index`` belongs to ``shard`` ``(I, N)``: every N-th trial from I − 1, so
     each shard gets its share of a plan that cycles through conditions; None: every trial."""
     return shard is None or index % shard[1] == shard[0] - 1
-
-
-def exit_status(verdict: Verdict) -> int:
-    """The exit status of a run with this verdict: 0 pass, 1 fail or regression, 2 error or
-    incomplete."""
-    return _EXIT_BY_VERDICT[verdict]
 
 
 def derive_seed(seed: int, *labels: object) -> int:
