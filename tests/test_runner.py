@@ -34,7 +34,6 @@ from armbench.bench.power import (
 from armbench.bench.record import Measurement, Trial, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
-    EXIT_ERROR,
     EXIT_FAIL,
     EXIT_INCOMPLETE,
     EXIT_INTERRUPTED,
