@@ -273,7 +273,9 @@ def test_run_end_to_end_writes_every_file(tmp_path: Path) -> None:
     # the run clock.
     root = ET.parse(out / "junit.xml").getroot()
     names = {tc.get("name") for tc in root.iter("testcase")}
-    assert {"tiny.move_mean_s", "tiny.error_max_mm", "tiny.move_s"} <= names
+    assert {"tiny.move_s", "tiny.error_mm"} <= names  # judged: testcases
+    props = {p.get("name") for p in root.iter("property")}
+    assert {"tiny.move_mean_s", "tiny.error_max_mm"} <= props - names  # unjudged: properties
     assert (out / "report.html").read_text().lstrip().lower().startswith("<!doctype html")
     records = list(open_capture(out / "capture.mcap"))
     assert {r.dir for r in records} == {"in", "out"}
