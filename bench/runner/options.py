@@ -38,7 +38,7 @@ __all__ = [
     "EXIT_INCOMPLETE", "EXIT_INTERRUPTED", "EXIT_PASS", "EXIT_REGRESSION", "JUNIT_FILE",
     "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
     "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
-    "derive_seed", "exit_status", "in_shard",
+    "derive_seed", "exit_status", "shard_assignment",
 ]
 
 #: Files of a run directory besides ``results.json`` (``REPORT_FILE`` and ``CAPTURE_FILE``: the
@@ -59,10 +59,34 @@ EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault
 """Builds the ``fake://`` emulator of a connection (tests pass one to watch the emulators)."""
 
 
-def in_shard(index: int, shard: tuple[int, int] | None) -> bool:
-    """Whether trial ``index`` belongs to ``shard`` ``(I, N)``: every N-th trial from I − 1, so
-    each shard gets its share of a plan that cycles through conditions; None: every trial."""
-    return shard is None or index % shard[1] == shard[0] - 1
+def _condition(params: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:
+    """The condition of a trial: its text and flag parameters (a lap style, a cut kind, a named
+    condition), without counters (lap, cycle) and drawn numbers."""
+    return tuple(sorted((k, repr(v)) for k, v in params.items() if isinstance(v, (str, bool))))
+
+
+def shard_assignment(suites: Sequence[Sequence[Mapping[str, Any]]], n: int) -> list[list[int]]:
+    """The 0-based shard (of ``n``) of every trial of every suite, from their parameters.
+
+    Trials are dealt to the shards in turn, condition by condition (the trials of one style,
+    kind or named condition together), the dealer carrying on from one condition and one suite
+    to the next: every shard gets its share, within one trial, of every condition of every suite
+    and of every suite (a plan alternating two lap styles does not put one style in each of two
+    shards, and suites of one trial each do not all land in shard 1).
+    """
+    dealer = 0
+    out: list[list[int]] = []
+    for trials in suites:
+        groups: dict[tuple[tuple[str, str], ...], list[int]] = {}
+        for index, params in enumerate(trials):
+            groups.setdefault(_condition(params), []).append(index)
+        shards = [0] * len(trials)
+        for indices in groups.values():
+            for index in indices:
+                shards[index] = dealer % n
+                dealer += 1
+        out.append(shards)
+    return out
 
 
 def derive_seed(seed: int, *labels: object) -> int:
@@ -187,7 +211,17 @@ class BenchPlan:
         if rec is not None and rec.status == "done":
             return []
         done = set() if rec is None else {t.index for t in rec.completed_trials()}
-        return [i for i in range(len(s.trials)) if i not in done and in_shard(i, self.shard)]
+        return [i for i in self.shard_trials(s) if i not in done]
+
+    def shard_trials(self, s: PlannedSuite) -> list[int]:
+        """Indices of suite ``s`` this run measures: all, or those of its shard
+        (:func:`shard_assignment` over every suite of the plan)."""
+        if self.shard is None:
+            return list(range(len(s.trials)))
+        i, n = self.shard
+        shards = shard_assignment([p.trials for p in self.suites], n)[
+            next(k for k, p in enumerate(self.suites) if p is s)]
+        return [k for k, owner in enumerate(shards) if owner == i - 1]
 
 
 @dataclass(slots=True)

@@ -59,7 +59,6 @@ from armbench.bench.runner.options import (
     RunOptions,
     RunOutcome,
     exit_status,
-    in_shard,
 )
 from armbench.bench.runner.parallel import ParallelTrials
 from armbench.bench.runner.plan import prepare
@@ -91,7 +90,7 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
     shard = runner.plan.shard
-    todo = [i for i in range(n) if i not in done and in_shard(i, shard)]
+    todo = [i for i in runner.plan.shard_trials(ps) if i not in done]
     runner.progress.message(f"[{name}] {n} trial(s)" + (
         f", {len(done)} already measured" if done else "") + (
         f", shard {shard[0]}/{shard[1]}: {len(todo)} to measure" if shard else ""))
