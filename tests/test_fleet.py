@@ -273,7 +273,7 @@ def test_one_arm_lost_mid_run_the_others_complete(emulators: Emulators, tmp_path
     index = read_fleet_index(out_dir)
     assert [a.exit_status for a in index.arms] == [0, 4, 0] and index.exit_status == 4
     html = (out_dir / "fleet.html").read_text(encoding="utf-8")
-    assert "arm-b: ERROR (exit 2)" in html
+    assert "arm-b: ERROR (exit 4)" in html
     assert (out_dir / "arm-b" / "report.html").is_file()
 
 
