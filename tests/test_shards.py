@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 from campaign_records import record_differences
@@ -41,8 +42,9 @@ def _run(config: Path, out: Path, shard: tuple[int, int] | None = None,
 
 
 def test_shards_partition_the_trials() -> None:
-    suites = [[{"style": s, "lap": lap} for lap in range(7) for s in ("paper", "coordinated")],
-              [{"k": i} for i in range(9)]]
+    suites: list[list[dict[str, Any]]] = [
+        [{"style": s, "lap": lap} for lap in range(7) for s in ("paper", "coordinated")],
+        [{"k": i} for i in range(9)]]
     for n in (1, 2, 3, 5):
         shards = shard_assignment(suites, n)
         assert [len(s) for s in shards] == [14, 9] and all(0 <= x < n for s in shards for x in s)
@@ -52,10 +54,11 @@ def test_shards_partition_the_trials() -> None:
 def test_shards_are_balanced_across_suites_and_styles(n: int) -> None:
     """Each shard gets its share, within one trial, of every style of every suite: --shard 1/2
     once put every paper-style lap in shard 1 and every coordinated lap in shard 2."""
-    accuracy = [{"style": s, "lap": lap} for lap in range(5) for s in ("paper", "coordinated")]
-    startup = [{"kind": "cut", "condition": c, "cycle": i}
-               for i in range(4) for c in ("idle", "moving", "homing")]
-    ones = [[{"x": 1}] for _ in range(2 * n)]  # suites of one trial each
+    accuracy: list[dict[str, Any]] = [{"style": s, "lap": lap} for lap in range(5)
+                                      for s in ("paper", "coordinated")]
+    startup: list[dict[str, Any]] = [{"kind": "cut", "condition": c, "cycle": i}
+                                     for i in range(4) for c in ("idle", "moving", "homing")]
+    ones: list[list[dict[str, Any]]] = [[{"x": 1}] for _ in range(2 * n)]  # one trial each
     plan = [accuracy, startup, *ones]
     shards = shard_assignment(plan, n)
     for trials, owners in zip(plan, shards, strict=True):
