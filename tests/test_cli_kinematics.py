@@ -70,7 +70,9 @@ def test_fk_dh_angles_and_gripper_offset(capsys: pytest.CaptureFixture[str]) -> 
 ])
 def test_fk_negative_positionals(capsys: pytest.CaptureFixture[str], argv: tuple[str, ...]) -> None:
     status, out, err = _run(capsys, *argv)
-    assert err == ""
+    # joint 4 at -1.5 rad is outside its -30..120° limits: a warning, no error
+    assert err == ("armbench fk: warning: joint 4 at -1.5 rad (-85.9437°) is outside its limits "
+                   "-30..120°\n")
     data = json.loads(out)
     assert status == 0
     q = [0.1, -0.2, 0.0, -1.5]
