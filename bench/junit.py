@@ -7,6 +7,10 @@ Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
   ``classname="armbench.<suite>"``, trial-level ones ``"armbench.<suite>.trial<index>"``; a
   failed measurement carries a ``<failure type="limit">`` with value and limit, a passed one its
   value in ``<system-out>``;
+- a campaign's samples (``armbench campaign``: trials of a suite whose parameters hold
+  ``campaign``) are summarised by its ``campaign.*`` figures, which are its testcases; their own
+  figures are left out (a sample outside a limit is a finding, not a failed test), a sample in
+  error is an ``<error>`` testcase;
 - an unjudged measurement (no limit) is no test: it is a ``<property>`` of its testsuite,
   ``name="<metric>"`` (suite level) or ``"trial<index>.<metric>"``, ``value="<value> <unit>"``,
   so test reporters list no skipped tests for figures that are only recorded;
@@ -33,6 +37,10 @@ from armbench.bench.record import (
     SuiteRecord,
 )
 from armbench.bench.record.files import atomic_write
+
+#: The key of a campaign suite's parameters (``armbench.bench.campaign.CAMPAIGN_KEY``; the
+#: campaign package imports the runner, which this module must not).
+CAMPAIGN_KEY = "campaign"
 
 __all__ = ["to_junit", "write_junit"]
 
@@ -89,9 +97,13 @@ def _suite_head(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     return el
 
 
+def _campaign(suite: SuiteRecord) -> bool:
+    return CAMPAIGN_KEY in suite.params
+
+
 def _unjudged_properties(suite: SuiteRecord) -> Iterator[ET.Element]:
     """A ``<property>`` per unjudged measurement of ``suite``, one at a time."""
-    for trial in suite.trials:
+    for trial in () if _campaign(suite) else suite.trials:
         for m in trial.measurements:
             if m.outcome == "unjudged":
                 yield ET.Element("property", name=_text(f"trial{trial.index}.{m.name}"),
@@ -109,7 +121,7 @@ def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
         if trial.status == "error":
             yield _error_case(cls, "trial", "trial_error",
                               f"trial {trial.index} could not be carried out: {trial.error}")
-        for m in trial.measurements:
+        for m in () if _campaign(suite) else trial.measurements:
             if m.outcome != "unjudged":
                 yield _measurement_case(cls, m)
     for m in suite.measurements:

@@ -207,6 +207,13 @@ def test_campaign_verdict_and_exit_status_from_its_limits(
     assert "campaign verdict: fail" in out and "FAIL   campaign.all_limits.pass_ci_low_pct" in out
     record = load_record(tmp_path / "s" / "results.json")
     assert record.verdict == "fail"
+    # in junit.xml the campaign's figures are the tests, not the samples' own limits
+    from armbench.bench.junit import to_junit
+
+    cases = list(to_junit(record).iter("testcase"))
+    failed = [c.get("name") for c in cases if c.find("failure") is not None]
+    assert failed == ["campaign.all_limits.pass_ci_low_pct"]
+    assert all(".trial" not in (c.get("classname") or "") for c in cases)
     assert main([*args, "--out", str(tmp_path / "d")]) == EXIT_PASS
     assert "no campaign.* limit" in capsys.readouterr().out
 
