@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from armbench.bench.record import RunRecord
+from armbench.bench.record import REPORT_FILE, RunRecord
 from armbench.bench.verdict import exit_status
 
-__all__ = ["MAX_LINES", "append_summary", "markdown_summary"]
+__all__ = ["MAX_LINES", "append_summary", "markdown_summary", "write_step_summary"]
 
 #: Failed measurements, regressions and errors listed at most (each list).
 MAX_LINES = 20
@@ -89,3 +89,11 @@ def append_summary(path: str | Path, text: str) -> None:
     earlier steps wrote, which is never lost."""
     with open(path, "a", encoding="utf-8") as fh:
         fh.write(text)
+
+
+def write_step_summary(path: str | Path, record: RunRecord, out_dir: Path, status: int) -> None:
+    """Append the summary of the run ``record`` in ``out_dir``, which exited with ``status``,
+    to ``path`` (``armbench run --summary``), naming its report when there is one."""
+    report = out_dir / REPORT_FILE
+    append_summary(path, markdown_summary(record, status=status,
+                                          report=report if report.exists() else None))

@@ -126,17 +126,10 @@ def _run(args: argparse.Namespace) -> int:
         done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
     _summary(outcome)
     if args.summary is not None:
-        write_step_summary(args.summary, outcome)
+        from armbench.bench.run_summary import write_step_summary
+
+        write_step_summary(args.summary, outcome.record, outcome.out_dir, outcome.exit_status)
     return outcome.exit_status
-
-
-def write_step_summary(path: str, outcome: RunOutcome) -> None:
-    """Append the Markdown summary of ``outcome`` to ``path`` (``--summary``)."""
-    from armbench.bench.run_summary import append_summary, markdown_summary
-
-    report = outcome.out_dir / REPORT_FILE
-    append_summary(path, markdown_summary(outcome.record, status=outcome.exit_status,
-                                          report=report if report.exists() else None))
 
 
 def _summary(outcome: RunOutcome) -> None:
