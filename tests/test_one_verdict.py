@@ -91,7 +91,9 @@ def test_compare_and_run_baseline_agree_on_every_metric(
         assert record.baseline is not None
         capsys.readouterr()
         status = cli.main(["compare", str(base), str(out), "--config", str(config), "--json"])
-        data = json.loads(capsys.readouterr().out)
+        printed = capsys.readouterr()
+        data = json.loads(printed.out)
+        assert "note" not in printed.err  # the config the run was judged with
         by_run = {r.name: r.to_json() for r in record.baseline.rows}
         by_compare = {r["name"]: r for r in data["rows"]}
         assert by_compare == by_run, name
@@ -100,6 +102,10 @@ def test_compare_and_run_baseline_agree_on_every_metric(
         assert status == run_status(record.verdict), name
         statuses.add(status)
     assert statuses == {EXIT_PASS, EXIT_REGRESSION}  # the variants exercise both outcomes
+    # without --config: the packaged default, and a note that the run was judged otherwise
+    cli.main(["compare", str(base), str(next(iter(judged.values()))), "--json"])
+    err = capsys.readouterr().err
+    assert f"run B was judged with the config {config}" in err and "--config" in err
 
 
 def run_status(verdict: str) -> int:

@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 from armbench.bench.baseline import compare, format_comparison, load_baseline, read_record
 from armbench.bench.record import RESULTS_FILE
-from armbench.bench.verdict import EXIT_PASS, EXIT_REGRESSION, load_config
+from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register"]
@@ -52,10 +53,27 @@ def _results(name: str) -> Path:
     return path / RESULTS_FILE if path.is_dir() else path
 
 
+def _note_other_config(recorded: str | None, given: str | None) -> None:
+    """Say on stderr when run B was judged with another config than this comparison uses: the
+    tolerances (and so the rows) may differ from those ``armbench run --baseline`` stored."""
+    if recorded is None:
+        return
+    used = Path(given) if given is not None else DEFAULT_CONFIG
+    try:
+        same = Path(recorded).resolve() == used.resolve()
+    except OSError:
+        same = False
+    if not same:
+        print(f"armbench compare: note: run B was judged with the config {recorded}; these "
+              f"tolerances come from {used} (give --config to judge as that run did)",
+              file=sys.stderr)
+
+
 def _run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     baseline = load_baseline(_results(args.baseline))
     current = read_record(_results(args.current))
+    _note_other_config(current.environment.config_path, args.config)
     comparison = compare(current, baseline, config)
     compared = sum(r.status == "compared" for r in comparison.rows)
     missing = sum(r.status == "missing" for r in comparison.rows)
