@@ -73,13 +73,13 @@ def _run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     baseline = load_baseline(_results(args.baseline))
     current = read_record(_results(args.current))
-    _note_other_config(current.environment.config_path, args.config)
     comparison = compare(current, baseline, config)
     compared = sum(r.status == "compared" for r in comparison.rows)
     missing = sum(r.status == "missing" for r in comparison.rows)
     if not compared and missing:
         raise ArmbenchError(f"run {current.run_id} measured none of the baseline's suite-level "
                             f"metrics (0 compared, {missing} missing): nothing to judge")
+    _note_other_config(current.environment.config_path, args.config)  # judged: no error left
     if args.json:
         print(json.dumps({"run_id": current.run_id, **comparison.to_json()}, indent=1))
     else:
