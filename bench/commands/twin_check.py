@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -85,8 +86,19 @@ def _run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     config = DEFAULT_CONFIG if args.config is None else Path(args.config)
     limits = load_limits(config)
+    t0 = time.monotonic()
+
+    def progress(text: str) -> None:
+        """A long capture takes a while: say on a terminal what is going on (a pipe or a log
+        gets the result only, and bad input stays one line)."""
+        if sys.stderr.isatty():
+            print(f"[{time.monotonic() - t0:5.1f} s] {text}", file=sys.stderr, flush=True)
+
+    progress(f"reading {args.capture}")
     data = load_capture(args.capture, settings)
+    progress("replaying the commands into the twin and comparing")
     result = twin_check(data, settings, config)
+    progress("done")
     if out is not None:
         inputs = TwinInputs(Path(args.capture),
                             None if args.settings is None else Path(args.settings), config)
