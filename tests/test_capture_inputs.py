@@ -330,15 +330,15 @@ def test_unwritable_out(captures: dict[str, Path], tmp_path: Path) -> None:
     blocker = tmp_path / "blocker"
     blocker.write_text("a file\n")
     missing = tmp_path / "missing.jsonl"  # never opened: the --out check comes first
-    cases = [(blocker / "robot.toml", "blocker is not a directory"),
-             (tmp_path, "is a directory"),
-             (tmp_path / "none" / "robot.toml", "none does not exist")]
-    cases += [(d / "robot.toml", f"cannot write in {d}") for d in _unwritable(tmp_path)]
-    for out, message in cases:
-        err = _cli("calibrate", "--capture", missing, "--out", out)
-        assert f"--out {out}: " in err and message in err, err
+    taken = tmp_path / "taken"  # --out is a folder: its robot.toml a directory in the way
+    (taken / "robot.toml").mkdir(parents=True)
     dirs = [(blocker, "is not a directory"), (blocker / "sub", "blocker is not a directory")]
     dirs += [(d / "check", f"cannot write in {d}") for d in _unwritable(tmp_path)]
+    cases = [*dirs, (taken, "is a directory"),
+             (blocker / "robot.toml", "blocker is not a directory")]  # the former FILE.toml
+    for out, message in cases:
+        err = _cli("calibrate", "--capture", missing, "--out", out)
+        assert f"--out {out}" in err and message in err, err
     for out, message in dirs:
         err = _cli("twin-check", missing, "--out", out)
         assert f"--out {out}" in err and message in err, err

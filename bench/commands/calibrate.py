@@ -61,7 +61,7 @@ def _run(args: argparse.Namespace) -> int:
     if not 0 < args.budget_s <= 24 * 3600:
         raise InvalidTargetError(None, "--budget-s", args.budget_s, "must be in (0, 86400] s")
     out = _settings_path(Path(args.out))
-    if out.parent.is_dir():
+    if out.parent.is_dir() or out == Path(args.out):  # a folder there, or the former FILE.toml
         check_out_files("--out", output_paths(out, observations=args.port is not None),
                         force=args.force)
     else:  # a new folder: nothing in it to overwrite; made once its parent is known writable
