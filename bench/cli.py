@@ -37,6 +37,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "i2c": (_COMMANDS + "i2c", "I²C bus tools (scan the joint boards)"),
     "report": (_COMMANDS + "report", "render run reports (DIR/report.html) and the run index"),
     "compare": (_COMMANDS + "compare", "compare run B with baseline run A, metric by metric"),
+    "config": (_COMMANDS + "config",
+               "print the effective config (limits, tolerances) as TOML: config show"),
     "firmware": (_COMMANDS + "firmware",
                  "build the firmware in the loop (AVR images and simavr harness)"),
     "calibrate": (_COMMANDS + "calibrate",

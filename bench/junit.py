@@ -3,10 +3,17 @@
 Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
 
 - one ``<testsuite>`` per bench suite, with the suite's version and the run's id as properties;
-- one ``<testcase>`` per measurement: suite-level ones have ``classname="armbench.<suite>"``,
-  trial-level ones ``"armbench.<suite>.trial<index>"``; a failed measurement carries a
-  ``<failure type="limit">`` with value and limit, an unjudged one a ``<skipped type="unjudged">``
-  and its value in ``<system-out>``, a passed one its value in ``<system-out>``;
+- one ``<testcase>`` per judged measurement (one a limit applies to): suite-level ones have
+  ``classname="armbench.<suite>"``, trial-level ones ``"armbench.<suite>.trial<index>"``; a
+  failed measurement carries a ``<failure type="limit">`` with value and limit, a passed one its
+  value in ``<system-out>``;
+- a campaign's samples (``armbench campaign``: trials of a suite whose parameters hold
+  ``campaign``) are summarised by its ``campaign.*`` figures, which are its testcases; their own
+  figures are left out (a sample outside a limit is a finding, not a failed test), a sample in
+  error is an ``<error>`` testcase;
+- an unjudged measurement (no limit) is no test: it is a ``<property>`` of its testsuite,
+  ``name="<metric>"`` (suite level) or ``"trial<index>.<metric>"``, ``value="<value> <unit>"``,
+  so test reporters list no skipped tests for figures that are only recorded;
 - one ``<testcase name="trial">`` with an ``<error>`` per errored trial, and one per suite that
   errored or never finished (``name="suite"``), and per planned suite that never started;
 - a ``baseline`` testsuite with one testcase per compared metric when the record has a baseline
@@ -16,6 +23,7 @@ Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
 from __future__ import annotations
 
 import functools
+import itertools
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterator
@@ -29,6 +37,10 @@ from armbench.bench.record import (
     SuiteRecord,
 )
 from armbench.bench.record.files import atomic_write
+
+#: The key of a campaign suite's parameters (``armbench.bench.campaign.CAMPAIGN_KEY``; the
+#: campaign package imports the runner, which this module must not).
+CAMPAIGN_KEY = "campaign"
 
 __all__ = ["to_junit", "write_junit"]
 
@@ -57,9 +69,6 @@ def _measurement_case(classname: str, m: Measurement) -> ET.Element:
                                 message=_text(f"{m.name} = {_value(m)} outside {limit}"))
         failure.text = _text(f"value: {_value(m)}\n{limit} (pattern {m.limit.metric!r})"
                              if m.limit is not None else f"value: {_value(m)}")
-    elif m.outcome == "unjudged":
-        ET.SubElement(case, "skipped", type="unjudged",
-                      message=_text(f"unjudged: {_value(m)} (no limit)"))
     out = ET.SubElement(case, "system-out")
     out.text = _text(f"{m.name} = {_value(m)} ({m.outcome}; {limit})"
                      + (f"\n{m.description}" if m.description else ""))
@@ -88,6 +97,22 @@ def _suite_head(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     return el
 
 
+def _campaign(suite: SuiteRecord) -> bool:
+    return CAMPAIGN_KEY in suite.params
+
+
+def _unjudged_properties(suite: SuiteRecord) -> Iterator[ET.Element]:
+    """A ``<property>`` per unjudged measurement of ``suite``, one at a time."""
+    for trial in () if _campaign(suite) else suite.trials:
+        for m in trial.measurements:
+            if m.outcome == "unjudged":
+                yield ET.Element("property", name=_text(f"trial{trial.index}.{m.name}"),
+                                 value=_text(_value(m)))
+    for m in suite.measurements:
+        if m.outcome == "unjudged":
+            yield ET.Element("property", name=_text(m.name), value=_text(_value(m)))
+
+
 def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
     """The testcases of ``suite``, one at a time (a long run has hundreds of thousands)."""
     base = f"armbench.{suite.name}"
@@ -96,10 +121,12 @@ def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
         if trial.status == "error":
             yield _error_case(cls, "trial", "trial_error",
                               f"trial {trial.index} could not be carried out: {trial.error}")
-        for m in trial.measurements:
-            yield _measurement_case(cls, m)
+        for m in () if _campaign(suite) else trial.measurements:
+            if m.outcome != "unjudged":
+                yield _measurement_case(cls, m)
     for m in suite.measurements:
-        yield _measurement_case(base, m)
+        if m.outcome != "unjudged":
+            yield _measurement_case(base, m)
     if suite.status == "error":
         yield _error_case(base, "suite", "suite_error",
                           f"suite {suite.name} stopped: {suite.error}")
@@ -135,24 +162,32 @@ def _baseline_head(record: RunRecord) -> ET.Element:
     return el
 
 
-#: A testsuite head and a function that yields its testcases.
-_Suite = tuple[ET.Element, Callable[[], Iterator[ET.Element]]]
+#: A testsuite head, a function that yields its testcases and one that yields the properties it
+#: has besides those of the head (the unjudged measurements).
+_Suite = tuple[ET.Element, Callable[[], Iterator[ET.Element]],
+               Callable[[], Iterator[ET.Element]]]
+
+
+def _none() -> Iterator[ET.Element]:
+    return iter(())
 
 
 def _suites(record: RunRecord) -> Iterator[_Suite]:
     """Each ``<testsuite>`` head of ``record`` with a function that yields its testcases afresh
     (called once to count them, once to write them: nothing of a long run is held whole)."""
     for suite in record.suites.values():
-        yield _suite_head(record, suite), functools.partial(_suite_cases, suite)
+        yield (_suite_head(record, suite), functools.partial(_suite_cases, suite),
+               functools.partial(_unjudged_properties, suite))
     for name in record.planned_suites:
         if name not in record.suites:
             el = ET.Element("testsuite", name=_text(name), time=_seconds(0.0))
             case = _error_case(f"armbench.{name}", "suite", "incomplete",
                                f"suite {name} was planned but never started")
-            yield el, functools.partial(iter, (case,))
+            yield el, functools.partial(iter, (case,)), _none
     baseline = record.baseline
     if baseline is not None:
-        yield _baseline_head(record), lambda: (_row_case(row) for row in baseline.rows)
+        yield (_baseline_head(record), lambda: (_row_case(row) for row in baseline.rows),
+               _none)
 
 
 def _count(head: ET.Element, cases: Iterator[ET.Element]) -> None:
@@ -170,11 +205,11 @@ def _counted(record: RunRecord) -> tuple[ET.Element, list[_Suite]]:
     """The ``<testsuites>`` root (attributes only) and the counted suite heads of ``record``."""
     root = ET.Element("testsuites", name=_text(f"armbench {record.run_id}"))
     suites = list(_suites(record))
-    for head, cases in suites:
+    for head, cases, _ in suites:
         _count(head, cases())
     for attr in ("tests", "failures", "errors", "skipped"):
-        root.set(attr, str(sum(int(head.get(attr, "0")) for head, _ in suites)))
-    root.set("time", _seconds(sum(float(head.get("time", "0")) for head, _ in suites)))
+        root.set(attr, str(sum(int(head.get(attr, "0")) for head, _, _ in suites)))
+    root.set("time", _seconds(sum(float(head.get("time", "0")) for head, _, _ in suites)))
     return root, suites
 
 
@@ -182,7 +217,14 @@ def to_junit(record: RunRecord) -> ET.Element:
     """The ``<testsuites>`` element of ``record`` as one tree (see the module docstring for the
     layout); :func:`write_junit` writes the same document without building it whole."""
     root, suites = _counted(record)
-    for head, cases in suites:
+    for head, cases, properties in suites:
+        props = head.find("properties")
+        extra = list(properties())
+        if extra:
+            if props is None:
+                props = ET.Element("properties")
+                head.insert(0, props)
+            props.extend(extra)
         head.extend(cases())
         root.append(head)
     return root
@@ -205,10 +247,22 @@ def _indented(el: ET.Element, level: int) -> bytes:
 def _stream(record: RunRecord, fh: BinaryIO) -> None:
     root, suites = _counted(record)
     fh.write(b"<?xml version='1.0' encoding='utf-8'?>\n" + _open_tag(root) + b"\n")
-    for head, cases in suites:
+    for head, cases, properties in suites:
         fh.write(b"  " + _open_tag(head) + b"\n")
+        extra = properties()
+        first = next(extra, None)
+        if first is not None and head.find("properties") is None:
+            head.insert(0, ET.Element("properties"))
         for child in head:
-            fh.write(_indented(child, 2))
+            if child.tag != "properties" or first is None:
+                fh.write(_indented(child, 2))
+                continue
+            fh.write(b"    " + _open_tag(child) + b"\n")
+            for prop in child:
+                fh.write(_indented(prop, 3))
+            for prop in itertools.chain((first,), extra):
+                fh.write(_indented(prop, 3))
+            fh.write(b"    </properties>\n")
         for case in cases():
             fh.write(_indented(case, 2))
         fh.write(b"  </testsuite>\n")

@@ -134,6 +134,23 @@ class LimitsConfig:
             return Tolerance(self.default_tolerance_pct)
         return self.tolerances[pattern]
 
+    def to_mapping(self) -> dict[str, Any]:
+        """The config as a TOML-shaped mapping that :func:`parse_limits` reads back to an equal
+        config (defaults written out: what ``armbench config show`` prints)."""
+        limits = {name: {k: v for k, v in (("low", lim.low), ("high", lim.high),
+                                            ("unit", lim.unit)) if v is not None}
+                  for name, lim in self.limits.items()}
+        tolerances = {name: {"tolerance_pct": t.tolerance_pct, "tolerance_abs": t.tolerance_abs}
+                      for name, t in self.tolerances.items()}
+        return {
+            "spec_version": self.spec_version,
+            "bench": self.bench_params(),
+            "limits": limits,
+            "regression": {"default_tolerance_pct": self.default_tolerance_pct,
+                           "metrics": tolerances},
+            "suites": {name: self.suite_params(name) for name in self.suites},
+        }
+
     def bench_params(self) -> dict[str, Any]:
         """A copy of the raw ``[bench]`` table (empty if the file has none)."""
         return copy.deepcopy(dict(self.bench))

@@ -7,7 +7,9 @@ installed; the options, the fixtures and the record are described there.
 from __future__ import annotations
 
 import asyncio
+import inspect
 import re
+import shutil
 from collections.abc import AsyncIterator, Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +20,7 @@ import pytest_asyncio
 
 from armbench.bench.limits import Limit, LimitsConfig, load_limits
 from armbench.bench.record import (
+    RESULTS_FILE,
     Better,
     Measurement,
     Outcome,
@@ -30,6 +33,7 @@ from armbench.bench.record import (
     default_better,
     judge,
 )
+from armbench.bench.record.journal import journal_path
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, load_settings
@@ -70,7 +74,8 @@ class BenchSession:
     """The session's limits and, with ``--arm-record``, its record writer."""
 
     def __init__(self, port: str, settings: RobotSettings, settings_path: str | None,
-                 limits: LimitsConfig | None, out_dir: Path | None) -> None:
+                 limits: LimitsConfig | None, out_dir: Path | None,
+                 mode: str = "new") -> None:
         self.port = port
         self.settings = settings
         self.settings_path = settings_path
@@ -78,11 +83,30 @@ class BenchSession:
         self.out_dir = out_dir
         self.writer: RecordWriter | None = None
         self._next_index = 0
-        if out_dir is not None:
+        if out_dir is None:
+            return
+        results = out_dir / RESULTS_FILE
+        if mode == "resume" and results.exists():
+            self.writer = RecordWriter.resume(out_dir)
+            suite = self.writer.record.suites.get(SUITE_NAME)
+            if suite is None:
+                raise RecordError(str(results), f"holds no {SUITE_NAME!r} suite: not a record "
+                                                "of bench tests")
+            # this session's tests are trials of the same suite, after the recorded ones; its
+            # summary is computed again over all of them at the end
+            self._next_index = 1 + max((t.index for t in (*suite.trials,
+                                                          *suite.superseded_trials)),
+                                       default=-1)
+            suite.status, suite.ended_s, suite.measurements = "running", None, []
+        else:
+            if mode == "replace" and results.exists():
+                for old in (results, journal_path(results)):
+                    old.unlink(missing_ok=True)
+                shutil.rmtree(out_dir / "captures", ignore_errors=True)
             env = capture_environment(port=port, settings=settings, limits=limits)
             record = RunRecord.new(env, [SUITE_NAME])
             self.writer = RecordWriter(out_dir, record)
-            self.writer.begin_suite(SUITE_NAME, SUITE_VERSION, {"port": port})
+        self.writer.begin_suite(SUITE_NAME, SUITE_VERSION, {"port": port})
 
     def now_s(self) -> float:
         """Run time (s) of the record; 0 without one."""
@@ -163,11 +187,12 @@ def _session(config: pytest.Config) -> BenchSession:
         settings_path = config.getoption("--arm-settings")
         limits_path = config.getoption("--arm-config")
         record_dir = config.getoption("--arm-record")
+        mode = str(config.getoption("--arm-record-mode", "new"))
         try:
             settings = load_settings(settings_path)
             limits = load_limits(limits_path) if limits_path else None
             session = BenchSession(port, settings, settings_path, limits,
-                                   Path(record_dir) if record_dir else None)
+                                   Path(record_dir) if record_dir else None, mode)
         except ArmbenchError as exc:
             raise pytest.UsageError(f"armbench: {exc}") from None
         config.stash[_SESSION_KEY] = session
@@ -356,6 +381,24 @@ class _VirtualLoops:
 
             return {"virtual_time": virtual_loop_factory}
         return {"asyncio": asyncio.new_event_loop}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_pycollect_makeitem(collector: pytest.Collector, name: str, obj: object) -> None:
+    """Mark an ``async def`` test that takes the ``arm`` fixture ``asyncio``, so that bench tests
+    run whatever the project's ``asyncio_mode`` (strict by default: unmarked async tests would
+    fail as "not natively supported"). Runs before pytest-asyncio turns the function into a
+    test item; anything else is left as it is."""
+    if not (inspect.iscoroutinefunction(obj) and isinstance(collector, pytest.Class | pytest.Module)
+            and collector.funcnamefilter(name)):
+        return
+    try:
+        takes_arm = "arm" in inspect.signature(obj).parameters
+    except (TypeError, ValueError):
+        return
+    marks = getattr(obj, "pytestmark", [])
+    if takes_arm and not any(getattr(m, "name", None) == "asyncio" for m in marks):
+        pytest.mark.asyncio(obj)
 
 
 @pytest.hookimpl(wrapper=True)

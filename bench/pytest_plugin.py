@@ -8,13 +8,16 @@ installed); without installing, ``pytest -p armbench.bench.pytest_plugin``. Opti
 ``--arm-config FILE``    limits file judging the measurements (``bench.toml``); optional
 ``--arm-record DIR``     write ``results.json`` (one suite ``pytest``, one trial per test),
                          ``junit.xml`` and ``report.html`` to DIR
+``--arm-record-mode M``  ``new`` (default: refuse a DIR that holds a record), ``replace`` (start
+                         a new record there) or ``resume`` (add this session's tests to it)
 
 Fixtures:
 
 - ``arm`` — a connected :class:`armbench.drivers.arm.Arm` (async fixture; the test must be
-  ``async def``). On ``fake://`` the test and the fixture run on a virtual-time loop
-  (pytest-asyncio ≥ 1.4's ``pytest_asyncio_loop_factories`` hook), so minutes of robot time take
-  milliseconds.
+  ``async def``; the plugin marks such a test ``asyncio`` itself, so it runs in pytest-asyncio's
+  strict mode, the default, as in ``auto``). On ``fake://`` the test and the fixture run on a
+  virtual-time loop (pytest-asyncio ≥ 1.4's ``pytest_asyncio_loop_factories`` hook), so minutes
+  of robot time take milliseconds.
 - ``bench_record`` — this test's trial: ``measure(name, value, unit, limit=...)``,
   ``sample(**fields)``, ``params``.
 - ``record_measurement(name, value, unit, *, limit=None, better=None, description="")`` — the
@@ -25,8 +28,9 @@ is kept). See ``docs/runner.md`` for the record's shape and the loop details.
 
 A good guest in other projects' test runs: this module imports nothing but pytest. It adds the
 options, and loads the fixtures and hooks (:mod:`armbench.bench.pytest_bench`) only when
-pytest-asyncio (a test extra of armbench, not a dependency) is installed; without it, a test that
-asks for ``arm`` fails with a message saying what to install, and every other test runs as before.
+pytest-asyncio (the ``armbench[pytest]`` extra, not a dependency) is installed; without it, a test
+that asks for ``arm`` fails with a message saying what to install, and every other test runs as
+before.
 """
 
 from __future__ import annotations
@@ -54,6 +58,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--arm-record", default=None, metavar="DIR",
                     help="write the bench tests' run record (results.json, junit.xml, "
                          "report.html) to DIR")
+    group.addoption("--arm-record-mode", default="new", choices=("new", "replace", "resume"),
+                    help="when DIR holds a record: new (default) refuses it, replace starts a "
+                         "new record there, resume adds this session's tests to it")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -75,4 +82,4 @@ class _WithoutAsyncio:
     @pytest.fixture
     def arm(self) -> None:
         pytest.fail("the armbench 'arm' fixture needs pytest-asyncio: "
-                    "pip install 'armbench[test]' (or pytest-asyncio>=1.4)", pytrace=False)
+                    "pip install 'armbench[pytest]' (or pytest-asyncio>=1.4)", pytrace=False)

@@ -81,8 +81,11 @@ def test_hidden_arms_twenty(tmp_path: Path) -> None:
 def test_outputs_load_and_page(tmp_path: Path) -> None:
     """The settings file loads with --settings and as fake://?settings=; the fit JSON names every
     parameter with its sigma; the page is self-contained (CSP, no script, no URL)."""
-    out = tmp_path / "robot.toml"
-    assert main(["calibrate", "--port", "fake://", "--budget-s", "60", "--out", str(out)]) == 0
+    folder = tmp_path / "cal"  # --out is a folder, as for every command; made when missing
+    assert main(["calibrate", "--port", "fake://", "--budget-s", "60", "--out", str(folder)]) == 0
+    out = folder / "robot.toml"
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "robot.html", "robot.json", "robot.observations.json", "robot.toml"]
     text = out.read_text()
     assert re.search(r"backlash_deg = [0-9.e-]+  # fitted: ± ", text)
     assert "kept:" in text
@@ -271,3 +274,17 @@ def test_budget_on_a_pty(tmp_path: Path) -> None:
     finally:
         emu.terminate()
         emu.wait(timeout=10)
+
+
+def test_out_as_a_toml_file_is_deprecated_but_kept(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """``--out X.toml`` (the former form) still names the settings file, with a note."""
+    (tmp_path / "x.toml").write_text("")
+    assert main(["calibrate", "--capture", str(tmp_path / "none.mcap"),
+                 "--out", str(tmp_path / "x.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "is deprecated: --out is a folder" in err and "x.toml exists" in err
+    assert main(["calibrate", "--capture", str(tmp_path / "none.mcap"),
+                 "--out", str(tmp_path / "new")]) == 2
+    err = capsys.readouterr().err
+    assert "deprecated" not in err and "none.mcap" in err

@@ -23,6 +23,8 @@ from armbench.bench.campaign import (
 )
 from armbench.bench.campaign.draws import draw_arm
 from armbench.bench.cli import main
+from armbench.bench.record import load_record
+from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.reports.format import CSP
 
@@ -161,6 +163,17 @@ def test_startup_campaign_draws_states_and_shards_merge_to_the_same_record(
     assert figures["campaign.startup.recovered.rate_pct"] == pytest.approx(
         100 * sum(recovered) / len(recovered))
     assert figures["campaign.samples"] == 15
+    # every sample is in the denominator: a cut the arm did not recover from has no recovery
+    # time to judge, and does not pass (it once dropped out: 100 % of 27 with 23 of 50 lost)
+    clean = sum(all(m["outcome"] != "fail" for m in t["measurements"])
+                and any(m["name"] == "startup.recovery_time_s" for m in t["measurements"])
+                for t in trials)
+    assert 0 < sum(recovered) < 15
+    assert figures["campaign.all_limits.pass_pct"] == pytest.approx(100 * clean / 15)
+    assert figures["campaign.all_limits.pass_pct"] <= figures["campaign.startup.recovered.rate_pct"]
+    low, high = wilson_interval(clean, 15)
+    assert figures["campaign.all_limits.pass_ci_low_pct"] == pytest.approx(100 * low)
+    assert figures["campaign.all_limits.pass_ci_high_pct"] == pytest.approx(100 * high)
 
 
 def test_cli_campaign_writes_record_and_page(tmp_path: Path,
@@ -177,6 +190,32 @@ def test_cli_campaign_writes_record_and_page(tmp_path: Path,
                  "--out", str(tmp_path / "d")]) == 2
     assert "--samples" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+def test_campaign_verdict_and_exit_status_from_its_limits(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A campaign is judged by the limits of its figures in the config: the pass probability
+    of every limit together, at 95 % confidence, below 99 % fails it (exit 1); without such a
+    limit the samples' failures are findings and the campaign passes."""
+    strict = tmp_path / "strict.toml"
+    strict.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
+                      + '\n[limits."campaign.all_limits.pass_ci_low_pct"]\nlow = 99.0\n'
+                        'unit = "%"\n', encoding="utf-8")
+    args = ["campaign", "startup-recovery", "--samples", "6", "--seed", "3", "--workers", "1"]
+    assert main([*args, "--config", str(strict), "--out", str(tmp_path / "s")]) == EXIT_FAIL
+    out = capsys.readouterr().out
+    assert "campaign verdict: fail" in out and "FAIL   campaign.all_limits.pass_ci_low_pct" in out
+    record = load_record(tmp_path / "s" / "results.json")
+    assert record.verdict == "fail"
+    # in junit.xml the campaign's figures are the tests, not the samples' own limits
+    from armbench.bench.junit import to_junit
+
+    cases = list(to_junit(record).iter("testcase"))
+    failed = [c.get("name") for c in cases if c.find("failure") is not None]
+    assert failed == ["campaign.all_limits.pass_ci_low_pct"]
+    assert all(".trial" not in (c.get("classname") or "") for c in cases)
+    assert main([*args, "--out", str(tmp_path / "d")]) == EXIT_PASS
+    assert "no campaign.* limit" in capsys.readouterr().out
 
 
 class _CtrlC(io.StringIO):

@@ -70,7 +70,9 @@ def test_fk_dh_angles_and_gripper_offset(capsys: pytest.CaptureFixture[str]) -> 
 ])
 def test_fk_negative_positionals(capsys: pytest.CaptureFixture[str], argv: tuple[str, ...]) -> None:
     status, out, err = _run(capsys, *argv)
-    assert err == ""
+    # joint 4 at -1.5 rad is outside its -30..120° limits: a warning, no error
+    assert err == ("armbench fk: warning: joint 4 at -1.5 rad (-85.9437°) is outside its limits "
+                   "-30..120°\n")
     data = json.loads(out)
     assert status == 0
     q = [0.1, -0.2, 0.0, -1.5]
@@ -196,3 +198,19 @@ def test_ik_unreachable_exit_2(capsys: pytest.CaptureFixture[str], argv: tuple[s
     assert out == ""
     assert err.startswith("armbench ik: error: target (") and err.count("\n") == 1
     assert "unreachable" in err and reason in err
+
+
+def test_fk_deg_and_the_joint_limit_warning(capsys: pytest.CaptureFixture[str]) -> None:
+    """``fk 90 0 0 0`` took 90 rad silently; now it warns (and names --deg), and ``--deg``
+    gives the pose of 90° with no warning."""
+    assert main(["fk", "90", "0", "0", "0", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["within_limits"] is False
+    assert "joint 1 at 90 rad" in captured.err and "--deg" in captured.err
+    assert main(["fk", "90", "0", "0", "0", "--deg", "--json"]) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert captured.err == "" and data["within_limits"] is True
+    assert data["q_protocol_rad"] == pytest.approx([math.pi / 2, 0, 0, 0])
+    assert main(["fk", "1.5707963267948966", "0", "0", "0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["tcp_m"] == pytest.approx(data["tcp_m"])

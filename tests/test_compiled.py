@@ -74,3 +74,33 @@ def test_perf_names_the_build_it_measured() -> None:
     result = json.loads(out.stdout)
     assert result["build"] == build_name()
     assert [f["name"] for f in result["figures"]] == ["codec.decode_replies"]
+
+
+def test_perf_prints_each_figure_as_it_is_measured(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``armbench perf --quick`` once printed nothing for almost two minutes: each figure is now
+    printed when its benchmark has it, and stderr says which benchmark runs."""
+    import types
+
+    import armbench.bench.perf as perf
+    from armbench.bench.cli import main
+
+    seen: list[tuple[str, str]] = []
+
+    def module(name: str, value: float) -> types.ModuleType:
+        mod = types.ModuleType(name)
+
+        def run(options: perf.PerfOptions) -> list[perf.Figure]:
+            printed = capsys.readouterr()  # what was printed before this one ran
+            seen.append((printed.out, printed.err))
+            return [perf.Figure(f"{name}.rate", value, "1/s")]
+        mod.run = run  # type: ignore[attr-defined]
+        return mod
+
+    for name, value in (("first", 1.0), ("second", 2.0)):
+        monkeypatch.setitem(sys.modules, f"fakeperf.{name}", module(name, value))
+    monkeypatch.setattr(perf, "BENCHMARK_MODULES", ("fakeperf.first", "fakeperf.second"))
+    assert main(["perf", "--quick"]) == 0
+    assert "first.rate" not in seen[0][0] and "first.rate" in seen[1][0]  # before "second" ran
+    assert "measuring first" in seen[0][1] and "measuring second" in seen[1][1]
+    assert "second.rate" in capsys.readouterr().out

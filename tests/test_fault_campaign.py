@@ -451,7 +451,7 @@ def test_accuracy_run_under_fault(case: RunCase, tmp_path: Path) -> None:
         assert trial.status == "done" and suite.status == "done"
         result = "exit 0, pass"
     else:
-        assert outcome.exit_status == 2 and record.verdict == "error"
+        assert outcome.exit_status == 4 and record.verdict == "error"  # incomplete
         assert trial.status == "error" and trial.error is not None
         assert trial.error.startswith(case.error + ":"), trial.error  # typed, not a bench bug
         assert suite.status == "error"

@@ -89,6 +89,9 @@ def test_arm_names_and_ports() -> None:
         parse_arms(["a b=fake://", "fake://"])
     assert fleet_exit_status([0, 1, 0]) == 1
     assert fleet_exit_status([0, 2, 1]) == 2
+    assert fleet_exit_status([3, 1, 0]) == 1  # a limit failed outweighs a regression
+    assert fleet_exit_status([4, 1, 3]) == 4  # an incomplete run outweighs both
+    assert fleet_exit_status([4, 2]) == 2
     assert fleet_exit_status([130, 0]) == 130
     assert fleet_exit_status([0, 0]) == 0
 
@@ -112,7 +115,7 @@ def fake_fleets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     status, out = _cli("accuracy", "--port", "light=fake://", "--port",
                        "heavy=fake://?seed=5&payload=0.4", "--out", str(root / "b"),
                        "--baseline", str(root / "a"), "--config", str(strict))
-    assert status == 1, out
+    assert status == 3, out  # regressed, every limit held
     (root / "b.out").write_text(out, encoding="utf-8")
     return root
 
@@ -167,7 +170,7 @@ def test_the_fleet_page_puts_the_arms_side_by_side(fake_fleets: Path) -> None:
     light, heavy = records
     assert light.baseline is not None and not light.baseline.regressions
     assert heavy.baseline is not None and heavy.baseline.regressions
-    assert out.splitlines()[0] == "fleet of 2 arm(s): exit 1, not passed: heavy", out
+    assert out.splitlines()[0] == "fleet of 2 arm(s): exit 3, not passed: heavy", out
     assert "REGRESSION" in out.splitlines()[2] and "regressed: accuracy." in out.splitlines()[2]
     arms = next(t for t in doc.iter("table") if "arms" in (t.attrs.get("class") or ""))
     arm_rows = {r[0]: r for r in (cells(x) for x in arms.iter("tr"))}
@@ -176,7 +179,7 @@ def test_the_fleet_page_puts_the_arms_side_by_side(fake_fleets: Path) -> None:
     assert heavy.baseline.regressions[0].name in arm_rows["heavy"][5]
     drifted = [r for r in rows if any("worse" in c for c in r[1:3])]
     assert drifted and all("worse" not in r[1] for r in drifted)  # light's column: same
-    assert "heavy: REGRESSION (exit 1)" in doc.text()
+    assert "heavy: REGRESSION (exit 3)" in doc.text()
 
 
 def test_a_baseline_fleet_must_hold_the_same_arms(fake_fleets: Path,
@@ -256,11 +259,11 @@ def test_one_arm_lost_mid_run_the_others_complete(emulators: Emulators, tmp_path
         if run.poll() is None:
             run.kill()
             run.wait()
-    assert run.returncode == 2, stderr
+    assert run.returncode == 4, stderr  # incomplete: an arm lost mid-run
     lines = stdout.splitlines()
-    assert lines[0] == "fleet of 3 arm(s): exit 2, not passed: arm-b", stdout
+    assert lines[0] == "fleet of 3 arm(s): exit 4, not passed: arm-b", stdout
     arm_lines = {line.split()[0]: line for line in lines[1:4]}
-    assert "ERROR" in arm_lines["arm-b"] and "exit 2" in arm_lines["arm-b"]
+    assert "ERROR" in arm_lines["arm-b"] and "exit 4" in arm_lines["arm-b"]
     assert "cannot connect" in arm_lines["arm-b"] or "lost" in arm_lines["arm-b"]
     for name in ("arm-a", "arm-c"):
         assert "PASS" in arm_lines[name] and "exit 0" in arm_lines[name], stdout
@@ -269,9 +272,9 @@ def test_one_arm_lost_mid_run_the_others_complete(emulators: Emulators, tmp_path
     lost = load_record(out_dir / "arm-b" / "results.json")  # what it measured stays on disk
     assert lost.verdict in ("error", "incomplete")
     index = read_fleet_index(out_dir)
-    assert [a.exit_status for a in index.arms] == [0, 2, 0] and index.exit_status == 2
+    assert [a.exit_status for a in index.arms] == [0, 4, 0] and index.exit_status == 4
     html = (out_dir / "fleet.html").read_text(encoding="utf-8")
-    assert "arm-b: ERROR (exit 2)" in html
+    assert "arm-b: ERROR (exit 4)" in html
     assert (out_dir / "arm-b" / "report.html").is_file()
 
 

@@ -140,6 +140,50 @@ def test_user_bench_tests_land_in_the_record(user_tests: pytest.Pytester) -> Non
     assert first["dir"] in ("in", "out")
 
 
+DOC_EXAMPLE = '''
+async def test_joint1_reaches_its_target(arm, record_measurement):
+    state = await arm.move_joints([0.5, 0.0, 0.0, 0.0], 80)
+    record_measurement("lab.j1.error_mrad", abs(state.q_rad[0] - 0.5) * 1000, "mrad",
+                       limit=(None, 5.0))
+
+
+async def test_second(arm):
+    assert arm.state is not None
+'''
+
+
+def test_the_documented_example_passes_in_strict_mode(pytester: pytest.Pytester) -> None:
+    """No asyncio_mode in the project (pytest-asyncio's default, strict): the plugin marks the
+    async tests that take ``arm`` itself (they once failed as 'not natively supported')."""
+    pytester.makeini("[pytest]\n")
+    pytester.makepyfile(test_my_bench=DOC_EXAMPLE)
+    result = pytester.runpytest_subprocess(*plugin(), "--arm-port", "fake://")
+    result.assert_outcomes(passed=2)
+    assert "not natively supported" not in result.stdout.str()
+
+
+def test_arm_record_mode_replace_and_resume(pytester: pytest.Pytester) -> None:
+    pytester.makeini("[pytest]\n")
+    pytester.makepyfile(test_my_bench=DOC_EXAMPLE)
+    out = pytester.path / "rec"
+    pytester.runpytest_subprocess(*plugin(), "--arm-record", str(out)).assert_outcomes(passed=2)
+    again = pytester.runpytest_subprocess(*plugin(), "--arm-record", str(out))
+    assert again.ret == pytest.ExitCode.USAGE_ERROR
+    assert "already holds a run record" in again.stderr.str()
+    resumed = pytester.runpytest_subprocess(*plugin(), "--arm-record", str(out),
+                                            "--arm-record-mode", "resume")
+    resumed.assert_outcomes(passed=2)
+    record = load_record(out / "results.json")
+    suite = record.suites["pytest"]
+    assert [t.index for t in suite.trials] == [0, 1, 2, 3] and suite.status == "done"
+    assert len(record.resumed) == 1 and suite.measurements
+    replaced = pytester.runpytest_subprocess(*plugin(), "--arm-record", str(out),
+                                             "--arm-record-mode", "replace")
+    replaced.assert_outcomes(passed=2)
+    record = load_record(out / "results.json")
+    assert [t.index for t in record.suites["pytest"].trials] == [0, 1] and not record.resumed
+
+
 def test_without_a_record_measurements_still_fail_tests(user_tests: pytest.Pytester) -> None:
     result = user_tests.runpytest_subprocess(*plugin(), "--arm-port", "fake://?profile=ideal",
                                              "-k", "strict or target")

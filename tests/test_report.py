@@ -573,13 +573,13 @@ def test_report_command(runs_dir: Path, capsys: pytest.CaptureFixture[str]) -> N
 def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     passing, regressed = str(RECORDS / "passing.json"), str(RECORDS / "regressed.json")
     limits = str(RECORDS.parent / "bench.toml")
-    assert cli.main(["compare", passing, regressed, "--limits", limits]) == 1
+    assert cli.main(["compare", passing, regressed, "--limits", limits]) == 3
     out = capsys.readouterr().out
     assert "REGRESSED" in out and "against baseline 20240503T091500Z-a1b2c3" in out
     assert "accuracy.coordinated.mean_mm" in out
     assert cli.main(["compare", passing, passing]) == 0
     assert "0 regressed" in capsys.readouterr().out
-    assert cli.main(["compare", passing, regressed, "--limits", limits, "--json"]) == 1
+    assert cli.main(["compare", passing, regressed, "--limits", limits, "--json"]) == 3
     data = json.loads(capsys.readouterr().out)
     assert data["regressed"] is True and data["baseline_run_id"] == "20240503T091500Z-a1b2c3"
     bad = tmp_path / "bad.json"
@@ -592,7 +592,7 @@ def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     # a directory stands for its results.json
     (tmp_path / "run").mkdir()
     shutil.copy(RECORDS / "regressed.json", tmp_path / "run" / "results.json")
-    assert cli.main(["compare", passing, str(tmp_path / "run"), "--limits", limits]) == 1
+    assert cli.main(["compare", passing, str(tmp_path / "run"), "--config", limits]) == 3
 
 
 # --------------------------------------------------------------------------------------------

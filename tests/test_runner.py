@@ -34,10 +34,11 @@ from armbench.bench.power import (
 from armbench.bench.record import Measurement, Trial, load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
-    EXIT_ERROR,
     EXIT_FAIL,
+    EXIT_INCOMPLETE,
     EXIT_INTERRUPTED,
     EXIT_PASS,
+    EXIT_REGRESSION,
     ProgressPrinter,
     RunOptions,
     RunOutcome,
@@ -272,7 +273,9 @@ def test_run_end_to_end_writes_every_file(tmp_path: Path) -> None:
     # the run clock.
     root = ET.parse(out / "junit.xml").getroot()
     names = {tc.get("name") for tc in root.iter("testcase")}
-    assert {"tiny.move_mean_s", "tiny.error_max_mm", "tiny.move_s"} <= names
+    assert {"tiny.move_s", "tiny.error_mm"} <= names  # judged: testcases
+    props = {p.get("name") for p in root.iter("property")}
+    assert {"tiny.move_mean_s", "tiny.error_max_mm"} <= props - names  # unjudged: properties
     assert (out / "report.html").read_text().lstrip().lower().startswith("<!doctype html")
     records = list(open_capture(out / "capture.mcap"))
     assert {r.dir for r in records} == {"in", "out"}
@@ -298,7 +301,7 @@ def test_limit_failure_exits_1(tmp_path: Path) -> None:
 def test_trial_error_ends_the_suite_and_the_run_goes_on(tmp_path: Path) -> None:
     out = tmp_path / "run"
     outcome = run(RunOptions(suites=["broken", "tiny"], config=write_config(tmp_path), out=out))
-    assert outcome.exit_status == EXIT_ERROR
+    assert outcome.exit_status == EXIT_INCOMPLETE
     record = load_record(out / "results.json")
     broken = record.suites["broken"]
     assert broken.status == "error" and broken.error is not None
@@ -489,7 +492,7 @@ def test_resume_after_cancellation_matches_an_uninterrupted_run(tmp_path: Path) 
     errors = {k: v for k, v in measurements(whole.record).items() if "error_mm" in k}
     assert errors == {k: v for k, v in measurements(resumed.record).items() if "error_mm" in k}
     assert resumed.record.verdict == whole.record.verdict
-    assert resumed.exit_status == whole.exit_status == EXIT_ERROR
+    assert resumed.exit_status == whole.exit_status == EXIT_INCOMPLETE
     # The capture of both sessions is one stream on the continued run clock.
     times = [r.t_s for r in open_capture(out / "capture.mcap")]
     assert times == sorted(times)
@@ -553,7 +556,7 @@ def test_regression_gate_fails_on_an_injected_fault(
     status = armbench.bench.cli.main(["run", "tiny", "--config", config, "--out", str(worse),
                              "--faults", str(faults), "--baseline", str(clean / "results.json")])
     printed = capsys.readouterr().out
-    assert status == EXIT_FAIL, printed
+    assert status == EXIT_REGRESSION, printed
     record = load_record(worse / "results.json")
     assert record.verdict == "regression"
     assert record.environment.faults[0]["kind"] == "stall"
@@ -895,7 +898,7 @@ def test_a_worker_that_dies_is_a_trial_error_and_the_run_goes_on(
     out = tmp_path / "run"
     outcome = run(RunOptions(suites=["dying", "tiny"], config=write_config(tmp_path), out=out,
                              workers=2))
-    assert outcome.exit_status == EXIT_ERROR
+    assert outcome.exit_status == EXIT_INCOMPLETE
     record = load_record(out / "results.json")
     dying = record.suites["dying"]
     assert dying.status == "error" and dying.error is not None and "worker" in dying.error

@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 from campaign_records import record_differences
@@ -15,7 +16,7 @@ from campaign_records import record_differences
 from armbench.bench.campaign import MergeError, merge_shards
 from armbench.bench.cli import main
 from armbench.bench.runner import RunOptions, run_sync
-from armbench.bench.runner.options import in_shard
+from armbench.bench.runner.options import shard_assignment
 
 CONFIG = """spec_version = "armbench-limits/1"
 [limits."startup.recovery_time_s"]
@@ -41,9 +42,34 @@ def _run(config: Path, out: Path, shard: tuple[int, int] | None = None,
 
 
 def test_shards_partition_the_trials() -> None:
+    suites: list[list[dict[str, Any]]] = [
+        [{"style": s, "lap": lap} for lap in range(7) for s in ("paper", "coordinated")],
+        [{"k": i} for i in range(9)]]
     for n in (1, 2, 3, 5):
-        owners = [[i for i in range(1, n + 1) if in_shard(index, (i, n))] for index in range(23)]
-        assert all(len(o) == 1 for o in owners)
+        shards = shard_assignment(suites, n)
+        assert [len(s) for s in shards] == [14, 9] and all(0 <= x < n for s in shards for x in s)
+
+
+@pytest.mark.parametrize("n", [2, 3, 4])
+def test_shards_are_balanced_across_suites_and_styles(n: int) -> None:
+    """Each shard gets its share, within one trial, of every style of every suite: --shard 1/2
+    once put every paper-style lap in shard 1 and every coordinated lap in shard 2."""
+    accuracy: list[dict[str, Any]] = [{"style": s, "lap": lap} for lap in range(5)
+                                      for s in ("paper", "coordinated")]
+    startup: list[dict[str, Any]] = [{"kind": "cut", "condition": c, "cycle": i}
+                                     for i in range(4) for c in ("idle", "moving", "homing")]
+    ones: list[list[dict[str, Any]]] = [[{"x": 1}] for _ in range(2 * n)]  # one trial each
+    plan = [accuracy, startup, *ones]
+    shards = shard_assignment(plan, n)
+    for trials, owners in zip(plan, shards, strict=True):
+        for condition in {tuple(sorted((k, v) for k, v in t.items() if isinstance(v, str)))
+                          for t in trials}:
+            mine = [o for t, o in zip(trials, owners, strict=True)
+                    if all(t[k] == v for k, v in condition)]
+            counts = [mine.count(i) for i in range(n)]
+            assert max(counts) - min(counts) <= 1, (condition, counts)
+    singles = [owners[0] for owners in shards[2:]]
+    assert sorted(singles) == sorted(list(range(n)) * 2)
 
 
 def test_three_shards_merge_into_the_unsharded_record(tmp_path: Path, config: Path) -> None:
@@ -52,7 +78,8 @@ def test_three_shards_merge_into_the_unsharded_record(tmp_path: Path, config: Pa
         _run(config, tmp_path / f"s{i}", (i, 3))
         shard = json.loads((tmp_path / f"s{i}" / "results.json").read_text())
         indices = [t["index"] for t in shard["suites"]["startup-recovery"]["trials"]]
-        assert indices == [k for k in range(7) if k % 3 == i - 1]
+        owners = shard_assignment([[{"kind": "cut"}] * 7], 3)[0]  # one condition: in turn
+        assert indices == [k for k in range(7) if owners[k] == i - 1]
         assert shard["suites"]["startup-recovery"]["measurements"] == []  # merge summarises
     outcome = merge_shards([tmp_path / "s3", tmp_path / "s1", tmp_path / "s2"], tmp_path / "m")
     assert outcome.exit_status == 0

@@ -436,3 +436,25 @@ def test_replies_read_in_a_burst_are_left_out(ideal_capture: Path, tmp_path: Pat
     assert untimed > 50
     assert max(result.max_counts) <= 2.0, result.max_counts
     assert result.verdict == "pass"
+
+def test_text_output_is_for_people() -> None:
+    """twin-check's text once printed the TCP divergence as a Python dict; every figure is now
+    a line with its unit, the judged ones with their limit."""
+    from armbench.bench.commands.twin_check import format_twin_check
+    from armbench.bench.limits import Limit
+    from armbench.bench.record import Measurement
+    from armbench.bench.twin_check import TwinCheck
+
+    limit = Limit("twin.*", "", high=1.0)
+    result = TwinCheck(
+        rms_rad=[1e-4] * 4, max_rad=[2e-4] * 4, rms_counts=[1.5] * 4, max_counts=[3.0] * 4,
+        arrival_dt_s=[0.01, -0.02], moves=2, arrived_arm_only=0, arrived_twin_only=0,
+        replies_compared=40,
+        measurements=[Measurement("twin.rms_per_allowed", 1.7, "", limit, "fail", "lower")],
+        verdict="fail", twin_replies=[],
+        tcp={"rms_mm": 0.25, "max_mm": 0.5, "floor_mm": 0.1, "samples": 12.0})
+    text = format_twin_check(result, "cap.mcap")
+    assert "{" not in text and "'" not in text
+    assert "TCP: RMS 0.250 mm, max 0.500 mm (floor 0.100 mm, 12 samples)" in text
+    assert "FAIL  twin.rms_per_allowed = 1.7 (limit <= 1)" in text
+    assert text.splitlines()[0] == "twin-check cap.mcap: verdict fail (40 replies, 2 commands)"

@@ -10,6 +10,7 @@ other figure.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -17,7 +18,8 @@ from typing import Final
 
 import numpy as np
 
-from armbench.bench.record import Measurement, Trial
+from armbench.bench.limits import LimitsConfig
+from armbench.bench.record import Better, Measurement, Trial, judge
 
 __all__ = ["ALL_LIMITS", "CAMPAIGN_KEY", "Z95", "MetricDistribution", "campaign_measurements",
            "collect", "wilson_interval"]
@@ -48,8 +50,13 @@ QUANTILES = (("p05", 0.05), ("p50", 0.50), ("p95", 0.95))
 
 @dataclass(slots=True)
 class MetricDistribution:
-    """The values of one metric over the samples that have it, and how many passed its limit
-    (``judged`` counts the samples in which a limit judged it)."""
+    """The values of one metric over the samples that have it, and how many passed its limit.
+
+    ``judged`` is the denominator of the pass probability: every sample of the campaign once a
+    limit judged the metric in any of them. A sample in error, or one without the figure (a power
+    cut the arm did not recover from has no recovery time), counts as not passing: leaving it
+    out would report 100 % of the samples that happened to succeed.
+    """
 
     name: str
     unit: str
@@ -66,49 +73,62 @@ class MetricDistribution:
 
 def collect(trials: Iterable[Trial]) -> dict[str, MetricDistribution]:
     """Each metric's distribution over the done trials (samples), plus :data:`ALL_LIMITS`: the
-    samples none of whose judged figures failed."""
+    samples measured whose every judged figure is there and passed. Pass counts are over every
+    sample, those in error included (see :class:`MetricDistribution`)."""
     out: dict[str, MetricDistribution] = {}
     overall = MetricDistribution(ALL_LIMITS, "")
-    for trial in sorted(trials, key=lambda t: t.index):
+    ordered = sorted(trials, key=lambda t: t.index)
+    clean: list[set[str]] = []  # per measured sample without a failure: its judged figures
+    for trial in ordered:
         if trial.status != "done":
             continue
-        judged = False
         failed = False
+        judged: set[str] = set()
         for m in trial.measurements:
             d = out.get(m.name)
             if d is None:
                 d = out[m.name] = MetricDistribution(m.name, m.unit)
             d.values.append(m.value)
             if m.outcome in ("pass", "fail"):
-                judged = True
-                d.judged += 1
+                judged.add(m.name)
                 d.passed += m.outcome == "pass"
                 failed |= m.outcome == "fail"
                 if d.limit is None and m.limit is not None:
                     d.limit = m.limit.describe()
-        if judged:
-            overall.judged += 1
-            overall.passed += not failed
-    if overall.judged:
+        if not failed:
+            clean.append(judged)
+    limited = {name for name, d in out.items() if d.limit is not None}
+    for name in limited:
+        out[name].judged = len(ordered)
+    if limited:
+        overall.judged = len(ordered)
+        overall.passed = sum(limited <= judged for judged in clean)
         out[ALL_LIMITS] = overall
     return out
 
 
-def _stat(name: str, value: float, unit: str, description: str, *,
-          better: str | None = None) -> Measurement:
-    return Measurement(name, value, unit, None, "unjudged",
-                       "higher" if better == "higher" else None, description)
-
-
-def campaign_measurements(trials: Sequence[Trial]) -> list[Measurement]:
+def campaign_measurements(trials: Sequence[Trial],
+                          limits: LimitsConfig | None = None) -> list[Measurement]:
     """The campaign's suite-level figures: samples measured and in error, and for each metric
     its count, mean, standard deviation, extremes and quantiles, and for a judged metric the
-    pass probability (%) with its 95 % Wilson interval."""
+    pass probability (%) over every sample with its 95 % Wilson interval.
+
+    Each figure is judged against ``limits`` by its name (``[limits."campaign.all_limits.
+    pass_ci_low_pct"] low = 95``: the campaign fails unless the pass probability is above 95 %
+    with 95 % confidence); these are the campaign's verdict (the samples' own limits are its
+    findings, summarised by the pass probabilities).
+    """
+    def _stat(name: str, value: float, unit: str, description: str, *,
+              better: Better | None = None) -> Measurement:
+        # directions as before the figures were judged: only a pass probability has one
+        return dataclasses.replace(judge(name, value, unit, limits, description=description),
+                                   better=better)
+
     done = [t for t in trials if t.status == "done"]
     ms = [_stat("campaign.samples", float(len(done)), "", "samples measured"),
           _stat("campaign.samples_in_error", float(len(trials) - len(done)), "",
                 "samples that could not be measured")]
-    for name, d in collect(done).items():
+    for name, d in collect(trials).items():
         prefix = f"campaign.{name}"
         if d.values:
             v = np.asarray(d.values, dtype=np.float64)
@@ -135,7 +155,8 @@ def campaign_measurements(trials: Sequence[Trial]) -> list[Measurement]:
             what = ("samples passing every limit" if name == ALL_LIMITS
                     else f"samples whose {name} passes {d.limit}")
             ms.append(_stat(f"{prefix}.pass_pct", 100.0 * d.passed / d.judged, "%",
-                            f"{what} ({d.passed} of {d.judged})", better="higher"))
+                            f"{what} ({d.passed} of {d.judged} samples; a sample in error or "
+                            "without the figure does not pass)", better="higher"))
             ms.append(_stat(f"{prefix}.pass_ci_low_pct", 100.0 * low, "%",
                             "95 % Wilson interval of the pass probability, lower end"))
             ms.append(_stat(f"{prefix}.pass_ci_high_pct", 100.0 * high, "%",

@@ -113,7 +113,7 @@ class CampaignSuite(Suite):
 
     def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
         """Distributions and pass probabilities over the samples (``campaign.*``)."""
-        return campaign_measurements(trials)
+        return campaign_measurements(trials, ctx.limits)
 
 
 def sample_figures(inner: Suite, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:

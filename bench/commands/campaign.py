@@ -7,8 +7,11 @@ distributions and pass probabilities (see ``docs/campaigns.md``).
 
 Writes ``results.json`` (the record: one trial per sample, the distributions as ``campaign.*``
 suite figures) and ``campaign.html`` (histograms, pass probabilities with Wilson intervals).
-Exit status: 0 the campaign measured every sample, 2 it could not run or a sample is in error,
-130 interrupted. Samples failing limits are the campaign's findings, not its failure.
+Exit status (``docs/ci.md``): the campaign's verdict — 0 every ``campaign.*`` figure with a limit
+in the config (``[limits."campaign.all_limits.pass_ci_low_pct"] low = 95``) passed it, 1 one did
+not, 2 it could not run, 4 a sample is in error or the campaign is unfinished, 130 interrupted.
+Samples failing their own limits are the campaign's findings (counted in the pass probabilities
+over every sample), not its failure.
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ from typing import Any
 from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.commands.run import shard_arg
 from armbench.bench.record import RunRecord
-from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, EXIT_PASS, RunOutcome
+from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, RunOutcome
 from armbench.bench.runner.plan import MAX_TRIALS
+from armbench.bench.verdict import EXIT_PASS, exit_status
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["register", "write_campaign_page"]
@@ -35,8 +39,10 @@ def register(sub: Any) -> None:
                     "conditions: the arm's fitted settings drawn from their uncertainties "
                     "(--settings, a calibration's output), and for startup-recovery the state "
                     "and moment of each power cut. Writes results.json and campaign.html.",
-        epilog="Exit status: 0 every sample measured, 2 the campaign could not run or a sample "
-               "is in error, 130 interrupted.")
+        epilog="Exit status: 0 every campaign.* figure with a limit in --config passed it (e.g. "
+               "[limits.\"campaign.all_limits.pass_ci_low_pct\"] low = 95), 1 one did not, 2 "
+               "bad input, 4 a sample in error or the campaign unfinished, 130 interrupted. "
+               "See docs/campaigns.md and docs/ci.md.")
     p.add_argument("suite", metavar="SUITE", nargs="?", default="",
                    help="the suite (accuracy, startup-recovery, ...)")
     p.add_argument("--samples", type=int, default=None, metavar="N",
@@ -90,9 +96,27 @@ def _campaign(args: argparse.Namespace) -> int:
           f"{0 if suite is None else len(suite.trials) - errors} sample(s) measured"
           + (f", {errors} in error" if errors else ""), file=sys.stdout)
     if suite is not None:
+        by_name = {m.name: m for m in suite.measurements}
         for m in suite.measurements:
             if m.name.endswith((".pass_pct", ".rate_pct")):
-                print(f"  {m.name} = {m.value:.4g} %  ({m.description})", file=sys.stdout)
+                stem = m.name.removesuffix("_pct").rsplit(".", 1)[0]
+                kind = m.name.removesuffix("_pct").rsplit(".", 1)[1]
+                low = by_name.get(f"{stem}.{kind}_ci_low_pct")
+                high = by_name.get(f"{stem}.{kind}_ci_high_pct")
+                ci = (f" [95 % CI {low.value:.4g} .. {high.value:.4g}]"
+                      if low is not None and high is not None else "")
+                print(f"  {m.name} = {m.value:.4g} %{ci}  ({m.description})", file=sys.stdout)
+        for m in suite.measurements:
+            if m.outcome != "unjudged":
+                print(f"  {'FAIL' if m.outcome == 'fail' else 'pass':<6} {m.name} = "
+                      f"{m.value:.4g} {m.unit} (limit {m.limit.describe() if m.limit else '-'})",
+                      file=sys.stdout)
+    verdict = record.verdict
+    if not any(m.outcome != "unjudged" for m in (suite.measurements if suite else [])):
+        verdict_note = " (no campaign.* limit in the config: the figures are not judged)"
+    else:
+        verdict_note = ""
+    print(f"campaign verdict: {verdict}{verdict_note}", file=sys.stdout)
     print(f"  results.json  {outcome.results_path}", file=sys.stdout)
     if args.shard is None and suite is not None:
         write_campaign_page(record, outcome)
@@ -102,4 +126,5 @@ def _campaign(args: argparse.Namespace) -> int:
         print(f"  continue with: armbench campaign --resume {outcome.out_dir}", file=sys.stdout)
     if outcome.interrupted:
         return EXIT_INTERRUPTED
-    return EXIT_PASS if complete else EXIT_ERROR
+    status = exit_status(verdict)
+    return EXIT_ERROR if outcome.error is not None and status == EXIT_PASS else status

@@ -12,7 +12,7 @@ from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions
 from armbench.bench.runner.fleet import FleetOutcome, run_fleet_sync
 
-__all__ = ["run_fleet"]
+__all__ = ["print_summary", "run_fleet"]
 
 log = logging.getLogger("armbench.runner")
 
@@ -20,8 +20,9 @@ log = logging.getLogger("armbench.runner")
 FLEET_PAGE = "fleet.html"
 
 
-def run_fleet(options: RunOptions, ports: Sequence[str]) -> int:
-    """Run the fleet, write its reports, print its summary; the fleet's exit status."""
+def run_fleet(options: RunOptions, ports: Sequence[str], *, summary: str | None = None) -> int:
+    """Run the fleet, write its reports, print its summary (and append each arm's Markdown
+    summary to ``summary``); the fleet's exit status."""
     outcome = run_fleet_sync(options, ports, progress=sys.stderr)
     for arm_outcome in outcome.outcomes:
         if arm_outcome is not None:
@@ -34,13 +35,20 @@ def run_fleet(options: RunOptions, ports: Sequence[str]) -> int:
         render_fleet(outcome.out_dir, page)
     except Exception as exc:  # the records and reports are on disk: say so, keep the status
         log.warning("the fleet page failed (%s: %s)", type(exc).__name__, exc)
-    summary(outcome)
+    print_summary(outcome)
+    if summary is not None:
+        from armbench.bench.run_summary import write_step_summary
+
+        for arm_outcome in outcome.outcomes:
+            if arm_outcome is not None:
+                write_step_summary(summary, arm_outcome.record, arm_outcome.out_dir,
+                                   arm_outcome.exit_status)
     if page.exists():
         print(f"  fleet page  {page}", file=sys.stdout)
     return outcome.exit_status
 
 
-def summary(outcome: FleetOutcome) -> None:
+def print_summary(outcome: FleetOutcome) -> None:
     """One line per arm: name, verdict, exit status, what went wrong, its folder."""
     out = sys.stdout
     width = max(len(a.name) for a in outcome.arms)

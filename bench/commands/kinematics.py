@@ -1,7 +1,9 @@
 """``armbench fk`` and ``armbench ik``: forward and inverse kinematics from the command line.
 
-Angles are radians, lengths metres. ``fk`` takes protocol-convention joint angles (DH angles with
-``--dh``); ``ik`` prints every solution branch and whether it is inside the joint limits. Negative
+Angles are radians (``fk --deg``: degrees), lengths metres. ``fk`` takes protocol-convention joint
+angles (DH angles with ``--dh``) and warns on stderr of an angle outside its joint's limits (90
+taken as radians is 14 turns: ``--deg`` was probably meant); ``ik`` prints every solution branch
+and whether it is inside the joint limits. Negative
 numbers may be given as plain positionals (``armbench fk 0.1 -0.2 0 0``) or after ``--``.
 """
 
@@ -11,6 +13,7 @@ import argparse
 import json
 import math
 import re
+import sys
 from typing import Any
 
 import numpy as np
@@ -56,11 +59,14 @@ def register(sub: Any) -> None:
         "fk",
         description="Pose of the TCP (frame 4) in the base frame for four joint angles in radians "
                     "(protocol convention, zero = all joints looking up, joint 1 to the front; "
-                    "DH angles with --dh). Prints the 4×4 pose and the TCP position in mm and m.")
+                    "DH angles with --dh). Prints the 4×4 pose and the TCP position in mm and m; "
+                    "warns of an angle outside its joint's limits.")
     for n in range(1, 5):
-        f.add_argument(f"q{n}", type=float, metavar=f"Q{n}", help=f"joint {n} angle, radians")
+        f.add_argument(f"q{n}", type=float, metavar=f"Q{n}",
+                       help=f"joint {n} angle, radians (degrees with --deg)")
     f.add_argument("--dh", action="store_true",
                    help="the angles are DH angles θ1..θ4, not protocol angles")
+    f.add_argument("--deg", action="store_true", help="the angles are in degrees")
     _common(f)
     f.set_defaults(func=_run_fk)
     _accept_negative_numbers(f)
@@ -104,6 +110,8 @@ def _run_fk(args: argparse.Namespace) -> int:
     given = [float(args.q1), float(args.q2), float(args.q3), float(args.q4)]
     if not all(math.isfinite(v) for v in given):
         raise KinematicsError(f"joint angles must be finite, got {given}")
+    if args.deg:
+        given = [math.radians(v) for v in given]
     if args.dh:
         theta = np.asarray(given)
         q = dh_to_protocol(theta, settings)
@@ -112,6 +120,9 @@ def _run_fk(args: argparse.Namespace) -> int:
         theta = protocol_to_dh(q, settings)
     pose = fk_dh(theta, settings.geometry)
     tcp_m = pose[:3, 3]
+    outside = _outside_limits(q, settings, args.deg)
+    for line in outside:
+        print(f"armbench fk: warning: {line}", file=sys.stderr)
     if args.json:
         print(json.dumps({
             "convention": "dh" if args.dh else "protocol",
@@ -121,6 +132,7 @@ def _run_fk(args: argparse.Namespace) -> int:
             "pose": pose.tolist(),
             "tcp_m": tcp_m.tolist(),
             "tcp_mm": (tcp_m * 1000.0).tolist(),
+            "within_limits": not outside,
         }))
         return 0
     print(f"joint angles, protocol (rad): {_vec(q)}")
@@ -133,6 +145,20 @@ def _run_fk(args: argparse.Namespace) -> int:
     print(f"TCP: x = {x * 1e3:.3f} mm, y = {y * 1e3:.3f} mm, z = {z * 1e3:.3f} mm   "
           f"({x:.9f}, {y:.9f}, {z:.9f}) m")
     return 0
+
+
+def _outside_limits(q: Any, settings: RobotSettings, deg: bool) -> list[str]:
+    """A line per protocol angle of ``q`` (rad) outside its joint's limits."""
+    lines = []
+    for n, (value, low, high) in enumerate(zip(q, settings.lower_rad, settings.upper_rad,
+                                               strict=True), start=1):
+        if low <= value <= high:
+            continue
+        hint = ("" if deg or abs(value) <= 2 * math.pi
+                else "; angles are radians: was --deg meant?")
+        lines.append(f"joint {n} at {float(value):.6g} rad ({math.degrees(value):.6g}°) is "
+                     f"outside its limits {math.degrees(low):g}..{math.degrees(high):g}°{hint}")
+    return lines
 
 
 def _solution_json(s: IKSolution) -> dict[str, Any]:

@@ -3,8 +3,8 @@ campaign --shard I/N``) into one record, as the unsharded run would have written
 
 ``armbench merge DIR... --out DIR``
 
-Exit status: as ``armbench run`` for the merged record (0 pass, 1 a limit failed, 2 error); 2 for
-shards that do not make one run.
+Exit status: as ``armbench run`` (and ``armbench campaign``) for the merged record: 0 pass, 1 a
+limit failed, 3 regressed, 4 incomplete; 2 for shards that do not make one run.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from typing import Any
 
 from armbench.bench.campaign import CAMPAIGN_KEY, merge_shards
 from armbench.bench.reporting import write_reports
+from armbench.bench.verdict import exit_status
 
 __all__ = ["register"]
 
@@ -24,7 +25,10 @@ def register(sub: Any) -> None:
     p: argparse.ArgumentParser = sub.add_parser(
         "merge",
         description="Join shard run directories (--shard I/N) into one record: every trial once, "
-                    "the suite summaries computed over all of them.")
+                    "the suite summaries computed over all of them.",
+        epilog="Exit status (the merged record's verdict, as armbench run): 0 pass, 1 a limit "
+               "failed, 2 bad input or shards that do not make one run, 3 regressed, 4 "
+               "incomplete. See docs/ci.md.")
     p.add_argument("shards", nargs="+", metavar="DIR", help="the shards' run directories")
     p.add_argument("--out", required=True, metavar="DIR", help="the merged run directory")
     p.set_defaults(func=_merge)
@@ -37,7 +41,7 @@ def _merge(args: argparse.Namespace) -> int:
         from armbench.bench.commands.campaign import write_campaign_page
 
         write_campaign_page(record, outcome)
-        status = 0 if record.verdict != "incomplete" and record.verdict != "error" else 2
+        status = exit_status(record.verdict)  # the campaign's verdict, as armbench campaign
     else:
         write_reports(record, outcome.out_dir)
         status = outcome.exit_status

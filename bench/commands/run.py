@@ -5,10 +5,12 @@
 [--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
 [--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N]``
 
-Exit status: 0 every measurement within its limits (and no regression), 1 a limit or a regression
-failed, 2 the bench could not run or the run is incomplete (bad input — reported before the arm
-moves —, a lost arm, a trial in error), 130 interrupted (resume with ``--resume DIR``).
-With several ``--port``: the worst arm's status, one line per arm (``docs/fleet.md``).
+Exit status (:mod:`armbench.bench.verdict`): 0 every measurement within its limits and no
+regression, 1 a limit failed, 2 bad input (reported before the arm moves), 3 regressed against
+the baseline (every limit held), 4 the run is incomplete (a lost arm, a trial in error), 130
+interrupted (resume with ``--resume DIR``). With several ``--port``: the worst arm's status, one
+line per arm (``docs/fleet.md``). ``--summary FILE.md`` appends a short Markdown summary for a CI
+job's step summary (``docs/ci.md``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from armbench.bench.reporting import write_reports
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet import parse_arms
 from armbench.bench.suites import SUITES
+from armbench.bench.verdict import EXIT_STATUS_EPILOG
 
 __all__ = ["register"]
 
@@ -34,8 +37,7 @@ def register(sub: Any) -> None:
         description="Run bench suites against the arm (the built-in emulator on virtual time "
                     "unless --port is given), write results.json after every trial, then "
                     "junit.xml, report.html and the traffic capture capture.mcap.",
-        epilog="Exit status: 0 pass, 1 a limit or regression failed, 2 the bench could not run "
-               "or the run is incomplete, 130 interrupted (continue with --resume DIR).")
+        epilog=EXIT_STATUS_EPILOG)
     p.add_argument("suites", nargs="*", metavar="SUITE",
                    help=f"suites to run (default: all: {', '.join(SUITES)}); "
                         "package.module:Class runs a suite of your own")
@@ -51,6 +53,10 @@ def register(sub: Any) -> None:
                    help="results.json of an earlier run: fail on regressions against it (with "
                         "several --port: the folder of an earlier fleet run, each arm against "
                         "its own)")
+    p.add_argument("--summary", metavar="FILE.md",
+                   help="append a short Markdown summary of the run (verdict, exit status, "
+                        "failures, regressions) to FILE.md, e.g. \"$GITHUB_STEP_SUMMARY\" "
+                        "(see docs/ci.md)")
     p.add_argument("--resume", metavar="DIR",
                    help="continue the interrupted run in DIR (finished trials are kept)")
     p.add_argument("--seed", type=int, default=None, metavar="N",
@@ -114,11 +120,15 @@ def _run(args: argparse.Namespace) -> int:
     if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
         from armbench.bench.commands.fleet import run_fleet
 
-        return run_fleet(options, ports)
+        return run_fleet(options, ports, summary=args.summary)
     # the record is on disk: now its reports, while the run folder is still locked
     outcome = run_sync(options, progress=sys.stderr, then=lambda done: write_reports(
         done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
     _summary(outcome)
+    if args.summary is not None:
+        from armbench.bench.run_summary import write_step_summary
+
+        write_step_summary(args.summary, outcome.record, outcome.out_dir, outcome.exit_status)
     return outcome.exit_status
 
 
@@ -129,7 +139,7 @@ def _summary(outcome: RunOutcome) -> None:
         f"warning: {w}" for w in outcome.warnings]
     if (disturbed := record.disturbance_note()) is not None:
         notes.append(f"warning: {disturbed}")
-    print(f"run {record.run_id}: verdict {record.verdict}"
+    print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
     for suite in record.suites.values():
         for trial in suite.trials:

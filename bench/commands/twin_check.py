@@ -14,17 +14,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate.capture import load_capture
 from armbench.bench.limits import load_limits
 from armbench.bench.reporting import write_reports
-from armbench.bench.twin_check import DEFAULT_CONFIG, twin_check
+from armbench.bench.twin_check import DEFAULT_CONFIG, TwinCheck, twin_check
 from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
 from armbench.drivers.settings import load_settings
 
-__all__ = ["register"]
+__all__ = ["format_twin_check", "register"]
 
 
 def register(sub: Any) -> None:
@@ -51,6 +52,33 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_run)
 
 
+def format_twin_check(result: TwinCheck, capture: str) -> str:
+    """The text report of ``result`` for a terminal: verdict, per-joint divergence, arrivals,
+    the TCP divergence and every judged figure (``--json`` has the same as one object)."""
+    lines = [f"twin-check {capture}: verdict {result.verdict} "
+             f"({result.replies_compared} replies, {result.moves} commands)"]
+    for j in range(4):
+        lines.append(f"  j{j + 1}: RMS {result.rms_counts[j]:8.2f} counts "
+                     f"({result.rms_rad[j]:.3g} rad), max {result.max_counts[j]:8.1f} counts")
+    body = result.to_json()["arrival"]
+    if body["compared"]:
+        lines.append(f"  arrivals: {body['compared']} moves compared, mean twin − arm "
+                     f"{body['mean_dt_s'] * 1e3:+.1f} ms, largest |Δ| "
+                     f"{body['max_abs_dt_s'] * 1e3:.1f} ms")
+    tcp = result.tcp
+    if tcp is None:
+        lines.append("  TCP: no truth in the capture")
+    else:
+        lines.append(f"  TCP: RMS {tcp['rms_mm']:.3f} mm, max {tcp['max_mm']:.3f} mm (floor "
+                     f"{tcp['floor_mm']:.3f} mm, {int(tcp['samples'])} samples)")
+    judged = [m for m in result.measurements if m.outcome != "unjudged"]
+    for m in judged:
+        lines.append(f"  {'FAIL' if m.outcome == 'fail' else 'pass':<4}  {m.name} = "
+                     f"{m.value:.4g} {m.unit}".rstrip()
+                     + f" (limit {m.limit.describe() if m.limit else '-'})")
+    return "\n".join(lines)
+
+
 def _run(args: argparse.Namespace) -> int:
     out = None if args.out is None else Path(args.out)
     if out is not None:
@@ -58,8 +86,19 @@ def _run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     config = DEFAULT_CONFIG if args.config is None else Path(args.config)
     limits = load_limits(config)
+    t0 = time.monotonic()
+
+    def progress(text: str) -> None:
+        """A long capture takes a while: say on a terminal what is going on (a pipe or a log
+        gets the result only, and bad input stays one line)."""
+        if sys.stderr.isatty():
+            print(f"[{time.monotonic() - t0:5.1f} s] {text}", file=sys.stderr, flush=True)
+
+    progress(f"reading {args.capture}")
     data = load_capture(args.capture, settings)
+    progress("replaying the commands into the twin and comparing")
     result = twin_check(data, settings, config)
+    progress("done")
     if out is not None:
         inputs = TwinInputs(Path(args.capture),
                             None if args.settings is None else Path(args.settings), config)
@@ -67,17 +106,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result.to_json()))
     else:
-        print(f"twin-check {args.capture}: verdict {result.verdict} "
-              f"({result.replies_compared} replies, {result.moves} commands)")
-        for j in range(4):
-            print(f"  j{j + 1}: RMS {result.rms_counts[j]:8.2f} counts "
-                  f"({result.rms_rad[j]:.3g} rad), max {result.max_counts[j]:8.1f} counts")
-        body = result.to_json()["arrival"]
-        if body["compared"]:
-            print(f"  arrivals: {body['compared']} moves compared, mean twin − arm "
-                  f"{body['mean_dt_s'] * 1e3:+.1f} ms, largest |Δ| "
-                  f"{body['max_abs_dt_s'] * 1e3:.1f} ms")
-        print("  TCP: " + ("no truth in the capture" if result.tcp is None else str(result.tcp)))
+        print(format_twin_check(result, args.capture))
     if out is not None and not args.json:
         print(f"  record: {out}")
     sys.stdout.flush()

@@ -67,17 +67,31 @@ def best_rate(fn: Callable[[], int], repeats: int) -> float:
     return best
 
 
-def run_benchmarks(options: PerfOptions, only: Iterable[str] = ()) -> list[Figure]:
-    """Run every benchmark module (or those whose figure names start with one of ``only``)."""
+def run_benchmarks(options: PerfOptions, only: Iterable[str] = (), *,
+                   starting: Callable[[str], None] | None = None,
+                   measured: Callable[[Figure], None] | None = None) -> list[Figure]:
+    """Run every benchmark module (or those whose figure names start with one of ``only``).
+
+    ``starting(module)`` is called before each benchmark module runs and ``measured(figure)``
+    for each figure as soon as its module has it, so a caller shows progress on a run that
+    takes minutes."""
     prefixes = tuple(only)
+
+    def wanted(f: Figure) -> bool:
+        return not prefixes or any(f.name.startswith(p) or f.name.split(".")[0] == p
+                                   for p in prefixes)
+
     figures: list[Figure] = []
     for name in BENCHMARK_MODULES:
         short = name.rsplit(".", 1)[-1]
         if prefixes and not any(p.split(".")[0] == short or short.startswith(p)
                                 for p in prefixes):
             continue
-        figures.extend(importlib.import_module(name).run(options))
-    if prefixes:
-        figures = [f for f in figures if any(f.name.startswith(p) or
-                                             f.name.split(".")[0] == p for p in prefixes)]
+        if starting is not None:
+            starting(short)
+        for figure in importlib.import_module(name).run(options):
+            if wanted(figure):
+                figures.append(figure)
+                if measured is not None:
+                    measured(figure)
     return figures

@@ -38,6 +38,10 @@ TOO_DEEP = "is nested too deeply to be a run record"
 PAPER_REFERENCE: Mapping[str, float] = {"paper_mean_error_mm": 12.4}
 
 
+#: The key of a campaign suite's parameters (``armbench.bench.campaign.CAMPAIGN_KEY``).
+_CAMPAIGN_KEY = "campaign"
+
+
 @dataclass(slots=True, kw_only=True)
 class RunRecord:
     """The whole run. Mutable: :class:`RecordWriter` fills it in.
@@ -112,14 +116,19 @@ class RunRecord:
     def verdict(self) -> Verdict:
         """The run's verdict, first that applies: ``"error"`` (a suite or current trial errored),
         ``"incomplete"`` (a planned suite did not start or did not end), ``"fail"`` (a measurement
-        outside its limit), ``"regression"`` (worse than the baseline), else ``"pass"``."""
+        outside its limit), ``"regression"`` (worse than the baseline), else ``"pass"``.
+
+        A campaign suite (its parameters hold ``campaign``) is judged by its suite-level figures
+        (the pass probabilities against their limits): a sample outside a limit is one of the
+        campaign's findings, counted in those figures, not the campaign's failure."""
         suites = self.suites.values()
         if any(s.status == "error" or any(t.status == "error" for t in s.trials) for s in suites):
             return "error"
         if (any(s.status == "running" for s in suites)
                 or any(name not in self.suites for name in self.planned_suites)):
             return "incomplete"
-        if any(m.outcome == "fail" for _, _, m in self.iter_measurements()):
+        if any(m.outcome == "fail" for s, t, m in self.iter_measurements()
+               if t is None or _CAMPAIGN_KEY not in s.params):
             return "fail"
         if self.baseline is not None and self.baseline.regressed:
             return "regression"

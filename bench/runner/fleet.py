@@ -47,6 +47,7 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.run import execute
+from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.transports import scheme_of
 
@@ -108,10 +109,9 @@ def parse_arms(ports: Sequence[str]) -> list[Arm]:
 
 
 def fleet_exit_status(statuses: Sequence[int]) -> int:
-    """The fleet's exit status: 130 if interrupted, else the worst arm's (2 over 1 over 0)."""
-    if EXIT_INTERRUPTED in statuses:
-        return EXIT_INTERRUPTED
-    return max(statuses, default=EXIT_PASS)
+    """The fleet's exit status: the worst arm's (:func:`armbench.bench.verdict.worst_exit_status`:
+    130, then 2, 4, 1, 3, 0)."""
+    return worst_exit_status(statuses)
 
 
 @dataclass(slots=True)

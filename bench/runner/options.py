@@ -15,6 +15,16 @@ from armbench.bench.limits import LimitsConfig
 from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
+from armbench.bench.verdict import (
+    DEFAULT_CONFIG,
+    EXIT_ERROR,
+    EXIT_FAIL,
+    EXIT_INCOMPLETE,
+    EXIT_INTERRUPTED,
+    EXIT_PASS,
+    EXIT_REGRESSION,
+    exit_status,
+)
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 
@@ -25,13 +35,12 @@ if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
 
 __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",
-    "EXIT_INTERRUPTED", "EXIT_PASS", "JUNIT_FILE", "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
+    "EXIT_INCOMPLETE", "EXIT_INTERRUPTED", "EXIT_PASS", "EXIT_REGRESSION", "JUNIT_FILE",
+    "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
     "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
-    "derive_seed", "exit_status", "in_shard",
+    "derive_seed", "exit_status", "shard_assignment",
 ]
 
-#: The limits file used when ``--config`` is not given (shipped with the package).
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "default_bench.toml"
 #: Files of a run directory besides ``results.json`` (``REPORT_FILE`` and ``CAPTURE_FILE``: the
 #: record's ``files``).
 JUNIT_FILE = "junit.xml"
@@ -42,15 +51,6 @@ RUNNER_FILE = "runner.json"
 #: re-enumeration or a ser2net restarted by systemd takes a few seconds.
 DEFAULT_OUTAGE_TIMEOUT_S = 10.0
 
-EXIT_PASS = 0
-EXIT_FAIL = 1
-EXIT_ERROR = 2
-EXIT_INTERRUPTED = 130
-
-_EXIT_BY_VERDICT: dict[Verdict, int] = {
-    "pass": EXIT_PASS, "fail": EXIT_FAIL, "regression": EXIT_FAIL,
-    "error": EXIT_ERROR, "incomplete": EXIT_ERROR,
-}
 
 Isolation = Literal["trial", "run"]
 
@@ -59,16 +59,34 @@ EmulatorFactory = Callable[["RobotSettings", "EmulatorSettings", "Sequence[Fault
 """Builds the ``fake://`` emulator of a connection (tests pass one to watch the emulators)."""
 
 
-def in_shard(index: int, shard: tuple[int, int] | None) -> bool:
-    """Whether trial ``index`` belongs to ``shard`` ``(I, N)``: every N-th trial from I − 1, so
-    each shard gets its share of a plan that cycles through conditions; None: every trial."""
-    return shard is None or index % shard[1] == shard[0] - 1
+def _condition(params: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:
+    """The condition of a trial: its text and flag parameters (a lap style, a cut kind, a named
+    condition), without counters (lap, cycle) and drawn numbers."""
+    return tuple(sorted((k, repr(v)) for k, v in params.items() if isinstance(v, (str, bool))))
 
 
-def exit_status(verdict: Verdict) -> int:
-    """The exit status of a run with this verdict: 0 pass, 1 fail or regression, 2 error or
-    incomplete."""
-    return _EXIT_BY_VERDICT[verdict]
+def shard_assignment(suites: Sequence[Sequence[Mapping[str, Any]]], n: int) -> list[list[int]]:
+    """The 0-based shard (of ``n``) of every trial of every suite, from their parameters.
+
+    Trials are dealt to the shards in turn, condition by condition (the trials of one style,
+    kind or named condition together), the dealer carrying on from one condition and one suite
+    to the next: every shard gets its share, within one trial, of every condition of every suite
+    and of every suite (a plan alternating two lap styles does not put one style in each of two
+    shards, and suites of one trial each do not all land in shard 1).
+    """
+    dealer = 0
+    out: list[list[int]] = []
+    for trials in suites:
+        groups: dict[tuple[tuple[str, str], ...], list[int]] = {}
+        for index, params in enumerate(trials):
+            groups.setdefault(_condition(params), []).append(index)
+        shards = [0] * len(trials)
+        for indices in groups.values():
+            for index in indices:
+                shards[index] = dealer % n
+                dealer += 1
+        out.append(shards)
+    return out
 
 
 def derive_seed(seed: int, *labels: object) -> int:
@@ -193,7 +211,17 @@ class BenchPlan:
         if rec is not None and rec.status == "done":
             return []
         done = set() if rec is None else {t.index for t in rec.completed_trials()}
-        return [i for i in range(len(s.trials)) if i not in done and in_shard(i, self.shard)]
+        return [i for i in self.shard_trials(s) if i not in done]
+
+    def shard_trials(self, s: PlannedSuite) -> list[int]:
+        """Indices of suite ``s`` this run measures: all, or those of its shard
+        (:func:`shard_assignment` over every suite of the plan)."""
+        if self.shard is None:
+            return list(range(len(s.trials)))
+        i, n = self.shard
+        shards = shard_assignment([p.trials for p in self.suites], n)[
+            next(k for k, p in enumerate(self.suites) if p is s)]
+        return [k for k, owner in enumerate(shards) if owner == i - 1]
 
 
 @dataclass(slots=True)

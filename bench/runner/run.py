@@ -5,7 +5,7 @@ trial by trial, keeping ``results.json`` current, then compares with the baselin
 ::
 
     outcome = run_sync(RunOptions(suites=["accuracy"], port="fake://", out="runs/x"))
-    outcome.exit_status            # 0 pass, 1 limit or regression failed, 2 could not run, 130
+    outcome.exit_status    # 0 pass, 1 limit, 2 bad input, 3 regression, 4 incomplete, 130
 
 Each planned suite: ``begin_suite``, then every trial the record does not have yet
 (``completed_trials``), each written to disk the moment it ends (``add_trial``), then
@@ -47,7 +47,10 @@ from armbench.bench.record.files import make_directory
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
+    EXIT_FAIL,
     EXIT_INTERRUPTED,
+    EXIT_PASS,
+    EXIT_REGRESSION,
     RUNNER_FILE,
     BenchPlan,
     EmulatorFactory,
@@ -56,7 +59,6 @@ from armbench.bench.runner.options import (
     RunOptions,
     RunOutcome,
     exit_status,
-    in_shard,
 )
 from armbench.bench.runner.parallel import ParallelTrials
 from armbench.bench.runner.plan import prepare
@@ -88,7 +90,7 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
     shard = runner.plan.shard
-    todo = [i for i in range(n) if i not in done and in_shard(i, shard)]
+    todo = [i for i in runner.plan.shard_trials(ps) if i not in done]
     runner.progress.message(f"[{name}] {n} trial(s)" + (
         f", {len(done)} already measured" if done else "") + (
         f", shard {shard[0]}/{shard[1]}: {len(todo)} to measure" if shard else ""))
@@ -197,11 +199,9 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
             printer.message(f"interrupted: the record keeps every finished trial; continue with "
                             f"armbench run --resume {plan.out_dir}")
     record = writer.record
-    status = EXIT_ERROR if error is not None else exit_status(record.verdict)
-    notes = ([error] if error else []) + [f"warning: {w}" for w in plan.warnings]
-    if (disturbed := record.disturbance_note()) is not None:
-        notes.append(f"warning: {disturbed}")
-    printer.message(f"verdict: {record.verdict}" + (f" ({'; '.join(notes)})" if notes else ""))
+    status = exit_status(record.verdict)
+    if error is not None and status in (EXIT_PASS, EXIT_FAIL, EXIT_REGRESSION):
+        status = EXIT_ERROR  # a baseline that cannot be used: bad input
     return RunOutcome(plan.out_dir, record, status, error=error, warnings=tuple(plan.warnings),
                       capture_max_bytes=plan.capture_max_bytes)
 

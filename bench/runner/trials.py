@@ -375,6 +375,10 @@ class TrialRunner:
             writer.end_suite(ps.name, error=f"summary: {describe(exc)}")
             self.progress.message(f"[{ps.name}] summary failed: {describe(exc)}")
             return
-        failed = [m.name for m in writer.suite(ps.name).measurements if m.outcome == "fail"]
-        self.progress.message(f"[{ps.name}] done: {len(measurements)} measurement(s)"
+        suite = writer.suite(ps.name)
+        every = [*(m for t in suite.trials for m in t.measurements), *suite.measurements]
+        failed = [m.name for m in every if m.outcome == "fail"]
+        # the count the report shows: trial-level and suite-level measurements alike
+        self.progress.message(f"[{ps.name}] done: {len(every)} measurement(s) "
+                              f"({len(suite.measurements)} at suite level)"
                               + (f", {len(failed)} outside limits" if failed else ""))
