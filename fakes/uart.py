@@ -42,6 +42,9 @@ class Uart:
         self.on_delivered: Callable[[Any], None] | None = None  # gets the tag of a write
         self.tx_filter: TxFilter | None = None
         self.rx_filter: RxFilter | None = None
+        self.rx_tap: Callable[[float, bytes], None] | None = None
+        """Called with the time and the bytes of each read of the master that finds bytes on the
+        line (those it took, maybe none): an observer of what the firmware takes."""
         self.rx_event = asyncio.Event()
         self.rx_bytes = 0
         self.rx_overflow_bytes = 0
@@ -131,6 +134,8 @@ class Uart:
         if not rx:
             self.rx_event.clear()
         self.rx_bytes += len(out)
+        if self.rx_tap is not None:
+            self.rx_tap(t_s, bytes(out))
         return bytes(out)
 
     def time_of_next(self, byte: int) -> float | None:

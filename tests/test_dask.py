@@ -17,6 +17,7 @@ from campaign_records import record_differences
 from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.record import CAPTURE_FILE
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.verdict import EXIT_INCOMPLETE
 from armbench.drivers.capture_read import open_capture
 from armbench.drivers.settings import SettingsError
 
@@ -146,5 +147,5 @@ def test_unreachable_scheduler_stops_the_run_with_its_address(
     outcome = run_sync(RunOptions(suites=["startup-recovery"], config=config,
                                   out=tmp_path / "r", scheduler="tcp://127.0.0.1:1"),
                        progress=None)
-    assert outcome.exit_status == 2
+    assert outcome.exit_status == EXIT_INCOMPLETE  # the run began, and stopped unfinished
     assert outcome.error is not None and "Dask scheduler tcp://127.0.0.1:1" in outcome.error
