@@ -26,9 +26,11 @@ def installed(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory) ->
     home = tmp_path_factory.mktemp("user-venv")
     venv.EnvBuilder(with_pip=True, system_site_packages=True).create(home)
     bin_dir = home / ("Scripts" if os.name == "nt" else "bin")
+    # --ignore-installed: the environment the venv sees may hold armbench of the same version
+    # (the README's command installs it), which pip would take as already satisfied
     done = subprocess.run([str(bin_dir / "python"), "-m", "pip", "install", "-q", "--no-deps",
-                           str(armbench_wheel)], capture_output=True, text=True, timeout=600,
-                          check=False)
+                           "--ignore-installed", str(armbench_wheel)], capture_output=True,
+                          text=True, timeout=600, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     return bin_dir
 
