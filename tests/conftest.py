@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+import armbench.bench.cli
+
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
@@ -85,3 +87,20 @@ def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     installs it: what the compiled build is compared with."""
     work = tmp_path_factory.mktemp("pure")
     return unpack(build_wheel(work, pure=True), work / "installed")
+
+
+def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """``armbench ARGS`` in this process: exit status, stdout, stderr."""
+    status = armbench.bench.cli.main(list(args))
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def one_line_error(status: int, err: str, *expected: str) -> None:
+    """Exit status 2 and a single stderr line holding every ``expected`` text, no traceback."""
+    lines = err.strip().splitlines()
+    assert status == 2, err
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for text in expected:
+        assert text in lines[0], lines[0]

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import cli, one_line_error
 
 import armbench.bench.cli
 from armbench.bench.record import load_record
@@ -37,21 +38,6 @@ unit = "{unit}"
 """
 
 
-def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
-    """``armbench ARGS`` in this process: exit status, stdout, stderr."""
-    status = armbench.bench.cli.main(list(args))
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
-
-
-def one_line_error(status: int, err: str, *expected: str) -> None:
-    """Exit status 2 and a single stderr line holding every ``expected`` text, no traceback."""
-    lines = err.strip().splitlines()
-    assert status == 2, err
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    for text in expected:
-        assert text in lines[0], lines[0]
 
 
 def write(path: Path, text: str | bytes) -> Path:
