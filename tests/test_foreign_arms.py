@@ -98,10 +98,23 @@ def test_tracker_arm_truth_beside_the_replies() -> None:
         async def go() -> tuple[tuple[float, ...], list[float]]:
             async with TrackerStream(host, port) as tracker, \
                     Arm.connect(arm.url, SETTINGS) as a:
-                state = await a.move_joints((0.2, 0.3, -0.3, 0.4), 99, timeout_s=30.0)
-                assert state is not None
-                await asyncio.sleep(0.1)
-                return state.q_rad, list(tracker.samples[-1][4:])
+                await a.move_joints((0.2, 0.3, -0.3, 0.4), 99, timeout_s=30.0)
+                # the move returns within the arrival tolerance, the motor may still take its
+                # last steps: compare once two replies 0.2 s apart agree, with a tracker line
+                # newer than both
+                settled = a.state.q_rad
+                for _ in range(50):
+                    await asyncio.sleep(0.2)
+                    if a.state.q_rad == settled:
+                        break
+                    settled = a.state.q_rad
+                else:
+                    pytest.fail(f"the arm did not come to rest: {settled}")
+                t_settled = time.monotonic()
+                async with asyncio.timeout(10.0):
+                    while tracker.samples[-1][0] <= t_settled:
+                        await asyncio.sleep(0.01)
+                return settled, list(tracker.samples[-1][4:])
         q, truth = asyncio.run(go())
     half = math.radians(0.5)
     expected = [q[0] - half + math.radians(0.3), q[1] - half - math.radians(0.4),
