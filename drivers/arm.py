@@ -56,6 +56,16 @@ from armbench.drivers.link import (
     ReconnectPolicy,
 )
 from armbench.drivers.motion import Path, coordinated_duties, joint_times_s
+from armbench.drivers.move_targets import (
+    DEFAULT_TOLERANCE_RAD,
+    check_command,
+    check_duties,
+    check_duty,
+    check_target,
+    default_tolerances,
+    tolerances,
+    wire_command,
+)
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.paths import CORNER_RAD as CORNER_RAD
 from armbench.drivers.paths import (
@@ -70,16 +80,6 @@ from armbench.drivers.paths import MAX_WAYPOINT_JUMP_RAD as MAX_WAYPOINT_JUMP_RA
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.state import GroundTruth, JointState
-from armbench.drivers.targets import (
-    DEFAULT_TOLERANCE_RAD,
-    check_command,
-    check_duties,
-    check_duty,
-    check_target,
-    default_tolerances,
-    tolerances,
-    wire_command,
-)
 from armbench.drivers.transports import Transport
 from armbench.drivers.waiters import any_state
 

@@ -18,9 +18,9 @@ from armbench.drivers.errors import MoveInterruptedError, MoveTimeoutError, Repl
 from armbench.drivers.kinematics import Vec4
 from armbench.drivers.link import ArmLink
 from armbench.drivers.motion import CYCLE_S, period_for_duty
+from armbench.drivers.move_targets import Duties
 from armbench.drivers.protocol import Command
 from armbench.drivers.state import JointState
-from armbench.drivers.targets import Duties
 
 __all__ = [
     "HOLD_ON",

@@ -27,10 +27,10 @@ from armbench.drivers.arrival import (
 from armbench.drivers.kinematics import Vec4, ik_best, tcp_position
 from armbench.drivers.link import ArmLink
 from armbench.drivers.motion import Path, PathError, point_to_polyline_m, polyline, segment_duties
+from armbench.drivers.move_targets import Duties, wire_command
 from armbench.drivers.protocol import JOINTS, Command
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.state import JointState
-from armbench.drivers.targets import Duties, wire_command
 
 __all__ = [
     "CORNER_RAD",

@@ -20,17 +20,17 @@ from armbench.drivers.arrival import ArrivalTracker
 from armbench.drivers.errors import JointRangeError
 from armbench.drivers.link import ArmLink
 from armbench.drivers.motion import line
-from armbench.drivers.protocol import MAX_TICKS, REPLY_LEN, Command, Reply, encode_reply
-from armbench.drivers.replies import ReplyStream
-from armbench.drivers.settings import RobotSettings
-from armbench.drivers.state import JointState
-from armbench.drivers.targets import (
+from armbench.drivers.move_targets import (
     LIMIT_SLACK_RAD,
     TICK_RAD,
     check_command,
     check_target,
     wire_command,
 )
+from armbench.drivers.protocol import MAX_TICKS, REPLY_LEN, Command, Reply, encode_reply
+from armbench.drivers.replies import ReplyStream
+from armbench.drivers.settings import RobotSettings
+from armbench.drivers.state import JointState
 from armbench.fakes.vclock import run_virtual
 
 T = TypeVar("T")
