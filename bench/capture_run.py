@@ -30,6 +30,7 @@ from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, zstd_attachment
 from armbench.drivers.capture_mcap import McapCapture
 from armbench.drivers.capture_part import PartWriter
 from armbench.drivers.capture_read import capture_start_ns, iter_events, iter_messages
+from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
@@ -82,16 +83,20 @@ def logged_power(inner: PowerSwitch, part: PartWriter, suite: str,
     return LoggedPower(inner, part, suite, trial)
 
 
-def emulator_truth(emulator: Any) -> Any:
-    """A callable giving the emulator's newest ground truth (rad), None before the first
-    reply, for :class:`PartWriter`; None without an emulator. The true angles (the links'
-    angles and their deflection under gravity, computed when read) are computed again only when
-    the links moved: a resting arm costs a comparison."""
-    if emulator is None:
+def emulator_truth(source: Any) -> Any:
+    """A callable giving the newest ground truth (rad) of ``source``'s emulator (``source`` is a
+    transport whose ``emulator`` is read at each call: a simulator may make it when opened; or
+    the emulator itself), None before the first reply, for :class:`PartWriter`; None without a
+    source. The true angles (the links' angles and their deflection under gravity, computed when
+    read) are computed again only when the links moved: a resting arm costs a comparison."""
+    if source is None:
         return None
     last: list[Any] = [None, None, None]
 
     def newest() -> tuple[float, ...] | None:
+        emulator = getattr(source, "emulator", None)
+        if emulator is None:
+            emulator = source
         truth = getattr(emulator, "truth", None)
         if not truth:
             return None
@@ -111,6 +116,19 @@ def fault_events(emulator: Any, part: PartWriter | None) -> None:
         return
     for t_rel, description in getattr(injector, "activations", ()):
         part.event(injector.t_start + t_rel, "fault", detail={"fault": description})
+
+
+def _clock_of(port: str | None) -> str:
+    """``"virtual"`` or ``"real"``: the clock of the port's target (real when no port is
+    recorded or its target cannot be loaded here)."""
+    from armbench.drivers.transports.target import target_of
+
+    if port is None:
+        return "real"
+    try:
+        return target_of(port).capabilities.clock
+    except ArmbenchError:
+        return "real"
 
 
 class RunCapture:
@@ -136,7 +154,7 @@ class RunCapture:
         env = self.record.environment
         return {"run_id": self.record.run_id, "created": self.record.created,
                 "seed": str(env.seed), "port": str(env.port),
-                "clock": "virtual" if str(env.port).startswith("fake://") else "real",
+                "clock": _clock_of(env.port),
                 "settings": json.dumps(self.settings.to_mapping(), sort_keys=True),
                 "suites": json.dumps(self.record.planned_suites)}
 

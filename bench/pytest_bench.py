@@ -36,8 +36,9 @@ from armbench.bench.record import (
 from armbench.bench.record.journal import journal_path
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports import scheme_of
+from armbench.drivers.settings import RobotSettings
+from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
+from armbench.drivers.transports.target import Target, given_by, target_of
 
 __all__ = [
     "SUITE_NAME",
@@ -71,12 +72,18 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 
 
 class BenchSession:
-    """The session's limits and, with ``--arm-record``, its record writer."""
+    """The session's target, settings, limits and, with ``--arm-record``, its record writer."""
 
     def __init__(self, port: str, settings: RobotSettings, settings_path: str | None,
                  limits: LimitsConfig | None, out_dir: Path | None,
-                 mode: str = "new") -> None:
+                 mode: str = "new", *, target: Target | None = None,
+                 inputs: ArmInputs | None = None) -> None:
         self.port = port
+        self.target = target if target is not None else target_of(port)
+        """What the port names and can do."""
+        self.inputs = inputs if inputs is not None else ArmInputs(settings, None)
+        """The seed and faults of a fresh arm (``--arm-settings`` over the port's query over the
+        settings file)."""
         self.settings = settings
         self.settings_path = settings_path
         self.limits = limits
@@ -189,10 +196,13 @@ def _session(config: pytest.Config) -> BenchSession:
         record_dir = config.getoption("--arm-record")
         mode = str(config.getoption("--arm-record-mode", "new"))
         try:
-            settings = load_settings(settings_path)
+            target = target_of(port)
+            inputs = target.inputs(given_by({"settings": "--arm-settings"},
+                                            settings=settings_path))
             limits = load_limits(limits_path) if limits_path else None
-            session = BenchSession(port, settings, settings_path, limits,
-                                   Path(record_dir) if record_dir else None, mode)
+            session = BenchSession(port, inputs.robot, inputs.given.settings, limits,
+                                   Path(record_dir) if record_dir else None, mode, target=target,
+                                   inputs=inputs)
         except ArmbenchError as exc:
             raise pytest.UsageError(f"armbench: {exc}") from None
         config.stash[_SESSION_KEY] = session
@@ -324,32 +334,29 @@ def record_measurement(bench_record: BenchTrial) -> Callable[..., Measurement]:
 @pytest_asyncio.fixture
 async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> AsyncIterator[Any]:
     """A connected :class:`~armbench.drivers.arm.Arm` on ``--arm-port``, closed after the test. On
-    ``fake://`` a fresh emulator (``fake://?seed=..&faults=..`` honoured) built with
-    ``--arm-settings``; its traffic capture goes to ``DIR/captures/`` with ``--arm-record``."""
+    a target that starts fresh arms (``fake://``) a new one per test, built from the session's
+    settings, seed and faults (``--arm-settings`` over the port's query over the settings file);
+    its traffic capture goes to ``DIR/captures/`` with ``--arm-record``."""
     from armbench.drivers.arm import Arm
 
     session = _session(request.config)
     port = session.port
     transport = None
-    emulator = None
-    if scheme_of(port) == "fake":
-        from armbench.fakes.arm import ArmEmulator
-        from armbench.fakes.settings import emulator_settings
-        from armbench.fakes.transport import FakeTransport, parse_fake_url
-
-        _, seed, faults = parse_fake_url(port)
-        overrides = {"seed": seed} if seed is not None else {}
-        emulator = ArmEmulator(session.settings, emulator_settings(session.settings, **overrides),
-                               faults)
-        transport = FakeTransport(port, session.settings.serial, emulator)
+    if session.target.capabilities.fresh_per_trial:
+        inputs = session.inputs
+        transport = session.target.fresh(session.settings.serial, FreshArm(
+            session.settings, inputs.seed if inputs.seed is not None else 0, inputs.faults))
+    emulator = getattr(transport, "emulator", None)
     connection = Arm.connect(port, session.settings, capture=session.capture_path(bench_record),
                              transport=transport)
     try:
         async with connection as connected:
             yield connected
     finally:
+        emulator = getattr(transport, "emulator", emulator)
         if emulator is not None:
             await emulator.close()
+
 
 
 # --------------------------------------------------------------------------------------------
@@ -368,19 +375,29 @@ def configure(config: pytest.Config) -> None:
 
 
 class _VirtualLoops:
-    """Runs tests that use the ``arm`` fixture on a virtual-time loop when the port is
-    ``fake://`` (pytest-asyncio ≥ 1.4). Every other async test gets the default loop, exactly as
-    without this plugin. ``trylast``: a project's own implementation of the hook wins."""
+    """Runs tests that use the ``arm`` fixture on a virtual-time loop when the port's target runs
+    on the virtual clock, as ``fake://`` does (pytest-asyncio ≥ 1.4). Every other async test gets
+    the default loop, exactly as without this plugin. ``trylast``: a project's own implementation
+    of the hook wins."""
 
     @pytest.hookimpl(trylast=True)
     def pytest_asyncio_loop_factories(self, config: pytest.Config,
                                       item: pytest.Item) -> Mapping[str, Callable[[], Any]]:
         names = getattr(item, "fixturenames", ())
-        if "arm" in names and scheme_of(str(config.getoption("--arm-port"))) == "fake":
+        if "arm" in names and _virtual(str(config.getoption("--arm-port"))):
             from armbench.fakes.vclock import virtual_loop_factory
 
             return {"virtual_time": virtual_loop_factory}
         return {"asyncio": asyncio.new_event_loop}
+
+
+def _virtual(port: str) -> bool:
+    """Whether ``port``'s target runs on the virtual clock (False for a port that names no
+    target: the ``arm`` fixture reports it)."""
+    try:
+        return target_of(port).virtual
+    except ArmbenchError:
+        return False
 
 
 @pytest.hookimpl(tryfirst=True)

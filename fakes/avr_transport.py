@@ -25,6 +25,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.transports.capabilities import Capabilities
 from armbench.drivers.transports.serial_port import SerialTransport
 from armbench.fakes.avr import FirmwareError, Harness, build, find_images
 
@@ -59,6 +60,12 @@ class AvrTransport(SerialTransport):
     """Joint 1's UART of the simulated boards, through the harness's pty."""
 
     scheme = "avr"
+
+    @classmethod
+    def capabilities(cls, port: str) -> Capabilities:
+        """The harness paced to the wall clock, one set of boards per connection, its own power
+        switch (the control channel); no ground truth."""
+        return Capabilities(clock="real", power=True)
 
     def __init__(self, port: str, serial: SerialSettings) -> None:
         super().__init__(port, serial)

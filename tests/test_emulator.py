@@ -439,9 +439,12 @@ def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> N
     robot.write_text('[[faults]]\nkind = "power_cut"\nat_s = 2.0\n')
     extra = tmp_path / "faults.toml"
     extra.write_text('[[faults]]\nkind = "stall"\njoint = 2\nat_s = 1.0\n')
-    _, seed, faults = parse_fake_url(f"fake://?settings={robot}&faults={extra}&seed=4")
+    _, seed, faults = parse_fake_url(f"fake://?settings={robot}&seed=4")
     assert seed == 4
-    assert [f.kind for f in faults] == ["power_cut", "stall"]
+    assert [f.kind for f in faults] == ["power_cut"]
+    # one source per setting: the query's fault list replaces the file's, it is not added to it
+    _, _, faults = parse_fake_url(f"fake://?settings={robot}&faults={extra}")
+    assert [f.kind for f in faults] == ["stall"]
 
 
 @pytest.mark.parametrize(("item", "field"), [

@@ -137,8 +137,10 @@ def prepare_campaign(options: CampaignOptions) -> BenchPlan:
         suites=[options.suite], config=options.config, out=options.out,
         runs_root=options.runs_root, seed=options.seed, settings=options.settings,
         workers=options.workers, scheduler=options.scheduler, shard=options.shard))
-    if not plan.fake:
-        raise ArmbenchError("campaign: campaigns run on the emulator (fake://)")
+    caps = plan.target.capabilities
+    if not (caps.virtual and caps.fresh_per_trial):
+        raise ArmbenchError(f"campaign: campaigns run on a simulated arm on virtual time, started "
+                            f"fresh per trial (fake://); {plan.port!r} is not one")
     uncertain = read_uncertainties(options.settings) if options.settings is not None else []
     (ps,) = plan.suites
     suite = CampaignSuite(ps.suite, plan.settings)

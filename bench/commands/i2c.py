@@ -23,7 +23,7 @@ from typing import Any, Protocol
 from armbench.bench.commands.monitor import run_on_port
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports import open_transport, scheme_of
+from armbench.drivers.transports.target import target_of
 from armbench.fakes.i2c_messages import I2CMessage
 
 __all__ = ["REG_WHO_AM_I", "ScanResult", "register", "scan_bus"]
@@ -129,8 +129,8 @@ def _run(args: argparse.Namespace) -> int:
         where = f"/dev/i2c-{args.bus}"
     else:
         port = args.port or "fake://"
-        if scheme_of(port) != "fake":
-            raise ArmbenchError(f"i2c scan: --port {port}: only the emulator's bus (fake://) is "
+        if not target_of(port).capabilities.i2c_bus:
+            raise ArmbenchError(f"i2c scan: --port {port}: only an emulated bus (fake://) is "
                                 "reachable through a port; a real arm's bus needs --bus N on a "
                                 "host wired to it")
         result = run_on_port(port, _scan_fake(port, settings))
@@ -194,7 +194,7 @@ def _scan_linux(number: int) -> ScanResult:
 
 
 async def _scan_fake(port: str, settings: RobotSettings) -> ScanResult:
-    transport = open_transport(port, settings.serial)
+    transport = target_of(port).connect(settings.serial)
     await transport.open()
     try:
         emulator = getattr(transport, "emulator", None)

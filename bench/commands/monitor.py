@@ -2,8 +2,8 @@
 
 On a terminal the display is refreshed in place (ANSI cursor moves) ``--rate`` times per second;
 otherwise one summary line per refresh; with ``--json`` one JSON object per state received. Against
-``fake://`` the emulator runs in-process on virtual time (``--duration`` then counts simulated
-seconds and defaults to 10 s).
+a target on the virtual clock (``fake://``: the emulator in-process) ``--duration`` counts simulated
+seconds and defaults to 10 s.
 """
 
 from __future__ import annotations
@@ -21,21 +21,23 @@ from typing import Any, TextIO, TypeVar
 from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, check_live_endpoint, live_view
 from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports import scheme_of
+from armbench.drivers.transports.target import target_of
 
 __all__ = ["DEFAULT_FAKE_DURATION_S", "monitor", "register", "run_on_port"]
 
 T = TypeVar("T")
 
-#: ``--duration`` against ``fake://`` when none is given (virtual time runs as fast as it can).
+#: ``--duration`` on a target on the virtual clock when none is given (virtual time runs as fast
+#: as it can).
 DEFAULT_FAKE_DURATION_S = 10.0
 #: Window of the frame-rate estimate, seconds.
 RATE_WINDOW_S = 1.0
 
 
 def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
-    """Run ``main`` on virtual time for ``fake://`` (the emulator in-process), else in real time."""
-    if scheme_of(port) == "fake":
+    """Run ``main`` on virtual time for a target on the virtual clock (``fake://``: the emulator
+    in-process), else in real time."""
+    if target_of(port).virtual:
         from armbench.fakes.vclock import run_virtual  # the CLI may use fakes; the driver may not
 
         return run_virtual(main)
@@ -72,7 +74,7 @@ def register(sub: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     settings = load_settings(args.settings)
     duration = args.duration
-    if duration is None and scheme_of(args.port) == "fake":
+    if duration is None and target_of(args.port).virtual:
         duration = DEFAULT_FAKE_DURATION_S
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         from armbench.drivers.arm import InvalidTargetError

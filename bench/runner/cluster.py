@@ -30,9 +30,10 @@ SCHEMES = ("tcp", "tls", "inproc", "ucx")
 CONNECT_TIMEOUT_S = 10.0
 
 
-def check_scheduler(where: str, address: object, fake: bool) -> str:
-    """``address`` checked (a ``tcp://HOST:PORT`` URL on a ``fake://`` run, with Dask
-    installed); a :class:`SettingsError` naming ``where`` otherwise."""
+def check_scheduler(where: str, address: object, parallel: bool) -> str:
+    """``address`` checked (a ``tcp://HOST:PORT`` URL, on a run whose target allows trials in
+    worker processes, ``parallel``, with Dask installed); a :class:`SettingsError` naming
+    ``where`` otherwise."""
     if not isinstance(address, str):
         raise SettingsError(where, address, "is not a scheduler address (tcp://HOST:PORT)")
     try:  # urlsplit refuses an unclosed IPv6 bracket, .port a port out of range
@@ -43,9 +44,10 @@ def check_scheduler(where: str, address: object, fake: bool) -> str:
             from None
     if url.scheme not in SCHEMES or not url.hostname or (url.scheme != "inproc" and not port):
         raise SettingsError(where, address, "is not a scheduler address (tcp://HOST:PORT)")
-    if not fake:
-        raise SettingsError(where, address, "a Dask scheduler measures emulated trials; the "
-                                            "port is not fake://")
+    if not parallel:
+        raise SettingsError(where, address, "a Dask scheduler measures trials on simulated "
+                                            "arms started fresh in workers; the port's target "
+                                            "is not one (fake:// is)")
     try:
         import distributed  # noqa: F401
     except ImportError:

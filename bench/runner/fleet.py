@@ -49,7 +49,7 @@ from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.run import execute
 from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.transports import scheme_of
+from armbench.drivers.transports.target import target_of
 
 __all__ = ["FLEET_FILE", "Arm", "FleetOutcome", "arm_name", "fleet_exit_status", "parse_arms",
            "run_fleet_sync"]
@@ -66,15 +66,9 @@ class Arm:
 
 
 def arm_name(port: str) -> str:
-    """The name of the arm on ``port``: a labgrid place's name, else the port sanitised."""
-    if scheme_of(port) == "labgrid":
-        from armbench.drivers.transports.labgrid import parse_labgrid_url
-
-        place, _ = parse_labgrid_url(port)
-        text = place
-    else:
-        scheme, sep, rest = port.partition("://")
-        text = (f"{scheme}-{rest}" if scheme_of(port) == "fake" else rest) if sep else port
+    """The name of the arm on ``port``: what its target makes of it (a labgrid place's name, the
+    address after the scheme), sanitised."""
+    text = target_of(port).name()
     name = re.sub(r"[^A-Za-z0-9._]+", "-", text).strip("-.")
     return name[:64] or "arm"
 
@@ -274,7 +268,7 @@ def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | No
     _write_index(out_dir, fleet_id, arms, [None] * len(arms), [None] * len(arms), None)
     main = _run_all(plans, arms, progress, emulator_factory)
     try:
-        if all(plan.fake for plan in plans):
+        if all(plan.target.virtual for plan in plans):
             from armbench.fakes.vclock import run_virtual
 
             results = run_virtual(main)

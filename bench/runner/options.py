@@ -27,6 +27,7 @@ from armbench.bench.verdict import (
 )
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.drivers.transports.target import Target
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
     from armbench.fakes.arm import ArmEmulator
@@ -161,7 +162,8 @@ class BenchPlan:
     it."""
 
     port: str
-    fake: bool
+    target: Target
+    """What the port names and what it can do (its clock, fresh arms, workers, truth, power)."""
     settings: RobotSettings
     settings_path: str | None
     config: LimitsConfig
@@ -184,7 +186,7 @@ class BenchPlan:
     """How long a lost port may stay lost before its trial ends in ``LinkLostError`` (``[bench]
     outage_timeout_s``): the reconnection's time bound, counted from the last reply."""
     workers: int = 1
-    """Processes measuring ``fake://`` trials at once (``[bench] workers``)."""
+    """Processes measuring trials at once (``[bench] workers``) on a target that allows it."""
     capture: bool = True
     """Whether connections write the traffic capture (``[bench] capture``, ``--no-capture``; a
     campaign of thousands of trials does not)."""
@@ -193,7 +195,7 @@ class BenchPlan:
     warnings: list[str] = field(default_factory=list)
     """What the verdict carries beside pass or fail (a limits file that judges nothing)."""
     scheduler: str | None = None
-    """The Dask scheduler measuring ``fake://`` trials (``[bench] scheduler``), or None."""
+    """The Dask scheduler measuring the trials (``[bench] scheduler``), or None."""
     shard: tuple[int, int] | None = None
     """``(I, N)``: only the trials of shard I of N (:func:`in_shard`); suites are not summarised
     (``armbench merge`` does it over every shard)."""

@@ -1,4 +1,5 @@
-"""Parallel execution: trials on ``fake://`` measured in worker processes, several at once.
+"""Parallel execution: trials on a target that allows it (``fake://``: its capabilities say
+``parallel``) measured in worker processes, several at once.
 
 With ``isolation = "trial"`` each trial on the emulator is self-contained: a freshly built and
 powered emulator seeded from (seed, suite, index, attempt), its own connection and capture part.
@@ -149,13 +150,15 @@ class ParallelTrials:
         self.jobs = 0
 
     def usable(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
-        """Whether the trials of ``ps`` go to worker processes: ``fake://`` with trial isolation
-        and the built-in emulator, more than one worker and trial, on a virtual-time loop (the
-        run clock is moved by each trial's duration), and a plan that can be sent."""
+        """Whether the trials of ``ps`` go to worker processes: a target that declares
+        ``parallel`` (``fake://``) with trial isolation and the built-in emulator factory, more
+        than one worker and trial, on a virtual-time loop (the run clock is moved by each
+        trial's duration), and a plan that can be sent."""
         runner = self.runner
         plan = runner.plan
         spread = plan.workers > 1 or plan.scheduler is not None
-        if not (plan.fake and plan.isolation == "trial" and spread and len(todo) > 1
+        if not (plan.target.capabilities.parallel and plan.isolation == "trial" and spread
+                and len(todo) > 1
                 and runner.attempts.emulator_factory is default_emulator
                 and plan.tracker is None and plan.power is None):
             return False

@@ -2,8 +2,11 @@
 touched and before the run directory exists, and returns the :class:`BenchPlan` the runner
 executes.
 
-Checked, in order: the run directory (or the record to resume), the port's scheme, the robot
-settings, the limits file, the seed, the fault file, the ``[bench]`` table, each suite's
+Checked, in order: the run directory (or the record to resume), the port's target
+(:func:`~armbench.drivers.transports.target.target_of`), the robot settings, the limits file, the
+seed, the fault file (each of these from one source: a flag over the port's query over the robot
+settings file over the default, :func:`~armbench.drivers.transports.target.resolve`), the
+``[bench]`` table, each suite's
 parameters (``Suite.params``) and plan, the baseline (readable, same record schema, same limits
 spec, same suite versions), the tracker plug-in and the power switch. Any problem raises an
 :class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI prints one line and
@@ -21,7 +24,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
-from urllib.parse import parse_qs, urlsplit
 
 from armbench.bench.baseline import BaselineError, check_suite_versions, load_baseline, read_record
 from armbench.bench.limits import LimitsConfig, load_limits
@@ -51,8 +53,8 @@ from armbench.bench.truth import load_tracker
 from armbench.drivers.capture import capture_options
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.numbers import finite_float
-from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.drivers.transports import open_transport, scheme_of, transport_class
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.transports.target import Target, given_by, target_of
 
 if TYPE_CHECKING:
     from armbench.fakes.faults import Fault
@@ -75,17 +77,6 @@ _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "
                "settle_s",
                "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes",
                "scheduler"}
-
-
-@dataclass(slots=True)
-class _Port:
-    """The validated port and what a ``fake://`` URL carries in its query."""
-
-    port: str
-    fake: bool
-    url_settings: str | None = None
-    url_seed: int | None = None
-    url_faults: tuple[Fault, ...] = ()
 
 
 @dataclass(slots=True)
@@ -182,40 +173,24 @@ def _load_runner_info(directory: Path) -> dict[str, Any]:
     return data
 
 
-def _check_port(port: str) -> _Port:
-    """The port's scheme and transport, its address (``socket://HOST:PORT`` with both), a serial
-    device that exists, a ``fake://`` query."""
-    transport_class(port)  # unknown scheme or a transport that cannot be imported
-    if scheme_of(port) is None and "/" in port and not Path(port).exists():
+def _check_port(port: str) -> Target:
+    """The port's target: its scheme and transport, its address (``socket://HOST:PORT`` with
+    both), a serial device that exists, the settings its query carries."""
+    target = target_of(port)  # unknown scheme or a transport that cannot be imported
+    if target.scheme is None and "/" in port and not Path(port).exists():
         raise TransportError(port, "no such serial device (is the arm plugged in? "
                                    "'python3 -m serial.tools.list_ports' lists the ports)")
-    if scheme_of(port) != "fake":
-        # built, not opened: its constructor checks the address, preflight what it needs
-        open_transport(port).preflight()
-        return _Port(port, fake=False)
-    from armbench.fakes.transport import parse_fake_url
-
-    _, url_seed, url_faults = parse_fake_url(port)  # validates the query
-    query = parse_qs(urlsplit(port).query)
-    return _Port(port, True, query["settings"][-1] if "settings" in query else None, url_seed,
-                 tuple(url_faults))
+    target.query()  # its query checked
+    target.preflight()  # built, not opened: its constructor checks the address
+    return target
 
 
-def _with_url_query(port: _Port, settings: RobotSettings) -> RobotSettings:
-    """``settings`` with a ``fake://`` URL's ``profile`` and ``payload`` applied."""
-    if not port.fake:
-        return settings
-    from armbench.fakes.transport import apply_fake_query
-
-    return apply_fake_query(port.port, settings)
-
-
-def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], port: _Port) -> _Inputs:
+def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], target: Target) -> _Inputs:
     """The settings, limits, seed, faults and suites of the run being resumed, unchanged."""
     env = resume.environment
-    settings_path = info.get("settings") or port.url_settings
-    settings = _with_url_query(port, load_settings(settings_path) if settings_path
-                               else RobotSettings())
+    resolved = target.inputs(given_by(RUNNER_FILE, settings=info.get("settings")))
+    settings_path = resolved.given.settings
+    settings = resolved.robot
     if not json_equal(settings.to_mapping(), env.settings):
         raise SettingsError("settings", settings_path or "defaults",
                             "differ from the settings the run began with; start a new run")
@@ -250,34 +225,28 @@ def check_registered_suites(suite_refs: Sequence[object]) -> None:
                          "folder cannot make armbench import a module it names")
 
 
-def _new_inputs(options: RunOptions, port: _Port) -> _Inputs:
-    """The settings, limits, seed, faults and suites a new run is given."""
-    if options.settings is not None and port.url_settings is not None:
-        raise ArmbenchError("--settings: the port already names a settings file; give one")
-    settings_path = str(options.settings) if options.settings is not None else port.url_settings
-    settings = _with_url_query(port, load_settings(settings_path) if settings_path
-                               else RobotSettings())
+def _new_inputs(options: RunOptions, target: Target) -> _Inputs:
+    """The settings, limits, seed, faults and suites a new run is given: each of the settings,
+    the seed and the faults from one source, a flag over the port's query over the robot
+    settings file over the default (:func:`~armbench.drivers.transports.target.resolve`)."""
+    flags = given_by({"settings": "--settings", "seed": "--seed", "faults": "--faults"},
+                  settings=None if options.settings is None else os.fspath(options.settings),
+                  seed=None if options.seed is None else _integer("--seed", options.seed),
+                  faults=None if options.faults is None else os.fspath(options.faults))
+    resolved = target.inputs(flags)
+    settings_path = resolved.given.settings
+    settings = resolved.robot
     config_file = Path(options.config) if options.config is not None else DEFAULT_CONFIG
     config = load_limits(config_file)
-    if options.seed is not None:
-        seed = _integer("--seed", options.seed)
-    else:
-        seed = port.url_seed if port.url_seed is not None else 0
-    faults = list(port.url_faults)
-    if options.faults is not None:
-        if not port.fake:
-            raise ArmbenchError(f"--faults: faults are injected into the emulator; the port "
-                                f"{port.port!r} is not fake://")
-        from armbench.fakes.faults import load_faults
-
-        faults += load_faults(options.faults)
+    seed = resolved.seed if resolved.seed is not None else 0
+    faults: list[Fault] = list(resolved.faults)
     suite_refs = list(options.suites) or suite_names()
     if len(set(suite_refs)) != len(suite_refs):
         raise ArmbenchError(f"SUITE: a suite is named twice in {suite_refs}")
     return _Inputs(settings, settings_path, config, seed, faults, suite_refs)
 
 
-def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _BenchKnobs:
+def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _BenchKnobs:
     """The ``[bench]`` table (unknown keys refused) with ``--retries`` and ``--workers``."""
     bench = config.bench_params()
     for key, value in bench.items():
@@ -294,12 +263,14 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
     if workers < 1:
         raise SettingsError("--workers" if options.workers is not None else "bench.workers",
                             workers, "must be at least 1")
-    isolation = bench.get("isolation", "trial" if fake else "run")
+    fresh = target.capabilities.fresh_per_trial
+    isolation = bench.get("isolation", "trial" if fresh else "run")
     if isolation not in ("trial", "run"):
         raise SettingsError("bench.isolation", isolation, "must be 'trial' or 'run'")
-    if isolation == "trial" and not fake:
+    if isolation == "trial" and not fresh:
         raise SettingsError("bench.isolation", isolation,
-                            "'trial' (a fresh emulator per trial) needs a fake:// port")
+                            f"'trial' (a fresh arm per trial) needs a target that starts one "
+                            f"(fake://); {target.port!r} does not")
     tracker_params = bench.get("tracker", {})
     if not isinstance(tracker_params, Mapping):
         raise SettingsError("bench.tracker", tracker_params, "is not a table")
@@ -309,7 +280,7 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, fake: bool) -> _Benc
         from armbench.bench.runner.cluster import check_scheduler
 
         check_scheduler("--scheduler" if options.scheduler is not None else "bench.scheduler",
-                        scheduler, fake)
+                        scheduler, target.capabilities.parallel)
     return _BenchKnobs(
         retries=retries, workers=workers, isolation=isolation, capture=capture,
         capture_max_bytes=capture_max_bytes,
@@ -410,13 +381,15 @@ def _load_checked_baseline(path: str | Path, config: LimitsConfig,
     return baseline
 
 
-def _power_switch(options: RunOptions, fake: bool, timeout_s: float) -> PowerSwitch | None:
-    """The power switch asked for on hardware (checked), None for the bench's own."""
+def _power_switch(options: RunOptions, target: Target,
+                  timeout_s: float) -> PowerSwitch | None:
+    """The power switch asked for on hardware (checked), None for the target's own. A target on
+    virtual time takes none: a relay command or an operator works in wall-clock time."""
     if options.power_command is not None and options.power_manual:
         raise ArmbenchError("--power-command and --power-manual: choose one")
-    if fake and (options.power_command is not None or options.power_manual):
-        raise ArmbenchError("--power-command/--power-manual: on fake:// the bench switches the "
-                            "emulator's power itself")
+    if target.virtual and (options.power_command is not None or options.power_manual):
+        raise ArmbenchError(f"--power-command/--power-manual: {target.port} runs on virtual "
+                            "time; the bench switches its power itself")
     if options.power_command is not None:
         off, on = options.power_command
         command_power = CommandPower(off, on, timeout_s=timeout_s)
@@ -487,15 +460,12 @@ def prepare(options: RunOptions) -> BenchPlan:
                                                            "it (--resume) or choose another --out")
         check_directory_writable(out_dir, "--out" if options.out is not None else "run folder")
     env = None if resume is None else resume.environment
-    port = _check_port(options.port or (env.port if env is not None and env.port else None)
-                       or "fake://")
-    inputs = (_resumed_inputs(resume, info, port) if resume is not None
-              else _new_inputs(options, port))
-    knobs = _bench_knobs(inputs.config, options, port.fake)
-    if port.fake:
-        from armbench.fakes.settings import emulator_settings
-
-        emulator_settings(inputs.settings)  # the [emulator] table, its seed too, checked now
+    target = _check_port(options.port or (env.port if env is not None and env.port else None)
+                         or "fake://")
+    inputs = (_resumed_inputs(resume, info, target) if resume is not None
+              else _new_inputs(options, target))
+    knobs = _bench_knobs(inputs.config, options, target)
+    target.check_settings(inputs.settings)  # an emulator's [emulator] table, checked now
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
     _check_limit_units(planned, inputs.config)
@@ -503,7 +473,7 @@ def prepare(options: RunOptions) -> BenchPlan:
                 else _load_checked_baseline(options.baseline, inputs.config, planned))
     tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
                if options.tracker else None)
-    power = _power_switch(options, port.fake, knobs.power_timeout_s)
+    power = _power_switch(options, target, knobs.power_timeout_s)
 
     run_id = resume.run_id if resume is not None else new_run_id()
     if resume is None and options.out is None:
@@ -519,7 +489,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     if resume is not None:
         runner_info = {**info, "suites": runner_info["suites"]}
     return BenchPlan(
-        port=port.port, fake=port.fake, settings=inputs.settings, settings_path=settings_path,
+        port=target.port, target=target, settings=inputs.settings, settings_path=settings_path,
         config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
         out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,

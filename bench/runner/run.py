@@ -12,13 +12,16 @@ Each planned suite: ``begin_suite``, then every trial the record does not have y
 ``summarize`` and ``end_suite``. The runner writes the record; ``junit.xml`` and ``report.html``
 are written by whoever asked for the run (``armbench.bench.reporting``).
 
-On ``fake://`` (default ``isolation = "trial"``) every trial runs against a freshly powered
-emulator seeded from (seed, suite, trial index), so each trial is reproducible on its own and a
-resumed run measures exactly what an uninterrupted one would. On hardware one connection serves
-the whole run (reconnecting with back-off after a lost port).
+What the run can do is the port's target's (:mod:`armbench.drivers.transports.target`), never
+its scheme. On a target that starts a fresh arm per trial (``fake://``; default ``isolation =
+"trial"``) every trial runs against a freshly powered arm seeded from (seed, suite, trial
+index), so each trial is reproducible on its own and a resumed run measures exactly what an
+uninterrupted one would. On hardware one connection serves the whole run (reconnecting with
+back-off after a lost port).
 
 The run clock of the record (``started_s``, ``duration_s``, ...) is the event loop's: monotonic
-seconds on hardware, simulated seconds on ``fake://`` (where minutes of robot time take seconds).
+seconds on hardware, simulated seconds on a target on the virtual clock (where minutes of robot
+time take seconds).
 Semantics of errors, retries, cancellation and resume: ``docs/runner.md``.
 """
 
@@ -150,8 +153,8 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
                        (json.dumps(plan.runner_info, indent=1) + "\n").encode())
     t_run0 = writer.elapsed_s()
     printer = ProgressPrinter(progress, plan.total_trials(),
-                              robot_clock=(lambda: writer.elapsed_s() - t_run0) if plan.fake
-                              else None)
+                              robot_clock=(lambda: writer.elapsed_s() - t_run0)
+                              if plan.target.virtual else None)
     for ps in plan.suites:
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     runner = TrialRunner(plan, writer, printer,
@@ -229,9 +232,10 @@ def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
              emulator_factory: EmulatorFactory | None = None,
              then: Callable[[RunOutcome], None] | None = None) -> RunOutcome:
     """Validate and run on a loop of the right kind: a virtual-time loop
-    (``armbench.fakes.vclock``) for ``fake://``, ``asyncio.run`` otherwise. Ctrl-C returns the
-    outcome of the record on disk with exit status 130. ``then`` is called with the outcome
-    while the run folder is still locked (the command writes the reports there).
+    (``armbench.fakes.vclock``) for a target on the virtual clock, ``asyncio.run`` otherwise.
+    Ctrl-C returns the outcome of the record on disk with exit status 130. ``then`` is called
+    with the outcome while the run folder is still locked (the command writes the reports
+    there).
 
     A folder to resume is locked before its record is read (a run still writing it is
     refused before anything of it is read or written); a new run's folder once it is made.
@@ -253,7 +257,7 @@ def _run_plan(plan: BenchPlan, progress: IO[str] | None,
               emulator_factory: EmulatorFactory | None) -> RunOutcome:
     main = execute(plan, progress=progress, emulator_factory=emulator_factory)
     try:
-        if plan.fake:
+        if plan.target.virtual:
             from armbench.fakes.vclock import run_virtual
 
             return run_virtual(main)

@@ -1,4 +1,5 @@
-"""Trial execution: connections to the arm (a fresh emulator per trial on ``fake://``), one
+"""Trial execution: connections to the arm (a fresh arm per trial on a target that starts one,
+such as ``fake://``), one
 attempt of a trial (:class:`TrialAttempts`, also what a worker process runs), and the trials of a
 suite measured in turn and committed to the record (:class:`TrialRunner`)."""
 
@@ -37,6 +38,7 @@ from armbench.bench.suites import SuiteContext
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.drivers.transports.capabilities import FreshArm
 
 if TYPE_CHECKING:
     from armbench.drivers.arm import Arm
@@ -109,7 +111,8 @@ class LoopClockWriter(RecordWriter):
 
 @dataclasses.dataclass(slots=True)
 class Connection:
-    """One open arm (and its emulator on ``fake://``) with its capture part file."""
+    """One open arm with its capture part file, and the side channel of a fresh simulated arm
+    (``transport.emulator``: ground truth, power), closed with the connection."""
 
     arm: Arm
     emulator: ArmEmulator | None
@@ -139,41 +142,42 @@ class TrialAttempts:
         self.last_arm: Arm | None = None
 
     async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
-        """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
-        arm ``robot``, by default the plan's)."""
+        """Open the arm (on a target that starts fresh arms a new one seeded with
+        ``emulator_seed``, playing the arm ``robot``, by default the plan's)."""
         from armbench.drivers.arm import Arm, ReconnectPolicy
         from armbench.drivers.capture_part import PartWriter
 
         plan = self.plan
         self._parts += 1
         part = self.clock.artifact_path(f".capture.part{self._parts}{self._part_tag}.part")
-        emulator = None
+        fresh = plan.target.capabilities.fresh_per_trial
         transport = None
-        if plan.fake:
-            from armbench.fakes.settings import emulator_settings
-            from armbench.fakes.transport import FakeTransport
-
+        if fresh:
             robot = plan.settings if robot is None else robot
-            emulator = self.emulator_factory(
-                robot, emulator_settings(robot, seed=emulator_seed), plan.faults)
-            transport = FakeTransport(plan.port, plan.settings.serial, emulator)
+            transport = plan.target.fresh(plan.settings.serial, FreshArm(
+                robot, emulator_seed, plan.faults, self.emulator_factory))
+        emulator: ArmEmulator | None = getattr(transport, "emulator", None)
         capture: PartWriter | None = None
-        # a lost port is reopened (not fake://: a new transport is a new emulator) until it has
-        # been silent for the outage timeout
-        reconnect: bool | ReconnectPolicy = (False if plan.fake else ReconnectPolicy(
+        # a lost port is reopened (not a fresh arm: a new transport would be a new arm) until
+        # it has been silent for the outage timeout
+        reconnect: bool | ReconnectPolicy = (False if fresh else ReconnectPolicy(
             max_attempts=None, give_up_after_s=plan.outage_timeout_s))
         try:
             # t_s on the run clock straight away: the part is added to capture.mcap as is
             if plan.capture:
                 capture = PartWriter(part, asyncio.get_running_loop().time()
-                                     - self.clock.elapsed_s(), truth=emulator_truth(emulator))
+                                     - self.clock.elapsed_s(), truth=emulator_truth(transport))
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=reconnect,
                               connect_timeout_s=plan.connect_timeout_s, transport=transport)
             await arm.open()
+            if emulator is None:  # a simulator may make its side channel when opened
+                emulator = getattr(transport, "emulator", None)
         except BaseException:
             if capture is not None:
                 capture.close()
+            if emulator is None:
+                emulator = getattr(transport, "emulator", None)
             if emulator is not None:
                 with contextlib.suppress(Exception):
                     await emulator.close()
@@ -198,14 +202,15 @@ class TrialAttempts:
     def context(self, ps: PlannedSuite, arm: Arm, emulator: ArmEmulator | None,
                 rng_seed: int) -> SuiteContext:
         """What suite ``ps`` may use: the arm, the power switch and the measurement source (the
-        emulator's own on ``fake://`` unless the plan names others)."""
+        target's own when it declares them, unless the plan names others)."""
         plan = self.plan
+        caps = plan.target.capabilities
         power = plan.power
         truth = plan.tracker
         source = emulator if emulator is not None else arm
-        if power is None:
+        if power is None and caps.power:
             power = port_power(source)  # the emulator's (fake://), the harness's (avr://)
-        if plan.fake and truth is None:
+        if caps.truth and truth is None:
             truth = EmulatorTruth(source, plan.settings)
 
         def artifacts(name: str) -> Path:
@@ -293,8 +298,9 @@ class TrialAttempts:
             await self.disconnect(conn)
             self.messages.message("the arm connection was lost; connecting again")
         try:
-            self.conn = await self.connect(derive_seed(self.plan.seed, "emulator", "run")
-                                           if self.plan.fake else 0)
+            self.conn = await self.connect(
+                derive_seed(self.plan.seed, "emulator", "run")
+                if self.plan.target.capabilities.fresh_per_trial else 0)
         except ArmbenchError as exc:
             raise RunAborted(f"cannot connect to {self.plan.port}: {exc}") from exc
         return self.conn

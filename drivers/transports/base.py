@@ -5,6 +5,11 @@ for it: a pty, a TCP socket, an RFC 2217 server, the emulator). It knows nothing
 All methods are coroutines to be awaited on one event loop; ``read`` is meant for one reader task
 and ``write`` may be called from any task of that loop. Callers put their own deadlines around the
 awaits (``asyncio.timeout``): a transport waits as long as the wire makes it wait.
+
+A transport class also declares what the target behind its scheme can do (the class methods
+:meth:`Transport.capabilities`, :meth:`Transport.query`, :meth:`Transport.arm_inputs`,
+:meth:`Transport.fresh`, :meth:`Transport.check_settings`, :meth:`Transport.arm_name`), read
+through :class:`~armbench.drivers.transports.target.Target`. The defaults are real hardware's.
 """
 
 from __future__ import annotations
@@ -13,8 +18,9 @@ import abc
 from types import TracebackType
 from typing import Self
 
-from armbench.drivers.errors import PortLostError, TransportError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
+from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 
 __all__ = ["READ_CHUNK", "Transport"]
 
@@ -39,6 +45,52 @@ class Transport(abc.ABC):
 
     #: URL scheme this transport serves (``""`` for plain serial device names).
     scheme: str = ""
+
+    # --- what the target behind the scheme can do (read through Target) -----------------------
+    @classmethod
+    def capabilities(cls, port: str) -> Capabilities:
+        """What the target at ``port`` can do (:class:`Capabilities`); real hardware's by
+        default: the wall clock, one arm, no ground truth, no power switch of its own."""
+        return Capabilities()
+
+    @classmethod
+    def query(cls, port: str) -> Given:
+        """The settings ``port``'s query carries (seed, settings and fault files, ...), checked:
+        a :class:`~armbench.drivers.errors.ArmbenchError` names a parameter this target does not
+        know. None by default (the query, if any, is the transport's own business)."""
+        return Given()
+
+    @classmethod
+    def arm_inputs(cls, port: str, given: Given) -> ArmInputs:
+        """The run's settings from the winning sources ``given``
+        (:func:`~armbench.drivers.transports.target.resolve`), the robot settings file read and
+        its own level applied where ``given`` says nothing. By default: the file (or the
+        defaults), the seed as given, and no faults (a fault list is refused naming who gave
+        it: only a simulated arm takes one)."""
+        if given.faults is not None:
+            raise ArmbenchError(f"{given.source('faults') or 'faults'}: faults are injected into "
+                                f"a simulated arm; the port {port!r} takes none")
+        return ArmInputs(load_settings(given.settings), given.seed)
+
+    @classmethod
+    def check_settings(cls, port: str, robot: RobotSettings) -> None:
+        """Check the parts of ``robot`` this target reads itself (an emulator's ``[emulator]``
+        table) before anything runs; nothing by default."""
+        return
+
+    @classmethod
+    def fresh(cls, port: str, serial: SerialSettings, arm: FreshArm) -> Transport:
+        """A transport, not yet opened, to a new arm built from ``arm``; only for targets that
+        declare ``fresh_per_trial``. After :meth:`open` its ``emulator`` attribute is the arm's
+        side channel (ground truth, power), closed by whoever asked for the arm."""
+        raise TransportError(port, f"{cls.__name__} cannot start a fresh arm")
+
+    @classmethod
+    def arm_name(cls, port: str) -> str:
+        """A name for the arm at ``port`` (a fleet run's folder, before sanitising): the address
+        after the scheme."""
+        _, sep, rest = port.partition("://")
+        return rest if sep else port
 
     def __init__(self, port: str, serial: SerialSettings) -> None:
         self.port = port

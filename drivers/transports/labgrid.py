@@ -218,6 +218,12 @@ class LabgridTransport(Transport):
 
     scheme = "labgrid"
 
+    @classmethod
+    def arm_name(cls, port: str) -> str:
+        """The place's name."""
+        place, _ = parse_labgrid_url(port)
+        return place
+
     def __init__(self, port: str, serial: SerialSettings) -> None:
         super().__init__(port, serial)
         self.place_name, self.coordinator = parse_labgrid_url(port)
