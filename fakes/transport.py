@@ -138,10 +138,12 @@ class FakeTransport(Transport):
     async def open(self) -> None:
         if self._open:
             return
-        if self.emulator is None:
-            robot, seed, faults = parse_fake_url(self.port)
-            overrides = {"seed": seed} if seed is not None else {}
-            self.emulator = ArmEmulator(robot, emulator_settings(robot, **overrides), faults)
+        if self.emulator is None:  # the port on its own: its query over the settings file
+            cls = type(self)
+            inputs = cls.arm_inputs(self.port, resolve(cls.query(self.port)))
+            overrides = {"seed": inputs.seed} if inputs.seed is not None else {}
+            self.emulator = ArmEmulator(inputs.robot, emulator_settings(inputs.robot, **overrides),
+                                        list(inputs.faults))
         self.emulator.attach_host(self._receive)
         self._open = True
         await self.emulator.start()
