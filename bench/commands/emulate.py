@@ -18,13 +18,14 @@ from armbench.bench.live import (
     live_view,
 )
 from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError, load_settings
+from armbench.drivers.settings import SettingsError
+from armbench.drivers.transports.target import given_by, resolve
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.avr_serve import serve_firmware
-from armbench.fakes.faults import faults_from_settings, load_faults
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from armbench.fakes.settings import emulator_settings
 from armbench.fakes.signals import stop_on_signals
+from armbench.fakes.transport import FakeTransport
 
 __all__ = ["register"]
 
@@ -71,10 +72,15 @@ def _seconds(option: str, value: float | None) -> None:
 def _run(args: argparse.Namespace) -> int:
     _seconds("--duration", args.duration)
     _seconds("--idle-timeout", args.idle_timeout)
-    robot = load_settings(args.settings)
-    overrides = {"seed": args.seed} if args.seed is not None else {}
+    # flag > settings file > default, as everywhere (docs/targets.md): a --faults list replaces
+    # the file's [[faults]]
+    inputs = FakeTransport.arm_inputs("fake://", resolve(given_by(
+        {"settings": "--settings", "seed": "--seed", "faults": "--faults"},
+        settings=args.settings, seed=args.seed, faults=args.faults)))
+    robot = inputs.robot
+    overrides = {"seed": inputs.seed} if inputs.seed is not None else {}
     settings = emulator_settings(robot, **overrides)
-    faults = faults_from_settings(robot) + (load_faults(args.faults) if args.faults else [])
+    faults = list(inputs.faults)
     if args.link and not args.pty:
         raise ArmbenchError("--link: only with --pty")
     host_port = parse_host_port(args.tcp) if args.tcp else None

@@ -23,6 +23,10 @@ entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.transports``), e
 A scheme is looked up when a port of it is opened, and only then is its module imported (so
 pyserial is not imported for a TCP port, and the driver never imports the emulator unless a
 ``fake://`` port is opened). Built-in schemes win over entry points of the same name.
+
+The registered class also declares what the target behind its scheme can do (its clock, fresh
+arms, workers, ground truth, power): :func:`armbench.drivers.transports.target.target_of` reads
+it, and the bench asks that target, never the scheme.
 """
 
 from __future__ import annotations
