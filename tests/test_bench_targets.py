@@ -264,3 +264,20 @@ def test_the_capture_names_the_targets_clock(toy: None) -> None:
     assert _clock_of("socket://localhost:9") == "real"
     assert _clock_of("nosuch://x") == "real"
     assert _clock_of(None) == "real"
+
+
+def test_a_command_s_settings_flag_reaches_the_emulator_over_the_query(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``i2c scan --settings B --port fake://?settings=A``: the emulated arm plays B, as the
+    driver does (the flag wins over the query), so B's joint addresses answer."""
+    moved = tmp_path / "moved.toml"
+    moved.write_text("[joints.j4]\ni2c_address = 0x40\n")
+    plain = tmp_path / "plain.toml"
+    plain.write_text("")
+    status, out, err = cli(capsys, "i2c", "scan", "--port", f"fake://?settings={plain}",
+                           "--settings", str(moved), "--json")
+    assert status == 0, err
+    result = json.loads(out)
+    assert "0x40" in result["found"] and "0x12" not in result["found"]
+    status, out, _ = cli(capsys, "i2c", "scan", "--port", f"fake://?settings={moved}", "--json")
+    assert status == 0 and "0x40" in json.loads(out)["found"]

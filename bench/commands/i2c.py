@@ -20,10 +20,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from armbench.bench.commands.monitor import run_on_port
+from armbench.bench.commands.monitor import (
+    close_emulator,
+    command_inputs,
+    fresh_transport,
+    run_on_port,
+)
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports.target import target_of
+from armbench.drivers.transports.capabilities import ArmInputs
+from armbench.drivers.transports.target import Target
 from armbench.fakes.i2c_messages import I2CMessage
 
 __all__ = ["REG_WHO_AM_I", "ScanResult", "register", "scan_bus"]
@@ -121,19 +127,22 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
+    port = args.port or "fake://"
+    target, inputs = (command_inputs(port, args.settings) if args.bus is None
+                      else (None, None))
+    settings = inputs.robot if inputs is not None else load_settings(args.settings)
     if args.bus is not None and args.port is not None:
         raise ArmbenchError("i2c scan: give --bus or --port, not both")
     if args.bus is not None:
         result = _scan_linux(args.bus)
         where = f"/dev/i2c-{args.bus}"
     else:
-        port = args.port or "fake://"
-        if not target_of(port).capabilities.i2c_bus:
+        assert target is not None and inputs is not None
+        if not target.capabilities.i2c_bus:
             raise ArmbenchError(f"i2c scan: --port {port}: only an emulated bus (fake://) is "
                                 "reachable through a port; a real arm's bus needs --bus N on a "
                                 "host wired to it")
-        result = run_on_port(port, _scan_fake(port, settings))
+        result = run_on_port(port, _scan_fake(target, inputs))
         where = f"{port} (emulator)"
     checks = result.check(settings)
     ok = all(c[3] for c in checks)
@@ -193,8 +202,10 @@ def _scan_linux(number: int) -> ScanResult:
         bus.close()
 
 
-async def _scan_fake(port: str, settings: RobotSettings) -> ScanResult:
-    transport = target_of(port).connect(settings.serial)
+async def _scan_fake(target: Target, inputs: ArmInputs) -> ScanResult:
+    port = target.port
+    fresh = fresh_transport(target, inputs)
+    transport = fresh if fresh is not None else target.connect(inputs.robot.serial)
     await transport.open()
     try:
         emulator = getattr(transport, "emulator", None)
@@ -207,3 +218,4 @@ async def _scan_fake(port: str, settings: RobotSettings) -> ScanResult:
         return scan_bus(bus, lambda a: a in found)
     finally:
         await transport.close()
+        await close_emulator(fresh)

@@ -20,10 +20,13 @@ from typing import Any, TextIO, TypeVar
 
 from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, check_live_endpoint, live_view
 from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports.target import target_of
+from armbench.drivers.settings import RobotSettings
+from armbench.drivers.transports import Transport
+from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
+from armbench.drivers.transports.target import Target, given_by, target_of
 
-__all__ = ["DEFAULT_FAKE_DURATION_S", "monitor", "register", "run_on_port"]
+__all__ = ["DEFAULT_FAKE_DURATION_S", "command_inputs", "fresh_transport", "monitor", "register",
+           "run_on_port"]
 
 T = TypeVar("T")
 
@@ -42,6 +45,30 @@ def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
 
         return run_virtual(main)
     return asyncio.run(main)
+
+
+def command_inputs(port: str, settings_path: str | None) -> tuple[Target, ArmInputs]:
+    """The port's target and a command's settings: ``--settings`` over the port's query over the
+    settings file over the defaults (``docs/targets.md``)."""
+    target = target_of(port)
+    return target, target.inputs(given_by({"settings": "--settings"}, settings=settings_path))
+
+
+def fresh_transport(target: Target, inputs: ArmInputs) -> Transport | None:
+    """On a target that starts fresh arms, a transport (not opened) to a new one built from
+    ``inputs``, so that the arm and the driver play the same settings; its ``emulator`` is the
+    caller's to close. None elsewhere: the driver opens the port."""
+    if not target.capabilities.fresh_per_trial:
+        return None
+    seed = inputs.seed if inputs.seed is not None else 0
+    return target.fresh(inputs.robot.serial, FreshArm(inputs.robot, seed, inputs.faults))
+
+
+async def close_emulator(transport: Transport | None) -> None:
+    """Close the emulator of a transport from :func:`fresh_transport`, if it has one."""
+    emulator = getattr(transport, "emulator", None)
+    if emulator is not None:
+        await emulator.close()
 
 
 def register(sub: Any) -> None:
@@ -72,9 +99,10 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    settings = load_settings(args.settings)
+    target, inputs = command_inputs(args.port, args.settings)
+    settings = inputs.robot
     duration = args.duration
-    if duration is None and target_of(args.port).virtual:
+    if duration is None and target.virtual:
         duration = DEFAULT_FAKE_DURATION_S
     if duration is not None and not (math.isfinite(duration) and duration > 0):
         from armbench.drivers.arm import InvalidTargetError
@@ -86,7 +114,8 @@ def _run(args: argparse.Namespace) -> int:
                                           duration_s=duration, refresh_hz=args.rate,
                                           reply_timeout_s=args.reply_timeout, out=sys.stdout,
                                           foxglove=args.foxglove,
-                                          allow_remote=args.allow_remote))
+                                          allow_remote=args.allow_remote,
+                                          transport=fresh_transport(target, inputs)))
 
 
 @contextlib.asynccontextmanager
@@ -150,15 +179,30 @@ def _summary(arm: Arm, state: JointState, rate_hz: float, note: str) -> str:
 async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = False,
                   duration_s: float | None = None, refresh_hz: float = 10.0,
                   reply_timeout_s: float = 0.5, out: TextIO = sys.stdout,
-                  foxglove: str | None = None, allow_remote: bool = False) -> int:
+                  foxglove: str | None = None, allow_remote: bool = False,
+                  transport: Transport | None = None) -> int:
     """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation;
     with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.bench.live`; a host other
-    than loopback only with ``allow_remote``)."""
+    than loopback only with ``allow_remote``). ``transport``: one from :func:`fresh_transport`
+    (its emulator closed at the end), else the driver opens ``port``."""
+    try:
+        return await _monitor(port, settings, json_lines=json_lines, duration_s=duration_s,
+                              refresh_hz=refresh_hz, reply_timeout_s=reply_timeout_s, out=out,
+                              foxglove=foxglove, allow_remote=allow_remote, transport=transport)
+    finally:
+        await close_emulator(transport)
+
+
+async def _monitor(port: str, settings: RobotSettings, *, json_lines: bool,
+                   duration_s: float | None, refresh_hz: float, reply_timeout_s: float,
+                   out: TextIO, foxglove: str | None, allow_remote: bool,
+                   transport: Transport | None) -> int:
     tty = out.isatty() and not json_lines
     period = 1.0 / refresh_hz if refresh_hz > 0 else 0.0
     rate = _Rate()
     drawn = 0
-    async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s) as arm, \
+    async with Arm.connect(port, settings, reply_timeout_s=reply_timeout_s,
+                           transport=transport) as arm, \
             _live(foxglove, settings, allow_remote) as live:
         loop = asyncio.get_running_loop()
         end = None if duration_s is None else loop.time() + duration_s
