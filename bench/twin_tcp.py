@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import urllib.parse
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -17,7 +16,7 @@ from armbench.bench.twin_replay import TwinTruth
 from armbench.drivers.capture_read import read_attachment, read_joint_states
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.settings import RobotSettings
 from armbench.fakes.settings import actual_robot
 
 __all__ = ["REST_SPEED_M_S", "REST_WINDOW_S", "arm_tcp_from_capture", "tcp_divergence"]
@@ -64,19 +63,18 @@ def tcp_divergence(arm_tcp: Sequence[tuple[float, Sequence[float]]], twin: TwinT
 
 def _arm_model(path: str, settings: RobotSettings) -> RobotSettings:
     """The actual robot model of the arm an MCAP capture recorded, as far as the capture says:
-    a run's capture of ``fake://`` attaches its record, whose environment names the port (and
-    its ``?settings=`` file) and the run's settings, from which the emulator built its arm.
+    a run's capture of a simulated arm with ground truth (``fake://``) attaches its record, whose
+    environment holds the run's settings (every source resolved), from which the arm was built.
     Otherwise the twin's own actual model (then the link lengths and offsets cannot be judged:
     they cancel)."""
+    from armbench.drivers.transports.target import target_of
+
     raw = read_attachment(path, "results.json")
     try:
         env = json.loads(raw)["environment"] if raw is not None else {}
         port = str(env.get("port") or "")
-        if not port.startswith("fake://"):
+        if not port or not target_of(port).capabilities.truth:
             return actual_robot(settings)
-        query = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query)
-        if "settings" in query:
-            return actual_robot(load_settings(query["settings"][0]))
         return actual_robot(RobotSettings.from_mapping(env["settings"]))
     except (ValueError, KeyError, TypeError, AttributeError, OSError, ArmbenchError):
         return actual_robot(settings)
