@@ -240,3 +240,41 @@ def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
     with pytest.raises(RecordError, match="finite"):
         trial.measure("y", float("inf"), "mm")
     assert trial.measure("z", 1.0, "mm").outcome == "unjudged"
+
+
+TOY_TESTS = '''
+import asyncio
+
+from armbench.fakes.vclock import VirtualTimeLoop
+from toy_target import ToyTransport
+
+
+async def test_a_fresh_toy_arm_on_virtual_time(arm):
+    assert isinstance(asyncio.get_running_loop(), VirtualTimeLoop)
+    assert ToyTransport.fresh_arms == 1
+    assert arm.ground_truth() is not None
+
+
+async def test_another_fresh_toy_arm(arm):
+    assert ToyTransport.fresh_arms == 2
+'''
+
+
+def test_a_simulator_registered_by_entry_point_serves_the_arm_fixture(
+        pytester: pytest.Pytester, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The plugin asks the port's target: a third-party simulator (``tests/toy_target.py``,
+    registered by an entry point of an installed distribution) declaring the virtual clock and
+    fresh arms gets a fresh arm per test on virtual time."""
+    info = pytester.path / "toy_target-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-target\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text(
+        "[armbench.transports]\ntoy = toy_target:ToyTransport\n")
+    (pytester.path / "toy_target.py").write_text(
+        (Path(__file__).parent / "toy_target.py").read_text())
+    monkeypatch.setenv("PYTHONPATH", str(pytester.path))
+    pytester.makeini("[pytest]\nasyncio_mode = auto\n")
+    pytester.makepyfile(test_toy=TOY_TESTS)
+    result = pytester.runpytest_subprocess(*plugin(), "-p", "no:randomly", "--arm-port",
+                                           "toy://?caps=virtual,fresh,truth")
+    result.assert_outcomes(passed=2)
