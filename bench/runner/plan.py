@@ -230,9 +230,9 @@ def _new_inputs(options: RunOptions, target: Target) -> _Inputs:
     the seed and the faults from one source, a flag over the port's query over the robot
     settings file over the default (:func:`~armbench.drivers.transports.target.resolve`)."""
     flags = given_by({"settings": "--settings", "seed": "--seed", "faults": "--faults"},
-                  settings=None if options.settings is None else os.fspath(options.settings),
-                  seed=None if options.seed is None else _integer("--seed", options.seed),
-                  faults=None if options.faults is None else os.fspath(options.faults))
+                     settings=None if options.settings is None else os.fspath(options.settings),
+                     seed=None if options.seed is None else _integer("--seed", options.seed),
+                     faults=None if options.faults is None else os.fspath(options.faults))
     resolved = target.inputs(flags)
     settings_path = resolved.given.settings
     settings = resolved.robot
