@@ -32,6 +32,7 @@ def test_a_phase_inside_another_is_charged_to_itself_only(
     now[0] += 5.0                                     # other again: 5 s
     clock.leave()
     assert clock.seconds == {"other": 6.0, "report": 7.0, "imports": 2.0}
+    assert set(clock.cpu_seconds) == set(clock.seconds)
 
 
 def test_a_coroutine_is_timed_from_its_start_to_its_end() -> None:

@@ -4,8 +4,8 @@ where the run's own process spends it.
 ``run.default_wall_s`` is the wall time of ``python -m armbench run --out DIR`` in a fresh
 process, best of the repeats, and ``run.default_cpu_s`` the CPU time of that process and its
 workers. A second fresh process runs the same command with timers around the parts of the run
-(``run.phase.*``, each exclusive of the others: an import inside the report counts as an
-import):
+(``run.phase.*``, wall seconds with the process's CPU seconds in the note, each exclusive of
+the others: an import inside the report counts as an import):
 
 * ``imports``: every module loaded (``importlib._bootstrap._find_and_load``);
 * ``waiting``: the event loop waiting for the workers' trials (the selector's real waits);
@@ -65,14 +65,19 @@ class _Clock:
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
+        """Wall seconds per phase."""
+        self.cpu_seconds: dict[str, float] = {}
+        """CPU seconds of this process per phase (a busy machine stretches the wall time)."""
         self._stack: list[str] = ["other"]
         self._since = time.perf_counter()
+        self._cpu_since = time.process_time()
 
     def _charge(self) -> None:
-        now = time.perf_counter()
+        now, cpu = time.perf_counter(), time.process_time()
         top = self._stack[-1]
         self.seconds[top] = self.seconds.get(top, 0.0) + now - self._since
-        self._since = now
+        self.cpu_seconds[top] = self.cpu_seconds.get(top, 0.0) + cpu - self._cpu_since
+        self._since, self._cpu_since = now, cpu
 
     def enter(self, phase: str) -> None:
         self._charge()
@@ -146,7 +151,8 @@ def child(out_dir: str) -> None:
     clock.enter("end")
     worker_s, jobs = totals()
     seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
-    print(json.dumps({"status": status, "phases": seconds, "missing": missing,
+    cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
+    print(json.dumps({"status": status, "phases": seconds, "cpu": cpu, "missing": missing,
                       "worker_s": worker_s, "jobs": jobs}))
 
 
@@ -216,10 +222,11 @@ def run(options: PerfOptions) -> list[Figure]:
     accounted = sum(timed.values())
     timed["start"] = max(0.0, timed_wall - accounted)
     order = ("start", "imports", "waiting", "record", "capture", "summaries", "report", "other")
+    cpu = phases["cpu"]
     for name in order:
-        figures.append(Figure(f"run.phase.{name}_s", timed.get(name, 0.0), "s",
-                              note=f"of {timed_wall:.2f} s wall in the timed run's own process"
-                              if name == "start" else ""))
+        note = f"of {timed_wall:.2f} s wall in the timed run's own process" if name == "start" \
+            else f"{cpu.get(name, 0.0):.2f} s CPU"
+        figures.append(Figure(f"run.phase.{name}_s", timed.get(name, 0.0), "s", note=note))
     if phases["missing"]:
         figures.append(Figure("run.phase.untimed", float(len(phases["missing"])), "parts",
                               note="not found: " + ", ".join(phases["missing"])))
