@@ -161,9 +161,22 @@ def _check_ticks(ticks: Sequence[object]) -> tuple[int, int, int, int]:
     return (valid[0], valid[1], valid[2], valid[3])
 
 
+#: The digits of a tick count as pieces of a reply: its first two digits, and its last three
+#: with the separator that follows them (``encode_reply``: one join instead of a ``%`` format,
+#: which parses its format and makes a str of each number on every call).
+_HIGH_DIGITS: Final = tuple(b"%02d" % k for k in range(100))
+_LOW_DIGITS_COMMA: Final = tuple(b"%03d," % k for k in range(1000))
+_LOW_DIGITS_END: Final = tuple(b"%03d#" % k for k in range(1000))
+
+
 def encode_reply(j1: int, j2: int, j3: int, j4: int) -> bytes:
     """The 25 wire bytes of a reply from four tick counts already known to be valid (0..62832):
     the firmware's side of :meth:`Reply.encode`, without building a frame object."""
+    if 0 <= j1 < 100_000 and 0 <= j2 < 100_000 and 0 <= j3 < 100_000 and 0 <= j4 < 100_000:
+        high, low, end = _HIGH_DIGITS, _LOW_DIGITS_COMMA, _LOW_DIGITS_END
+        return b"".join((b"$", high[j1 // 1000], low[j1 % 1000], high[j2 // 1000],
+                         low[j2 % 1000], high[j3 // 1000], low[j3 % 1000], high[j4 // 1000],
+                         end[j4 % 1000]))
     return b"$%05d,%05d,%05d,%05d#" % (j1, j2, j3, j4)
 
 

@@ -20,6 +20,7 @@ import logging
 import math
 from collections.abc import Callable, Generator
 from ctypes import create_string_buffer
+from typing import Final
 
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
@@ -52,7 +53,18 @@ MAX_LAG_S = 0.05
 #: simulated second at 4..32 s of loop time), which made reads that fall exactly on a cycle edge
 #: (every I²C time is whole 10 µs bits) count one cycle less at some absolute times than at
 #: others. So a run measures the same whatever loop time it starts at.
-NS_PER_CYCLE = round(CYCLE_S * 1e9)
+NS_PER_CYCLE: Final = round(CYCLE_S * 1e9)
+
+
+def _round_even(x: float) -> int:
+    """``round(x)`` (ties to even), in arithmetic compiled code does natively: the builtin is
+    called through Python from compiled code, and every main loop rounds five times. ``x``
+    minus its floor is exact in binary floating point, so the comparisons with 0.5 are too."""
+    whole = math.floor(x)
+    frac = x - whole
+    if frac > 0.5 or (frac == 0.5 and whole % 2 == 1):
+        return whole + 1
+    return whole
 
 _new_tuple = tuple.__new__  # builds a NamedTuple without its Python-level __new__ (hot path)
 
@@ -88,7 +100,7 @@ class Board:
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
         """The board's control cycle count at ``t_s`` (cycles since its power-up)."""
-        return round((t_s - self.t0) * 1e9) // NS_PER_CYCLE
+        return _round_even((t_s - self.t0) * 1e9) // NS_PER_CYCLE
 
     def sync(self, t_s: float) -> JointModel:
         """Bring the joint to ``t_s`` (never backwards) and store EEPROM records it produced."""
@@ -124,7 +136,7 @@ class Board:
         model = self.model
         assert model is not None
         counter, self.last_truth_rad, self.last_motor_rad = model.sample(
-            round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
+            _round_even((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         return math.floor(q % math.tau * TICKS_PER_RAD + 0.5)  # rad_to_ticks(q), inline: hot
 
@@ -318,7 +330,7 @@ class SlaveBoard(Board):
         model = self.model
         assert model is not None
         counter, self.last_truth_rad, self.last_motor_rad = model.sample(
-            round((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
+            _round_even((t_s - self.t0) * 1e9) // NS_PER_CYCLE)
         self.last_firmware_rad = q = counter / self._counts_per_rad
         if model.transitions:
             self.store_transitions()
@@ -479,6 +491,8 @@ class MasterBoard(Board):
         steady_bytes = sum(m.len for m in ref_msgs) + sum(m.len for m in pos_msgs)
         fused = settings.fused_bus
         written = [b.raw for b in ref_bufs]  # what each reference write carries
+        last = (-1, -1, -1, -1)  # the positions of the last reply
+        reply = b""
         while True:
             # Receive reference poses and velocities from UART
             if received is not None:
@@ -542,7 +556,7 @@ class MasterBoard(Board):
             # Update current pose of joint 1 (sample_position, inline: hot)
             now = clock.now
             counter, self.last_truth_rad, self.last_motor_rad = model.sample(
-                round((now - t0) * 1e9) // NS_PER_CYCLE)
+                _round_even((now - t0) * 1e9) // NS_PER_CYCLE)
             self.last_firmware_rad = q = counter / counts_per_rad
             own = math.floor(q % math.tau * TICKS_PER_RAD + 0.5)
             if model.transitions:
@@ -550,10 +564,13 @@ class MasterBoard(Board):
             if writes.pending:
                 now = writes.pay(now)
             now += overhead_s
-            # Pack all current poses and send through UART
-            reply = encode_reply(own, positions[0], positions[1], positions[2])
-            if line_end:
-                reply += line_end
+            # Pack all current poses and send through UART (an unchanged reply: the same bytes)
+            p2, p3, p4 = positions[0], positions[1], positions[2]
+            if own != last[0] or p2 != last[1] or p3 != last[2] or p4 != last[3]:
+                last = (own, p2, p3, p4)
+                reply = encode_reply(own, p2, p3, p4)
+                if line_end:
+                    reply += line_end
             sample = _new_tuple(TruthSample, (
                 now, (self.last_truth_rad, s2.last_truth_rad, s3.last_truth_rad,
                       s4.last_truth_rad),
@@ -567,7 +584,7 @@ class MasterBoard(Board):
                 self.on_reply(reply, sample)
             if clock.now < loop.time() - MAX_LAG_S:  # real time, busy CPU: drop the lag, no burst
                 clock.now = loop.time()
-            clock.now = t0 + round((clock.now - t0) * 1e9) * 1e-9  # see NS_PER_CYCLE
+            clock.now = t0 + _round_even((clock.now - t0) * 1e9) * 1e-9  # see NS_PER_CYCLE
             received = yield clock.now
 
     async def _receive_blocking(self, framer: Framer, loop: asyncio.AbstractEventLoop) -> Command:

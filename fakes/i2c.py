@@ -30,7 +30,7 @@ import errno
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Final, Protocol
 
 from armbench.fakes.i2c_messages import I2C_M_RD, I2CMessage
 
@@ -47,10 +47,11 @@ __all__ = [
     "transaction_bits",
 ]
 
-REG_REFERENCE = 0x01
-REG_POSITION = 0x02
-REG_STATUS = 0x03
-REG_WHO_AM_I = 0x04
+# Final: compiled code reads them as constants, not through the module's dictionary
+REG_REFERENCE: Final = 0x01
+REG_POSITION: Final = 0x02
+REG_STATUS: Final = 0x03
+REG_WHO_AM_I: Final = 0x04
 
 
 class I2CDevice(Protocol):

@@ -48,7 +48,14 @@ from armbench.reports.sections import (
 )
 from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
-from armbench.reports.views import Figures, FigureView, MeasurementRow, SectionView, SuiteView
+from armbench.reports.views import (
+    Figures,
+    FigureView,
+    MeasurementRow,
+    SectionView,
+    SuiteView,
+    figures_collected_alone,
+)
 
 __all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "report_chunks",
            "suite_sections"]
@@ -176,12 +183,13 @@ def render_report(record: RunRecord | str | os.PathLike[str], out_path: str | os
         for name in (CAPTURE_FILE, LEGACY_CAPTURE_FILE):  # capture.mcap, else an older run's
             if capture_path is None and (path.parent / name).is_file():
                 capture_path = path.parent / name
-    chunks = report_chunks(rec, capture=capture_path, out_dir=out.parent, source=source)
     out.parent.mkdir(parents=True, exist_ok=True)
+    with figures_collected_alone():
+        chunks = report_chunks(rec, capture=capture_path, out_dir=out.parent, source=source)
 
-    def write(fh: BinaryIO) -> None:
-        for chunk in chunks:  # a template error leaves the earlier page as it was
-            fh.write(chunk.encode("utf-8"))
+        def write(fh: BinaryIO) -> None:
+            for chunk in chunks:  # a template error leaves the earlier page as it was
+                fh.write(chunk.encode("utf-8"))
 
-    atomic_write(out, write)
+        atomic_write(out, write)
     return out

@@ -622,9 +622,12 @@ def test_perf_workloads_and_figures() -> None:
     assert slow_loops == pytest.approx(5.0 / slow_period_s, rel=0.02)
     figures = {f.name: f for f in perf_emulator.run(PerfOptions(quick=True, repeats=1))}
     assert set(figures) == {"emulator.realtime_factor", "emulator.bus_realtime_factor",
-                            "emulator.loop_cost",
+                            "emulator.cpu_realtime_factor", "emulator.loop_cost",
                             "emulator.idle_realtime_factor", "emulator.slow_line_realtime_factor",
                             "emulator.cycle_loop_factor"}
     cost = figures["emulator.loop_cost"]
     assert cost.bound is not None and cost.ratio == pytest.approx(cost.value / cost.bound)
     assert all(f.value > 0 for f in figures.values())
+    # a thread's CPU time never exceeds the wall time it passed in
+    assert figures["emulator.cpu_realtime_factor"].value >= \
+        figures["emulator.realtime_factor"].value * 0.99

@@ -173,3 +173,36 @@ def test_streamed_results_json_is_the_text_the_whole_record_encodes_to(tmp_path:
     w.write()
     in_memory = load_record(w.path)                       # every sample in memory
     assert w.path.read_text(encoding="utf-8") == _encode(in_memory.to_json()) + "\n"
+
+
+def test_a_trial_already_in_results_json_is_copied_not_encoded_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run writes results.json at every suite's begin and end: a trial that is there already,
+    unchanged, is copied from the file being replaced (the same bytes); a trial changed since
+    (a new object around the same stored samples) is encoded again."""
+    from dataclasses import replace
+
+    from armbench.bench.record.jsonformat import _encode
+
+    w = RecordWriter(tmp_path, _record(("acc", "rep")))
+    w.begin_suite("acc", "1")
+    for i in range(3):
+        w.add_trial("acc", _trial(i, 30))
+    w.end_suite("acc")                                    # the three trials encoded here
+    encoded: list[int] = []
+    to_json = Trial.to_json
+
+    def counting(self: Trial, *args: Any, **kwargs: Any) -> Any:
+        encoded.append(self.index)
+        return to_json(self, *args, **kwargs)
+
+    monkeypatch.setattr(Trial, "to_json", counting)
+    w.begin_suite("rep", "2")
+    assert encoded == []                                  # copied
+    trials = w.record.suites["acc"].trials
+    trials[1] = replace(trials[1], duration_s=9.5)        # changed, same stored samples
+    w.write()
+    assert encoded == [1]
+    in_memory = load_record(w.path)
+    assert in_memory.suites["acc"].trials[1].duration_s == 9.5
+    assert w.path.read_text(encoding="utf-8") == _encode(in_memory.to_json()) + "\n"

@@ -72,3 +72,46 @@ def test_debug_mode_keeps_the_order_of_equal_time_timers() -> None:
 
     with asyncio.Runner(loop_factory=VirtualTimeLoop, debug=True) as runner:
         assert runner.run(main()) == [0, 1, 2, 3, 4]
+
+
+def test_a_failing_callback_goes_to_the_exception_handler_and_the_loop_goes_on() -> None:
+    """The loop runs handles inline (not through ``Handle._run``): a callback's exception still
+    reaches the loop's exception handler, with the message and handle asyncio gives it."""
+    seen: list[dict[str, object]] = []
+    ran: list[float] = []
+
+    def boom() -> None:
+        raise ValueError("boom")
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(lambda _loop, context: seen.append(context))
+        handle = loop.call_at(1.0, boom)
+        loop.call_at(2.0, lambda: ran.append(loop.time()))
+        await asyncio.sleep(3.0)
+        assert seen[0]["handle"] is handle
+
+    run_virtual(main)
+    assert len(seen) == 1
+    assert isinstance(seen[0]["exception"], ValueError)
+    assert str(seen[0]["message"]).startswith("Exception in callback ")
+    assert "boom" in str(seen[0]["message"])
+    assert ran == [2.0]
+
+
+def test_stop_ends_run_forever_before_later_callbacks() -> None:
+    """Many iterations run in one ``_run_once`` call: ``stop()`` still ends ``run_forever``
+    after the iteration that called it, the later timers waiting for the next run."""
+    loop = VirtualTimeLoop()
+    ran: list[int] = []
+    try:
+        loop.call_at(1.0, ran.append, 1)
+        loop.call_at(2.0, loop.stop)
+        loop.call_at(3.0, ran.append, 3)
+        loop.run_forever()
+        assert ran == [1] and loop.time() == 2.0
+        loop.call_at(4.0, loop.stop)
+        loop.run_forever()
+        assert ran == [1, 3] and loop.time() == 4.0
+    finally:
+        loop.close()

@@ -25,6 +25,7 @@ BENCHMARK_MODULES: tuple[str, ...] = (
     "armbench.bench.perf.report",
     "armbench.bench.perf.firmware",
     "armbench.bench.perf.fleet",
+    "armbench.bench.perf.run",
 )
 
 

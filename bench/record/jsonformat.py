@@ -43,9 +43,14 @@ class Placeholder:
         self.level = 0
 
 
+#: One encoder for every one-line part: ``json.dumps`` with these options would build a new
+#: ``JSONEncoder`` per call, and the record makes one call per sample.
+_compact_encoder = json.JSONEncoder(ensure_ascii=False, allow_nan=False, separators=(", ", ": "),
+                                    default=json_default)
+
+
 def _compact(value: object) -> str:
-    return json.dumps(value, ensure_ascii=False, allow_nan=False, separators=(", ", ": "),
-                      default=json_default)
+    return _compact_encoder.encode(value)
 
 
 def _is_scalar(value: object) -> bool:

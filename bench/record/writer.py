@@ -74,6 +74,9 @@ class RecordWriter:
         self.journal = journal_path(self.path)
         self._base_s = continued_clock_s(self.out_dir, record)
         self._t0 = time.monotonic()
+        self._written: dict[int, tuple[Trial, int]] = {}
+        """The trials :meth:`write` put in ``results.json``, by their samples' identity, with
+        the level they were encoded at."""
         self.write()
 
     @classmethod
@@ -102,28 +105,56 @@ class RecordWriter:
 
     def write(self) -> Path:
         """Write ``results.json`` now (atomically, streamed trial by trial) and empty the
-        journal, whose trials it now holds; returns its path."""
-        placed: list[tuple[Trial, int, int]] = []
+        journal, whose trials it now holds; returns its path.
+
+        A trial this writer put in ``results.json`` before, unchanged since (the same trial
+        object, its samples still there), is copied from the file being replaced instead of
+        encoded again: its text is the same, and a run writes the record at every suite's begin
+        and end."""
+        placed: list[tuple[Trial, int, int, int]] = []
         suite_of = {id(t): name for name, suite in self.record.suites.items()
                     for t in (*suite.trials, *suite.superseded_trials)}
+        written = self._written
 
         def trial_json(trial: Trial) -> Placeholder:
             return Placeholder(trial)
 
+        def text_of(trial: Trial, level: int, old: BinaryIO | None) -> bytes:
+            samples = trial.samples
+            seen = written.get(id(samples))
+            if (old is not None and seen is not None and seen[0] is trial and seen[1] == level
+                    and isinstance(samples, StoredSamples) and samples.path == self.path
+                    and not samples.entry):
+                old.seek(samples.offset)
+                data = old.read(samples.length)
+                if len(data) == samples.length:
+                    return data
+            text = _to_json_text(trial.to_json(), f"suites.{suite_of[id(trial)]}"
+                                 f".trials[index {trial.index}]", level=level)
+            return text.encode("utf-8")
+
         def stream(fh: BinaryIO) -> None:
             offset = 0
-            for piece in iter_encode(self.record.to_json(trial_json)):
-                if isinstance(piece, Placeholder):
-                    trial = cast(Trial, piece.item)
-                    text = _to_json_text(trial.to_json(), f"suites.{suite_of[id(trial)]}"
-                                         f".trials[index {trial.index}]", level=piece.level)
-                    placed.append((trial, offset, len(data := text.encode("utf-8"))))
-                else:
-                    data = piece.encode("utf-8")
-                fh.write(data)
-                offset += len(data)
-            fh.write(b"\n")
+            old = None
+            if written:
+                with contextlib.suppress(OSError):
+                    old = self.path.open("rb")
+            try:
+                for piece in iter_encode(self.record.to_json(trial_json)):
+                    if isinstance(piece, Placeholder):
+                        trial = cast(Trial, piece.item)
+                        data = text_of(trial, piece.level, old)
+                        placed.append((trial, offset, len(data), piece.level))
+                    else:
+                        data = piece.encode("utf-8")
+                    fh.write(data)
+                    offset += len(data)
+                fh.write(b"\n")
+            finally:
+                if old is not None:
+                    old.close()
 
+        self._written = {}
         try:
             atomic_write(self.path, stream)
         except (TypeError, ValueError) as exc:
@@ -131,14 +162,21 @@ class RecordWriter:
                 raise
             raise RecordError(str(self.path), f"cannot be stored as JSON: {exc}") from None
         stored = {id(t): StoredSamples(self.path, offset, length, len(t.samples), entry=False)
-                  for t, offset, length in placed if t.samples}
-        for t, offset, length in placed:
+                  for t, offset, length, _level in placed if t.samples}
+        for t, offset, length, _level in placed:
             if isinstance(t.samples, StoredSamples):
                 t.samples.move(self.path, offset, length, entry=False)
+        final: dict[int, Trial] = {}
         for suite in self.record.suites.values():
             for trials in (suite.trials, suite.superseded_trials):
-                trials[:] = [t if isinstance(t.samples, StoredSamples) or id(t) not in stored
-                             else replace(t, samples=stored[id(t)]) for t in trials]
+                for k, t in enumerate(trials):
+                    if not isinstance(t.samples, StoredSamples) and id(t) in stored:
+                        trials[k] = replace(t, samples=stored[id(t)])
+                    final[id(t)] = trials[k]
+        for t, _offset, _length, level in placed:
+            kept = final.get(id(t))
+            if kept is not None and isinstance(kept.samples, StoredSamples):
+                self._written[id(kept.samples)] = (kept, level)
         with contextlib.suppress(FileNotFoundError):
             self.journal.unlink()
         return self.path

@@ -1,0 +1,39 @@
+"""The report frees each drawn figure at once, collecting only what the page made."""
+
+from __future__ import annotations
+
+import gc
+import weakref
+
+from matplotlib.figure import Figure
+
+from armbench.reports.views import Figures, figures_collected_alone
+
+
+def _draw(figures: Figures) -> tuple[str, weakref.ref[Figure]]:
+    fig = Figure()
+    fig.add_subplot().plot([0.0, 1.0], [1.0, 0.0])
+    return str(figures.make(fig, "a line", "caption").svg), weakref.ref(fig)
+
+
+def test_drawn_figures_are_freed_and_the_heap_is_thawed_after_the_page() -> None:
+    assert gc.get_freeze_count() == 0
+    with figures_collected_alone():
+        assert gc.get_freeze_count() > 0           # what existed is set aside
+        figures = Figures()
+        svg, first = _draw(figures)
+        _draw(figures)                             # collects the first figure's cycles
+        assert first() is None
+    assert "<svg" in svg
+    assert gc.get_freeze_count() == 0
+
+
+def test_a_freeze_of_the_caller_is_kept() -> None:
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        with figures_collected_alone():
+            pass
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
