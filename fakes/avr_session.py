@@ -389,13 +389,13 @@ def _in_force(side: Outcome, t_s: float) -> Command | None:
     return taken[-1] if taken else None
 
 
-def _same_record(a: EepromRecord | None, b: EepromRecord | None) -> bool:
+def _same_record(a: EepromRecord | None, b: EepromRecord | None, tol_counts: float) -> bool:
     """Whether two records make the same start-up: both blank, both "moving" the same way (the
-    drive to the Hall sensor), or both "stopped" at counters within :data:`TOL_COUNTS`."""
+    drive to the Hall sensor), or both "stopped" at counters within ``tol_counts``."""
     if a is None or b is None:
         return a is b
     return a.motion == b.motion and (a.motion != "stopped"
-                                     or abs(a.counter - b.counter) <= TOL_COUNTS)
+                                     or abs(a.counter - b.counter) <= tol_counts)
 
 
 def _record_at(side: Outcome, cut_s: float) -> tuple[bytes, ...] | None:
@@ -432,13 +432,17 @@ def _cuts_compared(session: Session, emu: Outcome,
     differed at a cut where nothing excuses it.
 
     At each cut each joint's record (as the cut left it, torn if it came in the middle of a
-    write) must make the same start-up on both sides. Records that differ are excused, and the
+    write) must make the same start-up on both sides: a "stopped" record's counter within the
+    replies' tolerance (:data:`TOL_COUNTS`, widened by the take lags at the joint's fastest
+    speed, as :func:`divergences` compares positions). Records that differ are excused, and the
     comparison stops at the cut, where the emulator's record was the firmware's at some moment
     within :data:`RECORD_PHASE_S` of the cut (the two sides write the same cells that far apart,
     so a cell written just before the cut on one side may come just after it on the other), or
     where the joint moved shortly before the cut and was not moving at the cut on both sides (it
     may have stopped or started on one side and not yet on the other: the records then differ
     in their state). Records that differ otherwise are a divergence."""
+    lag = _take_lag(emu, fw)
+    speeds = [max(a, b) for a, b in zip(_speeds(emu.replies), _speeds(fw.replies), strict=True)]
     for event in session.events:
         if not isinstance(event, Power) or event.on:
             continue
@@ -450,9 +454,10 @@ def _cuts_compared(session: Session, emu: Outcome,
         b = _moving(fw.replies, cut, _in_force(fw, cut))
         for j in range(4):
             rec_emu, rec_fw = decode_record(cells_emu[j]), decode_record(cells_fw[j])
-            if _same_record(rec_emu, rec_fw):
+            tol = TOL_COUNTS + lag(cut) * speeds[j]
+            if _same_record(rec_emu, rec_fw, tol):
                 continue
-            if any(_same_record(decode_record(near), rec_fw)
+            if any(_same_record(decode_record(near), rec_fw, tol)
                    for near in _records_near(session, emu, j, cut)):
                 return cut, []  # a cell written on one side of the cut here, the other there
             (moved_a, at_cut_a), (moved_b, at_cut_b) = a[j], b[j]
