@@ -1,8 +1,10 @@
 """The differential fuzzer of the UART (``fakes/avr_fuzz.py``, ``fakes/avr_session.py``): a few
 sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
 (minimised divergences, fixed or explained) replay without divergence; and the comparison does
-catch the firmware bugs it found (the old 16-bit position sum and the slave that waited for its
-EEPROM record, rebuilt here)."""
+catch the firmware bugs it found (the old 16-bit position sum, the slave that waited for its
+EEPROM record and the position report of a counter beyond 16 bits, rebuilt here). A power cut
+during an EEPROM record tears it alike on both sides, and the records each cut leaves are
+compared."""
 
 from __future__ import annotations
 
