@@ -38,7 +38,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "report": (_COMMANDS + "report", "render run reports (DIR/report.html) and the run index"),
     "compare": (_COMMANDS + "compare", "compare run B with baseline run A, metric by metric"),
     "config": (_COMMANDS + "config",
-               "print the effective config (limits, tolerances) as TOML: config show"),
+               "print a run's effective config (limits, parameters) as TOML: config show"),
     "firmware": (_COMMANDS + "firmware",
                  "build the firmware in the loop (AVR images and simavr harness)"),
     "calibrate": (_COMMANDS + "calibrate",

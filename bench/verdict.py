@@ -13,7 +13,8 @@ A CI job tells the outcomes apart by the exit status alone:
 ====  ===========================================================================
 
 Regression tolerances and limits come from one file, ``--config`` (default: the packaged
-``default_bench.toml``), whichever command judges; ``armbench config show`` prints it.
+``default_bench.toml``), whichever command judges; ``armbench config show`` prints it with the
+parameters of a run, defaults written out.
 """
 
 from __future__ import annotations

@@ -29,6 +29,7 @@ from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.avr import HARNESS_NAME, board_specs, build, data_symbols, find_images
 from armbench.fakes.avr_diff import TICKS_HALF_TURN, TICKS_TURN, compare
+from armbench.fakes.eeprom import RECORD_BYTES, EepromRecord, decode_record
 from armbench.fakes.settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.vclock import run_virtual
 
@@ -63,10 +64,14 @@ TRANSACTION_S = 0.6e-3
 #: 3.0 ms; an EEPROM record stalls it 3.3 ms a changed byte).
 STALL_S = 4.5e-3
 #: A joint that moved this shortly before a power cut may have stopped (or started) before it on
-#: one side and not on the other (see ``_clear_cuts_until``).
+#: one side and not on the other (see ``_cuts_compared``).
 SETTLE_S = 0.03
 #: A reply on one side must have one on the other side within this (the longest stall above).
 SILENCE_S = 0.025
+#: How far apart the two sides may start writing the same EEPROM cell: each writes a record at its
+#: loop's store after the motion change (a master loop apart at most, 3.0 ms, and the two loops'
+#: store points differ by a few tenths of a millisecond), then a cell every 3.3 ms on both.
+RECORD_PHASE_S = 3.6e-3
 
 
 @dataclass(frozen=True)
@@ -136,6 +141,12 @@ class Outcome:
     """Firmware only (with coverage): flash byte addresses executed, per joint 1..4."""
     edges: set[int] = field(default_factory=set)
     """Firmware only (with coverage): the master's branch-edge hashes."""
+    eeprom_writes: list[list[tuple[float, int, int]]] = field(
+        default_factory=lambda: [[] for _ in range(4)])
+    """Per joint 1..4, each EEPROM cell write: (start time, address, value); the emulator's as
+    planned, also those a power cut then took back."""
+    records_at_cuts: list[tuple[float, tuple[bytes, ...]]] = field(default_factory=list)
+    """At each power cut, each joint's EEPROM record cells as the cut left them."""
 
 
 def _ideal_robot() -> RobotSettings:
@@ -167,6 +178,8 @@ def run_emulator_session(session: Session) -> Outcome:
                              if isinstance(c, Command))
 
         uart.rx_tap = taken
+        for eeprom, writes in zip(arm.eeproms, out.eeprom_writes, strict=True):
+            eeprom.write_log = writes
         t0 = loop.time()
         await arm.start()
         for event in session.events:
@@ -177,11 +190,14 @@ def run_emulator_session(session: Session) -> Outcome:
                 arm.power_on()
             else:
                 arm.power_off()
+                out.records_at_cuts.append((event.at_s, tuple(e.read(0, RECORD_BYTES)
+                                                              for e in arm.eeproms)))
                 shadow[0] = Framer("command")  # the master's framer is new at the next boot
         # on past the end, so the firmware's last replies have the emulator's on both sides
         await asyncio.sleep(max(0.0, t0 + session.until_s + SILENCE_S - loop.time()))
         await arm.close()
         out.replies = [(t - t0, r) for t, r in out.replies]
+        out.eeprom_writes = [[(t - t0, a, v) for t, a, v in w] for w in out.eeprom_writes]
         return out
 
     return run_virtual(main)
@@ -198,6 +214,7 @@ def _harness_args(coverage: Path | None, events: Path, images: list[Path]) -> li
 
 
 def _read_events(text: str, out: Outcome) -> None:
+    cells = [bytearray(b"\xff" * RECORD_BYTES) for _ in range(4)]  # the harness starts blank
     for line in text.splitlines():
         parts = line.split()
         if len(parts) == 4 and parts[1] == "cmd":
@@ -205,6 +222,13 @@ def _read_events(text: str, out: Outcome) -> None:
                 parts[3].encode()) if isinstance(c, Command))
         elif len(parts) == 3 and parts[1] == "overflow":
             out.overflows.append(float(parts[0]))
+        elif len(parts) == 5 and parts[1] == "eeprom":
+            joint, address, value = int(parts[2]), int(parts[3]), int(parts[4], 16)
+            out.eeprom_writes[joint - 1].append((float(parts[0]), address, value))
+            if address < RECORD_BYTES:
+                cells[joint - 1][address] = value
+        elif parts[1:] == ["power", "off"]:
+            out.records_at_cuts.append((float(parts[0]), tuple(bytes(c) for c in cells)))
 
 
 def _read_coverage(text: str, out: Outcome) -> None:
@@ -365,36 +389,103 @@ def _in_force(side: Outcome, t_s: float) -> Command | None:
     return taken[-1] if taken else None
 
 
-def _clear_cuts_until(session: Session, emu: Outcome, fw: Outcome) -> float:
-    """The first power cut at which a joint may have stopped or started on one side and not yet
-    on the other (it moved shortly before the cut, and was not moving at the cut on both sides):
-    its EEPROM record then says "stopped" on one side and "moving" on the other, and after the
-    power-up one side drives to the Hall and the other does not. Or a cut while either master's
-    loop was stalled writing its record: the firmware writes it cell by cell (3.3 ms each, as
-    the chip), so a cut leaves it torn, where the emulator stores it whole; an open difference
-    (docs/fuzzing.md), kept out of the comparison until the emulator models it. Compared up to
-    there."""
+def _same_record(a: EepromRecord | None, b: EepromRecord | None, tol_counts: float) -> bool:
+    """Whether two records make the same start-up: both blank, both "moving" the same way (the
+    drive to the Hall sensor), or both "stopped" at counters within ``tol_counts``."""
+    if a is None or b is None:
+        return a is b
+    return a.motion == b.motion and (a.motion != "stopped"
+                                     or abs(a.counter - b.counter) <= tol_counts)
+
+
+def _record_at(side: Outcome, cut_s: float) -> tuple[bytes, ...] | None:
+    return next((cells for t, cells in side.records_at_cuts if abs(t - cut_s) < 1e-4), None)
+
+
+def _records_near(session: Session, emu: Outcome, joint: int, cut_s: float) -> list[bytes]:
+    """The emulator's record cells of ``joint`` (0..3) at every moment within
+    :data:`RECORD_PHASE_S` of the cut at ``cut_s`` at which it wrote a cell, had the cut not
+    come, and just before the first such write (none: no write that near): the cells the last
+    cut left (blank at first), then the writes planned since the boards' last boot."""
+    earlier = [e for e in session.events if isinstance(e, Power) and e.at_s < cut_s]
+    last_cut = max((e.at_s for e in earlier if not e.on), default=None)
+    booted_s = max((e.at_s for e in earlier if e.on), default=0.0) + BOOT_S
+    base = _record_at(emu, last_cut) if last_cut is not None else None
+    cells = bytearray(base[joint] if base is not None else b"\xff" * RECORD_BYTES)
+    seen: list[bytes] = []
+    for t, address, value in emu.eeprom_writes[joint]:
+        if t < booted_s - 1e-6 or address >= RECORD_BYTES:
+            continue
+        if t > cut_s + RECORD_PHASE_S:
+            break
+        if t >= cut_s - RECORD_PHASE_S and not seen:
+            seen.append(bytes(cells))
+        cells[address] = value
+        if t >= cut_s - RECORD_PHASE_S:
+            seen.append(bytes(cells))
+    return seen
+
+
+def _cuts_compared(session: Session, emu: Outcome,
+                   fw: Outcome) -> tuple[float, list[str]]:
+    """Until when the comparison runs past power cuts, and how the two sides' EEPROM records
+    differed at a cut where nothing excuses it.
+
+    At each cut each joint's record (as the cut left it, torn if it came in the middle of a
+    write) must make the same start-up on both sides: a "stopped" record's counter within the
+    replies' tolerance (:data:`TOL_COUNTS`, widened by the take lags at the joint's fastest
+    speed, as :func:`divergences` compares positions). Records that differ are excused, and the
+    comparison stops at the cut, where the emulator's record was the firmware's at some moment
+    within :data:`RECORD_PHASE_S` of the cut (the two sides write the same cells that far apart,
+    so a cell written just before the cut on one side may come just after it on the other), or
+    where the joint moved shortly before the cut and was not moving at the cut on both sides (it
+    may have stopped or started on one side and not yet on the other: the records then differ
+    in their state). Records that differ otherwise are a divergence.
+
+    Records that agree and say joint 1 was moving also end the comparison at the cut: at the
+    power-up the master drives its joint to the Hall sensor before its loop starts, each side from
+    where the joint stood at the cut, which the two know only within the take lags, and the
+    drive at the recovery duty stretches that difference into the time of the master's first
+    reply (a reversal taken some milliseconds apart, tens of milliseconds between the first
+    replies). A slave's drive goes on while the master replies, its position within the replies'
+    tolerance, so it is compared."""
+    lag = _take_lag(emu, fw)
+    speeds = [max(a, b) for a, b in zip(_speeds(emu.replies), _speeds(fw.replies), strict=True)]
     for event in session.events:
-        if isinstance(event, Power) and not event.on:
-            last = [max((t for t, _ in side.replies if t <= event.at_s), default=-1.0)
-                    for side in (emu, fw)]
-            if min(last) < event.at_s - STALL_S:
-                return event.at_s  # a loop stalled at the cut: a record being written (open)
-            a = _moving(emu.replies, event.at_s, _in_force(emu, event.at_s))
-            b = _moving(fw.replies, event.at_s, _in_force(fw, event.at_s))
-            for (moved_a, at_cut_a), (moved_b, at_cut_b) in zip(a, b, strict=True):
-                if (moved_a or moved_b) and not (at_cut_a and at_cut_b):
-                    return event.at_s
-    return session.until_s
+        if not isinstance(event, Power) or event.on:
+            continue
+        cut = event.at_s
+        cells_emu, cells_fw = _record_at(emu, cut), _record_at(fw, cut)
+        if cells_emu is None or cells_fw is None:
+            return cut, []  # one side had no power to lose
+        a = _moving(emu.replies, cut, _in_force(emu, cut))
+        b = _moving(fw.replies, cut, _in_force(fw, cut))
+        for j in range(4):
+            rec_emu, rec_fw = decode_record(cells_emu[j]), decode_record(cells_fw[j])
+            tol = TOL_COUNTS + lag(cut) * speeds[j]
+            if _same_record(rec_emu, rec_fw, tol):
+                continue
+            if any(_same_record(decode_record(near), rec_fw, tol)
+                   for near in _records_near(session, emu, j, cut)):
+                return cut, []  # a cell written on one side of the cut here, the other there
+            (moved_a, at_cut_a), (moved_b, at_cut_b) = a[j], b[j]
+            if (moved_a or moved_b) and not (at_cut_a and at_cut_b):
+                return cut, []
+            return cut, [f"joint {j + 1}: the power cut at {cut:.4f} s left the firmware's "
+                         f"EEPROM record {rec_fw} ({cells_fw[j].hex()}), the emulator's "
+                         f"{rec_emu} ({cells_emu[j].hex()})"]
+        master = decode_record(cells_fw[0])
+        if master is not None and master.motion != "stopped":
+            return cut, []  # the master's loop waits for its drive to the Hall: not compared
+    return session.until_s, []
 
 
 def divergences(session: Session, emu: Outcome, fw: Outcome) -> list[str]:
     """Where the firmware and the emulator differ on ``session``: an empty list when they agree
     (commands taken exactly, replies within the differential check's tolerances)."""
-    found = _taken_differences(emu, fw, min(session.until_s, _clear_cuts_until(session, emu,
-                                                                               fw)))
-    end = min(session.until_s, _agree_until(emu, fw, session.until_s),
-              _clear_cuts_until(session, emu, fw))
+    compared_until, found = _cuts_compared(session, emu, fw)
+    found += _taken_differences(emu, fw, min(session.until_s, compared_until))
+    end = min(session.until_s, _agree_until(emu, fw, session.until_s), compared_until)
     found += _silences(fw.replies, emu.replies, "firmware", end)
     found += _silences([(t, r) for t, r in emu.replies if t <= end], fw.replies, "emulator", end)
     cuts = [e.at_s for e in session.events if isinstance(e, Power) and not e.on]

@@ -24,7 +24,7 @@ from typing import Final
 
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.eeprom import Eeprom, RecordWrites
+from armbench.fakes.eeprom import Eeprom, RecordWrites, record_write_times
 from armbench.fakes.i2c import (
     REG_POSITION,
     REG_REFERENCE,
@@ -96,6 +96,12 @@ class Board:
         self.unpaid_records: RecordWrites | None = None
         """The records whose write time the main loop still has to pay (the master's); None where
         nothing waits for them."""
+        self.in_main_loop = False
+        """Whether the main loop runs: it then writes the records at its store (the master);
+        before it (start-up recovery), and always on a slave, a record is written as the motion
+        changes."""
+        self._eeprom_busy_s = -math.inf
+        """Until when the EEPROM writes the records written as the motion changed."""
 
     # time ----------------------------------------------------------------------------------------
     def tick(self, t_s: float) -> int:
@@ -114,14 +120,27 @@ class Board:
         return model
 
     def store_transitions(self) -> int:
-        """Write the EEPROM record for each motion change since the last call; cells written."""
+        """Write the EEPROM record for each motion change since the last call; cells written.
+
+        Each cell's write gets the time the firmware starts it (a power cut before then leaves
+        the cell as it was, :meth:`Eeprom.cut`): the master's main loop gives them when it pays
+        the record at its store; otherwise the record is written from the motion change on, a
+        cell after the other as the EEPROM frees (``record_write_times``)."""
         assert self.model is not None
         cells = 0
-        writes = self.unpaid_records
-        for _tick, motion, counter in self.model.drain_transitions():
-            cells += self.eeprom.store(motion, counter)
+        eeprom, writes = self.eeprom, self.unpaid_records
+        looping = self.in_main_loop
+        for tick, motion, counter in self.model.drain_transitions():
+            cells += eeprom.store(motion, counter)
+            written = eeprom.last_written
             if writes is not None:
-                writes.add(self.eeprom.last_written)
+                writes.add(written, landed=not looping)
+            if writes is None or not looping:
+                starts: list[float] = []
+                _, self._eeprom_busy_s = record_write_times(
+                    written, self.t0 + tick * CYCLE_S, self._eeprom_busy_s,
+                    self.settings.eeprom_write_s_per_byte, starts)
+                eeprom.land(starts)
         return cells
 
     # conversions ---------------------------------------------------------------------------------
@@ -166,6 +185,8 @@ class Board:
             return
         self.powered = True
         self.boots += 1
+        self.in_main_loop = False
+        self._eeprom_busy_s = -math.inf  # a cut ends the write under way
         self._task = asyncio.get_running_loop().create_task(self._boot(),
                                                             name=f"board-{self.number}")
 
@@ -213,6 +234,7 @@ class Board:
             self._motor_steps = self.model.motor_steps
             self.last_truth_rad = self.model.true_angle_rad()
             self._on_power_off()
+        self.eeprom.cut(t_s)  # the record cells not yet written keep their old values
         if self._task is not None:
             self._task.cancel()
             self._task = None
@@ -353,7 +375,7 @@ class MasterBoard(Board):
         self.commands = 0
         self.i2c_errors = 0
         self.framer = Framer("command")
-        self.unpaid_records = RecordWrites(settings.eeprom_write_s_per_byte)
+        self.unpaid_records = RecordWrites(settings.eeprom_write_s_per_byte, eeprom)
         self._timer: asyncio.TimerHandle | None = None
         self._run_due: Callable[[float], None] | None = None
         self.deferrable = False
@@ -363,7 +385,7 @@ class MasterBoard(Board):
 
     def _on_power_on(self, t_s: float) -> None:
         self.framer = Framer("command")
-        self.unpaid_records = RecordWrites(self.settings.eeprom_write_s_per_byte)
+        self.unpaid_records = RecordWrites(self.settings.eeprom_write_s_per_byte, self.eeprom)
         self.clock.now = t_s
         self.uart.begin(t_s)
 
@@ -461,6 +483,7 @@ class MasterBoard(Board):
         writes = self.unpaid_records
         assert writes is not None
         writes.pay(clock.now)  # the start-up recovery's records, written in setup()
+        self.in_main_loop = True
         overhead_s = settings.loop_overhead_s
         # messages over buffers of our own (as I2CMessage.write/read build them), read and
         # filled through memoryviews: cheaper than ctypes item access on msg.buf

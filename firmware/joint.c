@@ -204,7 +204,17 @@ uint16_t joint_position_ticks(void)
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         c = joint_counter;
     }
-    uint16_t ac = (uint16_t)(c < 0 ? -c : c);   /* |counter| < 2^16 within every joint's limits */
+    if (c >= 65536L || c <= -65536L) {
+        /* beyond every joint's reach (a record torn by a power cut restored it): the same angle
+         * within half a turn of zero; a 32-bit remainder, in this case only */
+        c %= COUNTS_PER_TURN;
+        if (c > COUNTS_PER_TURN / 2) {
+            c -= COUNTS_PER_TURN;
+        } else if (c < -COUNTS_PER_TURN / 2) {
+            c += COUNTS_PER_TURN;
+        }
+    }
+    uint16_t ac = (uint16_t)(c < 0 ? -c : c);   /* |c| <= COUNTS_PER_TURN / 2 < 2^16 */
     uint32_t q15 = (uint32_t)ac * (uint16_t)(TICKS_PER_COUNT_Q31 >> 16)
         + (((uint32_t)ac * (uint16_t)(TICKS_PER_COUNT_Q31 & 0xFFFF)) >> 16);
     if (c < 0) {

@@ -9,7 +9,8 @@
  *   ticks -> counts: round((ticks / 1e4 - (ticks >= WRAP_TICKS ? 2pi : 0)) * cpr)
  *                    = round(((ticks << 16) - [TAU_TICKS_Q16]) * COUNTS_PER_TICK_Q24 / 2^40)
  * cpr = counts per joint radian; WRAP_TICKS is the first wire value decoded as a negative angle
- * (the window centred on the joint's limits, docs/protocol.md).
+ * (the window centred on the joint's limits, docs/protocol.md); COUNTS_PER_TURN = 2 pi cpr, the
+ * counts of one joint turn (a whole number: encoder counts per motor revolution x gear).
  */
 #ifndef ARMFW_JOINTS_H
 #define ARMFW_JOINTS_H
@@ -25,23 +26,27 @@
 #define TICKS_PER_COUNT_Q31 1349303770UL
 #define COUNTS_PER_TICK_Q24 26701769L
 #define WRAP_TICKS 31416U
+#define COUNTS_PER_TURN 100000L
 #define HALL_COUNT 0L
 #elif JOINT == 2
 #define TICKS_PER_COUNT_Q31 1349303770UL
 #define COUNTS_PER_TICK_Q24 26701769L
 #define WRAP_TICKS 33598U
+#define COUNTS_PER_TURN 100000L
 #define HALL_COUNT 0L
 #define I2C_ADDRESS 0x10
 #elif JOINT == 3
 #define TICKS_PER_COUNT_Q31 1775399698UL
 #define COUNTS_PER_TICK_Q24 20293344L
 #define WRAP_TICKS 28798U
+#define COUNTS_PER_TURN 76000L
 #define HALL_COUNT 0L
 #define I2C_ADDRESS 0x11
 #elif JOINT == 4
 #define TICKS_PER_COUNT_Q31 2409471019UL
 #define COUNTS_PER_TICK_Q24 14952990L
 #define WRAP_TICKS 39270U
+#define COUNTS_PER_TURN 56000L
 #define HALL_COUNT 0L
 #define I2C_ADDRESS 0x12
 #else

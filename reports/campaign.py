@@ -1,8 +1,9 @@
-"""The page of a campaign record (``armbench campaign``): the drawn conditions, the probability
-of passing each limit with its Wilson interval, recovery by state at the cut (start-up
-recovery), and each judged metric's histogram (matplotlib, inline SVG) beside a table of every
-metric's distribution. Self-contained like the run report: the same template base, style and
-Content-Security-Policy (``reports/format.py``); it reads the record only."""
+"""The page of a campaign record (``armbench campaign``): first the campaign's verdict (the
+record's, with the ``campaign.*`` figures judged against their limits), then the drawn
+conditions, the probability of passing each limit with its Wilson interval, recovery by state at
+the cut (start-up recovery), and each judged metric's histogram (matplotlib, inline SVG) beside
+a table of every metric's distribution. Self-contained like the run report: the same template
+base, style and Content-Security-Policy (``reports/format.py``); it reads the record only."""
 
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from armbench.bench.campaign.stats import (
     wilson_interval,
 )
 from armbench.bench.record import RunRecord, SuiteRecord, atomic_write_bytes
-from armbench.reports.format import jinja_environment
+from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.plots import safe_label, to_svg
 
 __all__ = ["CAMPAIGN_PAGE", "build_campaign_html", "campaign_suite", "render_campaign"]
@@ -43,6 +44,18 @@ class _Rate:
     pct: float
     low: float
     high: float
+
+
+@dataclass(frozen=True, slots=True)
+class _Judged:
+    """A ``campaign.*`` figure the config has a limit for: the campaign's verdict rests on it."""
+
+    name: str
+    value: float
+    unit: str
+    limit: str
+    outcome: str
+    description: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,6 +119,35 @@ def _histogram(d: MetricDistribution, limits: Mapping[str, Any], k: int) -> _His
     return _Histogram(to_svg(fig, f"h{k}", caption), caption)
 
 
+def _judged(suite: SuiteRecord) -> list[_Judged]:
+    """The campaign's judged figures as the record holds them, failed ones first."""
+    rows = [_Judged(m.name, m.value, m.unit, m.limit.describe() if m.limit else "-", m.outcome,
+                    m.description) for m in suite.measurements if m.outcome != "unjudged"]
+    return sorted(rows, key=lambda r: r.outcome != "fail")
+
+
+def _verdict_reasons(record: RunRecord, suite: SuiteRecord, judged: Sequence[_Judged],
+                     samples_error: int) -> list[str]:
+    """Why the record's verdict is what it is, in the words of the campaign's figures."""
+    reasons = []
+    if suite.status == "error":
+        reasons.append(f"the campaign stopped on an error: {suite.error or 'no reason given'}")
+    elif suite.status == "running":
+        reasons.append("the campaign did not finish (continue with armbench campaign --resume)")
+    if samples_error:
+        reasons.append(f"{samples_error} sample(s) could not be measured")
+    for j in judged:
+        reasons.append(f"{j.name} = {format_value(j.value, j.unit)} (limit {j.limit}): "
+                       f"{'FAIL' if j.outcome == 'fail' else 'pass'}")
+    if not judged:
+        reasons.append("no campaign.* limit in the config: the figures are not judged, the "
+                       "samples' failures are findings (the pass probabilities below)")
+    if record.baseline is not None and record.baseline.regressed:
+        reasons.append(f"{len(record.baseline.regressions)} figure(s) regressed against "
+                       f"baseline {record.baseline.baseline_run_id}")
+    return reasons
+
+
 def _conditions(suite: SuiteRecord) -> list[_Rate]:
     """Start-up recovery: the rate of ``startup.recovered`` per drawn condition."""
     counts: dict[str, list[int]] = {}
@@ -158,8 +200,11 @@ def build_campaign_html(record: RunRecord) -> str:
                    key=lambda d: (not d.judged, d.name))[:MAX_HISTOGRAMS]
     conditions = _conditions(suite)
     done = sum(t.status == "done" for t in suite.trials)
+    judged = _judged(suite)
     page = jinja_environment().get_template("campaign.html.j2").render(
-        record=record, suite=suite.name, seed=c.get("seed"), samples_planned=c.get("samples"),
+        record=record, suite=suite.name, verdict=record.verdict, judged=judged,
+        reasons=_verdict_reasons(record, suite, judged, len(suite.trials) - done),
+        seed=c.get("seed"), samples_planned=c.get("samples"),
         samples_done=done, samples_error=len(suite.trials) - done,
         uncertain=c.get("uncertain", []), passes=passes, conditions=conditions,
         conditions_plot=_conditions_plot(conditions) if conditions else None,

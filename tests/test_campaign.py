@@ -4,6 +4,7 @@ the same record whatever the number of workers or shards. Real emulator, real CL
 
 from __future__ import annotations
 
+import dataclasses
 import html
 import io
 import json
@@ -13,6 +14,8 @@ from pathlib import Path
 
 import pytest
 from campaign_records import record_differences
+from chromium import CHROMIUM, Chromium
+from test_report import cells, parse
 
 from armbench.bench.campaign import (
     CampaignOptions,
@@ -26,7 +29,10 @@ from armbench.bench.cli import main
 from armbench.bench.record import load_record
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
 from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.reports.format import CSP
+from armbench.reports.campaign import build_campaign_html
+from armbench.reports.format import CSP, format_value
+
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
 # As armbench calibrate writes it: each fitted value with its standard error in a comment.
 FITTED = """# Robot settings fitted by armbench calibrate from fake://.
@@ -216,6 +222,55 @@ def test_campaign_verdict_and_exit_status_from_its_limits(
     assert all(".trial" not in (c.get("classname") or "") for c in cases)
     assert main([*args, "--out", str(tmp_path / "d")]) == EXIT_PASS
     assert "no campaign.* limit" in capsys.readouterr().out
+
+
+def test_campaign_page_leads_with_the_records_verdict(tmp_path: Path) -> None:
+    """The page opens with the record's verdict and the judged ``campaign.*`` figures behind it,
+    read from the record: FAIL and the failed figure for a strict limit; PASS and "no limit"
+    without one. In headless Chromium at 1 280 × 800 the verdict is on the first screen."""
+    strict = tmp_path / "strict.toml"
+    strict.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
+                      + '\n[limits."campaign.all_limits.pass_ci_low_pct"]\nlow = 99.0\n'
+                        'unit = "%"\n', encoding="utf-8")
+    args = ["campaign", "startup-recovery", "--samples", "4", "--seed", "3", "--workers", "1"]
+    assert main([*args, "--config", str(strict), "--out", str(tmp_path / "s")]) == EXIT_FAIL
+    record = load_record(tmp_path / "s" / "results.json")
+    (low,) = (m for m in record.suites["startup-recovery"].measurements
+              if m.name == "campaign.all_limits.pass_ci_low_pct")
+    assert record.verdict == "fail" and low.outcome == "fail"
+    page = tmp_path / "s" / "campaign.html"
+    doc = parse(page.read_text(encoding="utf-8"))
+    banner, limits = doc.by_id("verdict"), doc.by_id("campaign-limits")
+    assert banner is not None and limits is not None
+    assert "Verdict: FAIL" in banner.text()
+    assert f"campaign.all_limits.pass_ci_low_pct = {format_value(low.value, '%')}" in \
+        banner.text()
+    rows = [cells(tr) for tr in limits.iter("tr") if list(tr.iter("td"))]
+    assert rows[0][0] == "campaign.all_limits.pass_ci_low_pct" and "FAIL" in rows[0][3]
+    # the page reads the verdict from the record: a record judged otherwise shows that
+    record.suites["startup-recovery"].measurements = [
+        dataclasses.replace(m, limit=None, outcome="unjudged")
+        for m in record.suites["startup-recovery"].measurements]
+    other = parse(build_campaign_html(record))
+    shown = other.by_id("verdict")
+    assert shown is not None and "Verdict: PASS" in shown.text()
+    assert "no campaign.* limit" in shown.text() and other.by_id("campaign-limits") is None
+    if CHROMIUM is None:
+        pytest.skip("no chromium: the first-screen check needs it")
+    chrome = Chromium(tmp_path)
+    try:
+        chrome.open_page()
+        chrome.load(page.as_uri(), 1280, 800)
+        facts = chrome.probe()
+        top, bottom = facts["first"][0]
+        assert top >= 0 and bottom <= 800, facts["first"]
+        assert "FAIL" in facts["verdict"]
+        assert facts["scrollWidth"] <= facts["innerWidth"]
+        ARTIFACTS.mkdir(exist_ok=True)
+        chrome.screenshot(ARTIFACTS / "campaign-first-screen.png", max_height=800)
+        assert chrome.problems() == []
+    finally:
+        chrome.close()
 
 
 class _CtrlC(io.StringIO):

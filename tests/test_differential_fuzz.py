@@ -1,8 +1,10 @@
 """The differential fuzzer of the UART (``fakes/avr_fuzz.py``, ``fakes/avr_session.py``): a few
 sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
 (minimised divergences, fixed or explained) replay without divergence; and the comparison does
-catch the firmware bugs it found (the old 16-bit position sum and the slave that waited for its
-EEPROM record, rebuilt here)."""
+catch the firmware bugs it found (the old 16-bit position sum, the slave that waited for its
+EEPROM record and the position report of a counter beyond 16 bits, rebuilt here). A power cut
+during an EEPROM record tears it alike on both sides, and the records each cut leaves are
+compared."""
 
 from __future__ import annotations
 
@@ -13,12 +15,15 @@ from pathlib import Path
 import pytest
 from test_firmware import needs_toolchain
 
+from armbench.drivers.protocol import rad_to_ticks
+from armbench.drivers.settings import RobotSettings
 from armbench.fakes.avr import FIRMWARE_SOURCE, build
 from armbench.fakes.avr_fuzz import Campaign, generate, minimise, normalise
 from armbench.fakes.avr_session import (
     BOOT_S,
     BYTE_S,
     Event,
+    Outcome,
     Power,
     Session,
     Write,
@@ -26,6 +31,7 @@ from armbench.fakes.avr_session import (
     run_emulator_session,
     run_firmware_session,
 )
+from armbench.fakes.eeprom import EepromRecord, decode_record
 
 pytestmark = needs_toolchain
 
@@ -100,8 +106,9 @@ def test_kept_divergences_replay_clean() -> None:
 
 @pytest.fixture(scope="module")
 def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The firmware as it was: the five digits of a position summed in 16 bits, and a slave that
-    took a new reference only after its EEPROM record."""
+    """The firmware as it was: the five digits of a position summed in 16 bits, a slave that
+    took a new reference only after its EEPROM record, and a position report that took a counter
+    beyond 16 bits modulo 2^16 counts."""
     src = tmp_path_factory.mktemp("old-firmware")
     for path in FIRMWARE_SOURCE.rglob("*"):
         if path.is_file() and path.suffix in (".c", ".h"):
@@ -116,6 +123,10 @@ def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
     waits = "    refresh_position();\n    take_reference();\n}"
     assert waits in text
     slave.write_text(text.replace(waits, "    refresh_position();\n}"))
+    joint = src / "joint.c"
+    text = joint.read_text()
+    reduce = text[text.index("    if (c >= 65536L"):text.index("    uint16_t ac = ")]
+    joint.write_text(text.replace(reduce, ""))
     return build(src, src / "build")
 
 
@@ -147,14 +158,71 @@ def test_the_comparison_catches_a_slave_that_waits_for_its_record(old_firmware: 
     assert divergences(session, emu, run_firmware_session(session)) == []
 
 
-@pytest.mark.xfail(strict=True, reason="open: the emulator stores an EEPROM record whole; the "
-                   "firmware writes it cell by cell (3.3 ms each), so a cut tears it")
+def _joint1_records(side: Outcome) -> list[EepromRecord | None]:
+    return [decode_record(cells[0]) for _, cells in side.records_at_cuts]
+
+
 def test_a_record_torn_by_a_power_cut() -> None:
-    """Joint 1 stops at -43 counts and the cut comes while its record is written: the firmware's
-    record keeps the old low byte of the counter (stopped at -256 counts after the power-up),
-    the emulator's is whole (-43). Until the emulator tears records too, the fuzzer's comparison
-    stops at a cut made while a master's loop is stalled (``_clear_cuts_until``)."""
-    session = Session.from_text((CORPUS / "open-record-torn-by-a-power-cut.session").read_text())
+    """Joint 1 stops at -77 counts; its record (state and four counter cells, 3.3 ms a cell) is
+    being written when the power goes, after the state and three counter cells: on both sides
+    the record says "stopped at -256" (the new high bytes, the old low byte 0x00), and after the
+    power-up joint 1 reports that on both. An emulator storing the record whole said -77."""
+    session = Session.from_text((CORPUS / "record-torn-by-a-power-cut.session").read_text())
     emu, fw = run_emulator_session(session), run_firmware_session(session)
-    after = [r[0] for t, r in emu.replies if t > 0.3], [r[0] for t, r in fw.replies if t > 0.3]
-    assert after[0][0] == after[1][0], after
+    torn = EepromRecord("stopped", -256)
+    assert _joint1_records(emu) == _joint1_records(fw) == [torn]
+    after = [r[0] for t, r in emu.replies if t > 0.33], [r[0] for t, r in fw.replies if t > 0.33]
+    assert after[0][0] == after[1][0] == rad_to_ticks(-256 / RobotSettings().joints[0]
+                                                       .counts_per_rad)
+    assert divergences(session, emu, fw) == []
+
+
+def test_a_cut_at_a_cell_write_is_the_sides_timing() -> None:
+    """The same record, the cut 10 µs before the firmware starts its last cell, some tenths of a
+    millisecond after the emulator started it (the two loops store at points that far apart):
+    the firmware's record is torn, the emulator's whole. The emulator's record was the
+    firmware's a moment before the cut, so the comparison stops there rather than reporting it.
+    (The cut is placed from the firmware's own write times: microseconds of its code move it.)"""
+    kept = Session.from_text((CORPUS / "record-torn-at-a-cell-write-edge.session").read_text())
+    writes = tuple(e for e in kept.events if isinstance(e, Write))
+    uncut = Session(writes, kept.until_s)
+    last_fw = run_firmware_session(uncut).eeprom_writes[0][9][0]
+    last_emu = run_emulator_session(uncut).eeprom_writes[0][9][0]
+    cut = last_fw - 10e-6
+    assert last_emu < cut - 1e-4
+    session = Session((*writes, Power(cut, False), Power(0.225174, True)), kept.until_s)
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert _joint1_records(fw) == [EepromRecord("stopped", -256)]
+    assert _joint1_records(emu) == [EepromRecord("stopped", -77)]
+    assert divergences(session, emu, fw) == []
+
+
+def test_a_record_differing_away_from_any_write_is_reported() -> None:
+    """Records that differ at a cut with no cell written near it on either side, the joint at
+    rest, are a divergence: joint 1 has rested 70 ms when the power goes, its record written
+    50 ms before; the emulator's record, changed behind its back, is reported."""
+    torn = Session.from_text((CORPUS / "record-torn-by-a-power-cut.session").read_text())
+    writes = tuple(e for e in torn.events if isinstance(e, Write))
+    session = Session((*writes, Power(0.26, False), Power(0.28, True)), 0.45)
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert divergences(session, emu, fw) == []
+    t, cells = emu.records_at_cuts[0]
+    emu.records_at_cuts[0] = (t, (bytes.fromhex("0100000000"), *cells[1:]))
+    found = divergences(session, emu, fw)
+    assert found and found[0].startswith("joint 1: the power cut at 0.2600 s"), found
+
+
+def test_a_torn_counter_beyond_16_bits(old_firmware: Path) -> None:
+    """The record of joint 1 cut after the state and the counter's high byte: "stopped at
+    -16 777 216" on both sides. The old firmware's position report took |counter| modulo 2^16
+    (62 832 ticks); now it reports the counter's angle, as the emulator."""
+    session = Session.from_text((CORPUS / "torn-counter-beyond-16-bits.session").read_text())
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert _joint1_records(emu) == _joint1_records(fw) == [EepromRecord("stopped", -2**24)]
+    angle = -2**24 / RobotSettings().joints[0].counts_per_rad
+    after = [r[0] for t, r in emu.replies if t > 0.33], [r[0] for t, r in fw.replies if t > 0.33]
+    assert after[0][0] == after[1][0] == rad_to_ticks(angle)
+    assert divergences(session, emu, fw) == []
+    old = run_firmware_session(session, firmware=str(old_firmware))
+    assert next(r[0] for t, r in old.replies if t > 0.33) == 62832
+    assert any(line.startswith("joint 1") for line in divergences(session, emu, old))

@@ -77,6 +77,7 @@ def test_joint_constants_are_the_settings() -> None:
         assert f"COUNTS_PER_TICK_Q24 {round(cpr / 1e4 * 2**24)}L" in block
         assert f"WRAP_TICKS {wrap}U" in block
         assert f"HALL_COUNT {round(joint.hall_rad * cpr)}L" in block
+        assert f"COUNTS_PER_TURN {round(2 * math.pi * cpr)}L" in block
         if joint.i2c_address is not None:
             assert f"I2C_ADDRESS {joint.i2c_address:#04x}" in block
 

@@ -5,15 +5,17 @@ config both read."""
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import pytest
 
 from armbench.bench import cli
 from armbench.bench.baseline import compare
-from armbench.bench.limits import load_limits, parse_limits
+from armbench.bench.limits import parse_limits
 from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.verdict import (
     EXIT_ERROR,
     EXIT_FAIL,
@@ -24,6 +26,7 @@ from armbench.bench.verdict import (
     load_config,
     worst_exit_status,
 )
+from armbench.drivers.settings import RobotSettings
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 
@@ -127,23 +130,66 @@ def test_compare_without_config_judges_with_the_packaged_default(
     assert [r.to_json() for r in compare(record, baseline, default).rows] == rows
 
 
+def _origins(text: str) -> dict[str, str]:
+    """``table.key`` -> the origin comment of each ``key = value  # origin`` line."""
+    out, table = {}, ""
+    for line in text.splitlines():
+        if line.startswith("["):
+            table = line.split("]")[0].strip("[")
+        elif " = " in line and "  # " in line:
+            key = line.split(" = ", 1)[0]
+            out[f"{table}.{key}" if table else key] = line.rsplit("  # ", 1)[1]
+    return out
+
+
 def test_config_show_prints_the_effective_config(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Defaults, then the --config file, then the flags, merged, each value's origin in a
+    comment; every suite's parameters written out; and the output, given back to --config,
+    is the same configuration."""
     assert cli.main(["config", "show"]) == EXIT_PASS
     text = capsys.readouterr().out
-    import tomllib
-
-    shown = parse_limits(tomllib.loads(text))
+    shown = tomllib.loads(text)
     default = load_config(None)
-    assert (shown.limits, shown.tolerances, shown.bench, shown.suites) == (
-        default.limits, default.tolerances, default.bench, default.suites)
+    config = parse_limits(shown)
+    assert (config.limits, config.tolerances) == (default.limits, default.tolerances)
+    assert set(shown["suites"]) == set(suite_names())
+    for name in suite_names():
+        assert shown["suites"][name] == json.loads(json.dumps(
+            load_suite(name).params(RobotSettings(), {})))
+    assert shown["bench"]["retries"] == 0 and shown["bench"]["capture"] is True
+    origins = _origins(text)
+    assert origins["bench.retries"] == "default"
+    assert origins["suites.accuracy.laps"] == "suite default"
+
     mine = tmp_path / "mine.toml"
-    mine.write_text(CONFIG, encoding="utf-8")
-    assert cli.main(["config", "show", "--config", str(mine)]) == EXIT_PASS
-    shown = parse_limits(tomllib.loads(capsys.readouterr().out))
-    assert shown.default_tolerance_pct == 3.0 and shown == load_limits(mine).__class__(
-        **{**load_limits(mine).__dict__, "path": None})
+    mine.write_text(CONFIG + "\n[bench]\nretries = 2\nworkers = 1\n", encoding="utf-8")
+    assert cli.main(["config", "show", "accuracy", "--config", str(mine), "--workers",
+                     "3"]) == EXIT_PASS
+    text = capsys.readouterr().out
+    shown, origins = tomllib.loads(text), _origins(text)
+    assert shown["regression"]["default_tolerance_pct"] == 3.0
+    assert origins["regression.default_tolerance_pct"] == str(mine)
+    assert (shown["bench"]["retries"], origins["bench.retries"]) == (2, str(mine))
+    assert (shown["bench"]["workers"], origins["bench.workers"]) == (3, "--workers")
+    assert origins["bench.reply_timeout_s"] == "default"
+    assert list(shown["suites"]) == ["accuracy"]
+    accuracy = shown["suites"]["accuracy"]
+    assert (accuracy["laps"], accuracy["styles"], accuracy["side_m"]) == (
+        1, ["coordinated"], 0.04)
+    assert origins["suites.accuracy.laps"] == str(mine)
+    assert accuracy["duty"] == 99 and origins["suites.accuracy.duty"] == "suite default"
+    assert "limits" not in shown  # the file replaces the packaged one: no limit of its own
+
+    again = tmp_path / "again.toml"
+    again.write_text(text, encoding="utf-8")
+    assert cli.main(["config", "show", "accuracy", "--config", str(again)]) == EXIT_PASS
+    assert tomllib.loads(capsys.readouterr().out) == shown
     assert cli.main(["config", "show", "--config", str(tmp_path / "nope.toml")]) == EXIT_ERROR
+    err = capsys.readouterr().err
+    assert "nope.toml" in err and len(err.strip().splitlines()) == 1
+    assert cli.main(["config", "show", "--workers", "0"]) == EXIT_ERROR
+    assert "--workers" in capsys.readouterr().err
 
 
 def test_the_worst_exit_status_of_several_outcomes() -> None:

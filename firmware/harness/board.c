@@ -119,6 +119,9 @@ void board_eeprom_blank(board_t *b)
  * tWD_EEPROM), during which EECR.EEPE reads 1 and the next EEPROM access waits (avr-libc polls
  * it). The harness keeps EEPE set for that long after each write. */
 #define R_EECR 0x3F
+#define R_EEDR 0x40
+#define R_EEARL 0x41
+#define R_EEARH 0x42
 #define EEPE_BIT 0x02
 #define EEPROM_WRITE_CYCLES (F_CPU_HZ / 1000 * 33 / 10)
 
@@ -133,6 +136,8 @@ static void eecr_write(avr_t *avr, avr_io_addr_t addr, uint8_t v, void *param)
     avr->data[addr] &= (uint8_t)~EEPE_BIT;   /* busy is eeprom_busy_until's business alone */
     if (starting) {
         b->eeprom_busy_until = avr->cycle + EEPROM_WRITE_CYCLES;
+        watch_eeprom(b, avr->cycle, avr->data[R_EEARL] | (avr->data[R_EEARH] & 0x03u) << 8,
+                     avr->data[R_EEDR]);
     }
 }
 

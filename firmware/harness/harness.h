@@ -142,6 +142,7 @@ void watch_open_events(const char *path);
 void watch_command_vars(const char *spec);
 void watch_open_coverage(const char *path);
 void watch_power(int on);
+void watch_eeprom(const board_t *b, uint64_t cycle, unsigned address, unsigned value);
 void watch_service(void);
 void watch_pc(const board_t *b, uint32_t pc);
 void watch_close(void);

@@ -3,7 +3,10 @@
  *   --event-log FILE        "<seconds> cmd <n> <frame>" each time the master takes a valid
  *                           command (its fw_stats.commands counter moved; the frame rebuilt from
  *                           its cmd_ticks/cmd_duty, given by --command-vars), "<seconds> overflow
- *                           <n>" when its receive buffer dropped a byte, "<seconds> power on|off";
+ *                           <n>" when its receive buffer dropped a byte, "<seconds> power on|off",
+ *                           "<seconds> eeprom <joint> <address> <value>" when a board starts an
+ *                           EEPROM byte write (the cell holds the value from then on, as in
+ *                           simavr; a power cut during the 3.3 ms write keeps it);
  *   --command-vars T,D      data addresses of the master's cmd_ticks (4 x uint16) and cmd_duty
  *                           (4 x uint8), from its ELF's symbols;
  *   --coverage FILE         at the end: per board the flash byte addresses of every instruction
@@ -72,6 +75,14 @@ void watch_power(int on)
     armed = 0;   /* simavr keeps the RAM across a reset: wait for the start-up code's clearing */
     if (event_log) {
         fprintf(event_log, "%.7f power %s\n", now_s(), on ? "on" : "off");
+    }
+}
+
+void watch_eeprom(const board_t *b, uint64_t cycle, unsigned address, unsigned value)
+{
+    if (event_log) {
+        fprintf(event_log, "%.7f eeprom %d %u %02x\n", (double)cycle / F_CPU_HZ, b->index + 1,
+                address, value);
     }
 }
 
