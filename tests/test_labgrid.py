@@ -213,14 +213,16 @@ def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:
 
 
 def test_ctrl_c_releases_the_place(lab: Lab) -> None:
-    monitor = subprocess.Popen([sys.executable, "-m", "armbench", "monitor", "--port",
-                                lab.port("arm-b")], cwd=ROOT, stdout=subprocess.DEVNULL,
+    """Ctrl-C to a monitor streaming from a labgrid place: no traceback, the place released."""
+    monitor = subprocess.Popen([sys.executable, "-m", "armbench", "monitor", "--json", "--port",
+                                lab.port("arm-b")], cwd=ROOT, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
     try:
-        _wait(lambda: _acquired_by(lab, "arm-b") != "", "monitor acquires the place")
-        time.sleep(1.0)  # streaming
+        assert monitor.stdout is not None
+        assert monitor.stdout.readline().startswith("{"), "the monitor streams states"
+        assert _acquired_by(lab, "arm-b") != ""
         monitor.send_signal(signal.SIGINT)
-        _, err = monitor.communicate(timeout=30)
+        _, err = monitor.communicate(timeout=60)
         assert "Traceback" not in err, err
     finally:
         if monitor.poll() is None:

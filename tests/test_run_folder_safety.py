@@ -160,7 +160,7 @@ def test_a_second_run_into_the_same_out_is_refused(tmp_path: Path) -> None:
 def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
     """The lock is the OS's: ``kill -9`` of its holder releases it, and the resume goes on."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
     _wait_for(proc, "trial 1/6 done")
     os.killpg(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=WAIT_S)
@@ -234,8 +234,9 @@ def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Ca
     """A run whose capture is an older ``capture.jsonl`` (interrupted, then resumed by this
     armbench): the new ``capture.mcap`` holds the old session's frames and the new ones."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
-    _wait_for(proc, "trial 3/6 done")
+    # in turn (one worker): the line comes when the trial is done, four are still to run
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
+    _wait_for(proc, "trial 2/6 done")
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=WAIT_S)
     assert proc.returncode == 130
@@ -261,7 +262,7 @@ def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Ca
 
 def _interrupted_run(tmp_path: Path) -> Path:
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
     _wait_for(proc, "trial 1/6 done")
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=WAIT_S)
