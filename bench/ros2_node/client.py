@@ -23,17 +23,9 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import rclpy
-from builtin_interfaces.msg import Duration
-from rclpy.executors import Executor, SingleThreadedExecutor
-from rclpy.node import Node
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState as JointStateMsg
-from std_msgs.msg import String
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from armbench.bench.metrics import square_yz
 from armbench.bench.ros2_node.node import TOPICS
@@ -41,6 +33,10 @@ from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, load_settings
+
+if TYPE_CHECKING:  # rclpy and the messages are imported where used: the module imports without
+    from rclpy.executors import Executor  # the extra
+    from rclpy.node import Node
 
 __all__ = ["main", "square_trajectory"]
 
@@ -57,6 +53,8 @@ class Timeout(Exception):
 def _executor(node: Node) -> Executor:
     """rclpy's events executor (C++: takes a message with no wait set built per message, so a
     Python subscriber keeps up with far more messages per second), else the single-threaded."""
+    from rclpy.executors import SingleThreadedExecutor
+
     try:
         from rclpy.experimental.events_executor import EventsExecutor
 
@@ -84,6 +82,11 @@ def _stamp_s(stamp: Any) -> float:
 
 def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
     """``listen`` mode (see the module doc)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState as JointStateMsg
+    from std_msgs.msg import String
+
     stamps: list[float] = []
     received: list[float] = []
     clocks: list[float] = []
@@ -94,8 +97,7 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
         received.append(time.time())
         stamps.append(_stamp_s(msg.header.stamp))
 
-    latched = rclpy.qos.QoSProfile(depth=1,
-                                   durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL)
+    latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     node.create_subscription(JointStateMsg, TOPICS["joint_states"], on_js, 1000)
     node.create_subscription(Clock, TOPICS["clock"],
                              lambda m: clocks.append(_stamp_s(m.clock)), 1000)
@@ -120,6 +122,10 @@ class Sender:
     """Publishes trajectories and waits for the node's final status of each."""
 
     def __init__(self, node: Node, deadline: float) -> None:
+        from sensor_msgs.msg import JointState as JointStateMsg
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+
         self.node = node
         self.deadline = deadline
         self.statuses: list[dict[str, Any]] = []
@@ -141,6 +147,9 @@ class Sender:
     def send(self, names: Sequence[str], points: Sequence[Sequence[float]],
              times_s: Sequence[float]) -> dict[str, Any]:
         """Publish one trajectory; its final status (``state`` one of :data:`FINAL`)."""
+        from builtin_interfaces.msg import Duration
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
         self._n += 1
         msg = JointTrajectory()
         msg.header.stamp.sec, msg.header.stamp.nanosec = 7, self._n  # our tag, echoed back
@@ -212,6 +221,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one mode; 0 and the JSON result, or 1 and ``{"error": ...}``."""
     args = _parser().parse_args(argv)
+    import rclpy
+
     deadline = time.monotonic() + args.timeout
     rclpy.init()
     node = rclpy.create_node(f"armbench_client_{args.mode}")

@@ -39,16 +39,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Final
 
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState as JointStateMsg
-from std_msgs.msg import String
-from trajectory_msgs.msg import JointTrajectory
-
+from armbench.bench.ros2_node import require_rclpy
 from armbench.bench.ros2_node.trajectory import TrajectoryError, TrajectoryPlan, plan_trajectory
 from armbench.drivers.arm import Arm, JointState, PathRun, ReplyTimeoutError
 from armbench.drivers.errors import DriverError, PortLostError
@@ -134,6 +125,18 @@ class ArmNode:
         self._job: asyncio.Task[None] | None = None
         self._job_id = 0
         self._pace0: tuple[float, float] | None = None
+        require_rclpy()  # imported here: without the extra this module still imports
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
+        from rosgraph_msgs.msg import Clock
+        from sensor_msgs.msg import JointState as JointStateMsg
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+
+        self._msg_js, self._msg_string = JointStateMsg, String
         self.context = Context()
         rclpy.init(context=self.context, domain_id=options.domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
@@ -162,6 +165,8 @@ class ArmNode:
     # --- the ROS thread ---------------------------------------------------------------------
 
     def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
         with contextlib.suppress(ExternalShutdownException):
             self._executor.spin()
 
@@ -198,14 +203,14 @@ class ArmNode:
     def event(self, kind: str, **fields: Any) -> None:
         """Publish an event on ``/armbench/events`` (JSON: ``t_s``, ``kind`` and ``fields``)."""
         text = json.dumps({"t_s": self.stamp_s(self._loop.time()), "kind": kind, **fields})
-        self._pub_events.publish(String(data=text))
+        self._pub_events.publish(self._msg_string(data=text))
 
     def _status(self, job: int, state: str, stamp: tuple[int, int], **fields: Any) -> None:
         text = json.dumps({"id": job, "state": state, "stamp": list(stamp), **fields})
-        self._pub_status.publish(String(data=text))
+        self._pub_status.publish(self._msg_string(data=text))
 
     def _on_command(self, t_s: float, command: Command) -> None:
-        msg = JointStateMsg()
+        msg = self._msg_js()
         _time_msg(msg.header.stamp, self.stamp_s(t_s))
         msg.name = list(self.names)
         msg.position = list(command.angles_rad(self.arm._lower, self.arm._upper))
@@ -217,7 +222,7 @@ class ArmNode:
         """Serve until ``duration_s`` (loop seconds) passes or the task is cancelled: 0; or until
         the port is lost: 1. The arm is stopped on the way out either way."""
         self._thread.start()
-        self._pub_urdf.publish(String(data=robot_urdf(self.arm.settings)))
+        self._pub_urdf.publish(self._msg_string(data=robot_urdf(self.arm.settings)))
         self.event("started", port=self.arm.port, joints=self.names)
         log.info("ROS 2 node %r serving %s", self.options.node_name, self.arm.port)
         states = asyncio.ensure_future(self._publish_states())
@@ -255,6 +260,8 @@ class ArmNode:
 
     def close(self) -> None:
         """Stop the executor thread and release the node and its context (idempotent)."""
+        import rclpy
+
         if not self.context.ok():
             return
         self._executor.shutdown(timeout_sec=2.0)
