@@ -1,0 +1,168 @@
+"""``armbench ros2`` with real rclpy and Fast DDS: the node in this process (or as the command), a
+separate process as the ROS client (``armbench.bench.ros2_node.client``).
+
+Each test has a ROS domain of its own (``ROS_DOMAIN_ID``) and discovery on this host only, so
+parallel runs do not hear each other. Waits are bounded by the client's own guard, not asserted
+on: on virtual time the emulator runs as fast as the machine lets it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+from netutil import free_port
+
+from armbench.bench.ros2_node import missing_ros2
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.vclock import run_virtual
+
+pytestmark = pytest.mark.skipif(missing_ros2() is not None,
+                                reason=f"armbench[ros2] not installed: {missing_ros2()}")
+
+S = RobotSettings()
+NAMES = [j.name for j in S.joints]
+CLIENT = [sys.executable, "-m", "armbench.bench.ros2_node.client"]
+#: Real seconds a client or a command may take at most on a loaded machine (a hang guard).
+GUARD_S = 90.0
+_DOMAINS = itertools.count()
+
+
+@pytest.fixture(autouse=True)
+def ros_domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+    """A ROS domain for this test alone (0..232 are valid), discovery on localhost only."""
+    domain = 1 + (os.getpid() * 37 + next(_DOMAINS)) % 200
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    yield domain
+
+
+async def _client(*args: str) -> dict[str, Any]:
+    proc = await asyncio.create_subprocess_exec(
+        *CLIENT, *args, "--timeout", str(GUARD_S), stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE)
+    out, err = await proc.communicate()
+    assert proc.returncode == 0, (out.decode(), err.decode()[-2000:])
+    result: dict[str, Any] = json.loads(out.decode().splitlines()[-1])
+    return result
+
+
+def _with_node(*client_args: str, port: str = "fake://") -> tuple[Any, Any, dict[str, Any],
+                                                                   list[Any]]:
+    """The node on ``port`` (virtual time, ``/clock``) while one client runs: the node, its arm,
+    the client's result and every state the arm received meanwhile."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    async def main() -> tuple[Any, Any, dict[str, Any], list[Any]]:
+        async with PublishingArm(port, S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True))
+            serving = asyncio.ensure_future(node.run())
+            try:
+                with arm.record_states() as states:
+                    result = await _client(*client_args)
+            finally:
+                serving.cancel()
+                await asyncio.wait({serving})
+            return node, arm, result, list(states)
+
+    return run_virtual(main())
+
+
+def test_joint_states_every_reply_with_clock_and_the_urdf_latched() -> None:
+    node, _, got, states = _with_node("listen", "--count", "2000")
+    assert got["count"] == 2000 and got["stamps_increasing"]
+    # every reply in the window the subscriber saw (stamps are the virtual reply times)
+    window = [s for s in states if got["first_stamp_s"] - 1e-9 <= s.t_s
+              <= got["last_stamp_s"] + 1e-9]
+    assert got["count"] / len(window) >= 0.95
+    assert got["clocks"] > 0 and got["clock_last_s"] is not None
+    urdf = got["robot_description"]  # published before the client existed: transient local
+    assert urdf.startswith("<?xml") and all(f'name="{n}"' in urdf for n in NAMES)
+    assert node.published >= got["count"]
+
+
+def test_a_trajectory_is_executed_with_coordinated_streaming() -> None:
+    target = [0.2, -0.1, 0.15, 0.3]
+    t = {"names": NAMES, "points": [[0.1, -0.05, 0.05, 0.1], target], "times_s": [2.0, 4.0]}
+    node, arm, got, _ = _with_node("send", "--trajectory", json.dumps(t))
+    assert got["state"] == "done", got
+    tol = arm.default_tolerance_rad()
+    assert all(abs(a - b) <= e for a, b, e in zip(got["q_rad"], target, tol, strict=True)), got
+    run = node.last_run
+    assert run is not None and len(run.waypoints) == 2
+    assert run.duration_s == pytest.approx(4.0, rel=0.1)  # time_from_start held by the duties
+
+
+def test_an_invalid_trajectory_is_rejected_and_nothing_moves(
+        caplog: pytest.LogCaptureFixture) -> None:
+    upper = S.joints[1].upper_rad
+    t = {"names": NAMES, "points": [[0.0, upper + 0.2, 0.0, 0.0]], "times_s": [5.0]}
+    node, arm, got, _ = _with_node("send", "--trajectory", json.dumps(t))
+    assert got["state"] == "rejected" and NAMES[1] in got["reason"], got
+    assert node.last_run is None
+    assert arm.commands_sent == 1  # only the hold of the shutdown: nothing was streamed
+    assert any("rejected, nothing moved" in r.getMessage() for r in caplog.records)
+
+
+def test_an_empty_trajectory_stops_the_arm() -> None:
+    _, arm, got, _ = _with_node("send", "--trajectory",
+                                json.dumps({"names": NAMES, "points": [], "times_s": []}))
+    assert got["state"] == "stopped" and len(got["q_rad"]) == 4
+    assert arm.commands_sent == 2  # the hold it asked for, and the one of the shutdown
+
+
+def test_the_square_through_ros_matches_the_drivers_own_run(capsys: pytest.CaptureFixture[str],
+                                                            ) -> None:
+    from armbench.bench.cli import main
+
+    status = main(["ros2", "--port", "fake://", "--square", "--side", "0.06"])
+    result = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert status == 0
+    assert result["client"]["lap"]["state"] == "done"
+    assert result["ros"]["waypoints"] == result["driver"]["waypoints"]
+    assert result["ratio"] == pytest.approx(1.0, abs=0.10), result
+
+
+def _start(argv: list[str], ready: str) -> tuple[subprocess.Popen[str], list[str]]:
+    """Start ``argv``; return it once a line of its stderr or stdout holds ``ready``."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert proc.stdout is not None
+    lines: list[str] = []
+    for line in proc.stdout:
+        lines.append(line)
+        if ready in line:
+            return proc, lines
+    raise AssertionError(f"{argv} ended before saying {ready!r}: {''.join(lines)}")
+
+
+def test_the_command_stops_the_arm_on_sigterm_and_says_so() -> None:
+    proc, _ = _start([sys.executable, "-m", "armbench", "-v", "ros2", "--port", "fake://"],
+                     "ROS 2 node 'armbench' serving")
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 0, out
+    assert "node shut down: stopped the arm" in out
+
+
+def test_the_command_says_the_link_is_lost_and_exits_1() -> None:
+    port = free_port()
+    emulator, _ = _start([sys.executable, "-m", "armbench", "emulate", "--tcp",
+                          f"127.0.0.1:{port}"], "serving the arm")
+    try:
+        node, _ = _start([sys.executable, "-m", "armbench", "-v", "ros2", "--port",
+                          f"socket://127.0.0.1:{port}"], "ROS 2 node 'armbench' serving")
+        emulator.send_signal(signal.SIGTERM)
+        out, _ = node.communicate(timeout=GUARD_S)
+    finally:
+        emulator.kill()
+        emulator.wait()
+    assert node.returncode == 1, out
+    assert "link lost" in out and "Traceback" not in out
