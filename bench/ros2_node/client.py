@@ -111,7 +111,7 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
     lat = np.array(received) - np.array(stamps)
     return {"count": len(stamps), "first_stamp_s": stamps[0], "last_stamp_s": stamps[-1],
             "rate_hz": (len(stamps) - 1) / span if span > 0 else 0.0,
-            "stamps_increasing": bool(np.all(np.diff(stamps) > 0)),
+            "stamps_in_order": bool(np.all(np.diff(stamps) >= 0)),
             "latency_p50_s": float(np.percentile(lat, 50)),
             "latency_p99_s": float(np.percentile(lat, 99)),
             "clocks": len(clocks), "clock_last_s": clocks[-1] if clocks else None,
