@@ -15,7 +15,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
 import pytest
@@ -55,22 +55,26 @@ async def _client(*args: str) -> dict[str, Any]:
     return result
 
 
-def _with_node(*client_args: str, port: str = "fake://") -> tuple[Any, Any, dict[str, Any],
-                                                                   list[Any]]:
-    """The node on ``port`` (virtual time, ``/clock``) while one client runs: the node, its arm,
-    the client's result and every state the arm received meanwhile."""
+def _with_node(*client_args: str, port: str = "fake://",
+               during: Callable[[Any], Awaitable[None]] | None = None,
+               ) -> tuple[Any, Any, dict[str, Any], list[Any]]:
+    """The node on ``port`` (virtual time, ``/clock``) while one client runs (and ``during(node)``
+    beside it): the node, its arm, the client's result and every state the arm received."""
     from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     async def main() -> tuple[Any, Any, dict[str, Any], list[Any]]:
         async with PublishingArm(port, S) as arm:
             node = ArmNode(arm, NodeOptions(clock=True))
             serving = asyncio.ensure_future(node.run())
+            side = asyncio.ensure_future(during(node)) if during is not None else None
             try:
                 with arm.record_states() as states:
                     result = await _client(*client_args)
             finally:
-                serving.cancel()
-                await asyncio.wait({serving})
+                for task in (serving, side):
+                    if task is not None:
+                        task.cancel()
+                        await asyncio.wait({task})
             return node, arm, result, list(states)
 
     return run_virtual(main())
@@ -117,6 +121,28 @@ def test_an_empty_trajectory_stops_the_arm() -> None:
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))
     assert got["state"] == "stopped" and len(got["q_rad"]) == 4
     assert arm.commands_sent == 2  # the hold it asked for, and the one of the shutdown
+
+
+def test_a_silent_arm_aborts_the_trajectory_and_is_held(
+        caplog: pytest.LogCaptureFixture) -> None:
+    async def power_cut(node: Any) -> None:
+        arm = node.arm
+        while node.accepted == 0:
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(1.0)  # under way
+        holds = arm.commands_sent
+        arm.emulator.power_off()
+        while arm.commands_sent == holds:  # the node holds the arm
+            await asyncio.sleep(0.01)
+        arm.emulator.power_on()
+
+    t = {"names": NAMES, "points": [[0.3, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]],
+         "times_s": [10.0, 20.0]}
+    node, _, got, _ = _with_node("send", "--trajectory", json.dumps(t), during=power_cut)
+    assert got["state"] == "aborted" and "fell silent" in got["reason"], got
+    assert node.last_run is None
+    messages = [r.getMessage() for r in caplog.records]
+    assert any("abandoning the trajectory and holding the arm" in m for m in messages)
 
 
 def test_the_square_through_ros_matches_the_drivers_own_run(capsys: pytest.CaptureFixture[str],

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import pytest
+from conftest import one_line_error
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -87,3 +90,11 @@ def test_every_accepted_segment_is_within_its_time_and_the_duty_limit(
         # the duty quantisation may lengthen a segment a little, never by a factor
         assert slowest <= step_s * 1.2 + 0.01 or max(cmd.duties) == 1
         previous = q
+
+
+def test_without_the_extra_the_command_says_so_in_one_line() -> None:
+    probe = ("import sys\nsys.modules['rclpy'] = None  # as where the extra is not installed\n"
+             "from armbench.bench.cli import main\nsys.exit(main(['ros2', '--duration', '1']))\n")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=120, check=False)
+    one_line_error(done.returncode, done.stderr, "armbench ros2: error:", "armbench[ros2]")

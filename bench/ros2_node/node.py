@@ -36,6 +36,7 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -68,7 +69,7 @@ JOINT_STATES_DEPTH: Final = 200
 class PublishingArm(Arm):
     """The driver, telling the node each command it writes (``/armbench/commanded``)."""
 
-    on_command: Any = None
+    on_command: Callable[[float, Command], None] | None = None
 
     async def _send(self, command: Command, *, retry: bool = True) -> float:
         t = await super()._send(command, retry=retry)
@@ -115,6 +116,8 @@ class ArmNode:
         self.names = [j.name for j in arm.settings.joints]
         self.published = 0
         """``/joint_states`` messages published."""
+        self.accepted = 0
+        """Trajectories accepted so far."""
         self.last_run: PathRun | None = None
         """The path run of the last trajectory executed to its end."""
         self._loop = asyncio.get_running_loop()
@@ -124,6 +127,7 @@ class ArmNode:
         self._wake = asyncio.Event()
         self._job: asyncio.Task[None] | None = None
         self._job_id = 0
+        self._abort_reason: str | None = None
         self._pace0: tuple[float, float] | None = None
         require_rclpy()  # imported here: without the extra this module still imports
         import rclpy
@@ -313,6 +317,7 @@ class ArmNode:
     async def _on_silence(self, exc: ReplyTimeoutError) -> None:
         log.error("%s: %s: abandoning the trajectory and holding the arm", self.arm.port, exc)
         if self._job is not None and not self._job.done():
+            self._abort_reason = f"the arm fell silent: {exc}"
             self._job.cancel()
         with contextlib.suppress(DriverError, PortLostError):
             await self.arm.stop(wait=False)
@@ -335,7 +340,11 @@ class ArmNode:
             running.cancel()
             await asyncio.wait({running})
         if not req.positions:
-            state = await self.arm.stop()
+            try:
+                state = await self.arm.stop()
+            except DriverError as exc:  # silent: the state task says so and holds
+                self._status(job, "aborted", req.stamp, reason=str(exc))
+                return
             log.info("trajectory %d: empty: stopped the arm", job)
             self._status(job, "stopped", req.stamp, q_rad=list(state.q_rad))
             return
@@ -350,6 +359,7 @@ class ArmNode:
         log.info("trajectory %d accepted: %d points, %.3f s planned", job, plan.points,
                  plan.planned_s)
         self._status(job, "accepted", req.stamp, points=plan.points, planned_s=plan.planned_s)
+        self.accepted += 1
         self._job = asyncio.ensure_future(self._execute(job, req.stamp, plan))
 
     async def _execute(self, job: int, stamp: tuple[int, int], plan: TrajectoryPlan) -> None:
@@ -360,7 +370,12 @@ class ArmNode:
             run = await stream_path(arm, plan.tcp_m, plan.commands, plan.planned_s,
                                     arm.default_tolerance_rad(), self.options.lookahead_s, None)
         except asyncio.CancelledError:
-            self._status(job, "preempted", stamp)
+            reason, self._abort_reason = self._abort_reason, None
+            if reason is None:
+                self._status(job, "preempted", stamp)
+            else:
+                log.error("trajectory %d aborted: %s", job, reason)
+                self._status(job, "aborted", stamp, reason=reason)
             raise
         except (DriverError, PortLostError) as exc:
             log.error("trajectory %d aborted: %s", job, exc)
