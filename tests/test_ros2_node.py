@@ -116,6 +116,20 @@ def test_an_invalid_trajectory_is_rejected_and_nothing_moves(
     assert any("rejected, nothing moved" in r.getMessage() for r in caplog.records)
 
 
+def test_a_new_trajectory_replaces_the_one_running() -> None:
+    # ~200 simulated s (duty 1): still running when the next one comes, however slow the host
+    slow = {"names": NAMES, "points": [[2.0, 0.0, 0.0, 0.0]], "times_s": [200.0]}
+    target = [0.0, 0.1, 0.0, 0.0]
+    fast = {"names": NAMES, "points": [target], "times_s": [10.0]}
+    node, arm, got, _ = _with_node("send", "--trajectory", json.dumps(slow),
+                                   "--trajectory", json.dumps(fast))
+    first, second = got["statuses"]
+    assert first["state"] == "preempted" and second["state"] == "done", got
+    tol = arm.default_tolerance_rad()
+    assert all(abs(a - b) <= e for a, b, e in zip(second["q_rad"], target, tol, strict=True))
+    assert node.accepted == 2
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))

@@ -8,7 +8,8 @@ Modes:
   the rate per stamp second, and the latency of each message (receive wall time − stamp; in real
   time only the node stamps with wall-clock time) as p50/p99.
 * ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
-  [[q...]...], "times_s": [...]}``) and report the node's final status for it.
+  [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
+  times, each next one as soon as the previous one is under way, and the final status of each.
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
@@ -145,8 +146,9 @@ class Sender:
         self.q_rad = [float(v) for v in msg.position]
 
     def send(self, names: Sequence[str], points: Sequence[Sequence[float]],
-             times_s: Sequence[float]) -> dict[str, Any]:
-        """Publish one trajectory; its final status (``state`` one of :data:`FINAL`)."""
+             times_s: Sequence[float], *, until: Sequence[str] = FINAL) -> dict[str, Any]:
+        """Publish one trajectory; its first status in ``until`` (default: its final status,
+        ``state`` one of :data:`FINAL`)."""
         from builtin_interfaces.msg import Duration
         from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -161,17 +163,35 @@ class Sender:
             p.time_from_start = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
             msg.points.append(p)
         self.pub.publish(msg)
-        tag = [7, self._n]
+        return self.status(self._n, until)
+
+    def status(self, n: int, until: Sequence[str] = FINAL) -> dict[str, Any]:
+        """The first status in ``until`` of the ``n``-th trajectory sent (waited for)."""
+        tag = [7, n]
 
         def final() -> dict[str, Any] | None:
             return next((s for s in self.statuses if s["stamp"] == tag
-                         and s["state"] in FINAL), None)
+                         and s["state"] in until), None)
 
         _spin_until(self.node, lambda: final() is not None, self.deadline,
                     f"the status of trajectory {tag}")
         out = final()
         assert out is not None
         return out
+
+
+def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """``send`` mode: each trajectory once the previous one is accepted (or refused), then the
+    final status of the last; with several, ``{"statuses": [final status of each]}``."""
+    if not trajectories:
+        raise SystemExit("send: give --trajectory JSON")
+    for k, t in enumerate(trajectories):
+        last = k == len(trajectories) - 1
+        out = sender.send(t["names"], t["points"], t["times_s"],
+                          until=FINAL if last else ("accepted", *FINAL))
+    if len(trajectories) == 1:
+        return out
+    return {"statuses": [sender.status(n) for n in range(1, len(trajectories) + 1)]}
 
 
 def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
@@ -208,7 +228,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("mode", choices=("listen", "send", "square"))
     p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
     p.add_argument("--count", type=int, default=200)
-    p.add_argument("--trajectory", default=None, help="send: the trajectory as JSON")
+    p.add_argument("--trajectory", action="append", default=[],
+                   help="send: a trajectory as JSON; given again, each next one is sent as soon "
+                        "as the previous one is under way (it replaces it)")
     p.add_argument("--settings", default=None)
     p.add_argument("--centre", type=float, nargs=3, default=(0.38, 0.0, 0.80))
     p.add_argument("--side", type=float, default=0.15)
@@ -232,8 +254,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             sender = Sender(node, deadline)
             if args.mode == "send":
-                t = json.loads(args.trajectory)
-                out = sender.send(t["names"], t["points"], t["times_s"])
+                out = send_all(sender, [json.loads(t) for t in args.trajectory])
             else:
                 out = square(sender, load_settings(args.settings), args)
     except Timeout as exc:
