@@ -102,6 +102,8 @@ def test_a_trajectory_is_executed_with_coordinated_streaming() -> None:
     assert all(abs(a - b) <= e for a, b, e in zip(got["q_rad"], target, tol, strict=True)), got
     run = node.last_run
     assert run is not None and len(run.waypoints) == 2
+    # the goals as written, seen by the client in order
+    assert got["seen"]["commanded"][-2:] == [list(w.q_rad) for w in run.waypoints]
     assert run.duration_s == pytest.approx(4.0, rel=0.1)  # time_from_start held by the duties
 
 
@@ -109,8 +111,10 @@ def test_an_invalid_trajectory_is_rejected_and_nothing_moves(
         caplog: pytest.LogCaptureFixture) -> None:
     upper = S.joints[1].upper_rad
     t = {"names": NAMES, "points": [[0.0, upper + 0.2, 0.0, 0.0]], "times_s": [5.0]}
-    node, arm, got, _ = _with_node("send", "--trajectory", json.dumps(t))
+    node, arm, got, _ = _with_node("send", "--trajectory", json.dumps(t), "--wait-event",
+                                   "trajectory_rejected")
     assert got["state"] == "rejected" and NAMES[1] in got["reason"], got
+    assert got["seen"]["events"] == ["trajectory_rejected"] and got["seen"]["commanded"] == []
     assert node.last_run is None
     assert arm.commands_sent == 1  # only the hold of the shutdown: nothing was streamed
     assert any("rejected, nothing moved" in r.getMessage() for r in caplog.records)
@@ -152,8 +156,10 @@ def test_a_silent_arm_aborts_the_trajectory_and_is_held(
 
     t = {"names": NAMES, "points": [[0.3, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]],
          "times_s": [10.0, 20.0]}
-    node, _, got, _ = _with_node("send", "--trajectory", json.dumps(t), during=power_cut)
+    node, _, got, _ = _with_node("send", "--trajectory", json.dumps(t), "--wait-event",
+                                 "link_silent", during=power_cut)
     assert got["state"] == "aborted" and "fell silent" in got["reason"], got
+    assert "link_silent" in got["seen"]["events"]
     assert node.last_run is None
     messages = [r.getMessage() for r in caplog.records]
     assert any("abandoning the trajectory and holding the arm" in m for m in messages)

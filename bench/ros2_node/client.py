@@ -9,7 +9,8 @@ Modes:
   time only the node stamps with wall-clock time) as p50/p99.
 * ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
   [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
-  times, each next one as soon as the previous one is under way, and the final status of each.
+  times, each next one as soon as the previous one is under way, and the final status of each;
+  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events.
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
@@ -134,6 +135,14 @@ class Sender:
         self.pub = node.create_publisher(JointTrajectory, TOPICS["trajectory"], 10)
         self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, 50)
         node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
+        self.commanded: list[list[float]] = []
+        """Goals seen on ``/armbench/commanded``."""
+        self.events: list[str] = []
+        """Kinds of the events seen on ``/armbench/events``."""
+        node.create_subscription(JointStateMsg, TOPICS["commanded"],
+                                 lambda m: self.commanded.append(list(m.position)), 100)
+        node.create_subscription(String, TOPICS["events"],
+                                 lambda m: self.events.append(json.loads(m.data)["kind"]), 50)
         _spin_until(node, lambda: (self.pub.get_subscription_count() > 0
                                    and self.sub.get_publisher_count() > 0
                                    and self.q_rad is not None), deadline, "the armbench node")
@@ -180,18 +189,26 @@ class Sender:
         return out
 
 
-def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
+             wait_events: Sequence[str] = ()) -> dict[str, Any]:
     """``send`` mode: each trajectory once the previous one is accepted (or refused), then the
-    final status of the last; with several, ``{"statuses": [final status of each]}``."""
+    final status of the last (and the events of ``wait_events``: topics are not ordered with
+    each other); with several, ``{"statuses": [final status of each]}``."""
     if not trajectories:
         raise SystemExit("send: give --trajectory JSON")
     for k, t in enumerate(trajectories):
         last = k == len(trajectories) - 1
         out = sender.send(t["names"], t["points"], t["times_s"],
                           until=FINAL if last else ("accepted", *FINAL))
+    written = out.get("waypoints", 0)  # of a trajectory done: its goals, on a topic of their own
+    _spin_until(sender.node, lambda: (all(k in sender.events for k in wait_events)
+                                      and len(sender.commanded) >= written),
+                sender.deadline, f"the events {list(wait_events)} and {written} goals")
+    seen = {"commanded": sender.commanded, "events": sender.events}
     if len(trajectories) == 1:
-        return out
-    return {"statuses": [sender.status(n) for n in range(1, len(trajectories) + 1)]}
+        return {**out, "seen": seen}
+    return {"statuses": [sender.status(n) for n in range(1, len(trajectories) + 1)],
+            "seen": seen}
 
 
 def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
@@ -231,6 +248,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trajectory", action="append", default=[],
                    help="send: a trajectory as JSON; given again, each next one is sent as soon "
                         "as the previous one is under way (it replaces it)")
+    p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
+                   help="send: also wait for an event of this kind on /armbench/events")
     p.add_argument("--settings", default=None)
     p.add_argument("--centre", type=float, nargs=3, default=(0.38, 0.0, 0.80))
     p.add_argument("--side", type=float, default=0.15)
@@ -254,7 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             sender = Sender(node, deadline)
             if args.mode == "send":
-                out = send_all(sender, [json.loads(t) for t in args.trajectory])
+                out = send_all(sender, [json.loads(t) for t in args.trajectory],
+                               args.wait_event)
             else:
                 out = square(sender, load_settings(args.settings), args)
     except Timeout as exc:

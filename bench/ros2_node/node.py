@@ -316,12 +316,12 @@ class ArmNode:
 
     async def _on_silence(self, exc: ReplyTimeoutError) -> None:
         log.error("%s: %s: abandoning the trajectory and holding the arm", self.arm.port, exc)
+        self.event("link_silent", reason=str(exc), action="holding the arm")
         if self._job is not None and not self._job.done():
             self._abort_reason = f"the arm fell silent: {exc}"
             self._job.cancel()
         with contextlib.suppress(DriverError, PortLostError):
             await self.arm.stop(wait=False)
-        self.event("link_silent", reason=str(exc), action="hold sent")
 
     async def _take_trajectories(self) -> None:
         while True:
@@ -353,8 +353,8 @@ class ArmNode:
                                    self.arm.state.q_rad, max_duty=self.options.max_duty)
         except TrajectoryError as exc:
             log.error("trajectory %d rejected, nothing moved: %s", job, exc)
-            self._status(job, "rejected", req.stamp, reason=str(exc))
-            self.event("trajectory_rejected", id=job, reason=str(exc))
+            self.event("trajectory_rejected", id=job, reason=str(exc))  # before the status:
+            self._status(job, "rejected", req.stamp, reason=str(exc))  # a client may stop then
             return
         log.info("trajectory %d accepted: %d points, %.3f s planned", job, plan.points,
                  plan.planned_s)
@@ -382,7 +382,7 @@ class ArmNode:
             self._status(job, "aborted", stamp, reason=str(exc))
             return
         self.last_run = run
-        self._status(job, "done", stamp, duration_s=run.duration_s,
+        self._status(job, "done", stamp, duration_s=run.duration_s, waypoints=len(run.waypoints),
                      states=len(run.states), q_rad=list(run.states[-1].q_rad)
                      if run.states else list(arm.state.q_rad))
 
