@@ -96,11 +96,15 @@ async def compare_square(port: str, settings: RobotSettings, options: NodeOption
         try:
             await arm.move_to(corners[0], branch=sq.branch, coordinated=True)
             await settled_state(arm, sq.settle_s)
+            node.event("lap_start", by="driver")
             driver = await arm.follow_path([*corners, corners[0]], speed_m_s=sq.speed_m_s,
                                            spacing_m=sq.spacing_m, branch=sq.branch)
+            node.event("lap_end", by="driver", duration_s=driver.duration_s)
+            node.event("lap_start", by="ros2")
             client = await _ros_lap(node, sq, settings_file, env)
             ros = node.last_run
             assert ros is not None
+            node.event("lap_end", by="ros2", duration_s=ros.duration_s)
         finally:
             serving.cancel()
             await asyncio.wait({serving})
