@@ -134,6 +134,32 @@ def test_a_new_trajectory_replaces_the_one_running() -> None:
     assert node.accepted == 2
 
 
+def test_a_trajectory_of_too_many_points_is_refused_unread(
+        caplog: pytest.LogCaptureFixture) -> None:
+    from types import SimpleNamespace
+
+    from armbench.bench.ros2_node.node import MAX_POINTS, ArmNode, NodeOptions, PublishingArm
+
+    point = SimpleNamespace(positions=[0.0] * 4, time_from_start=SimpleNamespace(sec=1, nanosec=0))
+    msg = SimpleNamespace(joint_names=NAMES, points=[point] * (MAX_POINTS + 1),
+                          header=SimpleNamespace(stamp=SimpleNamespace(sec=1, nanosec=2)))
+
+    async def main() -> tuple[Any, int]:
+        async with PublishingArm("fake://", S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True))
+            serving = asyncio.ensure_future(node.run())
+            node._on_trajectory(msg)  # as the executor thread hands it over
+            await asyncio.sleep(0.5)
+            sent = arm.commands_sent
+            serving.cancel()
+            await asyncio.wait({serving})
+            return node, sent
+
+    node, sent = run_virtual(main())
+    assert node.accepted == 0 and sent == 0
+    assert any(f"more than the {MAX_POINTS} accepted" in r.getMessage() for r in caplog.records)
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))

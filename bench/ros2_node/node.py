@@ -48,7 +48,7 @@ from armbench.drivers.paths import LOOKAHEAD_S, stream_path
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
+__all__ = ["MAX_POINTS", "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
 
 log = logging.getLogger("armbench.ros2")
 
@@ -93,12 +93,17 @@ class NodeOptions:
     realtime_factor: float | None = None
 
 
+#: A trajectory with more points is refused unread (a peer must not fill the node's memory).
+MAX_POINTS: Final = 100_000
+
+
 @dataclass
 class _Request:
     names: list[str]
     positions: list[list[float]]
     times_s: list[float]
     stamp: tuple[int, int]
+    too_many: int = 0
 
 
 def _time_msg(msg: Any, t_s: float) -> None:
@@ -176,11 +181,15 @@ class ArmNode:
 
     def _on_trajectory(self, msg: Any) -> None:
         """On the executor thread: copy the message, keep the newest, wake the loop."""
-        req = _Request([str(s) for s in msg.joint_names],
-                       [[float(v) for v in p.positions] for p in msg.points],
-                       [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
-                        for p in msg.points],
-                       (int(msg.header.stamp.sec), int(msg.header.stamp.nanosec)))
+        stamp = (int(msg.header.stamp.sec), int(msg.header.stamp.nanosec))
+        n = len(msg.points)
+        if n > MAX_POINTS:
+            req = _Request([], [], [], stamp, n)
+        else:
+            req = _Request([str(s) for s in msg.joint_names],
+                           [[float(v) for v in p.positions] for p in msg.points],
+                           [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
+                            for p in msg.points], stamp)
         with self._slot_lock:
             self._slot = req
         with contextlib.suppress(RuntimeError):  # the loop is closed: the node is going away
@@ -339,6 +348,12 @@ class ArmNode:
         if running is not None and not running.done():
             running.cancel()
             await asyncio.wait({running})
+        if req.too_many:
+            reason = f"trajectory: {req.too_many} points, more than the {MAX_POINTS} accepted"
+            log.error("trajectory %d rejected, nothing moved: %s", job, reason)
+            self.event("trajectory_rejected", id=job, reason=reason)
+            self._status(job, "rejected", req.stamp, reason=reason)
+            return
         if not req.positions:
             try:
                 state = await self.arm.stop()
