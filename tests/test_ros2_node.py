@@ -160,6 +160,23 @@ def test_a_trajectory_of_too_many_points_is_refused_unread(
     assert any(f"more than the {MAX_POINTS} accepted" in r.getMessage() for r in caplog.records)
 
 
+def test_a_realtime_factor_holds_virtual_time_back() -> None:
+    import time
+
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    async def main() -> float:
+        async with PublishingArm("fake://", S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True, realtime_factor=5.0))
+            t0 = time.perf_counter()
+            assert await node.run(5.0) == 0
+            return time.perf_counter() - t0
+
+    # 5 simulated s at most 5 times as fast as real time: at least ~1 real s (unpaced, a fraction
+    # of that; a loaded machine only makes it longer)
+    assert run_virtual(main()) >= 0.95
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))
