@@ -10,7 +10,8 @@ Modes:
 * ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
   [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
   times, each next one as soon as the previous one is under way, and the final status of each;
-  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events.
+  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events (``--wait-event
+  KIND`` waits for one too: topics are not ordered with each other).
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
@@ -31,6 +32,7 @@ import numpy as np
 
 from armbench.bench.metrics import square_yz
 from armbench.bench.ros2_node.node import TOPICS
+from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
 from armbench.drivers.protocol import MAX_DUTY
@@ -251,8 +253,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
                    help="send: also wait for an event of this kind on /armbench/events")
     p.add_argument("--settings", default=None)
-    p.add_argument("--centre", type=float, nargs=3, default=(0.38, 0.0, 0.80))
-    p.add_argument("--side", type=float, default=0.15)
+    p.add_argument("--centre", type=float, nargs=3, default=DEFAULT_SQUARE_CENTRE_M)
+    p.add_argument("--side", type=float, default=DEFAULT_SQUARE_SIDE_M)
     p.add_argument("--speed", type=float, default=0.05)
     p.add_argument("--spacing", type=float, default=0.005)
     p.add_argument("--branch", default="front-up")

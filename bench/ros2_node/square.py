@@ -23,6 +23,7 @@ from armbench.bench.metrics import square_yz
 from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 from armbench.bench.suites._common import settled_state
 from armbench.bench.suites.accuracy import path_figures
+from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.arm import PathRun
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
@@ -33,7 +34,8 @@ __all__ = ["SquareOptions", "compare_square", "run_samples"]
 class SquareOptions:
     """The square and how it is driven (the accuracy suite's defaults)."""
 
-    def __init__(self, centre_m: Sequence[float] = (0.38, 0.0, 0.80), side_m: float = 0.15,
+    def __init__(self, centre_m: Sequence[float] = DEFAULT_SQUARE_CENTRE_M,
+                 side_m: float = DEFAULT_SQUARE_SIDE_M,
                  speed_m_s: float = 0.05, spacing_m: float = 0.005, branch: str = "front-up",
                  sample_period_s: float = 0.01, settle_s: float = 0.2,
                  client_timeout_s: float = 120.0) -> None:
