@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import one_line_error
+from conftest import cli, one_line_error
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -98,3 +98,16 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                           timeout=120, check=False)
     one_line_error(done.returncode, done.stderr, "armbench ros2: error:", "armbench[ros2]")
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (["--duration", "-1"], "--duration"),
+    (["--domain-id", "999"], "--domain-id: 999 must be 0..232"),
+    (["--max-duty", "0"], "--max-duty"),
+    (["--realtime-factor", "nan"], "--realtime-factor"),
+    (["--side", "2"], "--side"),
+])
+def test_bad_options_are_one_line_errors_before_anything_starts(
+        capsys: pytest.CaptureFixture[str], args: list[str], expected: str) -> None:
+    status, _, err = cli(capsys, "ros2", *args)
+    one_line_error(status, err, expected)
