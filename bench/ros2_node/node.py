@@ -264,6 +264,10 @@ class ArmNode:
     async def _stop_on_exit(self) -> None:
         try:
             state = await asyncio.shield(self.arm.stop())
+        except ReplyTimeoutError as exc:
+            log.error("%s: shutting down: hold sent, not confirmed (%s)", self.arm.port, exc)
+            self.event("stopped", reason="shutdown", confirmed=False)
+            return
         except (DriverError, PortLostError, asyncio.CancelledError) as exc:
             log.error("%s: shutting down; the hold could not be sent (%s)", self.arm.port, exc)
             return
