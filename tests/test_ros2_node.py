@@ -81,13 +81,16 @@ def _with_node(*client_args: str, port: str = "fake://",
 
 
 def test_joint_states_every_reply_with_clock_and_the_urdf_latched() -> None:
-    node, _, got, states = _with_node("listen", "--count", "2000")
+    node, _, got, states = _with_node("listen", "--count", "2000", "--sim-time")
     assert got["count"] == 2000 and got["stamps_in_order"]
     # every reply in the window the subscriber saw (stamps are the virtual reply times)
     window = [s for s in states if got["first_stamp_s"] - 1e-9 <= s.t_s
               <= got["last_stamp_s"] + 1e-9]
     assert got["count"] / len(window) >= 0.95
     assert got["clocks"] > 0 and got["clock_last_s"] is not None
+    # a use_sim_time node runs on the bench's virtual time (its own /clock subscription may be
+    # a message or two ahead of the client's)
+    assert got["first_stamp_s"] <= got["node_now_s"] <= states[-1].t_s
     urdf = got["robot_description"]  # published before the client existed: transient local
     assert urdf.startswith("<?xml") and all(f'name="{n}"' in urdf for n in NAMES)
     assert node.published >= got["count"]

@@ -5,8 +5,9 @@ Modes:
 
 * ``listen --count N``: subscribe ``/joint_states``, ``/clock``, ``/robot_description`` and
   ``/armbench/events`` until N joint states arrived; report the count, the first and last stamps,
-  the rate per stamp second, and the latency of each message (receive wall time − stamp; in real
-  time only the node stamps with wall-clock time) as p50/p99.
+  the rate per stamp second, the latency of each message (receive wall time − stamp; in real
+  time only the node stamps with wall-clock time) as p50/p99, and the client node's clock at the
+  end (``--sim-time``: ``use_sim_time``, so the time of ``/clock``).
 * ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
   [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
   times, each next one as soon as the previous one is under way, and the final status of each;
@@ -111,6 +112,7 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
                              lambda m: events.append(json.loads(m.data)), 50)
     _spin_until(node, lambda: len(stamps) >= count and bool(urdf), deadline,
                 f"{count} joint states and the robot description")
+    node_now_s = node.get_clock().now().nanoseconds * 1e-9  # /clock's time with use_sim_time
     span = stamps[-1] - stamps[0]
     lat = np.array(received) - np.array(stamps)
     return {"count": len(stamps), "first_stamp_s": stamps[0], "last_stamp_s": stamps[-1],
@@ -119,6 +121,7 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
             "latency_p50_s": float(np.percentile(lat, 50)),
             "latency_p99_s": float(np.percentile(lat, 99)),
             "clocks": len(clocks), "clock_last_s": clocks[-1] if clocks else None,
+            "node_now_s": node_now_s,
             "robot_description": urdf[0], "events": events}
 
 
@@ -247,6 +250,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("mode", choices=("listen", "send", "square"))
     p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
     p.add_argument("--count", type=int, default=200)
+    p.add_argument("--sim-time", action="store_true",
+                   help="run the client's node with use_sim_time (its clock follows /clock)")
     p.add_argument("--trajectory", action="append", default=[],
                    help="send: a trajectory as JSON; given again, each next one is sent as soon "
                         "as the previous one is under way (it replaces it)")
@@ -268,7 +273,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     deadline = time.monotonic() + args.timeout
     rclpy.init()
-    node = rclpy.create_node(f"armbench_client_{args.mode}")
+    from rclpy.parameter import Parameter
+
+    node = rclpy.create_node(f"armbench_client_{args.mode}", parameter_overrides=[
+        Parameter("use_sim_time", value=args.sim_time)])
     try:
         if args.mode == "listen":
             out = listen(node, args.count, deadline)
