@@ -401,7 +401,8 @@ class ArmNode:
             self._status(job, "aborted", stamp, reason=str(exc))
             return
         self.last_run = run
-        self._status(job, "done", stamp, duration_s=run.duration_s, waypoints=len(run.waypoints),
+        self._status(job, "done", stamp, duration_s=max(0.0, run.duration_s),  # at the goal: 0
+                     waypoints=len(run.waypoints),
                      states=len(run.states), q_rad=list(run.states[-1].q_rad)
                      if run.states else list(arm.state.q_rad))
 
