@@ -87,7 +87,7 @@ def _stamp_s(stamp: Any) -> float:
 
 def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
     """``listen`` mode (see the module doc)."""
-    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import JointState as JointStateMsg
     from std_msgs.msg import String
@@ -103,7 +103,10 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
         stamps.append(_stamp_s(msg.header.stamp))
 
     latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(JointStateMsg, TOPICS["joint_states"], on_js, 1000)
+    # every message kept until taken: a subscriber slower than the stream for a while (virtual
+    # time, a loaded host) catches up instead of losing the oldest
+    every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL)
+    node.create_subscription(JointStateMsg, TOPICS["joint_states"], on_js, every)
     node.create_subscription(Clock, TOPICS["clock"],
                              lambda m: clocks.append(_stamp_s(m.clock)), 1000)
     node.create_subscription(String, TOPICS["robot_description"],

@@ -62,8 +62,9 @@ TOPICS: Final = {
     "events": "/armbench/events",
     "clock": "/clock",
 }
-#: History kept for ``/joint_states`` (reliable): enough for a subscriber to catch up a burst.
-JOINT_STATES_DEPTH: Final = 200
+#: History kept for ``/joint_states`` (reliable): what a subscriber not yet acknowledged may still
+#: get (on virtual time the stream comes many times faster than real time).
+JOINT_STATES_DEPTH: Final = 1000
 
 
 class PublishingArm(Arm):
