@@ -106,6 +106,7 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     (["--max-duty", "0"], "--max-duty"),
     (["--realtime-factor", "nan"], "--realtime-factor"),
     (["--side", "2"], "--side"),
+    (["--connect-timeout", "0"], "--connect-timeout"),
 ])
 def test_bad_options_are_one_line_errors_before_anything_starts(
         capsys: pytest.CaptureFixture[str], args: list[str], expected: str) -> None:

@@ -18,6 +18,7 @@ from typing import Any
 
 from armbench.bench.commands.monitor import run_on_port
 from armbench.drivers.errors import InvalidTargetError
+from armbench.drivers.link import CONNECT_TIMEOUT_S
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import scheme_of
@@ -51,6 +52,8 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-factor", type=float, default=None, metavar="X",
                    help="fake://: at most X simulated seconds per real second (default: as "
                         "fast as the emulator runs)")
+    p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
+                   help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
     p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
                    help="hold the arm and report it silent after S s without a reply")
     p.add_argument("--square", action="store_true",
@@ -72,6 +75,10 @@ def _check(args: argparse.Namespace) -> None:
                                  "must be > 0")
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise InvalidTargetError(None, "--domain-id", args.domain_id, "must be 0..232")
+    for name in ("connect_timeout", "reply_timeout"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidTargetError(None, "--" + name.replace("_", "-"), value, "must be > 0")
     if not (math.isfinite(args.side) and 0 < args.side <= 0.5):
         raise InvalidTargetError(None, "--side", args.side, "must be in (0, 0.5] m")
 
@@ -105,8 +112,8 @@ async def _serve(args: argparse.Namespace, settings: RobotSettings, options: Any
         terminated = True
         task.cancel()
 
-    async with PublishingArm(args.port, settings,
-                                     reply_timeout_s=args.reply_timeout) as arm:
+    async with PublishingArm(args.port, settings, reply_timeout_s=args.reply_timeout,
+                             connect_timeout_s=args.connect_timeout) as arm:
         node = ArmNode(arm, options)
         loop.add_signal_handler(signal.SIGTERM, on_term)
         try:
@@ -123,6 +130,7 @@ async def _square(args: argparse.Namespace, settings: RobotSettings, options: An
     from armbench.bench.ros2_node.square import SquareOptions, compare_square
 
     result = await compare_square(args.port, settings, options, SquareOptions(side_m=args.side),
-                                  settings_file=args.settings, reply_timeout_s=args.reply_timeout)
+                                  settings_file=args.settings, reply_timeout_s=args.reply_timeout,
+                                  connect_timeout_s=args.connect_timeout)
     print(json.dumps(result))
     return 0

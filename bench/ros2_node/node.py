@@ -62,8 +62,8 @@ TOPICS: Final = {
     "events": "/armbench/events",
     "clock": "/clock",
 }
-#: History kept for ``/joint_states`` (reliable): what a subscriber not yet acknowledged may still
-#: get (on virtual time the stream comes many times faster than real time).
+#: History kept for ``/joint_states`` (reliable) in real time: what a subscriber that has not yet
+#: acknowledged may still get. On virtual time the history keeps everything (``KEEP_ALL``).
 JOINT_STATES_DEPTH: Final = 1000
 
 
@@ -139,7 +139,7 @@ class ArmNode:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState as JointStateMsg
@@ -155,8 +155,12 @@ class ArmNode:
         reliable = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"],
-                                          JOINT_STATES_DEPTH)
+        # on virtual time every message is kept until each reliable subscriber has it: the
+        # stream comes many times faster than real time, and a subscriber held up for a moment
+        # (a loaded host) would otherwise lose what the history of JOINT_STATES_DEPTH overflows
+        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"], (
+            QoSProfile(depth=JOINT_STATES_DEPTH, history=HistoryPolicy.KEEP_ALL)
+            if options.clock else JOINT_STATES_DEPTH))
         self._pub_urdf = n.create_publisher(String, TOPICS["robot_description"], latched)
         self._pub_cmd = n.create_publisher(JointStateMsg, TOPICS["commanded"], 50)
         self._pub_events = n.create_publisher(String, TOPICS["events"], 50)

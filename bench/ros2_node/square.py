@@ -87,12 +87,13 @@ async def _ros_lap(node: ArmNode, sq: SquareOptions, settings_file: str | None,
 
 async def compare_square(port: str, settings: RobotSettings, options: NodeOptions,
                          sq: SquareOptions, *, settings_file: str | None = None,
-                         reply_timeout_s: float = 0.5,
+                         reply_timeout_s: float = 0.5, connect_timeout_s: float = 3.0,
                          env: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Drive the square twice on ``port`` (driver, then ROS client) and return both figures
     (mm), ``ratio`` (ROS mean / driver mean) and the client's report."""
     corners = square_yz(sq.centre_m, sq.side_m)
-    async with PublishingArm(port, settings, reply_timeout_s=reply_timeout_s) as arm:
+    async with PublishingArm(port, settings, reply_timeout_s=reply_timeout_s,
+                             connect_timeout_s=connect_timeout_s) as arm:
         node = ArmNode(arm, options)
         serving = asyncio.ensure_future(node.run())
         try:
