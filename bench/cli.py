@@ -48,6 +48,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
                  "many trials of one suite over drawn conditions (Monte Carlo on the emulator)"),
     "merge": (_COMMANDS + "merge", "join the shards of a run into one record"),
     "urdf": (_COMMANDS + "urdf", "write a URDF of the arm (RViz, Foxglove's 3D panel)"),
+    "ros2": (_COMMANDS + "ros2", "serve the arm as a ROS 2 node (extra armbench[ros2])"),
 }
 
 

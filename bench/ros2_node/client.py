@@ -1,0 +1,304 @@
+"""A ROS 2 client of the node, run as a process of its own: ``python -m
+armbench.bench.ros2_node.client MODE ...``; prints one JSON object on stdout.
+
+Modes:
+
+* ``listen --count N``: subscribe ``/joint_states``, ``/clock``, ``/robot_description`` and
+  ``/armbench/events`` until N joint states arrived; report the count, the first and last stamps,
+  the rate per stamp second, the latency of each message (receive wall time − stamp; in real
+  time only the node stamps with wall-clock time) as p50/p99, and the client node's clock at the
+  end (``--sim-time``: ``use_sim_time``, so the time of ``/clock``).
+* ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
+  [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
+  times, each next one as soon as the previous one is under way, and the final status of each;
+  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events (``--wait-event
+  KIND`` waits for one too: topics are not ordered with each other).
+* ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
+  segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
+  trajectories: to the first corner, then the lap; report both statuses.
+
+Every wait is bounded by ``--timeout`` (real seconds), a guard against a hung graph only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from armbench.bench.metrics import square_yz
+from armbench.bench.ros2_node.node import TOPICS
+from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
+from armbench.drivers.motion import joint_times_s, segment_duties
+from armbench.drivers.paths import plan_path
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings, load_settings
+
+if TYPE_CHECKING:  # rclpy and the messages are imported where used: the module imports without
+    from rclpy.executors import Executor  # the extra
+    from rclpy.node import Node
+
+__all__ = ["main", "square_trajectory"]
+
+#: Terminal states of a trajectory status.
+FINAL = ("done", "rejected", "aborted", "preempted", "stopped")
+#: Time given to the approach to the first corner, on top of what duty 99 needs.
+APPROACH_MARGIN = 1.5
+
+
+class Timeout(Exception):
+    """A bounded wait of the client ran out."""
+
+
+def _executor(node: Node) -> Executor:
+    """rclpy's events executor (C++: takes a message with no wait set built per message, so a
+    Python subscriber keeps up with far more messages per second), else the single-threaded."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    try:
+        from rclpy.experimental.events_executor import EventsExecutor
+
+        ex = EventsExecutor(context=node.context)
+    except ImportError:
+        ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    return ex
+
+
+_EXECUTORS: dict[int, Executor] = {}
+
+
+def _spin_until(node: Node, done: Callable[[], bool], deadline: float, what: str) -> None:
+    ex = _EXECUTORS.get(id(node)) or _EXECUTORS.setdefault(id(node), _executor(node))
+    while not done():
+        if time.monotonic() > deadline:
+            raise Timeout(f"timed out waiting for {what}")
+        ex.spin_once(timeout_sec=0.05)
+
+
+def _stamp_s(stamp: Any) -> float:
+    return float(stamp.sec) + float(stamp.nanosec) * 1e-9
+
+
+def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
+    """``listen`` mode (see the module doc)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState as JointStateMsg
+    from std_msgs.msg import String
+
+    stamps: list[float] = []
+    received: list[float] = []
+    clocks: list[float] = []
+    urdf: list[str] = []
+    events: list[dict[str, Any]] = []
+
+    def on_js(msg: Any) -> None:
+        received.append(time.time())
+        stamps.append(_stamp_s(msg.header.stamp))
+
+    latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    # every message kept until taken: a subscriber slower than the stream for a while (virtual
+    # time, a loaded host) catches up instead of losing the oldest
+    every = QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL)
+    node.create_subscription(JointStateMsg, TOPICS["joint_states"], on_js, every)
+    node.create_subscription(Clock, TOPICS["clock"],
+                             lambda m: clocks.append(_stamp_s(m.clock)), 1000)
+    node.create_subscription(String, TOPICS["robot_description"],
+                             lambda m: urdf.append(str(m.data)), latched)
+    node.create_subscription(String, TOPICS["events"],
+                             lambda m: events.append(json.loads(m.data)), 50)
+    _spin_until(node, lambda: len(stamps) >= count and bool(urdf), deadline,
+                f"{count} joint states and the robot description")
+    node_now_s = node.get_clock().now().nanoseconds * 1e-9  # /clock's time with use_sim_time
+    span = stamps[-1] - stamps[0]
+    lat = np.array(received) - np.array(stamps)
+    return {"count": len(stamps), "first_stamp_s": stamps[0], "last_stamp_s": stamps[-1],
+            "rate_hz": (len(stamps) - 1) / span if span > 0 else 0.0,
+            "stamps_in_order": bool(np.all(np.diff(stamps) >= 0)),
+            "latency_p50_s": float(np.percentile(lat, 50)),
+            "latency_p99_s": float(np.percentile(lat, 99)),
+            "clocks": len(clocks), "clock_last_s": clocks[-1] if clocks else None,
+            "node_now_s": node_now_s,
+            "robot_description": urdf[0], "events": events}
+
+
+class Sender:
+    """Publishes trajectories and waits for the node's final status of each."""
+
+    def __init__(self, node: Node, deadline: float) -> None:
+        from sensor_msgs.msg import JointState as JointStateMsg
+        from std_msgs.msg import String
+        from trajectory_msgs.msg import JointTrajectory
+
+        self.node = node
+        self.deadline = deadline
+        self.statuses: list[dict[str, Any]] = []
+        self.q_rad: list[float] | None = None
+        self.pub = node.create_publisher(JointTrajectory, TOPICS["trajectory"], 10)
+        self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, 50)
+        node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
+        self.commanded: list[list[float]] = []
+        """Goals seen on ``/armbench/commanded``."""
+        self.events: list[str] = []
+        """Kinds of the events seen on ``/armbench/events``."""
+        node.create_subscription(JointStateMsg, TOPICS["commanded"],
+                                 lambda m: self.commanded.append(list(m.position)), 100)
+        node.create_subscription(String, TOPICS["events"],
+                                 lambda m: self.events.append(json.loads(m.data)["kind"]), 50)
+        _spin_until(node, lambda: (self.pub.get_subscription_count() > 0
+                                   and self.sub.get_publisher_count() > 0
+                                   and self.q_rad is not None), deadline, "the armbench node")
+        self._n = 0
+
+    def _on_status(self, msg: Any) -> None:
+        self.statuses.append(json.loads(msg.data))
+
+    def _on_state(self, msg: Any) -> None:
+        self.q_rad = [float(v) for v in msg.position]
+
+    def send(self, names: Sequence[str], points: Sequence[Sequence[float]],
+             times_s: Sequence[float], *, until: Sequence[str] = FINAL) -> dict[str, Any]:
+        """Publish one trajectory; its first status in ``until`` (default: its final status,
+        ``state`` one of :data:`FINAL`)."""
+        from builtin_interfaces.msg import Duration
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+        self._n += 1
+        msg = JointTrajectory()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 7, self._n  # our tag, echoed back
+        msg.joint_names = list(names)
+        for q, t in zip(points, times_s, strict=True):
+            p = JointTrajectoryPoint()
+            p.positions = [float(v) for v in q]
+            ns = round(float(t) * 1e9)
+            p.time_from_start = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+            msg.points.append(p)
+        self.pub.publish(msg)
+        return self.status(self._n, until)
+
+    def status(self, n: int, until: Sequence[str] = FINAL) -> dict[str, Any]:
+        """The first status in ``until`` of the ``n``-th trajectory sent (waited for)."""
+        tag = [7, n]
+
+        def final() -> dict[str, Any] | None:
+            return next((s for s in self.statuses if s["stamp"] == tag
+                         and s["state"] in until), None)
+
+        _spin_until(self.node, lambda: final() is not None, self.deadline,
+                    f"the status of trajectory {tag}")
+        out = final()
+        assert out is not None
+        return out
+
+
+def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
+             wait_events: Sequence[str] = ()) -> dict[str, Any]:
+    """``send`` mode: each trajectory once the previous one is accepted (or refused), then the
+    final status of the last (and the events of ``wait_events``: topics are not ordered with
+    each other); with several, ``{"statuses": [final status of each]}``."""
+    if not trajectories:
+        raise SystemExit("send: give --trajectory JSON")
+    for k, t in enumerate(trajectories):
+        last = k == len(trajectories) - 1
+        out = sender.send(t["names"], t["points"], t["times_s"],
+                          until=FINAL if last else ("accepted", *FINAL))
+    written = out.get("waypoints", 0)  # of a trajectory done: its goals, on a topic of their own
+    _spin_until(sender.node, lambda: (all(k in sender.events for k in wait_events)
+                                      and len(sender.commanded) >= written),
+                sender.deadline, f"the events {list(wait_events)} and {written} goals")
+    seen = {"commanded": sender.commanded, "events": sender.events}
+    if len(trajectories) == 1:
+        return {**out, "seen": seen}
+    return {"statuses": [sender.status(n) for n in range(1, len(trajectories) + 1)],
+            "seen": seen}
+
+
+def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
+                      centre_m: Sequence[float], side_m: float, speed_m_s: float,
+                      spacing_m: float, branch: str) -> tuple[list[list[float]], list[float]]:
+    """The square's waypoints (joint angles, rad) and their ``time_from_start`` (s, from the
+    first corner) as :meth:`armbench.drivers.arm.Arm.follow_path` plans them."""
+    corners = square_yz(centre_m, side_m)
+    pts, qs = plan_path([*corners, corners[0]], settings,
+                        (near_rad[0], near_rad[1], near_rad[2], near_rad[3]),
+                        spacing_m=spacing_m, branch=branch)
+    times = [0.0]
+    for k in range(1, len(qs)):
+        seg_s = float(np.linalg.norm(pts[k] - pts[k - 1])) / speed_m_s
+        _, dur = segment_duties(qs[k - 1], qs[k], seg_s, settings, MAX_DUTY)
+        times.append(times[-1] + dur)
+    return [list(q) for q in qs], times
+
+
+def square(sender: Sender, settings: RobotSettings, args: argparse.Namespace) -> dict[str, Any]:
+    """``square`` mode (see the module doc)."""
+    names = [j.name for j in settings.joints]
+    assert sender.q_rad is not None
+    qs, times = square_trajectory(settings, sender.q_rad, args.centre, args.side, args.speed,
+                                  args.spacing, args.branch)
+    reach_s = max(joint_times_s(sender.q_rad, qs[0], (MAX_DUTY,) * 4, settings))
+    approach = sender.send(names, [qs[0]], [APPROACH_MARGIN * reach_s + 0.1])
+    lap = sender.send(names, qs[1:], times[1:])
+    return {"approach": approach, "lap": lap, "points": len(qs) - 1, "planned_s": times[-1]}
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m armbench.bench.ros2_node.client")
+    p.add_argument("mode", choices=("listen", "send", "square"))
+    p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
+    p.add_argument("--count", type=int, default=200)
+    p.add_argument("--sim-time", action="store_true",
+                   help="run the client's node with use_sim_time (its clock follows /clock)")
+    p.add_argument("--trajectory", action="append", default=[],
+                   help="send: a trajectory as JSON; given again, each next one is sent as soon "
+                        "as the previous one is under way (it replaces it)")
+    p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
+                   help="send: also wait for an event of this kind on /armbench/events")
+    p.add_argument("--settings", default=None)
+    p.add_argument("--centre", type=float, nargs=3, default=DEFAULT_SQUARE_CENTRE_M)
+    p.add_argument("--side", type=float, default=DEFAULT_SQUARE_SIDE_M)
+    p.add_argument("--speed", type=float, default=0.05)
+    p.add_argument("--spacing", type=float, default=0.005)
+    p.add_argument("--branch", default="front-up")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one mode; 0 and the JSON result, or 1 and ``{"error": ...}``."""
+    args = _parser().parse_args(argv)
+    import rclpy
+
+    deadline = time.monotonic() + args.timeout
+    rclpy.init()
+    from rclpy.parameter import Parameter
+
+    node = rclpy.create_node(f"armbench_client_{args.mode}", parameter_overrides=[
+        Parameter("use_sim_time", value=args.sim_time)])
+    try:
+        if args.mode == "listen":
+            out = listen(node, args.count, deadline)
+        else:
+            sender = Sender(node, deadline)
+            if args.mode == "send":
+                out = send_all(sender, [json.loads(t) for t in args.trajectory],
+                               args.wait_event)
+            else:
+                out = square(sender, load_settings(args.settings), args)
+    except Timeout as exc:
+        print(json.dumps({"error": str(exc)}))
+        return 1
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
