@@ -21,7 +21,7 @@ from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.link import CONNECT_TIMEOUT_S
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports import scheme_of
+from armbench.drivers.transports.target import target_of
 
 __all__ = ["register"]
 
@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
     from armbench.bench.ros2_node.node import NodeOptions
 
     settings = load_settings(args.settings)
-    options = NodeOptions(node_name=args.node_name, clock=scheme_of(args.port) == "fake",
+    options = NodeOptions(node_name=args.node_name, clock=target_of(args.port).virtual,
                           max_duty=args.max_duty, domain_id=args.domain_id,
                           realtime_factor=args.realtime_factor)
     if args.square:
