@@ -9,7 +9,9 @@ UART there as to a serial port. ``firmware`` names a folder of ``joint1..4.elf/.
 with ``{n}`` (default: the reference firmware of ``firmware/``); ``eeprom`` a folder keeping the
 boards' EEPROM across runs (default: none, a new arm); ``control`` a FIFO taking the harness's
 commands, so a bench can switch the power with ``--power-command "sh -c 'echo power off >
-FIFO'" "sh -c 'echo power on > FIFO'"``. The harness is ``transport.harness`` for its side
+FIFO'" "sh -c 'echo power on > FIFO'"``. A run on virtual time takes fresh boards per trial
+from :meth:`AvrTransport.fresh` instead (:mod:`armbench.fakes.avr_vt`: the harness in lockstep
+with the run's clock, as fast as simavr can). The harness is ``transport.harness`` for its side
 channels: power cut and restore, the firmware's own timing figures. When it closes, the harness's
 figures are kept in ``transport.last_stats`` and a lag behind real time is declared in the log (a
 warning: the arm's clock fell behind the wall clock, as on a machine too busy to serve it).
@@ -25,6 +27,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.serial_port import SerialTransport
 from armbench.fakes.avr import FirmwareError, Harness, build, find_images
 
@@ -66,6 +69,19 @@ class AvrTransport(SerialTransport):
         """The running harness (None before :meth:`open` and after :meth:`close`)."""
         self.last_stats: dict[str, Any] | None = None
         """The harness's figures when it was stopped (``docs/firmware.md``)."""
+
+    @classmethod
+    def fresh(cls, port: str, serial: SerialSettings, arm: Any) -> Transport:
+        """A not-yet-opened transport to a new set of boards on the run's virtual-time loop
+        (:mod:`armbench.fakes.avr_vt`): ``arm.robot`` (RobotSettings) played by the firmware
+        the URL names; ``arm.faults`` must be empty (the harness models none); ``arm.seed`` is
+        not used (the boards are deterministic)."""
+        from armbench.fakes.avr_vt import fresh_transport
+
+        try:
+            return fresh_transport(port, serial, arm.robot, getattr(arm, "faults", ()))
+        except FirmwareError as exc:
+            raise TransportError(port, str(exc)) from exc
 
     def preflight(self) -> None:
         """The URL's query, the firmware images and the harness (built now if needed, as

@@ -41,12 +41,13 @@ from armbench.fakes.physics import TruthSample
 from armbench.fakes.vclock import VirtualTimeLoop
 
 __all__ = ["CYCLES_PER_S", "TRUTH_HISTORY", "AvrBoards", "AvrVirtualTransport",
-           "LockstepHarness", "fresh_boards"]
+           "LockstepHarness", "fresh_boards", "fresh_transport"]
 
 #: The boards' clock: ATmega328P at 16 MHz.
 CYCLES_PER_S = 16_000_000
 #: Ground-truth samples kept (one per reply), as the emulator keeps.
 TRUTH_HISTORY = 4096
+_NO_FAULTS = "avr:// injects no faults (the harness models none); use fake:// for a fault list"
 #: How long the harness may take to quit before it is killed (s, wall).
 _QUIT_TIMEOUT_S = 5.0
 
@@ -328,14 +329,16 @@ class AvrVirtualTransport(Transport):
     """Joint 1's UART of a set of :class:`AvrBoards` on the running virtual-time loop: bytes
     written go on the line at the loop's now, replies arrive at the loop time their last byte
     left. ``boards`` given: those (the caller closes them); else new ones from the ``avr://``
-    URL, closed with the transport. ``transport.emulator`` and ``transport.harness`` are the
-    boards (ground truth, power)."""
+    URL (playing ``robot`` when given, else the URL's settings), closed with the transport.
+    ``transport.emulator`` and ``transport.harness`` are the boards (ground truth, power)."""
 
     scheme = "avr"
 
-    def __init__(self, port: str, serial: SerialSettings, boards: AvrBoards | None = None) -> None:
+    def __init__(self, port: str, serial: SerialSettings, boards: AvrBoards | None = None, *,
+                 robot: RobotSettings | None = None) -> None:
         super().__init__(port, serial)
         self._given = boards
+        self._robot = robot
         self.emulator: AvrBoards | None = boards
         self._chunks: list[bytes] = []
         self._receiver: Callable[[bytes], None] | None = None
@@ -361,7 +364,8 @@ class AvrVirtualTransport(Transport):
             if eeprom is not None or control is not None:
                 raise self._error("eeprom= and control= need the real-time pty "
                                   "(a run on virtual time starts fresh boards per trial)")
-            self.emulator = AvrBoards(robot, firmware)
+            self.emulator = AvrBoards(self._robot if self._robot is not None else robot,
+                                      firmware)
         try:
             await self.emulator.start()
         except FirmwareError as exc:
@@ -421,11 +425,20 @@ class AvrVirtualTransport(Transport):
                 await self.emulator.close()
 
 
+def fresh_transport(port: str, serial: SerialSettings, robot: RobotSettings,
+                    faults: Sequence[object] = ()) -> AvrVirtualTransport:
+    """A not-yet-opened transport to a new set of boards playing ``robot``, the firmware the
+    ``avr://`` URL names (one trial's arm; the transport closes its boards). The harness models
+    no faults: a fault list is refused."""
+    if faults:
+        raise FirmwareError(_NO_FAULTS)
+    return AvrVirtualTransport(port, serial, robot=robot)
+
+
 def fresh_boards(robot: RobotSettings, faults: Sequence[object] = (),
                  firmware: str | Path | None = None) -> AvrBoards:
     """A new set of boards playing ``robot`` (for a trial); the firmware harness models no
     faults, so a fault list is refused."""
     if faults:
-        raise FirmwareError("avr:// injects no faults (the harness models none); "
-                            "use fake:// for a fault list")
+        raise FirmwareError(_NO_FAULTS)
     return AvrBoards(robot, firmware)

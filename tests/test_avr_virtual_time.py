@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -16,11 +17,13 @@ from test_firmware import needs_toolchain
 from armbench.bench.power import HarnessPower, port_power
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm
+from armbench.drivers.errors import TransportError
 from armbench.drivers.motion import joint_times_s
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.avr import FirmwareError
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
+from armbench.fakes.avr_transport import AvrTransport
 from armbench.fakes.avr_vt import AvrBoards, AvrVirtualTransport, fresh_boards
 from armbench.fakes.vclock import VirtualTimeLoop, run_virtual
 
@@ -155,6 +158,34 @@ def test_truth_power_cut_and_re_referencing_on_virtual_time() -> None:
         await boards.close()  # idempotent
 
     run_virtual(main)
+
+
+def test_avr_transport_gives_fresh_boards_per_trial_on_virtual_time() -> None:
+    robot = RobotSettings()
+    arm_spec = SimpleNamespace(robot=robot, seed=7, faults=[])
+
+    async def trial() -> tuple[int, AvrBoards]:
+        transport = AvrTransport.fresh("avr://", robot.serial, arm_spec)
+        assert isinstance(transport, AvrVirtualTransport)
+        arm = Arm.connect("avr://", robot, transport=transport)
+        async with arm:
+            boards = transport.emulator
+            assert isinstance(boards, AvrBoards)
+            await arm.move_joints((0.05, 0.0, 0.0, 0.0), 99)
+            steps = boards.harness.motor_steps[0]
+        # the transport built the boards, so it closed them (the runner's close is idempotent)
+        assert boards.last_stats is not None
+        await boards.close()
+        return steps, boards
+
+    first_steps, first = run_virtual(trial)
+    second_steps, second = run_virtual(trial)
+    assert first is not second
+    # each trial from the same fresh start: the same steps, at the target within the deadband
+    assert first_steps == second_steps
+    assert abs(first_steps - 0.05 * robot.joints[0].steps_per_rad) <= 2
+    with pytest.raises(TransportError, match="no faults"):
+        AvrTransport.fresh("avr://", robot.serial, SimpleNamespace(robot=robot, faults=[1]))
 
 
 def test_fresh_boards_refuse_faults_and_a_real_loop() -> None:
