@@ -12,7 +12,8 @@ with the same command/reply timing as on real time.
 :class:`AvrBoards` is the side-channel object of one set of boards (what ``transport.emulator``
 is on ``fake://``): ground truth from the harness's joint model (:meth:`~AvrBoards.true_angles_rad`,
 :attr:`~AvrBoards.truth` beside each reply), the power switch and re-referencing (``power``,
-``re_reference``: :class:`~armbench.bench.power.HarnessPower`) and the harness's figures.
+``re_reference``: :class:`~armbench.bench.power.HarnessPower`) and the harness's figures
+(:meth:`~AvrBoards.figures`).
 :class:`AvrVirtualTransport` is the host's side of joint 1's UART, as
 :class:`~armbench.fakes.transport.FakeTransport` is to the emulator. Both need a
 :class:`~armbench.fakes.vclock.VirtualTimeLoop`: on a real loop ``avr://`` is the pty of
@@ -320,8 +321,9 @@ class AvrBoards:
         harness.run(harness.cycle)  # runs nothing: the joints' new positions
         await asyncio.sleep(0)
 
-    def stats(self) -> dict[str, Any]:
-        """The harness's figures now (``docs/firmware.md``)."""
+    def figures(self) -> dict[str, Any]:
+        """The harness's figures now (``docs/firmware.md``). Not named ``stats``: that is the
+        emulator's counters (``ArmStats``), which suites read where an emulator has them."""
         return self.harness.stats()
 
 

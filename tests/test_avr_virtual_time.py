@@ -148,7 +148,7 @@ def test_truth_power_cut_and_re_referencing_on_virtual_time() -> None:
             await power.power_on()
             await asyncio.sleep(0.5)
             assert arm.frames_received > received
-            stats = boards.stats()
+            stats = boards.figures()
             assert stats["uart"]["rx_lost_power"] == 0
             assert stats["boards"][0]["powered"] == 1
         finally:
