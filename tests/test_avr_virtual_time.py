@@ -15,6 +15,7 @@ import pytest
 from test_firmware import needs_toolchain
 
 from armbench.bench.power import HarnessPower, port_power
+from armbench.bench.suites._common import eeprom_counters
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import TransportError
@@ -122,6 +123,8 @@ def test_truth_power_cut_and_re_referencing_on_virtual_time() -> None:
         try:
             power = port_power(boards)
             assert isinstance(power, HarnessPower)
+            # the suites' emulator counters: none here, as on hardware (not the harness figures)
+            assert eeprom_counters(arm) is None
             truth = EmulatorTruth(boards, robot)
             await arm.move_joints((0.1, 0.1, 0.1, 0.1), 90)
             joints = truth.true_joints_rad()
