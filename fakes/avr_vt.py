@@ -42,7 +42,7 @@ from armbench.fakes.physics import TruthSample
 from armbench.fakes.vclock import VirtualTimeLoop
 
 __all__ = ["CYCLES_PER_S", "TRUTH_HISTORY", "AvrBoards", "AvrVirtualTransport",
-           "LockstepHarness", "fresh_boards", "fresh_transport"]
+           "LockstepHarness", "fresh_boards"]
 
 #: The boards' clock: ATmega328P at 16 MHz.
 CYCLES_PER_S = 16_000_000
@@ -425,16 +425,6 @@ class AvrVirtualTransport(Transport):
             self.emulator.detach_host()
             if self._given is None:
                 await self.emulator.close()
-
-
-def fresh_transport(port: str, serial: SerialSettings, robot: RobotSettings,
-                    faults: Sequence[object] = ()) -> AvrVirtualTransport:
-    """A not-yet-opened transport to a new set of boards playing ``robot``, the firmware the
-    ``avr://`` URL names (one trial's arm; the transport closes its boards). The harness models
-    no faults: a fault list is refused."""
-    if faults:
-        raise FirmwareError(_NO_FAULTS)
-    return AvrVirtualTransport(port, serial, robot=robot)
 
 
 def fresh_boards(robot: RobotSettings, faults: Sequence[object] = (),

@@ -169,15 +169,18 @@ def test_avr_transport_gives_fresh_boards_per_trial_on_virtual_time() -> None:
 
     async def trial() -> tuple[int, AvrBoards]:
         transport = AvrTransport.fresh("avr://", robot.serial, arm_spec)
-        assert isinstance(transport, AvrVirtualTransport)
+        assert isinstance(transport, AvrTransport)
         arm = Arm.connect("avr://", robot, transport=transport)
         async with arm:
             boards = transport.emulator
             assert isinstance(boards, AvrBoards)
+            assert transport.harness is boards
+            assert port_power(arm.emulator).__class__ is HarnessPower
             await arm.move_joints((0.05, 0.0, 0.0, 0.0), 99)
             steps = boards.harness.motor_steps[0]
         # the transport built the boards, so it closed them (the runner's close is idempotent)
         assert boards.last_stats is not None
+        assert transport.last_stats is boards.last_stats and not transport.is_open
         await boards.close()
         return steps, boards
 
