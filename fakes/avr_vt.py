@@ -81,6 +81,11 @@ class LockstepHarness:
         self.motor_steps: tuple[int, ...] = (0, 0, 0, 0)
         """The four motors' positions (microsteps) at :attr:`cycle`."""
 
+    @property
+    def pid(self) -> int:
+        """The harness process's id."""
+        return self._proc.pid
+
     def _line(self, prefix: bytes) -> bytes:
         """The next answer line starting with ``prefix`` (libsimavr's loader prints its own
         lines on the same stdout at start-up: skipped)."""
@@ -176,6 +181,10 @@ class AvrBoards:
         angles when the reply's last byte left (the harness has no gear play or deflection)."""
         self.last_stats: dict[str, Any] | None = None
         """The harness's figures when it was closed."""
+        self.failure: FirmwareError | None = None
+        """Why the harness stopped while running (it exited), else None."""
+        self.on_lost: Callable[[FirmwareError], None] | None = None
+        """Called (in a loop callback) when the harness stops while running."""
 
     # lifecycle ---------------------------------------------------------------------------------
     async def start(self) -> None:
@@ -216,6 +225,8 @@ class AvrBoards:
         :meth:`close`."""
         if self._harness is None:
             raise FirmwareError("the boards are not running (not started, or closed)")
+        if self.failure is not None:
+            raise self.failure
         return self._harness
 
     # the loop's clock ----------------------------------------------------------------------------
@@ -230,7 +241,11 @@ class AvrBoards:
             return t_s
         target = math.ceil((t_s - self._t0) * CYCLES_PER_S - 1e-6)
         if target > harness.cycle:
-            data = harness.run(target)
+            try:
+                data = harness.run(target)
+            except FirmwareError as exc:  # the harness died: the host sees a lost port
+                self._fail(exc)
+                return t_s
             if data:
                 self._arrive(data)
         if harness.cycle >= target:
@@ -238,6 +253,16 @@ class AvrBoards:
             # it is due, not a rounding error early
             return t_s
         return self._time(harness.cycle)
+
+    def _fail(self, exc: FirmwareError) -> None:
+        """The harness is gone: leave the loop's clock (which goes on without the boards) and
+        tell the host (:attr:`on_lost`) in the next loop iteration."""
+        assert self._loop is not None
+        self.failure = exc
+        if self in self._loop.peers:
+            self._loop.peers.remove(self)
+        if self.on_lost is not None:
+            self._loop.call_soon(self.on_lost, exc)
 
     def _arrive(self, data: bytes) -> None:
         """Bytes from joint 1's UART at the boards' now: to the host once the loop's clock is
@@ -346,6 +371,7 @@ class AvrVirtualTransport(Transport):
         self._receiver: Callable[[bytes], None] | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._open = False
+        self._lost_reason: str | None = None
 
     @property
     def harness(self) -> AvrBoards | None:
@@ -373,12 +399,20 @@ class AvrVirtualTransport(Transport):
         except FirmwareError as exc:
             raise self._error(str(exc)) from exc
         self.emulator.attach_host(self._receive)
+        self.emulator.on_lost = self._harness_lost
         self._open = True
 
     def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
         """Hand each chunk to ``receiver`` as it arrives instead of keeping it for
         :meth:`read` (as :meth:`FakeTransport.set_receiver`)."""
         self._receiver = receiver
+
+    def _harness_lost(self, exc: FirmwareError) -> None:
+        """The boards' harness died: a waiting read raises a lost port, as would the next."""
+        self._lost_reason = str(exc)
+        waiter = self._waiter
+        if waiter is not None and not waiter.done():
+            waiter.set_exception(self._lost(self._lost_reason))
 
     def _receive(self, data: bytes) -> None:
         receiver = self._receiver
@@ -395,6 +429,8 @@ class AvrVirtualTransport(Transport):
         while not self._chunks:
             if not self._open:
                 raise self._not_open()
+            if self._lost_reason is not None:
+                raise self._lost(self._lost_reason)
             self._waiter = asyncio.get_running_loop().create_future()
             try:
                 await self._waiter

@@ -8,6 +8,8 @@ from __future__ import annotations
 import asyncio
 import itertools
 import math
+import os
+import signal
 from types import SimpleNamespace
 from typing import Any
 
@@ -18,7 +20,7 @@ from armbench.bench.power import HarnessPower, port_power
 from armbench.bench.suites._common import eeprom_counters
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm
-from armbench.drivers.errors import TransportError
+from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.motion import joint_times_s
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
@@ -192,6 +194,29 @@ def test_avr_transport_gives_fresh_boards_per_trial_on_virtual_time() -> None:
     assert abs(first_steps - 0.05 * robot.joints[0].steps_per_rad) <= 2
     with pytest.raises(TransportError, match="no faults"):
         AvrTransport.fresh("avr://", robot.serial, SimpleNamespace(robot=robot, faults=[1]))
+
+
+def test_a_harness_that_dies_is_a_lost_port_not_a_dead_loop() -> None:
+    robot = RobotSettings()
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        transport = AvrVirtualTransport("avr://", robot.serial)
+        arm = Arm.connect("avr://", robot, transport=transport)
+        await arm.open()
+        boards = transport.emulator
+        assert boards is not None
+        os.kill(boards.harness.pid, signal.SIGKILL)
+        with pytest.raises(ArmbenchError):
+            await arm.move_joints((0.2, 0.0, 0.0, 0.0), 99)
+        assert boards.failure is not None and boards not in loop.peers
+        t = loop.time()
+        await asyncio.sleep(1.0)  # the clock goes on without the boards
+        assert loop.time() == pytest.approx(t + 1.0)
+        await arm.close()
+        await boards.close()
+
+    run_virtual(main)
 
 
 def test_fresh_boards_refuse_faults_and_a_real_loop() -> None:
