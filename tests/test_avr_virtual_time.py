@@ -201,6 +201,7 @@ def test_a_harness_that_dies_is_a_lost_port_not_a_dead_loop() -> None:
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
+        assert isinstance(loop, VirtualTimeLoop)
         transport = AvrVirtualTransport("avr://", robot.serial)
         arm = Arm.connect("avr://", robot, transport=transport)
         await arm.open()
