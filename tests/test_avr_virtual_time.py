@@ -10,6 +10,7 @@ import itertools
 import math
 import os
 import signal
+import threading
 from types import SimpleNamespace
 from typing import Any
 
@@ -266,3 +267,33 @@ def test_the_virtual_clock_jumps_only_as_far_as_its_peer_ran() -> None:
     assert peer.asked == pytest.approx([0.4, 0.4, 0.8, 0.8, 1.2])
     assert peer.stops == pytest.approx([0.25, 0.4, 0.7, 0.8, 1.2])
     assert seen == pytest.approx([0.4, 0.8, 1.2])
+
+
+def test_with_no_timer_the_clock_still_moves_while_a_peer_runs() -> None:
+    """A host that only waits for the boards (no timeout) still sees them: the clock moves in
+    idle steps while a peer is there, instead of the selector waiting for real I/O forever."""
+    done: list[float] = []
+
+    class EventPeer(StepPeer):
+        def __init__(self, events: list[float], arrived: asyncio.Future[float]) -> None:
+            super().__init__(events)
+            self.arrived = arrived
+
+        def run_until(self, t_s: float) -> float:
+            reached = super().run_until(t_s)
+            if reached in self.events:
+                asyncio.get_running_loop().call_soon(self.arrived.set_result, reached)
+            return reached
+
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        assert isinstance(loop, VirtualTimeLoop)
+        arrived: asyncio.Future[float] = loop.create_future()
+        loop.peers.append(EventPeer([0.25], arrived))
+        await arrived  # no timer anywhere
+        done.append(loop.time())
+
+    worker = threading.Thread(target=run_virtual, args=(main,), daemon=True)
+    worker.start()
+    worker.join(30.0)
+    assert done == [0.25]
