@@ -4,6 +4,9 @@ Everything in armbench reads time from ``loop.time()`` and waits with asyncio, s
 in real time against hardware and on this loop against the in-process emulator, where minutes of
 robot time pass in seconds. Only the selector's *waiting* is virtual: ready I/O is still served (a
 real pty or socket would see the virtual clock race ahead, so use this loop with in-process peers).
+A simulator in another process joins the clock as a :class:`ClockPeer` (``loop.peers``): each
+jump first lets it run up to the new time, and stops where it has something for the loop (the
+firmware harness of ``avr://``, ``fakes/avr_vt.py``).
 
 Why a loop of our own: measured here (200 000 sequential ``asyncio.sleep(0.0027)``, best of 3 on a
 busy 2-core machine) this loop costs ~9.5 µs per virtual sleep against ~24 µs for ``looptime`` 0.9
