@@ -4,6 +4,9 @@ Everything in armbench reads time from ``loop.time()`` and waits with asyncio, s
 in real time against hardware and on this loop against the in-process emulator, where minutes of
 robot time pass in seconds. Only the selector's *waiting* is virtual: ready I/O is still served (a
 real pty or socket would see the virtual clock race ahead, so use this loop with in-process peers).
+A simulator in another process joins the clock as a :class:`ClockPeer` (``loop.peers``): each
+jump first lets it run up to the new time, and stops where it has something for the loop (the
+firmware harness of ``avr://``, ``fakes/avr_vt.py``).
 
 Why a loop of our own: measured here (200 000 sequential ``asyncio.sleep(0.0027)``, best of 3 on a
 busy 2-core machine) this loop costs ~9.5 µs per virtual sleep against ~24 µs for ``looptime`` 0.9
@@ -19,15 +22,31 @@ import contextvars
 import heapq
 import selectors
 from collections.abc import Awaitable, Callable, Coroutine, Mapping
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
-__all__ = ["VirtualTimeLoop", "run_virtual", "virtual_loop_factory"]
+__all__ = ["ClockPeer", "VirtualTimeLoop", "run_virtual", "virtual_loop_factory"]
 
 T = TypeVar("T")
 
 # asyncio's thresholds for cleaning cancelled timers out of the heap (base_events.py)
 _MIN_SCHEDULED_TIMER_HANDLES = 100
 _MIN_CANCELLED_FRACTION = 0.5
+
+
+#: With a peer and no timer, the clock still moves (the peer, a simulator, runs on): this far a
+#: step (s).
+PEER_IDLE_STEP_S = 0.1
+
+
+class ClockPeer(Protocol):
+    """A simulator in another process whose clock is the loop's (``fakes/avr_vt.py``): before
+    the loop's clock jumps, the peer runs up to the new time, or stops earlier at an event the
+    loop's callbacks must see then (a byte for the host), and the clock jumps only that far."""
+
+    def run_until(self, t_s: float) -> float:
+        """Run up to loop time ``t_s``; the time reached: earlier at an event, or ``t_s`` (a
+        little past it by the peer's own time step)."""
+        ...
 
 
 class _VirtualSelector(selectors.BaseSelector):
@@ -60,6 +79,8 @@ class _VirtualSelector(selectors.BaseSelector):
         return self._real.modify(fileobj, events, data)
 
     def select(self, timeout: float | None = None) -> list[tuple[selectors.SelectorKey, int]]:
+        if timeout is None and self._loop.peers and not self._loop.external_jobs:
+            timeout = PEER_IDLE_STEP_S
         if timeout is None or (timeout > 0 and self._loop.external_jobs):
             # nothing scheduled, or work in an executor (real time) that the clock must wait
             # for: only real I/O or another thread can wake us
@@ -118,6 +139,8 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         self._timer_seq = 0
         self.external_jobs = 0
         """Executor jobs under way: the clock does not jump while one runs."""
+        self.peers: list[ClockPeer] = []
+        """Simulators on this clock (:class:`ClockPeer`): each jump waits for them."""
         super().__init__(_VirtualSelector(selectors.DefaultSelector(), self))
 
     def run_in_executor(  # type: ignore[override]  # same behaviour, a looser signature
@@ -236,9 +259,15 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
                 return
 
     def advance(self, dt_s: float) -> None:
-        """Move the virtual clock forward by ``dt_s`` seconds (also usable from tests)."""
+        """Move the virtual clock forward by ``dt_s`` seconds (also usable from tests); with
+        :attr:`peers`, only as far as the earliest of them ran."""
         if dt_s > 0:
-            self._virtual_now += dt_s
+            if not self.peers:
+                self._virtual_now += dt_s
+                return
+            target = self._virtual_now + dt_s
+            reached = min(peer.run_until(target) for peer in list(self.peers))
+            self._virtual_now = max(self._virtual_now, reached)
 
 
 def _report(handle: Any, exc: BaseException) -> None:

@@ -75,7 +75,8 @@ static int all_unpowered(const char *command)
     return 1;
 }
 
-static int control(const char *line, double wall_s)
+/* One command line (the table above); 0 for "quit". */
+int harness_command(const char *line, double wall_s)
 {
     if (strncmp(line, "power off", 9) == 0) {
         power_all(0);
@@ -132,7 +133,7 @@ static int read_commands(line_reader_t *r, double wall_s)
         if (buf[i] == '\n' || r->len == sizeof r->line - 1) {
             r->line[r->len] = 0;
             r->len = 0;
-            if (!control(r->line, wall_s)) {
+            if (!harness_command(r->line, wall_s)) {
                 return 0;
             }
         } else {

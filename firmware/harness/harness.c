@@ -1,8 +1,8 @@
 /* armfw-harness: the reference firmware (or a lab's own, built for firmware/pins.h) on four
  * simulated ATmega328P in lockstep (docs/firmware.md).
  *
- *   armfw-harness [--pty] [--speed realtime|max] [--seconds S] [--eeprom-dir DIR] [--boot-ms MS]
- *                 [--send TEXT] [--script FILE] [--reply-log FILE] [--isr-vector N]
+ *   armfw-harness [--pty] [--speed realtime|max] [--lockstep] [--seconds S] [--eeprom-dir DIR]
+ *                 [--boot-ms MS] [--send TEXT] [--script FILE] [--reply-log FILE] [--isr-vector N]
  *                 [--control FIFO] [--event-log FILE] [--command-vars T,D] [--coverage FILE]
  *                 --board FILE,LOWER,UPPER,HALL,NUM,DEN,MOTOR[,STATS] (four times, joint 1..4)
  *
@@ -16,9 +16,13 @@
  *
  * --event-log, --command-vars and --coverage are for the differential fuzzer (watch.c).
  *
- * This file: the options and the lockstep loop with its real-time pacing. board.c runs a core,
- * twi_bus.c the I2C bus, joint.c the joints, uart.c joint 1's UART, control.c the pty and the
- * commands, stats.c the figures.
+ * --lockstep: no pty and no clock of its own; a host on stdin/stdout says how far to run and gets
+ * joint 1's UART bytes back with the simulated time they left (lockstep.c), so the host's clock
+ * can follow the boards' as fast as they run.
+ *
+ * This file: the options, one lockstep quantum and the free-running loop with its real-time
+ * pacing. board.c runs a core, twi_bus.c the I2C bus, joint.c the joints, uart.c joint 1's UART,
+ * control.c the pty and the commands, lockstep.c the host-driven mode, stats.c the figures.
  */
 #define _GNU_SOURCE
 #include <fcntl.h>
@@ -32,6 +36,7 @@
 harness_t H;
 
 static int max_speed;
+static int lockstep;
 
 /* A lag behind the wall clock longer than this is given up instead of caught up (the process was
  * stopped, e.g. suspended or in a debugger: a burst of seconds of replies would help nobody). */
@@ -80,6 +85,8 @@ static void parse_options(int argc, char **argv)
         } else if (strcmp(a, "--speed") == 0 && v) {
             max_speed = strcmp(v, "max") == 0;
             i++;
+        } else if (strcmp(a, "--lockstep") == 0) {
+            lockstep = 1;
         } else if (strcmp(a, "--seconds") == 0 && v) {
             H.stop_after_s = atof(v);
             i++;
@@ -123,6 +130,9 @@ static void parse_options(int argc, char **argv)
     if (boards != N_BOARDS) {
         die("four --board options are needed", "joint 1..4");
     }
+    if (pty && lockstep) {
+        die("--pty and --lockstep exclude each other", "the lockstep host is stdin/stdout");
+    }
     if (pty) {
         open_pty();
     }
@@ -152,6 +162,22 @@ static void pace(double *pace0, double *last_wall)
     *last_wall = wall;
 }
 
+/* One quantum of the four cores in lockstep, then the bus, the script, the host's UART bytes
+ * and the fuzzer's watch catch up with it. */
+void harness_step(void)
+{
+    uint64_t until = H.now + QUANTUM_CYCLES;
+    for (int i = 0; i < N_BOARDS; i++) {
+        joint_service(&H.boards[i], H.now);
+        board_run(&H.boards[i], until);
+    }
+    H.now = until;
+    twi_service(H.now);
+    script_due();
+    uart_in();
+    watch_service();
+}
+
 int main(int argc, char **argv)
 {
     H.pty_fd = -1;
@@ -159,9 +185,11 @@ int main(int argc, char **argv)
     H.stop_after_s = -1.0;
     H.boot_cycles = F_CPU_HZ / 10;   /* 0.1 s, as emulator.boot_s */
     parse_options(argc, argv);
-    fcntl(0, F_SETFL, O_NONBLOCK);
     for (int i = 0; i < N_BOARDS; i++) {
         board_setup(&H.boards[i]);
+    }
+    if (!lockstep) {
+        fcntl(0, F_SETFL, O_NONBLOCK);
     }
     int announced = 0;   /* "ready" once the boards have booted: an arm powered before use */
     double wall0 = wall_now();
@@ -169,18 +197,12 @@ int main(int argc, char **argv)
     double last_wall = wall0;
     const uint64_t poll_every = F_CPU_HZ / 1000;   /* 1 ms of simulated time */
     uint64_t next_poll = poll_every;
-    int running = 1;
+    int running = !lockstep;
+    if (lockstep) {
+        lockstep_serve();
+    }
     while (running) {
-        uint64_t until = H.now + QUANTUM_CYCLES;
-        for (int i = 0; i < N_BOARDS; i++) {
-            joint_service(&H.boards[i], H.now);
-            board_run(&H.boards[i], until);
-        }
-        H.now = until;
-        twi_service(H.now);
-        script_due();
-        uart_in();
-        watch_service();
+        harness_step();
         if (!announced && H.now >= H.boot_cycles + F_CPU_HZ / 1000) {
             announced = 1;
             printf("ready\n");

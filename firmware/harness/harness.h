@@ -117,6 +117,12 @@ void board_save(board_t *b);
 void board_eeprom_blank(board_t *b);
 void board_run(board_t *b, uint64_t until);
 
+void harness_step(void);
+int harness_command(const char *line, double wall_s);
+
+void lockstep_serve(void);
+int lockstep_put(uint8_t c);
+
 void open_pty(void);
 void open_control_fifo(const char *path);
 void pty_put(uint8_t c);

@@ -152,7 +152,9 @@ void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
             fprintf(reply_log, "%.7f %s\n", (double)H.boards[0].avr->cycle / F_CPU_HZ, reply_buf);
         }
     }
-    pty_put(c);
+    if (!lockstep_put(c)) {
+        pty_put(c);
+    }
 }
 
 /* Host bytes on joint 1's UART at 115 200 baud, back to back while the host has more. A byte is
