@@ -230,7 +230,7 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
             else:
                 timeout = None
             if (timeout is not None and selector._registered <= 1
-                    and selector._skipped + 1 < poll_every
+                    and selector._skipped + 1 < poll_every and not self.peers
                     and not (timeout > 0 and self.external_jobs)):
                 selector._skipped += 1  # _VirtualSelector.select, inline: a skipped poll
                 if timeout > 0:
