@@ -30,8 +30,8 @@ def write_reports(record: RunRecord, out_dir: Path, *,
 
 def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:
     from armbench.bench.capture_run import CLOSING_BYTES
-    from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, append_attachment, zstd_attachment
-    from armbench.drivers.capture_read import capture_stopped, is_mcap
+    from armbench.capture.append import ZSTD_MEDIA_TYPE, append_attachment, zstd_attachment
+    from armbench.capture.read import capture_stopped, is_mcap
 
     capture, report = out_dir / CAPTURE_FILE, out_dir / REPORT_FILE
     try:

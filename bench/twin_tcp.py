@@ -14,7 +14,7 @@ import numpy as np
 
 from armbench.bench.twin_align import Track
 from armbench.bench.twin_replay import TwinTruth
-from armbench.drivers.capture_read import read_attachment, read_joint_states
+from armbench.capture.read import read_attachment, read_joint_states
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings, load_settings

@@ -3,10 +3,10 @@ beside ``results.json``) for the report: frame rates over time, framing errors b
 resynchronisations and short excerpts.
 
 A closed ``capture.mcap`` holds its tally (counted as the run wrote it,
-:mod:`armbench.drivers.capture_stats`): it is read from the file's summary, not from its 1.5 M
+:mod:`armbench.capture.tally`): it is read from the file's summary, not from its 1.5 M
 records. Otherwise the capture is read as JSON Lines ``{"t_s": ..., "dir": "in" | "out",
 "frame": "<ascii>", "error": reason | null}`` (an MCAP file cut short is given in that text by
-:func:`armbench.drivers.capture_read.capture_lines`), streamed once; at most
+:func:`armbench.capture.read.capture_lines`), streamed once; at most
 :data:`MAX_RECORDS` records are analysed, lines that are not such records are counted and
 skipped (a capture cut short by a crash still reports), and only a few records are kept as text.
 """
@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from armbench.drivers.capture_read import capture_lines, read_tally
-from armbench.drivers.capture_stats import (
+from armbench.capture.read import capture_lines, read_tally
+from armbench.capture.tally import (
     HEAD_LINES,
     MAX_BINS,
     TEXT_LIMIT,
@@ -35,7 +35,7 @@ from armbench.drivers.capture_stats import (
     short_text,
     tally,
 )
-from armbench.drivers.capture_stats import TrafficLine as CaptureLine
+from armbench.capture.tally import TrafficLine as CaptureLine
 
 __all__ = ["MAX_BINS", "MAX_RECORDS", "TEXT_LIMIT", "CaptureLine", "CaptureSummary",
            "summarize_capture"]
@@ -122,7 +122,7 @@ def summarize_capture(path: str | Path, *, max_records: int = MAX_RECORDS,
     first_errors: list[CaptureLine] = []
     bad = 0
     events: list[str] = []
-    with capture_lines(p) as fh:  # either format (armbench.drivers.capture_read)
+    with capture_lines(p) as fh:  # either format (armbench.capture.read)
         number = 0
         while len(times) < max_records:
             chunk = list(itertools.islice(fh, min(_CHUNK, max_records - len(times))))

@@ -25,11 +25,11 @@ from armbench.bench.cli import main
 from armbench.bench.outputs import RUN_FILES
 from armbench.bench.record import CAPTURE_FILE, JOURNAL_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
+from armbench.capture.jsonl import CaptureError
+from armbench.capture.mcap_writer import McapCapture
+from armbench.capture.part import PartWriter
+from armbench.capture.read import mcap_layout, open_capture
 from armbench.drivers.arm import Arm
-from armbench.drivers.capture import CaptureError
-from armbench.drivers.capture_mcap import McapCapture
-from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import mcap_layout, open_capture
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual
 

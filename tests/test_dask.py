@@ -18,7 +18,7 @@ from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.record import CAPTURE_FILE
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.verdict import EXIT_INCOMPLETE
-from armbench.drivers.capture_read import open_capture
+from armbench.capture.read import open_capture
 from armbench.drivers.settings import SettingsError
 
 distributed = pytest.importorskip("distributed")

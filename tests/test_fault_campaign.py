@@ -106,6 +106,7 @@ from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 from armbench.bench.record import load_record
 from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
+from armbench.capture.read import open_capture
 from armbench.drivers.arm import (
     Arm,
     JointState,
@@ -113,7 +114,6 @@ from armbench.drivers.arm import (
     ReconnectPolicy,
     ReplyTimeoutError,
 )
-from armbench.drivers.capture_read import open_capture
 from armbench.drivers.errors import PortLostError
 from armbench.fakes.vclock import VirtualTimeLoop
 

@@ -27,11 +27,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from armbench.bench.record import RunRecord, load_record
 from armbench.bench.runner import EXIT_PASS, RunOptions, run_sync
-from armbench.drivers import ros2
-from armbench.drivers.capture import CaptureWriter
-from armbench.drivers.capture_mcap import McapCapture
-from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import (
+from armbench.capture.jsonl import CaptureWriter
+from armbench.capture.mcap_writer import McapCapture
+from armbench.capture.part import PartWriter
+from armbench.capture.read import (
     capture_lines,
     capture_start_ns,
     is_mcap,
@@ -40,6 +39,7 @@ from armbench.drivers.capture_read import (
     read_joint_states,
     replay_capture,
 )
+from armbench.drivers import ros2
 from armbench.drivers.kinematics import fk
 from armbench.drivers.protocol import AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
@@ -415,7 +415,7 @@ def test_a_capture_without_summary_gets_no_attachment(run_dir: tuple[Path, _Emul
                                                       tmp_path: Path) -> None:
     """A killed run's capture (cut before its summary) or a file that is not MCAP is left as it
     was: ``append_attachment`` reads only the file's head and tail and says False."""
-    from armbench.drivers.capture_append import append_attachment
+    from armbench.capture.append import append_attachment
 
     out, _ = run_dir
     whole = (out / "capture.mcap").read_bytes()

@@ -29,8 +29,8 @@ import pytest
 
 import armbench.bench.cli
 from armbench.bench.record import load_record
-from armbench.drivers.capture import CaptureRecord, CaptureWriter
-from armbench.drivers.capture_read import capture_start_ns, iter_events, open_capture
+from armbench.capture.jsonl import CaptureRecord, CaptureWriter
+from armbench.capture.read import capture_start_ns, iter_events, open_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = "3"
@@ -336,7 +336,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     tree = tmp_path / "site"
     package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
     shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("bench", "drivers", "fakes", "reports"):
+    for name in ("bench", "capture", "drivers", "fakes", "reports"):
         shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,

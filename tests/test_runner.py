@@ -55,7 +55,7 @@ from armbench.bench.suites import (
     load_suite,
 )
 from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
-from armbench.drivers.capture_read import open_capture
+from armbench.capture.read import open_capture
 from armbench.drivers.errors import ArmbenchError, PortLostError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings

@@ -21,7 +21,7 @@ from pathlib import Path
 from armbench.bench.perf import Figure, PerfOptions
 from armbench.bench.perf.driver import reply_rate_bound, serve_pty
 from armbench.bench.runner.options import CAPTURE_FILE, DEFAULT_CONFIG
-from armbench.drivers.capture_read import open_capture
+from armbench.capture.read import open_capture
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.settings import emulator_settings
 

@@ -34,7 +34,7 @@ RESULTS_FILE = "results.json"
 JOURNAL_FILE = "results.journal.jsonl"
 #: The HTML report beside it.
 REPORT_FILE = "report.html"
-#: The traffic capture (MCAP, ``armbench.drivers.capture_mcap``) beside it.
+#: The traffic capture (MCAP, ``armbench.capture.mcap_writer``) beside it.
 CAPTURE_FILE = "capture.mcap"
 #: The older JSON Lines capture (runs before MCAP), still read by every reader.
 LEGACY_CAPTURE_FILE = "capture.jsonl"

@@ -19,7 +19,7 @@ from armbench.bench.record.journal import StoredSamples, append_line, journal_pa
 from armbench.bench.record.jsonformat import Placeholder, _to_json_text, iter_encode, json_line
 from armbench.bench.record.model import Measurement, SuiteRecord, Trial, _unique_names
 from armbench.bench.record.run import RunRecord, load_record
-from armbench.drivers.capture import capture_end_s
+from armbench.capture.jsonl import capture_end_s
 
 __all__ = ["RecordWriter", "continued_clock_s"]
 

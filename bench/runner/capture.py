@@ -14,7 +14,7 @@ from pathlib import Path
 
 from armbench.bench.capture_run import RunCapture
 from armbench.bench.record import RunRecord, Trial
-from armbench.drivers.capture_part import part_span
+from armbench.capture.part import part_span
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["CaptureParts", "job_part_tag"]

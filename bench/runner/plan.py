@@ -48,7 +48,7 @@ from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
-from armbench.drivers.capture import capture_options
+from armbench.capture.jsonl import capture_options
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings

@@ -39,8 +39,8 @@ from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 
 if TYPE_CHECKING:
+    from armbench.capture.part import PartWriter
     from armbench.drivers.arm import Arm
-    from armbench.drivers.capture_part import PartWriter
     from armbench.fakes.arm import ArmEmulator
     from armbench.fakes.faults import Fault
     from armbench.fakes.settings import EmulatorSettings
@@ -141,8 +141,8 @@ class TrialAttempts:
     async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
         """Open the arm (on ``fake://`` a new emulator seeded with ``emulator_seed``, playing the
         arm ``robot``, by default the plan's)."""
+        from armbench.capture.part import PartWriter
         from armbench.drivers.arm import Arm, ReconnectPolicy
-        from armbench.drivers.capture_part import PartWriter
 
         plan = self.plan
         self._parts += 1

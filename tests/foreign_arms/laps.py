@@ -11,8 +11,8 @@ import json
 from pathlib import Path
 
 from armbench.bench.metrics import square_yz
+from armbench.capture.jsonl import CaptureWriter
 from armbench.drivers.arm import Arm
-from armbench.drivers.capture import CaptureWriter
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.settings import RobotSettings
 from foreign_arms.tracker_client import TrackerStream

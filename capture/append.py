@@ -27,8 +27,8 @@ from mcap.records import (
 )
 from mcap.stream_reader import StreamReader
 
-from armbench.drivers.capture import CaptureError
-from armbench.drivers.capture_walk import capture_start_ns
+from armbench.capture.jsonl import CaptureError
+from armbench.capture.mcap_walk import capture_start_ns
 
 __all__ = ["ZSTD_MEDIA_TYPE", "append_attachment", "zstd_attachment"]
 

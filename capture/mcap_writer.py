@@ -18,12 +18,12 @@ Times (``log_time``, ``publish_time`` and each message's stamp) are nanoseconds 
 epoch: the wall-clock time of the run's start (``start_ns``, kept as ``start_ns`` in the
 ``armbench`` metadata record) plus the run clock (virtual seconds on ``fake://``, real ones on
 hardware), so the capture lines up with other recordings of the same hour; readers subtract
-``start_ns`` to get the run clock back (:func:`armbench.drivers.capture_read.capture_start_ns`).
+``start_ns`` to get the run clock back (:func:`armbench.capture.read.capture_start_ns`).
 The traffic's tally counts on the run clock. Chunks are zstd-compressed; a file
-cut short (a killed run) reads up to its last complete chunk (:mod:`armbench.drivers.capture_read`).
-Frames come in blocks of capture parts (:mod:`armbench.drivers.capture_part`) and are turned into
+cut short (a killed run) reads up to its last complete chunk (:mod:`armbench.capture.read`).
+Frames come in blocks of capture parts (:mod:`armbench.capture.part`) and are turned into
 messages with numpy, a block at a time; the traffic's tally for the report is counted on the way
-(:mod:`armbench.drivers.capture_stats`) and stored as metadata when the file is closed.
+(:mod:`armbench.capture.tally`) and stored as metadata when the file is closed.
 """
 
 from __future__ import annotations
@@ -36,12 +36,12 @@ import numpy as np
 import numpy.typing as npt
 from mcap.writer import CompressionType, IndexType, Writer
 
+from armbench.capture.jsonl import CaptureError, Direction
+from armbench.capture.mcap_walk import START_KEY, START_METADATA
+from armbench.capture.part import ERROR_FLAG, IN_FLAG, TRUTH_PERIOD_S, read_part
+from armbench.capture.read import decode_uart_frames
+from armbench.capture.tally import TALLY_METADATA, TrafficCounter
 from armbench.drivers import ros2
-from armbench.drivers.capture import CaptureError, Direction
-from armbench.drivers.capture_part import ERROR_FLAG, IN_FLAG, TRUTH_PERIOD_S, read_part
-from armbench.drivers.capture_read import decode_uart_frames
-from armbench.drivers.capture_stats import TALLY_METADATA, TrafficCounter
-from armbench.drivers.capture_walk import START_KEY, START_METADATA
 from armbench.drivers.protocol import REPLY_LEN, AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.urdf import robot_urdf
@@ -197,7 +197,7 @@ class McapCapture:
     # -- parts --------------------------------------------------------------------------------
 
     def add_part(self, path: str | Path, offset_s: float = 0.0) -> int:
-        """Add a :class:`~armbench.drivers.capture_part.PartWriter` file, its times moved by
+        """Add a :class:`~armbench.capture.part.PartWriter` file, its times moved by
         ``offset_s`` (onto this capture's clock); returns the frames read."""
         count = 0
         shift = offset_s - self.t0_s
@@ -313,7 +313,7 @@ class McapCapture:
 
     def copy_messages(self, messages: Iterable[Any]) -> None:
         """Add the messages of an earlier capture (``RawMessage``s of
-        :func:`armbench.drivers.capture_read.iter_messages`) as they are, but for the ones this
+        :func:`armbench.capture.read.iter_messages`) as they are, but for the ones this
         file starts with (``/robot_description``, ``/tf_static``); their frames are counted. The
         earlier capture must have this one's ``start_ns`` (a resumed run's does: it is the
         run's start)."""

@@ -376,7 +376,7 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord | None:
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
     """Every record of a JSON Lines capture file, in order (streamed: the file is not loaded
     whole); event lines (a stop at the size bound) are skipped. Either format:
-    :func:`armbench.drivers.capture_read.open_capture`.
+    :func:`armbench.capture.read.open_capture`.
 
     A line that is not a record (not text, not JSON, nested beyond the parser's depth, longer than
     :data:`MAX_LINE_BYTES`) and a record whose time is before the previous one's are a

@@ -1,13 +1,13 @@
-"""One reader for captures of either format: ``capture.mcap`` (:mod:`armbench.drivers.capture_mcap`)
-and the older JSON Lines ``capture.jsonl`` (:mod:`armbench.drivers.capture`).
+"""One reader for captures of either format: ``capture.mcap`` (:mod:`armbench.capture.mcap_writer`)
+and the older JSON Lines ``capture.jsonl`` (:mod:`armbench.capture.jsonl`).
 
-:func:`open_capture` yields the same :class:`~armbench.drivers.capture.CaptureRecord` records
+:func:`open_capture` yields the same :class:`~armbench.capture.jsonl.CaptureRecord` records
 for both, in time order; :func:`capture_lines` gives an MCAP capture as the JSON Lines text the
 older format holds (for readers of that text). An MCAP file cut short (a killed run: no summary,
 a chunk half written) is read up to its last complete record; a damaged one (a chunk whose bytes
 fail to decompress or to match its CRC, a record running past the end of a closed file, a file
-named ``.mcap`` that is not MCAP: :mod:`armbench.drivers.capture_walk`) and frames whose times
-run backwards are a :class:`~armbench.drivers.capture.CaptureError` naming the file and the place.
+named ``.mcap`` that is not MCAP: :mod:`armbench.capture.mcap_walk`) and frames whose times
+run backwards are a :class:`~armbench.capture.jsonl.CaptureError` naming the file and the place.
 """
 
 from __future__ import annotations
@@ -30,16 +30,15 @@ from mcap.records import Attachment
 from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import generate_dynamic
 
-from armbench.drivers.capture import (
+from armbench.capture.jsonl import (
     CaptureError,
     CaptureRecord,
     Direction,
     ReplayCommand,
     read_capture,
 )
-from armbench.drivers.capture import capture_stopped as jsonl_stopped
-from armbench.drivers.capture_stats import TALLY_METADATA, TrafficTally
-from armbench.drivers.capture_walk import (
+from armbench.capture.jsonl import capture_stopped as jsonl_stopped
+from armbench.capture.mcap_walk import (
     MAX_CHUNK_BYTES,
     MCAP_MAGIC,
     McapLayout,
@@ -48,6 +47,7 @@ from armbench.drivers.capture_walk import (
     iter_messages,
     mcap_layout,
 )
+from armbench.capture.tally import TALLY_METADATA, TrafficTally
 from armbench.drivers.protocol import Command, Framer
 from armbench.drivers.ros2 import BENCH_EVENT, JOINT_STATE, SCHEMAS
 
@@ -193,7 +193,7 @@ def _lines(path: Path) -> Iterator[bytes]:
 
 def read_tally(path: str | Path) -> TrafficTally | None:
     """The traffic's tally an MCAP capture stores when it is closed
-    (:class:`~armbench.drivers.capture_stats.TrafficCounter`); None for a JSON Lines capture, a
+    (:class:`~armbench.capture.tally.TrafficCounter`); None for a JSON Lines capture, a
     file cut short or one without it. Read through the summary's metadata index: the chunks are
     not read."""
     p = Path(path)

@@ -1,6 +1,6 @@
 """A connection's capture part: what the process measuring a trial writes (frames, the
 emulator's ground truth, bench events), binary and cheap per frame, which the runner adds to the
-run's ``capture.mcap`` (:meth:`armbench.drivers.capture_mcap.McapCapture.add_part`).
+run's ``capture.mcap`` (:meth:`armbench.capture.mcap_writer.McapCapture.add_part`).
 
 Layout (little-endian), one block per batch: ``ABP2``, record count n, frame bytes, extra bytes,
 truth rows m, joints j (``<4sIIIII``); then n float64 times, n flag bytes (``1`` arm → host, ``2``
@@ -21,7 +21,7 @@ from typing import IO, Any, Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from armbench.drivers.capture import CaptureError, CaptureWriter, Direction
+from armbench.capture.jsonl import CaptureError, CaptureWriter, Direction
 
 __all__ = ["BLOCK_RECORDS", "BLOCK_S", "ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock",
            "PartWriter", "first_part_time", "part_span", "read_part"]
@@ -59,11 +59,11 @@ class PartBlock(NamedTuple):
 
 class PartWriter(CaptureWriter):
     """A connection's capture part, written where the trial runs (a worker process, or the
-    runner): the driver's frames (the :class:`~armbench.drivers.capture.CaptureWriter` calls;
+    runner): the driver's frames (the :class:`~armbench.capture.jsonl.CaptureWriter` calls;
     a reply costs three appends), the ground truth beside the replies (sampled every
     ``period_s`` from ``truth``, a callable giving the newest truth in rad or None) and bench
     events. The truth is taken at the first reply of each ``period_s`` slot of the part's
-    clock, where :class:`~armbench.drivers.capture_mcap.McapCapture` samples the replies, so
+    clock, where :class:`~armbench.capture.mcap_writer.McapCapture` samples the replies, so
     the two stand side by side."""
 
     def __init__(self, path: str | Path, t0_s: float, *,

@@ -1,10 +1,10 @@
-"""The records of an MCAP file, walked and checked: what :mod:`armbench.drivers.capture_read`
+"""The records of an MCAP file, walked and checked: what :mod:`armbench.capture.read`
 reads captures with.
 
 Every record of the data section is parsed as what its opcode says, every chunk decompressed and
 held to its size and CRC, and a closed file's chunks counted against its summary, so damage
 (a flipped byte, bytes missing in the middle, a file named ``.mcap`` that is not MCAP) is a
-:class:`~armbench.drivers.capture.CaptureError` naming the file and the byte where it is, never
+:class:`~armbench.capture.jsonl.CaptureError` naming the file and the byte where it is, never
 another exception and never records silently left out. A file cut short (a killed run: no
 summary, a record half written) is read up to its last complete record.
 """
@@ -43,7 +43,7 @@ from mcap.records import (
 )
 from mcap.stream_reader import get_chunk_data_stream
 
-from armbench.drivers.capture import CaptureError
+from armbench.capture.jsonl import CaptureError
 
 __all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
            "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout"]
