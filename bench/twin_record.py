@@ -85,7 +85,7 @@ def file_sha256(path: Path) -> str:
 
 
 #: What ``--out DIR`` receives: the record, its pages; a capture there would get the report
-#: attached (``armbench.bench.reporting``), and a run's journal means a run's directory.
+#: attached (``armbench.cli.reporting``), and a run's journal means a run's directory.
 OUT_FILES: Final = (RESULTS_FILE, JOURNAL_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE)
 
 

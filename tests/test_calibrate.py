@@ -28,7 +28,7 @@ from armbench.bench.calibrate import (
 )
 from armbench.bench.calibrate.fit import fit_play
 from armbench.bench.calibrate.model import Approach
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics

@@ -17,8 +17,8 @@ from test_twin_check import _lap
 from armbench.bench.calibrate import calibrate_port
 from armbench.bench.calibrate.capture import load_capture
 from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
-from armbench.bench.cli import main
 from armbench.bench.twin_check import twin_check
+from armbench.cli.main import main
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.fakes.physics import JointPhysics
 from armbench.fakes.vclock import run_virtual

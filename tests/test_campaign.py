@@ -22,9 +22,9 @@ from armbench.bench.campaign import (
     wilson_interval,
 )
 from armbench.bench.campaign.draws import draw_arm
-from armbench.bench.cli import main
 from armbench.bench.record import load_record
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
+from armbench.cli.main import main
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.reports.format import CSP
 

@@ -21,7 +21,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.cli import main
 from armbench.bench.outputs import RUN_FILES
 from armbench.bench.record import CAPTURE_FILE, JOURNAL_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
@@ -29,6 +28,7 @@ from armbench.capture.jsonl import CaptureError
 from armbench.capture.mcap_writer import McapCapture
 from armbench.capture.part import PartWriter
 from armbench.capture.read import mcap_layout, open_capture
+from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.fakes.arm import ArmEmulator
 from armbench.fakes.serve import TcpServer, real_time_loop

@@ -608,8 +608,8 @@ def test_perf_workloads_and_figures() -> None:
     """``armbench perf --only emulator``'s plumbing on its quick run, and the behaviour behind
     its figures: at 9600 baud each print waits for the line, so there are about 11× fewer loops
     (cost follows events), at the rate the line sets."""
-    from armbench.bench.perf import PerfOptions
-    from armbench.bench.perf import emulator as perf_emulator
+    from armbench.cli.perf import PerfOptions
+    from armbench.cli.perf import emulator as perf_emulator
 
     _, fast_loops = run_virtual(perf_emulator._emulate(5.0, moving=True))
     _, slow_loops = run_virtual(perf_emulator._emulate(5.0, moving=True,

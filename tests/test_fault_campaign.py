@@ -104,9 +104,9 @@ import pytest
 from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
 from armbench.bench.record import load_record
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.capture.read import open_capture
+from armbench.cli.reporting import write_reports
 from armbench.drivers.arm import (
     Arm,
     JointState,
@@ -660,7 +660,7 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
         "        os.kill(os.getpid(), signal.SIGKILL)\n"
         "    return add(self, name, trial)\n"
         "record.RecordWriter.add_trial = add_trial\n"
-        "from armbench.bench.cli import main\n"
+        "from armbench.cli.main import main\n"
         "sys.exit(main(sys.argv[1:]))\n")
     killed = subprocess.run([sys.executable, "-c", wrapper, "run", "accuracy", "--config",
                              str(reference_run.config), "--out", str(out), "--seed", "5"],

@@ -12,7 +12,6 @@ from typing import Any
 
 import pytest
 
-from armbench.bench.cli import main
 from armbench.bench.limits import LimitsConfig
 from armbench.bench.metrics import MetricsInputError
 from armbench.bench.metrics.iso230 import axis_positioning
@@ -21,6 +20,7 @@ from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.suites.base import SuiteContext
 from armbench.bench.suites.joints import JointsSuite, joint_figures
 from armbench.bench.truth import EmulatorTruth
+from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS

@@ -380,7 +380,7 @@ def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
     left as it was."""
     from mcap.stream_reader import StreamReader
 
-    from armbench.bench.reporting import write_reports
+    from armbench.cli.reporting import write_reports
 
     out, _ = run_dir
     for bound, name in ((None, "free"), (1, "bounded")):

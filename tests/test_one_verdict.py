@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench import cli
 from armbench.bench.baseline import compare
 from armbench.bench.limits import load_limits, parse_limits
 from armbench.bench.record import load_record
@@ -24,6 +23,7 @@ from armbench.bench.verdict import (
     load_config,
     worst_exit_status,
 )
+from armbench.cli import main as cli
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

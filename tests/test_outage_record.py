@@ -23,8 +23,8 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
+from armbench.cli.reporting import write_reports
 from armbench.drivers.link_outages import LinkOutage, OutageLog
 from armbench.fakes.vclock import VirtualTimeLoop
 from armbench.reports.summary import verdict_reasons

@@ -12,8 +12,6 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench import cli
-from armbench.bench.perf import PerfOptions
 from armbench.bench.record import (
     Environment,
     Measurement,
@@ -23,6 +21,8 @@ from armbench.bench.record import (
     load_record,
 )
 from armbench.bench.suites.contract import STARTUP
+from armbench.cli import main as cli
+from armbench.cli.perf import PerfOptions
 from armbench.reports import (
     CSP,
     VERDICT_MARKS,
@@ -601,7 +601,7 @@ def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 
 def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
-    from armbench.bench.perf import report as perf_report
+    from armbench.cli.perf import report as perf_report
 
     # the figures' plumbing on a tiny run; armbench perf measures the real workload
     monkeypatch.setattr(perf_report, "_QUICK", {"samples_per_run": 200, "cycles": 2,
@@ -617,7 +617,7 @@ def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_big_run_keeps_raw_data_out_of_the_page(tmp_path: Path) -> None:
-    from armbench.bench.perf.report import big_run_record
+    from armbench.cli.perf.report import big_run_record
 
     record = big_run_record(samples_per_run=5_000, cycles=2, startup_trials=2)
     record.suites = {"accuracy": record.suites["accuracy"]}  # the long series are here

@@ -27,7 +27,7 @@ from typing import Any
 
 import pytest
 
-import armbench.bench.cli
+import armbench.cli.main
 from armbench.bench.record import load_record
 from armbench.capture.jsonl import CaptureRecord, CaptureWriter
 from armbench.capture.read import capture_start_ns, iter_events, open_capture
@@ -323,7 +323,7 @@ def test_labgrid_without_labgrid_is_refused_before_a_folder_exists(
 ) -> None:
     monkeypatch.setitem(sys.modules, "labgrid", None)  # what an environment without it gives
     out = tmp_path / "run"
-    status = armbench.bench.cli.main(["run", "accuracy", "--port", "labgrid://bench-1",
+    status = armbench.cli.main.main(["run", "accuracy", "--port", "labgrid://bench-1",
                                       "--out", str(out)])
     err = capsys.readouterr().err
     assert status == 2 and "labgrid is not installed" in err and len(err.splitlines()) == 1
@@ -336,7 +336,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     tree = tmp_path / "site"
     package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
     shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("bench", "capture", "drivers", "fakes", "reports"):
+    for name in ("bench", "capture", "cli", "drivers", "fakes", "reports"):
         shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,

@@ -440,10 +440,10 @@ def test_replies_read_in_a_burst_are_left_out(ideal_capture: Path, tmp_path: Pat
 def test_text_output_is_for_people() -> None:
     """twin-check's text once printed the TCP divergence as a Python dict; every figure is now
     a line with its unit, the judged ones with their limit."""
-    from armbench.bench.commands.twin_check import format_twin_check
     from armbench.bench.limits import Limit
     from armbench.bench.record import Measurement
     from armbench.bench.twin_check import TwinCheck
+    from armbench.cli.commands.twin_check import format_twin_check
 
     limit = Limit("twin.*", "", high=1.0)
     result = TwinCheck(

@@ -10,7 +10,7 @@ trial by trial, keeping ``results.json`` current, then compares with the baselin
 Each planned suite: ``begin_suite``, then every trial the record does not have yet
 (``completed_trials``), each written to disk the moment it ends (``add_trial``), then
 ``summarize`` and ``end_suite``. The runner writes the record; ``junit.xml`` and ``report.html``
-are written by whoever asked for the run (``armbench.bench.reporting``).
+are written by whoever asked for the run (``armbench.cli.reporting``).
 
 On ``fake://`` (default ``isolation = "trial"``) every trial runs against a freshly powered
 emulator seeded from (seed, suite, trial index), so each trial is reproducible on its own and a

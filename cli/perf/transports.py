@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from armbench.bench.perf import Figure, PerfOptions
+from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.protocol import Command, Reply
 
 __all__ = ["PACKAGES", "RoundTripRate", "echo_pty", "measure_bare", "measure_package", "run"]

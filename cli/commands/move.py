@@ -16,7 +16,7 @@ import re
 import sys
 from typing import Any
 
-from armbench.bench.commands.monitor import run_on_port
+from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.arm import Arm, InvalidTargetError, JointState
 from armbench.drivers.kinematics import BRANCHES
 from armbench.drivers.protocol import MAX_DUTY

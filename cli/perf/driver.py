@@ -39,7 +39,7 @@ import sys
 import time
 from collections.abc import Iterator
 
-from armbench.bench.perf import Figure, PerfOptions
+from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import REPLY_LEN, Command
 from armbench.drivers.settings import RobotSettings, SerialSettings

@@ -1,4 +1,4 @@
-"""The ``armbench`` command line: one module per subcommand under ``armbench.bench.commands``.
+"""The ``armbench`` command line: one module per subcommand under ``armbench.cli.commands``.
 
 Only the module of the command asked for is imported (``armbench --help`` imports none), so a
 command pays at start for what it uses, not for scipy, matplotlib and Jinja2 of the others.
@@ -22,7 +22,7 @@ __all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "build_parser", "main"]
 #: Exit status when stdout's reader closed the pipe: what a process killed by SIGPIPE reports.
 EXIT_BROKEN_PIPE = 141
 
-_COMMANDS = "armbench.bench.commands."
+_COMMANDS = "armbench.cli.commands."
 #: Each subcommand: the module whose ``register(subparsers)`` adds its parser and sets ``func``,
 #: and the line ``armbench --help`` shows for it (the parser's ``help``; defined here only).
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -32,7 +32,6 @@ from armbench.bench.metrics import (
     square_yz,
     tracking_errors,
 )
-from armbench.bench.perf import Figure, PerfOptions
 from armbench.bench.record import (
     CAPTURE_FILE,
     Environment,
@@ -44,6 +43,7 @@ from armbench.bench.record import (
     judge,
 )
 from armbench.bench.suites.contract import ACCURACY, REPEATABILITY, STARTUP
+from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["RENDER_BOUND_S", "SIZE_BOUND_BYTES", "big_run_record", "run", "write_big_run"]

@@ -1,4 +1,4 @@
-"""Benchmarks behind ``armbench perf``: each module under ``armbench.bench.perf`` yields named
+"""Benchmarks behind ``armbench perf``: each module under ``armbench.cli.perf`` yields named
 figures.
 
 Figure names are stable across versions so CI can track them; a figure's ``bound`` is a
@@ -17,14 +17,14 @@ __all__ = ["BENCHMARK_MODULES", "Figure", "PerfOptions", "best_rate", "run_bench
 
 #: Each module exposes ``run(options) -> list[Figure]``.
 BENCHMARK_MODULES: tuple[str, ...] = (
-    "armbench.bench.perf.startup",
-    "armbench.bench.perf.codec",
-    "armbench.bench.perf.emulator",
-    "armbench.bench.perf.transports",
-    "armbench.bench.perf.driver",
-    "armbench.bench.perf.report",
-    "armbench.bench.perf.firmware",
-    "armbench.bench.perf.fleet",
+    "armbench.cli.perf.startup",
+    "armbench.cli.perf.codec",
+    "armbench.cli.perf.emulator",
+    "armbench.cli.perf.transports",
+    "armbench.cli.perf.driver",
+    "armbench.cli.perf.report",
+    "armbench.cli.perf.firmware",
+    "armbench.cli.perf.fleet",
 )
 
 

@@ -1,6 +1,6 @@
 """The armbench pytest plugin's fixtures and hooks: bench tests in plain pytest, into a run record.
 
-Loaded by :mod:`armbench.bench.pytest_plugin` (the ``pytest11`` entry point) when pytest-asyncio is
+Loaded by :mod:`armbench.cli.pytest_plugin` (the ``pytest11`` entry point) when pytest-asyncio is
 installed; the options, the fixtures and the record are described there.
 """
 
@@ -141,7 +141,7 @@ class BenchSession:
         suite = writer.suite(SUITE_NAME)
         if suite.status == "running":
             writer.end_suite(SUITE_NAME, summarize(suite.trials, self.limits))
-        from armbench.bench.reporting import write_reports
+        from armbench.cli.reporting import write_reports
 
         write_reports(writer.record, writer.out_dir)
 

@@ -21,11 +21,11 @@ from typing import Any
 
 from armbench.bench.fleet_index import is_fleet
 from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet import parse_arms
 from armbench.bench.suites import SUITES
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
+from armbench.cli.reporting import write_reports
 
 __all__ = ["register"]
 
@@ -118,7 +118,7 @@ def _run(args: argparse.Namespace) -> int:
         workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
         scheduler=args.scheduler, shard=args.shard)
     if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
-        from armbench.bench.commands.fleet import run_fleet
+        from armbench.cli.commands.fleet import run_fleet
 
         return run_fleet(options, ports, summary=args.summary)
     # the record is on disk: now its reports, while the run folder is still locked

@@ -1,7 +1,7 @@
 """pytest plugin: write bench tests in plain pytest against the arm and get them into a run record.
 
 Registered as the ``armbench`` entry point of group ``pytest11`` (active once armbench is
-installed); without installing, ``pytest -p armbench.bench.pytest_plugin``. Options:
+installed); without installing, ``pytest -p armbench.cli.pytest_plugin``. Options:
 
 ``--arm-port PORT``      the arm (default ``fake://``: a fresh emulator per test, on virtual time)
 ``--arm-settings FILE``  robot settings TOML (``[emulator]`` too)
@@ -27,7 +27,7 @@ A measurement outside its limit fails the test (after the test body has run, so 
 is kept). See ``docs/runner.md`` for the record's shape and the loop details.
 
 A good guest in other projects' test runs: this module imports nothing but pytest. It adds the
-options, and loads the fixtures and hooks (:mod:`armbench.bench.pytest_bench`) only when
+options, and loads the fixtures and hooks (:mod:`armbench.cli.pytest_bench`) only when
 pytest-asyncio (the ``armbench[pytest]`` extra, not a dependency) is installed; without it, a test
 that asks for ``arm`` fails with a message saying what to install, and every other test runs as
 before.
@@ -43,7 +43,7 @@ import pytest
 __all__ = ["FIXTURES_PLUGIN", "pytest_addoption", "pytest_configure"]
 
 #: The module holding the fixtures and hooks, registered under this name.
-FIXTURES_PLUGIN = "armbench.bench.pytest_bench"
+FIXTURES_PLUGIN = "armbench.cli.pytest_bench"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-from armbench.bench.perf import Figure, PerfOptions
+from armbench.cli.perf import Figure, PerfOptions
 
 __all__ = ["HEAVY", "heavy_imports", "run"]
 

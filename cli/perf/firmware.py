@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from armbench.bench.perf import Figure, PerfOptions
+from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.avr import HARNESS_NAME, FirmwareError, board_specs, build, find_images

@@ -21,9 +21,9 @@ from typing import Any
 
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
-from armbench.bench.commands.monitor import run_on_port
 from armbench.bench.outputs import check_out_dir, check_out_files
 from armbench.bench.truth import load_tracker
+from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import time
 
-from armbench.bench.perf import Figure, PerfOptions
+from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.fakes.arm import ArmEmulator

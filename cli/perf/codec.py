@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import random
 
-from armbench.bench.perf import Figure, PerfOptions, best_rate
+from armbench.cli.perf import Figure, PerfOptions, best_rate
 from armbench.drivers.protocol import Command, Framer, Reply
 
 __all__ = ["reply_stream", "run"]

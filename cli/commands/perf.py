@@ -12,7 +12,7 @@ import sys
 import time
 from typing import Any
 
-from armbench.bench.perf import Figure, PerfOptions, run_benchmarks
+from armbench.cli.perf import Figure, PerfOptions, run_benchmarks
 from armbench.hot_modules import build_name
 
 __all__ = ["format_figure", "register"]

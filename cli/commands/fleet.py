@@ -8,9 +8,9 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions
 from armbench.bench.runner.fleet import FleetOutcome, run_fleet_sync
+from armbench.cli.reporting import write_reports
 
 __all__ = ["print_summary", "run_fleet"]
 

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from armbench.bench.commands.monitor import run_on_port
+from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports import open_transport, scheme_of

@@ -14,8 +14,8 @@ import sys
 from typing import Any
 
 from armbench.bench.campaign import CAMPAIGN_KEY, merge_shards
-from armbench.bench.reporting import write_reports
 from armbench.bench.verdict import exit_status
+from armbench.cli.reporting import write_reports
 
 __all__ = ["register"]
 
@@ -38,7 +38,7 @@ def _merge(args: argparse.Namespace) -> int:
     outcome = merge_shards(args.shards, args.out)
     record = outcome.record
     if any(CAMPAIGN_KEY in s.params for s in record.suites.values()):
-        from armbench.bench.commands.campaign import write_campaign_page
+        from armbench.cli.commands.campaign import write_campaign_page
 
         write_campaign_page(record, outcome)
         status = exit_status(record.verdict)  # the campaign's verdict, as armbench campaign
