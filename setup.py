@@ -31,7 +31,7 @@ from setuptools import find_namespace_packages, setup
 
 ROOT = Path(__file__).resolve().parent
 #: Each installed package and the checkout folder it comes from.
-SUBPACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "reports")
+SUBPACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports")
 PACKAGE_DIR = {"armbench": "api", "armbench.firmware": "firmware",
                **{f"armbench.{name}": name for name in SUBPACKAGES}}
 PACKAGES = ["armbench", "armbench.firmware",

@@ -23,7 +23,6 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 from armbench.bench.suites.base import PowerSwitch, ReReferencing
 from armbench.capture.append import ZSTD_MEDIA_TYPE, zstd_attachment
 from armbench.capture.jsonl import CaptureError, read_capture
@@ -31,6 +30,7 @@ from armbench.capture.mcap_writer import McapCapture
 from armbench.capture.part import PartWriter
 from armbench.capture.read import capture_start_ns, iter_events, iter_messages
 from armbench.drivers.settings import RobotSettings
+from armbench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
            "emulator_truth", "fault_events", "logged_power"]

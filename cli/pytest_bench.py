@@ -18,8 +18,11 @@ from typing import Any
 import pytest
 import pytest_asyncio
 
-from armbench.bench.limits import Limit, LimitsConfig, load_limits
-from armbench.bench.record import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.numbers import finite_float
+from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.transports import scheme_of
+from armbench.record import (
     RESULTS_FILE,
     Better,
     Measurement,
@@ -33,11 +36,8 @@ from armbench.bench.record import (
     default_better,
     judge,
 )
-from armbench.bench.record.journal import journal_path
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.numbers import finite_float
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.drivers.transports import scheme_of
+from armbench.record.journal import journal_path
+from armbench.record.limits import Limit, LimitsConfig, load_limits
 
 __all__ = [
     "SUITE_NAME",
@@ -224,7 +224,7 @@ class BenchTrial:
                 better: Better | None = None, description: str = "") -> Measurement:
         """Record ``name`` = ``value`` ``unit`` and judge it: against ``limit`` when given —
         ``(low, high)`` (either may be None), ``{"low": ..., "high": ...}`` or a
-        :class:`~armbench.bench.limits.Limit` — else against ``--arm-config``'s limits (unjudged
+        :class:`~armbench.record.limits.Limit` — else against ``--arm-config``'s limits (unjudged
         without).
         Returns the measurement; one outside its limit fails the test when the body has ended.
         """

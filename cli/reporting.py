@@ -9,9 +9,9 @@ import html
 import logging
 from pathlib import Path
 
-from armbench.bench.record import RunRecord, atomic_write_bytes, path_inside
 from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE
 from armbench.drivers.errors import ArmbenchError
+from armbench.record import RunRecord, atomic_write_bytes, path_inside
 
 __all__ = ["text_summary", "write_reports"]
 
@@ -97,7 +97,7 @@ def text_summary(record: RunRecord) -> str:
                     lines.append(f"      fail  trial {t.index}: {m.name} = {m.value:.6g} "
                                  f"{m.unit}  (limit {m.limit.describe() if m.limit else '-'})")
     if record.baseline is not None:
-        from armbench.bench.baseline import format_comparison
+        from armbench.record.baseline import format_comparison
 
         lines += ["", f"baseline {record.baseline.baseline_run_id}:",
                   format_comparison(record.baseline)]

@@ -22,7 +22,7 @@ from armbench.bench.campaign.stats import (
     collect,
     wilson_interval,
 )
-from armbench.bench.record import RunRecord, SuiteRecord, atomic_write_bytes
+from armbench.record import RunRecord, SuiteRecord, atomic_write_bytes
 from armbench.reports.format import jinja_environment
 from armbench.reports.plots import safe_label, to_svg
 

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from armbench.bench.record import (
+from armbench.record import (
     Comparison,
     Measurement,
     RunRecord,
     SuiteRecord,
     atomic_write_bytes,
 )
-from armbench.bench.suites.contract import ACCURACY, SAMPLE, Headline
+from armbench.record.suite_contract import ACCURACY, SAMPLE, Headline
 from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, change_text, headline_figure

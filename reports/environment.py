@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from armbench.bench.record import RunRecord
+from armbench.record import RunRecord
 from armbench.reports.views import FaultRow, num, text
 
 __all__ = ["environment_rows", "fault_rows", "settings_summary"]

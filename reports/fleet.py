@@ -2,7 +2,7 @@
 figures of every arm side by side with their spread across the fleet (min, max, mean, standard
 deviation), and which arm is outside its limits or drifted from its own baseline.
 
-It reads ``fleet.json`` (``armbench.bench.fleet_index``) and each arm's ``results.json``, nothing
+It reads ``fleet.json`` (``armbench.record.fleet_index``) and each arm's ``results.json``, nothing
 else; the page is self-contained, with the run report's Content-Security-Policy and escaping.
 """
 
@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import quote
 
-from armbench.bench.baseline import read_record
-from armbench.bench.fleet_index import FleetArm, read_fleet_index
-from armbench.bench.record import RESULTS_FILE, RecordError, RunRecord, atomic_write_bytes
-from armbench.bench.suites.contract import Headline
+from armbench.record import RESULTS_FILE, RecordError, RunRecord, atomic_write_bytes
+from armbench.record.baseline import read_record
+from armbench.record.fleet_index import FleetArm, read_fleet_index
+from armbench.record.suite_contract import Headline
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.page import REPORT_FILE
 from armbench.reports.scorecard import HEADLINES, change_text, headline_figure

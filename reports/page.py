@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO
 
-from armbench.bench.record import (
+from armbench.record import (
     CAPTURE_FILE,
     LEGACY_CAPTURE_FILE,
     REPORT_FILE,
@@ -33,8 +33,8 @@ from armbench.bench.record import (
     SuiteRecord,
     load_record,
 )
-from armbench.bench.record.files import atomic_write
-from armbench.bench.suites.contract import STARTUP
+from armbench.record.files import atomic_write
+from armbench.record.suite_contract import STARTUP
 from armbench.reports.environment import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows

@@ -15,8 +15,8 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
-from armbench.bench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
-from armbench.bench.suites.contract import (
+from armbench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
+from armbench.record.suite_contract import (
     ACCURACY,
     JOINTS,
     REPEATABILITY,

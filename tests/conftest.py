@@ -17,8 +17,8 @@ import armbench.cli.main
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
-BUILD_INPUTS = ("api", "bench", "capture", "cli", "drivers", "fakes", "reports", "firmware",
-                "pyproject.toml", "setup.py", "README.md")
+BUILD_INPUTS = ("api", "bench", "capture", "cli", "drivers", "fakes", "metrics", "record",
+                "reports", "firmware", "pyproject.toml", "setup.py", "README.md")
 
 
 #: A test that needs a pseudo-terminal: ``pty`` in its name or parameters, as a word.

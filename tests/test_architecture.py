@@ -19,7 +19,7 @@ import pytest
 import armbench
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "reports")
+PACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports")
 #: Rooms of one job are about 500 lines; none may pass this.
 MAX_LINES = 600
 

@@ -22,10 +22,10 @@ from armbench.bench.campaign import (
     wilson_interval,
 )
 from armbench.bench.campaign.draws import draw_arm
-from armbench.bench.record import load_record
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
 from armbench.cli.main import main
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.record import load_record
 from armbench.reports.format import CSP
 
 # As armbench calibrate writes it: each fitted value with its standard error in a comment.

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.record import CAPTURE_FILE, RESULTS_FILE, load_record
 from armbench.capture.jsonl import (
     CaptureWriter,
     capture_options,
@@ -19,6 +18,7 @@ from armbench.capture.jsonl import (
 )
 from armbench.capture.read import capture_stopped
 from armbench.drivers.settings import SettingsError
+from armbench.record import CAPTURE_FILE, RESULTS_FILE, load_record
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = "$01000,99,01000,99,01000,99,01000,99#"

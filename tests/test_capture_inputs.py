@@ -22,7 +22,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armbench.bench.outputs import RUN_FILES
-from armbench.bench.record import CAPTURE_FILE, JOURNAL_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
 from armbench.capture.jsonl import CaptureError
 from armbench.capture.mcap_writer import McapCapture
@@ -32,6 +31,7 @@ from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual
+from armbench.record import CAPTURE_FILE, JOURNAL_FILE, REPORT_FILE, RESULTS_FILE
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Small chunks, so the capture has several.

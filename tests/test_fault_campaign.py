@@ -103,7 +103,6 @@ from typing import Any, TypeVar
 import pytest
 from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
-from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.capture.read import open_capture
 from armbench.cli.reporting import write_reports
@@ -116,6 +115,7 @@ from armbench.drivers.arm import (
 )
 from armbench.drivers.errors import PortLostError
 from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.record import load_record
 
 T = TypeVar("T")
 ROOT = Path(__file__).resolve().parents[1]
@@ -653,7 +653,7 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
     out = tmp_path / "run"
     wrapper = (
         "import os, signal, sys\n"
-        "import armbench.bench.record as record\n"
+        "import armbench.record as record\n"
         "add = record.RecordWriter.add_trial\n"
         "def add_trial(self, name, trial):\n"
         "    if trial.index == 2:\n"

@@ -25,7 +25,6 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from armbench.bench.record import RunRecord, load_record
 from armbench.bench.runner import EXIT_PASS, RunOptions, run_sync
 from armbench.capture.jsonl import CaptureWriter
 from armbench.capture.mcap_writer import McapCapture
@@ -44,6 +43,7 @@ from armbench.drivers.kinematics import fk
 from armbench.drivers.protocol import AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.urdf import robot_urdf
+from armbench.record import RunRecord, load_record
 from armbench.reports.capture import summarize_capture
 
 TOPICS = {"/uart/tx", "/uart/rx", "/joint_states", "/joint_states/true", "/joint_states_goal",

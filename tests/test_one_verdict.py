@@ -9,9 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.baseline import compare
-from armbench.bench.limits import load_limits, parse_limits
-from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.verdict import (
     EXIT_ERROR,
@@ -24,6 +21,9 @@ from armbench.bench.verdict import (
     worst_exit_status,
 )
 from armbench.cli import main as cli
+from armbench.record import load_record
+from armbench.record.baseline import compare
+from armbench.record.limits import load_limits, parse_limits
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

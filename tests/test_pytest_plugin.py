@@ -11,7 +11,7 @@ import pytest
 
 # Imported here, not first by an inner session: pytester drops the modules an inner session
 # imported, and numpy (which the driver imports) cannot be imported twice in one process.
-from armbench.bench.record import load_record
+from armbench.record import load_record
 
 pytest_plugins = ["pytester"]
 
@@ -206,8 +206,8 @@ def test_large(record_measurement):
 
 def test_unit_mismatch(record_measurement):
     import pytest
-    from armbench.bench.limits import Limit
-    from armbench.bench.record import RecordError
+    from armbench.record.limits import Limit
+    from armbench.record import RecordError
     with pytest.raises(RecordError, match="unit"):
         record_measurement("lab.c", 1.0, "mm", limit=Limit("lab.c", "s", high=1.0))
     with pytest.raises(RecordError, match="twice"):
@@ -230,8 +230,8 @@ def test_unit_mismatch(record_measurement):
 
 
 def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
-    from armbench.bench.record import RecordError
     from armbench.cli.pytest_bench import BenchTrial
+    from armbench.record import RecordError
 
     trial = BenchTrial(index=0, nodeid="t", test_name="t", limits=None, started_s=0.0)
     for bad in ((3.0, 1.0), {"hi": 1.0}, (None, None), 5.0, (None, float("nan"))):

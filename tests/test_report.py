@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.record import (
+from armbench.cli import main as cli
+from armbench.cli.perf import PerfOptions
+from armbench.record import (
     Environment,
     Measurement,
     RunRecord,
@@ -20,9 +22,7 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
-from armbench.bench.suites.contract import STARTUP
-from armbench.cli import main as cli
-from armbench.cli.perf import PerfOptions
+from armbench.record.suite_contract import STARTUP
 from armbench.reports import (
     CSP,
     VERDICT_MARKS,
@@ -472,7 +472,7 @@ def test_capture_summary_is_bounded_and_tolerant(tmp_path: Path) -> None:
 
 
 def test_bad_record_raises_a_record_error(tmp_path: Path) -> None:
-    from armbench.bench.record import RecordError
+    from armbench.record import RecordError
 
     bad = tmp_path / "results.json"
     bad.write_text('{"schema": "armbench-run/0"}')

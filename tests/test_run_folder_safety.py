@@ -28,9 +28,9 @@ from typing import Any
 import pytest
 
 import armbench.cli.main
-from armbench.bench.record import load_record
 from armbench.capture.jsonl import CaptureRecord, CaptureWriter
 from armbench.capture.read import capture_start_ns, iter_events, open_capture
+from armbench.record import load_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = "3"
@@ -336,7 +336,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     tree = tmp_path / "site"
     package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
     shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("bench", "capture", "cli", "drivers", "fakes", "reports"):
+    for name in ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports"):
         shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,

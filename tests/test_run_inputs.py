@@ -16,8 +16,8 @@ import pytest
 from conftest import cli, one_line_error
 
 import armbench.cli.main
-from armbench.bench.record import load_record
 from armbench.bench.runner import ProgressPrinter
+from armbench.record import load_record
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

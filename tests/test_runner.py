@@ -31,7 +31,6 @@ from armbench.bench.power import (
     PowerError,
     port_power,
 )
-from armbench.bench.record import Measurement, Trial, load_record
 from armbench.bench.runner import (
     EXIT_FAIL,
     EXIT_INCOMPLETE,
@@ -60,6 +59,7 @@ from armbench.drivers.errors import ArmbenchError, PortLostError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual
+from armbench.record import Measurement, Trial, load_record
 
 # --------------------------------------------------------------------------------------------
 # A tiny suite: move joint 1 to a planned angle (plus a seeded random offset), measure
@@ -567,8 +567,8 @@ def test_regression_gate_fails_on_an_injected_fault(
 
 
 def test_default_config_is_valid_and_names_real_metrics() -> None:
-    from armbench.bench.limits import load_limits
     from armbench.bench.runner import DEFAULT_CONFIG
+    from armbench.record.limits import load_limits
 
     config = load_limits(DEFAULT_CONFIG)
     assert config.limits, "the default limits file judges something"

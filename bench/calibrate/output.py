@@ -24,9 +24,9 @@ from matplotlib.figure import Figure
 from armbench.bench.calibrate.model import Fitted, Observations
 from armbench.bench.calibrate.sensitivity import Sensitivity
 from armbench.bench.outputs import OutputError, is_run_file
-from armbench.bench.record.files import atomic_write_bytes
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
+from armbench.record.files import atomic_write_bytes
 from armbench.reports.format import jinja_environment
 from armbench.reports.plots import to_svg
 

@@ -20,10 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
-from armbench.bench.baseline import read_record
 from armbench.bench.campaign.draws import read_uncertainties
 from armbench.bench.campaign.suite import CampaignSuite, campaign_params
-from armbench.bench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
 from armbench.bench.runner import (
     EXIT_INTERRUPTED,
     RUNNER_FILE,
@@ -38,6 +36,8 @@ from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json
 from armbench.bench.runner.trials import LoopClockWriter
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
+from armbench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
+from armbench.record.baseline import read_record
 
 __all__ = ["BatchedWriter", "CampaignOptions", "prepare_campaign", "run_campaign"]
 

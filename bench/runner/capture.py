@@ -13,9 +13,9 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from armbench.bench.capture_run import RunCapture
-from armbench.bench.record import RunRecord, Trial
 from armbench.capture.part import part_span
 from armbench.drivers.settings import RobotSettings
+from armbench.record import RunRecord, Trial
 
 __all__ = ["CaptureParts", "job_part_tag"]
 

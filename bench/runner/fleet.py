@@ -26,15 +26,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, cast
 
-from armbench.bench.fleet_index import (
-    FLEET_FILE,
-    FleetArm,
-    FleetIndex,
-    read_fleet_index,
-    write_fleet_index,
-)
-from armbench.bench.record import RESULTS_FILE, load_record, new_run_id
-from armbench.bench.record.files import make_directory
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
@@ -50,6 +41,15 @@ from armbench.bench.runner.run import execute
 from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.transports import scheme_of
+from armbench.record import RESULTS_FILE, load_record, new_run_id
+from armbench.record.files import make_directory
+from armbench.record.fleet_index import (
+    FLEET_FILE,
+    FleetArm,
+    FleetIndex,
+    read_fleet_index,
+    write_fleet_index,
+)
 
 __all__ = ["FLEET_FILE", "Arm", "FleetOutcome", "arm_name", "fleet_exit_status", "parse_arms",
            "run_fleet_sync"]

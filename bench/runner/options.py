@@ -11,8 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
 from armbench.bench.verdict import (
@@ -27,6 +25,8 @@ from armbench.bench.verdict import (
 )
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
+from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
     from armbench.fakes.arm import ArmEmulator

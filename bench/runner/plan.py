@@ -23,18 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 from urllib.parse import parse_qs, urlsplit
 
-from armbench.bench.baseline import BaselineError, check_suite_versions, load_baseline, read_record
-from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
-from armbench.bench.record import (
-    RESULTS_FILE,
-    RecordError,
-    RunRecord,
-    json_default,
-    new_run_id,
-    path_inside,
-)
-from armbench.bench.record.files import check_directory_writable
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
     DEFAULT_OUTAGE_TIMEOUT_S,
@@ -53,6 +42,17 @@ from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
 from armbench.drivers.transports import open_transport, scheme_of, transport_class
+from armbench.record import (
+    RESULTS_FILE,
+    RecordError,
+    RunRecord,
+    json_default,
+    new_run_id,
+    path_inside,
+)
+from armbench.record.baseline import BaselineError, check_suite_versions, load_baseline, read_record
+from armbench.record.files import check_directory_writable
+from armbench.record.limits import LimitsConfig, load_limits
 
 if TYPE_CHECKING:
     from armbench.fakes.faults import Fault

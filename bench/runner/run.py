@@ -34,16 +34,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO
 
-from armbench.bench.baseline import BaselineError, compare
-from armbench.bench.record import (
-    RESULTS_FILE,
-    RunRecord,
-    Trial,
-    atomic_write_bytes,
-    capture_environment,
-    load_record,
-)
-from armbench.bench.record.files import make_directory
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
@@ -65,6 +55,16 @@ from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.progress import ProgressPrinter
 from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
 from armbench.bench.truth import aclose_source, aopen_source
+from armbench.record import (
+    RESULTS_FILE,
+    RunRecord,
+    Trial,
+    atomic_write_bytes,
+    capture_environment,
+    load_record,
+)
+from armbench.record.baseline import BaselineError, compare
+from armbench.record.files import make_directory
 
 __all__ = ["execute", "run_bench", "run_sync"]
 

@@ -16,13 +16,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.power import port_power
-from armbench.bench.record import (
-    RESULTS_FILE,
-    RecordWriter,
-    RunRecord,
-    Trial,
-    continued_clock_s,
-)
 from armbench.bench.runner.capture import CaptureParts
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
@@ -37,6 +30,13 @@ from armbench.bench.suites import SuiteContext
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.record import (
+    RESULTS_FILE,
+    RecordWriter,
+    RunRecord,
+    Trial,
+    continued_clock_s,
+)
 
 if TYPE_CHECKING:
     from armbench.capture.part import PartWriter

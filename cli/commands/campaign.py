@@ -21,12 +21,12 @@ import sys
 from typing import Any
 
 from armbench.bench.campaign import CampaignOptions, run_campaign
-from armbench.bench.record import RunRecord
 from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, RunOutcome
 from armbench.bench.runner.plan import MAX_TRIALS
 from armbench.bench.verdict import EXIT_PASS, exit_status
 from armbench.cli.commands.run import shard_arg
 from armbench.drivers.errors import ArmbenchError
+from armbench.record import RunRecord
 
 __all__ = ["register", "write_campaign_page"]
 

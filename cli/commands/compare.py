@@ -1,12 +1,12 @@
 """``armbench compare A B``: the suite-level metrics of run B against baseline run A.
 
-Prints the metric-by-metric table of :func:`armbench.bench.baseline.format_comparison` (or JSON with
-``--json``). Exit status: 3 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
+Prints the metric-by-metric table of :func:`armbench.record.baseline.format_comparison` (or JSON
+with ``--json``). Exit status: 3 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
 record cannot be used (missing, invalid, another schema, limits spec or suite version, a changed
 unit, or a run B that measured none of the baseline's metrics).
 Tolerances come from ``--config bench.toml`` (``[regression]``), else from the packaged
 ``default_bench.toml``: the same file, and the same function
-(:func:`armbench.bench.baseline.compare`), ``armbench run --baseline`` judges with.
+(:func:`armbench.record.baseline.compare`), ``armbench run --baseline`` judges with.
 ``--html OUT`` also writes the comparison as a page in the run report's style.
 """
 
@@ -18,10 +18,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.baseline import compare, format_comparison, load_baseline, read_record
-from armbench.bench.record import RESULTS_FILE
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 from armbench.drivers.errors import ArmbenchError
+from armbench.record import RESULTS_FILE
+from armbench.record.baseline import compare, format_comparison, load_baseline, read_record
 
 __all__ = ["register"]
 

@@ -19,13 +19,13 @@ import argparse
 import sys
 from typing import Any
 
-from armbench.bench.fleet_index import is_fleet
-from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet import parse_arms
 from armbench.bench.suites import SUITES
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.reporting import write_reports
+from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
+from armbench.record.fleet_index import is_fleet
 
 __all__ = ["register"]
 

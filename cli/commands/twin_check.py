@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate.capture import load_capture
-from armbench.bench.limits import load_limits
 from armbench.bench.twin_check import DEFAULT_CONFIG, TwinCheck, twin_check
 from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
 from armbench.cli.reporting import write_reports
 from armbench.drivers.settings import load_settings
+from armbench.record.limits import load_limits
 
 __all__ = ["format_twin_check", "register"]
 

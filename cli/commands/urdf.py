@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.outputs import check_out_files
-from armbench.bench.record.files import atomic_write_bytes
 from armbench.drivers.settings import load_settings
 from armbench.drivers.urdf import robot_urdf
+from armbench.record.files import atomic_write_bytes
 
 __all__ = ["register"]
 

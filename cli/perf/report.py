@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from armbench.bench.limits import LimitsConfig, parse_limits
-from armbench.bench.metrics import (
+from armbench.cli.perf import Figure, PerfOptions
+from armbench.drivers.settings import RobotSettings
+from armbench.metrics import (
     error_summary,
     iso_cube_poses,
     path_errors,
@@ -32,7 +33,7 @@ from armbench.bench.metrics import (
     square_yz,
     tracking_errors,
 )
-from armbench.bench.record import (
+from armbench.record import (
     CAPTURE_FILE,
     Environment,
     Measurement,
@@ -42,9 +43,8 @@ from armbench.bench.record import (
     Trial,
     judge,
 )
-from armbench.bench.suites.contract import ACCURACY, REPEATABILITY, STARTUP
-from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.settings import RobotSettings
+from armbench.record.limits import LimitsConfig, parse_limits
+from armbench.record.suite_contract import ACCURACY, REPEATABILITY, STARTUP
 
 __all__ = ["RENDER_BOUND_S", "SIZE_BOUND_BYTES", "big_run_record", "run", "write_big_run"]
 

@@ -1,7 +1,7 @@
 """The repeatability section: the ISO 9283 test cube and its poses, the attained positions around
 their barycentre, then AP / RP per pose and speed and the figures per speed.
 
-Names come from the suite contract (:data:`armbench.bench.suites.contract.REPEATABILITY`). The
+Names come from the suite contract (:data:`armbench.record.suite_contract.REPEATABILITY`). The
 figures are the recorded ones; only a pose whose figure the record lacks (an interrupted suite) is
 computed from its samples, and marked so.
 """
@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armbench.bench.metrics import cube_corners, pose_accuracy, pose_repeatability
-from armbench.bench.record import Measurement, RunRecord, SuiteRecord
-from armbench.bench.suites.contract import REPEATABILITY, SAMPLE
+from armbench.metrics import cube_corners, pose_accuracy, pose_repeatability
+from armbench.record import Measurement, RunRecord, SuiteRecord
+from armbench.record.suite_contract import REPEATABILITY, SAMPLE
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_number, format_value
 from armbench.reports.views import (

@@ -9,7 +9,7 @@ from datetime import date, datetime
 from datetime import time as time_of_day
 from typing import Any
 
-from armbench.bench.record.fields import RecordError
+from armbench.record.fields import RecordError
 
 __all__ = ["Placeholder", "iter_encode", "json_default", "json_line"]
 

@@ -1,4 +1,4 @@
-"""Shared input checks and small geometry helpers of ``armbench.bench.metrics`` (private).
+"""Shared input checks and small geometry helpers of ``armbench.metrics`` (private).
 
 Every public metric takes positions in metres (the project's length unit) and reports millimetres;
 the conversion happens in one place, :data:`MM_PER_M`.

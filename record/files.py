@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path, PurePath
 from typing import BinaryIO
 
-from armbench.bench.record.fields import RecordError
+from armbench.record.fields import RecordError
 
 __all__ = [
     "CAPTURE_FILE",
@@ -30,7 +30,7 @@ __all__ = [
 #: The record's file name inside a run directory.
 RESULTS_FILE = "results.json"
 #: The journal of the trials finished since ``results.json`` was last written, beside it
-#: (``armbench.bench.record.journal``).
+#: (``armbench.record.journal``).
 JOURNAL_FILE = "results.journal.jsonl"
 #: The HTML report beside it.
 REPORT_FILE = "report.html"

@@ -1,5 +1,5 @@
 """The writer that keeps the record of a run on disk while the run goes on: ``results.json`` at
-checkpoints, the trials in between appended to its journal (``armbench.bench.record.journal``)."""
+checkpoints, the trials in between appended to its journal (``armbench.record.journal``)."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ from dataclasses import replace
 from pathlib import Path, PurePath
 from typing import Any, BinaryIO, cast
 
-from armbench.bench.record.comparison import Comparison
-from armbench.bench.record.environment import utc_timestamp
-from armbench.bench.record.fields import RecordError
-from armbench.bench.record.files import CAPTURE_FILE, RESULTS_FILE, atomic_write, path_inside
-from armbench.bench.record.journal import StoredSamples, append_line, journal_path
-from armbench.bench.record.jsonformat import Placeholder, _to_json_text, iter_encode, json_line
-from armbench.bench.record.model import Measurement, SuiteRecord, Trial, _unique_names
-from armbench.bench.record.run import RunRecord, load_record
 from armbench.capture.jsonl import capture_end_s
+from armbench.record.comparison import Comparison
+from armbench.record.environment import utc_timestamp
+from armbench.record.fields import RecordError
+from armbench.record.files import CAPTURE_FILE, RESULTS_FILE, atomic_write, path_inside
+from armbench.record.journal import StoredSamples, append_line, journal_path
+from armbench.record.jsonformat import Placeholder, _to_json_text, iter_encode, json_line
+from armbench.record.measurement import Measurement, SuiteRecord, Trial, _unique_names
+from armbench.record.run_record import RunRecord, load_record
 
 __all__ = ["RecordWriter", "continued_clock_s"]
 

@@ -17,15 +17,15 @@ paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials appen
 writes of ``results.json``, samples kept on disk), ``writer``.
 """
 
-from armbench.bench.record.comparison import Comparison, ComparisonRow
-from armbench.bench.record.environment import (
+from armbench.record.comparison import Comparison, ComparisonRow
+from armbench.record.environment import (
     Environment,
     capture_environment,
     git_revision,
     new_run_id,
     utc_timestamp,
 )
-from armbench.bench.record.fields import (
+from armbench.record.fields import (
     Better,
     Outcome,
     RecordError,
@@ -34,7 +34,7 @@ from armbench.bench.record.fields import (
     TrialStatus,
     Verdict,
 )
-from armbench.bench.record.files import (
+from armbench.record.files import (
     CAPTURE_FILE,
     JOURNAL_FILE,
     LEGACY_CAPTURE_FILE,
@@ -44,10 +44,10 @@ from armbench.bench.record.files import (
     path_inside,
     run_directory,
 )
-from armbench.bench.record.journal import StoredSamples
-from armbench.bench.record.jsonformat import json_default
-from armbench.bench.record.model import Measurement, SuiteRecord, Trial, default_better, judge
-from armbench.bench.record.run import (
+from armbench.record.journal import StoredSamples
+from armbench.record.jsonformat import json_default
+from armbench.record.measurement import Measurement, SuiteRecord, Trial, default_better, judge
+from armbench.record.run_record import (
     PAPER_REFERENCE,
     SCHEMA,
     TOO_DEEP,
@@ -55,7 +55,7 @@ from armbench.bench.record.run import (
     load_record,
     validate_record,
 )
-from armbench.bench.record.writer import RecordWriter, continued_clock_s
+from armbench.record.writer import RecordWriter, continued_clock_s
 
 __all__ = [
     "CAPTURE_FILE",

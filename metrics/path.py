@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armbench.bench.metrics._common import (
+from armbench.metrics._common import (
     MM_PER_M,
     FloatArray,
     MetricsInputError,

@@ -16,7 +16,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from armbench.bench.metrics._common import (
+from armbench.metrics._common import (
     MM_PER_M,
     FloatArray,
     MetricsInputError,

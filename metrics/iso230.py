@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armbench.bench.metrics._common import MetricsInputError
+from armbench.metrics._common import MetricsInputError
 
 __all__ = ["AxisPositioning", "axis_positioning"]
 

@@ -4,7 +4,7 @@ A run's ``results.json`` is rewritten only at checkpoints (a suite begins or end
 set); a trial that ends in between is appended, fsynced, as one line of
 ``results.journal.jsonl`` beside it (``{"suite": name, "trial": {...}}``), so the cost of keeping
 a trial is that trial's size, however many came before. :func:`load_record
-<armbench.bench.record.load_record>` replays the journal over ``results.json``, so a record read
+<armbench.record.load_record>` replays the journal over ``results.json``, so a record read
 after a crash holds every finished trial. A trial's samples, the bulk of a record, are not kept in
 memory: :class:`StoredSamples` reads them back from the journal line or the ``results.json`` part
 that holds them when they are used.
@@ -18,8 +18,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict, overload
 
-from armbench.bench.record.fields import RecordError
-from armbench.bench.record.files import fsync_directory
+from armbench.record.fields import RecordError
+from armbench.record.files import fsync_directory
 
 __all__ = ["JournalEntry", "StoredSamples", "append_line", "journal_path", "read_journal"]
 

@@ -1,12 +1,12 @@
 """A run's suite-level figures against a baseline run's: the data (:class:`Comparison` of
-:class:`ComparisonRow` s); ``armbench.bench.baseline`` computes it."""
+:class:`ComparisonRow` s); ``armbench.record.baseline`` computes it."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import get_args
 
-from armbench.bench.record.fields import (
+from armbench.record.fields import (
     Better,
     RowStatus,
     _bool,
@@ -18,7 +18,7 @@ from armbench.bench.record.fields import (
     _opt_num,
     _str,
 )
-from armbench.bench.record.shapes import ComparisonJson, ComparisonRowJson
+from armbench.record.shapes import ComparisonJson, ComparisonRowJson
 
 __all__ = ["Comparison", "ComparisonRow"]
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.record import RecordError, atomic_write_bytes
+from armbench.record import RecordError, atomic_write_bytes
 
 __all__ = ["FLEET_FILE", "FLEET_SCHEMA", "FleetArm", "FleetIndex", "is_fleet", "read_fleet_index",
            "write_fleet_index"]

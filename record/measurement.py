@@ -7,8 +7,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, get_args
 
-from armbench.bench.limits import Limit, LimitsConfig
-from armbench.bench.record.fields import (
+from armbench.drivers.settings import SettingsError
+from armbench.record.fields import (
     Better,
     Outcome,
     RecordError,
@@ -25,9 +25,9 @@ from armbench.bench.record.fields import (
     _opt_str,
     _str,
 )
-from armbench.bench.record.journal import StoredSamples
-from armbench.bench.record.shapes import MeasurementJson, SuiteJson, TrialJson
-from armbench.drivers.settings import SettingsError
+from armbench.record.journal import StoredSamples
+from armbench.record.limits import Limit, LimitsConfig
+from armbench.record.shapes import MeasurementJson, SuiteJson, TrialJson
 
 __all__ = ["Measurement", "SuiteRecord", "Trial", "default_better", "judge"]
 

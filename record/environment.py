@@ -13,10 +13,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record.fields import _get, _int, _list, _obj, _opt_str, _str
-from armbench.bench.record.shapes import EnvironmentJson
 from armbench.drivers.settings import RobotSettings
+from armbench.record.fields import _get, _int, _list, _obj, _opt_str, _str
+from armbench.record.limits import LimitsConfig
+from armbench.record.shapes import EnvironmentJson
 
 __all__ = ["Environment", "capture_environment", "git_revision", "new_run_id", "utc_timestamp"]
 

@@ -6,8 +6,8 @@ returns typed, frozen results in millimetres. See ``docs/metrics.md`` for the de
 
 from __future__ import annotations
 
-from armbench.bench.metrics._common import MM_PER_M, MetricsInputError
-from armbench.bench.metrics.iso9283 import (
+from armbench.metrics._common import MM_PER_M, MetricsInputError
+from armbench.metrics.iso9283 import (
     CUBE_PLANES,
     POSE_CORNERS,
     DistanceCharacteristics,
@@ -26,7 +26,7 @@ from armbench.bench.metrics.iso9283 import (
     resample_arc_length,
     resample_normal_planes,
 )
-from armbench.bench.metrics.path import (
+from armbench.metrics.path import (
     AxisErrorStats,
     PathErrors,
     PathErrorSummary,

@@ -15,8 +15,8 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.record import (
     Comparison,
     ComparisonRow,
     Measurement,
@@ -24,7 +24,7 @@ from armbench.bench.record import (
     RunRecord,
     load_record,
 )
-from armbench.drivers.errors import ArmbenchError
+from armbench.record.limits import LimitsConfig
 
 __all__ = [
     "BaselineError",
@@ -43,7 +43,7 @@ class BaselineError(ArmbenchError, ValueError):
 
 
 def read_record(path: str | Path) -> RunRecord:
-    """:func:`~armbench.bench.record.load_record` (kept for its callers: it once added what
+    """:func:`~armbench.record.load_record` (kept for its callers: it once added what
     ``load_record`` now does itself, a typed error for a record nested too deeply)."""
     return load_record(path)
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, TypedDict
 
-from armbench.bench.limits import LimitJson
-from armbench.bench.record.fields import Better, Outcome, RowStatus, SuiteStatus, TrialStatus
+from armbench.record.fields import Better, Outcome, RowStatus, SuiteStatus, TrialStatus
+from armbench.record.limits import LimitJson
 
 __all__ = [
     "ComparisonJson",

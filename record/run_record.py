@@ -10,9 +10,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import get_args
 
-from armbench.bench.record.comparison import Comparison
-from armbench.bench.record.environment import Environment, new_run_id, utc_timestamp
-from armbench.bench.record.fields import (
+from armbench.drivers.user_files import FileRefused, read_regular_file
+from armbench.record.comparison import Comparison
+from armbench.record.environment import Environment, new_run_id, utc_timestamp
+from armbench.record.fields import (
     RecordError,
     Verdict,
     _choice,
@@ -22,10 +23,9 @@ from armbench.bench.record.fields import (
     _obj,
     _str,
 )
-from armbench.bench.record.journal import journal_path, read_journal
-from armbench.bench.record.model import Measurement, SuiteRecord, Trial
-from armbench.bench.record.shapes import RecordJson
-from armbench.drivers.user_files import FileRefused, read_regular_file
+from armbench.record.journal import journal_path, read_journal
+from armbench.record.measurement import Measurement, SuiteRecord, Trial
+from armbench.record.shapes import RecordJson
 
 __all__ = ["PAPER_REFERENCE", "SCHEMA", "TOO_DEEP", "RunRecord", "load_record", "replay_journal",
            "validate_record"]
