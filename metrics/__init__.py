@@ -6,6 +6,9 @@ returns typed, frozen results in millimetres. See ``docs/metrics.md`` for the de
 
 from __future__ import annotations
 
+if __name__ != "armbench.metrics":  # the checkout's folder imported by its bare name: a second copy
+    raise ImportError(f"{__name__!r} installs as armbench.metrics: import it by that name")
+
 from armbench.metrics._common import MM_PER_M, MetricsInputError
 from armbench.metrics.iso9283 import (
     CUBE_PLANES,

@@ -11,11 +11,17 @@ fields may be added without a new schema version.
 Times: ``created``/``resumed`` are wall-clock ISO 8601 labels; every ``*_s`` field is seconds of
 run time on the monotonic clock (see :meth:`RecordWriter.elapsed_s`).
 
-Rooms: ``fields`` (vocabulary, errors, checked JSON access), ``model`` (measurements, trials,
-suites), ``comparison``, ``environment``, ``run`` (the record, loading it), ``files`` (names,
-paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials appended between
-writes of ``results.json``, samples kept on disk), ``writer``.
+Rooms: ``fields`` (vocabulary, errors, checked JSON access), ``measurement`` (measurements,
+trials, suites), ``comparison``, ``environment``, ``run_record`` (the record, loading it),
+``files`` (names, paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials
+appended between writes of ``results.json``, samples kept on disk), ``writer``. Beside them, what
+the bench and the report share about a record: ``limits``, ``baseline``, ``fleet_index`` and
+``suite_contract``. A layer below the bench, which writes records, and the report, which reads
+them (``docs/architecture.md``).
 """
+
+if __name__ != "armbench.record":  # the checkout's folder imported by its bare name: a second copy
+    raise ImportError(f"{__name__!r} installs as armbench.record: import it by that name")
 
 from armbench.record.comparison import Comparison, ComparisonRow
 from armbench.record.environment import (
