@@ -12,7 +12,13 @@ from pathlib import Path
 from armbench.bench.calibrate.capture import load_capture, observations_from_capture
 from armbench.bench.calibrate.fit import chosen_structures, fit_all
 from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
-from armbench.bench.calibrate.output import CalibrationResult, apply_fit, write_outputs
+from armbench.bench.calibrate.output import (
+    CalibrationResult,
+    PageRenderer,
+    apply_fit,
+    kinematic_residuals_mm,
+    write_outputs,
+)
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
 from armbench.bench.calibrate.sensitivity import sensitivity
 from armbench.bench.suites.base import PoseSource
@@ -24,25 +30,30 @@ __all__ = ["calibrate_capture", "calibrate_port", "finish"]
 
 
 def finish(obs: Observations, base: RobotSettings, out: Path,
-           error: str | None = None) -> CalibrationResult:
-    """Fit ``obs``, write the settings, the fit and the page next to ``out``."""
+           error: str | None = None, *, page: PageRenderer | None = None) -> CalibrationResult:
+    """Fit ``obs``, write the settings, the fit and (rendered by ``page``) the page next to
+    ``out``."""
     fitted = fit_all(obs, base)
     structures = chosen_structures(fitted)
-    result = CalibrationResult(obs, fitted, apply_fit(base, fitted), error,
+    settings = apply_fit(base, fitted)
+    result = CalibrationResult(obs, fitted, settings, error,
                                sensitivity(obs, base, fitted,
-                                           lambda o, b: fit_all(o, b, structures)))
-    write_outputs(result, out)
+                                           lambda o, b: fit_all(o, b, structures)),
+                               kinematic_residuals_mm(settings, obs))
+    write_outputs(result, out, page)
     return result
 
 
 async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                          budget_s: float = DEFAULT_BUDGET_S,
                          progress: Callable[[str], None] = lambda message: None,
-                         tracker: PoseSource | None = None) -> CalibrationResult:
+                         tracker: PoseSource | None = None,
+                         page: PageRenderer | None = None) -> CalibrationResult:
     """Run the procedure on ``port`` and write the outputs. ``tracker``: a reference instrument
     (``--tracker``, ``bench/truth.py``) measuring the true joints and TCP at rest, opened and
-    closed around the procedure. A joint that does not move ends the procedure: what was measured
-    is fitted and written, then :class:`ArmDoesNotMoveError` is raised."""
+    closed around the procedure. ``page`` renders the calibration page (without it none is
+    written). A joint that does not move ends the procedure: what was measured is fitted and
+    written, then :class:`ArmDoesNotMoveError` is raised."""
     out = Path(out)
     obs = Observations(source=port)
     raw = out.with_suffix(".observations.json")
@@ -62,14 +73,16 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
     finally:
         if tracker is not None:
             await aclose_source(tracker)
-    result = finish(obs, base, out, obs.error)
+    result = finish(obs, base, out, obs.error, page=page)
     if failure is not None:
         raise failure
     return result
 
 
-def calibrate_capture(capture: str | Path, base: RobotSettings, out: Path) -> CalibrationResult:
-    """Fit what the traffic of an existing capture shows and write the outputs."""
+def calibrate_capture(capture: str | Path, base: RobotSettings, out: Path, *,
+                      page: PageRenderer | None = None) -> CalibrationResult:
+    """Fit what the traffic of an existing capture shows and write the outputs (the page when
+    ``page`` renders it)."""
     data = load_capture(capture, base)
     obs = observations_from_capture(data, base)
-    return finish(obs, base, Path(out))
+    return finish(obs, base, Path(out), page=page)

@@ -26,6 +26,7 @@ from armbench.bench.truth import load_tracker
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
+from armbench.reports.calibration_page import render_page
 
 __all__ = ["register"]
 
@@ -74,13 +75,14 @@ def _run(args: argparse.Namespace) -> int:
         out.parent.mkdir(parents=True)
     base = load_settings(args.settings)
     if args.capture is not None:
-        result = calibrate_capture(args.capture, base, out)
+        result = calibrate_capture(args.capture, base, out, page=render_page)
     else:
         port: str = args.port
         tracker = None if args.tracker is None else load_tracker(args.tracker, base)
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
-            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker))
+            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
+            page=render_page))
     _summary(result, output_paths(out, observations=args.port is not None))
     return 0
 
