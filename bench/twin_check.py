@@ -47,7 +47,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from armbench.bench.calibrate.capture import CaptureData
+from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.twin_align import (
     TICK_RAD,
     Track,

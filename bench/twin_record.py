@@ -29,7 +29,7 @@ from armbench.bench.runner.options import JUNIT_FILE
 from armbench.bench.twin_check import Aligned, TwinCheck
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.metrics.series import envelope_indices
 from armbench.record import (
     CAPTURE_FILE,

@@ -18,7 +18,7 @@ from armbench.capture.read import read_attachment, read_joint_states
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.settings import actual_robot
+from armbench.fakes.emulator_settings import actual_robot
 
 __all__ = ["REST_SPEED_M_S", "REST_WINDOW_S", "arm_tcp_from_capture", "tcp_divergence"]
 

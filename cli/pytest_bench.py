@@ -333,8 +333,8 @@ async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> Async
     transport = None
     emulator = None
     if scheme_of(port) == "fake":
-        from armbench.fakes.arm import ArmEmulator
-        from armbench.fakes.settings import emulator_settings
+        from armbench.fakes.arm_emulator import ArmEmulator
+        from armbench.fakes.emulator_settings import emulator_settings
         from armbench.fakes.transport import FakeTransport, parse_fake_url
 
         _, seed, faults = parse_fake_url(port)

@@ -21,9 +21,9 @@ from urllib.parse import parse_qs, urlsplit
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
 from armbench.drivers.transports.base import Transport
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.faults import Fault, faults_from_settings, load_faults
-from armbench.fakes.settings import emulator_settings, with_emulator_overrides
 
 __all__ = ["FakeTransport", "apply_fake_query", "parse_fake_url"]
 
@@ -63,8 +63,8 @@ def apply_fake_query(port: str, robot: RobotSettings) -> RobotSettings:
 
 
 class FakeTransport(Transport):
-    """A transport whose other end is an :class:`~armbench.fakes.arm.ArmEmulator` on the same
-    loop."""
+    """A transport whose other end is an :class:`~armbench.fakes.arm_emulator.ArmEmulator` on the
+    same loop."""
 
     scheme = "fake"
 

@@ -35,7 +35,7 @@ from armbench.record import (
 )
 from armbench.record.files import atomic_write
 from armbench.record.suite_contract import STARTUP
-from armbench.reports.environment import environment_rows, fault_rows, settings_summary
+from armbench.reports.environment_view import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows
 from armbench.reports.sections import (

@@ -122,7 +122,7 @@ def test_the_layers_run_from_the_command_line_down_to_the_model() -> None:
     layers = _layers()
     order = [_layer_of(m, layers) for m in (
         "armbench.cli.main", "armbench.reports.page", "armbench.bench.runner",
-        "armbench.record.run_record", "armbench.metrics.iso9283", "armbench.fakes.arm",
+        "armbench.record.run_record", "armbench.metrics.iso9283", "armbench.fakes.arm_emulator",
         "armbench.drivers.arm", "armbench.capture.read", "armbench.drivers.transports.tcp",
         "armbench.drivers.protocol", "armbench.drivers.errors")]
     placed = [index for index in order if index is not None]

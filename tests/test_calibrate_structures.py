@@ -15,7 +15,7 @@ from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from test_twin_check import _lap
 
 from armbench.bench.calibrate import calibrate_port
-from armbench.bench.calibrate.capture import load_capture
+from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
 from armbench.bench.twin_check import twin_check
 from armbench.cli.main import main

@@ -385,7 +385,7 @@ def test_compiled_build_loads_its_own_calibration(armbench_wheel: Path, tmp_path
     assert "[emulator.physics.geometry_error]" in out.read_text()
     probe = ("import sys; from armbench.hot_modules import build_name; "
              "from armbench.drivers.settings import load_settings; "
-             "from armbench.fakes.settings import emulator_settings; print(build_name()); "
+             "from armbench.fakes.emulator_settings import emulator_settings; print(build_name()); "
              "[print(emulator_settings(load_settings(p)).physics.geometry_error.d1_m) "
              "for p in sys.argv[1:]]")
     done = subprocess.run([sys.executable, "-c", probe, str(hand), str(out)], env=env,

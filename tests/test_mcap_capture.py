@@ -44,7 +44,7 @@ from armbench.drivers.protocol import AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.urdf import robot_urdf
 from armbench.record import RunRecord, load_record
-from armbench.reports.capture import summarize_capture
+from armbench.reports.capture_summary import summarize_capture
 
 TOPICS = {"/uart/tx", "/uart/rx", "/joint_states", "/joint_states/true", "/joint_states_goal",
           "/tf", "/tf_static", "/robot_description", "/bench/events"}
@@ -68,7 +68,7 @@ class _Emulators(list[Any]):
     """Emulator factory keeping every emulator, for their counters."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from armbench.fakes.arm import ArmEmulator
+        from armbench.fakes.arm_emulator import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)

@@ -21,7 +21,7 @@ from armbench.record import Measurement, RunRecord, SuiteRecord, load_record
 from armbench.record.baseline import compare
 from armbench.record.suite_contract import ACCURACY, STARTUP
 from armbench.reports import plots, plots_over_runs, render_index, render_report
-from armbench.reports.compare import render_compare
+from armbench.reports.compare_page import render_compare
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import HEADLINES, score_rows, true_name
 

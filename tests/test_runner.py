@@ -190,7 +190,7 @@ class Emulators(list[Any]):
     """An emulator factory that keeps every emulator it builds."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from armbench.fakes.arm import ArmEmulator
+        from armbench.fakes.arm_emulator import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)
@@ -340,7 +340,7 @@ def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> No
 async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     """A port that is not fake:// runs in real time with one reconnecting connection: here the
     emulator served on a TCP socket, as ``armbench emulate --tcp`` does for a remote robot."""
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
     from armbench.fakes.serve import TcpServer
 
     server = TcpServer(ArmEmulator())

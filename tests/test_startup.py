@@ -11,7 +11,7 @@ import pytest
 
 import armbench
 from armbench.cli import main as cli
-from armbench.cli.perf.startup import heavy_imports
+from armbench.cli.perf.startup_perf import heavy_imports
 
 
 @pytest.mark.parametrize("args", [("--help",), ("fk", "0", "0", "0", "0"), ("fk", "--help")])

@@ -27,7 +27,7 @@ from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
 from armbench.metrics import error_summary, path_errors, square_yz
 

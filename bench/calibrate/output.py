@@ -43,7 +43,7 @@ def kinematic_residuals_mm(settings: RobotSettings,
     """The distance from the TCP the fitted ``settings`` put at each hold's true joint angles to
     the TCP the reference instrument measured (mm); none without the emulator's physics."""
     from armbench.drivers.kinematics import tcp_position
-    from armbench.fakes.settings import actual_robot, emulator_settings
+    from armbench.fakes.emulator_settings import actual_robot, emulator_settings
 
     if emulator_settings(settings).physics is None:
         return ()

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.campaign.run import BatchedWriter, CampaignOptions, prepare_campaign
+from armbench.bench.campaign.campaign_run import BatchedWriter, CampaignOptions, prepare_campaign
 from armbench.bench.runner import (
     RUNNER_FILE,
     BenchPlan,

@@ -29,9 +29,9 @@ from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, 
 from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings
     from armbench.fakes.faults import Fault
-    from armbench.fakes.settings import EmulatorSettings
 
 __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",

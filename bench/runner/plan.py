@@ -493,7 +493,7 @@ def prepare(options: RunOptions) -> BenchPlan:
               else _new_inputs(options, port))
     knobs = _bench_knobs(inputs.config, options, port.fake)
     if port.fake:
-        from armbench.fakes.settings import emulator_settings
+        from armbench.fakes.emulator_settings import emulator_settings
 
         emulator_settings(inputs.settings)  # the [emulator] table, its seed too, checked now
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.power import port_power
-from armbench.bench.runner.capture import CaptureParts
+from armbench.bench.runner.capture_parts import CaptureParts
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     BenchPlan,
@@ -41,9 +41,9 @@ from armbench.record import (
 if TYPE_CHECKING:
     from armbench.capture.part import PartWriter
     from armbench.drivers.arm import Arm
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings
     from armbench.fakes.faults import Fault
-    from armbench.fakes.settings import EmulatorSettings
 
 __all__ = ["Connection", "LoopClockWriter", "Messages", "RunClock", "TrialAttempts",
            "TrialRunner", "default_emulator", "describe"]
@@ -65,7 +65,7 @@ def describe(exc: BaseException) -> str:
 def default_emulator(robot: RobotSettings, settings: EmulatorSettings,
                      faults: Sequence[Fault]) -> ArmEmulator:
     """The built-in emulator of a ``fake://`` connection."""
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
 
     return ArmEmulator(robot, settings, faults)
 
@@ -150,7 +150,7 @@ class TrialAttempts:
         emulator = None
         transport = None
         if plan.fake:
-            from armbench.fakes.settings import emulator_settings
+            from armbench.fakes.emulator_settings import emulator_settings
             from armbench.fakes.transport import FakeTransport
 
             robot = plan.settings if robot is None else robot

@@ -67,7 +67,7 @@ def register(sub: Any) -> None:
 
 def write_campaign_page(record: RunRecord, outcome: RunOutcome) -> None:
     """``campaign.html`` beside the record."""
-    from armbench.reports.campaign import CAMPAIGN_PAGE, render_campaign
+    from armbench.reports.campaign_page import CAMPAIGN_PAGE, render_campaign
 
     path = render_campaign(record, outcome.out_dir / CAMPAIGN_PAGE)
     print(f"  {CAMPAIGN_PAGE:<13} {path}", file=sys.stdout)

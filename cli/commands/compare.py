@@ -85,7 +85,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         print(format_comparison(comparison, run_id=current.run_id))
     if args.html is not None:
-        from armbench.reports.compare import render_compare
+        from armbench.reports.compare_page import render_compare
 
         render_compare(baseline, current, comparison, args.html)
     return EXIT_REGRESSION if comparison.regressed else EXIT_PASS

@@ -19,11 +19,11 @@ from armbench.bench.live import (
 )
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError, load_settings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.avr_serve import serve_firmware
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.faults import faults_from_settings, load_faults
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
-from armbench.fakes.settings import emulator_settings
 from armbench.fakes.signals import stop_on_signals
 
 __all__ = ["register"]

@@ -1,5 +1,5 @@
 """``armbench run --port P1 --port P2 ...``: the fleet half of the run command (no subcommand of
-its own): runs every arm at once (``bench/runner/fleet.py``), writes each arm's reports and the
+its own): runs every arm at once (``bench/runner/fleet_run.py``), writes each arm's reports and the
 fleet page, prints one line per arm and returns the fleet's exit status (``docs/fleet.md``)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 
 from armbench.bench.runner import RunOptions
-from armbench.bench.runner.fleet import FleetOutcome, run_fleet_sync
+from armbench.bench.runner.fleet_run import FleetOutcome, run_fleet_sync
 from armbench.cli.reporting import write_reports
 
 __all__ = ["print_summary", "run_fleet"]
@@ -30,7 +30,7 @@ def run_fleet(options: RunOptions, ports: Sequence[str], *, summary: str | None 
                           capture_max_bytes=arm_outcome.capture_max_bytes)
     page = outcome.out_dir / FLEET_PAGE
     try:
-        from armbench.reports.fleet import render_fleet
+        from armbench.reports.fleet_page import render_fleet
 
         render_fleet(outcome.out_dir, page)
     except Exception as exc:  # the records and reports are on disk: say so, keep the status

@@ -20,7 +20,7 @@ import sys
 from typing import Any
 
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
-from armbench.bench.runner.fleet import parse_arms
+from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import SUITES
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.reporting import write_reports

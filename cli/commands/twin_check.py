@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.calibrate.capture import load_capture
+from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.twin_check import DEFAULT_CONFIG, TwinCheck, twin_check
 from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
 from armbench.cli.reporting import write_reports

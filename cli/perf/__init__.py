@@ -15,16 +15,17 @@ from typing import Any
 
 __all__ = ["BENCHMARK_MODULES", "Figure", "PerfOptions", "best_rate", "run_benchmarks"]
 
-#: Each module exposes ``run(options) -> list[Figure]``.
+#: Each module exposes ``run(options) -> list[Figure]``; ``--only`` and the progress name it
+#: without its ``_perf`` suffix.
 BENCHMARK_MODULES: tuple[str, ...] = (
-    "armbench.cli.perf.startup",
-    "armbench.cli.perf.codec",
-    "armbench.cli.perf.emulator",
-    "armbench.cli.perf.transports",
-    "armbench.cli.perf.driver",
-    "armbench.cli.perf.report",
-    "armbench.cli.perf.firmware",
-    "armbench.cli.perf.fleet",
+    "armbench.cli.perf.startup_perf",
+    "armbench.cli.perf.codec_perf",
+    "armbench.cli.perf.emulator_perf",
+    "armbench.cli.perf.transports_perf",
+    "armbench.cli.perf.driver_perf",
+    "armbench.cli.perf.report_perf",
+    "armbench.cli.perf.firmware_perf",
+    "armbench.cli.perf.fleet_perf",
 )
 
 
@@ -83,7 +84,7 @@ def run_benchmarks(options: PerfOptions, only: Iterable[str] = (), *,
 
     figures: list[Figure] = []
     for name in BENCHMARK_MODULES:
-        short = name.rsplit(".", 1)[-1]
+        short = name.rsplit(".", 1)[-1].removesuffix("_perf")
         if prefixes and not any(p.split(".")[0] == short or short.startswith(p)
                                 for p in prefixes):
             continue

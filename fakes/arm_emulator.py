@@ -18,10 +18,10 @@ from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.boards import Board, MasterBoard, SlaveBoard, TruthSample
 from armbench.fakes.eeprom import RATED_CYCLES, Eeprom
+from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
 from armbench.fakes.faults import Fault, FaultInjector
 from armbench.fakes.i2c import BusClock, I2CBus
 from armbench.fakes.physics import Mechanism
-from armbench.fakes.settings import EmulatorSettings, emulator_settings
 from armbench.fakes.uart import Uart
 
 __all__ = ["ArmEmulator", "ArmStats"]

@@ -43,9 +43,9 @@ from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import REPLY_LEN, Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
+from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
 from armbench.fakes.i2c import transaction_bits
 from armbench.fakes.i2c_messages import I2CMessage
-from armbench.fakes.settings import EmulatorSettings, emulator_settings
 from armbench.fakes.transport import FakeTransport
 from armbench.fakes.vclock import run_virtual
 

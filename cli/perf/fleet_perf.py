@@ -5,7 +5,7 @@
   process (one lap per style, real time). Each arm's reply rate is read from its own
   ``capture.mcap``: replies received (well-formed ``in`` frames) per second between the first
   and the last one, i.e. over the whole run. The value is the lowest arm's rate, the bound that
-  of :func:`armbench.cli.perf.driver.reply_rate_bound` (the bound of ``driver.pty_reply_rate``,
+  of :func:`armbench.cli.perf.driver_perf.reply_rate_bound` (the bound of ``driver.pty_reply_rate``,
   the one-arm figure), the ratio (the figure's name) their quotient; the note lists every arm's
   rate. Target ratio 0.9.
 """
@@ -21,9 +21,9 @@ from pathlib import Path
 from armbench.bench.runner.options import CAPTURE_FILE, DEFAULT_CONFIG
 from armbench.capture.read import open_capture
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.cli.perf.driver import reply_rate_bound, serve_pty
+from armbench.cli.perf.driver_perf import reply_rate_bound, serve_pty
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 
 __all__ = ["ARMS", "capture_reply_rate", "run"]
 

@@ -16,9 +16,9 @@ import time
 from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.joint import CYCLE_S
-from armbench.fakes.settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
 
 __all__ = ["run"]

@@ -1,5 +1,5 @@
 """Several arms in one run: ``armbench run --port P1 --port P2 ...`` runs the suites on every arm
-at once, one :func:`~armbench.bench.runner.run.execute` per arm on one event loop.
+at once, one :func:`~armbench.bench.runner.execute.execute` per arm on one event loop.
 
 Each arm is a run of its own in ``RUN_DIR/<arm>/`` (its record, capture and reports, exactly as a
 single-port run lays them out); ``RUN_DIR/fleet.json`` lists the arms, their ports, verdicts and
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, cast
 
+from armbench.bench.runner.execute import execute
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
@@ -37,7 +38,6 @@ from armbench.bench.runner.options import (
     RunOutcome,
 )
 from armbench.bench.runner.plan import prepare
-from armbench.bench.runner.run import execute
 from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.transports import scheme_of

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from armbench.bench.calibrate.capture import load_capture, observations_from_capture
+from armbench.bench.calibrate.capture_data import load_capture, observations_from_capture
 from armbench.bench.calibrate.fit import chosen_structures, fit_all
 from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
 from armbench.bench.calibrate.output import (
