@@ -15,9 +15,10 @@ Rooms: ``fields`` (vocabulary, errors, checked JSON access), ``measurement`` (me
 trials, suites), ``comparison``, ``environment``, ``run_record`` (the record, loading it),
 ``files`` (names, paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials
 appended between writes of ``results.json``, samples kept on disk), ``writer``. Beside them, what
-the bench and the report share about a record: ``limits``, ``baseline``, ``fleet_index`` and
-``suite_contract``. A layer below the bench, which writes records, and the report, which reads
-them (``docs/architecture.md``).
+the bench and the report share about a record: ``limits``, ``baseline``, ``fleet_index``,
+``suite_contract`` and ``interim`` (the figures of a suite interrupted before its summary). A
+layer below the bench, which writes records, and the report, which reads them
+(``docs/architecture.md``).
 """
 
 if __name__ != "armbench.record":  # the checkout's folder imported by its bare name: a second copy
