@@ -10,7 +10,7 @@ reaching the driver.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Final
+from typing import Final, Protocol, TypeVar
 
 __all__ = [
     "ACCURACY",
@@ -26,7 +26,10 @@ __all__ = [
     "RepeatabilityNames",
     "SampleKeys",
     "StartupNames",
+    "SuiteContract",
     "TwinCheckNames",
+    "contracts",
+    "register",
     "resolution",
 ]
 
@@ -83,11 +86,45 @@ class SampleKeys:
 SAMPLE: Final = SampleKeys()
 
 
+class SuiteContract(Protocol):
+    """What every suite's contract says: the suite's name, whether it records true figures beside
+    the encoders', and the headline figures the report leads with."""
+
+    @property
+    def suite(self) -> str: ...
+
+    @property
+    def has_true_figures(self) -> bool: ...
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]: ...
+
+
+_CONTRACTS: dict[str, SuiteContract] = {}
+_C = TypeVar("_C", bound=SuiteContract)
+
+
+def register(contract: _C) -> _C:
+    """Add a suite's contract to :func:`contracts` (where it is defined: no list to edit
+    elsewhere); a second contract of the same suite name is a bug."""
+    if contract.suite in _CONTRACTS:
+        raise ValueError(f"two contracts of suite {contract.suite!r}")
+    _CONTRACTS[contract.suite] = contract
+    return contract
+
+
+def contracts() -> tuple[SuiteContract, ...]:
+    """Every suite's contract, in the order they are defined (the report's order of suites)."""
+    return tuple(_CONTRACTS.values())
+
+
 @dataclass(frozen=True, slots=True)
 class AccuracyNames:
     """The accuracy suite (the paper's square, §7)."""
 
     suite: str = "accuracy"
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = True
     styles: tuple[str, ...] = ("paper", "coordinated")
     paper: str = "paper"
     coordinated: str = "coordinated"
@@ -141,6 +178,8 @@ class RepeatabilityNames:
     """The repeatability suite (ISO 9283)."""
 
     suite: str = "repeatability"
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = True
     # trial parameters and their kinds
     kind: str = "kind"
     speed: str = "speed_pct"
@@ -204,6 +243,8 @@ class StartupNames:
     """The startup-recovery suite (paper §5.2): power cuts and EEPROM wear."""
 
     suite: str = "startup-recovery"
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = False
     prefix: str = "startup"
     # trial parameters and their kinds
     kind: str = "kind"
@@ -331,9 +372,9 @@ class StartupNames:
         )
 
 
-ACCURACY: Final = AccuracyNames()
-REPEATABILITY: Final = RepeatabilityNames()
-STARTUP: Final = StartupNames()
+ACCURACY: Final = register(AccuracyNames())
+REPEATABILITY: Final = register(RepeatabilityNames())
+STARTUP: Final = register(StartupNames())
 
 
 @dataclass(frozen=True, slots=True)
@@ -341,6 +382,8 @@ class JointsNames:
     """The joints suite (ISO 230-2 bidirectional positioning of each joint)."""
 
     suite: str = "joints"
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = True
     prefix: str = "joints"
     # trial parameter and the sample key of the true angle
     joint: str = "joint"
@@ -375,7 +418,7 @@ class JointsNames:
         )
 
 
-JOINTS: Final = JointsNames()
+JOINTS: Final = register(JointsNames())
 
 
 @dataclass(frozen=True, slots=True)
@@ -384,6 +427,8 @@ class TwinCheckNames:
     :mod:`armbench.bench.twin_record`; the report's twin-check section)."""
 
     suite: str = "twin-check"
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = False
     prefix: str = "twin"
     # suite parameters: the inputs and how the series were kept
     capture: str = "capture"
@@ -463,4 +508,4 @@ class TwinCheckNames:
         )
 
 
-TWIN_CHECK: Final = TwinCheckNames()
+TWIN_CHECK: Final = register(TwinCheckNames())
