@@ -88,13 +88,17 @@ SAMPLE: Final = SampleKeys()
 
 class SuiteContract(Protocol):
     """What every suite's contract says: the suite's name, whether it records true figures beside
-    the encoders', and the headline figures the report leads with."""
+    the encoders', the suite class that runs it (by name: this layer imports no suite) and the
+    headline figures the report leads with."""
 
     @property
     def suite(self) -> str: ...
 
     @property
     def has_true_figures(self) -> bool: ...
+
+    @property
+    def implementation(self) -> str | None: ...
 
     @property
     def headlines(self) -> tuple[Headline, ...]: ...
@@ -125,6 +129,8 @@ class AccuracyNames:
     suite: str = "accuracy"
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
+    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
+    implementation: str | None = "armbench.bench.suites.accuracy:AccuracySuite"
     styles: tuple[str, ...] = ("paper", "coordinated")
     paper: str = "paper"
     coordinated: str = "coordinated"
@@ -180,6 +186,8 @@ class RepeatabilityNames:
     suite: str = "repeatability"
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
+    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
+    implementation: str | None = "armbench.bench.suites.repeatability:RepeatabilitySuite"
     # trial parameters and their kinds
     kind: str = "kind"
     speed: str = "speed_pct"
@@ -245,6 +253,8 @@ class StartupNames:
     suite: str = "startup-recovery"
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
+    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
+    implementation: str | None = "armbench.bench.suites.startup_recovery:StartupRecoverySuite"
     prefix: str = "startup"
     # trial parameters and their kinds
     kind: str = "kind"
@@ -384,6 +394,8 @@ class JointsNames:
     suite: str = "joints"
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
+    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
+    implementation: str | None = "armbench.bench.suites.joints:JointsSuite"
     prefix: str = "joints"
     # trial parameter and the sample key of the true angle
     joint: str = "joint"
@@ -429,6 +441,8 @@ class TwinCheckNames:
     suite: str = "twin-check"
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
+    #: what runs the suite as ``module:Class`` (None: recorded by ``armbench twin-check``)
+    implementation: str | None = None
     prefix: str = "twin"
     # suite parameters: the inputs and how the series were kept
     capture: str = "capture"

@@ -51,3 +51,14 @@ def test_two_sections_of_one_suite_are_refused(tmp_path: Path,
 def test_a_second_contract_of_one_suite_is_refused() -> None:
     with pytest.raises(ValueError, match="two contracts of suite 'accuracy'"):
         register(AccuracyNames())
+
+
+def test_the_suites_are_those_their_contracts_name() -> None:
+    """``armbench run``'s suites, in their default order, are the contracts that name a suite
+    class, and each class runs the suite of its contract's name."""
+    from armbench.bench.suites import SUITES, suite_class
+
+    assert list(SUITES) == ["accuracy", "repeatability", "startup-recovery", "joints"]
+    for name in SUITES:
+        assert suite_class(name).name == name
+    assert "twin-check" not in SUITES  # recorded by armbench twin-check, run by no suite
