@@ -1,14 +1,16 @@
 """Build: the project's metadata is in pyproject.toml; this maps the folders to the package and adds
 the hot modules compiled by mypyc.
 
-The checkout keeps the layout the project was specified with: ``bench/``, ``drivers/``, ``fakes/``
-and ``reports/`` at the top. They install as one namespace, ``armbench`` (``api/`` holds the
-package's own modules: the public API, ``python -m armbench`` and the list of compiled modules),
-through setuptools' ``package_dir`` mapping, and the firmware sources (``firmware/``) install
-beside them as ``armbench/firmware``, so ``armbench firmware build`` and ``avr://`` work from a
-regular install. No folder of the checkout is named ``armbench``: from the checkout, as from
-anywhere, ``import armbench`` finds the installed build (the compiled wheel, the plain-Python one
-or an editable install), never a second copy of the source (``docs/performance.md``).
+The checkout keeps its packages at the top, one folder each (``SUBPACKAGES``: ``cli/``,
+``reports/``, ``bench/``, ``record/``, ``metrics/``, ``fakes/``, ``drivers/``, ``capture/``; their
+layers are in ``docs/architecture.md``). They install as one namespace, ``armbench`` (``api/``
+holds the package's own modules: the public API, ``python -m armbench`` and the list of compiled
+modules), through setuptools' ``package_dir`` mapping, and the firmware sources (``firmware/``)
+install beside them as ``armbench/firmware``, so ``armbench firmware build`` and ``avr://`` work
+from a regular install. No folder of the checkout is named ``armbench``: from the checkout, as
+from anywhere, ``import armbench`` finds the installed build (the compiled wheel, the
+plain-Python one or an editable install), never a second copy of the source
+(``docs/performance.md``).
 
 A regular (wheel) build compiles the modules named in ``api/hot_modules.py`` when mypyc (a build
 requirement) and a C compiler are at hand, as black's release wheels are built: each compiled
@@ -31,7 +33,7 @@ from setuptools import find_namespace_packages, setup
 
 ROOT = Path(__file__).resolve().parent
 #: Each installed package and the checkout folder it comes from.
-SUBPACKAGES = ("bench", "drivers", "fakes", "reports")
+SUBPACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports")
 PACKAGE_DIR = {"armbench": "api", "armbench.firmware": "firmware",
                **{f"armbench.{name}": name for name in SUBPACKAGES}}
 PACKAGES = ["armbench", "armbench.firmware",

@@ -2,7 +2,7 @@
 
 import sys
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 
 if __name__ == "__main__":  # not when a worker process imports it (bench/workers.py)
     sys.exit(main())

@@ -1,8 +1,8 @@
 """The run's traffic capture ``capture.mcap``: what the runner writes into it besides frames.
 
-The driver of each connection writes a binary part (:class:`~armbench.drivers.capture_part.
+The driver of each connection writes a binary part (:class:`~armbench.capture.part.
 PartWriter`: frames, the emulator's ground truth, power switches and faults, on that process's
-loop clock); the runner adds each part to the run's :class:`~armbench.drivers.capture_mcap.
+loop clock); the runner adds each part to the run's :class:`~armbench.capture.mcap_writer.
 McapCapture` once its trial is in the record, moved onto the run clock, with the trial's start
 and end as events. At the end ``results.json`` is attached. A resumed run copies what the killed
 run's file holds (up to its last complete chunk) into a new one, after the frames of an older
@@ -23,15 +23,15 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 from armbench.bench.suites.base import PowerSwitch, ReReferencing
-from armbench.drivers.capture import CaptureError, read_capture
-from armbench.drivers.capture_append import ZSTD_MEDIA_TYPE, zstd_attachment
-from armbench.drivers.capture_mcap import McapCapture
-from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import capture_start_ns, iter_events, iter_messages
+from armbench.capture.append import ZSTD_MEDIA_TYPE, zstd_attachment
+from armbench.capture.jsonl import CaptureError, read_capture
+from armbench.capture.mcap_writer import McapCapture
+from armbench.capture.part import PartWriter
+from armbench.capture.read import capture_start_ns, iter_events, iter_messages
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
            "emulator_truth", "fault_events", "logged_power"]

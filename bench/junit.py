@@ -30,13 +30,13 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from armbench.bench.record import (
+from armbench.record import (
     ComparisonRow,
     Measurement,
     RunRecord,
     SuiteRecord,
 )
-from armbench.bench.record.files import atomic_write
+from armbench.record.files import atomic_write
 
 #: The key of a campaign suite's parameters (``armbench.bench.campaign.CAMPAIGN_KEY``; the
 #: campaign package imports the runner, which this module must not).

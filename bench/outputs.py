@@ -8,7 +8,7 @@ root); an existing file unless ``force`` is given; and, even with ``force``, a f
 record (``results.json``, its journal, ``report.html``, the capture, ...) in a directory that
 holds a run. :func:`check_out_dir` does the same for a directory a command fills (its writer
 creates it if missing). Writers then replace each file atomically
-(:func:`armbench.bench.record.files.atomic_write`).
+(:func:`armbench.record.files.atomic_write`).
 """
 
 from __future__ import annotations
@@ -19,18 +19,18 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Final
 
-from armbench.bench.record.files import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.record.files import (
     CAPTURE_FILE,
     JOURNAL_FILE,
     LEGACY_CAPTURE_FILE,
     REPORT_FILE,
     RESULTS_FILE,
 )
-from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["RUN_FILES", "OutputError", "check_out_dir", "check_out_files", "is_run_file"]
 
-#: The files of a run directory (``armbench.bench.record.files``; ``junit.xml`` and
+#: The files of a run directory (``armbench.record.files``; ``junit.xml`` and
 #: ``runner.json`` of ``armbench.bench.runner.options``; the fleet's and the index's pages): never
 #: replaced by another command's output.
 RUN_FILES: Final = frozenset({RESULTS_FILE, JOURNAL_FILE, REPORT_FILE, CAPTURE_FILE,

@@ -62,7 +62,7 @@ class _EmulatorLike(Protocol):
 class EmulatorPower:
     """The power control of the ``fake://`` emulator.
 
-    ``source`` is the :class:`~armbench.fakes.arm.ArmEmulator` itself, or anything with an
+    ``source`` is the :class:`~armbench.fakes.arm_emulator.ArmEmulator` itself, or anything with an
     ``emulator``
     attribute (an :class:`~armbench.drivers.arm.Arm` or a fake transport), resolved at each switch,
     so the

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from armbench.bench.record import REPORT_FILE, RunRecord
 from armbench.bench.verdict import exit_status
+from armbench.record import REPORT_FILE, RunRecord
 
 __all__ = ["MAX_LINES", "append_summary", "markdown_summary", "write_step_summary"]
 

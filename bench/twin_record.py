@@ -1,9 +1,9 @@
 """The record of ``armbench twin-check --out DIR``: a run record (``results.json``, schema
-``armbench-run/1``, written by :class:`~armbench.bench.record.RecordWriter`) holding one suite,
+``armbench-run/1``, written by :class:`~armbench.record.RecordWriter`) holding one suite,
 ``twin-check``, so ``armbench report``, ``compare``, ``report --index`` and ``--baseline`` read it
 like any run's.
 
-The suite (names from :data:`~armbench.bench.suites.contract.TWIN_CHECK`) holds:
+The suite (names from :data:`~armbench.record.suite_contract.TWIN_CHECK`) holds:
 
 * its parameters: the inputs (capture, settings and limits files, each with its SHA-256) and the
   number of buckets the series were kept with;
@@ -24,10 +24,14 @@ from typing import Any, Final
 
 import numpy as np
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.metrics.series import envelope_indices
 from armbench.bench.outputs import check_out_dir as check_out_dir_writable
-from armbench.bench.record import (
+from armbench.bench.runner.options import JUNIT_FILE
+from armbench.bench.twin_check import Aligned, TwinCheck
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings
+from armbench.fakes.emulator_settings import emulator_settings
+from armbench.metrics.series import envelope_indices
+from armbench.record import (
     CAPTURE_FILE,
     JOURNAL_FILE,
     REPORT_FILE,
@@ -40,12 +44,8 @@ from armbench.bench.record import (
     capture_environment,
     path_inside,
 )
-from armbench.bench.runner.options import JUNIT_FILE
-from armbench.bench.suites.contract import RAD_DECIMALS, SAMPLE, TWIN_CHECK
-from armbench.bench.twin_check import Aligned, TwinCheck
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.settings import emulator_settings
+from armbench.record.limits import LimitsConfig
+from armbench.record.suite_contract import RAD_DECIMALS, SAMPLE, TWIN_CHECK
 
 __all__ = ["ARRIVAL_BUCKETS", "SERIES_BUCKETS", "VERSION", "TwinInputs", "check_out_dir",
            "file_sha256", "twin_record", "write_twin_record"]
@@ -85,7 +85,7 @@ def file_sha256(path: Path) -> str:
 
 
 #: What ``--out DIR`` receives: the record, its pages; a capture there would get the report
-#: attached (``armbench.bench.reporting``), and a run's journal means a run's directory.
+#: attached (``armbench.cli.reporting``), and a run's journal means a run's directory.
 OUT_FILES: Final = (RESULTS_FILE, JOURNAL_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE)
 
 

@@ -14,13 +14,13 @@ from typing import Final
 
 import numpy as np
 
-from armbench.bench.calibrate.capture import CaptureData
+from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.twin_align import TICK_RAD
 from armbench.drivers.motion import joint_speed_rad_s
 from armbench.drivers.protocol import MAX_DUTY, AngleDecoder, Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm import ArmEmulator
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import emulator_settings
 
 __all__ = ["BURST_S", "SILENCE_S", "TIME_SLACK_S", "Session", "TwinTruth", "replay_twin",
            "sessions"]

@@ -13,11 +13,11 @@ import numpy as np
 
 from armbench.bench.twin_align import Track
 from armbench.bench.twin_replay import TwinTruth
-from armbench.drivers.capture_read import read_attachment, read_joint_states
+from armbench.capture.read import read_attachment, read_joint_states
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.settings import actual_robot
+from armbench.fakes.emulator_settings import actual_robot
 
 __all__ = ["REST_SPEED_M_S", "REST_WINDOW_S", "arm_tcp_from_capture", "tcp_divergence"]
 

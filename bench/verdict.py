@@ -23,8 +23,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Final
 
-from armbench.bench.limits import LimitsConfig, load_limits
-from armbench.bench.record import Verdict
+from armbench.record import Verdict
+from armbench.record.limits import LimitsConfig, load_limits
 
 __all__ = [
     "DEFAULT_CONFIG", "EXIT_ERROR", "EXIT_FAIL", "EXIT_INCOMPLETE", "EXIT_INTERRUPTED",

@@ -29,14 +29,14 @@ from typing import Any, Final, Literal
 import numpy as np
 import numpy.typing as npt
 
+from armbench.capture.jsonl import CaptureWriter
+from armbench.capture.read import replay_capture
 from armbench.drivers.arrival import (
     HOLD_ON,
     MOVE_TIMEOUT_MARGIN,
     MOVE_TIMEOUT_SLACK_S,
     ArrivalTracker,
 )
-from armbench.drivers.capture import CaptureWriter
-from armbench.drivers.capture_read import replay_capture
 from armbench.drivers.errors import (
     DriverClosedError,
     DriverError,
@@ -186,8 +186,8 @@ class Arm(ArmLink):
 
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
         longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
-        receives every frame in and out (see :mod:`armbench.drivers.capture`), times counted from
-        the opening; or a :class:`~armbench.drivers.capture.CaptureWriter` with a time origin of the
+        receives every frame in and out (see :mod:`armbench.capture.jsonl`), times counted from
+        the opening; or a :class:`~armbench.capture.jsonl.CaptureWriter` with a time origin of the
         caller's, which the connection uses and closes. ``reconnect``: True or a
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an

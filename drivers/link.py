@@ -19,7 +19,7 @@ from pathlib import Path as FsPath
 from types import TracebackType
 from typing import Any, Final, Self
 
-from armbench.drivers.capture import CaptureWriter, frame_text
+from armbench.capture.jsonl import CaptureWriter, frame_text
 from armbench.drivers.errors import (
     DriverClosedError,
     DriverError,

@@ -19,9 +19,9 @@ from pathlib import Path
 
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.avr import HARNESS_NAME, board_specs, build, find_images
-from armbench.fakes.settings import emulator_settings, with_emulator_overrides
+from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.vclock import run_virtual
 
 __all__ = ["DEFAULT_SCRIPT", "DiffResult", "compare", "run_emulator", "run_firmware"]

@@ -26,11 +26,11 @@ from pathlib import Path
 
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.avr import HARNESS_NAME, board_specs, build, data_symbols, find_images
 from armbench.fakes.avr_diff import TICKS_HALF_TURN, TICKS_TURN, compare
 from armbench.fakes.eeprom import RECORD_BYTES, EepromRecord, decode_record
-from armbench.fakes.settings import emulator_settings, with_emulator_overrides
+from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.vclock import run_virtual
 
 __all__ = [

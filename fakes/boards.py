@@ -25,6 +25,7 @@ from typing import Final
 from armbench.drivers.protocol import TICKS_PER_RAD, Command, Framer, encode_reply, ticks_to_rad
 from armbench.drivers.settings import JointSettings
 from armbench.fakes.eeprom import Eeprom, RecordWrites, record_write_times
+from armbench.fakes.emulator_settings import EmulatorSettings
 from armbench.fakes.i2c import (
     REG_POSITION,
     REG_REFERENCE,
@@ -36,7 +37,6 @@ from armbench.fakes.i2c import (
 from armbench.fakes.i2c_messages import I2C_M_RD, I2CMessage
 from armbench.fakes.joint import CYCLE_S, JointModel
 from armbench.fakes.physics import Mechanism, TruthSample
-from armbench.fakes.settings import EmulatorSettings
 from armbench.fakes.uart import Uart
 
 __all__ = ["Board", "MasterBoard", "SlaveBoard", "TruthSample"]

@@ -22,7 +22,7 @@ from pathlib import Path
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.protocol import Framer
 from armbench.drivers.server_notes import note_line
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 
 __all__ = ["ClientStream", "FrameLogger", "LinkError", "PtyServer", "ReceiveBuffer", "TcpServer",
            "claim_link", "parse_host_port", "real_time_loop", "release_link"]

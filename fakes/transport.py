@@ -29,9 +29,9 @@ from armbench.drivers.settings import RobotSettings, SerialSettings, load_settin
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 from armbench.drivers.transports.target import given_by, resolve
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.faults import Fault, faults_from_settings, load_faults
-from armbench.fakes.settings import emulator_settings, with_emulator_overrides
 
 __all__ = ["FAKE_CAPABILITIES", "FakeTransport", "parse_fake_url"]
 
@@ -52,8 +52,8 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
 
 
 class FakeTransport(Transport):
-    """A transport whose other end is an :class:`~armbench.fakes.arm.ArmEmulator` on the same
-    loop."""
+    """A transport whose other end is an :class:`~armbench.fakes.arm_emulator.ArmEmulator` on the
+    same loop."""
 
     scheme = "fake"
 

@@ -43,9 +43,9 @@ with atheris.instrument_imports(include=["tomllib", "drivers", "fakes"]):
 
     from armbench.drivers.protocol import Command
     from armbench.drivers.settings import RobotSettings, SettingsError
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
     from armbench.fakes.faults import Fault, faults_from_settings
-    from armbench.fakes.settings import EmulatorSettings, emulator_settings
     from armbench.fakes.vclock import run_virtual
 
 #: Anything the emulator would allocate per unit beyond this is reported instead of run.

@@ -40,8 +40,8 @@ from _harness import fuzz_main
 with atheris.instrument_imports(include=["drivers", "fakes"]):
     from armbench.drivers.protocol import Command
     from armbench.drivers.settings import RobotSettings
-    from armbench.fakes.arm import ArmEmulator
-    from armbench.fakes.settings import EmulatorSettings, emulator_settings
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
     from armbench.fakes.vclock import run_virtual
 
 MAX_BYTES = 1024

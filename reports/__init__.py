@@ -5,8 +5,8 @@ beside it) only; see ``docs/reports.md``."""
 
 from __future__ import annotations
 
-from armbench.bench.record import REPORT_FILE
-from armbench.reports.compare import render_compare
+from armbench.record import REPORT_FILE
+from armbench.reports.compare_page import render_compare
 from armbench.reports.format import CSP, VERDICT_MARKS, format_duration, format_number, format_value
 from armbench.reports.index import INDEX_FILE, render_index
 from armbench.reports.page import build_report_html, render_report

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import jinja2
 
-from armbench.bench.record import Measurement
-from armbench.bench.suites.contract import resolution
+from armbench.record import Measurement
+from armbench.record.suite_contract import resolution
 
 __all__ = [
     "CSP",
@@ -65,7 +65,7 @@ def format_number(value: float | None, *, signed: bool = False, unit: str = "") 
     """A figure for people: four significant digits (``12.39``, ``0.31``, ``100``), whole numbers
     from 10 000 up with thousands separators (``33,499``), ``-`` for None, ``+`` on positive
     changes when ``signed``. With a ``unit`` whose resolution is known (samples are rounded, see
-    :func:`armbench.bench.suites.contract.resolution`) no digit finer than that resolution is
+    :func:`armbench.record.suite_contract.resolution`) no digit finer than that resolution is
     printed, so a spread below it prints as ``0``, never as ``2.22e-13``. The report and
     ``armbench compare`` agree."""
     if value is None:

@@ -16,8 +16,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import quote
 
-from armbench.bench.baseline import read_record
-from armbench.bench.record import (
+from armbench.record import (
     REPORT_FILE,
     RESULTS_FILE,
     Measurement,
@@ -25,7 +24,8 @@ from armbench.bench.record import (
     RunRecord,
     atomic_write_bytes,
 )
-from armbench.bench.suites.contract import Headline
+from armbench.record.baseline import read_record
+from armbench.record.suite_contract import Headline
 from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, headline_figure

@@ -20,32 +20,24 @@ import dataclasses
 import json
 import os
 import re
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO
 
-from armbench.bench.record import (
+from armbench.record import (
     CAPTURE_FILE,
     LEGACY_CAPTURE_FILE,
     REPORT_FILE,
     RESULTS_FILE,
     RunRecord,
-    SuiteRecord,
     load_record,
 )
-from armbench.bench.record.files import atomic_write
-from armbench.bench.suites.contract import STARTUP
-from armbench.reports.environment import environment_rows, fault_rows, settings_summary
+from armbench.record.files import atomic_write
+from armbench.record.suite_contract import STARTUP
+from armbench.reports.environment_view import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
 from armbench.reports.scorecard import HEADLINES, score_rows
-from armbench.reports.sections import (
-    accuracy,
-    generic,
-    joints,
-    repeatability,
-    startup_recovery,
-    twin_check,
-)
+from armbench.reports.sections import SectionBuilder, generic, registered_sections
 from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
 from armbench.reports.views import (
@@ -61,16 +53,10 @@ __all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "rep
            "suite_sections"]
 
 _FIG_NUMBER = re.compile(r"^Fig\. \d+: ")
-SectionBuilder = Callable[[RunRecord, SuiteRecord, SuiteView, Figures], SectionView]
-#: The section of each suite the report knows, by the suite's name; any other suite gets
+#: The section of each suite the report knows, by the suite's name (registered by the modules of
+#: :mod:`armbench.reports.sections`); any other suite gets
 #: :func:`armbench.reports.sections.generic.build`.
-SECTIONS: Mapping[str, SectionBuilder] = {
-    accuracy.SUITE: accuracy.build,
-    repeatability.SUITE: repeatability.build,
-    startup_recovery.SUITE: startup_recovery.build,
-    joints.SUITE: joints.build,
-    twin_check.SUITE: twin_check.build,
-}
+SECTIONS: Mapping[str, SectionBuilder] = registered_sections()
 
 
 def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from markupsafe import Markup, escape
 from matplotlib.figure import Figure
 
-from armbench.bench.metrics.series import envelope_indices
+from armbench.metrics.series import envelope_indices
 
 __all__ = [
     "COLOURS",

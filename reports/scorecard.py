@@ -15,15 +15,8 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
-from armbench.bench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
-from armbench.bench.suites.contract import (
-    ACCURACY,
-    JOINTS,
-    REPEATABILITY,
-    STARTUP,
-    TWIN_CHECK,
-    Headline,
-)
+from armbench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
+from armbench.record.suite_contract import STARTUP, Headline, contracts
 from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
@@ -31,14 +24,9 @@ __all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "NO_LIMIT_REASON
            "TRUTH_SUITES", "change_text", "headline_figure", "headline_measurement", "score_rows",
            "true_name"]
 
-#: The headline figures of each suite the contract knows, by suite name.
-HEADLINES: Mapping[str, Sequence[Headline]] = {
-    ACCURACY.suite: ACCURACY.headlines,
-    REPEATABILITY.suite: REPEATABILITY.headlines,
-    STARTUP.suite: STARTUP.headlines,
-    JOINTS.suite: JOINTS.headlines,
-    TWIN_CHECK.suite: TWIN_CHECK.headlines,
-}
+#: The headline figures of each suite the contract knows, by suite name, in the contracts' order
+#: (registered where each is defined, :func:`armbench.record.suite_contract.register`).
+HEADLINES: Mapping[str, Sequence[Headline]] = {c.suite: c.headlines for c in contracts()}
 #: Headlines of a suite the contract does not know (the pytest plugin's): its failed
 #: measurements first, then its judged ones, at most this many.
 GENERIC_HEADLINES = 4
@@ -52,7 +40,7 @@ NO_LIMIT_REASONS: Mapping[str, str] = {
 }
 #: Suites that record a ``true_`` figure beside each reported position figure when the run has
 #: ground truth: without one, their position figures are the encoders' view.
-TRUTH_SUITES = frozenset({ACCURACY.suite, REPEATABILITY.suite, JOINTS.suite})
+TRUTH_SUITES = frozenset(c.suite for c in contracts() if c.has_true_figures)
 _NO_LIMIT = "none set"
 _TRUE_LIMIT = "none set"
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import statistics
 from collections.abc import Iterable, Mapping
 
-from armbench.bench.record import (
+from armbench.record import (
     ComparisonRow,
     Measurement,
     RunRecord,

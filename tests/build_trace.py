@@ -19,7 +19,7 @@ from typing import Any
 from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import load_settings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.vclock import run_virtual
 from armbench.hot_modules import build_name
 

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import pytest
 
-import armbench.bench.cli
+import armbench.cli.main
 
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
-BUILD_INPUTS = ("api", "bench", "drivers", "fakes", "reports", "firmware", "pyproject.toml",
-                "setup.py", "README.md")
+BUILD_INPUTS = ("api", "bench", "capture", "cli", "drivers", "fakes", "metrics", "record",
+                "reports", "firmware", "pyproject.toml", "setup.py", "README.md")
 
 
 #: A test that needs a pseudo-terminal: ``pty`` in its name or parameters, as a word.
@@ -91,7 +91,7 @@ def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     """``armbench ARGS`` in this process: exit status, stdout, stderr."""
-    status = armbench.bench.cli.main(list(args))
+    status = armbench.cli.main.main(list(args))
     captured = capsys.readouterr()
     return status, captured.out, captured.err
 

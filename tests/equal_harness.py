@@ -140,7 +140,7 @@ def _physics(name: str, *args: Any) -> object:
     if name == "arm_physics":
         return ph.arm_physics(*args)
     if name == "emulator_settings":
-        from armbench.fakes.settings import actual_robot, emulator_settings
+        from armbench.fakes.emulator_settings import actual_robot, emulator_settings
 
         robot = _robot(args[0])
         return emulator_settings(robot), actual_robot(robot)
@@ -294,8 +294,8 @@ def _boards(name: str, *args: Any) -> object:
     from armbench.drivers.settings import DEFAULT_JOINTS
     from armbench.fakes.boards import SlaveBoard
     from armbench.fakes.eeprom import Eeprom
+    from armbench.fakes.emulator_settings import emulator_settings
     from armbench.fakes.i2c import BusClock, I2CBus
-    from armbench.fakes.settings import emulator_settings
 
     if name == "emulator":
         return _emulator(*args)
@@ -318,7 +318,7 @@ def _emulator(emulator: object, q_rad: list[float], duty: int) -> object:
     """The whole emulator built from an ``[emulator]`` table (the boards read their settings
     there), on virtual time: one command, the replies of the next 1.5 s, the statistics."""
     from armbench.drivers.protocol import Command
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
     from armbench.fakes.vclock import run_virtual
 
     async def session() -> object:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 _CHILD = """
 import atexit, json, resource, sys
-import armbench.bench.commands.run as runner
+import armbench.cli.commands.run as runner
 figures = {}
 def _peak_kb():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -33,7 +33,7 @@ def _report():
     with open(sys.argv[1], "w") as fh:
         json.dump({"wchar": int(io["wchar"]), "max_rss_kb": _peak_kb(), **figures}, fh)
 atexit.register(_report)
-from armbench.bench.cli import main
+from armbench.cli.main import main
 sys.exit(main(sys.argv[2:]))
 """
 

@@ -19,7 +19,7 @@ import pytest
 import armbench
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("bench", "drivers", "fakes", "reports")
+PACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports")
 #: Rooms of one job are about 500 lines; none may pass this.
 MAX_LINES = 600
 
@@ -98,3 +98,83 @@ def test_rooms_of_one_job(package: str) -> None:
     too_long = {str(p.relative_to(ROOT)): n for p in (ROOT / package).rglob("*.py")
                 if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES}
     assert too_long == {}
+
+
+def _layers() -> list[list[str]]:
+    """The modules of each layer of pyproject.toml's layers contract, top first."""
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = [c for c in config["tool"]["importlinter"]["contracts"] if c["type"] == "layers"]
+    assert len(contracts) == 1, "one layers contract, from the command line down to the model"
+    return [[m.strip() for m in layer.replace("|", ":").split(":")]
+            for layer in contracts[0]["layers"]]
+
+
+def _layer_of(module: str, layers: list[list[str]]) -> int | None:
+    for index, layer in enumerate(layers):
+        if any(module == m or module.startswith(m + ".") for m in layer):
+            return index
+    return None
+
+
+def test_the_layers_run_from_the_command_line_down_to_the_model() -> None:
+    layers = _layers()
+    order = [_layer_of(m, layers) for m in (
+        "armbench.cli.main", "armbench.reports.page", "armbench.bench.runner",
+        "armbench.record.run_record", "armbench.metrics.iso9283", "armbench.fakes.arm_emulator",
+        "armbench.drivers.arm", "armbench.capture.read", "armbench.drivers.transports.tcp",
+        "armbench.drivers.protocol", "armbench.drivers.errors")]
+    placed = [index for index in order if index is not None]
+    assert placed == sorted(placed) and len(placed) == len(order), order
+    assert placed[0] == 0 and placed[-1] == len(layers) - 1
+
+
+@pytest.mark.usefixtures("laid_out")
+def test_every_module_has_a_layer_and_no_import_runs_up() -> None:
+    """A new module is placed in a layer (pyproject.toml), and grimp's graph, read independently
+    of import-linter, has no edge from a layer to one above it."""
+    layers = _layers()
+    graph = grimp.build_graph("armbench", exclude_type_checking_imports=True)
+    # the root package (the public API's lazy names) and the build's list of compiled modules
+    outside = {"armbench", "armbench.hot_modules"}
+    unplaced = sorted(m for m in graph.modules if m not in outside and _layer_of(m, layers) is None
+                      and m != "armbench.drivers")  # drivers/__init__ imports nothing
+    assert unplaced == []
+    upward = sorted(
+        (m, i) for m in graph.modules for i in graph.find_modules_directly_imported_by(m)
+        if (low := _layer_of(m, layers)) is not None
+        and (high := _layer_of(i, layers)) is not None and high < low)
+    assert upward == []
+
+
+@pytest.mark.usefixtures("laid_out")
+def test_the_import_graph_is_one_piece() -> None:
+    """Every module is reachable from every other along imports (either way), but the package
+    ``__init__`` modules that import nothing and the pytest plugin, which pytest loads by its
+    entry point and which loads the fixtures by name."""
+    graph = grimp.build_graph("armbench", exclude_type_checking_imports=True)
+    neighbours: dict[str, set[str]] = {m: set() for m in graph.modules}
+    for m in graph.modules:
+        for i in graph.find_modules_directly_imported_by(m):
+            neighbours[m].add(i)
+            neighbours[i].add(m)
+    start = "armbench.cli.main"
+    seen, todo = {start}, [start]
+    while todo:
+        for n in neighbours[todo.pop()] - seen:
+            seen.add(n)
+            todo.append(n)
+    packages = {m for m in graph.modules
+                if any((Path(p) / (m.split(".", 1)[1].replace(".", "/") if "." in m else "")
+                        / "__init__.py").is_file() for p in armbench.__path__)}
+    assert sorted(graph.modules - seen - packages) == ["armbench.cli.pytest_plugin"]
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_a_folder_imported_by_its_bare_name_is_refused(package: str) -> None:
+    code = f"import sys; sys.path.insert(0, {str(ROOT)!r}); import {package}"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode != 0
+    assert f"installs as armbench.{package}: import it by that name" in done.stderr

@@ -33,10 +33,10 @@ import numpy as np
 import pytest
 from netutil import free_port
 
-from armbench.bench.commands import i2c as i2c_cmd
-from armbench.bench.commands import monitor as monitor_cmd
-from armbench.bench.commands import move as move_cmd
-from armbench.bench.perf.driver import reply_rate_bound
+from armbench.cli.commands import i2c as i2c_cmd
+from armbench.cli.commands import monitor as monitor_cmd
+from armbench.cli.commands import move as move_cmd
+from armbench.cli.perf.driver_perf import reply_rate_bound
 from armbench.drivers.arm import (
     Arm,
     DriverClosedError,
@@ -58,7 +58,7 @@ from armbench.drivers.kinematics import (
 from armbench.drivers.motion import joint_times_s, line
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.settings import EmulatorSettings
+from armbench.fakes.emulator_settings import EmulatorSettings
 from armbench.fakes.vclock import run_virtual
 
 T = TypeVar("T")
@@ -898,8 +898,8 @@ def test_one_reply_short_path_gives_the_general_paths_states() -> None:
 def test_perf_driver_figures() -> None:
     """``armbench perf --only driver``'s quick run, on a real pty to a real ``armbench emulate``:
     every figure present, bounds and ratios consistent, the pty stream at the firmware's rate."""
-    from armbench.bench.perf import PerfOptions
-    from armbench.bench.perf import driver as perf_driver
+    from armbench.cli.perf import PerfOptions
+    from armbench.cli.perf import driver_perf as perf_driver
 
     figures = {f.name: f for f in perf_driver.run(PerfOptions(quick=True, repeats=1))}
     assert set(figures) == {

@@ -1,4 +1,4 @@
-"""armbench.bench.baseline: regressions in both directions, tolerances, new/missing metrics,
+"""armbench.record.baseline: regressions in both directions, tolerances, new/missing metrics,
 errors."""
 
 from __future__ import annotations
@@ -10,16 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.baseline import (
-    BaselineError,
-    Comparison,
-    ComparisonRow,
-    compare,
-    format_comparison,
-    load_baseline,
-)
-from armbench.bench.limits import SPEC_VERSION, LimitsConfig, Tolerance, parse_limits
-from armbench.bench.record import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.record import (
     Better,
     Environment,
     Measurement,
@@ -29,7 +21,15 @@ from armbench.bench.record import (
     judge,
     load_record,
 )
-from armbench.drivers.errors import ArmbenchError
+from armbench.record.baseline import (
+    BaselineError,
+    Comparison,
+    ComparisonRow,
+    compare,
+    format_comparison,
+    load_baseline,
+)
+from armbench.record.limits import SPEC_VERSION, LimitsConfig, Tolerance, parse_limits
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

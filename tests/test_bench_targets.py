@@ -129,7 +129,7 @@ def test_faults_on_a_target_that_takes_none_are_refused_naming_the_flag(tmp_path
 
 
 def test_the_pytest_plugin_resolves_the_same_way(robot_file: Path) -> None:
-    from armbench.bench.pytest_bench import BenchSession
+    from armbench.cli.pytest_bench import BenchSession
 
     target = target_of(f"fake://?settings={robot_file}&seed=4")
     inputs = target.inputs(given_by({"settings": "--arm-settings"}, settings=None))
@@ -244,7 +244,7 @@ def test_a_real_time_target_gets_one_arm_for_the_run(tmp_path: Path, toy: None) 
 
 
 def test_monitor_and_i2c_ask_the_target(toy: None, capsys: pytest.CaptureFixture[str]) -> None:
-    from armbench.bench.commands.monitor import run_on_port
+    from armbench.cli.commands.monitor import run_on_port
     from armbench.fakes.vclock import VirtualTimeLoop
 
     async def loop_kind() -> bool:

@@ -28,11 +28,12 @@ from armbench.bench.calibrate import (
 )
 from armbench.bench.calibrate.fit import fit_play
 from armbench.bench.calibrate.model import Approach
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics
 from armbench.fakes.vclock import run_virtual
+from armbench.reports.calibration_page import render_page
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -128,7 +129,8 @@ def test_stalled_joint_stops_with_partial_output(tmp_path: Path) -> None:
     faults.write_text('[[faults]]\nkind = "stall"\njoint = 3\nat_s = 8.0\n')
     out = tmp_path / "robot.toml"
     with pytest.raises(ArmDoesNotMoveError) as info:
-        run_virtual(calibrate_port(f"fake://?faults={faults}", RobotSettings(), out))
+        run_virtual(calibrate_port(f"fake://?faults={faults}", RobotSettings(), out,
+                                   page=render_page))
     assert info.value.joint == 3
     assert "joint 3 does not move" in str(info.value)
     assert out.exists() and out.with_suffix(".html").exists()
@@ -211,7 +213,9 @@ def test_calibrate_from_capture(capture: Path, tmp_path: Path) -> None:
     assert pull.identified and pull.covers(DEFAULT_JOINT_PHYSICS[1].pullout_nm)
     assert not fitted["emulator.physics.j1.backlash_deg"].identified
     assert load_settings(tmp_path / "r.toml")
-    own = calibrate_capture(capture, RobotSettings(), tmp_path / "own.toml")
+    assert not (tmp_path / "r.html").exists()  # no page renderer given: settings and fit only
+    own = calibrate_capture(capture, RobotSettings(), tmp_path / "own.toml", page=render_page)
+    assert "Calibration" in (tmp_path / "own.html").read_text()
     kept = {f.key: f for f in own.fitted}["emulator.physics.j2.pullout_nm"]
     assert not kept.identified and kept.value == DEFAULT_JOINT_PHYSICS[1].pullout_nm
     assert "better than the prior" in kept.reason

@@ -15,13 +15,14 @@ from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from test_twin_check import _lap
 
 from armbench.bench.calibrate import calibrate_port
-from armbench.bench.calibrate.capture import load_capture
+from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
-from armbench.bench.cli import main
 from armbench.bench.twin_check import twin_check
+from armbench.cli.main import main
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.fakes.physics import JointPhysics
 from armbench.fakes.vclock import run_virtual
+from armbench.reports.calibration_page import render_page
 
 PRIOR = JointPhysics(pullout_nm=1.5)
 DUTIES = np.array([99, 90, 95, 97, 93, 98, 96], dtype=np.float64)
@@ -147,7 +148,8 @@ def test_hidden_structure_twin_runs_the_suite_and_is_never_worse(tmp_path: Path)
     hidden = tmp_path / "hidden.toml"
     hidden.write_text(HIDDEN)
     out = tmp_path / "robot.toml"
-    result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out))
+    result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out,
+                                        page=render_page))
     fitted = {f.key: f for f in result.fitted}
     assert fitted["emulator.physics.j2.loss_law"].choice == "duty"
     assert fitted["emulator.physics.j2.loss_plus"].covers(0.2)

@@ -25,11 +25,11 @@ from armbench.bench.campaign import (
     wilson_interval,
 )
 from armbench.bench.campaign.draws import draw_arm
-from armbench.bench.cli import main
-from armbench.bench.record import load_record
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
+from armbench.cli.main import main
 from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.reports.campaign import build_campaign_html
+from armbench.record import load_record
+from armbench.reports.campaign_page import build_campaign_html
 from armbench.reports.format import CSP, format_value
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"

@@ -11,14 +11,14 @@ from typing import TypeVar
 
 import pytest
 
-from armbench.drivers.arm import Arm, JointState
-from armbench.drivers.capture import (
+from armbench.capture.jsonl import (
     CaptureError,
     CaptureRecord,
     CaptureWriter,
     read_capture,
 )
-from armbench.drivers.capture_read import replay_capture
+from armbench.capture.read import replay_capture
+from armbench.drivers.arm import Arm, JointState
 from armbench.drivers.protocol import Command
 from armbench.fakes.vclock import run_virtual
 

@@ -10,15 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.record import CAPTURE_FILE, RESULTS_FILE, load_record
-from armbench.drivers.capture import (
+from armbench.capture.jsonl import (
     CaptureWriter,
     capture_options,
     merge_capture,
     read_capture,
 )
-from armbench.drivers.capture_read import capture_stopped
+from armbench.capture.read import capture_stopped
 from armbench.drivers.settings import SettingsError
+from armbench.record import CAPTURE_FILE, RESULTS_FILE, load_record
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAME = "$01000,99,01000,99,01000,99,01000,99#"

@@ -1,4 +1,4 @@
-"""``armbench fk`` / ``armbench ik`` through ``armbench.bench.cli.main``: output, exit status,
+"""``armbench fk`` / ``armbench ik`` through ``armbench.cli.main.main``: output, exit status,
 errors."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.kinematics import fk_dh, tcp_position
 from armbench.drivers.settings import RobotSettings
 

@@ -82,8 +82,8 @@ def test_perf_prints_each_figure_as_it_is_measured(
     printed when its benchmark has it, and stderr says which benchmark runs."""
     import types
 
-    import armbench.bench.perf as perf
-    from armbench.bench.cli import main
+    import armbench.cli.perf as perf
+    from armbench.cli.main import main
 
     seen: list[tuple[str, str]] = []
 

@@ -15,11 +15,11 @@ import pytest
 from campaign_records import record_differences
 
 from armbench.bench.campaign import CampaignOptions, run_campaign
-from armbench.bench.record import CAPTURE_FILE
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.verdict import EXIT_INCOMPLETE
-from armbench.drivers.capture_read import open_capture
+from armbench.capture.read import open_capture
 from armbench.drivers.settings import SettingsError
+from armbench.record import CAPTURE_FILE
 
 distributed = pytest.importorskip("distributed")
 

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 import serial
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.serve import TcpServer, real_time_loop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,7 +155,7 @@ def test_tcp_listener_stays_and_a_stalled_client_is_dropped() -> None:
     does) stays past the timeout; one that neither writes nor reads is disconnected. Real sockets
     on a real-time loop; the client that stalls has a tiny receive buffer so the server's send
     buffer fills within seconds."""
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
     from armbench.fakes.serve import TcpServer
 
     async def main() -> None:

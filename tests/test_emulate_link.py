@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.fakes.serve import LinkError, claim_link, release_link
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,12 +21,12 @@ from hypothesis import strategies as st
 
 from armbench.drivers.protocol import Command, FrameError, Framer, Reply
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm import ArmEmulator, ArmStats
+from armbench.fakes.arm_emulator import ArmEmulator, ArmStats
 from armbench.fakes.eeprom import Eeprom, EepromRecord, record_write_times
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.faults import Fault, parse_faults
 from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
 from armbench.fakes.i2c_messages import I2CMessage
-from armbench.fakes.settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
 
 ROBOT = RobotSettings()
@@ -654,8 +654,8 @@ def test_perf_workloads_and_figures() -> None:
     """``armbench perf --only emulator``'s plumbing on its quick run, and the behaviour behind
     its figures: at 9600 baud each print waits for the line, so there are about 11× fewer loops
     (cost follows events), at the rate the line sets."""
-    from armbench.bench.perf import PerfOptions
-    from armbench.bench.perf import emulator as perf_emulator
+    from armbench.cli.perf import PerfOptions
+    from armbench.cli.perf import emulator_perf as perf_emulator
 
     _, fast_loops = run_virtual(perf_emulator._emulate(5.0, moving=True))
     _, slow_loops = run_virtual(perf_emulator._emulate(5.0, moving=True,

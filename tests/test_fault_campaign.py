@@ -103,9 +103,9 @@ from typing import Any, TypeVar
 import pytest
 from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
-from armbench.bench.record import load_record
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_bench
+from armbench.capture.read import open_capture
+from armbench.cli.reporting import write_reports
 from armbench.drivers.arm import (
     Arm,
     JointState,
@@ -113,9 +113,9 @@ from armbench.drivers.arm import (
     ReconnectPolicy,
     ReplyTimeoutError,
 )
-from armbench.drivers.capture_read import open_capture
 from armbench.drivers.errors import PortLostError
 from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.record import load_record
 
 T = TypeVar("T")
 ROOT = Path(__file__).resolve().parents[1]
@@ -653,14 +653,14 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
     out = tmp_path / "run"
     wrapper = (
         "import os, signal, sys\n"
-        "import armbench.bench.record as record\n"
+        "import armbench.record as record\n"
         "add = record.RecordWriter.add_trial\n"
         "def add_trial(self, name, trial):\n"
         "    if trial.index == 2:\n"
         "        os.kill(os.getpid(), signal.SIGKILL)\n"
         "    return add(self, name, trial)\n"
         "record.RecordWriter.add_trial = add_trial\n"
-        "from armbench.bench.cli import main\n"
+        "from armbench.cli.main import main\n"
         "sys.exit(main(sys.argv[1:]))\n")
     killed = subprocess.run([sys.executable, "-c", wrapper, "run", "accuracy", "--config",
                              str(reference_run.config), "--out", str(out), "--seed", "5"],

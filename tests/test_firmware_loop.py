@@ -24,6 +24,7 @@ from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports import open_transport
+from armbench.fakes.avr import Harness
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
 from armbench.fakes.avr_transport import AvrTransport
 
@@ -53,7 +54,7 @@ async def test_avr_port_serves_the_firmware_in_real_time() -> None:
     async with transport:
         await transport.write(Command.from_rad([0.05, -0.05, 0.05, -0.05], 99).encode())
         replies = await replies_for(transport, 1.5)
-        assert transport.harness is not None
+        assert isinstance(transport.harness, Harness)  # real time: the harness's pty
         stats = await transport.harness.stats()
     assert len(replies) > 100
     assert all(min(abs(t - w), 62832 - abs(t - w)) <= 2  # deadband: 1 count
@@ -72,7 +73,7 @@ async def test_power_cut_while_moving_recovers_at_the_hall(tmp_path: Path) -> No
     assert isinstance(transport, AvrTransport)
     async with transport:
         harness = transport.harness
-        assert harness is not None
+        assert isinstance(harness, Harness)
         await transport.write(Command.from_rad([0.6, 0.6, 0.6, 0.6], 99).encode())
         moving = await replies_for(transport, 0.3)
         assert moving[-1][0] > 500
@@ -176,7 +177,7 @@ async def test_harness_power_re_references_the_arm(tmp_path: Path) -> None:
 
 async def harness_stats(arm: Arm) -> dict[str, Any]:
     transport = arm.transport
-    assert isinstance(transport, AvrTransport) and transport.harness is not None
+    assert isinstance(transport, AvrTransport) and isinstance(transport.harness, Harness)
     return await transport.harness.stats()
 
 

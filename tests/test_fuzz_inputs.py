@@ -54,8 +54,8 @@ from armbench.drivers.telnet import (
     TelnetCodec,
     coalesce,
 )
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.faults import FAULT_KINDS, Fault, parse_faults
-from armbench.fakes.settings import emulator_settings
 
 FAST = settings(max_examples=100, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])

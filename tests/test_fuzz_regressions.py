@@ -18,9 +18,9 @@ import pytest
 
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
 from armbench.fakes.faults import Fault, faults_from_settings
-from armbench.fakes.settings import EmulatorSettings, emulator_settings
 from armbench.fakes.vclock import run_virtual
 
 DID_NOT_RAISE = pytest.fail.Exception  # what pytest.raises raises when nothing was raised
@@ -107,7 +107,7 @@ def test_gear_ratio_whose_steps_per_radian_overflow(text: str, field: str) -> No
     rejected_or_runs(text, field)
 
 
-# --- fakes/settings.py: emulator_settings ---------------------------------------------------------
+# --- fakes/emulator_settings.py: emulator_settings ------------------------------------------------
 def test_huge_integer_in_an_emulator_setting() -> None:
     rejected("[emulator]\nloop_overhead_s = 1" + "0" * 309, "emulator.loop_overhead_s")
 
@@ -177,7 +177,7 @@ def test_float_fault_joint() -> None:
 # --- fixed while the campaign ran (commit b29e4c9): keep them fixed -------------------------------
 @pytest.mark.parametrize("value", ['"uart_insert"', "1", "[-1000, -1000]"])
 def test_emulator_section_that_is_not_a_table(value: str) -> None:
-    # was ValueError/TypeError@fakes/settings.py:57 (dict() of a str, int or list)
+    # was ValueError/TypeError@fakes/emulator_settings.py:57 (dict() of a str, int or list)
     rejected(f"emulator = {value}", "emulator")
 
 

@@ -12,19 +12,19 @@ from typing import Any
 
 import pytest
 
-from armbench.bench.cli import main
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.metrics import MetricsInputError
-from armbench.bench.metrics.iso230 import axis_positioning
-from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.suites.base import SuiteContext
 from armbench.bench.suites.joints import JointsSuite, joint_figures
 from armbench.bench.truth import EmulatorTruth
+from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS
 from armbench.fakes.vclock import run_virtual
+from armbench.metrics import MetricsInputError
+from armbench.metrics.iso230 import axis_positioning
+from armbench.record import Measurement, Trial
+from armbench.record.limits import LimitsConfig
 
 SETTINGS = RobotSettings()
 

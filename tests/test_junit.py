@@ -6,8 +6,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from armbench.bench.junit import to_junit, write_junit
-from armbench.bench.limits import SPEC_VERSION, parse_limits
-from armbench.bench.record import (
+from armbench.record import (
     Environment,
     RecordWriter,
     RunRecord,
@@ -15,6 +14,7 @@ from armbench.bench.record import (
     judge,
     load_record,
 )
+from armbench.record.limits import SPEC_VERSION, parse_limits
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

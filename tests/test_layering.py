@@ -13,7 +13,7 @@ def _modules_after(statement: str) -> set[str]:
 
 
 def test_emulator_does_not_import_the_driver() -> None:
-    mods = _modules_after("import armbench.fakes.arm, armbench.fakes.serve, "
+    mods = _modules_after("import armbench.fakes.arm_emulator, armbench.fakes.serve, "
                           "armbench.fakes.transport")
     assert "armbench.drivers.arm" not in mods
     assert not any(m.startswith(("armbench.bench", "armbench.reports")) for m in mods)
@@ -50,9 +50,9 @@ def test_the_driver_reaches_the_fake_transport_only_by_name() -> None:
 
 
 def test_the_runner_writes_records_and_renders_nothing() -> None:
-    """The runner imports no report code; ``bench.reporting`` (the run command's and the pytest
+    """The runner imports no report code; ``cli.reporting`` (the run command's and the pytest
     plugin's) imports it only when a report is written."""
-    mods = _modules_after("import armbench.bench.runner, armbench.bench.reporting")
+    mods = _modules_after("import armbench.bench.runner, armbench.cli.reporting")
     assert not any(m.startswith("armbench.reports") for m in mods), sorted(mods)
 
 

@@ -1,4 +1,4 @@
-"""armbench.bench.limits: the limits file format, errors naming the field, wildcard precedence."""
+"""armbench.record.limits: the limits file format, errors naming the field, wildcard precedence."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from armbench.bench.limits import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import SettingsError
+from armbench.record.limits import (
     DEFAULT_TOLERANCE_PCT,
     SPEC_VERSION,
     Limit,
@@ -20,8 +22,6 @@ from armbench.bench.limits import (
     load_limits,
     parse_limits,
 )
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
 
 EXAMPLE = """
 spec_version = "armbench-limits/1"

@@ -11,9 +11,9 @@ import pytest
 from test_physics import J2, run_to
 
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.joint import CYCLE_S, JointModel
 from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, LOSS_LAWS, JointPhysics
-from armbench.fakes.settings import emulator_settings
 
 ROBOT = RobotSettings()
 

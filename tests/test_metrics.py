@@ -1,4 +1,4 @@
-"""armbench.bench.metrics: ISO 9283 figures and the paper's path errors.
+"""armbench.metrics: ISO 9283 figures and the paper's path errors.
 
 Three kinds of check: values worked out by hand (in the comments), a second, plain computation
 (loops, ``statistics``, ``math.dist``) over random data, and geometric invariances. Positions are
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.metrics import (
+from armbench.metrics import (
     CUBE_PLANES,
     POSE_CORNERS,
     MetricsInputError,

@@ -10,10 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench import cli
-from armbench.bench.baseline import compare
-from armbench.bench.limits import parse_limits
-from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.verdict import (
@@ -26,7 +22,11 @@ from armbench.bench.verdict import (
     load_config,
     worst_exit_status,
 )
+from armbench.cli import main as cli
 from armbench.drivers.settings import RobotSettings
+from armbench.record import load_record
+from armbench.record.baseline import compare
+from armbench.record.limits import parse_limits
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

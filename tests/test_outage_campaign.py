@@ -25,9 +25,9 @@ from typing import Any
 import pytest
 from far_end import ROOT, Emulator, emulator_maker, ser2net_over
 
-from armbench.bench.record import load_record
 from armbench.drivers.arm import Arm, ReconnectPolicy
 from armbench.drivers.errors import LinkLostError, PortLostError
+from armbench.record import load_record
 
 TWO_LAPS = """\
 spec_version = "armbench-limits/1"

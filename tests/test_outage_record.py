@@ -14,8 +14,11 @@ from typing import Any
 import pytest
 
 from armbench.bench.junit import write_junit
-from armbench.bench.limits import SPEC_VERSION
-from armbench.bench.record import (
+from armbench.bench.runner import RunOptions, run_bench
+from armbench.cli.reporting import write_reports
+from armbench.drivers.link_outages import LinkOutage, OutageLog
+from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.record import (
     Environment,
     RecordError,
     RecordWriter,
@@ -23,10 +26,7 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
-from armbench.bench.reporting import write_reports
-from armbench.bench.runner import RunOptions, run_bench
-from armbench.drivers.link_outages import LinkOutage, OutageLog
-from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.record.limits import SPEC_VERSION
 from armbench.reports.summary import verdict_reasons
 
 OUTAGE = LinkOutage("port lost", "connection reset by peer", 12.0, 12.01, 15.5,

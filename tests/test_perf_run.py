@@ -8,7 +8,7 @@ import types
 
 import pytest
 
-from armbench.bench.perf import run as perf_run
+from armbench.cli.perf import run_perf as perf_run
 
 
 def test_a_phase_inside_another_is_charged_to_itself_only(

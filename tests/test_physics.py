@@ -19,7 +19,8 @@ from test_joint_model import snapshot
 from armbench.drivers.kinematics import dh_parameters, tcp_position
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import DEFAULT_JOINTS, RobotSettings, SettingsError
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.joint import CYCLE_S, JointModel
 from armbench.fakes.physics import (
     DEFAULT_JOINT_PHYSICS,
@@ -29,7 +30,6 @@ from armbench.fakes.physics import (
     JointPhysics,
     Mechanism,
 )
-from armbench.fakes.settings import emulator_settings
 from armbench.fakes.transport import parse_fake_url
 from armbench.fakes.vclock import run_virtual
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import pytest
 
-from armbench.bench.cli import COMMANDS
+from armbench.cli.main import COMMANDS
 from armbench.fakes.signals import stop_on_signals
 
 #: Run in a fresh interpreter: import every module of armbench, then every command's --help.
@@ -23,7 +23,7 @@ import contextlib, importlib, io, json, pkgutil, sys
 for name in ("fcntl", "termios", "pty", "tty"):
     sys.modules[name] = None  # import raises ImportError, as where the module does not exist
 import armbench
-from armbench.bench import cli
+from armbench.cli import main as cli
 failed = {}
 for info in pkgutil.walk_packages(armbench.__path__, "armbench."):
     if info.name.startswith("armbench.firmware"):

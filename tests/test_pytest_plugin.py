@@ -11,20 +11,20 @@ import pytest
 
 # Imported here, not first by an inner session: pytester drops the modules an inner session
 # imported, and numpy (which the driver imports) cannot be imported twice in one process.
-from armbench.bench.record import load_record
+from armbench.record import load_record
 
 pytest_plugins = ["pytester"]
 
 
 def plugin() -> list[str]:
-    """``-p armbench.bench.pytest_plugin`` unless the installed ``pytest11`` entry point loads it
+    """``-p armbench.cli.pytest_plugin`` unless the installed ``pytest11`` entry point loads it
     already (registering the module twice under two names is an error); and labgrid's plugin
     (installed with the labgrid extra) kept out of the users' sessions, as a user without a lab
     would. The sessions run in processes of their own, as a user's do (in-process, pytester
     would drop what a session imported, and numpy cannot be imported twice in one process)."""
-    installed = any(ep.value == "armbench.bench.pytest_plugin"
+    installed = any(ep.value == "armbench.cli.pytest_plugin"
                     for ep in importlib.metadata.entry_points(group="pytest11"))
-    ours = [] if installed else ["-p", "armbench.bench.pytest_plugin"]
+    ours = [] if installed else ["-p", "armbench.cli.pytest_plugin"]
     return ["-p", "no:labgrid", *ours]
 
 USER_TESTS = '''
@@ -206,8 +206,8 @@ def test_large(record_measurement):
 
 def test_unit_mismatch(record_measurement):
     import pytest
-    from armbench.bench.limits import Limit
-    from armbench.bench.record import RecordError
+    from armbench.record.limits import Limit
+    from armbench.record import RecordError
     with pytest.raises(RecordError, match="unit"):
         record_measurement("lab.c", 1.0, "mm", limit=Limit("lab.c", "s", high=1.0))
     with pytest.raises(RecordError, match="twice"):
@@ -230,8 +230,8 @@ def test_unit_mismatch(record_measurement):
 
 
 def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
-    from armbench.bench.pytest_bench import BenchTrial
-    from armbench.bench.record import RecordError
+    from armbench.cli.pytest_bench import BenchTrial
+    from armbench.record import RecordError
 
     trial = BenchTrial(index=0, nodeid="t", test_name="t", limits=None, started_s=0.0)
     for bad in ((3.0, 1.0), {"hi": 1.0}, (None, None), 5.0, (None, float("nan"))):

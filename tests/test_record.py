@@ -1,4 +1,4 @@
-"""armbench.bench.record: judging, the record schema, atomic writes, path safety, resume,
+"""armbench.record: judging, the record schema, atomic writes, path safety, resume,
 fixtures."""
 
 from __future__ import annotations
@@ -16,8 +16,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from armbench.bench.limits import SPEC_VERSION, Limit, LimitsConfig, parse_limits
-from armbench.bench.record import (
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.record import (
     JOURNAL_FILE,
     RESULTS_FILE,
     SCHEMA,
@@ -37,8 +38,7 @@ from armbench.bench.record import (
     run_directory,
     validate_record,
 )
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.record.limits import SPEC_VERSION, Limit, LimitsConfig, parse_limits
 
 FIXTURES = Path(__file__).parent / "fixtures"
 RECORDS = FIXTURES / "records"

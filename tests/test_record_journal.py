@@ -11,8 +11,7 @@ from typing import Any
 
 import pytest
 
-from armbench.bench.limits import SPEC_VERSION
-from armbench.bench.record import (
+from armbench.record import (
     CAPTURE_FILE,
     JOURNAL_FILE,
     RESULTS_FILE,
@@ -25,6 +24,7 @@ from armbench.bench.record import (
     continued_clock_s,
     load_record,
 )
+from armbench.record.limits import SPEC_VERSION
 
 
 def _record(planned: tuple[str, ...] = ("acc",)) -> RunRecord:
@@ -159,7 +159,7 @@ def test_a_resumed_run_clock_continues_after_its_capture(tmp_path: Path) -> None
 
 def test_streamed_results_json_is_the_text_the_whole_record_encodes_to(tmp_path: Path) -> None:
     """Streaming trial by trial from disk changes no byte of results.json."""
-    from armbench.bench.record.jsonformat import _encode
+    from armbench.record.jsonformat import _encode
 
     w = RecordWriter(tmp_path, _record(("acc", "rep")))
     w.begin_suite("acc", "1", {"side_m": 0.1})
@@ -182,7 +182,7 @@ def test_a_trial_already_in_results_json_is_copied_not_encoded_again(
     (a new object around the same stored samples) is encoded again."""
     from dataclasses import replace
 
-    from armbench.bench.record.jsonformat import _encode
+    from armbench.record.jsonformat import _encode
 
     w = RecordWriter(tmp_path, _record(("acc", "rep")))
     w.begin_suite("acc", "1")

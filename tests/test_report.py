@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from armbench.bench import cli
-from armbench.bench.perf import PerfOptions
-from armbench.bench.record import (
+from armbench.cli import main as cli
+from armbench.cli.perf import PerfOptions
+from armbench.record import (
     Environment,
     Measurement,
     RunRecord,
@@ -22,7 +22,7 @@ from armbench.bench.record import (
     Trial,
     load_record,
 )
-from armbench.bench.suites.contract import STARTUP
+from armbench.record.suite_contract import STARTUP
 from armbench.reports import (
     CSP,
     VERDICT_MARKS,
@@ -32,7 +32,7 @@ from armbench.reports import (
     render_index,
     render_report,
 )
-from armbench.reports.capture import summarize_capture
+from armbench.reports.capture_summary import summarize_capture
 from armbench.reports.index import KEY_METRICS, key_metrics
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
@@ -472,7 +472,7 @@ def test_capture_summary_is_bounded_and_tolerant(tmp_path: Path) -> None:
 
 
 def test_bad_record_raises_a_record_error(tmp_path: Path) -> None:
-    from armbench.bench.record import RecordError
+    from armbench.record import RecordError
 
     bad = tmp_path / "results.json"
     bad.write_text('{"schema": "armbench-run/0"}')
@@ -601,7 +601,7 @@ def test_compare_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
 
 
 def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
-    from armbench.bench.perf import report as perf_report
+    from armbench.cli.perf import report_perf as perf_report
 
     # the figures' plumbing on a tiny run; armbench perf measures the real workload
     monkeypatch.setattr(perf_report, "_QUICK", {"samples_per_run": 200, "cycles": 2,
@@ -617,7 +617,7 @@ def test_perf_figures(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_big_run_keeps_raw_data_out_of_the_page(tmp_path: Path) -> None:
-    from armbench.bench.perf.report import big_run_record
+    from armbench.cli.perf.report_perf import big_run_record
 
     record = big_run_record(samples_per_run=5_000, cycles=2, startup_trials=2)
     record.suites = {"accuracy": record.suites["accuracy"]}  # the long series are here

@@ -18,12 +18,12 @@ import pytest
 from chromium import CHROMIUM, Chromium
 from test_report import Node, cells, parse
 
-from armbench.bench import cli
-from armbench.bench.record import RunRecord, load_record
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import suite_names
-from armbench.bench.suites.contract import ACCURACY, REPEATABILITY, STARTUP
+from armbench.cli import main as cli
+from armbench.cli.reporting import write_reports
+from armbench.record import RunRecord, load_record
+from armbench.record.suite_contract import ACCURACY, REPEATABILITY, STARTUP
 from armbench.reports import render_index
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"

@@ -9,11 +9,11 @@ from pathlib import Path
 
 from armbench.bench.capture_run import LoggedReReferencingPower, logged_power
 from armbench.bench.power import EmulatorPower
-from armbench.bench.record import load_record
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import ReReferencing
-from armbench.drivers.capture_part import PartWriter
-from armbench.drivers.capture_read import iter_events
+from armbench.capture.part import PartWriter
+from armbench.capture.read import iter_events
+from armbench.record import load_record
 
 CONFIG = """spec_version = "armbench-limits/1"
 

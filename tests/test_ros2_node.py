@@ -213,7 +213,7 @@ def test_a_silent_arm_aborts_the_trajectory_and_is_held(
 
 def test_the_square_through_ros_matches_the_drivers_own_run(capsys: pytest.CaptureFixture[str],
                                                             ) -> None:
-    from armbench.bench.cli import main
+    from armbench.cli.main import main
 
     status = main(["ros2", "--port", "fake://", "--square", "--side", "0.06"])
     result = json.loads(capsys.readouterr().out.splitlines()[-1])

@@ -94,7 +94,7 @@ def test_every_accepted_segment_is_within_its_time_and_the_duty_limit(
 
 def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     probe = ("import sys\nsys.modules['rclpy'] = None  # as where the extra is not installed\n"
-             "from armbench.bench.cli import main\nsys.exit(main(['ros2', '--duration', '1']))\n")
+             "from armbench.cli.main import main\nsys.exit(main(['ros2', '--duration', '1']))\n")
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                           timeout=120, check=False)
     one_line_error(done.returncode, done.stderr, "armbench ros2: error:", "armbench[ros2]")

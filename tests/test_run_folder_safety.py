@@ -27,10 +27,10 @@ from typing import Any
 
 import pytest
 
-import armbench.bench.cli
-from armbench.bench.record import load_record
-from armbench.drivers.capture import CaptureRecord, CaptureWriter
-from armbench.drivers.capture_read import capture_start_ns, iter_events, open_capture
+import armbench.cli.main
+from armbench.capture.jsonl import CaptureRecord, CaptureWriter
+from armbench.capture.read import capture_start_ns, iter_events, open_capture
+from armbench.record import load_record
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = "3"
@@ -324,7 +324,7 @@ def test_labgrid_without_labgrid_is_refused_before_a_folder_exists(
 ) -> None:
     monkeypatch.setitem(sys.modules, "labgrid", None)  # what an environment without it gives
     out = tmp_path / "run"
-    status = armbench.bench.cli.main(["run", "accuracy", "--port", "labgrid://bench-1",
+    status = armbench.cli.main.main(["run", "accuracy", "--port", "labgrid://bench-1",
                                       "--out", str(out)])
     err = capsys.readouterr().err
     assert status == 2 and "labgrid is not installed" in err and len(err.splitlines()) == 1
@@ -337,7 +337,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     tree = tmp_path / "site"
     package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
     shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("bench", "drivers", "fakes", "reports"):
+    for name in ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports"):
         shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,

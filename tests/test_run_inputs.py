@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 from conftest import cli, one_line_error
 
-import armbench.bench.cli
-from armbench.bench.record import load_record
+import armbench.cli.main
 from armbench.bench.runner import ProgressPrinter
+from armbench.record import load_record
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 
@@ -236,7 +236,7 @@ def test_compare_json_into_a_closed_pipe_exits_quietly() -> None:
     err = proc.stderr.read().decode()
     status = proc.wait(timeout=60)
     assert "Traceback" not in err and "BrokenPipe" not in err, err
-    assert status in (3, armbench.bench.cli.EXIT_BROKEN_PIPE)  # 3 (regressed): it all fit
+    assert status in (3, armbench.cli.main.EXIT_BROKEN_PIPE)  # 3 (regressed): it all fit
 
 
 # --------------------------------------------------------------------------------------------

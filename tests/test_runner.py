@@ -21,8 +21,8 @@ from typing import Any, ClassVar
 
 import pytest
 
-import armbench.bench.cli
 import armbench.bench.suites
+import armbench.cli.main
 from armbench.bench.power import (
     CommandPower,
     EmulatorPower,
@@ -31,8 +31,6 @@ from armbench.bench.power import (
     PowerError,
     port_power,
 )
-from armbench.bench.record import Measurement, Trial, load_record
-from armbench.bench.reporting import write_reports
 from armbench.bench.runner import (
     EXIT_FAIL,
     EXIT_INCOMPLETE,
@@ -55,11 +53,13 @@ from armbench.bench.suites import (
     load_suite,
 )
 from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
-from armbench.drivers.capture_read import open_capture
+from armbench.capture.read import open_capture
+from armbench.cli.reporting import write_reports
 from armbench.drivers.errors import ArmbenchError, PortLostError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual
+from armbench.record import Measurement, Trial, load_record
 
 # --------------------------------------------------------------------------------------------
 # A tiny suite: move joint 1 to a planned angle (plus a seeded random offset), measure
@@ -190,7 +190,7 @@ class Emulators(list[Any]):
     """An emulator factory that keeps every emulator it builds."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from armbench.fakes.arm import ArmEmulator
+        from armbench.fakes.arm_emulator import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)
@@ -340,7 +340,7 @@ def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> No
 async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     """A port that is not fake:// runs in real time with one reconnecting connection: here the
     emulator served on a TCP socket, as ``armbench emulate --tcp`` does for a remote robot."""
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
     from armbench.fakes.serve import TcpServer
 
     server = TcpServer(ArmEmulator())
@@ -430,7 +430,7 @@ def test_validation_errors_stop_the_run_before_the_arm_moves(tmp_path: Path) -> 
 def test_cli_validation_error_is_one_line_and_status_2(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
-    status = armbench.bench.cli.main(["run", "tiny", "--config", str(write_config(tmp_path)),
+    status = armbench.cli.main.main(["run", "tiny", "--config", str(write_config(tmp_path)),
                              "--out", str(tmp_path / "r"), "--port", "warp://x"])
     assert status == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -519,7 +519,7 @@ def test_ctrl_c_exits_130_and_resume_completes(
     TinySuite.interrupt_at = 2
     args = ["run", "tiny", "--config", str(write_config(tmp_path)), "--out", str(out),
             "--workers", "1"]  # interrupt_at lives in this process
-    assert armbench.bench.cli.main(args) == EXIT_INTERRUPTED
+    assert armbench.cli.main.main(args) == EXIT_INTERRUPTED
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1]
     assert record.verdict == "incomplete"
@@ -527,7 +527,7 @@ def test_ctrl_c_exits_130_and_resume_completes(
     # the command renders the reports of the record the interrupted runner left
     assert (out / "junit.xml").exists() and (out / "report.html").exists()
     TinySuite.interrupt_at = None
-    assert armbench.bench.cli.main(["run", "--resume", str(out)]) == EXIT_PASS
+    assert armbench.cli.main.main(["run", "--resume", str(out)]) == EXIT_PASS
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["tiny"].trials] == [0, 1, 2]
     assert record.verdict == "pass"
@@ -542,10 +542,10 @@ def test_regression_gate_fails_on_an_injected_fault(
         capsys: pytest.CaptureFixture[str]) -> None:
     config = str(write_config(tmp_path))
     clean = tmp_path / "clean"
-    assert armbench.bench.cli.main(["run", "tiny", "--config", config,
+    assert armbench.cli.main.main(["run", "tiny", "--config", config,
                                    "--out", str(clean)]) == EXIT_PASS
     same = tmp_path / "same"
-    assert armbench.bench.cli.main(["run", "tiny", "--config", config, "--out", str(same),
+    assert armbench.cli.main.main(["run", "tiny", "--config", config, "--out", str(same),
                            "--baseline", str(clean / "results.json")]) == EXIT_PASS
     assert not load_record(same / "results.json").baseline.regressed  # type: ignore[union-attr]
 
@@ -553,7 +553,7 @@ def test_regression_gate_fails_on_an_injected_fault(
     faults.write_text('[[faults]]\nkind = "stall"\njoint = 1\nat_s = 0.02\nduration_s = 0.3\n')
     worse = tmp_path / "worse"
     capsys.readouterr()
-    status = armbench.bench.cli.main(["run", "tiny", "--config", config, "--out", str(worse),
+    status = armbench.cli.main.main(["run", "tiny", "--config", config, "--out", str(worse),
                              "--faults", str(faults), "--baseline", str(clean / "results.json")])
     printed = capsys.readouterr().out
     assert status == EXIT_REGRESSION, printed
@@ -567,8 +567,8 @@ def test_regression_gate_fails_on_an_injected_fault(
 
 
 def test_default_config_is_valid_and_names_real_metrics() -> None:
-    from armbench.bench.limits import load_limits
     from armbench.bench.runner import DEFAULT_CONFIG
+    from armbench.record.limits import load_limits
 
     config = load_limits(DEFAULT_CONFIG)
     assert config.limits, "the default limits file judges something"

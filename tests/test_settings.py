@@ -10,7 +10,7 @@ import pytest
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 
 
 def test_defaults_match_the_documented_assumptions() -> None:

@@ -14,9 +14,9 @@ import pytest
 from campaign_records import record_differences
 
 from armbench.bench.campaign import MergeError, merge_shards
-from armbench.bench.cli import main
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.runner.options import shard_assignment
+from armbench.cli.main import main
 
 CONFIG = """spec_version = "armbench-limits/1"
 [limits."startup.recovery_time_s"]

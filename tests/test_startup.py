@@ -10,8 +10,8 @@ import sys
 import pytest
 
 import armbench
-from armbench.bench import cli
-from armbench.bench.perf.startup import heavy_imports
+from armbench.cli import main as cli
+from armbench.cli.perf.startup_perf import heavy_imports
 
 
 @pytest.mark.parametrize("args", [("--help",), ("fk", "0", "0", "0", "0"), ("fk", "--help")])

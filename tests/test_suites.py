@@ -4,7 +4,7 @@ Each suite runs against the emulator over ``fake://`` on virtual time (``armbenc
 with small
 parameters, through the same calls the runner makes (``params`` → ``plan`` → ``run_trial`` per
 trial → ``summarize``). Checks: every trial is measured, the figures are present and plausible,
-and each suite-level figure equals what the metric functions of ``armbench.bench.metrics`` give on
+and each suite-level figure equals what the metric functions of ``armbench.metrics`` give on
 the
 trial samples stored in the record. One accuracy run goes over a real pty to
 ``armbench emulate --pty`` in real time.
@@ -26,18 +26,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.metrics import (
-    distance_characteristics,
-    error_summary,
-    iso_cube_poses,
-    path_errors,
-    pose_accuracy,
-    pose_repeatability,
-    square_yz,
-)
 from armbench.bench.power import EmulatorPower
-from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import duty_for_speed_pct, fk_m, speed_pct_for_duty
 from armbench.bench.suites.accuracy import AccuracySuite, path_figures
 from armbench.bench.suites.base import Suite, SuiteContext
@@ -55,6 +44,17 @@ from armbench.drivers.kinematics import ik
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.eeprom import RATED_CYCLES
 from armbench.fakes.vclock import run_virtual
+from armbench.metrics import (
+    distance_characteristics,
+    error_summary,
+    iso_cube_poses,
+    path_errors,
+    pose_accuracy,
+    pose_repeatability,
+    square_yz,
+)
+from armbench.record import Measurement, Trial
+from armbench.record.limits import LimitsConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTINGS = RobotSettings()

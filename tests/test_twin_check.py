@@ -22,14 +22,14 @@ from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from hidden_arms import draw_hidden, write_hidden
 
 from armbench.bench.calibrate import calibrate_port, load_capture
-from armbench.bench.metrics import error_summary, path_errors, square_yz
 from armbench.bench.twin_check import TwinCheck, replay_twin, sessions, twin_check
 from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.vclock import run_virtual
+from armbench.metrics import error_summary, path_errors, square_yz
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNERS = square_yz((0.38, 0.0, 0.80), 0.15)
@@ -440,10 +440,10 @@ def test_replies_read_in_a_burst_are_left_out(ideal_capture: Path, tmp_path: Pat
 def test_text_output_is_for_people() -> None:
     """twin-check's text once printed the TCP divergence as a Python dict; every figure is now
     a line with its unit, the judged ones with their limit."""
-    from armbench.bench.commands.twin_check import format_twin_check
-    from armbench.bench.limits import Limit
-    from armbench.bench.record import Measurement
     from armbench.bench.twin_check import TwinCheck
+    from armbench.cli.commands.twin_check import format_twin_check
+    from armbench.record import Measurement
+    from armbench.record.limits import Limit
 
     limit = Limit("twin.*", "", high=1.0)
     result = TwinCheck(

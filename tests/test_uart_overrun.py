@@ -32,7 +32,7 @@ from armbench.drivers.motion import joint_times_s
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.server_notes import MAX_NOTE_BYTES, ServerNotes, note_line
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm import ArmEmulator
+from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.serve import ClientStream, ReceiveBuffer, TcpServer, real_time_loop
 from armbench.fakes.vclock import run_virtual
 
@@ -379,7 +379,7 @@ def test_the_host_buffer_is_a_bounded_setting() -> None:
     from dataclasses import replace
 
     from armbench.drivers.settings import SettingsError
-    from armbench.fakes.settings import EmulatorSettings, emulator_settings
+    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
 
     assert EmulatorSettings().host_buffer_bytes == 4096
     assert EmulatorSettings().rx_buffer_bytes == 64  # RX_SIZE of firmware/master.c

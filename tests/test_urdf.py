@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yourdfpy
 
-from armbench.bench.cli import main
+from armbench.cli.main import main
 from armbench.drivers.kinematics import fk
 from armbench.drivers.settings import Geometry, JointSettings, RobotSettings
 from armbench.drivers.urdf import robot_urdf

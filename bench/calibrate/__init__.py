@@ -1,7 +1,12 @@
 """``armbench calibrate``: identify the robot model of an arm from its own traffic (and a truth
 source where there is one), with the uncertainty of every fitted value."""
 
-from armbench.bench.calibrate.capture import CaptureData, load_capture, observations_from_capture
+from armbench.bench.calibrate.calibration import calibrate_capture, calibrate_port
+from armbench.bench.calibrate.capture_data import (
+    CaptureData,
+    load_capture,
+    observations_from_capture,
+)
 from armbench.bench.calibrate.fit import fit_all
 from armbench.bench.calibrate.model import (
     ArmDoesNotMoveError,
@@ -12,7 +17,6 @@ from armbench.bench.calibrate.model import (
 )
 from armbench.bench.calibrate.output import CalibrationResult, apply_fit, write_outputs
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
-from armbench.bench.calibrate.run import calibrate_capture, calibrate_port
 
 __all__ = [
     "DEFAULT_BUDGET_S",

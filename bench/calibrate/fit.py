@@ -25,8 +25,8 @@ from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import TICKS_PER_RAD
 from armbench.drivers.settings import RobotSettings
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.physics import ArmPhysics, Mechanism
-from armbench.fakes.settings import emulator_settings
 
 __all__ = [
     "INSTRUMENT_SIGMA_M",

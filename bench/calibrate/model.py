@@ -9,20 +9,28 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Final
 
 from armbench.drivers.errors import ArmbenchError
 
+if TYPE_CHECKING:
+    from armbench.bench.calibrate.sensitivity import Sensitivity
+    from armbench.drivers.settings import RobotSettings
+
 __all__ = [
+    "NO_TRUTH",
     "Approach",
     "ArmDoesNotMoveError",
     "CalibrationError",
+    "CalibrationResult",
     "CaptureContentError",
     "Fitted",
     "Hold",
     "Observations",
+    "PageRenderer",
     "SpeedRun",
 ]
 
@@ -185,3 +193,27 @@ class Fitted:
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready mapping."""
         return asdict(self)
+
+
+#: What a calibration without a reference instrument cannot tell (the header and the page say it).
+NO_TRUTH: Final = ("the link-side figures (gear play, stick-slip, Hall position errors, "
+                   "stiffness, DH lengths and joint offsets) are the prior's and cannot be "
+                   "trusted beyond it; give a reference instrument with --tracker to identify "
+                   "them")
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationResult:
+    """A finished (or partial) calibration: what was measured, what was fitted, the settings."""
+
+    observations: Observations
+    fitted: list[Fitted]
+    settings: RobotSettings
+    error: str | None = None
+    sensitivity: Sensitivity | None = None
+    #: How far the fitted arm's TCP is from the reference instrument's at each hold (mm).
+    kinematic_mm: tuple[float, ...] = ()
+
+
+#: Renders the calibration page of a result (HTML text).
+PageRenderer = Callable[[CalibrationResult], str]

@@ -1,5 +1,7 @@
 """What a calibration writes: the settings file (every fitted value with its standard error as a
-comment beside it), the fit as JSON, and the calibration page (HTML in the report's style).
+comment beside it), the fit as JSON, and the calibration page (HTML in the report's style), which
+the caller renders (the command line passes :func:`armbench.reports.calibration_page.render_page`:
+the report is a layer above the bench, ``docs/architecture.md``).
 
 The settings file is a complete robot settings TOML: ``--settings robot.toml`` and
 ``fake://?settings=robot.toml`` load it. Fitted values enter it clamped to the documented range of
@@ -12,45 +14,43 @@ import json
 import math
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-import jinja2
 import numpy as np
-from markupsafe import Markup
-from matplotlib.figure import Figure
 
-from armbench.bench.calibrate.model import Fitted, Observations
-from armbench.bench.calibrate.sensitivity import Sensitivity
+from armbench.bench.calibrate.model import (
+    NO_TRUTH,
+    CalibrationResult,
+    Fitted,
+    Observations,
+    PageRenderer,
+)
 from armbench.bench.outputs import OutputError, is_run_file
-from armbench.bench.record.files import atomic_write_bytes
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
-from armbench.reports.format import jinja_environment
-from armbench.reports.plots import to_svg
+from armbench.record.files import atomic_write_bytes
 
-__all__ = ["CalibrationResult", "apply_fit", "output_paths", "render_page", "toml_text",
-           "write_outputs", "written_value"]
+__all__ = ["NO_TRUTH", "CalibrationResult", "PageRenderer", "apply_fit", "kinematic_residuals_mm",
+           "output_paths", "toml_text", "write_outputs", "written_value"]
 
 _BARE_KEY: Final = re.compile(r"[A-Za-z0-9_-]+")
-#: What a calibration without a reference instrument cannot tell (the header and the page say it).
-NO_TRUTH: Final = ("the link-side figures (gear play, stick-slip, Hall position errors, "
-                   "stiffness, DH lengths and joint offsets) are the prior's and cannot be "
-                   "trusted beyond it; give a reference instrument with --tracker to identify "
-                   "them")
-_HERE: Final = Path(__file__).resolve().parent
 
 
-@dataclass(frozen=True, slots=True)
-class CalibrationResult:
-    """A finished (or partial) calibration: what was measured, what was fitted, the settings."""
 
-    observations: Observations
-    fitted: list[Fitted]
-    settings: RobotSettings
-    error: str | None = None
-    sensitivity: Sensitivity | None = None
+def kinematic_residuals_mm(settings: RobotSettings,
+                           observations: Observations) -> tuple[float, ...]:
+    """The distance from the TCP the fitted ``settings`` put at each hold's true joint angles to
+    the TCP the reference instrument measured (mm); none without the emulator's physics."""
+    from armbench.drivers.kinematics import tcp_position
+    from armbench.fakes.emulator_settings import actual_robot, emulator_settings
+
+    if emulator_settings(settings).physics is None:
+        return ()
+    actual = actual_robot(settings)
+    return tuple(float(np.linalg.norm(tcp_position(h.true_rad, actual) - np.asarray(h.tcp_true_m)))
+                 * 1000.0 for h in observations.holds
+                 if h.true_rad is not None and h.tcp_true_m is not None)
 
 
 def _range_of(key: str) -> tuple[float, float] | None:
@@ -179,10 +179,11 @@ def _write(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
-def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
-    """Write ``out`` (settings TOML), ``out`` with ``.json`` (the fit) and ``.html`` (the page),
-    each replaced atomically (a reader sees the old file or the new one); returns the paths by
-    kind."""
+def write_outputs(result: CalibrationResult, out: Path,
+                  page: PageRenderer | None = None) -> dict[str, Path]:
+    """Write ``out`` (settings TOML), ``out`` with ``.json`` (the fit) and, when ``page`` renders
+    it, ``.html`` (the page), each replaced atomically (a reader sees the old file or the new
+    one); returns the paths written by kind."""
     out = Path(out)
     comments = {f.key: _sigma_text(f) for f in result.fitted}
     header = (f"Robot settings fitted by armbench calibrate from {result.observations.source}.\n"
@@ -200,75 +201,15 @@ def write_outputs(result: CalibrationResult, out: Path) -> dict[str, Path]:
     timing = [f for f in result.fitted if f.key.startswith("timing.") and f.identified]
     for f in timing:
         header += f"\n{f.key} = {f.value:.6g} {f.unit} ± {f.sigma:.2g} (measured)"
-    settings_path, fit_path, page = output_paths(out, observations=False)
+    settings_path, fit_path, page_path = output_paths(out, observations=False)
     _write(settings_path, toml_text(result.settings.to_mapping(), comments, header))
     _write(fit_path, json.dumps({
         "source": result.observations.source, "error": result.error,
         "fitted": [f.to_json() for f in result.fitted],
         "sensitivity": None if result.sensitivity is None else result.sensitivity.to_json(),
         "observations": result.observations.to_json()}, indent=1) + "\n")
-    _write(page, render_page(result))
-    return {"settings": settings_path, "fit": fit_path, "page": page}
-
-
-def _figures(result: CalibrationResult) -> list[tuple[str, Markup]]:
-    obs = result.observations
-    out: list[tuple[str, Markup]] = []
-    if obs.speeds:
-        fig = Figure(figsize=(7.5, 3.2))
-        ax = fig.add_subplot(1, 1, 1)
-        for joint in sorted({s.joint for s in obs.speeds}):
-            for direction, marker in ((1, "^"), (-1, "v")):
-                pts = [(s.duty, s.ratio) for s in obs.speeds
-                       if s.joint == joint and s.direction == direction]
-                if pts:
-                    a = np.asarray(sorted(pts))
-                    ax.plot(a[:, 0], a[:, 1], marker=marker, label=f"j{joint} {direction:+d}")
-        ax.set_xlabel("duty")
-        ax.set_ylabel("effective / law (12) speed")
-        ax.legend(fontsize=7, ncol=4)
-        fig.subplots_adjust(left=0.1, right=0.98, bottom=0.16, top=0.95)
-        out.append(("Effective speed against duty and direction (1 = no step lost)",
-                    to_svg(fig, "speed", "effective speed against duty")))
-    play = [(ap.joint, ap.direction, ap.link_rad[ap.joint - 1] - ap.motor_rad[ap.joint - 1])
-            for ap in obs.approaches if ap.link_rad is not None and ap.motor_rad is not None]
-    if play:
-        fig = Figure(figsize=(7.5, 3.0))
-        ax = fig.add_subplot(1, 1, 1)
-        for joint, direction, gap_rad in play:
-            ax.plot(joint + 0.1 * direction, math.degrees(gap_rad),
-                    "^" if direction > 0 else "v", color="C0" if direction > 0 else "C3")
-        ax.set_xticks([1, 2, 3, 4], ["j1", "j2", "j3", "j4"])
-        ax.set_ylabel("link − motor (deg)")
-        fig.subplots_adjust(left=0.12, right=0.98, bottom=0.12, top=0.95)
-        out.append(("Approaches: link against motor, moving + (▲) and − (▼): the gap between "
-                    "the groups is the play, their spread the stick-slip band",
-                    to_svg(fig, "play", "link against motor per approach")))
-    return out
-
-
-def _kinematic_residuals_mm(result: CalibrationResult) -> list[float]:
-    from armbench.drivers.kinematics import tcp_position
-    from armbench.fakes.settings import actual_robot, emulator_settings
-
-    if emulator_settings(result.settings).physics is None:
-        return []
-    actual = actual_robot(result.settings)
-    return [float(np.linalg.norm(tcp_position(h.true_rad, actual) - np.asarray(h.tcp_true_m)))
-            * 1000.0 for h in result.observations.holds
-            if h.true_rad is not None and h.tcp_true_m is not None]
-
-
-def render_page(result: CalibrationResult) -> str:
-    """The calibration page: a self-contained HTML document (no script, nothing fetched)."""
-    base = jinja_environment()
-    env = base.overlay(loader=jinja2.ChoiceLoader([jinja2.FileSystemLoader(_HERE),
-                                                    base.loader or jinja2.BaseLoader()]))
-    template = env.get_template("calibration.html.j2")
-    return template.render(
-        obs=result.observations, error=result.error, NO_TRUTH=NO_TRUTH,
-        sensitivity=result.sensitivity,
-        identified=[f for f in result.fitted if f.identified],
-        kept=[f for f in result.fitted if not f.identified],
-        figures=_figures(result), kinematic_mm=_kinematic_residuals_mm(result),
-        speeds=sorted(result.observations.speeds, key=lambda s: (s.joint, s.direction, -s.duty)))
+    written = {"settings": settings_path, "fit": fit_path}
+    if page is not None:
+        _write(page_path, page(result))
+        written["page"] = page_path
+    return written

@@ -3,8 +3,8 @@ calibration's uncertainties, the state of each power cut), their distributions a
 probabilities (``armbench campaign``); and shards of a run joined into one record
 (``armbench merge``). See ``docs/campaigns.md``."""
 
+from armbench.bench.campaign.campaign_run import CampaignOptions, prepare_campaign, run_campaign
 from armbench.bench.campaign.draws import Uncertain, draw_arm, read_uncertainties
-from armbench.bench.campaign.run import CampaignOptions, prepare_campaign, run_campaign
 from armbench.bench.campaign.shards import MergeError, merge_shards
 from armbench.bench.campaign.stats import (
     CAMPAIGN_KEY,

@@ -104,7 +104,7 @@ def apply_arm(settings: RobotSettings, arm: Mapping[str, float]) -> RobotSetting
 
 
 def _valid(settings: RobotSettings, arm: Mapping[str, float]) -> bool:
-    from armbench.fakes.settings import emulator_settings
+    from armbench.fakes.emulator_settings import emulator_settings
 
     try:
         emulator_settings(apply_arm(settings, arm), seed=0)

@@ -17,8 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.campaign.run import BatchedWriter, CampaignOptions, prepare_campaign
-from armbench.bench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
+from armbench.bench.campaign.campaign_run import BatchedWriter, CampaignOptions, prepare_campaign
 from armbench.bench.runner import (
     RUNNER_FILE,
     BenchPlan,
@@ -31,6 +30,7 @@ from armbench.bench.runner import (
 from armbench.bench.runner.plan import json_equal
 from armbench.bench.runner.trials import TrialRunner, default_emulator
 from armbench.drivers.errors import ArmbenchError
+from armbench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
 
 __all__ = ["MergeError", "merge_shards"]
 

@@ -18,8 +18,8 @@ from typing import Final
 
 import numpy as np
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import Better, Measurement, Trial, judge
+from armbench.record import Better, Measurement, Trial, judge
+from armbench.record.limits import LimitsConfig
 
 __all__ = ["ALL_LIMITS", "CAMPAIGN_KEY", "Z95", "MetricDistribution", "campaign_measurements",
            "collect", "wilson_interval"]

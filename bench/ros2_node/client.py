@@ -31,13 +31,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armbench.bench.metrics import square_yz
 from armbench.bench.ros2_node.node import TOPICS
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.metrics import square_yz
 
 if TYPE_CHECKING:  # rclpy and the messages are imported where used: the module imports without
     from rclpy.executors import Executor  # the extra

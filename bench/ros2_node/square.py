@@ -19,7 +19,6 @@ import sys
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from armbench.bench.metrics import square_yz
 from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 from armbench.bench.suites._common import settled_state
 from armbench.bench.suites.accuracy import path_figures
@@ -27,6 +26,7 @@ from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQU
 from armbench.drivers.arm import PathRun
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
+from armbench.metrics import square_yz
 
 __all__ = ["SquareOptions", "compare_square", "run_samples"]
 

@@ -28,9 +28,9 @@ import numpy.typing as npt
 from armbench.drivers.errors import ArmbenchError, InvalidTargetError
 from armbench.drivers.kinematics import Vec4, tcp_position
 from armbench.drivers.motion import CYCLE_S, segment_duties
+from armbench.drivers.move_targets import check_target, wire_command
 from armbench.drivers.protocol import JOINTS, MAX_DUTY, Command
 from armbench.drivers.settings import RobotSettings
-from armbench.drivers.move_targets import check_target, wire_command
 
 __all__ = ["DURATION_SLACK", "TrajectoryError", "TrajectoryPlan", "plan_trajectory"]
 

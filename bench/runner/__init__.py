@@ -3,7 +3,8 @@
 in worker processes when it can (``parallel``), on several arms at once (``fleet``), showing
 progress (``progress``) and keeping the traffic capture one stream (``capture``)."""
 
-from armbench.bench.runner.fleet import FleetOutcome, run_fleet_sync
+from armbench.bench.runner.execute import execute, run_bench, run_sync
+from armbench.bench.runner.fleet_run import FleetOutcome, run_fleet_sync
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     DEFAULT_CONFIG,
@@ -27,7 +28,6 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.progress import ProgressPrinter
-from armbench.bench.runner.run import execute, run_bench, run_sync
 
 __all__ = [
     "CAPTURE_FILE",

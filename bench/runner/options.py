@@ -11,8 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
 from armbench.bench.verdict import (
@@ -28,11 +26,13 @@ from armbench.bench.verdict import (
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports.target import Target
+from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
+from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings
     from armbench.fakes.faults import Fault
-    from armbench.fakes.settings import EmulatorSettings
 
 __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",

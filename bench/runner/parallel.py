@@ -38,12 +38,12 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import Any
 
-from armbench.bench.record import Trial, path_inside
-from armbench.bench.runner.capture import job_part_tag
+from armbench.bench.runner.capture_parts import job_part_tag
 from armbench.bench.runner.cluster import DaskCluster
 from armbench.bench.runner.options import BenchPlan, PlannedSuite, RunAborted
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
 from armbench.bench.workers import run_job, worker_init
+from armbench.record import Trial, path_inside
 
 __all__ = ["JobResult", "ParallelTrials", "TrialJob"]
 

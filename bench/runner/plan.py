@@ -25,18 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
-from armbench.bench.baseline import BaselineError, check_suite_versions, load_baseline, read_record
-from armbench.bench.limits import LimitsConfig, load_limits
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
-from armbench.bench.record import (
-    RESULTS_FILE,
-    RecordError,
-    RunRecord,
-    json_default,
-    new_run_id,
-    path_inside,
-)
-from armbench.bench.record.files import check_directory_writable
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
     DEFAULT_OUTAGE_TIMEOUT_S,
@@ -50,11 +39,22 @@ from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
-from armbench.drivers.capture import capture_options
+from armbench.capture.jsonl import capture_options
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.drivers.transports.target import Target, given_by, target_of
+from armbench.record import (
+    RESULTS_FILE,
+    RecordError,
+    RunRecord,
+    json_default,
+    new_run_id,
+    path_inside,
+)
+from armbench.record.baseline import BaselineError, check_suite_versions, load_baseline, read_record
+from armbench.record.files import check_directory_writable
+from armbench.record.limits import LimitsConfig, load_limits
 
 if TYPE_CHECKING:
     from armbench.fakes.faults import Fault

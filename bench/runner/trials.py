@@ -17,14 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.power import port_power
-from armbench.bench.record import (
-    RESULTS_FILE,
-    RecordWriter,
-    RunRecord,
-    Trial,
-    continued_clock_s,
-)
-from armbench.bench.runner.capture import CaptureParts
+from armbench.bench.runner.capture_parts import CaptureParts
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     BenchPlan,
@@ -39,13 +32,20 @@ from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports.capabilities import FreshArm
+from armbench.record import (
+    RESULTS_FILE,
+    RecordWriter,
+    RunRecord,
+    Trial,
+    continued_clock_s,
+)
 
 if TYPE_CHECKING:
+    from armbench.capture.part import PartWriter
     from armbench.drivers.arm import Arm
-    from armbench.drivers.capture_part import PartWriter
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.emulator_settings import EmulatorSettings
     from armbench.fakes.faults import Fault
-    from armbench.fakes.settings import EmulatorSettings
 
 __all__ = ["Connection", "LoopClockWriter", "Messages", "RunClock", "TrialAttempts",
            "TrialRunner", "default_emulator", "describe"]
@@ -67,7 +67,7 @@ def describe(exc: BaseException) -> str:
 def default_emulator(robot: RobotSettings, settings: EmulatorSettings,
                      faults: Sequence[Fault]) -> ArmEmulator:
     """The built-in emulator of a ``fake://`` connection."""
-    from armbench.fakes.arm import ArmEmulator
+    from armbench.fakes.arm_emulator import ArmEmulator
 
     return ArmEmulator(robot, settings, faults)
 
@@ -144,8 +144,8 @@ class TrialAttempts:
     async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
         """Open the arm (on a target that starts fresh arms a new one seeded with
         ``emulator_seed``, playing the arm ``robot``, by default the plan's)."""
+        from armbench.capture.part import PartWriter
         from armbench.drivers.arm import Arm, ReconnectPolicy
-        from armbench.drivers.capture_part import PartWriter
 
         plan = self.plan
         self._parts += 1

@@ -1,13 +1,14 @@
 """The bench suites, by name: what ``armbench run SUITE ...`` runs.
 
-:data:`SUITES` maps each suite's command-line name to ``"module:Class"``; the module is imported
-only when the suite is loaded, so a broken or slow suite module costs nothing to the others.
-Other distributions register suites as entry points of the group :data:`ENTRY_POINT_GROUP`
-(``armbench.suites``), as transports are registered. Besides a registered name,
-:func:`load_suite` accepts a ``"package.module:Class"`` of any
-:class:`~armbench.bench.suites.base.Suite` subclass (a lab's own suite, a test's tiny suite) when
-the user names it on the command line; a run record only ever names registered suites
-(:func:`registered_suites`), so resuming a folder never imports code the folder names.
+:data:`SUITES` maps each suite's command-line name to ``"module:Class"``, as the suite's contract
+names it (``record/suite_contract.py``); the module is imported only when the suite is loaded,
+so a broken or slow suite module costs nothing to the others. Other distributions register
+suites as entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.suites``), as
+transports are registered. Besides a registered name, :func:`load_suite` accepts a
+``"package.module:Class"`` of any :class:`~armbench.bench.suites.base.Suite` subclass (a lab's
+own suite, a test's tiny suite) when the user names it on the command line; a run record only
+ever names registered suites (:func:`registered_suites`), so resuming a folder never imports
+code the folder names.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from armbench.bench.suites.base import (
     SuiteContext,
 )
 from armbench.drivers.errors import ArmbenchError
+from armbench.record.suite_contract import contracts
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -43,13 +45,11 @@ __all__ = [
     "suite_names",
 ]
 
-#: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order.
-SUITES: dict[str, str] = {
-    "accuracy": "armbench.bench.suites.accuracy:AccuracySuite",
-    "repeatability": "armbench.bench.suites.repeatability:RepeatabilitySuite",
-    "startup-recovery": "armbench.bench.suites.startup_recovery:StartupRecoverySuite",
-    "joints": "armbench.bench.suites.joints:JointsSuite",
-}
+#: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order:
+#: every registered suite contract that names its implementation
+#: (:func:`armbench.record.suite_contract.register`), so adding a suite edits no list here.
+SUITES: dict[str, str] = {c.suite: c.implementation for c in contracts()
+                          if c.implementation is not None}
 
 
 #: Entry-point group under which distributions register suites by name.

@@ -23,9 +23,7 @@ from typing import TYPE_CHECKING, Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from armbench.bench.record import Better, Measurement, Trial
 from armbench.bench.suites.base import SuiteContext
-from armbench.bench.suites.contract import POS_DECIMALS, RAD_DECIMALS
 from armbench.drivers.arm import DriverClosedError
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
@@ -38,6 +36,8 @@ from armbench.drivers.motion import (
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.record import Better, Measurement, Trial
+from armbench.record.suite_contract import POS_DECIMALS, RAD_DECIMALS
 
 if TYPE_CHECKING:
     from armbench.drivers.arm import Arm, JointState

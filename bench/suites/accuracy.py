@@ -14,7 +14,7 @@ arm, emulator seed and drift:
 The reply stream is sampled throughout each lap (one sample per ``sample_period_s``): the reported
 joints, the reported TCP (forward kinematics of them, as the paper did) and, when the bench has a
 reference instrument (``ctx.truth``), the true TCP. Errors are distances to the nearest point of
-the reference square (:func:`armbench.bench.metrics.path_errors`); figures in mm. See
+the reference square (:func:`armbench.metrics.path_errors`); figures in mm. See
 ``docs/suites.md``.
 """
 
@@ -26,16 +26,6 @@ from typing import Any, ClassVar, Final
 
 import numpy as np
 
-from armbench.bench.metrics import (
-    MM_PER_M,
-    error_summary,
-    path_errors,
-    sample_polyline,
-    square_yz,
-    summarize_errors,
-)
-from armbench.bench.metrics.path import PathErrorSummary
-from armbench.bench.record import PAPER_REFERENCE, Measurement, Trial
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     FloatArray,
@@ -51,10 +41,20 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.bench.suites.contract import ACCURACY
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.metrics import (
+    MM_PER_M,
+    error_summary,
+    path_errors,
+    sample_polyline,
+    square_yz,
+    summarize_errors,
+)
+from armbench.metrics.path import PathErrorSummary
+from armbench.record import PAPER_REFERENCE, Measurement, Trial
+from armbench.record.suite_contract import ACCURACY
 
 __all__ = ["STYLES", "AccuracySuite", "path_figures"]
 

@@ -19,9 +19,9 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
-from armbench.bench.limits import LimitsConfig
-from armbench.bench.record import Better, Measurement, Trial, judge
 from armbench.drivers.settings import RobotSettings
+from armbench.record import Better, Measurement, Trial, judge
+from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:
     from armbench.drivers.arm import Arm

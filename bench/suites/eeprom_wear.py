@@ -10,11 +10,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from armbench.bench.metrics import iso_cube_poses, square_yz
-from armbench.bench.record import Measurement
 from armbench.bench.suites._common import Measurements, eeprom_counters, loop_time
 from armbench.bench.suites.base import SuiteContext
-from armbench.bench.suites.contract import SAMPLE, STARTUP
 from armbench.bench.suites.workspace import (
     CYCLE_ORDER,
     DEFAULT_CUBE_CENTRE_M,
@@ -23,6 +20,9 @@ from armbench.bench.suites.workspace import (
     DEFAULT_SQUARE_SIDE_M,
     POSE_NAMES,
 )
+from armbench.metrics import iso_cube_poses, square_yz
+from armbench.record import Measurement
+from armbench.record.suite_contract import SAMPLE, STARTUP
 
 __all__ = ["ATMEGA328P_EEPROM_CYCLES", "MAX_WEAR_S", "eeprom_life_years", "measure_wear",
            "wear_measurements"]

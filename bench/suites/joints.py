@@ -8,7 +8,7 @@ stopping ``settle_s`` at each (approach ↑), past the highest by the overtravel
 through every target (approach ↓): the linear cycle of ISO 230-2 §4.3. At each stop the reply is
 sampled and, with a truth source, the true joint angle beside it.
 
-Figures (:func:`armbench.bench.metrics.iso230.axis_positioning`) in mrad, of the reported angle
+Figures (:func:`armbench.metrics.iso230.axis_positioning`) in mrad, of the reported angle
 (the firmware's encoder: play and deflection do not show) and with a truth source of the true one
 (``true_`` names): ``joints.jN.accuracy_mrad`` (A), ``repeatability_mrad`` (R), ``reversal_mrad``
 (B), ``mean_reversal_mrad`` (B̄, signed), ``systematic_mrad`` (E).
@@ -20,9 +20,6 @@ import asyncio
 from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
-from armbench.bench.metrics import MetricsInputError
-from armbench.bench.metrics.iso230 import axis_positioning
-from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
@@ -34,9 +31,12 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.bench.suites.contract import JOINTS
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.metrics import MetricsInputError
+from armbench.metrics.iso230 import axis_positioning
+from armbench.record import Measurement, Trial
+from armbench.record.suite_contract import JOINTS
 
 __all__ = ["JointsSuite", "joint_figures", "joint_targets"]
 

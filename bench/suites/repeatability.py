@@ -2,7 +2,7 @@
 
 Test cube (``cube_centre_m``, ``cube_side_m``) in the reachable workspace; P1 at its centre and
 P2..P5 on the diagonal plane ``plane`` at 10 % of the diagonal from its corners
-(:func:`armbench.bench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the
+(:func:`armbench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the
 rated
 joint speed; law (12) maps it to a duty, see
 :func:`armbench.bench.suites._common.duty_for_speed_pct`):
@@ -33,18 +33,6 @@ from typing import Any, ClassVar, Final
 
 import numpy as np
 
-from armbench.bench.metrics import (
-    CUBE_PLANES,
-    MM_PER_M,
-    MetricsInputError,
-    distance_characteristics,
-    iso_cube_poses,
-    multidirectional_variation,
-    path_characteristics,
-    pose_accuracy,
-    pose_repeatability,
-)
-from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     FloatArray,
@@ -62,7 +50,6 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.bench.suites.contract import REPEATABILITY, SAMPLE
 from armbench.bench.suites.workspace import (
     CYCLE_ORDER,
     DEFAULT_CUBE_CENTRE_M,
@@ -70,6 +57,19 @@ from armbench.bench.suites.workspace import (
     POSE_NAMES,
 )
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.metrics import (
+    CUBE_PLANES,
+    MM_PER_M,
+    MetricsInputError,
+    distance_characteristics,
+    iso_cube_poses,
+    multidirectional_variation,
+    path_characteristics,
+    pose_accuracy,
+    pose_repeatability,
+)
+from armbench.record import Measurement, Trial
+from armbench.record.suite_contract import REPEATABILITY, SAMPLE
 
 R: Final = REPEATABILITY
 

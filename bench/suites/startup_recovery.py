@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Any, ClassVar, Final
 
 import numpy as np
 
-from armbench.bench.record import Measurement, Trial
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
@@ -53,7 +52,6 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.bench.suites.contract import SAMPLE, STARTUP
 from armbench.bench.suites.eeprom_wear import (
     ATMEGA328P_EEPROM_CYCLES,
     MAX_WEAR_S,
@@ -78,6 +76,8 @@ from armbench.bench.suites.startup_watch import (
 from armbench.drivers.motion import coordinated_duties, joint_times_s
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.record import Measurement, Trial
+from armbench.record.suite_contract import SAMPLE, STARTUP
 
 S: Final = STARTUP
 

@@ -3,7 +3,7 @@ plugin, a lab's own suite): its parameters, its trials and its measurements as r
 
 from __future__ import annotations
 
-from armbench.bench.record import RunRecord, SuiteRecord
+from armbench.record import RunRecord, SuiteRecord
 from armbench.reports.views import Figures, SectionView, SuiteView
 
 __all__ = ["build"]

@@ -1,9 +1,10 @@
 """The repeatability section: the ISO 9283 test cube and its poses, the attained positions around
 their barycentre, then AP / RP per pose and speed and the figures per speed.
 
-Names come from the suite contract (:data:`armbench.bench.suites.contract.REPEATABILITY`). The
-figures are the recorded ones; only a pose whose figure the record lacks (an interrupted suite) is
-computed from its samples, and marked so.
+Names come from the suite contract (:data:`armbench.record.suite_contract.REPEATABILITY`). The
+figures are the recorded ones; a pose whose figure the suite's summary lacks (an interrupted
+suite) shows the interim figure the record layer gives (:mod:`armbench.record.interim`), marked
+so. The section computes no figure.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armbench.bench.metrics import cube_corners, pose_accuracy, pose_repeatability
-from armbench.bench.record import Measurement, RunRecord, SuiteRecord
-from armbench.bench.suites.contract import REPEATABILITY, SAMPLE
+from armbench.metrics import cube_corners
+from armbench.record import Measurement, RunRecord, SuiteRecord
+from armbench.record.interim import Vec3, interim_pose_figures, pose_samples
+from armbench.record.suite_contract import REPEATABILITY
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_number, format_value
 from armbench.reports.views import (
@@ -34,7 +36,6 @@ __all__ = ["SUITE", "RepCell", "RepRow", "RepeatabilityView", "SpeedRow", "build
 SUITE = REPEATABILITY.suite
 R = REPEATABILITY
 _SAFE_POSE = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,11}")
-Vec3 = tuple[float, float, float]
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,32 +84,11 @@ def _pose_key(name: str) -> tuple[int, str]:
     return (int(digits) if digits and len(digits) < 6 else 10**6, name)
 
 
-def _attained(suite: SuiteRecord) -> tuple[dict[tuple[float, str], list[Vec3]], dict[str, Vec3],
-                                           dict[float, list[float]]]:
-    """Attained positions per (speed, pose) of the pose trials, commanded positions per pose and
-    the pose cycles' durations per speed."""
-    points: dict[tuple[float, str], list[Vec3]] = {}
-    commanded: dict[str, Vec3] = {}
-    times: dict[float, list[float]] = {}
-    for trial in suite.trials:
-        speed = num(trial.params.get(R.speed))
-        if speed is None or trial.params.get(R.kind) != R.pose_kind or trial.status != "done":
-            continue
-        times.setdefault(speed, []).append(trial.duration_s)
-        for s in trial.samples:
-            pose, r = s.get(SAMPLE.pose), vec3(s.get(SAMPLE.reported))
-            if not isinstance(pose, str) or r is None:
-                continue
-            points.setdefault((speed, pose), []).append(r)
-            c = vec3(s.get(SAMPLE.commanded))
-            if c is not None:
-                commanded.setdefault(pose, c)
-    return points, commanded, times
-
-
 def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures) -> SectionView:
     """The repeatability section of ``record``."""
-    points, commanded, times = _attained(suite)
+    samples = pose_samples(suite)
+    points, commanded, times = samples.attained, samples.commanded, samples.cycle_s
+    interim = interim_pose_figures(suite, samples)
     speeds = sorted({sp for sp, _ in points}, reverse=True)
     poses = sorted({p for _, p in points}, key=_pose_key)
     recorded: dict[str, Measurement] = {m.name: m for m in suite.measurements}
@@ -137,10 +117,11 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
             ap = None if ap_m is None else ap_m.value
             rp = None if rp_m is None else rp_m.value
             computed = False
-            if ap is None and len(pts) and pose in commanded:
-                ap, computed = pose_accuracy(pts, commanded[pose]).ap_p_mm, True
-            if rp is None and len(pts) >= 2:
-                rp, computed = pose_repeatability(pts).rp_mm, True
+            late = interim.get((speed, pose))
+            if ap is None and late is not None and late.ap_mm is not None:
+                ap, computed = late.ap_mm, True
+            if rp is None and late is not None and late.rp_mm is not None:
+                rp, computed = late.rp_mm, True
             computed_any |= computed
             cells.append(RepCell(
                 ap=format_number(ap, unit="mm"),
@@ -157,8 +138,8 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
                            "(" + ", ".join(f"{v * 1000:.1f}" for v in c) + ") mm"))
         scatter.append(plots.PoseScatter(label(i, pose), groups))
     if computed_any:
-        notes.append("† computed by the report from the samples: the record holds no figure of "
-                     "that name (an interrupted suite).")
+        notes.append("† interim: the suite was interrupted before its summary, so the figure is "
+                     "computed from the samples recorded so far.")
 
     def worst(speed: float, figure: str) -> str:
         ms = [recorded.get(R.pose_metric(speed, p, figure)) for p in poses]

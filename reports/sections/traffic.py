@@ -10,9 +10,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-from armbench.drivers.capture import CaptureError
+from armbench.capture.jsonl import CaptureError
 from armbench.reports import plots
-from armbench.reports.capture import CaptureLine, summarize_capture
+from armbench.reports.capture_summary import CaptureLine, summarize_capture
 from armbench.reports.format import format_duration
 from armbench.reports.views import Figures, FigureView
 

@@ -10,11 +10,11 @@ import contextlib
 import json
 from pathlib import Path
 
-from armbench.bench.metrics import square_yz
+from armbench.capture.jsonl import CaptureWriter
 from armbench.drivers.arm import Arm
-from armbench.drivers.capture import CaptureWriter
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.settings import RobotSettings
+from armbench.metrics import square_yz
 from foreign_arms.tracker_client import TrackerStream
 
 #: Longest silence of the arm tolerated (s).

@@ -1,0 +1,304 @@
+"""The records of an MCAP file, walked and checked: what :mod:`armbench.capture.read`
+reads captures with.
+
+Every record of the data section is parsed as what its opcode says, every chunk decompressed and
+held to its size and CRC, and a closed file's chunks counted against its summary, so damage
+(a flipped byte, bytes missing in the middle, a file named ``.mcap`` that is not MCAP) is a
+:class:`~armbench.capture.jsonl.CaptureError` naming the file and the byte where it is, never
+another exception and never records silently left out. A file cut short (a killed run: no
+summary, a record half written) is read up to its last complete record.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+import zlib
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO, Any, Final, NamedTuple
+
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Message,
+    MessageIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+from mcap.stream_reader import get_chunk_data_stream
+
+from armbench.capture.jsonl import CaptureError
+
+__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
+           "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout"]
+
+MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+#: The metadata record holding the run's identity and, under :data:`START_KEY`, the wall-clock
+#: nanoseconds since the epoch of the run's start: the zero of the run clock, which every time
+#: in the capture counts from.
+START_METADATA: Final = "armbench"
+START_KEY: Final = "start_ns"
+_OP_MESSAGE: Final = int(Opcode.MESSAGE)
+_OP_CHANNEL: Final = int(Opcode.CHANNEL)
+_OP_CHUNK: Final = int(Opcode.CHUNK)
+_OP_DATA_END: Final = int(Opcode.DATA_END)
+_OP_FOOTER: Final = int(Opcode.FOOTER)
+_OP_STATISTICS: Final = int(Opcode.STATISTICS)
+#: The MCAP records and their parsers: every record of the data section is parsed as what its
+#: opcode says (a flipped opcode then fails to parse, or is caught by the summary's chunk count);
+#: an opcode outside these (reserved, or user-defined, which armbench never writes) is damage.
+_PARSERS: Final[dict[int, Any]] = {int(op): cls for op, cls in (
+    (Opcode.HEADER, Header), (Opcode.FOOTER, Footer), (Opcode.SCHEMA, Schema),
+    (Opcode.CHANNEL, Channel), (Opcode.MESSAGE, Message), (Opcode.CHUNK, Chunk),
+    (Opcode.MESSAGE_INDEX, MessageIndex), (Opcode.CHUNK_INDEX, ChunkIndex),
+    (Opcode.ATTACHMENT, Attachment), (Opcode.ATTACHMENT_INDEX, AttachmentIndex),
+    (Opcode.STATISTICS, Statistics), (Opcode.METADATA, Metadata),
+    (Opcode.METADATA_INDEX, MetadataIndex), (Opcode.SUMMARY_OFFSET, SummaryOffset),
+    (Opcode.DATA_END, DataEnd))}
+#: Uncompressed bytes of a chunk at most: far above any writer's chunks (armbench's are 4 MiB),
+#: so a size field that was damaged is not allocated.
+MAX_CHUNK_BYTES: Final = 1 << 30
+#: A footer record's bytes (opcode, length, two offsets, CRC).
+_FOOTER_BYTES: Final = 1 + 8 + 8 + 8 + 4
+_HEAD: Final = struct.Struct("<BQ")  # a record's opcode and length
+_U64: Final = struct.Struct("<Q")
+_MESSAGE_HEAD: Final = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+
+
+class RawMessage(NamedTuple):
+    """One message of an MCAP file: its topic, log time (ns) and CDR bytes."""
+
+    topic: str
+    log_time_ns: int
+    data: bytes
+
+
+class McapLayout(NamedTuple):
+    """What an MCAP file holds, before its messages are read: its complete chunks, and whether it
+    was closed (its footer and closing magic are there) or cut short (a killed run)."""
+
+    chunks: int
+    closed: bool
+
+
+def _open(path: Path) -> IO[bytes]:
+    try:
+        return path.open("rb")
+    except OSError as exc:
+        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+
+
+def _damaged(path: Path, pos: int, what: str, problem: object) -> CaptureError:
+    return CaptureError(str(path), None, f"{what} at byte {pos} is corrupt: {problem}")
+
+
+def _closed(fh: IO[bytes]) -> bool:
+    """Whether the file ends with the closing magic after at least the opening one."""
+    size = os.fstat(fh.fileno()).st_size
+    fh.seek(max(0, size - len(MCAP_MAGIC)))
+    return size >= 2 * len(MCAP_MAGIC) and fh.read() == MCAP_MAGIC
+
+
+def _parse(path: Path, pos: int, opcode: int, body: bytes) -> McapRecord:
+    cls = _PARSERS[opcode]
+    stream = ReadDataStream(io.BytesIO(body))
+    try:
+        record: McapRecord = (Message.read(stream, len(body)) if cls is Message
+                              else cls.read(stream))
+        return record
+    except (McapError, EOFError, struct.error, ValueError, OverflowError, MemoryError) as exc:
+        raise _damaged(path, pos, Opcode(opcode).name.lower(), str(exc) or type(exc).__name__
+                       ) from None
+
+
+def _summary_chunks(path: Path, fh: IO[bytes], size: int) -> int | None:
+    """The chunk count of a closed file's summary statistics (None: it has none)."""
+    at = size - len(MCAP_MAGIC) - _FOOTER_BYTES
+    fh.seek(at)
+    head = fh.read(_FOOTER_BYTES)
+    opcode, length = _HEAD.unpack_from(head)
+    if opcode != _OP_FOOTER or length != _FOOTER_BYTES - _HEAD.size:
+        raise _damaged(path, at, "footer", f"opcode 0x{opcode:02x}, length {length}")
+    footer = Footer.read(ReadDataStream(io.BytesIO(head[_HEAD.size:])))
+    pos = footer.summary_start
+    if pos == 0:
+        return None
+    if not len(MCAP_MAGIC) <= pos <= at:
+        raise _damaged(path, at, "footer", f"its summary starts at byte {pos}")
+    fh.seek(pos)
+    while pos + _HEAD.size <= at:
+        opcode, length = _HEAD.unpack(fh.read(_HEAD.size))
+        if pos + _HEAD.size + length > at:
+            raise _damaged(path, pos, "summary record", "it runs past the footer")
+        if opcode == _OP_STATISTICS:
+            stats = _parse(path, pos, opcode, fh.read(length))
+            assert isinstance(stats, Statistics)
+            return int(stats.chunk_count)
+        pos += _HEAD.size + length
+        fh.seek(pos)
+    return None
+
+
+def _records(path: Path, fh: IO[bytes]) -> Iterator[tuple[int, McapRecord]]:
+    """(byte offset, record) of each record of the data section, parsed as its opcode says. A
+    record cut short by the end of the file ends the walk when the file was not closed (a killed
+    run's last record); in a closed file it is damage, as an unknown opcode, a record that does
+    not parse, or fewer chunks than the summary counts are."""
+    size = os.fstat(fh.fileno()).st_size
+    closed = _closed(fh)
+    fh.seek(0)
+    magic = fh.read(len(MCAP_MAGIC))
+    if magic != MCAP_MAGIC:
+        if MCAP_MAGIC.startswith(magic) and not closed:
+            return  # killed while the magic was written
+        raise CaptureError(str(path), None, "is not an MCAP file: it does not begin with the "
+                                            "MCAP magic")
+    pos = len(MCAP_MAGIC)
+    chunks = 0
+    while True:
+        head = fh.read(_HEAD.size)
+        if len(head) < _HEAD.size:
+            if closed:
+                raise _damaged(path, pos, "record", "the file ends inside its header")
+            return
+        opcode, length = _HEAD.unpack(head)
+        if opcode not in _PARSERS:
+            raise _damaged(path, pos, "record", f"opcode 0x{opcode:02x} is not an MCAP record")
+        end = pos + _HEAD.size + length
+        if end > size:
+            if closed:
+                raise _damaged(path, pos, "record", f"its length ({length} bytes) runs past "
+                                                    f"the end of the file ({size} bytes)")
+            return  # cut short: the record was being written
+        record = _parse(path, pos, opcode, fh.read(length))
+        if opcode in (_OP_DATA_END, _OP_FOOTER):
+            break
+        chunks += opcode == _OP_CHUNK
+        yield pos, record
+        pos = end
+    if closed:
+        expected = _summary_chunks(path, fh, size)
+        if expected is not None and expected != chunks:
+            raise CaptureError(str(path), None, f"is corrupt: its data section holds {chunks} "
+                                                f"chunks up to byte {pos}, its summary counts "
+                                                f"{expected}")
+
+
+def mcap_layout(path: str | Path) -> McapLayout:
+    """The complete chunks of an MCAP file and whether it was closed (the chunks are not
+    decompressed); a :class:`CaptureError` if the file is damaged or not MCAP."""
+    p = Path(path)
+    with _open(p) as fh:
+        chunks = sum(isinstance(r, Chunk) for _, r in _records(p, fh))
+        return McapLayout(chunks, _closed(fh))
+
+
+def capture_start_ns(path: str | Path) -> int:
+    """The wall-clock nanoseconds of the run's start that a capture's times count from (its
+    ``armbench`` metadata record, written before any message); 0 for a capture written before
+    the times were on the wall clock (they count from 0) or one cut short before it."""
+    p = Path(path)
+    with _open(p) as fh:
+        for _, record in _records(p, fh):
+            if isinstance(record, Metadata) and record.name == START_METADATA:
+                try:
+                    return max(0, int(record.metadata.get(START_KEY, "0")))
+                except ValueError:
+                    raise CaptureError(str(p), None, f"metadata {START_KEY} "
+                                       f"{record.metadata[START_KEY]!r} is not a "
+                                       "number of nanoseconds") from None
+            if isinstance(record, (Chunk, Message)):
+                break
+    return 0
+
+
+def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+    """The messages of an MCAP file in file order (optionally only ``topics``), streamed; a file
+    cut short ends at its last complete record. Records and chunks are walked here (``mcap``
+    parses each record and decompresses); only the wanted messages are copied out. A damaged
+    file is a :class:`CaptureError` naming the byte where the damage is."""
+    wanted = None if topics is None else set(topics)
+    channels: dict[int, str] = {}
+    p = Path(path)
+    with _open(p) as fh:
+        for pos, record in _records(p, fh):
+            if isinstance(record, Chunk):
+                yield from _chunk_messages(p, pos, record, channels, wanted)
+            elif isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = channels.get(record.channel_id)
+                if topic is None:
+                    raise _damaged(p, pos, "message", f"channel {record.channel_id} was never "
+                                                      "declared")
+                if wanted is None or topic in wanted:
+                    yield RawMessage(topic, record.log_time, record.data)
+
+
+def _chunk_messages(path: Path, at: int, chunk: Chunk, channels: dict[int, str],
+                    wanted: set[str] | None) -> Iterator[RawMessage]:
+    data, size = _chunk_data(path, at, chunk)
+    pos = 0
+    unpack = _MESSAGE_HEAD.unpack_from
+    while pos + 9 <= size:
+        opcode = data[pos]
+        (length,) = _U64.unpack_from(data, pos + 1)
+        body = pos + 9
+        pos = body + length
+        if pos > size:
+            raise _damaged(path, at, "chunk", f"a record inside runs past its end ({size} bytes)")
+        if opcode == _OP_MESSAGE:
+            if length < _MESSAGE_HEAD.size:
+                raise _damaged(path, at, "chunk", f"a message inside has {length} bytes")
+            channel_id, _, log_time, _ = unpack(data, body)
+            topic = channels.get(channel_id, "")
+            if wanted is None or topic in wanted:
+                yield RawMessage(topic, log_time, data[body + 22:pos])
+        elif opcode == _OP_CHANNEL:
+            try:
+                channel = Channel.read(ReadDataStream(io.BytesIO(data[body:pos])))
+            except (McapError, EOFError, struct.error, ValueError) as exc:
+                raise _damaged(path, at, "chunk", f"a channel inside: {exc}") from None
+            channels[channel.id] = channel.topic
+
+
+def _chunk_data(path: Path, at: int, chunk: Chunk) -> tuple[bytes, int]:
+    """The chunk's records, decompressed and checked against the chunk's size and CRC."""
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
+        raise _damaged(path, at, "chunk", f"it claims {chunk.uncompressed_size} bytes "
+                                          f"uncompressed (at most {MAX_CHUNK_BYTES} are read)")
+    try:
+        if chunk.compression == "zstd":
+            data = zstandard.ZstdDecompressor().decompress(
+                chunk.data, max_output_size=chunk.uncompressed_size)
+        elif chunk.compression == "":
+            data = chunk.data
+        else:
+            stream, size = get_chunk_data_stream(chunk)
+            data = stream.read(size)
+    except (zstandard.ZstdError, McapError, EOFError, ValueError, RuntimeError, OverflowError,
+            MemoryError) as exc:
+        raise _damaged(path, at, "chunk", f"{chunk.compression} data: "
+                                          f"{str(exc) or type(exc).__name__}") from None
+    if len(data) != chunk.uncompressed_size:
+        raise _damaged(path, at, "chunk", f"{len(data)} bytes decompressed, "
+                                          f"{chunk.uncompressed_size} expected")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise _damaged(path, at, "chunk", "its CRC does not match its records")
+    return data, len(data)

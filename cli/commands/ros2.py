@@ -1,0 +1,136 @@
+"""``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/robot_description``,
+trajectories on ``/armbench/joint_trajectory``, ``/clock`` on emulated targets); with ``--square``
+the accuracy square through ROS 2 against the driver's own coordinated run.
+
+Needs the extra ``armbench[ros2]`` (rclpy and the message packages from pip); without it the
+command says so in one line (exit 2). Against ``fake://`` the emulator runs in-process on virtual
+time and the node publishes ``/clock``. See ``docs/ros2.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import signal
+from typing import Any
+
+from armbench.cli.commands.monitor import run_on_port
+from armbench.drivers.errors import InvalidTargetError
+from armbench.drivers.link import CONNECT_TIMEOUT_S
+from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.transports.target import target_of
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``ros2`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "ros2",
+        description="Serve the arm on PORT as a ROS 2 node: /joint_states at the arm's reply "
+                    "rate, /robot_description (URDF, transient local), trajectories received on "
+                    "/armbench/joint_trajectory executed with the driver's coordinated streaming, "
+                    "/armbench/trajectory_status, /armbench/commanded, /armbench/events, and "
+                    "/clock from the virtual clock on fake://. Stops the arm on exit.",
+        epilog="Exit status: 0 after --duration or Ctrl-C/SIGTERM (the arm stopped), 1 when the "
+               "port is lost, 2 for bad options or a missing ros2 extra.")
+    p.add_argument("--port", default="fake://",
+                   help="any port armbench speaks: serial device, socket://, rfc2217://, "
+                        "labgrid://, avr:// or fake:// (default, the emulator on virtual time)")
+    p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="serve S seconds (loop time: simulated seconds on fake://), default: "
+                        "until Ctrl-C or SIGTERM")
+    p.add_argument("--node-name", default="armbench", help="ROS node name (default armbench)")
+    p.add_argument("--domain-id", type=int, default=None, metavar="N",
+                   help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
+    p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
+                   help="refuse trajectory segments that need a duty above V (default 99)")
+    p.add_argument("--realtime-factor", type=float, default=None, metavar="X",
+                   help="fake://: at most X simulated seconds per real second (default: as "
+                        "fast as the emulator runs)")
+    p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
+                   help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
+    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
+                   help="hold the arm and report it silent after S s without a reply")
+    p.add_argument("--square", action="store_true",
+                   help="drive the accuracy square with the driver, then from a separate rclpy "
+                        "process as a JointTrajectory; print both path errors as JSON")
+    p.add_argument("--side", type=float, default=0.15, metavar="M",
+                   help="--square: side of the square (m, default 0.15)")
+    p.set_defaults(func=_run)
+
+
+def _check(args: argparse.Namespace) -> None:
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise InvalidTargetError(None, "--duration", args.duration, "must be > 0")
+    if not 1 <= args.max_duty <= MAX_DUTY:
+        raise InvalidTargetError(None, "--max-duty", args.max_duty, f"must be 1..{MAX_DUTY}")
+    if args.realtime_factor is not None and not (math.isfinite(args.realtime_factor)
+                                                 and args.realtime_factor > 0):
+        raise InvalidTargetError(None, "--realtime-factor", args.realtime_factor,
+                                 "must be > 0")
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        raise InvalidTargetError(None, "--domain-id", args.domain_id, "must be 0..232")
+    for name in ("connect_timeout", "reply_timeout"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidTargetError(None, "--" + name.replace("_", "-"), value, "must be > 0")
+    if not (math.isfinite(args.side) and 0 < args.side <= 0.5):
+        raise InvalidTargetError(None, "--side", args.side, "must be in (0, 0.5] m")
+
+
+def _run(args: argparse.Namespace) -> int:
+    _check(args)
+    from armbench.bench.ros2_node import require_rclpy
+
+    require_rclpy()
+    from armbench.bench.ros2_node.node import NodeOptions
+
+    settings = load_settings(args.settings)
+    options = NodeOptions(node_name=args.node_name, clock=target_of(args.port).virtual,
+                          max_duty=args.max_duty, domain_id=args.domain_id,
+                          realtime_factor=args.realtime_factor)
+    if args.square:
+        return run_on_port(args.port, _square(args, settings, options))
+    return run_on_port(args.port, _serve(args, settings, options))
+
+
+async def _serve(args: argparse.Namespace, settings: RobotSettings, options: Any) -> int:
+    from armbench.bench.ros2_node.node import ArmNode, PublishingArm
+
+    loop = asyncio.get_running_loop()
+    task = asyncio.current_task()
+    assert task is not None
+    terminated = False
+
+    def on_term() -> None:
+        nonlocal terminated
+        terminated = True
+        task.cancel()
+
+    async with PublishingArm(args.port, settings, reply_timeout_s=args.reply_timeout,
+                             connect_timeout_s=args.connect_timeout) as arm:
+        node = ArmNode(arm, options)
+        loop.add_signal_handler(signal.SIGTERM, on_term)
+        try:
+            return await node.run(args.duration)
+        except asyncio.CancelledError:
+            if terminated:
+                return 0
+            raise
+        finally:
+            loop.remove_signal_handler(signal.SIGTERM)
+
+
+async def _square(args: argparse.Namespace, settings: RobotSettings, options: Any) -> int:
+    from armbench.bench.ros2_node.square import SquareOptions, compare_square
+
+    result = await compare_square(args.port, settings, options, SquareOptions(side_m=args.side),
+                                  settings_file=args.settings, reply_timeout_s=args.reply_timeout,
+                                  connect_timeout_s=args.connect_timeout)
+    print(json.dumps(result))
+    return 0

@@ -1,0 +1,168 @@
+"""``armbench run``: run bench suites against the arm and judge them (see ``docs/runner.md``).
+
+``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
+[--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
+[--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
+[--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N]``
+
+Exit status (:mod:`armbench.bench.verdict`): 0 every measurement within its limits and no
+regression, 1 a limit failed, 2 bad input (reported before the arm moves), 3 regressed against
+the baseline (every limit held), 4 the run is incomplete (a lost arm, a trial in error), 130
+interrupted (resume with ``--resume DIR``). With several ``--port``: the worst arm's status, one
+line per arm (``docs/fleet.md``). ``--summary FILE.md`` appends a short Markdown summary for a CI
+job's step summary (``docs/ci.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
+from armbench.bench.runner.fleet_run import parse_arms
+from armbench.bench.suites import SUITES
+from armbench.bench.verdict import EXIT_STATUS_EPILOG
+from armbench.cli.reporting import write_reports
+from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
+from armbench.record.fleet_index import is_fleet
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``run`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "run",
+        description="Run bench suites against the arm (the built-in emulator on virtual time "
+                    "unless --port is given), write results.json after every trial, then "
+                    "junit.xml, report.html and the traffic capture capture.mcap.",
+        epilog=EXIT_STATUS_EPILOG)
+    p.add_argument("suites", nargs="*", metavar="SUITE",
+                   help=f"suites to run (default: all: {', '.join(SUITES)}); "
+                        "package.module:Class runs a suite of your own")
+    p.add_argument("--port", action="append", default=None, metavar="[NAME=]PORT",
+                   help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT, "
+                        "labgrid://PLACE or fake:// (default fake://, the emulator on virtual "
+                        "time); given several times, every arm at once, each in OUT/NAME/ "
+                        "(see docs/fleet.md)")
+    p.add_argument("--config", metavar="FILE",
+                   help="limits and suite parameters (default: the packaged default_bench.toml)")
+    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
+    p.add_argument("--baseline", metavar="FILE",
+                   help="results.json of an earlier run: fail on regressions against it (with "
+                        "several --port: the folder of an earlier fleet run, each arm against "
+                        "its own)")
+    p.add_argument("--summary", metavar="FILE.md",
+                   help="append a short Markdown summary of the run (verdict, exit status, "
+                        "failures, regressions) to FILE.md, e.g. \"$GITHUB_STEP_SUMMARY\" "
+                        "(see docs/ci.md)")
+    p.add_argument("--resume", metavar="DIR",
+                   help="continue the interrupted run in DIR (finished trials are kept)")
+    p.add_argument("--seed", type=int, default=None, metavar="N",
+                   help="seed of the run's random choices and of the emulator (default 0)")
+    p.add_argument("--settings", metavar="FILE", help="robot settings TOML ([emulator] too)")
+    p.add_argument("--faults", metavar="FILE",
+                   help="fault list TOML ([[faults]]) injected into the emulator (fake:// only)")
+    p.add_argument("--tracker", metavar="MODULE:CLASS",
+                   help="measurement source plug-in (a laser tracker driver implementing "
+                        "PoseSource)")
+    power = p.add_mutually_exclusive_group()
+    power.add_argument("--power-command", nargs=2, metavar=("CMD_OFF", "CMD_ON"),
+                       help="commands that cut and restore the arm's power (a relay script)")
+    power.add_argument("--power-manual", action="store_true",
+                       help="ask the operator to switch the power and wait for Enter")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="processes measuring fake:// trials at once (default: [bench] workers, "
+                        "else one per CPU, at most 2; 1: in turn on one loop)")
+    p.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                   help="measure fake:// trials on this Dask scheduler's workers (default: "
+                        "[bench] scheduler, else the local processes of --workers)")
+    p.add_argument("--shard", type=shard_arg, metavar="I/N",
+                   help="measure only shard I of N of the trials (CI); join the shards with "
+                        "armbench merge")
+    p.add_argument("--retries", type=int, default=None, metavar="N",
+                   help="measure a trial that ended in error up to N more times (default: "
+                        "[bench] retries, else 0)")
+    p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
+                   help="do not capture the traffic (default: [bench] capture, else capture)")
+    p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
+                   help="stop the capture (a capture_stopped event says so) before capture.mcap "
+                        "would exceed MB megabytes; the run goes on (default: [bench] "
+                        "capture_max_bytes, else unbounded)")
+    p.set_defaults(func=_run)
+
+
+def shard_arg(text: str) -> tuple[int, int]:
+    """``I/N`` → ``(I, N)`` with 1 <= I <= N (an argparse type)."""
+    i, sep, n = text.partition("/")
+    try:
+        shard = (int(i), int(n))
+    except ValueError:
+        shard = (0, 0)
+    if not sep or not 1 <= shard[0] <= shard[1]:
+        raise argparse.ArgumentTypeError(f"{text!r} is not I/N with 1 <= I <= N")
+    return shard
+
+
+def _run(args: argparse.Namespace) -> int:
+    ports: list[str] = args.port or []
+    options = RunOptions(
+        suites=list(args.suites),
+        port=parse_arms(ports)[0].port if len(ports) == 1 else None,  # NAME= of one arm: unused
+        config=args.config, out=args.out,
+        baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
+        faults=args.faults, tracker=args.tracker,
+        power_command=tuple(args.power_command) if args.power_command else None,
+        power_manual=args.power_manual, retries=args.retries,
+        workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
+        scheduler=args.scheduler, shard=args.shard)
+    if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
+        from armbench.cli.commands.fleet import run_fleet
+
+        return run_fleet(options, ports, summary=args.summary)
+    # the record is on disk: now its reports, while the run folder is still locked
+    outcome = run_sync(options, progress=sys.stderr, then=lambda done: write_reports(
+        done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
+    _summary(outcome)
+    if args.summary is not None:
+        from armbench.bench.run_summary import write_step_summary
+
+        write_step_summary(args.summary, outcome.record, outcome.out_dir, outcome.exit_status)
+    return outcome.exit_status
+
+
+def _summary(outcome: RunOutcome) -> None:
+    record = outcome.record
+    out = sys.stdout
+    notes = ([outcome.error] if outcome.error else []) + [
+        f"warning: {w}" for w in outcome.warnings]
+    if (disturbed := record.disturbance_note()) is not None:
+        notes.append(f"warning: {disturbed}")
+    print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
+          + (f" ({'; '.join(notes)})" if notes else ""), file=out)
+    for suite in record.suites.values():
+        for trial in suite.trials:
+            if trial.status == "error":
+                print(f"  error  {suite.name} trial {trial.index}: {trial.error}", file=out)
+            for m in trial.measurements:
+                if m.outcome == "fail":
+                    print(f"  FAIL   {suite.name} trial {trial.index}: {m.name} = {m.value:.6g} "
+                          f"{m.unit} (limit {m.limit.describe() if m.limit else '-'})", file=out)
+        if suite.error and not any(t.status == "error" for t in suite.trials):
+            print(f"  error  {suite.name}: {suite.error}", file=out)
+        for m in suite.measurements:
+            if m.outcome == "fail":
+                print(f"  FAIL   {m.name} = {m.value:.6g} {m.unit} "
+                      f"(limit {m.limit.describe() if m.limit else '-'})", file=out)
+    if record.baseline is not None:
+        for row in record.baseline.regressions:
+            print(f"  REGRESSED  {row.name}: {row.baseline:.6g} -> {row.value:.6g} {row.unit} "
+                  f"(tolerance {row.tolerance:.3g})", file=out)
+    for name in (RESULTS_FILE, REPORT_FILE, JUNIT_FILE, CAPTURE_FILE):
+        path = outcome.out_dir / name
+        if path.exists():
+            print(f"  {name:<13} {path}", file=out)
+    if outcome.exit_status in (2, 130) and record.verdict in ("incomplete", "error"):
+        print(f"  continue with: armbench run --resume {outcome.out_dir}", file=out)
+    out.flush()

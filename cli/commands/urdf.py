@@ -1,0 +1,46 @@
+"""``armbench urdf [--settings FILE] [--out FILE]``: the arm as a URDF for RViz and Foxglove.
+
+Built from the DH table and the robot settings (joint limits, link lengths) by
+:func:`armbench.drivers.urdf.robot_urdf`; the joint positions are the protocol angles the driver
+reports on ``/joint_states``. Written to ``--out`` (replaced atomically; an unwritable path is
+refused before anything is built, :mod:`armbench.bench.outputs`) or printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from armbench.bench.outputs import check_out_files
+from armbench.drivers.settings import load_settings
+from armbench.drivers.urdf import robot_urdf
+from armbench.record.files import atomic_write_bytes
+
+__all__ = ["register"]
+
+
+def register(sub: Any) -> None:
+    """Add the ``urdf`` subcommand."""
+    p: argparse.ArgumentParser = sub.add_parser(
+        "urdf",
+        description="A URDF of the arm from the DH table and the robot settings: revolute "
+                    "joints j1..j4 with the settings' limits (protocol angles), simple link "
+                    "geometry; the origin of link4 is the TCP.")
+    p.add_argument("--settings", default=None, metavar="FILE",
+                   help="robot settings TOML file (default: built-in robot model)")
+    p.add_argument("--out", default=None, metavar="FILE", help="write here (default: stdout)")
+    p.set_defaults(func=_main)
+
+
+def _main(args: argparse.Namespace) -> int:
+    if args.out is not None:  # an existing URDF is replaced; a run's record file never
+        check_out_files("--out", [Path(args.out)], force=True)
+    settings = load_settings(args.settings)
+    text = robot_urdf(settings)
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    atomic_write_bytes(args.out, text.encode("utf-8"))
+    return 0

@@ -1,0 +1,233 @@
+"""The default ``armbench run`` (every suite on ``fake://``, two workers): its wall time, and
+where the run's own process spends it.
+
+``run.default_wall_s`` is the wall time of ``python -m armbench run --out DIR`` in a fresh
+process, best of the repeats, and ``run.default_cpu_s`` the CPU time of that process and its
+workers. A second fresh process runs the same command with timers around the parts of the run
+(``run.phase.*``, wall seconds with the process's CPU seconds in the note, each exclusive of
+the others: an import inside the report counts as an import):
+
+* ``imports``: every module loaded (``importlib._bootstrap._find_and_load``);
+* ``waiting``: the event loop waiting for the workers' trials (the selector's real waits);
+* ``record``: ``results.json`` and its journal (``RecordWriter.write`` / ``add_trial``);
+* ``capture``: merging the workers' capture parts into ``capture.mcap`` and closing it;
+* ``summaries``: the suites' summaries (``TrialRunner.summarize``, fits and statistics);
+* ``report``: ``junit.xml``, ``report.html`` and its attachment to the capture;
+* ``other``: the rest of the process after its first line ran (planning, committing trials,
+  progress), and ``start``: the wall time before that (interpreter start-up).
+
+``run.trials_in_workers_s`` is the seconds the trials took inside the workers (sum over both),
+``run.pool_start_s`` how long a fresh pool of two spawned workers takes to answer a first job
+that imports what a trial needs, and ``run.process_start_s`` a bare ``python -c pass``.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import functools
+import importlib
+import json
+import multiprocessing
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from armbench.cli.perf import Figure, PerfOptions
+
+__all__ = ["PHASES", "run"]
+
+#: Timed parts of the run's process: (phase, module, attribute path).
+PHASES = (
+    ("imports", "importlib._bootstrap", "_find_and_load"),
+    ("waiting", "armbench.fakes.vclock", "_VirtualSelector.select"),
+    ("record", "armbench.record.writer", "RecordWriter.write"),
+    ("record", "armbench.record.writer", "RecordWriter.add_trial"),
+    ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.merge"),
+    ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.flush"),
+    ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.finish"),
+    ("summaries", "armbench.bench.runner.trials", "TrialRunner.summarize"),
+    ("report", "armbench.cli.reporting", "write_reports"),
+)
+
+#: What a worker imports to measure a trial.
+_WORKER_MODULES = ("armbench.bench.runner.parallel", "armbench.bench.suites",
+                   "armbench.drivers.arm", "armbench.fakes.arm_emulator")
+
+
+class _Clock:
+    """Exclusive time per phase: entering a phase stops the clock of the one it interrupts."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+        """Wall seconds per phase."""
+        self.cpu_seconds: dict[str, float] = {}
+        """CPU seconds of this process per phase (a busy machine stretches the wall time)."""
+        self._stack: list[str] = ["other"]
+        self._since = time.perf_counter()
+        self._cpu_since = time.process_time()
+
+    def _charge(self) -> None:
+        now, cpu = time.perf_counter(), time.process_time()
+        top = self._stack[-1]
+        self.seconds[top] = self.seconds.get(top, 0.0) + now - self._since
+        self.cpu_seconds[top] = self.cpu_seconds.get(top, 0.0) + cpu - self._cpu_since
+        self._since, self._cpu_since = now, cpu
+
+    def enter(self, phase: str) -> None:
+        self._charge()
+        self._stack.append(phase)
+
+    def leave(self) -> None:
+        self._charge()
+        self._stack.pop()
+
+    def timed(self, phase: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        if getattr(fn, "__code__", None) is not None and fn.__code__.co_flags & 0x80:
+            @functools.wraps(fn)
+            async def timed_coroutine(*args: Any, **kwargs: Any) -> Any:
+                self.enter(phase)  # summaries: no await that suspends inside
+                try:
+                    return await fn(*args, **kwargs)
+                finally:
+                    self.leave()
+            return timed_coroutine
+
+        @functools.wraps(fn)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            self.enter(phase)
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.leave()
+        return timed
+
+
+def _patch(clock: _Clock) -> list[str]:
+    """Put the phase timers in place; the names that were not found (a refactored runner)."""
+    missing = []
+    for phase, module_name, path in PHASES:
+        try:
+            owner: Any = importlib.import_module(module_name)
+            *parents, name = path.split(".")
+            for part in parents:
+                owner = getattr(owner, part)
+            setattr(owner, name, clock.timed(phase, getattr(owner, name)))
+        except (ImportError, AttributeError):
+            missing.append(f"{module_name}.{path}")
+    return missing
+
+
+def _parallel_totals() -> Callable[[], tuple[float, int]]:
+    """The seconds and jobs of every ``ParallelTrials`` the run makes, read at the end."""
+    from armbench.bench.runner import parallel
+
+    made: list[Any] = []
+    init = parallel.ParallelTrials.__init__
+
+    def keep(self: Any, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        made.append(self)
+
+    parallel.ParallelTrials.__init__ = keep  # type: ignore[method-assign]
+    return lambda: (sum(p.worker_s for p in made), sum(p.jobs for p in made))
+
+
+def child(out_dir: str) -> None:
+    """The timed run (in a fresh process): prints its phases as one JSON line on stdout."""
+    clock = _Clock()
+    clock.enter("setup")
+    missing = _patch(clock)
+    totals = _parallel_totals()
+    from armbench.cli.main import main
+
+    clock.leave()
+    status = main(["run", "--out", out_dir, "-q"])
+    clock.enter("end")
+    worker_s, jobs = totals()
+    seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
+    cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
+    print(json.dumps({"status": status, "phases": seconds, "cpu": cpu, "missing": missing,
+                      "worker_s": worker_s, "jobs": jobs}))
+
+
+def _run_wall(args: list[str], out: Path) -> tuple[float, float, str]:
+    """Wall seconds, CPU seconds (with children) and stdout of ``python ARGS``."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=900,
+                          cwd=out.parent)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode not in (0, 1):
+        raise RuntimeError(f"the default run failed ({done.returncode}): {done.stderr[-500:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, done.stdout
+
+
+def _warm_worker() -> int:
+    for name in _WORKER_MODULES:
+        importlib.import_module(name)
+    return os.getpid()
+
+
+def _pool_start_s() -> float:
+    from armbench.bench.workers import worker_init
+
+    start = time.perf_counter()
+    with concurrent.futures.ProcessPoolExecutor(
+            2, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
+            initargs=(os.getpid(),)) as pool:
+        futures = [pool.submit(_warm_worker) for _ in range(2)]
+        next(concurrent.futures.as_completed(futures)).result()
+        elapsed = time.perf_counter() - start
+        concurrent.futures.wait(futures)
+    return elapsed
+
+
+def run(options: PerfOptions) -> list[Figure]:
+    """Measure the ``run.*`` figures (a few default runs: tens of seconds each)."""
+    repeats = 1 if options.quick else max(1, min(options.repeats, 3))
+    best_wall, best_cpu = float("inf"), float("inf")
+    phases: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="armbench-perf-run-") as tmp:
+        for k in range(repeats):
+            out = Path(tmp) / f"plain{k}"
+            wall, cpu, _ = _run_wall(["-m", "armbench", "run", "--out", str(out), "-q"], out)
+            best_wall, best_cpu = min(best_wall, wall), min(best_cpu, cpu)
+        out = Path(tmp) / "timed"
+        timed_wall, _, stdout = _run_wall(
+            ["-c", f"from armbench.cli.perf.run import child; child({str(out)!r})"], out)
+        phases = json.loads(stdout.strip().splitlines()[-1])
+    start = min(_run_wall(["-c", "pass"], Path(tempfile.gettempdir()) / "x")[0]
+                for _ in range(3))
+    pool = min(_pool_start_s() for _ in range(2 if options.quick else 3))
+    figures = [
+        Figure("run.default_wall_s", best_wall, "s",
+               note="armbench run --out DIR: every suite on fake://, two workers; best of "
+                    f"{repeats}"),
+        Figure("run.default_cpu_s", best_cpu, "s", note="CPU of the run and its workers"),
+        Figure("run.trials_in_workers_s", phases["worker_s"], "s",
+               note=f"{phases['jobs']} trial jobs, seconds inside the workers (both added up)"),
+        Figure("run.pool_start_s", pool, "s",
+               note="two spawned workers: first answer to a job importing what a trial needs"),
+        Figure("run.process_start_s", start, "s", note="python -c pass"),
+    ]
+    timed = phases["phases"]
+    accounted = sum(timed.values())
+    timed["start"] = max(0.0, timed_wall - accounted)
+    order = ("start", "imports", "waiting", "record", "capture", "summaries", "report", "other")
+    cpu = phases["cpu"]
+    for name in order:
+        note = f"of {timed_wall:.2f} s wall in the timed run's own process" if name == "start" \
+            else f"{cpu.get(name, 0.0):.2f} s CPU"
+        figures.append(Figure(f"run.phase.{name}_s", timed.get(name, 0.0), "s", note=note))
+    if phases["missing"]:
+        figures.append(Figure("run.phase.untimed", float(len(phases["missing"])), "parts",
+                              note="not found: " + ", ".join(phases["missing"])))
+    return figures
