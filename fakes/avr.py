@@ -23,9 +23,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs, urlsplit
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import JointSettings, RobotSettings
+from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
 
 __all__ = [
     "DEBIAN_PACKAGES",
@@ -37,8 +38,29 @@ __all__ = [
     "cache_dir",
     "data_symbols",
     "find_images",
+    "parse_avr_url",
     "stats_address",
 ]
+
+_KNOWN = {"firmware", "settings", "eeprom", "control"}
+
+
+def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None, Path | None]:
+    """Robot settings, firmware, EEPROM folder and control FIFO named by an ``avr://`` URL."""
+    parts = urlsplit(port)
+    if parts.scheme.lower() != "avr":
+        raise TransportError(port, "not an avr:// port")
+    query = parse_qs(parts.query, keep_blank_values=True)
+    for key in query:
+        if key not in _KNOWN:
+            raise TransportError(port, f"unknown query parameter {key!r} "
+                                       f"(known: {', '.join(sorted(_KNOWN))})")
+    robot = load_settings(query["settings"][-1]) if "settings" in query else RobotSettings()
+    firmware = query["firmware"][-1] if "firmware" in query else None
+    eeprom = Path(query["eeprom"][-1]) if "eeprom" in query else None
+    control = Path(query["control"][-1]) if "control" in query else None
+    return robot, firmware, eeprom, control
+
 
 #: Where the firmware and harness sources live (the checkout's ``firmware/``).
 FIRMWARE_SOURCE = Path(__file__).resolve().parents[1] / "firmware"

@@ -27,47 +27,26 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import TransportError
-from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import Capabilities
 from armbench.drivers.transports.serial_port import SerialTransport
-from armbench.fakes.avr import FirmwareError, Harness, build, find_images
+from armbench.fakes.avr import FirmwareError, Harness, build, find_images, parse_avr_url
 from armbench.fakes.vclock import VirtualTimeLoop
 
 if TYPE_CHECKING:
     from armbench.fakes.avr_vt import AvrBoards, AvrVirtualTransport
 
-__all__ = ["LAG_WARN_MS", "AvrTransport", "parse_avr_url"]
+__all__ = ["LAG_WARN_MS", "AvrTransport"]
 
 log = logging.getLogger("armbench.firmware")
 
 #: A harness that fell further behind real time than this (ms) is declared in a warning.
 LAG_WARN_MS = 20.0
-
-_KNOWN = {"firmware", "settings", "eeprom", "control"}
-
-
-def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None, Path | None]:
-    """Robot settings, firmware, EEPROM folder and control FIFO named by an ``avr://`` URL."""
-    parts = urlsplit(port)
-    if parts.scheme.lower() != "avr":
-        raise TransportError(port, "not an avr:// port")
-    query = parse_qs(parts.query, keep_blank_values=True)
-    for key in query:
-        if key not in _KNOWN:
-            raise TransportError(port, f"unknown query parameter {key!r} "
-                                       f"(known: {', '.join(sorted(_KNOWN))})")
-    robot = load_settings(query["settings"][-1]) if "settings" in query else RobotSettings()
-    firmware = query["firmware"][-1] if "firmware" in query else None
-    eeprom = Path(query["eeprom"][-1]) if "eeprom" in query else None
-    control = Path(query["control"][-1]) if "control" in query else None
-    return robot, firmware, eeprom, control
-
 
 class AvrTransport(SerialTransport):
     """Joint 1's UART of the simulated boards: on a virtual-time loop the harness in lockstep

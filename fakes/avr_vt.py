@@ -37,7 +37,14 @@ from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import Framer, Reply
 from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports.base import Transport
-from armbench.fakes.avr import HARNESS_NAME, FirmwareError, board_specs, build, find_images
+from armbench.fakes.avr import (
+    HARNESS_NAME,
+    FirmwareError,
+    board_specs,
+    build,
+    find_images,
+    parse_avr_url,
+)
 from armbench.fakes.physics import TruthSample
 from armbench.fakes.vclock import VirtualTimeLoop
 
@@ -386,8 +393,6 @@ class AvrVirtualTransport(Transport):
         if self._open:
             return
         if self.emulator is None:
-            from armbench.fakes.avr_transport import parse_avr_url
-
             robot, firmware, eeprom, control = parse_avr_url(self.port)
             if eeprom is not None or control is not None:
                 raise self._error("eeprom= and control= need the real-time pty "
