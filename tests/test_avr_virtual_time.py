@@ -10,6 +10,7 @@ import itertools
 import math
 import os
 import signal
+import statistics
 import threading
 from types import SimpleNamespace
 from typing import Any
@@ -29,11 +30,36 @@ from armbench.fakes.avr import FirmwareError
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
 from armbench.fakes.avr_transport import AvrTransport
 from armbench.fakes.avr_vt import AvrBoards, AvrVirtualTransport, fresh_boards
+from armbench.fakes.settings import emulator_settings
 from armbench.fakes.vclock import VirtualTimeLoop, run_virtual
 
 pytestmark = needs_toolchain
 
 Timed = list[tuple[float, Reply]]
+
+#: A reply this long after the one before followed a stall of its master's loop (an EEPROM record:
+#: 3.3 ms a changed cell; the loop takes 2.4 ms on the emulator, 3.0 ms on the firmware).
+STALL_S = 4.5e-3
+
+
+def dated_as_sampled(replies: Timed) -> tuple[Timed, list[float]]:
+    """The replies, each one after a stall dated as if its loop had not stalled (a loop period,
+    the median gap, after the reply before), and each stall's length beyond that period.
+
+    Both masters read the positions, then write the EEPROM record of a motion change, then send
+    the reply (``role_loop`` in ``firmware/master.c``; the emulator's master alike): the reply
+    after a record carries positions read before it, so it is dated where it would have left
+    without the record, as every other reply is dated a fixed time after its positions were
+    read. The stalls are returned to be compared on their own."""
+    period_s = statistics.median(b[0] - a[0] for a, b in itertools.pairwise(replies))
+    dated = replies[:1]
+    stalls: list[float] = []
+    for (t_before, _), (t, reply) in itertools.pairwise(replies):
+        if t - t_before > STALL_S:
+            stalls.append(t - t_before - period_s)
+            t = t_before + period_s
+        dated.append((t, reply))
+    return dated, stalls
 
 
 def play_script(until_s: float) -> Timed:
@@ -63,9 +89,25 @@ def play_script(until_s: float) -> Timed:
 def test_replies_on_virtual_time_agree_with_the_emulator_and_the_free_running_harness() -> None:
     until_s = 4.5
     lockstep = play_script(until_s)
-    # within the differential check's tolerances: one loop period, 5 counts
-    against_emulator = compare(lockstep, run_emulator(DEFAULT_SCRIPT, until_s),
-                               window_s=3.2e-3, tol_counts=5.0)
+    emulator = run_emulator(DEFAULT_SCRIPT, until_s)
+    lockstep_dated, lockstep_stalls = dated_as_sampled(lockstep)
+    emulator_dated, emulator_stalls = dated_as_sampled(emulator)
+    # the same records stall both masters' loops by the same number of EEPROM cell writes
+    write_s = emulator_settings(RobotSettings()).eeprom_write_s_per_byte
+    assert len(lockstep_stalls) == 4  # a move's start and end, a reversal, a hold
+    assert ([round(s / write_s) for s in lockstep_stalls]
+            == [round(s / write_s) for s in emulator_stalls] == [4, 2, 1, 2])
+    # the positions within the differential check's tolerances (one loop period, 5 counts),
+    # each reply dated as sampled. Dated at its arrival, the reply after a record would leave a
+    # gap of the record's length in the other side's window: the two masters take a command up to
+    # a loop apart (their loops run 3.0 and 2.4 ms and poll the UART at different moments; here
+    # the firmware takes the first move 0.8 ms before the emulator), so a joint runs that far
+    # ahead on one side, 4 ticks (6 counts) at duty 99, all through the move. The window absorbs
+    # it while the other side's replies go on; at the move's end the emulator's next reply after
+    # its last one before the arrival comes a record (6.6 ms) later, and when the firmware's last
+    # reply before the arrival leaves after the emulator's (which moves with the firmware's loop
+    # period, a few microseconds a loop), only the emulator's position before it is in the window
+    against_emulator = compare(lockstep_dated, emulator_dated, window_s=3.2e-3, tol_counts=5.0)
     assert against_emulator.compared > 1000
     assert max(against_emulator.excess_counts) == 0.0, against_emulator
     # the same boards as the harness running the script by itself: a host byte is handed to
