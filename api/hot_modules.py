@@ -8,6 +8,7 @@ Importing nothing when loaded, so that ``setup.py`` reads it before anything is 
 HOT_MODULES = (
     "armbench.drivers.protocol",
     "armbench.fakes.boards",
+    "armbench.fakes.master_board",
     "armbench.fakes.i2c",
     "armbench.fakes.joint",
     "armbench.fakes.physics",

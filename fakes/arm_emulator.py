@@ -16,11 +16,12 @@ from typing import Any
 
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.boards import Board, MasterBoard, SlaveBoard, TruthSample
+from armbench.fakes.boards import Board, SlaveBoard, TruthSample
 from armbench.fakes.eeprom import RATED_CYCLES, Eeprom
 from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
 from armbench.fakes.faults import Fault, FaultInjector
 from armbench.fakes.i2c import BusClock, I2CBus
+from armbench.fakes.master_board import MasterBoard
 from armbench.fakes.physics import Mechanism
 from armbench.fakes.uart import Uart
 

@@ -30,7 +30,7 @@ from armbench.fakes.avr import FirmwareError
 from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
 from armbench.fakes.avr_transport import AvrTransport
 from armbench.fakes.avr_vt import AvrBoards, AvrVirtualTransport, fresh_boards
-from armbench.fakes.settings import emulator_settings
+from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.vclock import VirtualTimeLoop, run_virtual
 
 pytestmark = needs_toolchain

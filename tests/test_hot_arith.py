@@ -8,21 +8,21 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from armbench.drivers.protocol import encode_reply
-from armbench.fakes.boards import _round_even
+from armbench.fakes.boards import round_even
 
 
 @given(st.floats(allow_nan=False, allow_infinity=False)
        | st.integers(-10**9, 10**9).map(lambda k: k / 2)       # ties, both parities
        | st.integers(0, 10**12).map(lambda k: k * 1e-9 * 1e9))  # loop times in ns
 def test_round_even_is_round(x: float) -> None:
-    assert _round_even(x) == round(x)
-    assert type(_round_even(x)) is int
+    assert round_even(x) == round(x)
+    assert type(round_even(x)) is int
 
 
 def test_round_even_refuses_what_round_refuses() -> None:
     for bad, error in ((math.inf, OverflowError), (-math.inf, OverflowError),
                        (math.nan, ValueError)):
-        for f in (round, _round_even):
+        for f in (round, round_even):
             try:
                 f(bad)
             except error:
