@@ -72,3 +72,44 @@ def test_loss_settings_are_read_and_checked() -> None:
         emulator_settings(ROBOT, physics={"j2": {"loss_law": "slip"}})
     with pytest.raises(SettingsError, match=r"emulator\.physics\.j2\.loss_plus"):
         emulator_settings(ROBOT, physics={"j2": {"loss_plus": "a lot"}})
+
+
+def test_pullout_curves_halve_at_the_corner_and_differ_beyond() -> None:
+    """Both shapes give the full pull-out torque at standstill and half at the corner; the
+    hyperbolic one never reaches zero, the linear one does at twice the corner."""
+    hyp = JointPhysics(pullout_nm=1.0, corner_steps_per_s=4000.0)
+    lin = replace(hyp, pullout_curve="linear")
+    assert hyp.pullout_curve == "hyperbolic"  # the default: the default arm unchanged
+    for p in (hyp, lin):
+        assert p.pullout_at_nm(0.0) == 1.0 and p.pullout_at_nm(4000.0) == pytest.approx(0.5)
+    assert lin.pullout_at_nm(2000.0) == pytest.approx(0.75)
+    assert hyp.pullout_at_nm(2000.0) == pytest.approx(1.0 / 1.5)
+    assert lin.pullout_at_nm(8000.0) == 0.0 == lin.pullout_at_nm(9000.0)
+    assert hyp.pullout_at_nm(9000.0) > 0.3
+
+
+def test_linear_stall_rate_falls_with_the_load_and_lowering_stalls_only_beyond_it() -> None:
+    """A stall arm whose pull-out rate falls linearly with the lifted torque (the foreign stall
+    arm's law: 7000 microsteps/s free, none left at 14 N·m; a 50:1 worm at the self-locking
+    limit, efficiency 0.5, holds the load without driving it down; a little running friction):
+    lifting 7 N·m keeps up to 3500/s, not above; lowering stalls only above the free rate, as
+    an unloaded lift does. A worm of efficiency 0.35 must drive the load down, so lowering it
+    stalls below the free rate; the hyperbolic curve never stalls unloaded."""
+    lin = JointPhysics(loss_law="stall", pullout_curve="linear", pullout_nm=14.0 / (50 * 0.5),
+                       corner_steps_per_s=3500.0, efficiency=0.5, friction_nm=0.001,
+                       inertia_kgm2=0.0)
+    assert not lin.stalls(-7.0, +1, 50.0, 3400.0, 1600)
+    assert lin.stalls(-7.0, +1, 50.0, 3600.0, 1600)
+    assert not lin.stalls(-7.0, -1, 50.0, 6900.0, 1600)
+    assert lin.stalls(-7.0, -1, 50.0, 7100.0, 1600)
+    assert lin.stalls(0.0, +1, 50.0, 7100.0, 1600)
+    assert replace(lin, efficiency=0.35).stalls(-7.0, -1, 50.0, 6900.0, 1600)
+    assert not replace(lin, pullout_curve="hyperbolic").stalls(0.0, +1, 50.0, 1e6, 1600)
+
+
+def test_pullout_curve_is_read_and_checked() -> None:
+    s = emulator_settings(ROBOT, physics={"j3": {"pullout_curve": "linear"}})
+    assert s.physics is not None and s.physics.joints[2].pullout_curve == "linear"
+    assert s.physics.joints[1].pullout_curve == "hyperbolic"
+    with pytest.raises(SettingsError, match=r"emulator\.physics\.j3\.pullout_curve.*cubic"):
+        emulator_settings(ROBOT, physics={"j3": {"pullout_curve": "cubic"}})
