@@ -374,7 +374,10 @@ def chosen_structures(fitted: Sequence[Fitted]) -> dict[int, tuple[str, bool] | 
         if law is None or not law.identified or law.choice is None:
             out[j] = None
         else:
-            out[j] = (law.choice, gear is not None and gear.identified)
+            curve = values.get(_jkey(j, "pullout_curve"))
+            choice = law.choice if curve is None or curve.choice is None else (
+                f"{law.choice}:{curve.choice}")
+            out[j] = (choice, gear is not None and gear.identified)
     return out
 
 
