@@ -72,8 +72,11 @@ LADDER_DUTIES: Final = (99, 90, 99, 95, 97, 93, 98, 96)
 #: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
 #: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
 #: step here loses none elsewhere at these duties); 1 and 4 carry no gravity load and get the two
-#: top duties only. Within a duty joint 2, the heaviest lift, comes last: a drive that cannot
-#: lift it at any duty leaves the arm there, and the others are measured first.
+#: top duties only. The joints go one after the other, in this order, each through all its
+#: duties: the arm travels to each joint's pose once (a drive too weak for the arm's weight
+#: lifts joint 2 slowly, and every trip back from a tilted pose costs that), and joint 2, the
+#: heaviest lift, comes last: a drive that cannot lift it at any duty leaves the arm there, and
+#: the others are measured first.
 LADDER_RANGES: Final = {
     1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
     4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
@@ -82,8 +85,10 @@ LADDER_RANGES: Final = {
 }
 UNLOADED_DUTIES: Final = (99, 95)
 #: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
-#: stands until its rate falls below the pull-in rate).
-RECOVERY_DUTIES: Final = (90, 80, 60)
+#: stands until its rate falls below the pull-in rate): each about half the rate of the one
+#: before (law (12)), so the duty that moves it is within a factor of two of the fastest that
+#: would, and each stall brackets the drive's pull-out rate at that load.
+RECOVERY_DUTIES: Final = (97, 93, 85, 70, 60)
 #: A joint that moved less than this (rad, about 5 encoder counts) in a watch interval short of
 #: its target stands still.
 STALL_MOVED_RAD: Final = 3e-4
@@ -91,6 +96,11 @@ STALL_MOVED_RAD: Final = 3e-4
 #: losing 90 % of its steps) to cross ``STALL_MOVED_RAD`` with room for the link's latency.
 STALL_WATCH_S: Final = 0.5
 #: Steps (rad) joint 2 is raised in when it leaves a pose it could not lift from.
+#: How far inside joint 3's limit (rad) the forearm is folded back for that.
+FOLD_MARGIN_RAD: Final = 0.05
+#: Longest watch interval (s): a drive losing 90 % of its steps at duty 60 still moves
+#: :data:`STALL_MOVED_RAD` in a tenth of it.
+STALL_WATCH_MAX_S: Final = 1.0
 ESCAPE_STEP_RAD: Final = 0.15
 #: Standard error of a stalled run's ratio (of 0): it moved at most a few counts.
 STALL_SIGMA: Final = 0.01
@@ -238,8 +248,8 @@ class Procedure:
     async def ladder(self) -> None:
         """Moves at a ladder of duties, up and down, per joint: effective speed vs duty."""
         dropped: set[int] = set()
-        for duty in LADDER_DUTIES:
-            for joint, (base, high, low) in LADDER_RANGES.items():
+        for joint, (base, high, low) in LADDER_RANGES.items():
+            for duty in LADDER_DUTIES:
                 if joint in dropped or (joint in (1, 4) and duty not in UNLOADED_DUTIES):
                     continue
                 for a, b in ((high, low), (low, high)):
@@ -274,28 +284,34 @@ class Procedure:
                             self._stamp()
                             return
                         self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
-                            "was left; the arm folded its forearm upright and was raised slowly"
+                            "was left; the arm folded its forearm back and was raised slowly"
                         break
-            self._stamp()
+                self._stamp()
 
     async def _escape(self) -> bool:
         """Bring the arm from a pose joint 2 cannot lift from back to the zero pose: the forearm
-        upright over joint 2 first (q3 = −q2: the least torque joint 2 can carry there), then
-        joint 2 up in steps of :data:`ESCAPE_STEP_RAD` (each at the highest recovery duty that
-        moves it), then the rest. False when that stalls too."""
+        folded back over joint 2 first (towards q2 + q3 = ∓π/2, as far as joint 3's limit
+        allows: its weight then counters the upper arm's, the least torque joint 2 can carry
+        there), then joint 2 up in steps of :data:`ESCAPE_STEP_RAD` (each at the highest
+        recovery duty that moves it), then the rest. False when that stalls too."""
         q = list(self.arm.state.q_rad)
         spec = self.settings.joints[2]
         fold = q.copy()
-        fold[2] = min(max(-q[1], spec.lower_rad), spec.upper_rad)
+        back = -q[1] - math.copysign(math.pi / 2, q[1])
+        fold[2] = min(max(back, spec.lower_rad + FOLD_MARGIN_RAD), spec.upper_rad - FOLD_MARGIN_RAD)
         try:
             await self._move(fold, RECOVERY_DUTIES[0])
-            # up in steps, each tried at the highest recovery duty first: the lighter the load,
-            # the faster the drive keeps up
+            # up in steps, the first tried at the highest recovery duty, each next one a level
+            # above the duty that moved the one before: the load lightens on the way up
             steps = max(1, math.ceil(abs(fold[1]) / ESCAPE_STEP_RAD))
+            duty = RECOVERY_DUTIES[0]
             for k in range(steps - 1, -1, -1):
                 up = fold.copy()
                 up[1] = fold[1] * k / steps
-                await self._move(up, RECOVERY_DUTIES[0])
+                await self._move(up, duty)
+                moved = self._last_attempt[0]
+                higher = [d for d in RECOVERY_DUTIES if d > moved]
+                duty = min(higher) if higher else moved
             await self._move([0.0, 0.0, 0.0, 0.0], RECOVERY_DUTIES[0])
         except ArmDoesNotMoveError:
             return False
@@ -382,7 +398,7 @@ class Procedure:
         start = list(arm.state.q_rad)
         law_s = self._law_s(start, target, duty)
         deadline_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
-        watch_s = max(STALL_WATCH_S, 0.25 * law_s)
+        watch_s = min(max(STALL_WATCH_S, 0.25 * law_s), STALL_WATCH_MAX_S)
         tol = [t + 1e-4 for t in arm.default_tolerance_rad()]
         goal = list(target)
 
