@@ -90,7 +90,9 @@ class JointPhysics:
     (``pullout_nm · (1 − rate / (2 corner))``, zero at twice the corner: the straight
     torque-speed line of a voltage-limited drive, so the pull-out rate falls linearly with the
     load and an unloaded joint, lowering through a self-locking gear included, stalls above
-    ``2 corner``). ``efficiency``: the worm gear's forward efficiency
+    ``2 corner``). ``pullin_share``: a stalled rotor (``loss_law = "stall"``) falls back into
+    step only below this share of the rate it could keep (1: at once, no hysteresis).
+    ``efficiency``: the worm gear's forward efficiency
     (lifting needs ``τ / (N η)`` at the motor; self-locking below 0.5, lowering needs
     ``τ (1/η − 2) / N``). ``friction_nm``: running friction at the motor. ``inertia_kgm2``:
     rotor plus link inertia reflected to the motor; ``spinup_s``: time the drive takes to reach the
@@ -130,6 +132,7 @@ class JointPhysics:
     loss_plus: float = 0.0
     loss_minus: float = 0.0
     pullout_curve: str = "hyperbolic"
+    pullin_share: float = 1.0
 
     def pullout_at_nm(self, steps_per_s: float) -> float:
         """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s, on the curve
@@ -173,11 +176,15 @@ class JointPhysics:
         return 0.0
 
     def stalls(self, load_nm: float, direction: int, gear_ratio: float, steps_per_s: float,
-               steps_per_motor_rev: int) -> bool:
+               steps_per_motor_rev: int, humming: bool = False) -> bool:
         """Whether a run loses synchronism and stops (``loss_law = "stall"``): the needed torque
-        exceeds the pull-out torque at the rate."""
+        exceeds the pull-out torque at the rate. A ``humming`` rotor (out of step already)
+        pulls in only below ``pullin_share`` of the rate it could keep: it is judged at the rate
+        over that share."""
         if self.loss_law != "stall":
             return False
+        if humming:
+            steps_per_s /= self.pullin_share
         return (self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
                                  steps_per_motor_rev) > self.pullout_at_nm(steps_per_s))
 
@@ -246,6 +253,7 @@ JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "loss_above_duty": (0.0, 99.0),
     "loss_plus": (0.0, 0.9),
     "loss_minus": (0.0, 0.9),
+    "pullin_share": (0.5, 1.0),
 }
 #: The step-loss laws of ``JointPhysics.loss_law`` (``docs/robot-model.md``, Step loss).
 LOSS_LAWS: Final = ("torque", "stall", "duty", "none")

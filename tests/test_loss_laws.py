@@ -113,3 +113,36 @@ def test_pullout_curve_is_read_and_checked() -> None:
     assert s.physics.joints[1].pullout_curve == "hyperbolic"
     with pytest.raises(SettingsError, match=r"emulator\.physics\.j3\.pullout_curve.*cubic"):
         emulator_settings(ROBOT, physics={"j3": {"pullout_curve": "cubic"}})
+
+
+def test_a_stalled_joint_restarts_when_its_load_lightens_and_only_below_pull_in() -> None:
+    """Under the stall law the load and the rate are read again while the rotor hums (other
+    joints' motion changes the load): a joint stalled lifting 25 N·m at duty 99 moves once the
+    load falls enough, without a new command. With ``pullin_share = 0.8`` it falls back into
+    step only where its rate is below 0.8 of the rate it could keep: a load it could lift from
+    rest at that rate does not restart it."""
+    physics = replace(JointPhysics(), loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
+                      corner_steps_per_s=8000.0, friction_nm=0.0, inertia_kgm2=0.0,
+                      efficiency=0.5, pullin_share=0.8)
+    rate = 1.0 / (2 * CYCLE_S)  # duty 99
+    # the heaviest lift the drive keeps up with at duty 99, from rest and humming
+    keep = 1.3 * (1 - rate / 16000.0) * 50 * 0.5
+    pull_in = 1.3 * (1 - rate / 0.8 / 16000.0) * 50 * 0.5
+    assert not physics.stalls(-0.99 * keep, +1, 50.0, rate, 1600)
+    assert physics.stalls(-0.99 * keep, +1, 50.0, rate, 1600, humming=True)
+    assert not physics.stalls(-0.99 * pull_in, +1, 50.0, rate, 1600, humming=True)
+    load = [-25.0]
+    m = JointModel(J2, physics=physics, load=lambda q: load[0], seed=1)
+    target = round(0.3 * J2.counts_per_rad)
+    m.set_reference(0, target, 99)
+    m.advance(25_000)  # 2 s
+    assert m.counter == 0 and m.steps_blocked > 0
+    load[0] = -0.99 * keep  # light enough to lift from rest, not to pull in
+    m.advance(50_000)
+    assert m.counter == 0
+    load[0] = -0.99 * pull_in
+    tick = 50_000
+    while (nxt := m.next_event_tick()) is not None:
+        tick = nxt
+        m.advance(tick)
+    assert abs(m.counter - target) <= 1 and m.steps_missed == 0
