@@ -311,7 +311,7 @@ def _stall_twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
         physics[f"j{j + 1}"] = {
             "mass_kg": masses[j], "com_fraction": 0.5, "backlash_deg": 0.0, "stick_deg": 0.0,
             "offset_error_deg": 0.0, "hall_error_deg": 0.0, "loss_law": "stall",
-            "pullout_curve": curve, "pullout_nm": 14.0 / (gears[j] * 0.5),
+            "pullout_curve": curve, "pullout_nm": 14.0 / (gears[j] * 0.5), "pullin_share": 0.8,
             "corner_steps_per_s": 3500.0, "efficiency": 0.5, "friction_nm": 0.0,
             "inertia_kgm2": 0.0}
     return _twin(gears, physics)
