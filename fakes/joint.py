@@ -448,6 +448,7 @@ class JointModel:
                 if self._duty == 0 or err == 0:
                     self._state = STOP
                     self._glitched = False
+                    self._humming = False  # at rest a stepper is in step again
                     if self._physics is not None:
                         self._settle()
                     self._now += 1

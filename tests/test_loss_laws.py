@@ -141,8 +141,27 @@ def test_a_stalled_joint_restarts_when_its_load_lightens_and_only_below_pull_in(
     m.advance(50_000)
     assert m.counter == 0
     load[0] = -0.99 * pull_in
-    tick = 50_000
-    while (nxt := m.next_event_tick()) is not None:
-        tick = nxt
-        m.advance(tick)
+    m.advance(100_000)  # 4 s more: a lossless move takes about 1.9 s
     assert abs(m.counter - target) <= 1 and m.steps_missed == 0
+
+
+def test_a_stop_puts_a_humming_rotor_back_in_step() -> None:
+    """A stalled joint that is stopped (duty 0) is at rest and in step again: the next command
+    is judged against the pull-out rate, not the lower pull-in rate."""
+    physics = replace(JointPhysics(), loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
+                      corner_steps_per_s=8000.0, friction_nm=0.0, inertia_kgm2=0.0,
+                      efficiency=0.5, pullin_share=0.8)
+    rate = 1.0 / (2 * CYCLE_S)
+    keep = 1.3 * (1 - rate / 16000.0) * 50 * 0.5
+    load = [-25.0]
+    m = JointModel(J2, physics=physics, load=lambda q: load[0], seed=1)
+    target = round(0.3 * J2.counts_per_rad)
+    m.set_reference(0, target, 99)
+    m.advance(25_000)
+    assert m.counter == 0
+    load[0] = -0.99 * keep  # liftable from rest, not enough to pull a humming rotor in
+    m.set_reference(25_000, 0, 0)
+    m.advance(30_000)
+    m.set_reference(30_000, target, 99)
+    m.advance(80_000)  # 4 s: a lossless move takes about 1.9 s
+    assert abs(m.counter - target) <= 1
