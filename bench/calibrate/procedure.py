@@ -84,6 +84,8 @@ LADDER_RANGES: Final = {
     2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
 }
 UNLOADED_DUTIES: Final = (99, 95)
+#: Duties of the ladder joints 3 and 2 go through alternately before each takes the rest.
+FIRST_DUTIES: Final = 3
 #: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
 #: stands until its rate falls below the pull-in rate): each about half the rate of the one
 #: before (law (12)), so the duty that moves it is within a factor of two of the fastest that
@@ -248,45 +250,45 @@ class Procedure:
     async def ladder(self) -> None:
         """Moves at a ladder of duties, up and down, per joint: effective speed vs duty."""
         dropped: set[int] = set()
-        for joint, (base, high, low) in LADDER_RANGES.items():
-            for duty in LADDER_DUTIES:
-                if joint in dropped or (joint in (1, 4) and duty not in UNLOADED_DUTIES):
-                    continue
-                for a, b in ((high, low), (low, high)):
-                    start = list(base)
-                    start[joint - 1] = a
-                    target = list(base)
-                    target[joint - 1] = b
-                    need = (self._move_estimate_s(self.arm.state.q_rad, start, MAX_DUTY)
-                            + self._move_estimate_s(start, target, duty))
-                    if not self._fits(need):
-                        self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
-                                                             f" of joint {joint}")
+        for joint, duty in ladder_order():
+            base, high, low = LADDER_RANGES[joint]
+            if joint in dropped:
+                continue
+            for a, b in ((high, low), (low, high)):
+                start = list(base)
+                start[joint - 1] = a
+                target = list(base)
+                target[joint - 1] = b
+                need = (self._move_estimate_s(self.arm.state.q_rad, start, MAX_DUTY)
+                        + self._move_estimate_s(start, target, duty))
+                if not self._fits(need):
+                    self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
+                                                         f" of joint {joint}")
+                    return
+                stalls = len(self.obs.stalls)
+                try:
+                    await self._move(start, MAX_DUTY)
+                    await self._speed_run(joint, start, target, duty)
+                except ArmDoesNotMoveError as exc:
+                    if len(self.obs.stalls) == stalls:
+                        raise  # blocked, not stalled: nothing here explains it
+                    # the drive stalls here at every duty tried (the stalls are
+                    # observations): leave this joint's ladder, and the pose if the arm can
+                    why = (f"joint {exc.joint} stalled at every duty down to "
+                           f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
+                           f"{exc.target_rad:+.4f} rad)")
+                    self.progress(f"calibrate: {why}")
+                    dropped.add(joint)
+                    if not await self._escape():
+                        self.obs.phases_skipped["ladder"] = (
+                            why + ": the ladder stopped there, and the arm was left at "
+                            "that pose")
+                        self._stamp()
                         return
-                    stalls = len(self.obs.stalls)
-                    try:
-                        await self._move(start, MAX_DUTY)
-                        await self._speed_run(joint, start, target, duty)
-                    except ArmDoesNotMoveError as exc:
-                        if len(self.obs.stalls) == stalls:
-                            raise  # blocked, not stalled: nothing here explains it
-                        # the drive stalls here at every duty tried (the stalls are
-                        # observations): leave this joint's ladder, and the pose if the arm can
-                        why = (f"joint {exc.joint} stalled at every duty down to "
-                               f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
-                               f"{exc.target_rad:+.4f} rad)")
-                        self.progress(f"calibrate: {why}")
-                        dropped.add(joint)
-                        if not await self._escape():
-                            self.obs.phases_skipped["ladder"] = (
-                                why + ": the ladder stopped there, and the arm was left at "
-                                "that pose")
-                            self._stamp()
-                            return
-                        self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
-                            "was left; the arm folded its forearm back and was raised slowly"
-                        break
-                self._stamp()
+                    self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
+                        "was left; the arm folded its forearm back and was raised slowly"
+                    break
+            self._stamp()
 
     async def _escape(self) -> bool:
         """Bring the arm from a pose joint 2 cannot lift from back to the zero pose: the forearm
@@ -447,6 +449,22 @@ class Procedure:
             q = self._tracker.true_joints_rad()
             truth = {} if q is None else {"true_rad": [float(v) for v in q]}
         return state, truth
+
+
+def ladder_order() -> list[tuple[int, int]]:
+    """The ladder's ``(joint, duty)`` runs in order: joints 1 and 4 (no gravity load, at the zero
+    pose) through their duties; then joints 3 and 2 alternating at the first
+    :data:`FIRST_DUTIES` of :data:`LADDER_DUTIES` (a budget that runs out leaves both with full
+    duty, the lowest and the repeat); then each through the rest, 3 before 2. The arm never
+    returns to the zero pose between joint 3's and joint 2's poses: a drive too weak for the
+    arm's own weight lifts joint 2 only slowly, and joint 2 last leaves the arm where it could
+    not lift only at the end."""
+    out: list[tuple[int, int]] = [(j, int(d)) for j in (1, 4) for d in LADDER_DUTIES
+                                   if d in UNLOADED_DUTIES]
+    first, rest = LADDER_DUTIES[:FIRST_DUTIES], LADDER_DUTIES[FIRST_DUTIES:]
+    out += [(j, int(d)) for d in first for j in (3, 2)]
+    out += [(j, int(d)) for j in (3, 2) for d in rest]
+    return out
 
 
 def _ticks_changed(before: int) -> Callable[[JointState], bool]:
