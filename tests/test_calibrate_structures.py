@@ -296,7 +296,7 @@ def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
                                         budget_s=90))
     obs = result.observations
     assert obs.robot_time_s <= 90.0, obs.robot_time_s
-    assert "ladder" not in obs.phases_skipped and "ladder j2" in obs.phases_skipped
+    assert "ladder j2" in obs.phases_skipped  # (the budget may end joint 3's slower duties)
     j3_stalls = [s for s in obs.stalls if s["joint"] == 3 and s["phase"] == "ladder"]
     assert {s["duty"] for s in j3_stalls} == {99}, j3_stalls
     ratios = {(s.duty, s.ratio == 0.0) for s in obs.speeds if s.joint == 3}

@@ -453,16 +453,17 @@ class Procedure:
 
 def ladder_order() -> list[tuple[int, int]]:
     """The ladder's ``(joint, duty)`` runs in order: joints 1 and 4 (no gravity load, at the zero
-    pose) through their duties; then joints 3 and 2 alternating at the first
-    :data:`FIRST_DUTIES` of :data:`LADDER_DUTIES` (a budget that runs out leaves both with full
-    duty, the lowest and the repeat); then each through the rest, 3 before 2. The arm never
-    returns to the zero pose between joint 3's and joint 2's poses: a drive too weak for the
-    arm's own weight lifts joint 2 only slowly, and joint 2 last leaves the arm where it could
-    not lift only at the end."""
-    out: list[tuple[int, int]] = [(j, int(d)) for j in (1, 4) for d in LADDER_DUTIES
-                                   if d in UNLOADED_DUTIES]
+    pose) at full duty; joints 3 and 2 alternating at the first :data:`FIRST_DUTIES` of
+    :data:`LADDER_DUTIES` (a budget that runs out leaves both with full duty, the lowest and the
+    repeat); joints 1 and 4 at their other duty; then 3 and 2 each through the rest. The arm
+    goes back to the zero pose between joint 3's and joint 2's poses once: a drive too weak for
+    the arm's own weight lifts joint 2 only slowly (and one that cannot has been brought back
+    there by then)."""
+    top, *slower = UNLOADED_DUTIES
+    out: list[tuple[int, int]] = [(1, top), (4, top)]
     first, rest = LADDER_DUTIES[:FIRST_DUTIES], LADDER_DUTIES[FIRST_DUTIES:]
     out += [(j, int(d)) for d in first for j in (3, 2)]
+    out += [(j, d) for d in slower for j in (1, 4)]
     out += [(j, int(d)) for j in (3, 2) for d in rest]
     return out
 
