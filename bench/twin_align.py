@@ -7,7 +7,8 @@ of that is the model's doing. So:
 
 * the twin's stream is a trajectory (its replies joined by straight lines), read at the time of
   each of the arm's replies, not its newest reply then (which would be up to one reply interval
-  stale);
+  stale); where the twin's replies pause (its firmware writing EEPROM records after a command)
+  its trajectory is unknown, and the arm's replies then are not compared;
 * each move that starts from rest is aligned at its start: the time the arm's joint left its
   pose (its first replies beyond :data:`ONSET_TICKS`, traced back along the joint's nominal speed)
   against the twin's; commands sent while the arm moves (a streamed path) keep the shift of the
@@ -90,6 +91,20 @@ class Track:
         i = np.clip(np.searchsorted(self.t_s, t_s - SAME_INSTANT_S), 0, len(self.t_s) - 1)
         same = np.abs(self.t_s[i] - t_s) <= SAME_INSTANT_S
         out[same] = self.q_rad[i[same]]
+        return out
+
+    def blind(self, t_s: FloatArray, gap_factor: float) -> npt.NDArray[np.bool_]:
+        """Where the stream does not show its motion: within a gap of more than ``gap_factor``
+        median intervals between two replies (its sender's loop stalled: an emulated firmware
+        writing its EEPROM records, a starved process), up to the second reply after it (the
+        first was composed before the gap ended, its angles older than its stamp)."""
+        out = np.zeros(len(t_s), dtype=bool)
+        if len(self.t_s) < 3:
+            return out
+        dt = np.diff(self.t_s)
+        for i in np.flatnonzero(dt > gap_factor * float(np.median(dt))):
+            begin, end = float(self.t_s[i]), float(self.t_s[min(int(i) + 2, len(self.t_s) - 1)])
+            out |= (t_s > begin) & (t_s < end)
         return out
 
     def speed_at(self, t_s: FloatArray) -> FloatArray:

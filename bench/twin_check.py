@@ -269,15 +269,17 @@ def _shift_at(times: Sequence[float], per_command: Sequence[float] | FloatArray)
 
 
 def _read_aligned(t_s: FloatArray, times: Sequence[float], twin: Track, shifts: FloatArray
-                  ) -> tuple[FloatArray, FloatArray]:
+                  ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
     """The twin's angles and speeds (``(n, 4)``) at the times ``t_s``, each joint read at its
-    start shift's instant."""
+    start shift's instant, and whether a joint's instant falls where the twin's replies pause
+    (:meth:`Track.blind`: its motion there is not known)."""
     k_of = np.clip(np.searchsorted(np.asarray(times), t_s + TIME_SLACK_S, side="right") - 1,
                    0, len(times) - 1)
     at = t_s[:, None] - shifts[k_of]            # per reply and joint, on the twin's clock
     q = np.column_stack([twin.at(at[:, j])[:, j] for j in range(4)])
     v = np.column_stack([twin.speed_at(at[:, j])[:, j] for j in range(4)])
-    return q, v
+    blind = np.any(np.column_stack([twin.blind(at[:, j], SEEN_LATE) for j in range(4)]), axis=1)
+    return q, v, blind
 
 
 def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
@@ -293,8 +295,9 @@ def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
     shifts = measured.per_joint_s
     t = np.asarray([r[0] for r in _timed(data.replies)])
     t = t[(t >= times[0]) & (t >= base.t_s[0])]
-    q_base, _ = _read_aligned(t, times, base, shifts)
-    diff = reference.at(t) - q_base
+    q_base, _, blind = _read_aligned(t, times, base, shifts)
+    seen = ~(blind | reference.blind(t, SEEN_LATE))
+    diff = (reference.at(t) - q_base)[seen]
     per_command = command_shifts(shifts, data.commands, reference, settings)
     a = _arrivals(perturbed, data, settings)
     b = _arrivals(twin, data, settings, per_command)
@@ -329,8 +332,10 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     shifts = measured.per_joint_s
     start = times[0]
     rows = [(t, q) for t, q in data.replies if t >= start and t >= twin_track.t_s[0]]
+    q_twin, speed, blind = _read_aligned(Track.of(rows).t_s, times, twin_track, shifts)
+    rows = [r for r, b in zip(rows, blind, strict=True) if not b]
     arm = Track.of(rows)
-    q_twin, speed = _read_aligned(arm.t_s, times, twin_track, shifts)
+    q_twin, speed = q_twin[~blind], speed[~blind]
     counts = np.asarray([j.counts_per_rad for j in settings.joints])
     aligned = Aligned(arm.t_s, arm.q_rad, q_twin, counts)
     diff = arm.q_rad - q_twin

@@ -62,6 +62,11 @@ __all__ = [
     "step_period_ticks",
 ]
 
+#: How often (s) a joint under ``loss_law = "stall"`` reads its load and checks its rate against
+#: the pull-out (or, humming, the pull-in) rate again: a drive falls out of step, or back in,
+#: as the load changes under it, also by other joints' motion (a controller's loop period).
+STALL_RECHECK_S: Final = 0.005
+
 #: The attributes :meth:`JointModel.__copy__` copies: all but the ``Final`` ones (``_CONSTANTS``,
 #: set from the joint settings by the constructor). Together they are the class's ``__slots__``, so
 #: an attribute added to the model and not named here fails at once (in the source build: the
@@ -70,8 +75,8 @@ _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", 
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
            "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits", "_noise_p",
-           "_lost_carry", "_glitched", "transitions", "pulses", "steps_taken", "steps_missed",
-           "steps_blocked", "spurious_counts", "iterations")
+           "_lost_carry", "_glitched", "_humming", "transitions", "pulses", "steps_taken",
+           "steps_missed", "steps_blocked", "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 
 
@@ -151,6 +156,7 @@ class JointModel:
         self._homing_dir = 0
         self._homed_tick: int | None = None
         self._stalled = False
+        self._humming = False  # loss_law "stall": the rotor is out of step (restarts at pull-in)
         self._run: Run | None = None
         self._idle = False  # STOP with nothing to do: until an input, time passes and that is all
         self.transitions: list[Transition] = []
@@ -442,6 +448,7 @@ class JointModel:
                 if self._duty == 0 or err == 0:
                     self._state = STOP
                     self._glitched = False
+                    self._humming = False  # at rest a stepper is in step again
                     if self._physics is not None:
                         self._settle()
                     self._now += 1
@@ -509,13 +516,20 @@ class JointModel:
         self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
         physics = self._physics
-        if self._stalled or self._s == limit or (  # loss_law "stall": the rotor stands, humming
-                physics is not None and physics.stalls(
-                    self._load_nm, d, self._joint.gear_ratio, 1.0 / (period * CYCLE_S),
-                    self._joint.steps_per_motor_rev)):
-            return Run(self._now, period, d, None, 0, self._s, self._offset, self._offset, 0,
-                        False)
+        # loss_law "stall": the rotor stands, humming; load and rate are read again every
+        # STALL_RECHECK_S, moving or not (other joints' motion changes the load)
+        recheck = 0 if physics is None or physics.loss_law != "stall" else max(
+            1, round(STALL_RECHECK_S / (period * CYCLE_S)))
+        hum = recheck > 0 and physics is not None and physics.stalls(
+            self._load_nm, d, self._joint.gear_ratio, 1.0 / (period * CYCLE_S),
+            self._joint.steps_per_motor_rev, self._humming)
+        self._humming = hum
+        if self._stalled or self._s == limit or hum:
+            return Run(self._now, period, d, recheck if hum else None, 0, self._s, self._offset,
+                       self._offset, 0, False)
         steps = d * (limit - self._s)
+        if recheck:
+            steps = min(steps, recheck)
         hall = d * (self.hall_step - self._s)
         if hall > 0:
             steps = min(steps, hall)
@@ -577,7 +591,7 @@ class JointModel:
         after = run.steps_after(done)
         count = done - run.done
         self.pulses += count
-        if run.pulses is None:
+        if run.pulses is None or not run.steps:  # a limit, a stall fault, a humming rotor
             self.steps_blocked += count
         else:
             self.steps_taken += after - before

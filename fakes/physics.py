@@ -34,6 +34,7 @@ __all__ = [
     "DEFAULT_JOINT_PHYSICS",
     "LOSS_LAWS",
     "PROFILES",
+    "PULLOUT_CURVES",
     "ArmPhysics",
     "GeometryError",
     "JointPhysics",
@@ -83,8 +84,15 @@ class JointPhysics:
     link. ``backlash_rad``: gear play (full width). ``hold_nm``: gravity torque above which the link
     rests on the flank gravity pushes it to (the output bearing's static friction); below it the
     play acts as a plain play operator. ``pullout_nm`` / ``corner_steps_per_s``: the stepper's
-    pull-out torque at standstill and the step rate (microsteps/s) where it has fallen to half:
-    ``pullout_nm / (1 + rate / corner)``. ``efficiency``: the worm gear's forward efficiency
+    pull-out torque at standstill and the step rate (microsteps/s) where it has fallen to half;
+    ``pullout_curve`` its shape between (``PULLOUT_CURVES``): ``"hyperbolic"`` (the default,
+    ``pullout_nm / (1 + rate / corner)``: a constant-power drive, never zero) or ``"linear"``
+    (``pullout_nm · (1 − rate / (2 corner))``, zero at twice the corner: the straight
+    torque-speed line of a voltage-limited drive, so the pull-out rate falls linearly with the
+    load and an unloaded joint, lowering through a self-locking gear included, stalls above
+    ``2 corner``). ``pullin_share``: a stalled rotor (``loss_law = "stall"``) falls back into
+    step only below this share of the rate it could keep (1: at once, no hysteresis).
+    ``efficiency``: the worm gear's forward efficiency
     (lifting needs ``τ / (N η)`` at the motor; self-locking below 0.5, lowering needs
     ``τ (1/η − 2) / N``). ``friction_nm``: running friction at the motor. ``inertia_kgm2``:
     rotor plus link inertia reflected to the motor; ``spinup_s``: time the drive takes to reach the
@@ -123,9 +131,14 @@ class JointPhysics:
     loss_above_duty: float = 99.0
     loss_plus: float = 0.0
     loss_minus: float = 0.0
+    pullout_curve: str = "hyperbolic"
+    pullin_share: float = 1.0
 
     def pullout_at_nm(self, steps_per_s: float) -> float:
-        """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s."""
+        """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s, on the curve
+        ``pullout_curve`` names."""
+        if self.pullout_curve == "linear":
+            return self.pullout_nm * max(0.0, 1.0 - 0.5 * steps_per_s / self.corner_steps_per_s)
         return self.pullout_nm / (1.0 + steps_per_s / self.corner_steps_per_s)
 
     def required_nm(self, load_nm: float, direction: int, gear_ratio: float,
@@ -163,11 +176,15 @@ class JointPhysics:
         return 0.0
 
     def stalls(self, load_nm: float, direction: int, gear_ratio: float, steps_per_s: float,
-               steps_per_motor_rev: int) -> bool:
+               steps_per_motor_rev: int, humming: bool = False) -> bool:
         """Whether a run loses synchronism and stops (``loss_law = "stall"``): the needed torque
-        exceeds the pull-out torque at the rate."""
+        exceeds the pull-out torque at the rate. A ``humming`` rotor (out of step already)
+        pulls in only below ``pullin_share`` of the rate it could keep: it is judged at the rate
+        over that share."""
         if self.loss_law != "stall":
             return False
+        if humming:
+            steps_per_s /= self.pullin_share
         return (self.required_nm(load_nm, direction, gear_ratio, steps_per_s,
                                  steps_per_motor_rev) > self.pullout_at_nm(steps_per_s))
 
@@ -236,9 +253,12 @@ JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "loss_above_duty": (0.0, 99.0),
     "loss_plus": (0.0, 0.9),
     "loss_minus": (0.0, 0.9),
+    "pullin_share": (0.5, 1.0),
 }
 #: The step-loss laws of ``JointPhysics.loss_law`` (``docs/robot-model.md``, Step loss).
 LOSS_LAWS: Final = ("torque", "stall", "duty", "none")
+#: The shapes of the pull-out curve (``JointPhysics.pullout_curve``, ``docs/robot-model.md``).
+PULLOUT_CURVES: Final = ("hyperbolic", "linear")
 #: Ranges of the arm-wide settings.
 ARM_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "payload_kg": (0.0, 3.0),
@@ -318,9 +338,10 @@ def _joint_physics(base: JointPhysics, table: Mapping[str, Any], where: str) -> 
         if k not in known:
             raise SettingsError(f"{where}.{k}", v, f"is not a known setting (known: "
                                                   f"{', '.join(sorted(known))})")
-        if k == "loss_law":
-            if v not in LOSS_LAWS:
-                raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(LOSS_LAWS)}")
+        if k in ("loss_law", "pullout_curve"):
+            choices = LOSS_LAWS if k == "loss_law" else PULLOUT_CURVES
+            if v not in choices:
+                raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(choices)}")
             out[k] = str(v)
             continue
         attr = _DEG_KEYS.get(k, k)

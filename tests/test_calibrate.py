@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import re
 import subprocess
 import sys
@@ -26,7 +27,7 @@ from armbench.bench.calibrate import (
     calibrate_port,
     fit_all,
 )
-from armbench.bench.calibrate.fit import fit_play
+from armbench.bench.calibrate.fit import fit_play, instrument_offsets
 from armbench.bench.calibrate.model import Approach
 from armbench.cli.main import main
 from armbench.drivers.arm import Arm
@@ -166,6 +167,30 @@ def test_play_fit_hand_computed() -> None:
     assert fitted["emulator.physics.j1.stick_deg"].value == pytest.approx(
         0.0005 * 57.29577951308232, rel=1e-9)
     assert not fitted["emulator.physics.j2.backlash_deg"].identified
+
+
+def test_instrument_offsets_from_the_approaches() -> None:
+    """A tracker's true joints include the zero offsets (the tracker arm's: true = reported ∓
+    half the play + offset): at the approaches, from both sides at the upright Hall pose, the
+    play averages out and the offset error is what is left, less the Hall error (the prior's,
+    here). The emulator's truth (true joints without the offsets, a motor side) gives none."""
+    offsets = [math.radians(x) for x in (0.3, -0.4, 0.4, 0.1)]
+    half = math.radians(0.25)
+    obs = Observations("socket://", truth=True, motor_truth=False)
+    for cycle in range(5):
+        for d in (1, -1):
+            reported = [1e-5 * cycle] * 4
+            true = [q - d * half + o for q, o in zip(reported, offsets, strict=True)]
+            obs.approaches += [Approach(j + 1, 0.0, d, 99, reported, true_rad=true, cycle=cycle)
+                               for j in range(4)]
+    prior = ArmPhysics()
+    seen = instrument_offsets(obs, prior)
+    for j in range(4):
+        value, sigma = seen[j]
+        assert value == pytest.approx(offsets[j] - prior.joints[j].hall_error_rad, abs=1e-9)
+        assert sigma < 1e-5
+    obs.motor_truth = True
+    assert instrument_offsets(obs, prior) == {}
 
 
 def test_no_truth_keeps_link_side_parameters() -> None:

@@ -11,14 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tomli_w
 from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
-from test_twin_check import _lap
+from test_twin_check import _lap, _stall_twin
 
 from armbench.bench.calibrate import calibrate_port
 from armbench.bench.calibrate.capture_data import load_capture
+from armbench.bench.calibrate.stall import curve_factor
 from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
 from armbench.bench.twin_check import twin_check
 from armbench.cli.main import main
+from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.fakes.physics import JointPhysics
 from armbench.fakes.vclock import run_virtual
@@ -92,6 +95,42 @@ def test_stall_is_found_and_its_pullout_bracketed() -> None:
     fitted = _by_key(choose_joint(1, 50.0, PRIOR, _table(ratio, duty, direction, factor, 1e-3)))
     assert fitted["loss_law"].choice == "stall"
     assert fitted["pullout_nm"].identified and 0.9 <= fitted["pullout_nm"].value <= 1.1
+
+
+def _stall_runs(curve: str, pullout_nm: float, corner: float, runs: list[tuple[float, float]],
+                lowering: bool = False) -> JointSpeeds:
+    """Runs ``(need N·m, rate microsteps/s)`` of a drive that stalls on ``curve``: ratio 0 where
+    the need exceeds the pull-out torque at the rate, 1 elsewhere; factors on both curves."""
+    need = np.asarray([n for n, _ in runs])
+    rate = np.asarray([r for _, r in runs])
+    factors = {c: curve_factor(need, rate, corner, c) for c in ("hyperbolic", "linear")}
+    ratio = np.where(factors[curve] > pullout_nm, 0.0, 1.0)
+    n = len(runs)
+    return JointSpeeds(ratio, np.full(n, 1e-3), np.full(n, 99.0),
+                       np.full(n, 1.0 if lowering else -1.0), factors["hyperbolic"], factors,
+                       "hyperbolic")
+
+
+def test_the_pullout_curve_is_chosen_where_the_runs_tell() -> None:
+    """A drive whose pull-out rate falls linearly with the load (corner 8000 microsteps/s):
+    heavy lifts kept up at 3125/s, lighter ones stalled at 6250/s. No hyperbolic curve of that
+    corner separates them (the heavy lifts' factors lie above the light ones'); the linear one
+    does: the stall law with the linear curve, written beside it. Where both curves separate
+    the runs, the prior's is kept (the simpler explanation is the one already believed)."""
+    heavy, light = 1.0, 0.77  # needs (N·m) at 3125 and at 6250 microsteps/s
+    runs = [(heavy, 3125.0)] * 3 + [(light, 6250.0)] * 3 + [(0.3, 6250.0)] * 3
+    d = _stall_runs("linear", 1.25, 8000.0, runs)
+    assert list(d.ratio) == [1.0] * 3 + [0.0] * 3 + [1.0] * 3
+    fitted = choose_joint(1, 50.0, PRIOR, d)
+    by = _by_key(fitted)
+    assert by["loss_law"].choice == "stall" and by["loss_law"].identified
+    assert by["pullout_curve"].choice == "linear"
+    assert "stall:linear" in by["loss_law"].reason
+    lo, hi = d.factors["linear"][0], d.factors["linear"][3]  # type: ignore[index]
+    assert lo < by["pullout_nm"].value < hi
+    either = _stall_runs("linear", 1.25, 8000.0, [(0.4, 6250.0)] * 3 + [(1.0, 6250.0)] * 3
+                         + [(0.3, 3125.0)] * 3)
+    assert _by_key(choose_joint(1, 50.0, PRIOR, either))["pullout_curve"].choice == "hyperbolic"
 
 
 def test_the_torque_law_is_kept_with_its_fitted_pullout() -> None:
@@ -240,3 +279,38 @@ def test_a_stalling_arm_is_recovered_and_its_law_found(tmp_path: Path) -> None:
     default = _rms(capture, RobotSettings())
     assert all(c <= d + 1e-9 for c, d in zip(calibrated, default, strict=True)), (
         calibrated, default)
+
+
+def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The foreign stall arm's own model (``test_twin_check._stall_twin``: a pull-out rate
+    falling linearly with the lifted torque; joint 2 cannot lift the ladder's start pose at any
+    duty) as a hidden arm over a port without truth (virtual time): within 90 s of robot time
+    the procedure records joint 3's stalls at full duty and where it moved slower, leaves joint
+    2's ladder and brings the arm back, and the fit chooses the stall law for joint 3. On a
+    held-out lap, where joint 3 stalls lifting the forearm at a corner, the calibrated twin
+    stalls too: it beats the default twin on joint 3 and is no worse on any joint."""
+    hidden = tmp_path / "hidden.toml"
+    hidden.write_text(tomli_w.dumps(_stall_twin().to_mapping()))
+    monkeypatch.setattr(Arm, "ground_truth", lambda self: None)  # a port: no truth
+    out = tmp_path / "robot.toml"
+    result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out,
+                                        budget_s=90))
+    obs = result.observations
+    assert obs.robot_time_s <= 90.0, obs.robot_time_s
+    assert "ladder j2" in obs.phases_skipped  # (the budget may end joint 3's slower duties)
+    j3_stalls = [s for s in obs.stalls if s["joint"] == 3 and s["phase"] == "ladder"]
+    assert {s["duty"] for s in j3_stalls} == {99}, j3_stalls
+    ratios = {(s.duty, s.ratio == 0.0) for s in obs.speeds if s.joint == 3}
+    assert (99, True) in ratios and (97, False) in ratios
+    fitted = {f.key: f for f in result.fitted}
+    assert fitted["emulator.physics.j3.loss_law"].choice == "stall"
+    assert fitted["emulator.physics.j3.pullout_nm"].identified
+    assert not fitted["emulator.physics.j2.loss_law"].identified
+    capture = tmp_path / "held_out.jsonl"
+    run_virtual(_lap(f"fake://?settings={hidden}", capture))
+    calibrated = _rms(capture, load_settings(out))
+    default = _rms(capture, RobotSettings())
+    assert all(c <= d + 1e-9 for c, d in zip(calibrated, default, strict=True)), (
+        calibrated, default)
+    assert calibrated[2] < 0.01 * default[2], (calibrated, default)

@@ -295,6 +295,28 @@ def _shared_physics_twin() -> RobotSettings | None:
     return settings
 
 
+def _stall_twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
+                curve: str = "linear") -> RobotSettings:
+    """The twin of stall_arm.py (defaults): its link masses and lengths, no play, no offsets;
+    the stall law on a ``curve`` pull-out curve with the arm's numbers. The arm's pull-out rate
+    ``7000 (1 − lifted / 14 N·m)`` is the linear curve with ``corner = 3500`` (zero at twice
+    the corner), ``pullout_nm = 14 / (N · 0.5)`` at the motor, efficiency 0.5 (a worm at the
+    self-locking limit: it holds the load and needs no torque to lower it) and no friction or
+    spin-up torque (the arm has neither)."""
+    physics: dict[str, Any] = {"payload_kg": 0.0, "noise_per_count": 0.0, "gravity_m_s2": 9.81,
+                               "geometry_error": {"d1_m": 0.0, "d2_m": 0.0, "a2_m": 0.0,
+                                                  "a3_m": 0.0}}
+    masses = (0.0, 4.5, 2.5, 0.0)
+    for j in range(4):
+        physics[f"j{j + 1}"] = {
+            "mass_kg": masses[j], "com_fraction": 0.5, "backlash_deg": 0.0, "stick_deg": 0.0,
+            "offset_error_deg": 0.0, "hall_error_deg": 0.0, "loss_law": "stall",
+            "pullout_curve": curve, "pullout_nm": 14.0 / (gears[j] * 0.5), "pullin_share": 0.8,
+            "corner_steps_per_s": 3500.0, "efficiency": 0.5, "friction_nm": 0.0,
+            "inertia_kgm2": 0.0}
+    return _twin(gears, physics)
+
+
 @pytest.mark.slow
 def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     """On a real-time capture of every foreign arm (the full lap: single-joint moves, the
@@ -308,7 +330,10 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
                         ("nominal", _twin(), "fail")], False),
         ("stall", ("--no-stall",), [("right", _twin(), "pass"),
                                     ("j1 gear +4 %", _twin((52, 50, 38, 28)), "fail")], False),
-        ("stall", (), [("no loss law", _twin(), "fail"),
+        ("stall", (), [("right (stall law, linear pull-out curve)", _stall_twin(), "pass"),
+                       ("j2 gear +4 %", _stall_twin((50, 52, 38, 28)), "fail"),
+                       ("hyperbolic pull-out curve", _stall_twin(curve="hyperbolic"), "fail"),
+                       ("no loss law", _twin(), "fail"),
                        ("torque-share loss law", RobotSettings(), "fail")], False),
         ("tracker", TRACKER_ARGS, [
             ("right", _tracker_twin(0.5, TRACKER_OFFSETS, 4, -4), "pass"),

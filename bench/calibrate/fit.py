@@ -309,11 +309,41 @@ def _kinematic_model(base: RobotSettings, theta: FloatArray) -> RobotSettings:
     return replace(base, geometry=geometry, joints=joints)
 
 
-def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[Fitted]:
+def instrument_offsets(obs: Observations, prior: ArmPhysics,
+                       hall: Sequence[Fitted] = ()) -> dict[int, tuple[float, float]]:
+    """Per joint (0-based): the zero offset error (rad) and its standard error that a reference
+    instrument's joint angles show. A tracker (true joints, no motor side) measures the load
+    side's angles, its zero offsets included; at the approaches, made from both sides at the
+    upright Hall pose where gravity loads no joint, the play's two sides average out, and the
+    true minus the reported angle is the offset error plus the Hall error (the counter's
+    reference). Empty with the emulator's truth (its true joints exclude the offsets, which
+    only the TCP shows) or without truth."""
+    if not obs.truth or obs.motor_truth:
+        return {}
+    values = {f.key: f.value for f in hall if f.identified}
+    out: dict[int, tuple[float, float]] = {}
+    for j in range(4):
+        sides = [[a.true_rad[j] - a.reported_rad[j] for a in obs.approaches
+                  if a.joint == j + 1 and a.direction == d and a.true_rad is not None]
+                 for d in (1, -1)]
+        if min(len(x) for x in sides) < 2:
+            continue
+        mean = 0.5 * sum(float(np.mean(x)) for x in sides)
+        sigma = 0.5 * math.sqrt(sum(float(np.var(x, ddof=1)) / len(x) for x in sides))
+        hall_rad = math.radians(values.get(_jkey(j, "hall_error_deg"),
+                                           math.degrees(prior.joints[j].hall_error_rad)))
+        out[j] = (mean - hall_rad, max(sigma, SIGMA_FLOOR_RAD))
+    return out
+
+
+def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                   hall: Sequence[Fitted] = ()) -> list[Fitted]:
     """DH length errors and joint offset errors from the true TCP at the holds against the true
     joints (nonlinear least squares, ``scipy.optimize.least_squares``; covariance from the
     Jacobian, the TCP's standard error :data:`INSTRUMENT_SIGMA_M` or the residuals' if larger).
-    Joint 4's offset turns the tool about its own axis and cannot move the TCP."""
+    Joint 4's offset turns the tool about its own axis and cannot move the TCP. A reference
+    instrument's true joints include the zero offsets: the fit's offsets are then relative to
+    them, and :func:`instrument_offsets` adds what they hold."""
     ge = prior.geometry_error
     theta0 = np.array([getattr(ge, k) for k in _KINEMATIC_KEYS]
                       + [prior.joints[i].offset_error_rad for i in range(3)], dtype=np.float64)
@@ -350,9 +380,17 @@ def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics) ->
     cov = np.linalg.pinv(jac.T @ jac) * max(1.0, chi2)
     out = []
     limits = [0.002] * 4 + [math.radians(0.5)] * 3
+    seen = instrument_offsets(obs, prior, hall)
+    if 3 in seen:
+        kept[0] = Fitted(_jkey(3, "offset_error_deg"), math.degrees(seen[3][0]),
+                         math.degrees(seen[3][1]), "deg", True,
+                         "the reference instrument's joint angle at the approaches", j4_prior)
     for i, key in enumerate(keys):
         sigma = math.sqrt(max(0.0, float(cov[i, i])))
         value = float(result.x[i])
+        if i >= 4 and i - 4 in seen:  # relative to the instrument's joints: add their offset
+            value += seen[i - 4][0]
+            sigma = math.hypot(sigma, seen[i - 4][1])
         if sigma > 0.5 * limits[i]:
             out.append(Fitted(key, float(theta0[i] * scale[i]), None, units[i], False,
                               f"not resolved by {len(data)} poses (σ {sigma * scale[i]:.2g})",
@@ -374,7 +412,10 @@ def chosen_structures(fitted: Sequence[Fitted]) -> dict[int, tuple[str, bool] | 
         if law is None or not law.identified or law.choice is None:
             out[j] = None
         else:
-            out[j] = (law.choice, gear is not None and gear.identified)
+            curve = values.get(_jkey(j, "pullout_curve"))
+            choice = law.choice if curve is None or curve.choice is None else (
+                f"{law.choice}:{curve.choice}")
+            out[j] = (choice, gear is not None and gear.identified)
     return out
 
 
@@ -397,10 +438,10 @@ def fit_all(obs: Observations, base: RobotSettings,
     the others use it). ``structures``: each joint's speed model taken as chosen (see
     :func:`~armbench.bench.calibrate.structure.fit_speed_models`)."""
     prior = base_physics(base)
-    kinematics = fit_kinematics(obs, base, prior)
+    hall = fit_hall(obs, base, prior)
+    kinematics = fit_kinematics(obs, base, prior, hall)
     model = with_kinematics(prior, kinematics)
     play = fit_play(obs, base, prior)
-    hall = fit_hall(obs, base, prior)
     before = [*play, *hall]
     mech = Mechanism(model, base, lambda: [0.0] * 4)
     speeds = fit_speed_models(obs, base, model,

@@ -32,6 +32,8 @@ __all__ = [
     "Observations",
     "PageRenderer",
     "SpeedRun",
+    "run_sigma",
+    "session_scatter",
 ]
 
 
@@ -217,3 +219,33 @@ class CalibrationResult:
 
 #: Renders the calibration page of a result (HTML text).
 PageRenderer = Callable[[CalibrationResult], str]
+
+
+def run_sigma(run: SpeedRun) -> float:
+    """A speed run's ratio error: its slope's standard error over its law (12) speed, and one
+    pulse of rounding in its steps."""
+    slope = (run.rate_sigma_rad_s or 0.0) / run.law_rad_s
+    if not math.isfinite(slope):
+        slope = 1.0
+    return math.sqrt(slope ** 2 + (1.0 / max(run.steps, 1.0)) ** 2 + 1e-5 ** 2)
+
+
+def session_scatter(obs: Observations) -> tuple[float, int]:
+    """How much more the runs scatter than their own standard errors say, from the runs made
+    twice (same joint, duty and direction): ``k = sqrt(mean z²)`` of their differences over
+    their combined error, at least 1, and the number of pairs (1 without any)."""
+    first: dict[tuple[int, int, int], SpeedRun] = {}
+    z2: list[float] = []
+    for run in obs.speeds:
+        if run.samples == 0:  # a stall: no slope
+            continue
+        key = (run.joint, run.duty, run.direction)
+        other = first.get(key)
+        if other is None:
+            first[key] = run
+            continue
+        z2.append((run.ratio - other.ratio) ** 2 / (run_sigma(run) ** 2
+                                                    + run_sigma(other) ** 2))
+    if not z2:
+        return 1.0, 0
+    return max(1.0, math.sqrt(math.fsum(z2) / len(z2))), len(z2)

@@ -72,8 +72,11 @@ LADDER_DUTIES: Final = (99, 90, 99, 95, 97, 93, 98, 96)
 #: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
 #: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
 #: step here loses none elsewhere at these duties); 1 and 4 carry no gravity load and get the two
-#: top duties only. Within a duty joint 2, the heaviest lift, comes last: a drive that cannot
-#: lift it at any duty leaves the arm there, and the others are measured first.
+#: top duties only. The joints go one after the other, in this order, each through all its
+#: duties: the arm travels to each joint's pose once (a drive too weak for the arm's weight
+#: lifts joint 2 slowly, and every trip back from a tilted pose costs that), and joint 2, the
+#: heaviest lift, comes last: a drive that cannot lift it at any duty leaves the arm there, and
+#: the others are measured first.
 LADDER_RANGES: Final = {
     1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
     4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
@@ -81,9 +84,13 @@ LADDER_RANGES: Final = {
     2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
 }
 UNLOADED_DUTIES: Final = (99, 95)
+#: Duties of the ladder joints 3 and 2 go through alternately before each takes the rest.
+FIRST_DUTIES: Final = 3
 #: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
-#: stands until its rate falls below the pull-in rate).
-RECOVERY_DUTIES: Final = (90, 80, 60)
+#: stands until its rate falls below the pull-in rate): each about half the rate of the one
+#: before (law (12)), so the duty that moves it is within a factor of two of the fastest that
+#: would, and each stall brackets the drive's pull-out rate at that load.
+RECOVERY_DUTIES: Final = (97, 93, 85, 70, 60)
 #: A joint that moved less than this (rad, about 5 encoder counts) in a watch interval short of
 #: its target stands still.
 STALL_MOVED_RAD: Final = 3e-4
@@ -91,6 +98,11 @@ STALL_MOVED_RAD: Final = 3e-4
 #: losing 90 % of its steps) to cross ``STALL_MOVED_RAD`` with room for the link's latency.
 STALL_WATCH_S: Final = 0.5
 #: Steps (rad) joint 2 is raised in when it leaves a pose it could not lift from.
+#: How far inside joint 3's limit (rad) the forearm is folded back for that.
+FOLD_MARGIN_RAD: Final = 0.05
+#: Longest watch interval (s): a drive losing 90 % of its steps at duty 60 still moves
+#: :data:`STALL_MOVED_RAD` in a tenth of it.
+STALL_WATCH_MAX_S: Final = 1.0
 ESCAPE_STEP_RAD: Final = 0.15
 #: Standard error of a stalled run's ratio (of 0): it moved at most a few counts.
 STALL_SIGMA: Final = 0.01
@@ -238,64 +250,70 @@ class Procedure:
     async def ladder(self) -> None:
         """Moves at a ladder of duties, up and down, per joint: effective speed vs duty."""
         dropped: set[int] = set()
-        for duty in LADDER_DUTIES:
-            for joint, (base, high, low) in LADDER_RANGES.items():
-                if joint in dropped or (joint in (1, 4) and duty not in UNLOADED_DUTIES):
-                    continue
-                for a, b in ((high, low), (low, high)):
-                    start = list(base)
-                    start[joint - 1] = a
-                    target = list(base)
-                    target[joint - 1] = b
-                    need = (self._move_estimate_s(self.arm.state.q_rad, start, MAX_DUTY)
-                            + self._move_estimate_s(start, target, duty))
-                    if not self._fits(need):
-                        self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
-                                                             f" of joint {joint}")
+        for joint, duty in ladder_order():
+            base, high, low = LADDER_RANGES[joint]
+            if joint in dropped:
+                continue
+            for a, b in ((high, low), (low, high)):
+                start = list(base)
+                start[joint - 1] = a
+                target = list(base)
+                target[joint - 1] = b
+                need = (self._move_estimate_s(self.arm.state.q_rad, start, MAX_DUTY)
+                        + self._move_estimate_s(start, target, duty))
+                if not self._fits(need):
+                    self.obs.phases_skipped["ladder"] = (f"budget: stopped before duty {duty}"
+                                                         f" of joint {joint}")
+                    return
+                stalls = len(self.obs.stalls)
+                try:
+                    await self._move(start, MAX_DUTY)
+                    await self._speed_run(joint, start, target, duty)
+                except ArmDoesNotMoveError as exc:
+                    if len(self.obs.stalls) == stalls:
+                        raise  # blocked, not stalled: nothing here explains it
+                    # the drive stalls here at every duty tried (the stalls are
+                    # observations): leave this joint's ladder, and the pose if the arm can
+                    why = (f"joint {exc.joint} stalled at every duty down to "
+                           f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
+                           f"{exc.target_rad:+.4f} rad)")
+                    self.progress(f"calibrate: {why}")
+                    dropped.add(joint)
+                    if not await self._escape():
+                        self.obs.phases_skipped["ladder"] = (
+                            why + ": the ladder stopped there, and the arm was left at "
+                            "that pose")
+                        self._stamp()
                         return
-                    stalls = len(self.obs.stalls)
-                    try:
-                        await self._move(start, MAX_DUTY)
-                        await self._speed_run(joint, start, target, duty)
-                    except ArmDoesNotMoveError as exc:
-                        if len(self.obs.stalls) == stalls:
-                            raise  # blocked, not stalled: nothing here explains it
-                        # the drive stalls here at every duty tried (the stalls are
-                        # observations): leave this joint's ladder, and the pose if the arm can
-                        why = (f"joint {exc.joint} stalled at every duty down to "
-                               f"{RECOVERY_DUTIES[-1]} (at {exc.reached_rad:+.4f} rad, commanded "
-                               f"{exc.target_rad:+.4f} rad)")
-                        self.progress(f"calibrate: {why}")
-                        dropped.add(joint)
-                        if not await self._escape():
-                            self.obs.phases_skipped["ladder"] = (
-                                why + ": the ladder stopped there, and the arm was left at "
-                                "that pose")
-                            self._stamp()
-                            return
-                        self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
-                            "was left; the arm folded its forearm upright and was raised slowly"
-                        break
+                    self.obs.phases_skipped[f"ladder j{joint}"] = why + ": its ladder " \
+                        "was left; the arm folded its forearm back and was raised slowly"
+                    break
             self._stamp()
 
     async def _escape(self) -> bool:
         """Bring the arm from a pose joint 2 cannot lift from back to the zero pose: the forearm
-        upright over joint 2 first (q3 = −q2: the least torque joint 2 can carry there), then
-        joint 2 up in steps of :data:`ESCAPE_STEP_RAD` (each at the highest recovery duty that
-        moves it), then the rest. False when that stalls too."""
+        folded back over joint 2 first (towards q2 + q3 = ∓π/2, as far as joint 3's limit
+        allows: its weight then counters the upper arm's, the least torque joint 2 can carry
+        there), then joint 2 up in steps of :data:`ESCAPE_STEP_RAD` (each at the highest
+        recovery duty that moves it), then the rest. False when that stalls too."""
         q = list(self.arm.state.q_rad)
         spec = self.settings.joints[2]
         fold = q.copy()
-        fold[2] = min(max(-q[1], spec.lower_rad), spec.upper_rad)
+        back = -q[1] - math.copysign(math.pi / 2, q[1])
+        fold[2] = min(max(back, spec.lower_rad + FOLD_MARGIN_RAD), spec.upper_rad - FOLD_MARGIN_RAD)
         try:
             await self._move(fold, RECOVERY_DUTIES[0])
-            # up in steps, each tried at the highest recovery duty first: the lighter the load,
-            # the faster the drive keeps up
+            # up in steps, the first tried at the highest recovery duty, each next one a level
+            # above the duty that moved the one before: the load lightens on the way up
             steps = max(1, math.ceil(abs(fold[1]) / ESCAPE_STEP_RAD))
+            duty = RECOVERY_DUTIES[0]
             for k in range(steps - 1, -1, -1):
                 up = fold.copy()
                 up[1] = fold[1] * k / steps
-                await self._move(up, RECOVERY_DUTIES[0])
+                await self._move(up, duty)
+                moved = self._last_attempt[0]
+                higher = [d for d in RECOVERY_DUTIES if d > moved]
+                duty = min(higher) if higher else moved
             await self._move([0.0, 0.0, 0.0, 0.0], RECOVERY_DUTIES[0])
         except ArmDoesNotMoveError:
             return False
@@ -382,7 +400,7 @@ class Procedure:
         start = list(arm.state.q_rad)
         law_s = self._law_s(start, target, duty)
         deadline_s = 10.0 * self._move_estimate_s(start, target, duty) + 2.0
-        watch_s = max(STALL_WATCH_S, 0.25 * law_s)
+        watch_s = min(max(STALL_WATCH_S, 0.25 * law_s), STALL_WATCH_MAX_S)
         tol = [t + 1e-4 for t in arm.default_tolerance_rad()]
         goal = list(target)
 
@@ -431,6 +449,23 @@ class Procedure:
             q = self._tracker.true_joints_rad()
             truth = {} if q is None else {"true_rad": [float(v) for v in q]}
         return state, truth
+
+
+def ladder_order() -> list[tuple[int, int]]:
+    """The ladder's ``(joint, duty)`` runs in order: joints 1 and 4 (no gravity load, at the zero
+    pose) at full duty; joints 3 and 2 alternating at the first :data:`FIRST_DUTIES` of
+    :data:`LADDER_DUTIES` (a budget that runs out leaves both with full duty, the lowest and the
+    repeat); joints 1 and 4 at their other duty; then 3 and 2 each through the rest. The arm
+    goes back to the zero pose between joint 3's and joint 2's poses once: a drive too weak for
+    the arm's own weight lifts joint 2 only slowly (and one that cannot has been brought back
+    there by then)."""
+    top, *slower = UNLOADED_DUTIES
+    out: list[tuple[int, int]] = [(1, top), (4, top)]
+    first, rest = LADDER_DUTIES[:FIRST_DUTIES], LADDER_DUTIES[FIRST_DUTIES:]
+    out += [(j, int(d)) for d in first for j in (3, 2)]
+    out += [(j, d) for d in slower for j in (1, 4)]
+    out += [(j, int(d)) for j in (3, 2) for d in rest]
+    return out
 
 
 def _ticks_changed(before: int) -> Callable[[JointState], bool]:

@@ -12,7 +12,9 @@ arm's own noise in this session. Each candidate structure predicts ``r`` for a r
 * ``torque`` — the torque deficit's share is lost: ``r = s · clip(P / f, 0.1, 1)`` with ``f`` the
   torque the run needs (the prior's masses, worm gear, friction, spin-up) times
   ``1 + rate / corner``: one parameter, the pull-out torque ``P``;
-* ``stall`` — the rotor stops where ``f > P``: ``r = s`` or 0 (only when a run stalled);
+* ``stall`` — the rotor stops where the need exceeds the pull-out torque at the rate: ``r = s``
+  or 0 (only when a run stalled), with the prior's pull-out curve and with the other shape
+  (``bench/calibrate/stall.py``: hyperbolic or linear in the rate), each a candidate;
 * ``duty`` — a fixed share is lost above a duty, per direction: ``r = s (1 − share±)`` above the
   threshold, ``s`` below it;
 
@@ -38,9 +40,16 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
-from armbench.bench.calibrate.model import Fitted, Observations, SpeedRun
+from armbench.bench.calibrate.model import Fitted, Observations, run_sigma, session_scatter
+from armbench.bench.calibrate.stall import STALLED_RATIO, curve_factor, stall_interval, stall_pred
 from armbench.drivers.settings import RobotSettings
-from armbench.fakes.physics import JOINT_RANGES, ArmPhysics, JointPhysics, Mechanism
+from armbench.fakes.physics import (
+    JOINT_RANGES,
+    PULLOUT_CURVES,
+    ArmPhysics,
+    JointPhysics,
+    Mechanism,
+)
 
 __all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "choose_joint", "fit_speed_models",
            "run_table", "session_scatter"]
@@ -57,8 +66,6 @@ MISS_Z2: Final = 25.0
 #: fit adds it to each lossy run's ratio error in its weights, and to the pull-out torque's; the
 #: held-out scores use the runs' own errors only (a model cannot excuse its misses).
 NEED_REL: Final = 0.01
-#: A run slower than this ratio stalled (the torque law never loses more than 90 %).
-STALLED_RATIO: Final = 0.12
 #: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
 #: accepts around the documented range (``fakes/physics.py``).
 _P_GRID: Final = np.geomspace(0.03, 30.0, 481)
@@ -70,41 +77,27 @@ SCALE_RANGE: Final = (0.75, 1.33)
 @dataclass(frozen=True, slots=True)
 class JointSpeeds:
     """One joint's speed runs as the fits need them: the ratio, its standard error, duty,
-    direction and the torque factor ``f`` (N·m) of each run."""
+    direction and the torque factor ``f`` (N·m) of each run on the prior's pull-out curve
+    ``curve``; ``factors``: the factor on every curve (None: the prior's only)."""
 
     ratio: FloatArray
     sigma: FloatArray
     duty: FloatArray
     direction: FloatArray
     factor: FloatArray
+    factors: Mapping[str, FloatArray] | None = None
+    curve: str = "hyperbolic"
 
+    @property
+    def curves(self) -> list[str]:
+        """The pull-out curves the runs have factors on, the prior's first."""
+        return [self.curve] + [c for c in (self.factors or {}) if c != self.curve]
 
-def _run_sigma(run: SpeedRun) -> float:
-    slope = (run.rate_sigma_rad_s or 0.0) / run.law_rad_s
-    if not math.isfinite(slope):
-        slope = 1.0
-    return math.sqrt(slope ** 2 + (1.0 / max(run.steps, 1.0)) ** 2 + 1e-5 ** 2)
-
-
-def session_scatter(obs: Observations) -> tuple[float, int]:
-    """How much more the runs scatter than their own standard errors say, from the runs made
-    twice (same joint, duty and direction): ``k = sqrt(mean z²)`` of their differences over
-    their combined error, at least 1, and the number of pairs (1 without any)."""
-    first: dict[tuple[int, int, int], SpeedRun] = {}
-    z2: list[float] = []
-    for run in obs.speeds:
-        if run.samples == 0:  # a stall: no slope
-            continue
-        key = (run.joint, run.duty, run.direction)
-        other = first.get(key)
-        if other is None:
-            first[key] = run
-            continue
-        z2.append((run.ratio - other.ratio) ** 2 / (_run_sigma(run) ** 2
-                                                    + _run_sigma(other) ** 2))
-    if not z2:
-        return 1.0, 0
-    return max(1.0, math.sqrt(float(np.mean(z2)))), len(z2)
+    def on_curve(self, curve: str) -> JointSpeeds:
+        """The runs with the factors of the pull-out curve ``curve``."""
+        if curve == self.curve or not curve:
+            return self
+        return replace(self, factor=(self.factors or {})[curve], curve=curve)
 
 
 def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
@@ -122,10 +115,13 @@ def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
         rate = run.law_rad_s * spec.steps_per_rad
         tau = mech.gravity_nm(link_of(run.start_rad))[j]
         need = p.required_nm(tau, run.direction, spec.gear_ratio, rate, spec.steps_per_motor_rev)
-        rows.append((run.ratio, scatter * _run_sigma(run), run.duty, run.direction,
-                     need * (1.0 + rate / p.corner_steps_per_s)))
-    a = np.asarray(rows, dtype=np.float64).reshape(-1, 5)
-    return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+        rows.append((run.ratio, scatter * run_sigma(run), run.duty, run.direction, need,
+                     rate))
+    a = np.asarray(rows, dtype=np.float64).reshape(-1, 6)
+    factors = {c: curve_factor(a[:, 4], a[:, 5], p.corner_steps_per_s, c)
+               for c in PULLOUT_CURVES}
+    return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], factors[p.pullout_curve], factors,
+                       p.pullout_curve)
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,11 +133,14 @@ class Candidate:
     scaled: bool
     params: dict[str, float]
     n_params: int
+    curve: str = ""
 
     @property
     def name(self) -> str:
-        """``law`` with ``+scale`` when the speed scale is fitted."""
-        return self.law + ("+scale" if self.scaled else "")
+        """``law`` (``stall:linear``: with its pull-out curve) with ``+scale`` when the speed
+        scale is fitted."""
+        return self.law + (f":{self.curve}" if self.curve else "") + (
+            "+scale" if self.scaled else "")
 
 
 def _wmean(x: FloatArray, w: FloatArray) -> float:
@@ -157,9 +156,7 @@ def _torque_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
     return out
 
 
-def _stall_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
-    out: FloatArray = (factor <= p_nm).astype(np.float64)
-    return out
+_stall_pred = stall_pred
 
 
 def _model_error(shape: FloatArray) -> FloatArray:
@@ -217,7 +214,9 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
     if law == "torque":
         p_nm, s = _profile(d, _torque_pred, scaled)
         return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
-    if law == "stall":  # the middle of the interval between the runs that moved and stalled
+    if law.startswith("stall"):  # the middle of the interval between the runs that moved and
+        curve = _curve_of(law, d)   # stalled, on the law's pull-out curve
+        d = d.on_curve(curve)
         p_nm, sigma = _stall_interval(d)
         moved = d.ratio >= STALLED_RATIO
         s = 1.0
@@ -225,7 +224,8 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
             p_nm, s = _profile(d, _stall_pred, scaled)
         elif scaled and moved.any():
             s = _clip_scale(_wmean(d.ratio[moved], 1.0 / d.sigma[moved] ** 2))
-        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
+        return Candidate("stall", scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled),
+                         curve)
     # duty: the threshold that fits best, the shares above it per direction
     best: tuple[float, Candidate] | None = None
     duties = {float(x) for x in d.duty}
@@ -270,7 +270,7 @@ def predict(c: Candidate, d: JointSpeeds) -> FloatArray:
     if c.law == "torque":
         return s * _torque_pred(c.params["pullout_nm"], d.factor)
     if c.law == "stall":
-        return s * _stall_pred(c.params["pullout_nm"], d.factor)
+        return s * _stall_pred(c.params["pullout_nm"], d.on_curve(c.curve).factor)
     pred = np.full_like(d.ratio, s)
     above = d.duty > c.params["loss_above_duty"]
     pred[above & (d.direction > 0)] *= 1.0 - c.params["loss_plus"]
@@ -292,8 +292,9 @@ def prior_prediction(p: JointPhysics, d: JointSpeeds) -> FloatArray:
 
 
 def _subset(d: JointSpeeds, keep: npt.NDArray[np.bool_]) -> JointSpeeds:
+    factors = None if d.factors is None else {c: f[keep] for c, f in d.factors.items()}
     return JointSpeeds(d.ratio[keep], d.sigma[keep], d.duty[keep], d.direction[keep],
-                       d.factor[keep])
+                       d.factor[keep], factors, d.curve)
 
 
 def _robust(z2: FloatArray) -> float:
@@ -336,7 +337,7 @@ def _param_sigma(d: JointSpeeds, c: Candidate, key: str, step: float) -> float:
     def chi2(v: float) -> float:
         params = dict(c.params)
         params[key] = v
-        pred = predict(Candidate(c.law, c.scaled, params, c.n_params), d)
+        pred = predict(Candidate(c.law, c.scaled, params, c.n_params, c.curve), d)
         return float((((d.ratio - pred) / _sigma_total(d, pred / params["s"])) ** 2).sum())
 
     v0 = c.params[key]
@@ -393,13 +394,14 @@ def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
         return _emit(j, gear, p, d, _fit(d, *fixed), "structure fixed", n)
     prior_pred = prior_prediction(p, d)
     prior_chi2 = _robust(((d.ratio - prior_pred) / d.sigma) ** 2)
-    laws = ["none", "torque", "duty"] + (["stall"] if (d.ratio < STALLED_RATIO).any() else [])
+    laws = ["none", "torque", "duty"] + ([f"stall:{c}" for c in d.curves]
+                                         if (d.ratio < STALLED_RATIO).any() else [])
     scores: dict[tuple[str, bool], float] = {}
     sizes: dict[tuple[str, bool], int] = {}
     for law in laws:
         for scaled in (False, True):
             scores[(law, scaled)] = held_out_chi2(d, law, scaled)
-            sizes[(law, scaled)] = {"none": 0, "torque": 1, "stall": 1, "duty": 3}[law] + scaled
+            sizes[(law, scaled)] = {"none": 0, "torque": 1, "duty": 3}.get(law, 1) + scaled
     simple = _step_up(scores, sizes)
     everything = {"prior": prior_chi2, **{_name(k): v for k, v in scores.items()}}
     low = min(everything.values())
@@ -420,6 +422,11 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
           n: int) -> list[Fitted]:
     """The :class:`Fitted` values of the structure ``c`` fitted to all ``n`` runs ``d``."""
     out = [Fitted(_jkey(j, "loss_law"), math.nan, None, "", True, why, choice=c.law)]
+    if c.curve:
+        d = d.on_curve(c.curve)
+        out.append(Fitted(_jkey(j, "pullout_curve"), math.nan, None, "", True,
+                          f"{c.curve}: the pull-out curve of the law chosen (corner "
+                          f"{p.corner_steps_per_s:g} microsteps/s, the prior's)", choice=c.curve))
     unit_ranges = {"pullout_nm": ("N·m", 0.01), "loss_above_duty": ("", 0.5),
                    "loss_plus": ("", 1e-4), "loss_minus": ("", 1e-4)}
     for key, (unit, step) in unit_ranges.items():
@@ -484,16 +491,13 @@ def _step_up(scores: Mapping[tuple[str, bool], float],
 
 
 def _stall_interval(d: JointSpeeds) -> tuple[float, float]:
-    """The pull-out torque of a stalling drive lies between the largest torque factor of a run
-    that moved and the smallest of one that stalled: its geometric middle, and the standard error
-    of a uniform variable over that interval (infinite when the runs overlap)."""
-    moved = d.factor[d.ratio >= STALLED_RATIO]
-    stalled = d.factor[d.ratio < STALLED_RATIO]
-    lo = float(moved.max()) if len(moved) else float(_P_GRID[0])
-    hi = float(stalled.min()) if len(stalled) else float(_P_GRID[-1])
-    if hi <= lo:
-        return math.sqrt(abs(lo * hi)), math.inf
-    return math.sqrt(lo * hi), (hi - lo) / (2.0 * math.sqrt(3.0))
+    """:func:`~armbench.bench.calibrate.stall.stall_interval` of ``d``'s runs on its curve."""
+    return stall_interval(d.ratio, d.factor, (float(_P_GRID[0]), float(_P_GRID[-1])))
+
+
+def _curve_of(law: str, d: JointSpeeds) -> str:
+    """The pull-out curve of a stall law (``stall:linear``; plain ``stall``: the prior's)."""
+    return law.partition(":")[2] or d.curve
 
 
 def _name(k: tuple[str, bool]) -> str:
