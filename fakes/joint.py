@@ -6,23 +6,11 @@ never loops per cycle or per step: between events (a stop, a reversal, the Hall 
 limit, a spurious encoder count, a new reference) the steps are computed arithmetically, so a move
 of 200 000 steps costs a handful of loop iterations (``iterations`` counts them).
 
-Conventions (``docs/emulator-joint.md`` has the full semantics):
-
-* The state *at tick t* is the state when cycle t begins: every action of the cycles before t is
-  done, cycle t's action is not. ``advance(t)`` brings the model there; a reference set at tick t
-  is seen by cycle t's action. A transition made by cycle t's action is therefore stamped t + 1,
-  the first tick at which it can be observed.
-* Per cycle the firmware does one action (``v`` duty 0..99, ``err`` = target − counter, taken as 0
-  inside the deadband)::
-
-      STOP:      if v > 0 and err != 0: -> PWM_HIGH
-      PWM_HIGH:  if v == 0 or err == 0: -> STOP
-                 else: one step towards sign(err) (CW = +1 counts up); -> PWM_LOW; n = 0
-      PWM_LOW:   n += 1; if n >= 100 - v: -> PWM_HIGH
-
-  so a moving joint steps every 101 − v cycles, speed law (12).
-* The counter follows the motor-shaft encoder: ``counter = offset + floor(motor_steps × c)`` with
-  ``c = counts_per_step`` exact; the Hall reset and spurious counts change ``offset``.
+Conventions (``docs/emulator-joint.md`` has them in full, with the firmware's per-cycle state
+machine): the state *at tick t* is the state when cycle t begins, so a reference set at tick t is
+seen by cycle t's action and a transition made by that action is stamped t + 1; a moving joint
+steps every 101 − v cycles (speed law (12)); ``counter = offset + floor(motor_steps × c)`` with
+``c = counts_per_step`` exact, the Hall reset and spurious counts changing ``offset``.
 """
 
 from __future__ import annotations
@@ -62,15 +50,12 @@ __all__ = [
     "step_period_ticks",
 ]
 
-#: How often (s) a joint under ``loss_law = "stall"`` reads its load and checks its rate against
-#: the pull-out (or, humming, the pull-in) rate again: a drive falls out of step, or back in,
-#: as the load changes under it, also by other joints' motion (a controller's loop period).
+#: How often (s) a joint under ``loss_law = "stall"`` checks its rate against the pull-out (or,
+#: humming, the pull-in) rate at its load again, as the load changes under it.
 STALL_RECHECK_S: Final = 0.005
 
-#: The attributes :meth:`JointModel.__copy__` copies: all but the ``Final`` ones (``_CONSTANTS``,
-#: set from the joint settings by the constructor). Together they are the class's ``__slots__``, so
-#: an attribute added to the model and not named here fails at once (in the source build: the
-#: compiled one would add it silently, and tests/test_compiled.py compares the two).
+#: What :meth:`JointModel.__copy__` copies (all but the ``Final`` ``_CONSTANTS``); with them the
+#: ``__slots__``, so an attribute not named here fails at once (tests/test_compiled.py).
 _FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_miss_bits",
            "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
            "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
