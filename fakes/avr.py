@@ -12,6 +12,7 @@ talks to its control channel (power, re-referencing, statistics).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import hashlib
 import json
@@ -19,7 +20,8 @@ import os
 import re
 import shutil
 import subprocess
-from collections.abc import Sequence
+import sys
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -127,6 +129,30 @@ def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
     done = out / ".complete"
     if done.exists() and not force:
         return out
+    with _build_lock(out):
+        if done.exists() and not force:  # built by whoever held the lock before us
+            return out
+        done.unlink(missing_ok=True)
+        _build_into(source, out)
+        done.write_text("ok\n")
+    return out
+
+
+@contextlib.contextmanager
+def _build_lock(out: Path) -> Iterator[None]:
+    """Held while a build writes ``out``: builds of one folder at the same time (parallel test
+    workers, two runs starting together) take turns, and the later one finds the earlier's
+    images complete instead of rewriting them under a harness that runs them."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / f".{out.name}.lock", "w") as lock:
+        if sys.platform != "win32":  # the toolchain is POSIX's; Windows has no flock
+            import fcntl
+
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        yield
+
+
+def _build_into(source: Path, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for joint in range(1, 5):
         elf = out / f"joint{joint}.elf"
@@ -137,8 +163,6 @@ def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
     harness_sources = sorted(str(p.relative_to(source)) for p in (source / "harness").glob("*.c"))
     _run(["cc", "-O2", "-std=gnu11", "-Wall", "-Wextra", "-Werror", "-o",
           str(out / HARNESS_NAME), *harness_sources, "-lsimavr"], source)
-    done.write_text("ok\n")
-    return out
 
 
 def find_images(firmware: str | Path | None) -> list[Path]:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
 import subprocess
 import sys
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -26,13 +28,30 @@ _NEEDS_PTY = re.compile(r"(?<![a-z])pty(?![a-z])", re.IGNORECASE)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Where the system has no pseudo-terminals (Windows), the tests that need one skip."""
+    """Tests sharing a module's fixture run in one worker; where the system has no
+    pseudo-terminals (Windows), the tests that need one skip."""
+    group_by_module_fixtures(items)
     if hasattr(os, "openpty"):
         return
     skip = pytest.mark.skip(reason="needs a pseudo-terminal: this system has none")
     for item in items:
         if _NEEDS_PTY.search(item.name) or "pty_emulator" in getattr(item, "fixturenames", ()):
             item.add_marker(skip)
+
+
+def group_by_module_fixtures(items: list[pytest.Item]) -> None:
+    """With pytest-xdist (``--dist loadgroup``) each test goes to whichever worker is free, so a
+    module- or class-scoped fixture (an emulator process, a whole run, a browser) would be set up
+    in every worker that gets one of its tests: the tests that use one share a group, named
+    after their module, and run in one worker. The module's other tests still spread. A test
+    that wants its module's group whatever it uses is marked
+    ``pytest.mark.xdist_group(name=<module path>)``."""
+    for item in items:
+        if not isinstance(item, pytest.Function) or item.get_closest_marker("xdist_group"):
+            continue
+        defs = item._fixtureinfo.name2fixturedefs.values()
+        if any(d.scope in ("module", "class", "package") for seq in defs for d in seq):
+            item.add_marker(pytest.mark.xdist_group(name=item.nodeid.split("::")[0]))
 
 
 def build_wheel(work: Path, *, pure: bool) -> Path:
@@ -66,10 +85,41 @@ def unpack(wheel: Path, tree: Path) -> Path:
     return tree
 
 
+def session_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder of this test session that its parallel workers (pytest-xdist) share: the
+    parent of each worker's own base folder; the base folder itself in a run of one process."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+@contextlib.contextmanager
+def one_at_a_time(lock: Path) -> Iterator[None]:
+    """Held by one process of the session at a time (POSIX flock; elsewhere no lock)."""
+    with open(lock, "w") as fh:
+        if sys.platform != "win32":
+            import fcntl
+
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
+
+
+def shared_wheel(tmp_path_factory: pytest.TempPathFactory, name: str, *, pure: bool) -> Path:
+    """``build_wheel`` once per session: the first worker to need it builds it, the others
+    wait and take the same wheel (a build compiles for minutes)."""
+    work = session_dir(tmp_path_factory) / name
+    with one_at_a_time(work.with_suffix(".lock")):
+        built = sorted((work / "dist").glob("armbench-*.whl"))
+        if built:
+            return built[0]
+        shutil.rmtree(work, ignore_errors=True)  # a build that failed half-way
+        work.mkdir()
+        return build_wheel(work, pure=pure)
+
+
 @pytest.fixture(scope="session")
 def armbench_wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The release wheel of this checkout (compiled when a C compiler is at hand)."""
-    return build_wheel(tmp_path_factory.mktemp("wheel"), pure=False)
+    return shared_wheel(tmp_path_factory, "wheel", pure=False)
 
 
 @pytest.fixture(scope="session")
@@ -85,8 +135,8 @@ def compiled_tree(armbench_wheel: Path, tmp_path_factory: pytest.TempPathFactory
 def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The plain-Python build of this checkout (``ARMBENCH_PURE_PYTHON=1``), unpacked as pip
     installs it: what the compiled build is compared with."""
-    work = tmp_path_factory.mktemp("pure")
-    return unpack(build_wheel(work, pure=True), work / "installed")
+    return unpack(shared_wheel(tmp_path_factory, "pure-wheel", pure=True),
+                  tmp_path_factory.mktemp("pure"))
 
 
 def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

@@ -11,6 +11,10 @@ import math
 import re
 import shutil
 import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +22,7 @@ import pytest
 
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
+from armbench.fakes import avr
 from armbench.fakes.avr import (
     FIRMWARE_SOURCE,
     HARNESS_NAME,
@@ -96,6 +101,38 @@ def test_bad_firmware_names_are_clear_errors(tmp_path: Path) -> None:
         find_images(tmp_path)
     with pytest.raises(FirmwareError, match="does not exist"):
         find_images(str(tmp_path / "joint{n}.hex"))
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="the build lock is POSIX flock")
+def test_builds_of_one_folder_at_once_take_turns(monkeypatch: pytest.MonkeyPatch,
+                                                  tmp_path: Path) -> None:
+    """Two builds of one folder at the same time (parallel test workers, two runs): one
+    compiles while the other waits, then finds the images complete and compiles nothing, so
+    no image is rewritten under a harness running it. The compiler is replaced by a slow
+    stand-in that records how many compile at once (the lock is what is tested)."""
+    active: list[int] = []
+    commands: list[str] = []
+    guard = threading.Lock()
+
+    def slow_tool(cmd: Sequence[str], cwd: Path) -> None:
+        with guard:
+            active.append(active[-1] + 1 if active else 1)
+            commands.append(cmd[0])
+        time.sleep(0.02)
+        with guard:
+            active.append(active[-1] - 1)
+
+    monkeypatch.setattr(avr, "_require_toolchain", lambda: None)
+    monkeypatch.setattr(avr, "_run", slow_tool)
+    out = tmp_path / "fw"
+    builds = [threading.Thread(target=build, kwargs={"out": out}) for _ in range(2)]
+    for t in builds:
+        t.start()
+    for t in builds:
+        t.join(30)
+    assert max(active) == 1, active
+    assert commands == ["avr-gcc", "avr-objcopy"] * 4 + ["cc"]
+    assert (out / ".complete").is_file()
 
 
 @needs_toolchain
