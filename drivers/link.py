@@ -36,6 +36,7 @@ from armbench.drivers.replies import ReplyStream
 from armbench.drivers.server_notes import ServerNotes
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.state import JointState
+from armbench.drivers.tasks import cancel_and_wait
 from armbench.drivers.transports import Transport, open_transport
 from armbench.drivers.waiters import Waiters, any_state, never
 
@@ -192,9 +193,7 @@ class ArmLink:
         try:
             reader, self._reader = self._reader, None
             if reader is not None and not reader.done():
-                reader.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await reader
+                await cancel_and_wait(reader)
         finally:
             try:
                 if self._transport is not None:

@@ -36,6 +36,7 @@ from armbench.drivers.motion import (
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.tasks import cancel_and_wait
 from armbench.record import Better, Measurement, Trial
 from armbench.record.suite_contract import POS_DECIMALS, RAD_DECIMALS
 
@@ -388,9 +389,7 @@ class StateRecorder:
         task, self._task = self._task, None
         if task is None:
             return
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+        await cancel_and_wait(task)
         if self.error is None:
             with contextlib.suppress(ArmbenchError):
                 state = self._ctx.arm.state
