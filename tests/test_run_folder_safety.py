@@ -406,8 +406,13 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
         assert line.startswith("armbench run: error: "), full.stderr
         assert "results" in line and "No space left on device" in line
         record = load_record(out / "results.json")
-        measured = [t for s in record.suites.values() for t in s.trials]
-        assert measured and all(t.status == "done" for t in measured)
+        trials = [t for s in record.suites.values() for t in s.trials]
+        # what was measured is kept; a trial whose worker met the full disk is an error trial
+        # (re-run by the resume below), never a half-written one
+        assert any(t.status == "done" for t in trials)
+        assert all(t.status == "done" or (t.status == "error" and t.error is not None
+                                          and "No space left on device" in t.error)
+                   for t in trials), [(t.status, t.error) for t in trials]
         shutil.copytree(out, moved)
     resumed = _bench("run", "--resume", str(moved))
     assert resumed.returncode == 0, resumed.stderr
