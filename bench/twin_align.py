@@ -9,6 +9,9 @@ of that is the model's doing. So:
   each of the arm's replies, not its newest reply then (which would be up to one reply interval
   stale); where the twin's replies pause (its firmware writing EEPROM records after a command)
   its trajectory is unknown, and the arm's replies then are not compared;
+* a reply the host read late (a loaded host wakes some milliseconds after it came: its angle is
+  behind the line of its neighbours, along the motion) is found from the arm's stream alone,
+  with no model in it (:func:`late_stamps`), and is neither compared nor used to time a start;
 * each move that starts from rest is aligned at its start: the time the arm's joint left its
   pose (its first replies beyond :data:`ONSET_TICKS`, traced back along the joint's nominal speed)
   against the twin's; commands sent while the arm moves (a streamed path) keep the shift of the
@@ -39,7 +42,7 @@ from armbench.drivers.protocol import TICKS_PER_RAD, Command
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
-           "move_shifts", "timing_scatter_s"]
+           "late_stamps", "move_shifts", "timing_scatter_s"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -66,6 +69,17 @@ MAX_SHIFT_S: Final = 0.06
 STEADY_TICKS: Final = 20.0
 #: Fewer residuals than this: the timing scatter is taken from the reply intervals instead.
 MIN_RESIDUALS: Final = 20
+#: A reply is stamped late when its angle is behind the straight line through its neighbours
+#: by more than this many timing scatters (in time, along the joint's motion) ...
+LATE_SIGMAS: Final = 5.0
+#: ... and by more than this many wire ticks (the quantisation of a slow joint).
+LATE_TICKS: Final = 3.0
+#: A joint tells a late reply where its two neighbours are this many ticks apart: twice the
+#: late limit (a slow joint moves only a few ticks between two replies read close together).
+LATE_WAY_TICKS: Final = 2.0 * LATE_TICKS
+#: Rounds of :func:`late_stamps` (each round on the replies the rounds before kept; a few, so
+#: that what a round drops stays local to a host stall).
+LATE_ROUNDS: Final = 3
 #: Robust standard deviation from the median absolute value of a centred normal sample.
 MAD_TO_SIGMA: Final = 1.4826
 
@@ -282,3 +296,77 @@ def interval_floor_s(arm: Track, twin: Track, reply_scatter_s: float,
         return float(np.percentile(gaps, 95)) if len(gaps) else 0.0
     return math.sqrt((interval(arm) ** 2 + interval(twin) ** 2) / 12.0 + reply_scatter_s ** 2
                      + command_scatter_s ** 2)
+
+
+def _residuals(t: FloatArray, q: FloatArray, command_times: Sequence[float]
+               ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """Per inner reply and joint (``(n - 2, 4)``): its angle minus the straight line through
+    its two neighbours (rad), the speed of that line (rad/s), and whether the joint moves
+    there (neighbours :data:`LATE_WAY_TICKS` apart, no command between them)."""
+    span = t[2:] - t[:-2]
+    ok_t = span > 0
+    w = np.where(ok_t, (t[1:-1] - t[:-2]) / np.where(ok_t, span, 1.0), 0.5)
+    ct = np.asarray(sorted(command_times)) + SAME_INSTANT_S
+    same = np.searchsorted(ct, t[:-2]) == np.searchsorted(ct, t[2:])
+    dq = q[2:] - q[:-2]
+    steady = (ok_t & same)[:, None] & (np.abs(dq) >= LATE_WAY_TICKS * TICK_RAD)
+    v = dq / np.where(ok_t, span, np.inf)[:, None]
+    return q[1:-1] - (q[:-2] + w[:, None] * dq), v, steady
+
+
+def _stale_at_start(t: FloatArray, q: FloatArray, command_times: Sequence[float],
+                    scatter_s: float) -> npt.NDArray[np.bool_]:
+    """Per inner reply (``n - 2``): whether it still shows the pose of the reply before it
+    while the joint had left it by the late limit at its stamp, as the next
+    :data:`ONSET_REPLIES` replies traced back at their own speed (medians: one of them may be
+    late too) say: a reply composed before the joint left, read after (the line through two
+    neighbours does not see it: a command lies between them)."""
+    out = np.zeros(max(0, len(t) - 2), dtype=bool)
+    ct = np.asarray(sorted(command_times)) + SAME_INSTANT_S   # a reply at a command's instant
+    n = ONSET_REPLIES                                           # is before it
+    for i in range(1, len(t) - n):
+        nxt = slice(i + 1, i + 1 + n)
+        if np.searchsorted(ct, t[i]) != np.searchsorted(ct, t[i + n]):
+            continue
+        dt = np.diff(t[nxt])
+        if np.any(dt <= 0):
+            continue
+        for j in range(q.shape[1]):
+            if abs(q[i, j] - q[i - 1, j]) > REST_TICKS * TICK_RAD:
+                continue
+            way = q[nxt, j] - q[i, j]
+            if abs(way[-1]) < STEADY_TICKS * TICK_RAD or np.any(way * way[-1] < 0):
+                continue
+            speed = float(np.median(np.abs(np.diff(q[nxt, j])) / dt))
+            if speed <= 0:
+                continue
+            left = float(np.median(t[nxt] - np.abs(way) / speed))
+            limit = max(LATE_SIGMAS * scatter_s * speed, LATE_TICKS * TICK_RAD)
+            if (t[i] - left) * speed > limit:
+                out[i - 1] = True
+                break
+    return out
+
+
+def late_stamps(arm: Track, command_times: Sequence[float], scatter_s: float
+                ) -> npt.NDArray[np.bool_]:
+    """Per reply, whether its stamp is later than its angle shows (the host read it late: a
+    loaded machine reading a serial port or a socket; a reply may come late, never early): on a
+    joint that moves steadily, its angle is behind the straight line through its neighbours,
+    along the motion, by more than :data:`LATE_SIGMAS` timing scatters ``scatter_s`` and
+    :data:`LATE_TICKS` ticks. Found from the arm's stream alone (no model enters: a wrong twin
+    cannot excuse itself), repeated on the replies kept (a late neighbour bends the line)."""
+    late = np.zeros(len(arm.t_s), dtype=bool)
+    for _ in range(LATE_ROUNDS):
+        keep = np.flatnonzero(~late)
+        if len(keep) < 3:
+            break
+        r, v, steady = _residuals(arm.t_s[keep], arm.q_rad[keep], command_times)
+        behind = -r * np.sign(v)
+        limit = np.maximum(LATE_SIGMAS * scatter_s * np.abs(v), LATE_TICKS * TICK_RAD)
+        new = np.any(steady & (behind > limit), axis=1)
+        new |= _stale_at_start(arm.t_s[keep], arm.q_rad[keep], command_times, scatter_s)
+        if not new.any():
+            break
+        late[keep[1:-1][new]] = True
+    return late

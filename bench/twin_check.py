@@ -54,6 +54,7 @@ from armbench.bench.twin_align import (
     command_shifts,
     floor_rad,
     interval_floor_s,
+    late_stamps,
     move_shifts,
     timing_scatter_s,
 )
@@ -245,6 +246,20 @@ def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 
+def _read_late(arm: Track, command_times: Sequence[float], scatter_s: float | None = None
+               ) -> npt.NDArray[np.bool_]:
+    """Per reply of ``arm`` (timed ones), whether the host read it late
+    (:func:`armbench.bench.twin_align.late_stamps`: a loaded host reads the replies some
+    milliseconds after they came, not always in one go), against the timing scatter
+    ``scatter_s`` (else the stream's own). Such a reply is neither compared nor used to time a
+    move's start."""
+    if len(arm.t_s) < 3:
+        return np.zeros(len(arm.t_s), dtype=bool)
+    if scatter_s is None:
+        scatter_s = timing_scatter_s(arm, command_times)
+    return late_stamps(arm, command_times, scatter_s)
+
+
 @dataclass(frozen=True, slots=True)
 class ReplayFloor:
     """How far the twin diverges from itself replayed with each command moved by a draw of the
@@ -293,7 +308,8 @@ def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
     times = [c[0] for c in data.commands]
     measured = move_shifts(reference, base, data.commands, settings)
     shifts = measured.per_joint_s
-    t = np.asarray([r[0] for r in _timed(data.replies)])
+    timed = Track.of(_timed(data.replies))
+    t = timed.t_s[~_read_late(timed, times)]
     t = t[(t >= times[0]) & (t >= base.t_s[0])]
     q_base, _, blind = _read_aligned(t, times, base, shifts)
     seen = ~(blind | reference.blind(t, SEEN_LATE))
@@ -324,14 +340,22 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     allow = allowance or Allowance()
     twin_track = Track.of(twin)
     timed = _timed(data.replies)
-    untimed = len(data.replies) - len(timed)
+    times = [c[0] for c in data.commands]
+    scatter = timing_scatter_s(Track.of(timed), times)
+    late = _read_late(Track.of(timed), times, scatter)
+    untimed = len(data.replies) - len(timed) + int(late.sum())
     data = CaptureData(data.path, data.commands, timed, data.bad_in_frames)
     whole = Track.of(data.replies)
-    times = [c[0] for c in data.commands]
-    measured = move_shifts(whole, twin_track, data.commands, settings)
+    # the starts are timed on the replies read on time, the twin's alike (its own stale
+    # replies, after its firmware's pauses, are left out by the same rule)
+    twin_late = _read_late(twin_track, times, scatter)
+    measured = move_shifts(Track(whole.t_s[~late], whole.q_rad[~late]),
+                           Track(twin_track.t_s[~twin_late], twin_track.q_rad[~twin_late]),
+                           data.commands, settings)
     shifts = measured.per_joint_s
     start = times[0]
-    rows = [(t, q) for t, q in data.replies if t >= start and t >= twin_track.t_s[0]]
+    rows = [(t, q) for (t, q), x in zip(data.replies, late, strict=True)
+            if t >= start and t >= twin_track.t_s[0] and not x]
     q_twin, speed, blind = _read_aligned(Track.of(rows).t_s, times, twin_track, shifts)
     rows = [r for r, b in zip(rows, blind, strict=True) if not b]
     arm = Track.of(rows)
@@ -341,7 +365,6 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     diff = arm.q_rad - q_twin
     rms = np.sqrt(np.mean(diff * diff, axis=0))
     peak = np.max(np.abs(diff), axis=0)
-    scatter = timing_scatter_s(whole, times)
     reaction = measured.scatter_s()
     command_scatter = scatter if reaction is None else max(scatter, reaction)
     if floor_by_replay is None:
@@ -384,7 +407,7 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
             (n.arm_only, arm_only, "", "moves only the arm arrived at"),
             (n.twin_only, twin_only, "", "moves only the twin arrived at"),
             (n.replies, len(rows), "", "replies of the capture compared"),
-            (n.untimed, untimed, "", "replies left out: read in a burst after a host stall")):
+            (n.untimed, untimed, "", "replies left out: read in a burst or late (a host stall)")):
         m = judge(n.metric(figure), float(value), unit, limits, description=what)
         measurements.append(replace(m, better=None) if figure == n.shift_mean else m)
     return TwinCheck(

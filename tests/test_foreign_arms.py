@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import math
 import time
 
@@ -53,7 +52,7 @@ def test_plain_arms_follow_law_12(name: str) -> None:
 
 def test_jitter_arm_j3_is_slower_and_its_replies_ragged() -> None:
     """The hidden gear of joint 3 (39.5 for 38): a move takes 3.9 % longer than law (12) with the
-    nominal gear; the replies come 5..20 ms apart."""
+    nominal gear; the replies come 5..20 ms apart (12.5 ms on average, not every 5 ms)."""
     with foreign_arm("jitter") as arm:
         async def go() -> tuple[float, list[float]]:
             async with Arm.connect(arm.url, SETTINGS) as a:
@@ -64,9 +63,13 @@ def test_jitter_arm_j3_is_slower_and_its_replies_ragged() -> None:
                 return took, [s.t_s for s in states]
         took, times = asyncio.run(go())
     nominal = _move_s(2, 1.0, 99, 38.0)
+    # a starved host or arm only makes the move look longer
     assert took >= nominal * 39.5 / 38 - 0.005, (took, nominal)
-    gaps = sorted(b - a for a, b in itertools.pairwise(times))
-    assert gaps[len(gaps) // 2] >= 0.008, gaps[:5]
+    # a host that stalls reads the replies that came meanwhile in one go, stamped close
+    # together: the stamps' gaps are the host's, not the link's. What the link guarantees is
+    # how many replies came over the span they cover (a starved arm sends fewer, not more)
+    mean_gap_s = (times[-1] - times[0]) / (len(times) - 1)
+    assert mean_gap_s >= 0.008, (mean_gap_s, len(times))
 
 
 def test_stall_arm_stalls_lifting_fast_and_not_slow() -> None:
