@@ -120,6 +120,7 @@ async def _serve(args: argparse.Namespace, settings: RobotSettings, options: Any
             return await node.run(args.duration)
         except asyncio.CancelledError:
             if terminated:
+                task.uncancel()  # handled: the arm's connection closes as on a normal end
                 return 0
             raise
         finally:
