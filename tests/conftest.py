@@ -6,6 +6,7 @@ import contextlib
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import zipfile
@@ -154,3 +155,11 @@ def one_line_error(status: int, err: str, *expected: str) -> None:
     assert "Traceback" not in err
     for text in expected:
         assert text in lines[0], lines[0]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """A shell starts a background job with SIGINT ignored, and every process it starts inherits
+    that (armbench too: it honours an ignored SIGINT as any Unix program does). The Ctrl-C tests
+    press Ctrl-C on their children as a terminal would, so the children must take it."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
