@@ -1,7 +1,7 @@
 """The replay half of ``armbench twin-check``: a capture cut into sessions (one arm each, without
 a break), and each session's commands written into a twin (the emulator built from the settings)
 on the running loop at their recorded times, optionally each moved by an offset (the floor's
-perturbed replay, :mod:`armbench.bench.twin_floor`)."""
+perturbed replay, :func:`armbench.bench.twin_check.replay_floor`)."""
 
 from __future__ import annotations
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import importlib
 import time
 import types
 
@@ -60,3 +61,12 @@ def test_parts_that_are_not_found_are_named(monkeypatch: pytest.MonkeyPatch) -> 
     assert missing == [f"{module.__name__}.Writer.gone", "armbench_no_such_module.f"]
     assert target.write() == 1
     assert "record" in clock.seconds
+
+
+def test_every_timed_part_names_code_that_exists() -> None:
+    """A renamed module or method would leave its phase silently untimed."""
+    for _, module_name, path in perf_run.PHASES:
+        owner = importlib.import_module(module_name)
+        for part in path.split("."):
+            owner = getattr(owner, part)
+        assert callable(owner), (module_name, path)

@@ -202,8 +202,11 @@ def run(options: PerfOptions) -> list[Figure]:
             best_wall, best_cpu = min(best_wall, wall), min(best_cpu, cpu)
         out = Path(tmp) / "timed"
         timed_wall, _, stdout = _run_wall(
-            ["-c", f"from armbench.cli.perf.run import child; child({str(out)!r})"], out)
-        phases = json.loads(stdout.strip().splitlines()[-1])
+            ["-c", f"from {__name__} import child; child({str(out)!r})"], out)
+        lines = stdout.strip().splitlines()
+        if not lines:
+            raise RuntimeError("the timed default run printed no phases")
+        phases = json.loads(lines[-1])
     start = min(_run_wall(["-c", "pass"], Path(tempfile.gettempdir()) / "x")[0]
                 for _ in range(3))
     pool = min(_pool_start_s() for _ in range(2 if options.quick else 3))
