@@ -1,7 +1,8 @@
-"""armbench loads on a system without POSIX's terminal and file-control modules (Windows): with
-``fcntl``, ``termios``, ``pty`` and ``tty`` unimportable, every module imports and every command's
-``--help`` works. What needs them (a pty, ``i2c scan --bus``, pyserial's POSIX backend) imports them
-where it is used. Servers stop on Ctrl-C whether or not the loop has Unix signal handlers."""
+"""armbench loads on a system without POSIX's terminal, file-control and resource modules
+(Windows): with ``fcntl``, ``termios``, ``pty``, ``tty`` and ``resource`` unimportable, every
+module imports and every command's ``--help`` works. What needs them (a pty, ``i2c scan --bus``,
+pyserial's POSIX backend) imports them where it is used. Servers stop on Ctrl-C whether or not the
+loop has Unix signal handlers."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from armbench.fakes.signals import stop_on_signals
 #: Run in a fresh interpreter: import every module of armbench, then every command's --help.
 _PROBE = """
 import contextlib, importlib, io, json, pkgutil, sys
-for name in ("fcntl", "termios", "pty", "tty"):
+for name in ("fcntl", "termios", "pty", "tty", "resource"):
     sys.modules[name] = None  # import raises ImportError, as where the module does not exist
 import armbench
 from armbench.cli import main as cli
