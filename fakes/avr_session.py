@@ -448,13 +448,22 @@ def _cuts_compared(session: Session, emu: Outcome,
     drive at the recovery duty stretches that difference into the time of the master's first
     reply (a reversal taken some milliseconds apart, tens of milliseconds between the first
     replies). A slave's drive goes on while the master replies, its position within the replies'
-    tolerance, so it is compared."""
+    tolerance, so it is compared.
+
+    Cuts after the first command the two masters took differently are not compared, as the
+    replies are not (:func:`_agree_until`): the records then follow different commands. Only a
+    receive-buffer overflow excuses such a command (:func:`_taken_differences` reports it
+    otherwise), and whether a buffer overflows depends on when each loop last read it before a
+    stall (an EEPROM record stalls a loop up to 16.5 ms)."""
+    agree_s = _agree_until(emu, fw, session.until_s)
     lag = _take_lag(emu, fw)
     speeds = [max(a, b) for a, b in zip(_speeds(emu.replies), _speeds(fw.replies), strict=True)]
     for event in session.events:
         if not isinstance(event, Power) or event.on:
             continue
         cut = event.at_s
+        if cut >= agree_s:
+            break
         cells_emu, cells_fw = _record_at(emu, cut), _record_at(fw, cut)
         if cells_emu is None or cells_fw is None:
             return cut, []  # one side had no power to lose

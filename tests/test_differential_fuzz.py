@@ -226,3 +226,24 @@ def test_a_torn_counter_beyond_16_bits(old_firmware: Path) -> None:
     old = run_firmware_session(session, firmware=str(old_firmware))
     assert next(r[0] for t, r in old.replies if t > 0.33) == 62832
     assert any(line.startswith("joint 1") for line in divergences(session, emu, old))
+
+
+def test_records_after_a_command_lost_to_an_overflow_are_not_compared() -> None:
+    """Joint 1 moves, stops (a record stalling both loops 3.3 ms a cell) while two commands
+    arrive, the second a reversal; the emulator's loop last read its receive buffer just before
+    their first byte, the firmware's just after, so the emulator's buffer overflows and loses the
+    reversal's end, the firmware's takes it. At the power cut the firmware's record says "moving
+    CCW", the emulator's "moving CW": both right for what each took, so not compared, as the
+    replies after the first command taken differently are not. Without the overflow the command
+    only one side took is the divergence reported."""
+    session = Session.from_text((CORPUS / "reversal-lost-to-an-overflow-before-a-cut.session")
+                                .read_text())
+    emu, fw = run_emulator_session(session), run_firmware_session(session)
+    assert emu.overflows and not fw.overflows, (emu.overflows, fw.overflows)
+    assert [c for _, c in emu.taken] == [c for _, c in fw.taken][:2] and len(fw.taken) == 3
+    assert _joint1_records(fw) == [EepromRecord("ccw", 106)]
+    assert _joint1_records(emu) == [EepromRecord("cw", 106)]
+    assert divergences(session, emu, fw) == []
+    emu.overflows.clear()
+    found = divergences(session, emu, fw)
+    assert len(found) == 1 and "the emulator took only 2 commands" in found[0], found
