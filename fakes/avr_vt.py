@@ -293,10 +293,11 @@ class AvrBoards:
     def _catch_up(self) -> None:
         """Bring the boards to the loop's now before the host acts on them (a no-op while the
         boards are the loop's clock; the loop may have moved without them before they
-        joined)."""
+        joined). Boards whose harness died stay where it stopped: :attr:`harness` raises why."""
         assert self._loop is not None
         now = self._loop.time()
-        while self._harness is not None and self._time(self._harness.cycle) < now - 1e-9:
+        while (self._harness is not None and self.failure is None
+               and self._time(self._harness.cycle) < now - 1e-9):
             self.run_until(now)
 
     def _record_truth(self, t_s: float, frame: bytes) -> None:
