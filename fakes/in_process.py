@@ -96,7 +96,8 @@ class InProcessTransport(Transport, Generic[PeerT]):
 
     @property
     def is_open(self) -> bool:
-        return self._open
+        """Opened, not closed, and the port not lost (:meth:`_peer_lost`)."""
+        return self._open and self._lost_reason is None
 
     def _attach(self, peer: PeerT) -> None:
         """Take what ``peer`` sends from now on; the transport is open."""

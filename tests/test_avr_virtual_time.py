@@ -268,6 +268,7 @@ def test_a_harness_that_dies_is_a_lost_port_not_a_dead_loop() -> None:
                 await transport.write(Command.from_rad([0.0] * 4, 0).encode())
             with pytest.raises(PortLostError, match="harness exited"):
                 await transport.read()
+        assert not transport.is_open
         await arm.close()
         await boards.close()
 
