@@ -29,10 +29,12 @@ from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
+from armbench.drivers.transports.capabilities import Capabilities
 
 __all__ = [
     "DEBIAN_PACKAGES",
     "FIRMWARE_SOURCE",
+    "LOCKSTEP_CAPABILITIES",
     "FirmwareError",
     "Harness",
     "board_specs",
@@ -45,6 +47,12 @@ __all__ = [
 ]
 
 _KNOWN = {"firmware", "settings", "eeprom", "control"}
+
+#: What ``avr://`` can do on a virtual-time loop, the boards in lockstep with it
+#: (:class:`~armbench.fakes.avr_vt.AvrVirtualTransport`): fresh per trial, in workers, with
+#: truth from the joint model and their own power switch; no faults, no I²C bus of the host's.
+LOCKSTEP_CAPABILITIES = Capabilities(clock="virtual", fresh_per_trial=True, parallel=True,
+                                     truth=True, power=True)
 
 
 def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None, Path | None]:

@@ -35,7 +35,14 @@ from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import Capabilities
 from armbench.drivers.transports.serial_port import SerialTransport
-from armbench.fakes.avr import FirmwareError, Harness, build, find_images, parse_avr_url
+from armbench.fakes.avr import (
+    LOCKSTEP_CAPABILITIES,
+    FirmwareError,
+    Harness,
+    build,
+    find_images,
+    parse_avr_url,
+)
 from armbench.fakes.vclock import VirtualTimeLoop
 
 if TYPE_CHECKING:
@@ -63,8 +70,7 @@ class AvrTransport(SerialTransport):
         query = parse_qs(urlsplit(port).query)
         if "eeprom" in query or "control" in query:
             return Capabilities(clock="real", power=True)
-        return Capabilities(clock="virtual", fresh_per_trial=True, parallel=True, truth=True,
-                            power=True)
+        return LOCKSTEP_CAPABILITIES
 
     def __init__(self, port: str, serial: SerialSettings, *,
                  robot: RobotSettings | None = None) -> None:

@@ -36,15 +36,16 @@ from typing import IO, Any
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import Framer, Reply
 from armbench.drivers.settings import RobotSettings, SerialSettings
-from armbench.drivers.transports.base import Transport
 from armbench.fakes.avr import (
     HARNESS_NAME,
+    LOCKSTEP_CAPABILITIES,
     FirmwareError,
     board_specs,
     build,
     find_images,
     parse_avr_url,
 )
+from armbench.fakes.in_process import InProcessTransport
 from armbench.fakes.physics import TruthSample
 from armbench.fakes.vclock import VirtualTimeLoop
 
@@ -292,10 +293,11 @@ class AvrBoards:
     def _catch_up(self) -> None:
         """Bring the boards to the loop's now before the host acts on them (a no-op while the
         boards are the loop's clock; the loop may have moved without them before they
-        joined)."""
+        joined). Boards whose harness died stay where it stopped: :attr:`harness` raises why."""
         assert self._loop is not None
         now = self._loop.time()
-        while self._harness is not None and self._time(self._harness.cycle) < now - 1e-9:
+        while (self._harness is not None and self.failure is None
+               and self._time(self._harness.cycle) < now - 1e-9):
             self.run_until(now)
 
     def _record_truth(self, t_s: float, frame: bytes) -> None:
@@ -359,35 +361,28 @@ class AvrBoards:
         return self.harness.stats()
 
 
-class AvrVirtualTransport(Transport):
+class AvrVirtualTransport(InProcessTransport[AvrBoards]):
     """Joint 1's UART of a set of :class:`AvrBoards` on the running virtual-time loop: bytes
     written go on the line at the loop's now, replies arrive at the loop time their last byte
     left. ``boards`` given: those (the caller closes them); else new ones from the ``avr://``
     URL (playing ``robot`` when given, else the URL's settings), closed with the transport.
-    ``transport.emulator`` and ``transport.harness`` are the boards (ground truth, power)."""
+    ``transport.emulator`` and ``transport.harness`` are the boards (ground truth, power);
+    reads, the receiver and close are :class:`~armbench.fakes.in_process.InProcessTransport`'s,
+    and a harness that dies is a lost port."""
 
     scheme = "avr"
+    declared = LOCKSTEP_CAPABILITIES
+    peer_errors = (FirmwareError,)
 
     def __init__(self, port: str, serial: SerialSettings, boards: AvrBoards | None = None, *,
                  robot: RobotSettings | None = None) -> None:
-        super().__init__(port, serial)
-        self._given = boards
+        super().__init__(port, serial, boards)
         self._robot = robot
-        self.emulator: AvrBoards | None = boards
-        self._chunks: list[bytes] = []
-        self._receiver: Callable[[bytes], None] | None = None
-        self._waiter: asyncio.Future[None] | None = None
-        self._open = False
-        self._lost_reason: str | None = None
 
     @property
     def harness(self) -> AvrBoards | None:
         """The boards, for :func:`armbench.bench.power.port_power` (``HarnessPower``)."""
         return self.emulator
-
-    @property
-    def is_open(self) -> bool:
-        return self._open
 
     async def open(self) -> None:
         if self._open:
@@ -403,69 +398,8 @@ class AvrVirtualTransport(Transport):
             await self.emulator.start()
         except FirmwareError as exc:
             raise self._error(str(exc)) from exc
-        self.emulator.attach_host(self._receive)
-        self.emulator.on_lost = self._harness_lost
-        self._open = True
-
-    def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
-        """Hand each chunk to ``receiver`` as it arrives instead of keeping it for
-        :meth:`read` (as :meth:`FakeTransport.set_receiver`)."""
-        self._receiver = receiver
-
-    def _harness_lost(self, exc: FirmwareError) -> None:
-        """The boards' harness died: a waiting read raises a lost port, as would the next."""
-        self._lost_reason = str(exc)
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_exception(self._lost(self._lost_reason))
-
-    def _receive(self, data: bytes) -> None:
-        receiver = self._receiver
-        if receiver is not None and not self._chunks:
-            self.bytes_in += len(data)
-            receiver(data)
-            return
-        self._chunks.append(data)
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
-    async def read(self) -> bytes:
-        while not self._chunks:
-            if not self._open:
-                raise self._not_open()
-            if self._lost_reason is not None:
-                raise self._lost(self._lost_reason)
-            self._waiter = asyncio.get_running_loop().create_future()
-            try:
-                await self._waiter
-            finally:
-                self._waiter = None
-        data = b"".join(self._chunks)
-        self._chunks.clear()
-        self.bytes_in += len(data)
-        return data
-
-    async def write(self, data: bytes) -> None:
-        if not self._open or self.emulator is None:
-            raise self._not_open()
-        try:
-            self.emulator.host_write(data)
-        except FirmwareError as exc:
-            raise self._lost(str(exc)) from exc
-        self.bytes_out += len(data)
-
-    async def close(self) -> None:
-        if not self._open:
-            return
-        self._open = False
-        self._receiver = None
-        if self._waiter is not None and not self._waiter.done():
-            self._waiter.set_exception(self._lost("transport closed"))
-        if self.emulator is not None:
-            self.emulator.detach_host()
-            if self._given is None:
-                await self.emulator.close()
+        self.emulator.on_lost = self._peer_lost
+        self._attach(self.emulator)
 
 
 def fresh_boards(robot: RobotSettings, faults: Sequence[object] = (),

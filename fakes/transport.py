@@ -20,18 +20,17 @@ laser tracker and a relay give on a real bench).
 
 from __future__ import annotations
 
-import asyncio
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from urllib.parse import parse_qs, urlsplit
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
-from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 from armbench.drivers.transports.target import given_by, resolve
 from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.faults import Fault, faults_from_settings, load_faults
+from armbench.fakes.in_process import InProcessTransport
 
 __all__ = ["FAKE_CAPABILITIES", "FakeTransport", "parse_fake_url"]
 
@@ -51,15 +50,12 @@ def parse_fake_url(port: str) -> tuple[RobotSettings, int | None, list[Fault]]:
     return inputs.robot, inputs.seed, list(inputs.faults)
 
 
-class FakeTransport(Transport):
+class FakeTransport(InProcessTransport[ArmEmulator]):
     """A transport whose other end is an :class:`~armbench.fakes.arm_emulator.ArmEmulator` on the
-    same loop."""
+    same loop (:class:`~armbench.fakes.in_process.InProcessTransport`: reads, receiver, close)."""
 
     scheme = "fake"
-
-    @classmethod
-    def capabilities(cls, port: str) -> Capabilities:
-        return FAKE_CAPABILITIES
+    declared = FAKE_CAPABILITIES
 
     @classmethod
     def query(cls, port: str) -> Given:
@@ -123,17 +119,7 @@ class FakeTransport(Transport):
 
     def __init__(self, port: str, serial: SerialSettings,
                  emulator: ArmEmulator | None = None) -> None:
-        super().__init__(port, serial)
-        self._given = emulator
-        self.emulator: ArmEmulator | None = emulator
-        self._chunks: list[bytes] = []
-        self._receiver: Callable[[bytes], None] | None = None
-        self._waiter: asyncio.Future[None] | None = None
-        self._open = False
-
-    @property
-    def is_open(self) -> bool:
-        return self._open
+        super().__init__(port, serial, emulator)
 
     async def open(self) -> None:
         if self._open:
@@ -144,56 +130,5 @@ class FakeTransport(Transport):
             overrides = {"seed": inputs.seed} if inputs.seed is not None else {}
             self.emulator = ArmEmulator(inputs.robot, emulator_settings(inputs.robot, **overrides),
                                         list(inputs.faults))
-        self.emulator.attach_host(self._receive)
-        self._open = True
+        self._attach(self.emulator)
         await self.emulator.start()
-
-    def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
-        """Hand each chunk to ``receiver`` the moment it arrives (in the emulator's callback, at
-        its loop time) instead of keeping it for :meth:`read`: no future and no task switch per
-        reply. Chunks already kept are read first; :meth:`read` then waits for more kept chunks
-        or the end of the connection. None: back to plain reads."""
-        self._receiver = receiver
-
-    def _receive(self, data: bytes) -> None:
-        receiver = self._receiver
-        if receiver is not None and not self._chunks:
-            self.bytes_in += len(data)
-            receiver(data)
-            return
-        self._chunks.append(data)
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
-
-    async def read(self) -> bytes:
-        while not self._chunks:
-            if not self._open:
-                raise self._not_open()
-            self._waiter = asyncio.get_running_loop().create_future()
-            try:
-                await self._waiter
-            finally:
-                self._waiter = None
-        data = b"".join(self._chunks)  # no copy for the usual single chunk
-        self._chunks.clear()
-        self.bytes_in += len(data)
-        return data
-
-    async def write(self, data: bytes) -> None:
-        if not self._open or self.emulator is None:
-            raise self._not_open()
-        self.emulator.host_write(data)
-        self.bytes_out += len(data)
-
-    async def close(self) -> None:
-        if not self._open:
-            return
-        self._open = False
-        self._receiver = None
-        if self._waiter is not None and not self._waiter.done():
-            self._waiter.set_exception(self._lost("transport closed"))
-        if self.emulator is not None:
-            self.emulator.detach_host()
-            if self._given is None:
-                await self.emulator.close()

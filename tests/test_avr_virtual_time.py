@@ -17,12 +17,13 @@ from typing import Any
 
 import pytest
 from test_firmware import needs_toolchain
+from test_soak import cpu_guard
 
 from armbench.bench.power import HarnessPower, port_power
 from armbench.bench.suites._common import eeprom_counters
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm
-from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
 from armbench.drivers.motion import joint_times_s
 from armbench.drivers.protocol import Command, Framer, Reply
 from armbench.drivers.settings import RobotSettings
@@ -257,6 +258,17 @@ def test_a_harness_that_dies_is_a_lost_port_not_a_dead_loop() -> None:
         t = loop.time()
         await asyncio.sleep(1.0)  # the clock goes on without the boards
         assert loop.time() == pytest.approx(t + 1.0)
+        # the boards stay where the harness died: every side channel and the port say so
+        with cpu_guard(30.0):
+            with pytest.raises(FirmwareError, match="harness exited"):
+                boards.true_angles_rad()
+            with pytest.raises(FirmwareError, match="harness exited"):
+                await boards.power(False)
+            with pytest.raises(PortLostError, match="harness exited"):
+                await transport.write(Command.from_rad([0.0] * 4, 0).encode())
+            with pytest.raises(PortLostError, match="harness exited"):
+                await transport.read()
+        assert not transport.is_open
         await arm.close()
         await boards.close()
 
