@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 import armbench.reports.sections as sections
-from armbench.record.suite_contract import ACCURACY, AccuracyNames, contracts, register
+from armbench.bench.suites.accuracy_contract import ACCURACY, AccuracyNames
+from armbench.record.suite_contract import contracts, register
 from armbench.reports.page import SECTIONS
 from armbench.reports.scorecard import HEADLINES, TRUTH_SUITES
 
