@@ -1,7 +1,10 @@
 """The bench suites, by name: what ``armbench run SUITE ...`` runs.
 
-:data:`SUITES` maps each suite's command-line name to ``"module:Class"``, as the suite's contract
-names it (``record/suite_contract.py``); the module is imported only when the suite is loaded,
+Each suite is its module (or folder) here plus a light contract module ``<suite>_contract.py``
+that registers what the suite records (:mod:`armbench.record.suite_contract`). :data:`SUITES`
+maps each suite's command-line name to ``"module:Class"``, as its contract names it, built on
+first use from the registered contracts (so importing this package to reach a contract module
+discovers nothing and imports no suite); the module is imported only when the suite is loaded,
 so a broken or slow suite module costs nothing to the others. Other distributions register
 suites as entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.suites``), as
 transports are registered. Besides a registered name, :func:`load_suite` accepts a
@@ -15,17 +18,22 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+from typing import TYPE_CHECKING, Any
 
-from armbench.bench.suites.base import (
-    PoseSource,
-    PowerSwitch,
-    Progress,
-    ReReferencing,
-    Suite,
-    SuiteContext,
-)
 from armbench.drivers.errors import ArmbenchError
-from armbench.record.suite_contract import contracts
+from armbench.record.suite_contract import BUILTIN_PACKAGE, contracts
+
+if TYPE_CHECKING:
+    from armbench.bench.suites.base import (
+        PoseSource,
+        PowerSwitch,
+        Progress,
+        ReReferencing,
+        Suite,
+        SuiteContext,
+    )
+
+    SUITES: dict[str, str]
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -45,11 +53,37 @@ __all__ = [
     "suite_names",
 ]
 
-#: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order:
-#: every registered suite contract that names its implementation
-#: (:func:`armbench.record.suite_contract.register`), so adding a suite edits no list here.
-SUITES: dict[str, str] = {c.suite: c.implementation for c in contracts()
-                          if c.implementation is not None}
+_SUITES: dict[str, str] = {}
+_built: list[bool] = []
+
+
+def _suites() -> dict[str, str]:
+    """:data:`SUITES`, built on first use: suite name on the command line → ``"module:Class"``
+    (imported lazily), in the default order: every contract of this package that names its
+    implementation (:func:`armbench.record.suite_contract.contracts`), so adding a suite edits no
+    list here. The same dict on every access (a test may add to it)."""
+    if not _built:
+        _built.append(True)
+        _SUITES.update((c.suite, c.implementation) for c in contracts()
+                       if c.implementation is not None
+                       and type(c).__module__.startswith(BUILTIN_PACKAGE + "."))
+    return _SUITES
+
+
+#: The interface's names, re-exported from :mod:`.base` when first asked for, so importing this
+#: package (to reach a light ``*_contract`` module) imports nothing of the suites' interface.
+_BASE_NAMES = frozenset({"PoseSource", "PowerSwitch", "Progress", "ReReferencing", "Suite",
+                         "SuiteContext"})
+
+
+def __getattr__(name: str) -> Any:
+    if name == "SUITES":
+        return _suites()
+    if name in _BASE_NAMES:
+        from armbench.bench.suites import base
+
+        return getattr(base, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: Entry-point group under which distributions register suites by name.
@@ -64,23 +98,26 @@ class UnknownSuiteError(SuiteError):
     """A suite name that is neither registered nor a ``module:Class``; lists the known names."""
 
     def __init__(self, name: str) -> None:
-        super().__init__(f"unknown suite {name!r} (known: {', '.join(SUITES)}; or give "
+        super().__init__(f"unknown suite {name!r} (known: {', '.join(suite_names())}; or give "
                          "package.module:Class of a Suite subclass)")
         self.name = name
 
 
 def suite_names() -> list[str]:
     """The registered suite names, in the default run order."""
-    return list(SUITES)
+    return list(_suites())
 
 
 def registered_suites() -> dict[str, str]:
     """Every registered suite name → ``"module:Class"``: the entry points of
-    :data:`ENTRY_POINT_GROUP`, and the built-ins over them. Only reads metadata: nothing is
-    imported."""
+    :data:`ENTRY_POINT_GROUP`, the suites other distributions' contracts name
+    (:data:`armbench.record.suite_contract.ENTRY_POINT_GROUP`), and the built-ins over them.
+    No suite module is imported."""
     found = {ep.name: f"{ep.module}:{ep.attr}"
              for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    return {**found, **SUITES}
+    found.update((c.suite, c.implementation) for c in contracts()
+                 if c.implementation is not None)
+    return {**found, **_suites()}
 
 
 def is_suite_spec(name: str) -> bool:
@@ -95,11 +132,13 @@ def suite_class(name: str) -> type[Suite]:
     Raises :class:`UnknownSuiteError` for an unknown name and :class:`SuiteError` when the module
     cannot be imported or the attribute is not a :class:`Suite` subclass.
     """
-    target = SUITES.get(name) or registered_suites().get(name)
+    target = _suites().get(name) or registered_suites().get(name)
     if target is None:
         if not is_suite_spec(name):
             raise UnknownSuiteError(name)
         target = name
+    from armbench.bench.suites.base import Suite
+
     module_name, _, class_name = target.partition(":")
     try:
         module = importlib.import_module(module_name)
