@@ -180,6 +180,47 @@ def test_a_realtime_factor_holds_virtual_time_back() -> None:
     assert run_virtual(main()) >= 0.95
 
 
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+
+@pytest.mark.parametrize("mode", ["pace", "drop"])
+def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str) -> None:
+    """A reliable KEEP_ALL subscriber that takes nothing stops acknowledging once its own history
+    is full; the node's /joint_states history is bounded, so the node serves on (every reply
+    published or counted as dropped), its memory stays flat, and ``pace`` stops waiting for it."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    duration_s = 150.0  # ~60 000 replies: several times what the subscriber's history holds
+
+    async def main() -> tuple[Any, int, int, float]:
+        async with PublishingArm("fake://", S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True, slow_subscriber=mode,
+                                            pace_timeout_s=1.0))
+            idle = await asyncio.create_subprocess_exec(
+                *CLIENT, "idle", "--timeout", str(GUARD_S), stdout=asyncio.subprocess.PIPE)
+            try:
+                assert idle.stdout is not None
+                assert b"subscribed" in await idle.stdout.readline()  # matched before we run
+                rss0, seq0 = _rss_mb(), arm.state.seq
+                status = await node.run(duration_s)
+                grown, replies = _rss_mb() - rss0, arm.state.seq - seq0
+            finally:
+                idle.kill()
+                await idle.wait()
+            return node, status, replies, grown
+
+    node, status, replies, grown_mb = run_virtual(main())
+    assert status == 0  # before: the node's publish failed (RCLError) and the node stopped
+    # every reply while serving (the replies to the hold of the shutdown come after)
+    assert node.published + node.dropped >= 0.99 * replies > 0
+    assert node.dropped <= node.published / 10, (node.dropped, node.published)
+    assert grown_mb < 30, grown_mb  # the history's bound, not the stream's length
+    if mode == "drop":
+        assert node.paced_s == 0.0 and node.stalls == 0
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))

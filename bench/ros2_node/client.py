@@ -13,6 +13,9 @@ Modes:
   times, each next one as soon as the previous one is under way, and the final status of each;
   ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events (``--wait-event
   KIND`` waits for one too: topics are not ordered with each other).
+* ``idle``: subscribe ``/joint_states`` (reliable, ``KEEP_ALL``) and never take a message: a
+  subscriber that stopped reading. Prints ``{"subscribed": true}`` once the node's publisher is
+  matched, then stays until ``--timeout``.
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
@@ -126,6 +129,22 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
             "clocks": len(clocks), "clock_last_s": clocks[-1] if clocks else None,
             "node_now_s": node_now_s,
             "robot_description": urdf[0], "events": events}
+
+
+def idle(node: Node, deadline: float) -> dict[str, Any]:
+    """``idle`` mode (see the module doc): no executor ever spins, so no message is taken."""
+    from rclpy.qos import HistoryPolicy, QoSProfile
+    from sensor_msgs.msg import JointState as JointStateMsg
+
+    sub = node.create_subscription(JointStateMsg, TOPICS["joint_states"], lambda m: None,
+                                   QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL))
+    while sub.get_publisher_count() == 0:
+        if time.monotonic() > deadline:
+            raise Timeout("timed out waiting for the node's /joint_states")
+        time.sleep(0.05)
+    print(json.dumps({"subscribed": True}), flush=True)
+    time.sleep(max(0.0, deadline - time.monotonic()))
+    return {"subscribed": True, "taken": 0}
 
 
 class Sender:
@@ -250,7 +269,7 @@ def square(sender: Sender, settings: RobotSettings, args: argparse.Namespace) ->
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m armbench.bench.ros2_node.client")
-    p.add_argument("mode", choices=("listen", "send", "square"))
+    p.add_argument("mode", choices=("listen", "send", "square", "idle"))
     p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
     p.add_argument("--count", type=int, default=200)
     p.add_argument("--sim-time", action="store_true",
@@ -283,6 +302,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.mode == "listen":
             out = listen(node, args.count, deadline)
+        elif args.mode == "idle":
+            out = idle(node, deadline)
         else:
             sender = Sender(node, deadline)
             if args.mode == "send":

@@ -48,7 +48,8 @@ from armbench.drivers.paths import LOOKAHEAD_S, stream_path
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["MAX_POINTS", "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
+__all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER", "TOPICS",
+           "ArmNode", "NodeOptions", "PublishingArm"]
 
 log = logging.getLogger("armbench.ros2")
 
@@ -62,9 +63,17 @@ TOPICS: Final = {
     "events": "/armbench/events",
     "clock": "/clock",
 }
-#: History kept for ``/joint_states`` (reliable) in real time: what a subscriber that has not yet
-#: acknowledged may still get. On virtual time the history keeps everything (``KEEP_ALL``).
-JOINT_STATES_DEPTH: Final = 1000
+#: History kept for ``/joint_states`` (reliable, ``KEEP_LAST``): the most a subscriber that has
+#: not yet acknowledged may still get; the oldest of it goes first. Every writer of the node is
+#: bounded so: a peer that stops reading cannot fill the node's memory.
+JOINT_STATES_DEPTH: Final = 10_000
+#: What the node does on virtual time when a reliable subscriber of ``/joint_states`` falls behind:
+#: ``pace`` (hold the virtual clock until it has acknowledged, as a simulator in lock-step does)
+#: or ``drop`` (run on, the subscriber loses the oldest beyond the history's depth).
+SLOW_SUBSCRIBER: Final = ("pace", "drop")
+#: Real seconds a paced node waits for a subscriber that acknowledges nothing before it stops
+#: waiting for it (the subscriber then loses the oldest, as with ``drop``).
+PACE_TIMEOUT_S: Final = 5.0
 
 
 class PublishingArm(Arm):
@@ -84,7 +93,10 @@ class NodeOptions:
     """``node_name``; ``clock``: publish ``/clock`` (virtual time); ``max_duty``: fastest duty a
     trajectory may ask for; ``lookahead_s``: streaming look-ahead; ``domain_id``: ROS domain
     (None: ``ROS_DOMAIN_ID``); ``realtime_factor``: on virtual time, at most this many virtual
-    seconds per real second (None: as fast as the emulator runs)."""
+    seconds per real second (None: as fast as the emulator runs); ``history_depth``: the
+    ``/joint_states`` history (:data:`JOINT_STATES_DEPTH`); ``slow_subscriber``: on virtual
+    time, ``pace`` or ``drop`` (:data:`SLOW_SUBSCRIBER`; real time always drops: the arm does not
+    wait); ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`."""
 
     node_name: str = "armbench"
     clock: bool = False
@@ -92,6 +104,23 @@ class NodeOptions:
     lookahead_s: float = LOOKAHEAD_S
     domain_id: int | None = None
     realtime_factor: float | None = None
+    history_depth: int = JOINT_STATES_DEPTH
+    slow_subscriber: str = "pace"
+    pace_timeout_s: float = PACE_TIMEOUT_S
+
+    def __post_init__(self) -> None:
+        if not 2 <= self.history_depth <= 1_000_000:
+            raise ValueError(f"history_depth {self.history_depth!r} must be 2..1000000")
+        if self.slow_subscriber not in SLOW_SUBSCRIBER:
+            raise ValueError(f"slow_subscriber {self.slow_subscriber!r} must be one of "
+                             f"{', '.join(SLOW_SUBSCRIBER)}")
+        if not 0 < self.pace_timeout_s < float("inf"):
+            raise ValueError(f"pace_timeout_s {self.pace_timeout_s!r} must be > 0")
+
+    @property
+    def paced(self) -> bool:
+        """Whether the virtual clock waits for the subscribers of ``/joint_states``."""
+        return self.clock and self.slow_subscriber == "pace"
 
 
 #: A trajectory with more points is refused unread (a peer must not fill the node's memory).
@@ -113,10 +142,11 @@ def _time_msg(msg: Any, t_s: float) -> None:
 
 
 class ArmNode:
-    """The node over an open :class:`PublishingArm`; :meth:`run` until cancelled or the link is
-    lost (then returns 1)."""
+    """The node over an open arm; :meth:`run` until cancelled or the link is lost (then returns
+    1). ``/armbench/commanded`` needs a :class:`PublishingArm` (over another arm, such as a bench
+    run's connection, the topic stays silent: the run's capture has the commands)."""
 
-    def __init__(self, arm: PublishingArm, options: NodeOptions = NodeOptions()) -> None:
+    def __init__(self, arm: Arm, options: NodeOptions = NodeOptions()) -> None:
         self.arm = arm
         self.options = options
         self.names = [j.name for j in arm.settings.joints]
@@ -135,10 +165,21 @@ class ArmNode:
         self._job_id = 0
         self._abort_reason: str | None = None
         self._pace0: tuple[float, float] | None = None
+        self.paced_s = 0.0
+        """Real seconds the loop waited for subscribers of ``/joint_states`` (``pace``)."""
+        self.stalls = 0
+        """Times a subscriber acknowledged nothing for ``pace_timeout_s`` (``pace``)."""
+        self._stalled = False
+        self._checked = 0
+        self.dropped = 0
+        """``/joint_states`` messages the DDS writer refused (never published to anyone)."""
+        self._dropping = False
+        self._pace_every = max(1, options.history_depth // 2)
         require_rclpy()  # imported here: without the extra this module still imports
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.impl.implementation_singleton import rclpy_implementation
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
@@ -147,6 +188,7 @@ class ArmNode:
         from trajectory_msgs.msg import JointTrajectory
 
         self._msg_js, self._msg_string = JointStateMsg, String
+        self._rcl_error: type[Exception] = rclpy_implementation.RCLError
         self.context = Context()
         rclpy.init(context=self.context, domain_id=options.domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
@@ -155,12 +197,12 @@ class ArmNode:
         reliable = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        # on virtual time every message is kept until each reliable subscriber has it: the
-        # stream comes many times faster than real time, and a subscriber held up for a moment
-        # (a loaded host) would otherwise lose what the history of JOINT_STATES_DEPTH overflows
-        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"], (
-            QoSProfile(depth=JOINT_STATES_DEPTH, history=HistoryPolicy.KEEP_ALL)
-            if options.clock else JOINT_STATES_DEPTH))
+        # bounded (KEEP_LAST): a subscriber that stops acknowledging loses the oldest instead of
+        # filling the node's memory or blocking its publish; on virtual time ``pace`` holds the
+        # clock every half history until all is acknowledged, so nothing is lost meanwhile
+        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"], QoSProfile(
+            depth=options.history_depth, history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.RELIABLE))
         self._pub_urdf = n.create_publisher(String, TOPICS["robot_description"], latched)
         self._pub_cmd = n.create_publisher(JointStateMsg, TOPICS["commanded"], 50)
         self._pub_events = n.create_publisher(String, TOPICS["events"], 50)
@@ -174,7 +216,8 @@ class ArmNode:
         self._js = JointStateMsg()
         self._js.name = list(self.names)
         self._clock = Clock()
-        arm.on_command = self._on_command
+        if isinstance(arm, PublishingArm):
+            arm.on_command = self._on_command
 
     # --- the ROS thread ---------------------------------------------------------------------
 
@@ -215,7 +258,19 @@ class ArmNode:
         js = self._js
         _time_msg(js.header.stamp, t)
         js.position = list(state.q_rad)
-        self._pub_js.publish(js)
+        try:
+            self._pub_js.publish(js)
+        except self._rcl_error as exc:  # the DDS writer refused it (a subscriber holds it up)
+            self.dropped += 1
+            if not self._dropping:
+                self._dropping = True
+                log.warning("/joint_states: a message could not be published (%s): dropping "
+                            "while a subscriber holds the writer up", exc)
+                self.event("joint_states_dropped", reason=str(exc))
+            return
+        if self._dropping:
+            self._dropping = False
+            log.warning("/joint_states: publishing again after %d dropped", self.dropped)
         self.published += 1
 
     def event(self, kind: str, **fields: Any) -> None:
@@ -315,8 +370,43 @@ class ArmNode:
                 del buf[:]
                 for state in batch:
                     self.publish_state(state)
+                if self.options.paced:
+                    self._wait_for_subscribers()
                 if self.options.realtime_factor is not None:
                     self._pace(batch[-1].t_s if batch else self._loop.time())
+
+    def _wait_for_subscribers(self) -> None:
+        """``pace``: every half history, hold the loop (a blocking wait: virtual time must not run
+        on) until every reliable subscriber has acknowledged every ``/joint_states``, so the
+        history never drops what one has not got. A subscriber that acknowledges nothing for
+        ``pace_timeout_s`` is no longer waited for (event ``subscriber_stalled``) until all is
+        acknowledged again (``subscriber_back``)."""
+        offered = self.published + self.dropped
+        if offered - self._checked < self._pace_every:
+            return
+        self._checked = offered
+        from rclpy.duration import Duration
+
+        if self._pub_js.wait_for_all_acked(Duration(nanoseconds=0)):  # no wait: all caught up
+            if self._stalled:
+                self._stalled = False
+                log.warning("/joint_states: every subscriber keeps up again: pacing again")
+                self.event("subscriber_back")
+            return
+        if self._stalled:
+            return
+        t0 = time.perf_counter()
+        acked = self._pub_js.wait_for_all_acked(
+            Duration(nanoseconds=round(self.options.pace_timeout_s * 1e9)))
+        self.paced_s += time.perf_counter() - t0
+        if not acked:
+            self._stalled = True
+            self.stalls += 1
+            log.warning("/joint_states: a subscriber acknowledged nothing for %.3g s: no longer "
+                        "waiting for it; it loses the oldest beyond the history of %d",
+                        self.options.pace_timeout_s, self.options.history_depth)
+            self.event("subscriber_stalled", timeout_s=self.options.pace_timeout_s,
+                       history_depth=self.options.history_depth)
 
     def _pace(self, virtual_s: float) -> None:
         """Hold the loop (a blocking sleep: nothing else may run ahead) so that virtual time runs
