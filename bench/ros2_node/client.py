@@ -8,11 +8,12 @@ Modes:
   the rate per stamp second, the latency of each message (receive wall time − stamp; in real
   time only the node stamps with wall-clock time) as p50/p99, and the client node's clock at the
   end (``--sim-time``: ``use_sim_time``, so the time of ``/clock``).
-* ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
-  [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
-  times, each next one as soon as the previous one is under way, and the final status of each;
-  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events (``--wait-event
-  KIND`` waits for one too: topics are not ordered with each other).
+* ``send --trajectory JSON`` (or ``--trajectory-file FILE``): publish one ``JointTrajectory``
+  (``{"names": [...], "points": [[q...]...], "times_s": [...]}``) and report the node's final
+  status for it; given several times, each next one as soon as the previous one is under way,
+  and the final status of each; ``seen``: the goals seen on ``/armbench/commanded``
+  (``--no-commanded``: not waited for) and the kinds of the events (``--wait-event KIND`` waits
+  for one too: topics are not ordered with each other).
 * ``idle``: subscribe ``/joint_states`` (reliable, ``KEEP_ALL``) and never take a message: a
   subscriber that stopped reading. Prints ``{"subscribed": true}`` once the node's publisher is
   matched, then stays until ``--timeout``.
@@ -20,7 +21,8 @@ Modes:
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
 
-Every wait is bounded by ``--timeout`` (real seconds), a guard against a hung graph only.
+``--namespace NS``: the node's namespace. Every wait is bounded by ``--timeout`` (real
+seconds), a guard against a hung graph only.
 """
 
 from __future__ import annotations
@@ -217,17 +219,19 @@ class Sender:
 
 
 def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
-             wait_events: Sequence[str] = ()) -> dict[str, Any]:
+             wait_events: Sequence[str] = (), *, wait_commanded: bool = True) -> dict[str, Any]:
     """``send`` mode: each trajectory once the previous one is accepted (or refused), then the
     final status of the last (and the events of ``wait_events``: topics are not ordered with
-    each other); with several, ``{"statuses": [final status of each]}``."""
+    each other; and, with ``wait_commanded``, the goals of the last on ``/armbench/commanded``);
+    with several, ``{"statuses": [final status of each]}``."""
     if not trajectories:
         raise SystemExit("send: give --trajectory JSON")
     for k, t in enumerate(trajectories):
         last = k == len(trajectories) - 1
         out = sender.send(t["names"], t["points"], t["times_s"],
                           until=FINAL if last else ("accepted", *FINAL))
-    written = out.get("waypoints", 0)  # of a trajectory done: its goals, on a topic of their own
+    # of a trajectory done: its goals, on a topic of their own
+    written = out.get("waypoints", 0) if wait_commanded else 0
     _spin_until(sender.node, lambda: (all(k in sender.events for k in wait_events)
                                       and len(sender.commanded) >= written),
                 sender.deadline, f"the events {list(wait_events)} and {written} goals")
@@ -240,13 +244,14 @@ def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
 
 def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
                       centre_m: Sequence[float], side_m: float, speed_m_s: float,
-                      spacing_m: float, branch: str) -> tuple[list[list[float]], list[float]]:
+                      spacing_m: float, branch: str, *,
+                      roll_rad: float = 0.0) -> tuple[list[list[float]], list[float]]:
     """The square's waypoints (joint angles, rad) and their ``time_from_start`` (s, from the
     first corner) as :meth:`armbench.drivers.arm.Arm.follow_path` plans them."""
     corners = square_yz(centre_m, side_m)
     pts, qs = plan_path([*corners, corners[0]], settings,
                         (near_rad[0], near_rad[1], near_rad[2], near_rad[3]),
-                        spacing_m=spacing_m, branch=branch)
+                        roll_rad=roll_rad, spacing_m=spacing_m, branch=branch)
     times = [0.0]
     for k in range(1, len(qs)):
         seg_s = float(np.linalg.norm(pts[k] - pts[k - 1])) / speed_m_s
@@ -277,6 +282,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trajectory", action="append", default=[],
                    help="send: a trajectory as JSON; given again, each next one is sent as soon "
                         "as the previous one is under way (it replaces it)")
+    p.add_argument("--trajectory-file", action="append", default=[], metavar="FILE",
+                   help="send: a trajectory as a JSON file (after those of --trajectory)")
+    p.add_argument("--no-commanded", action="store_true",
+                   help="send: do not wait for the goals on /armbench/commanded (a node over "
+                        "an arm that does not publish them)")
+    p.add_argument("--namespace", default="",
+                   help="the node's namespace (the armbench node's --namespace)")
     p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
                    help="send: also wait for an event of this kind on /armbench/events")
     p.add_argument("--settings", default=None)
@@ -297,8 +309,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init()
     from rclpy.parameter import Parameter
 
-    node = rclpy.create_node(f"armbench_client_{args.mode}", parameter_overrides=[
-        Parameter("use_sim_time", value=args.sim_time)])
+    node = rclpy.create_node(f"armbench_client_{args.mode}", namespace=args.namespace or None,
+                             parameter_overrides=[Parameter("use_sim_time",
+                                                            value=args.sim_time)])
     try:
         if args.mode == "listen":
             out = listen(node, args.count, deadline)
@@ -307,8 +320,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             sender = Sender(node, deadline)
             if args.mode == "send":
-                out = send_all(sender, [json.loads(t) for t in args.trajectory],
-                               args.wait_event)
+                trajectories = [json.loads(t) for t in args.trajectory]
+                for name in args.trajectory_file:
+                    with open(name, encoding="utf-8") as f:
+                        trajectories.append(json.load(f))
+                out = send_all(sender, trajectories, args.wait_event,
+                               wait_commanded=not args.no_commanded)
             else:
                 out = square(sender, load_settings(args.settings), args)
     except Timeout as exc:

@@ -53,14 +53,15 @@ __all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBE
 
 log = logging.getLogger("armbench.ros2")
 
-#: Every topic of the node by its role.
+#: Every topic of the node by its role: relative names, so they resolve under the node's
+#: namespace (``/`` by default: ``/joint_states``); ``/clock`` is the graph's, absolute.
 TOPICS: Final = {
-    "joint_states": "/joint_states",
-    "robot_description": "/robot_description",
-    "trajectory": "/armbench/joint_trajectory",
-    "status": "/armbench/trajectory_status",
-    "commanded": "/armbench/commanded",
-    "events": "/armbench/events",
+    "joint_states": "joint_states",
+    "robot_description": "robot_description",
+    "trajectory": "armbench/joint_trajectory",
+    "status": "armbench/trajectory_status",
+    "commanded": "armbench/commanded",
+    "events": "armbench/events",
     "clock": "/clock",
 }
 #: History kept for ``/joint_states`` (reliable, ``KEEP_LAST``): the most a subscriber that has
@@ -90,15 +91,18 @@ class PublishingArm(Arm):
 
 @dataclass(frozen=True)
 class NodeOptions:
-    """``node_name``; ``clock``: publish ``/clock`` (virtual time); ``max_duty``: fastest duty a
-    trajectory may ask for; ``lookahead_s``: streaming look-ahead; ``domain_id``: ROS domain
-    (None: ``ROS_DOMAIN_ID``); ``realtime_factor``: on virtual time, at most this many virtual
-    seconds per real second (None: as fast as the emulator runs); ``history_depth``: the
-    ``/joint_states`` history (:data:`JOINT_STATES_DEPTH`); ``slow_subscriber``: on virtual
-    time, ``pace`` or ``drop`` (:data:`SLOW_SUBSCRIBER`; real time always drops: the arm does not
-    wait); ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`."""
+    """``node_name``; ``namespace``: the node's namespace (topics resolve under it; "" is ``/``:
+    a second arm or a bench suite's node on the same graph takes one of its own); ``clock``:
+    publish ``/clock`` (virtual time); ``max_duty``: fastest duty a trajectory may ask for;
+    ``lookahead_s``: streaming look-ahead; ``domain_id``: ROS domain (None: ``ROS_DOMAIN_ID``);
+    ``realtime_factor``: on virtual time, at most this many virtual seconds per real second
+    (None: as fast as the emulator runs); ``history_depth``: the ``/joint_states`` history
+    (:data:`JOINT_STATES_DEPTH`); ``slow_subscriber``: on virtual time, ``pace`` or ``drop``
+    (:data:`SLOW_SUBSCRIBER`; real time always drops: the arm does not wait);
+    ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`."""
 
     node_name: str = "armbench"
+    namespace: str = ""
     clock: bool = False
     max_duty: int = MAX_DUTY
     lookahead_s: float = LOOKAHEAD_S
@@ -192,7 +196,8 @@ class ArmNode:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=options.domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(options.node_name, context=self.context)
+        self.node = rclpy.create_node(options.node_name, context=self.context,
+                                      namespace=options.namespace or None)
         n = self.node
         reliable = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

@@ -13,6 +13,7 @@ import argparse
 import asyncio
 import json
 import math
+import re
 import signal
 from typing import Any
 
@@ -45,6 +46,9 @@ def register(sub: Any) -> None:
                    help="serve S seconds (loop time: simulated seconds on fake://), default: "
                         "until Ctrl-C or SIGTERM")
     p.add_argument("--node-name", default="armbench", help="ROS node name (default armbench)")
+    p.add_argument("--namespace", default="", metavar="NS",
+                   help="the node's namespace: its topics resolve under it (default: /, so "
+                        "/joint_states); one per arm when several share a graph")
     p.add_argument("--domain-id", type=int, default=None, metavar="N",
                    help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
@@ -83,6 +87,9 @@ def _check(args: argparse.Namespace) -> None:
                                                  and args.realtime_factor > 0):
         raise InvalidTargetError(None, "--realtime-factor", args.realtime_factor,
                                  "must be > 0")
+    if args.namespace and not re.fullmatch(r"(/[A-Za-z_][A-Za-z0-9_]*)+", args.namespace):
+        raise InvalidTargetError(None, "--namespace", args.namespace,
+                                 "must be /name[/name...] (letters, digits, _)")
     if not 2 <= args.history_depth <= 1_000_000:
         raise InvalidTargetError(None, "--history-depth", args.history_depth,
                                  "must be 2..1000000")
@@ -104,7 +111,8 @@ def _run(args: argparse.Namespace) -> int:
     from armbench.bench.ros2_node.node import NodeOptions
 
     settings = load_settings(args.settings)
-    options = NodeOptions(node_name=args.node_name, clock=target_of(args.port).virtual,
+    options = NodeOptions(node_name=args.node_name, namespace=args.namespace,
+                          clock=target_of(args.port).virtual,
                           max_duty=args.max_duty, domain_id=args.domain_id,
                           realtime_factor=args.realtime_factor,
                           history_depth=args.history_depth, slow_subscriber=args.slow_subscriber,
