@@ -1,19 +1,34 @@
-"""What the suites and the report agree on, defined once: each suite's name, its metric names, its
-trial and suite parameters, the keys of its samples and events, and the headline figures the
-report leads with. The suites write records with these names; the report sections read them with
-the same names, so a rename on one side is a rename on both.
+"""What every suite and its report section agree on, and where each suite's contract is found.
 
-Plain data and string builders only (no numpy, no driver): the report imports this module without
-reaching the driver.
+A suite's contract names what the suite records and the report reads: the suite's name, its
+metric names, its trial and suite parameters, the keys of its samples and events, and the
+headline figures the report leads with. Each contract is defined with its suite, in a light
+module of plain data (no numpy, no driver) that the suite and its report section both import and
+that calls :func:`register` when imported. This module holds what every contract shares
+(:class:`Headline`, :class:`SampleKeys`, the samples' rounding) and the registry: record readers
+(the record, the metrics, the report) find a contract by its suite's name with :func:`contract`,
+never by importing a suite.
+
+The registry is filled on first use by discovery, so adding a suite edits no list: every module
+of :data:`BUILTIN_PACKAGE` whose name ends in :data:`CONTRACT_SUFFIX`, then every entry point of
+the group :data:`ENTRY_POINT_GROUP` (another distribution's suites). Only those modules are
+imported, never the suites themselves.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
+import pkgutil
+import warnings
 from dataclasses import dataclass
-from typing import Final, Protocol, TypeVar
+from typing import Final, Protocol, TypeVar, overload, runtime_checkable
 
 __all__ = [
     "ACCURACY",
+    "BUILTIN_PACKAGE",
+    "CONTRACT_SUFFIX",
+    "ENTRY_POINT_GROUP",
     "JOINTS",
     "POS_DECIMALS",
     "RAD_DECIMALS",
@@ -30,7 +45,10 @@ __all__ = [
     "StartupNames",
     "SuiteContract",
     "TwinCheckNames",
+    "UnknownContractError",
+    "contract",
     "contracts",
+    "forget",
     "register",
     "resolution",
 ]
@@ -88,13 +106,18 @@ class SampleKeys:
 SAMPLE: Final = SampleKeys()
 
 
+@runtime_checkable
 class SuiteContract(Protocol):
-    """What every suite's contract says: the suite's name, whether it records true figures beside
-    the encoders', the suite class that runs it (by name: this layer imports no suite) and the
-    headline figures the report leads with."""
+    """What every suite's contract says: the suite's name, its place in the default run and in
+    the report (``order``: lower first), whether it records true figures beside the encoders',
+    the suite class that runs it (``"module:Class"``, by name: this layer imports no suite;
+    ``None``: recorded by something else) and the headline figures the report leads with."""
 
     @property
     def suite(self) -> str: ...
+
+    @property
+    def order(self) -> int: ...
 
     @property
     def has_true_figures(self) -> bool: ...
@@ -106,22 +129,86 @@ class SuiteContract(Protocol):
     def headlines(self) -> tuple[Headline, ...]: ...
 
 
+#: The package whose modules named ``*<CONTRACT_SUFFIX>`` are the built-in suites' contracts.
+BUILTIN_PACKAGE: Final = "armbench.bench.suites"
+#: How a built-in contract module's name ends (``accuracy_contract``): only these are imported.
+CONTRACT_SUFFIX: Final = "_contract"
+#: Entry-point group under which other distributions register a suite's contract, as
+#: ``name = "package.module:CONTRACT"`` (the module is imported, the object registered).
+ENTRY_POINT_GROUP: Final = "armbench.suite_contracts"
+
 _CONTRACTS: dict[str, SuiteContract] = {}
-_C = TypeVar("_C", bound=SuiteContract)
+_discovery = {"done": False}
+_C = TypeVar("_C")
+
+
+class UnknownContractError(LookupError):
+    """No registered contract for a suite name (or not one of the shape the reader needs)."""
 
 
 def register(contract: _C) -> _C:
-    """Add a suite's contract to :func:`contracts` (where it is defined: no list to edit
-    elsewhere); a second contract of the same suite name is a bug."""
+    """Add a suite's contract to the registry (called by the module that defines it: no list to
+    edit elsewhere); a second contract of the same suite name is a bug."""
+    if not isinstance(contract, SuiteContract):
+        raise TypeError(f"{contract!r} is not a suite contract (suite, order, has_true_figures, "
+                        "implementation, headlines)")
     if contract.suite in _CONTRACTS:
         raise ValueError(f"two contracts of suite {contract.suite!r}")
     _CONTRACTS[contract.suite] = contract
     return contract
 
 
+def _discover() -> None:
+    """Import every contract module once: the built-ins, then the entry points. A contract that
+    cannot be loaded is left out with a warning (its suite is then shown as any unknown suite),
+    so one broken plug-in does not stop a record from being read."""
+    if _discovery["done"]:
+        return
+    _discovery["done"] = True
+    package = importlib.import_module(BUILTIN_PACKAGE)
+    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda i: i.name):
+        if info.name.endswith(CONTRACT_SUFFIX):
+            importlib.import_module(f"{BUILTIN_PACKAGE}.{info.name}")
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            found = ep.load()
+            if not any(c is found for c in _CONTRACTS.values()):
+                register(found)
+        except Exception as exc:  # a plug-in's failure: reported, not fatal
+            warnings.warn(f"suite contract entry point {ep.name} = {ep.value}: {exc}",
+                          RuntimeWarning, stacklevel=2)
+
+
+def forget(suite: str) -> None:
+    """Remove a suite's contract and discover again on next use (a test's suite, unregistered)."""
+    _CONTRACTS.pop(suite, None)
+    _discovery["done"] = False
+
+
 def contracts() -> tuple[SuiteContract, ...]:
-    """Every suite's contract, in the order they are defined (the report's order of suites)."""
-    return tuple(_CONTRACTS.values())
+    """Every suite's contract, by ``order`` (then by name): the default run's and the report's
+    order of suites."""
+    _discover()
+    return tuple(sorted(_CONTRACTS.values(), key=lambda c: (c.order, c.suite)))
+
+
+@overload
+def contract(suite: str) -> SuiteContract: ...
+@overload
+def contract(suite: str, shape: type[_C]) -> _C: ...
+def contract(suite: str, shape: type[object] = SuiteContract) -> object:
+    """The registered contract of ``suite``. ``shape`` (a ``runtime_checkable`` protocol of the
+    names a reader uses) is checked, so a reader fails with the suite's name rather than on a
+    missing attribute; :class:`UnknownContractError` when there is none or it lacks a name."""
+    _discover()
+    found = _CONTRACTS.get(suite)
+    if found is None:
+        raise UnknownContractError(f"no contract of suite {suite!r} (known: "
+                                   f"{', '.join(c.suite for c in contracts())})")
+    if not isinstance(found, shape):
+        raise UnknownContractError(f"the contract of suite {suite!r} lacks names "
+                                   f"{shape.__name__} needs")
+    return found
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +216,8 @@ class AccuracyNames:
     """The accuracy suite (the paper's square, §7)."""
 
     suite: str = "accuracy"
+    #: place in the default run and in the report (lower first)
+    order: int = 10
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
     #: what runs the suite: ``module:Class``, imported only when the suite is loaded
@@ -186,6 +275,8 @@ class RepeatabilityNames:
     """The repeatability suite (ISO 9283)."""
 
     suite: str = "repeatability"
+    #: place in the default run and in the report (lower first)
+    order: int = 20
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
     #: what runs the suite: ``module:Class``, imported only when the suite is loaded
@@ -253,6 +344,8 @@ class StartupNames:
     """The startup-recovery suite (paper §5.2): power cuts and EEPROM wear."""
 
     suite: str = "startup-recovery"
+    #: place in the default run and in the report (lower first)
+    order: int = 30
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
     #: what runs the suite: ``module:Class``, imported only when the suite is loaded
@@ -394,6 +487,8 @@ class JointsNames:
     """The joints suite (ISO 230-2 bidirectional positioning of each joint)."""
 
     suite: str = "joints"
+    #: place in the default run and in the report (lower first)
+    order: int = 40
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
     #: what runs the suite: ``module:Class``, imported only when the suite is loaded
@@ -441,6 +536,8 @@ class TwinCheckNames:
     :mod:`armbench.bench.twin_record`; the report's twin-check section)."""
 
     suite: str = "twin-check"
+    #: place in the default run and in the report (lower first)
+    order: int = 90
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
     #: what runs the suite as ``module:Class`` (None: recorded by ``armbench twin-check``)

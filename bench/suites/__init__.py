@@ -1,7 +1,10 @@
 """The bench suites, by name: what ``armbench run SUITE ...`` runs.
 
-:data:`SUITES` maps each suite's command-line name to ``"module:Class"``, as the suite's contract
-names it (``record/suite_contract.py``); the module is imported only when the suite is loaded,
+Each suite is its module (or folder) here plus a light contract module ``<suite>_contract.py``
+that registers what the suite records (:mod:`armbench.record.suite_contract`). :data:`SUITES`
+maps each suite's command-line name to ``"module:Class"``, as its contract names it, built on
+first use from the registered contracts (so importing this package to reach a contract module
+discovers nothing and imports no suite); the module is imported only when the suite is loaded,
 so a broken or slow suite module costs nothing to the others. Other distributions register
 suites as entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.suites``), as
 transports are registered. Besides a registered name, :func:`load_suite` accepts a
@@ -45,11 +48,26 @@ __all__ = [
     "suite_names",
 ]
 
-#: Suite name on the command line → ``"module:Class"`` (imported lazily), in the default order:
-#: every registered suite contract that names its implementation
-#: (:func:`armbench.record.suite_contract.register`), so adding a suite edits no list here.
-SUITES: dict[str, str] = {c.suite: c.implementation for c in contracts()
-                          if c.implementation is not None}
+_SUITES: dict[str, str] = {}
+_built: list[bool] = []
+
+
+def _suites() -> dict[str, str]:
+    """:data:`SUITES`, built on first use: suite name on the command line → ``"module:Class"``
+    (imported lazily), in the default order: every registered suite contract that names its
+    implementation (:func:`armbench.record.suite_contract.contracts`), so adding a suite edits no
+    list here. The same dict on every access (a test may add to it)."""
+    if not _built:
+        _built.append(True)
+        _SUITES.update((c.suite, c.implementation) for c in contracts()
+                       if c.implementation is not None)
+    return _SUITES
+
+
+def __getattr__(name: str) -> dict[str, str]:
+    if name == "SUITES":
+        return _suites()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: Entry-point group under which distributions register suites by name.
@@ -64,14 +82,14 @@ class UnknownSuiteError(SuiteError):
     """A suite name that is neither registered nor a ``module:Class``; lists the known names."""
 
     def __init__(self, name: str) -> None:
-        super().__init__(f"unknown suite {name!r} (known: {', '.join(SUITES)}; or give "
+        super().__init__(f"unknown suite {name!r} (known: {', '.join(suite_names())}; or give "
                          "package.module:Class of a Suite subclass)")
         self.name = name
 
 
 def suite_names() -> list[str]:
     """The registered suite names, in the default run order."""
-    return list(SUITES)
+    return list(_suites())
 
 
 def registered_suites() -> dict[str, str]:
@@ -80,7 +98,7 @@ def registered_suites() -> dict[str, str]:
     imported."""
     found = {ep.name: f"{ep.module}:{ep.attr}"
              for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    return {**found, **SUITES}
+    return {**found, **_suites()}
 
 
 def is_suite_spec(name: str) -> bool:
@@ -95,7 +113,7 @@ def suite_class(name: str) -> type[Suite]:
     Raises :class:`UnknownSuiteError` for an unknown name and :class:`SuiteError` when the module
     cannot be imported or the attribute is not a :class:`Suite` subclass.
     """
-    target = SUITES.get(name) or registered_suites().get(name)
+    target = _suites().get(name) or registered_suites().get(name)
     if target is None:
         if not is_suite_spec(name):
             raise UnknownSuiteError(name)

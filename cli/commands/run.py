@@ -21,7 +21,7 @@ from typing import Any
 
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet_run import parse_arms
-from armbench.bench.suites import SUITES
+from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
@@ -39,7 +39,7 @@ def register(sub: Any) -> None:
                     "junit.xml, report.html and the traffic capture capture.mcap.",
         epilog=EXIT_STATUS_EPILOG)
     p.add_argument("suites", nargs="*", metavar="SUITE",
-                   help=f"suites to run (default: all: {', '.join(SUITES)}); "
+                   help=f"suites to run (default: all: {', '.join(suite_names())}); "
                         "package.module:Class runs a suite of your own")
     p.add_argument("--port", action="append", default=None, metavar="[NAME=]PORT",
                    help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT, "
