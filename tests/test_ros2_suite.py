@@ -23,7 +23,8 @@ from far_end import Emulator
 
 from armbench.bench.ros2_node import missing_ros2
 from armbench.bench.suites import registered_suites, suite_class, suite_names
-from armbench.record.suite_contract import ACCURACY, ROS2_SQUARE
+from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
+from armbench.record.suite_contract import ACCURACY
 
 needs_ros2 = pytest.mark.skipif(missing_ros2() is not None,
                                 reason=f"armbench[ros2] not installed: {missing_ros2()}")

@@ -57,6 +57,7 @@ from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by
     path_figures,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.paths import PathRun
 from armbench.drivers.protocol import MAX_DUTY
@@ -64,7 +65,6 @@ from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.vclock import VirtualTimeLoop
 from armbench.metrics import sample_polyline, square_yz
 from armbench.record import Measurement, Trial
-from armbench.record.suite_contract import ROS2_SQUARE
 
 __all__ = ["STYLES", "Ros2SquareSuite"]
 

@@ -1,8 +1,9 @@
 """The ros2-square section: the accuracy square through ROS 2 against the driver's own
 coordinated run, side by side (the figures the suite recorded, the paths in the YZ plane).
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.ROS2_SQUARE`); every
-figure in the tables is one the record holds.
+Names come from the suite contract
+(:data:`armbench.bench.suites.ros2_square_contract.ROS2_SQUARE`); every figure in the tables is
+one the record holds.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.metrics import square_yz
 from armbench.record import Measurement, RunRecord, SuiteRecord
-from armbench.record.suite_contract import ROS2_SQUARE, SAMPLE
+from armbench.record.suite_contract import SAMPLE
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_value
 from armbench.reports.plotting import MAX_LINE_POINTS
