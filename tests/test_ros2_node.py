@@ -221,6 +221,34 @@ def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str)
         assert node.paced_s == 0.0 and node.stalls == 0
 
 
+def test_nodes_in_namespaces_of_their_own_do_not_hear_each_other() -> None:
+    """Two arms on one ROS domain (or two bench trials measured at once): a trajectory sent to
+    one namespace moves that arm only."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    target = [0.1, 0.0, 0.0, 0.0]
+    t = {"names": NAMES, "points": [target], "times_s": [3.0]}
+
+    async def main() -> tuple[dict[str, Any], list[int], list[int]]:
+        async with PublishingArm("fake://", S) as arm_a, PublishingArm("fake://", S) as arm_b:
+            nodes = [ArmNode(arm_a, NodeOptions(namespace="/arm_a", clock=True)),
+                     ArmNode(arm_b, NodeOptions(namespace="/arm_b"))]
+            serving = [asyncio.ensure_future(n.run()) for n in nodes]
+            try:
+                got = await _client("send", "--namespace", "/arm_a", "--trajectory",
+                                    json.dumps(t))
+            finally:
+                for task in serving:
+                    task.cancel()
+                await asyncio.wait(serving)
+            return got, [n.accepted for n in nodes], [a.commands_sent for a in (arm_a, arm_b)]
+
+    got, accepted, sent = run_virtual(main())
+    assert got["state"] == "done" and got["seen"]["commanded"], got
+    assert accepted == [1, 0]
+    assert sent[1] == 1  # arm b: only the hold of its node's shutdown
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))
