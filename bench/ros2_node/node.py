@@ -175,9 +175,9 @@ class ArmNode:
         """Times a subscriber acknowledged nothing for ``pace_timeout_s`` (``pace``)."""
         self._stalled = False
         self._checked = 0
-        self.dropped = 0
-        """``/joint_states`` messages the DDS writer refused (never published to anyone)."""
-        self._dropping = False
+        self.refused: dict[str, int] = {}
+        """Messages the DDS writers refused, by topic role (:data:`TOPICS`)."""
+        self._refusing: set[str] = set()
         self._pace_every = max(1, options.history_depth // 2)
         require_rclpy()  # imported here: without the extra this module still imports
         import rclpy
@@ -254,45 +254,59 @@ class ArmNode:
         """ROS time (s) of loop time ``loop_t_s``: virtual seconds, or wall-clock seconds."""
         return loop_t_s + self._wall_offset_s
 
+    @property
+    def dropped(self) -> int:
+        """``/joint_states`` messages the DDS writer refused (never published to anyone)."""
+        return self.refused.get("joint_states", 0)
+
+    def _publish(self, publisher: Any, msg: Any, role: str) -> bool:
+        """Publish ``msg`` on the topic of ``role``; a message the DDS writer refuses (a reliable
+        subscriber that stopped reading holds its history up) is counted in :attr:`refused`, with
+        one warning and one ``dropped`` event per episode, and the node goes on."""
+        try:
+            publisher.publish(msg)
+        except self._rcl_error as exc:
+            self.refused[role] = self.refused.get(role, 0) + 1
+            if role not in self._refusing:
+                self._refusing.add(role)
+                log.warning("%s: a message could not be published (%s): dropping while a "
+                            "subscriber holds the writer up", TOPICS[role], exc)
+                if role != "events":
+                    self.event("dropped", topic=TOPICS[role], reason=str(exc))
+            return False
+        if role in self._refusing:
+            self._refusing.discard(role)
+            log.warning("%s: publishing again after %d dropped", TOPICS[role],
+                        self.refused[role])
+        return True
+
     def publish_state(self, state: JointState) -> None:
         """``/clock`` (virtual time) and ``/joint_states`` for one reply."""
         t = self.stamp_s(state.t_s)
         if self._pub_clock is not None:
             _time_msg(self._clock.clock, t)
-            self._pub_clock.publish(self._clock)
+            self._publish(self._pub_clock, self._clock, "clock")
         js = self._js
         _time_msg(js.header.stamp, t)
         js.position = list(state.q_rad)
-        try:
-            self._pub_js.publish(js)
-        except self._rcl_error as exc:  # the DDS writer refused it (a subscriber holds it up)
-            self.dropped += 1
-            if not self._dropping:
-                self._dropping = True
-                log.warning("/joint_states: a message could not be published (%s): dropping "
-                            "while a subscriber holds the writer up", exc)
-                self.event("joint_states_dropped", reason=str(exc))
-            return
-        if self._dropping:
-            self._dropping = False
-            log.warning("/joint_states: publishing again after %d dropped", self.dropped)
-        self.published += 1
+        if self._publish(self._pub_js, js, "joint_states"):
+            self.published += 1
 
     def event(self, kind: str, **fields: Any) -> None:
         """Publish an event on ``/armbench/events`` (JSON: ``t_s``, ``kind`` and ``fields``)."""
         text = json.dumps({"t_s": self.stamp_s(self._loop.time()), "kind": kind, **fields})
-        self._pub_events.publish(self._msg_string(data=text))
+        self._publish(self._pub_events, self._msg_string(data=text), "events")
 
     def _status(self, job: int, state: str, stamp: tuple[int, int], **fields: Any) -> None:
         text = json.dumps({"id": job, "state": state, "stamp": list(stamp), **fields})
-        self._pub_status.publish(self._msg_string(data=text))
+        self._publish(self._pub_status, self._msg_string(data=text), "status")
 
     def _on_command(self, t_s: float, command: Command) -> None:
         msg = self._msg_js()
         _time_msg(msg.header.stamp, self.stamp_s(t_s))
         msg.name = list(self.names)
         msg.position = list(command.angles_rad(self.arm._lower, self.arm._upper))
-        self._pub_cmd.publish(msg)
+        self._publish(self._pub_cmd, msg, "commanded")
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -300,7 +314,8 @@ class ArmNode:
         """Serve until ``duration_s`` (loop seconds) passes or the task is cancelled: 0; or until
         the port is lost: 1. The arm is stopped on the way out either way."""
         self._thread.start()
-        self._pub_urdf.publish(self._msg_string(data=robot_urdf(self.arm.settings)))
+        self._publish(self._pub_urdf, self._msg_string(data=robot_urdf(self.arm.settings)),
+                      "robot_description")
         self.event("started", port=self.arm.port, joints=self.names)
         log.info("ROS 2 node %r serving %s", self.options.node_name, self.arm.port)
         states = asyncio.ensure_future(self._publish_states())
