@@ -24,10 +24,12 @@ from far_end import Emulator
 from armbench.bench.ros2_node import missing_ros2
 from armbench.bench.suites import registered_suites, suite_class, suite_names
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
-from armbench.record.suite_contract import ACCURACY
+from armbench.record.suite_contract import contract
 
 needs_ros2 = pytest.mark.skipif(missing_ros2() is not None,
                                 reason=f"armbench[ros2] not installed: {missing_ros2()}")
+#: The accuracy suite's contract, by its name (wherever it is defined).
+ACCURACY: Any = contract("accuracy")
 _DOMAINS = itertools.count()
 #: A short square: two laps of each style take a few seconds of robot time.
 SMALL = """\
