@@ -48,6 +48,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.calibrate.capture_data import CaptureData
+from armbench.bench.suites.twin_check_contract import TWIN_CHECK
 from armbench.bench.twin_align import (
     TICK_RAD,
     Track,
@@ -70,7 +71,6 @@ from armbench.bench.twin_tcp import arm_tcp_from_capture, tcp_divergence
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.record import Measurement, judge
 from armbench.record.limits import LimitsConfig, load_limits
-from armbench.record.suite_contract import TWIN_CHECK
 
 __all__ = ["DEFAULT_CONFIG", "Aligned", "Allowance", "Session", "TwinCheck", "compare",
            "replay_floor", "replay_twin", "sessions", "tcp_divergence", "twin_check"]

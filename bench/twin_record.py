@@ -3,7 +3,7 @@
 ``twin-check``, so ``armbench report``, ``compare``, ``report --index`` and ``--baseline`` read it
 like any run's.
 
-The suite (names from :data:`~armbench.record.suite_contract.TWIN_CHECK`) holds:
+The suite (names from :data:`~armbench.bench.suites.twin_check_contract.TWIN_CHECK`) holds:
 
 * its parameters: the inputs (capture, settings and limits files, each with its SHA-256) and the
   number of buckets the series were kept with;
@@ -26,6 +26,7 @@ import numpy as np
 
 from armbench.bench.outputs import check_out_dir as check_out_dir_writable
 from armbench.bench.runner.options import JUNIT_FILE
+from armbench.bench.suites.twin_check_contract import TWIN_CHECK
 from armbench.bench.twin_check import Aligned, TwinCheck
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
@@ -45,7 +46,7 @@ from armbench.record import (
     path_inside,
 )
 from armbench.record.limits import LimitsConfig
-from armbench.record.suite_contract import RAD_DECIMALS, SAMPLE, TWIN_CHECK
+from armbench.record.suite_contract import RAD_DECIMALS, SAMPLE
 
 __all__ = ["ARRIVAL_BUCKETS", "SERIES_BUCKETS", "VERSION", "TwinInputs", "check_out_dir",
            "file_sha256", "twin_record", "write_twin_record"]

@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Literal
-
-if TYPE_CHECKING:
-    from armbench.drivers.state import JointState
+from typing import Literal, Protocol
 
 __all__ = [
     "ArmbenchError",
@@ -23,6 +20,7 @@ __all__ = [
     "InvalidTargetError",
     "JointRangeError",
     "LabgridError",
+    "LastReply",
     "LinkLostError",
     "MoveInterruptedError",
     "MoveTimeoutError",
@@ -36,6 +34,18 @@ __all__ = [
     "WaitTimeoutError",
     "format_q_rad",
 ]
+
+
+class LastReply(Protocol):
+    """What an error keeps of the newest reply: its loop time and joint angles. The driver's
+    :class:`armbench.drivers.state.JointState` is one; named here by shape, so this module, at
+    the bottom of the layers, imports nothing of the driver above it (not even for typing)."""
+
+    @property
+    def t_s(self) -> float: ...
+
+    @property
+    def q_rad(self) -> tuple[float, float, float, float]: ...
 
 
 class ArmbenchError(Exception):
@@ -137,7 +147,7 @@ class ReplyTimeoutError(DriverError, TimeoutError):
     """No valid reply arrived within ``timeout_s`` while waiting; ``last_state`` is the newest
     state received before (None if none ever arrived)."""
 
-    def __init__(self, port: str, timeout_s: float, last_state: JointState | None) -> None:
+    def __init__(self, port: str, timeout_s: float, last_state: LastReply | None) -> None:
         last = (f"last reply at t = {last_state.t_s:.3f} s: {format_q_rad(last_state.q_rad)}"
                 if last_state is not None else "no reply ever received")
         super().__init__(f"{port}: no valid reply within {timeout_s:g} s ({last})")
@@ -149,7 +159,7 @@ class ReplyTimeoutError(DriverError, TimeoutError):
 class WaitTimeoutError(DriverError, TimeoutError):
     """:meth:`Arm.wait_state` gave up after ``timeout_s``; ``last_state`` is the newest state."""
 
-    def __init__(self, what: str, timeout_s: float, last_state: JointState | None) -> None:
+    def __init__(self, what: str, timeout_s: float, last_state: LastReply | None) -> None:
         last = format_q_rad(last_state.q_rad) if last_state is not None else "no state"
         super().__init__(f"{what} not done within {timeout_s:g} s (last state {last})")
         self.timeout_s = timeout_s
@@ -161,7 +171,7 @@ class MoveTimeoutError(WaitTimeoutError):
     wire), the ``tolerance_rad`` per joint and the ``last_state``."""
 
     def __init__(self, target_rad: Sequence[float], tolerance_rad: Sequence[float],
-                 timeout_s: float, last_state: JointState | None) -> None:
+                 timeout_s: float, last_state: LastReply | None) -> None:
         self.target_rad: tuple[float, float, float, float] = (
             float(target_rad[0]), float(target_rad[1]), float(target_rad[2]), float(target_rad[3]))
         self.tolerance_rad = tuple(tolerance_rad)
@@ -177,7 +187,7 @@ class MoveTimeoutError(WaitTimeoutError):
 class MoveInterruptedError(DriverError):
     """A move was superseded by a newer command (another move, ``stop()``) before arriving."""
 
-    def __init__(self, target_rad: Sequence[float], last_state: JointState | None) -> None:
+    def __init__(self, target_rad: Sequence[float], last_state: LastReply | None) -> None:
         super().__init__(f"move to {format_q_rad(target_rad)} superseded by a newer command")
         self.target_rad = tuple(target_rad)
         self.last_state = last_state

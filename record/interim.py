@@ -14,16 +14,43 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from armbench.metrics import pose_accuracy, pose_repeatability
 from armbench.record.measurement import SuiteRecord
-from armbench.record.suite_contract import REPEATABILITY, SAMPLE
+from armbench.record.suite_contract import SAMPLE, contract, lacks
 
-__all__ = ["InterimPose", "PoseSamples", "Vec3", "interim_pose_figures", "pose_samples"]
+__all__ = ["InterimPose", "PoseSamples", "PoseTrialNames", "Vec3", "interim_pose_figures",
+           "pose_samples"]
 
 Vec3 = tuple[float, float, float]
+
+
+@runtime_checkable
+class PoseTrialNames(Protocol):
+    """The names of a suite's contract these figures are read with (the repeatability suite's,
+    found in the registry by the suite record's name)."""
+
+    @property
+    def speed(self) -> str: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def pose_kind(self) -> str: ...
+    @property
+    def ap(self) -> str: ...
+    @property
+    def rp(self) -> str: ...
+    def pose_metric(self, speed_pct: float, pose: str, figure: str) -> str: ...
+
+
+def _names(suite: SuiteRecord) -> PoseTrialNames:
+    names = contract(suite.name)
+    if not isinstance(names, PoseTrialNames):
+        raise lacks(suite.name, PoseTrialNames)
+    return names
 
 
 def _num(value: object) -> float | None:
@@ -53,7 +80,7 @@ class PoseSamples:
 
 def pose_samples(suite: SuiteRecord) -> PoseSamples:
     """The pose samples of a repeatability suite's record."""
-    R = REPEATABILITY
+    R = _names(suite)
     attained: dict[tuple[float, str], list[Vec3]] = {}
     commanded: dict[str, Vec3] = {}
     cycle_s: dict[float, list[float]] = {}
@@ -87,7 +114,7 @@ def interim_pose_figures(suite: SuiteRecord, samples: PoseSamples | None = None,
     """For every (speed %, pose) with samples whose AP or RP the suite's measurements lack, the
     missing figures computed from the samples (an interrupted suite); empty for a suite that
     ran to its end."""
-    R = REPEATABILITY
+    R = _names(suite)
     samples = pose_samples(suite) if samples is None else samples
     recorded = {m.name for m in suite.measurements}
     out: dict[tuple[float, str], InterimPose] = {}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -18,7 +19,7 @@ from armbench.record import (
     SuiteRecord,
     atomic_write_bytes,
 )
-from armbench.record.suite_contract import ACCURACY, SAMPLE, Headline
+from armbench.record.suite_contract import SAMPLE, Headline, UnknownContractError, contract
 from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, change_text, headline_figure
@@ -93,16 +94,36 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
     return out, figures, figs
 
 
+@runtime_checkable
+class _LapNames(Protocol):
+    """The names of the accuracy suite's contract the overlaid paths are read with."""
+
+    @property
+    def styles(self) -> tuple[str, ...]: ...
+    @property
+    def style(self) -> str: ...
+
+
+#: The suite whose laps are overlaid (its contract is found in the registry by this name).
+_PATH_SUITE = "accuracy"
+
+
 def _paths(a: RunRecord, b: RunRecord, figs: Figures) -> FigureView | None:
     """Fig. 11 of both runs overlaid: the first lap of each style, A dashed, B solid."""
-    sa, sb = a.suites.get(ACCURACY.suite), b.suites.get(ACCURACY.suite)
+    sa, sb = a.suites.get(_PATH_SUITE), b.suites.get(_PATH_SUITE)
     if sa is None or sb is None:
         return None
+    try:
+        names = contract(_PATH_SUITE)
+    except UnknownContractError:
+        return None
+    if not isinstance(names, _LapNames):
+        return None
     panels = []
-    for style in ACCURACY.styles:
+    for style in names.styles:
         runs = []
         for label, suite in (("A", sa), ("B", sb)):
-            trial = next((t for t in suite.trials if t.params.get(ACCURACY.style) == style
+            trial = next((t for t in suite.trials if t.params.get(names.style) == style
                           and t.samples), None)
             if trial is None:
                 continue

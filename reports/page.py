@@ -33,10 +33,10 @@ from armbench.record import (
     load_record,
 )
 from armbench.record.files import atomic_write
-from armbench.record.suite_contract import STARTUP
+from armbench.record.suite_contract import contracts
 from armbench.reports.environment_view import environment_rows, fault_rows, settings_summary
 from armbench.reports.format import format_duration, jinja_environment
-from armbench.reports.scorecard import HEADLINES, score_rows
+from armbench.reports.scorecard import score_rows, suite_headlines
 from armbench.reports.sections import SectionBuilder, generic, registered_sections
 from armbench.reports.sections.traffic import traffic_section
 from armbench.reports.summary import missing_row, not_started_view, suite_view, verdict_reasons
@@ -74,7 +74,7 @@ def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
                        else suite_view(record, suite, key, cmp_rows))
     orphans: list[MeasurementRow] = []
     if record.baseline is not None:
-        prefixes = {STARTUP.prefix: STARTUP.suite}
+        prefixes = {getattr(c, "prefix", c.suite): c.suite for c in contracts()}
         for r in record.baseline.rows:
             if r.status != "missing":
                 continue
@@ -83,9 +83,9 @@ def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
             (owner.rows if owner is not None else orphans).append(missing_row(r))
     sections = []
     for name, suite in record.suites.items():
-        builder = SECTIONS.get(name, generic.build)
+        builder = registered_sections().get(name, generic.build)
         section = builder(record, suite, views[name], figs)
-        section.scorecard = score_rows(record, suite, HEADLINES.get(name), cmp_rows)
+        section.scorecard = score_rows(record, suite, suite_headlines(name), cmp_rows)
         sections.append(section)
     return list(views.values()), sections, orphans
 

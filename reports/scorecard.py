@@ -16,12 +16,18 @@ from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
 from armbench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
-from armbench.record.suite_contract import STARTUP, Headline, contracts
+from armbench.record.suite_contract import (
+    LIFE_WARN_YEARS,
+    Headline,
+    UnknownContractError,
+    contract,
+    contracts,
+)
 from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
-__all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "NO_LIMIT_REASONS",
-           "TRUTH_SUITES", "change_text", "headline_figure", "headline_measurement", "score_rows",
+__all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "TRUTH_SUITES", "change_text",
+           "headline_figure", "headline_measurement", "score_rows", "suite_headlines",
            "true_name"]
 
 #: The headline figures of each suite the contract knows, by suite name, in the contracts' order
@@ -30,17 +36,26 @@ HEADLINES: Mapping[str, Sequence[Headline]] = {c.suite: c.headlines for c in con
 #: Headlines of a suite the contract does not know (the pytest plugin's): its failed
 #: measurements first, then its judged ones, at most this many.
 GENERIC_HEADLINES = 4
-#: A projected lifetime below this many years is flagged (a bench arm is kept for years).
-LIFE_WARN_YEARS = 5.0
 _YEAR_S = 365.25 * 86400.0
-#: Why a headline figure has no limit, by metric name (others: :data:`_NO_LIMIT`).
-NO_LIMIT_REASONS: Mapping[str, str] = {
-    STARTUP.success_rate: "none: §5.2 can't recover all",
-    STARTUP.eeprom_life_years: f"none: warns < {LIFE_WARN_YEARS:g} y",
-}
 #: Suites that record a ``true_`` figure beside each reported position figure when the run has
 #: ground truth: without one, their position figures are the encoders' view.
 TRUTH_SUITES = frozenset(c.suite for c in contracts() if c.has_true_figures)
+
+
+def suite_headlines(name: str) -> Sequence[Headline] | None:
+    """The headline figures of the suite ``name`` as its registered contract names them (looked
+    up when asked, so a contract registered later counts); None for a suite with no contract."""
+    try:
+        return contract(name).headlines
+    except UnknownContractError:
+        return None
+
+
+def _has_true_figures(name: str) -> bool:
+    try:
+        return contract(name).has_true_figures
+    except UnknownContractError:
+        return False
 _NO_LIMIT = "none set"
 _TRUE_LIMIT = "none set"
 
@@ -109,7 +124,8 @@ def change_text(cmp: ComparisonRow) -> tuple[str, str]:
 
 
 def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | None, *,
-         reported: Measurement | None = None, view: str = "") -> ScoreRow:
+         reported: Measurement | None = None, view: str = "",
+         no_limit: str | None = None) -> ScoreRow:
     """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m`` (its limit
     and outcome judge the row, as the run judged it)."""
     change, direction = ("", "") if cmp is None else change_text(cmp)
@@ -121,7 +137,7 @@ def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | N
     elif reported is not None:
         limit = _TRUE_LIMIT
     else:
-        limit = NO_LIMIT_REASONS.get(m.name, _NO_LIMIT)
+        limit = no_limit or _NO_LIMIT
     if not view and m.name.rpartition(".")[2].startswith("true_"):
         view = "true"  # a true figure on its own (a regressed one, say)
     warning = ""
@@ -161,11 +177,12 @@ def score_rows(record: RunRecord, suite: SuiteRecord,
                 continue  # the true figure another headline already shows
             if true is not None:
                 rows.append(_row(h.label, true, cmp_rows.get(true.name), paper,
-                                 reported=found, view="true"))
+                                 reported=found, view="true", no_limit=h.no_limit))
             else:
-                view = ("encoders" if suite.name in TRUTH_SUITES and not has_truth
+                view = ("encoders" if _has_true_figures(suite.name) and not has_truth
                         and _positional(found) else "")
-                rows.append(_row(h.label, found, cmp_rows.get(found.name), paper, view=view))
+                rows.append(_row(h.label, found, cmp_rows.get(found.name), paper, view=view,
+                                 no_limit=h.no_limit))
     shown = {r.metric for r in rows}
     by_name = {m.name: m for m in suite.measurements}
     for cmp in cmp_rows.values():  # every regression of this suite gets a row of its own

@@ -1,6 +1,8 @@
 """The house's rules, checked on the code itself: the import contracts of pyproject.toml
-(import-linter), no import cycle among modules, rooms of at most 600 lines. ruff and mypy --strict
-run as steps of their own (``tox -e lint``, ``tox -e type``, ``.ci/run``).
+(import-linter), no import cycle among modules, rooms of at most 600 lines, and the same layers
+and one connected graph as pydeps reads them (``scripts/structure.py``, ``tox -e structure``).
+ruff and mypy --strict run as steps of their own (``tox -e lint``, ``tox -e type``,
+``.ci/run``).
 
 The import graph is read from the package as installed: a regular install, or an editable one in
 strict mode (``setup.py``), which lays the package out as a tree; the default editable mode maps
@@ -8,10 +10,13 @@ the folders with an import hook that static tools cannot follow."""
 
 from __future__ import annotations
 
+import importlib.util
+import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
 
 import grimp
 import pytest
@@ -178,3 +183,46 @@ def test_a_folder_imported_by_its_bare_name_is_refused(package: str) -> None:
                           timeout=120, check=False)
     assert done.returncode != 0
     assert f"installs as armbench.{package}: import it by that name" in done.stderr
+
+
+def _structure_script() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("structure", ROOT / "scripts" / "structure.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass looks its module up while being defined
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_structure_check_finds_a_piece_apart_and_an_import_up() -> None:
+    """``scripts/structure.py``'s reading of a pydeps graph: a module nothing connects and an
+    import from a layer to one above it are both reported; the pytest plugin may stand apart."""
+    structure = _structure_script()
+    order = [["armbench.cli"], ["armbench.bench"], ["armbench.record"]]
+    deps = {
+        "armbench.cli.main": {"imports": ["armbench.bench.run", "json"]},
+        "armbench.bench.run": {"imports": ["armbench.record.io"]},
+        "armbench.record.io": {"imports": ["armbench.bench.run"]},  # up: record -> bench
+        "armbench.record.lonely": {"imports": []},
+        "armbench.cli.pytest_plugin": {"imports": ["pytest"]},
+        "numpy": {"imports": []},
+    }
+    found = structure.examine(structure.graph_of(deps), order)
+    assert (found.modules, found.edges) == (5, 3)
+    assert found.components == [["armbench.bench.run", "armbench.cli.main", "armbench.record.io"],
+                                ["armbench.cli.pytest_plugin"], ["armbench.record.lonely"]]
+    assert found.problems() == ["not connected to the rest: armbench.record.lonely",
+                                "imports up: armbench.record.io -> armbench.bench.run"]
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("laid_out")
+def test_pydeps_sees_one_piece_and_no_import_up() -> None:
+    """pydeps, reading every import statement (also those only for type checking), sees the
+    layers of pyproject.toml hold and the modules form one piece (the pytest plugin apart)."""
+    if shutil.which("pydeps", path=str(Path(sys.executable).parent)) is None:
+        pytest.skip("pydeps is not installed (pip install pydeps, or the test extra)")
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "structure.py")],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "upward edges 0" in done.stdout

@@ -25,11 +25,11 @@ from test_report import cells, parse
 
 from armbench.bench.runner.fleet_run import arm_name, fleet_exit_status, parse_arms
 from armbench.bench.runner.options import DEFAULT_CONFIG
+from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.cli import main as cli
 from armbench.drivers.errors import ArmbenchError
 from armbench.record import RunRecord, load_record
 from armbench.record.fleet_index import read_fleet_index
-from armbench.record.suite_contract import ACCURACY
 from armbench.reports.fleet_page import render_fleet
 from armbench.reports.format import format_value
 from armbench.reports.scorecard import headline_figure, headline_measurement

@@ -10,9 +10,9 @@ from typing import Any
 
 import pytest
 
+from armbench.bench.suites.repeatability_contract import REPEATABILITY as R
 from armbench.record import SuiteRecord, validate_record
 from armbench.record.interim import interim_pose_figures, pose_samples
-from armbench.record.suite_contract import REPEATABILITY as R
 from armbench.reports import render_report  # type: ignore[attr-defined, unused-ignore]
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"

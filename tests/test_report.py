@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli import main as cli
 from armbench.cli.perf import PerfOptions
 from armbench.record import (
@@ -22,7 +23,6 @@ from armbench.record import (
     Trial,
     load_record,
 )
-from armbench.record.suite_contract import STARTUP
 from armbench.reports import (
     CSP,
     VERDICT_MARKS,

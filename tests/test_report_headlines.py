@@ -16,10 +16,11 @@ from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
 
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.suites.accuracy_contract import ACCURACY
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli.reporting import write_reports
 from armbench.record import Measurement, RunRecord, SuiteRecord, load_record
 from armbench.record.baseline import compare
-from armbench.record.suite_contract import ACCURACY, STARTUP
 from armbench.reports import plots, plots_over_runs, render_index, render_report
 from armbench.reports.compare_page import render_compare
 from armbench.reports.format import format_value

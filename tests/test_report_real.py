@@ -20,10 +20,12 @@ from test_report import Node, cells, parse
 
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import suite_names
+from armbench.bench.suites.accuracy_contract import ACCURACY
+from armbench.bench.suites.repeatability_contract import REPEATABILITY
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli import main as cli
 from armbench.cli.reporting import write_reports
 from armbench.record import RunRecord, load_record
-from armbench.record.suite_contract import ACCURACY, REPEATABILITY, STARTUP
 from armbench.reports import render_index
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"

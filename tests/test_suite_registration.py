@@ -1,23 +1,31 @@
 """A suite's report section and its contract are found by registration: adding a suite's
-section is adding its module to ``reports/sections/``, adding its contract is defining it with
-``register``; no list elsewhere names them."""
+section is adding its module to ``reports/sections/`` (or an entry point), adding its contract is
+a ``*_contract`` module beside the suites (or an entry point) that calls ``register``; no list
+elsewhere names them."""
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+import armbench.record.suite_contract as suite_contract
 import armbench.reports.sections as sections
-from armbench.record.suite_contract import ACCURACY, AccuracyNames, contracts, register
+from armbench.bench.suites.accuracy_contract import ACCURACY, AccuracyNames
+from armbench.record import SuiteRecord, load_record
+from armbench.record.suite_contract import contracts, register
+from armbench.reports.format import format_value
 from armbench.reports.page import SECTIONS
 from armbench.reports.scorecard import HEADLINES, TRUTH_SUITES
 
 
 def test_every_contract_has_its_section_and_headlines() -> None:
     names = [c.suite for c in contracts()]
-    assert names[:2] == ["accuracy", "repeatability"]  # the order they are defined in
+    assert names[:2] == ["accuracy", "repeatability"]  # by their contracts' order
     assert set(SECTIONS) == set(names)
     assert list(HEADLINES) == names
     assert {"accuracy", "repeatability", "joints", "ros2-square"} == TRUTH_SUITES
@@ -62,3 +70,204 @@ def test_the_suites_are_those_their_contracts_name() -> None:
     for name in SUITES:
         assert suite_class(name).name == name
     assert "twin-check" not in SUITES  # recorded by armbench twin-check, run by no suite
+
+
+# A suite from outside armbench: its module, its contract and its report section live in a
+# distribution of their own (written into a temporary folder, found through sys.path), registered
+# by entry points only. Nothing of armbench is edited to run, record and report it.
+_WOBBLE_CONTRACT = '''
+from dataclasses import dataclass
+
+from armbench.record.suite_contract import Headline, register
+
+
+@dataclass(frozen=True, slots=True)
+class WobbleNames:
+    suite: str = "wobble"
+    order: int = 500
+    has_true_figures: bool = False
+    implementation: str | None = "benchwobble.suite:WobbleSuite"
+    trial_move: str = "wobble.move_s"
+    mean_move: str = "wobble.move_mean_s"
+    max_move: str = "wobble.move_max_s"
+
+    @property
+    def headlines(self):
+        return (Headline("mean wobble move", self.mean_move),
+                Headline("slowest wobble move", self.max_move))
+
+
+WOBBLE = register(WobbleNames())
+'''
+
+_WOBBLE_SUITE = '''
+import asyncio
+
+from armbench.bench.suites.base import Suite
+from benchwobble.contract import WOBBLE
+from armbench.record import Trial
+
+
+class WobbleSuite(Suite):
+    """Joint 1 back and forth, a little further each trial; how long each move takes."""
+
+    name = WOBBLE.suite
+    version = "1"
+    metric_units = {WOBBLE.trial_move: "s", WOBBLE.mean_move: "s", WOBBLE.max_move: "s"}
+
+    def default_params(self, settings):
+        return {"trials": 2, "duty": 90}
+
+    def plan(self, params):
+        return [{"q1": (-1) ** k * (0.1 + 0.05 * k)} for k in range(params["trials"])]
+
+    async def run_trial(self, ctx, index, trial_params):
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        state = await ctx.arm.move_joints([trial_params["q1"], 0.0, 0.0, 0.0],
+                                          int(ctx.params["duty"]))
+        move_s = loop.time() - t0
+        sample = {"t_s": move_s, "q_rad": list(state.q_rad)}
+        return Trial(index, 0.0, 0.0, params=dict(trial_params), samples=[sample],
+                     measurements=[ctx.judge(WOBBLE.trial_move, move_s, "s")])
+
+    def summarize(self, ctx, trials):
+        moves = [m.value for t in trials for m in t.measurements if m.name == WOBBLE.trial_move]
+        return [ctx.judge(WOBBLE.mean_move, sum(moves) / len(moves), "s"),
+                ctx.judge(WOBBLE.max_move, max(moves), "s")]
+'''
+
+_WOBBLE_SECTION = '''
+from armbench.reports.views import SectionView
+from benchwobble.contract import WOBBLE
+
+
+def build(record, suite, view, figs):
+    return SectionView(key=view.key, template="generic",
+                       title=f"Wobble section of suite {WOBBLE.suite}", suite=view, figures=[])
+'''
+
+_WOBBLE_ENTRY_POINTS = '''
+[armbench.suite_contracts]
+wobble = benchwobble.contract:WOBBLE
+
+[armbench.report_sections]
+wobble = benchwobble.section:build
+'''
+
+
+def _wobble_distribution(root: Path) -> Path:
+    package = root / "benchwobble"
+    package.mkdir(parents=True)
+    (package / "__init__.py").write_text("", encoding="utf-8")
+    (package / "contract.py").write_text(_WOBBLE_CONTRACT, encoding="utf-8")
+    (package / "suite.py").write_text(_WOBBLE_SUITE, encoding="utf-8")
+    (package / "section.py").write_text(_WOBBLE_SECTION, encoding="utf-8")
+    info = root / "benchwobble-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: benchwobble\nVersion: 1.0\n",
+                                   encoding="utf-8")
+    (info / "entry_points.txt").write_text(_WOBBLE_ENTRY_POINTS, encoding="utf-8")
+    return root
+
+
+@pytest.fixture
+def wobble(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """The wobble distribution on sys.path of this process (and of its children, by
+    PYTHONPATH); unregistered afterwards."""
+    root = _wobble_distribution(tmp_path / "site")
+    monkeypatch.syspath_prepend(str(root))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(root), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    suite_contract.forget("wobble")
+    yield root
+    suite_contract.forget("wobble")
+    for name in [m for m in sys.modules if m == "benchwobble" or m.startswith("benchwobble.")]:
+        del sys.modules[name]
+
+
+def test_a_suite_registered_by_entry_points_is_found_by_name(wobble: Path) -> None:
+    from armbench.bench.suites import SUITES, registered_suites, suite_class
+
+    found = suite_contract.contract("wobble")
+    assert [h.label for h in found.headlines] == ["mean wobble move", "slowest wobble move"]
+    assert [c.suite for c in contracts()][-1] == "wobble"  # its order puts it last
+    assert registered_suites()["wobble"] == "benchwobble.suite:WobbleSuite"
+    assert suite_class("wobble").name == "wobble"
+    assert "wobble" not in SUITES  # another distribution's suite runs when named, not by default
+    assert "wobble" in sections.registered_sections()
+
+
+def test_a_suite_registered_by_entry_points_runs_is_recorded_and_reported(
+        wobble: Path, tmp_path: Path) -> None:
+    """``armbench run wobble`` in a fresh process: the suite runs from its registration alone,
+    the record holds its figures, the report shows its own section and its headline figures."""
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "armbench", "run", "wobble", "--out", str(out),
+                           "--workers", "1", "--no-capture"],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    record = load_record(out / "results.json")
+    suite = record.suites["wobble"]
+    assert [t.status for t in suite.trials] == ["done", "done"]
+    figures = {m.name: m.value for m in suite.measurements}
+    moves = [m.value for t in suite.trials for m in t.measurements]
+    assert figures == {"wobble.move_mean_s": pytest.approx(sum(moves) / 2),
+                       "wobble.move_max_s": max(moves)}
+    assert min(moves) > 0
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "Wobble section of suite wobble" in page
+    for label, name in (("mean wobble move", "wobble.move_mean_s"),
+                        ("slowest wobble move", "wobble.move_max_s")):
+        row = page[page.index(label):]
+        row = row[:row.index("</tr>")]
+        assert format_value(figures[name], "s") in row, row
+
+
+def test_a_contract_module_beside_the_suites_is_discovered_and_no_other_module(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Built-in contracts are the modules of the suites' package named ``*_contract``: one added
+    there is registered; the suites themselves (any other module) are never imported."""
+    import armbench.bench.suites as suites
+
+    (tmp_path / "zz_gripper_contract.py").write_text(
+        _WOBBLE_CONTRACT.replace('"wobble"', '"zz-gripper"'), encoding="utf-8")
+    (tmp_path / "zz_gripper.py").write_text("raise RuntimeError('a suite module imported')\n",
+                                            encoding="utf-8")
+    monkeypatch.setattr(suites, "__path__", [*suites.__path__, str(tmp_path)])
+    suite_contract.forget("zz-gripper")
+    try:
+        assert suite_contract.contract("zz-gripper").order == 500
+        assert "armbench.bench.suites.zz_gripper" not in sys.modules
+    finally:
+        suite_contract.forget("zz-gripper")
+        sys.modules.pop("armbench.bench.suites.zz_gripper_contract", None)
+
+
+def test_an_unknown_suite_has_no_contract_and_a_reader_names_what_it_lacks() -> None:
+    from armbench.record.interim import pose_samples
+
+    with pytest.raises(suite_contract.UnknownContractError, match="no contract of suite 'nope'"):
+        suite_contract.contract("nope")
+    accuracy = SuiteRecord(name="accuracy", version="1", params={})
+    with pytest.raises(suite_contract.UnknownContractError,
+                       match="contract of suite 'accuracy' lacks names PoseTrialNames needs"):
+        pose_samples(accuracy)
+
+
+def test_a_broken_contract_entry_point_is_left_out_with_a_warning(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    root = _wobble_distribution(tmp_path / "site")
+    (root / "benchwobble" / "contract.py").write_text("raise ImportError('half installed')\n",
+                                                       encoding="utf-8")
+    monkeypatch.syspath_prepend(str(root))
+    suite_contract.forget("wobble")
+    try:
+        with pytest.warns(RuntimeWarning, match="wobble = benchwobble.contract:WOBBLE: "
+                                                "half installed"):
+            names = [c.suite for c in contracts()]
+        assert "wobble" not in names and "accuracy" in names
+    finally:
+        suite_contract.forget("wobble")
+        for name in [m for m in sys.modules if m.startswith("benchwobble")]:
+            del sys.modules[name]

@@ -20,12 +20,13 @@ from hypothesis import strategies as st
 from test_report import cells, check_safe, parse
 from test_twin_check import _lap
 
+from armbench.bench.suites.twin_check_contract import TWIN_CHECK
 from armbench.bench.twin_record import SERIES_BUCKETS, file_sha256
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import run_virtual
 from armbench.metrics.series import envelope_indices
 from armbench.record import load_record
-from armbench.record.suite_contract import SAMPLE, TWIN_CHECK
+from armbench.record.suite_contract import SAMPLE
 
 ROOT = Path(__file__).resolve().parents[1]
 N = TWIN_CHECK

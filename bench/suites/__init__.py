@@ -28,7 +28,7 @@ from armbench.bench.suites.base import (
     SuiteContext,
 )
 from armbench.drivers.errors import ArmbenchError
-from armbench.record.suite_contract import contracts
+from armbench.record.suite_contract import BUILTIN_PACKAGE, contracts
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -54,13 +54,14 @@ _built: list[bool] = []
 
 def _suites() -> dict[str, str]:
     """:data:`SUITES`, built on first use: suite name on the command line → ``"module:Class"``
-    (imported lazily), in the default order: every registered suite contract that names its
+    (imported lazily), in the default order: every contract of this package that names its
     implementation (:func:`armbench.record.suite_contract.contracts`), so adding a suite edits no
     list here. The same dict on every access (a test may add to it)."""
     if not _built:
         _built.append(True)
         _SUITES.update((c.suite, c.implementation) for c in contracts()
-                       if c.implementation is not None)
+                       if c.implementation is not None
+                       and type(c).__module__.startswith(BUILTIN_PACKAGE + "."))
     return _SUITES
 
 
@@ -94,10 +95,13 @@ def suite_names() -> list[str]:
 
 def registered_suites() -> dict[str, str]:
     """Every registered suite name → ``"module:Class"``: the entry points of
-    :data:`ENTRY_POINT_GROUP`, and the built-ins over them. Only reads metadata: nothing is
-    imported."""
+    :data:`ENTRY_POINT_GROUP`, the suites other distributions' contracts name
+    (:data:`armbench.record.suite_contract.ENTRY_POINT_GROUP`), and the built-ins over them.
+    No suite module is imported."""
     found = {ep.name: f"{ep.module}:{ep.attr}"
              for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    found.update((c.suite, c.implementation) for c in contracts()
+                 if c.implementation is not None)
     return {**found, **_suites()}
 
 

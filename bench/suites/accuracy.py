@@ -40,6 +40,7 @@ from armbench.bench.suites._common import (
     loop_time,
     settled_state,
 )
+from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.protocol import MAX_DUTY
@@ -54,7 +55,6 @@ from armbench.metrics import (
 )
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
-from armbench.record.suite_contract import ACCURACY
 
 __all__ = ["STYLES", "AccuracySuite", "path_figures"]
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from armbench.bench.suites._common import Measurements, eeprom_counters, loop_time
 from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.bench.suites.workspace import (
     CYCLE_ORDER,
     DEFAULT_CUBE_CENTRE_M,
@@ -22,7 +23,7 @@ from armbench.bench.suites.workspace import (
 )
 from armbench.metrics import iso_cube_poses, square_yz
 from armbench.record import Measurement
-from armbench.record.suite_contract import SAMPLE, STARTUP
+from armbench.record.suite_contract import SAMPLE
 
 __all__ = ["ATMEGA328P_EEPROM_CYCLES", "MAX_WEAR_S", "eeprom_life_years", "measure_wear",
            "wear_measurements"]

@@ -31,12 +31,12 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.joints_contract import JOINTS
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.metrics import MetricsInputError
 from armbench.metrics.iso230 import axis_positioning
 from armbench.record import Measurement, Trial
-from armbench.record.suite_contract import JOINTS
 
 __all__ = ["JointsSuite", "joint_figures", "joint_targets"]
 

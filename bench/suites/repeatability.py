@@ -50,6 +50,7 @@ from armbench.bench.suites._common import (
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
+from armbench.bench.suites.repeatability_contract import REPEATABILITY
 from armbench.bench.suites.workspace import (
     CYCLE_ORDER,
     DEFAULT_CUBE_CENTRE_M,
@@ -69,7 +70,7 @@ from armbench.metrics import (
     pose_repeatability,
 )
 from armbench.record import Measurement, Trial
-from armbench.record.suite_contract import REPEATABILITY, SAMPLE
+from armbench.record.suite_contract import SAMPLE
 
 R: Final = REPEATABILITY
 

@@ -67,6 +67,7 @@ from armbench.bench.suites.startup_conditions import (
     signed_range,
     targets,
 )
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.bench.suites.startup_watch import (
     await_recovery,
     motion_at,
@@ -77,7 +78,7 @@ from armbench.drivers.motion import coordinated_duties, joint_times_s
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.record import Measurement, Trial
-from armbench.record.suite_contract import SAMPLE, STARTUP
+from armbench.record.suite_contract import SAMPLE
 
 S: Final = STARTUP
 

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING, Any, Final
 
 from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
 from armbench.bench.suites.base import ReReferencing, SuiteContext
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
-from armbench.record.suite_contract import STARTUP
 
 if TYPE_CHECKING:
     from armbench.drivers.arm import JointState

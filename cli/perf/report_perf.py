@@ -21,6 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from armbench.bench.suites.accuracy_contract import ACCURACY
+from armbench.bench.suites.repeatability_contract import REPEATABILITY
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli.perf import Figure, PerfOptions
 from armbench.drivers.settings import RobotSettings
 from armbench.metrics import (
@@ -44,7 +47,6 @@ from armbench.record import (
     judge,
 )
 from armbench.record.limits import LimitsConfig, parse_limits
-from armbench.record.suite_contract import ACCURACY, REPEATABILITY, STARTUP
 
 __all__ = ["RENDER_BOUND_S", "SIZE_BOUND_BYTES", "big_run_record", "run", "write_big_run"]
 

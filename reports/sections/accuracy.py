@@ -1,7 +1,8 @@
 """The accuracy section: the paper's square path (§7), its Fig. 11 (paths in the YZ plane) and
 Fig. 12 (error over time), armbench's two styles against the paper's figure.
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.ACCURACY`); every figure
+Names come from the suite's contract
+(:data:`armbench.bench.suites.accuracy_contract.ACCURACY`); every figure
 in the tables is the one the record holds. The error series drawn in Fig. 12 are computed from the
 samples (the record keeps only their summaries), one lap at a time: each lap's samples are read,
 reduced to what its plots draw (at most :data:`PLOT_POINTS` points per figure over all laps, at
@@ -18,9 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.metrics import MetricsInputError, path_errors, square_yz
 from armbench.record import RunRecord, SuiteRecord, Trial
-from armbench.record.suite_contract import ACCURACY, SAMPLE
+from armbench.record.suite_contract import SAMPLE
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_value
 from armbench.reports.plotting import MAX_LINE_POINTS

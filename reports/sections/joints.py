@@ -2,7 +2,8 @@
 repeatability R, reversal B and systematic error E of the reported angle (the encoder on the
 motor) beside the true one (the link, with play and deflection) where the bench had truth.
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.JOINTS`); every figure
+Names come from the suite's contract
+(:data:`armbench.bench.suites.joints_contract.JOINTS`); every figure
 shown is one the suite recorded.
 """
 
@@ -10,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from armbench.bench.suites.joints_contract import JOINTS
 from armbench.record import Measurement, RunRecord, SuiteRecord
-from armbench.record.suite_contract import JOINTS
 from armbench.reports import plots
 from armbench.reports.format import format_value
 from armbench.reports.views import Figures, SectionView, SuiteView

@@ -1,7 +1,8 @@
 """The repeatability section: the ISO 9283 test cube and its poses, the attained positions around
 their barycentre, then AP / RP per pose and speed and the figures per speed.
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.REPEATABILITY`). The
+Names come from the suite's contract
+(:data:`armbench.bench.suites.repeatability_contract.REPEATABILITY`). The
 figures are the recorded ones; a pose whose figure the suite's summary lacks (an interrupted
 suite) shows the interim figure the record layer gives (:mod:`armbench.record.interim`), marked
 so. The section computes no figure.
@@ -15,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from armbench.bench.suites.repeatability_contract import REPEATABILITY
 from armbench.metrics import cube_corners
 from armbench.record import Measurement, RunRecord, SuiteRecord
 from armbench.record.interim import Vec3, interim_pose_figures, pose_samples
-from armbench.record.suite_contract import REPEATABILITY
 from armbench.reports import plots
 from armbench.reports.format import format_duration, format_number, format_value
 from armbench.reports.views import (

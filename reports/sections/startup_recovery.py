@@ -1,7 +1,8 @@
 """The startup-recovery section: the outcomes of the power cuts by condition (paper §5.2), the
 recovery times and position errors, the failures with their conditions, and the EEPROM wear.
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.STARTUP`); every figure
+Names come from the suite's contract
+(:data:`armbench.bench.suites.startup_contract.STARTUP`); every figure
 shown is one the record holds (a trial's measurements, its ``outcome`` event, the suite's
 measurements).
 """
@@ -13,8 +14,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from armbench.bench.suites.startup_contract import STARTUP
 from armbench.record import Measurement, RunRecord, SuiteRecord, Trial
-from armbench.record.suite_contract import SAMPLE, STARTUP
+from armbench.record.suite_contract import SAMPLE
 from armbench.reports import plots
 from armbench.reports.format import format_value
 from armbench.reports.views import Figures, FigureView, SectionView, SuiteView, num, text

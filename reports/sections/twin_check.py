@@ -4,7 +4,8 @@ their divergence in encoder counts against the allowed RMS), a per-joint table o
 largest divergence beside the floor (what a perfect twin would score on this capture) and the
 allowance, the arrival-time and TCP tables, and the inputs the check read.
 
-Names come from the suite contract (:data:`armbench.record.suite_contract.TWIN_CHECK`); every
+Names come from the suite's contract
+(:data:`armbench.bench.suites.twin_check_contract.TWIN_CHECK`); every
 figure in the tables is one the record holds; the plot draws the series the record kept (a
 min/max envelope of each, so a spike survives).
 """
@@ -18,8 +19,9 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from armbench.bench.suites.twin_check_contract import TWIN_CHECK
 from armbench.record import Measurement, RunRecord, SuiteRecord
-from armbench.record.suite_contract import SAMPLE, TWIN_CHECK
+from armbench.record.suite_contract import SAMPLE
 from armbench.reports.format import format_value
 from armbench.reports.plotting import COLOURS, FloatArray, legend, new_figure, plot_style
 from armbench.reports.views import Figures, SectionView, SuiteView, num, text

@@ -1,0 +1,162 @@
+"""The package's import graph as pydeps sees it: one connected piece, no import running up.
+
+pydeps reads the import statements of the installed package's bytecode (all of them: also those
+under ``if TYPE_CHECKING:``, which import-linter and the grimp tests leave out), so it is a second,
+independent reading of the structure that ``tests/test_architecture.py`` checks with grimp. This
+script runs it over the installed ``armbench`` (a regular install or a strict-mode editable one,
+which lays the package out as a tree), or reads a ``--deps-output`` file it wrote, and checks:
+
+- every module is reachable from every other along imports, either way, but the pytest plugin
+  (pytest loads it by its entry point; it loads its fixtures by name, so that it imports nothing
+  but pytest in other projects' test runs);
+- no import goes from a layer of pyproject.toml's ``layers`` contract to a layer above it.
+
+It prints the figures (modules, edges, components, upward edges) and exits 1 on a violation::
+
+    python scripts/structure.py [--deps FILE.json] [--pyproject pyproject.toml]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import tomllib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Modules allowed to stand apart from the graph (see the module's docstring).
+APART = frozenset({"armbench.cli.pytest_plugin"})
+
+Graph = Mapping[str, Sequence[str]]
+
+
+@dataclass(frozen=True, slots=True)
+class Structure:
+    """What the check found: the modules, the import edges, the connected pieces (largest
+    first) and the imports that run from a layer up to a higher one."""
+
+    modules: int
+    edges: int
+    components: list[list[str]]
+    upward: list[tuple[str, str]]
+    unplaced: list[str]
+
+    def problems(self, apart: frozenset[str] = APART) -> list[str]:
+        """One line per violation: a piece beside the main one that is not allowed to stand
+        apart, an upward import, a module in no layer."""
+        out = [f"not connected to the rest: {', '.join(c)}" for c in self.components[1:]
+               if not set(c) <= apart]
+        out += [f"imports up: {a} -> {b}" for a, b in self.upward]
+        out += [f"in no layer: {m}" for m in self.unplaced]
+        return out
+
+
+def layers(pyproject: Path) -> list[list[str]]:
+    """The modules of each layer of the one ``layers`` import-linter contract, top first."""
+    config = tomllib.loads(pyproject.read_text(encoding="utf-8"))
+    found = [c for c in config["tool"]["importlinter"]["contracts"] if c["type"] == "layers"]
+    if len(found) != 1:
+        raise ValueError(f"{pyproject}: {len(found)} layers contracts, expected one")
+    return [[m.strip() for m in layer.replace("|", ":").split(":")] for layer in found[0]["layers"]]
+
+
+def layer_of(module: str, order: Sequence[Sequence[str]]) -> int | None:
+    for index, layer in enumerate(order):
+        if any(module == m or module.startswith(m + ".") for m in layer):
+            return index
+    return None
+
+
+def graph_of(deps: Mapping[str, Any], package: str = "armbench") -> dict[str, list[str]]:
+    """The package's modules and what each imports among them, from pydeps' JSON."""
+    mods = {name for name in deps if name == package or name.startswith(package + ".")}
+    return {name: sorted(i for i in deps[name].get("imports", []) if i in mods and i != name)
+            for name in sorted(mods)}
+
+
+def examine(graph: Graph, order: Sequence[Sequence[str]],
+            outside: frozenset[str] = frozenset({"armbench", "armbench.hot_modules"})) -> Structure:
+    """The figures and violations of ``graph`` against the layer ``order`` (top first);
+    ``outside``: modules no layer holds (the root package's lazy public names, the build's list
+    of compiled modules), as in ``tests/test_architecture.py``."""
+    edges = {(a, b) for a, imported in graph.items() for b in imported}
+    neighbours: dict[str, set[str]] = {m: set() for m in graph}
+    for a, b in edges:
+        neighbours[a].add(b)
+        neighbours[b].add(a)
+    seen: set[str] = set()
+    components: list[list[str]] = []
+    for start in sorted(graph):
+        if start in seen:
+            continue
+        piece, todo = {start}, [start]
+        seen.add(start)
+        while todo:
+            for n in neighbours[todo.pop()] - seen:
+                seen.add(n)
+                piece.add(n)
+                todo.append(n)
+        components.append(sorted(piece))
+    components.sort(key=lambda c: (-len(c), c))
+    upward = sorted((a, b) for a, b in edges
+                    if (low := layer_of(a, order)) is not None
+                    and (high := layer_of(b, order)) is not None and high < low)
+    unplaced = sorted(m for m in graph if m not in outside and layer_of(m, order) is None
+                      and not (graph[m] == [] and _is_package_of(m, graph)))
+    return Structure(len(graph), len(edges), components, upward, unplaced)
+
+
+def _is_package_of(module: str, graph: Graph) -> bool:
+    """Whether ``module`` is a package (other modules live under it): one that imports nothing
+    needs no layer (``drivers/__init__``)."""
+    return any(m.startswith(module + ".") for m in graph)
+
+
+def run_pydeps(out: Path) -> None:
+    """pydeps over the installed armbench, its JSON into ``out`` (no graphviz needed)."""
+    import armbench
+
+    tree = Path(next(iter(armbench.__path__)))
+    if not (tree / "bench").is_dir():
+        raise SystemExit("armbench is installed with an import hook: pydeps needs pip install . "
+                         "or pip install -e . --config-settings editable_mode=strict")
+    exe = shutil.which("pydeps", path=str(Path(sys.executable).parent)) or shutil.which("pydeps")
+    if exe is None:
+        raise SystemExit("pydeps is not installed (pip install pydeps)")
+    subprocess.run([exe, str(tree), "--show-deps", "--no-output", "--max-bacon", "0",
+                    "--only", "armbench", "--deps-output", str(out)],
+                   check=True, stdout=subprocess.DEVNULL, timeout=600)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--deps", type=Path, help="pydeps' --deps-output JSON (default: run it)")
+    parser.add_argument("--pyproject", type=Path, default=ROOT / "pyproject.toml")
+    args = parser.parse_args(argv)
+    if args.deps is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "deps.json"
+            run_pydeps(path)
+            deps = json.loads(path.read_text(encoding="utf-8"))
+    else:
+        deps = json.loads(args.deps.read_text(encoding="utf-8"))
+    found = examine(graph_of(deps), layers(args.pyproject))
+    apart = [c for c in found.components[1:] if set(c) <= APART]
+    print(f"modules {found.modules}, edges {found.edges}, components {len(found.components)} "
+          f"({len(apart)} allowed apart: {', '.join(m for c in apart for m in c) or 'none'}), "
+          f"upward edges {len(found.upward)}")
+    problems = found.problems()
+    for line in problems:
+        print(line)
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
