@@ -71,6 +71,9 @@ __all__ = ["STYLES", "Ros2SquareSuite"]
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ROS2_SQUARE.styles
 N = ROS2_SQUARE
+#: Virtual seconds a trial may see pass per real second of its client process (the emulator
+#: alone runs a few hundred times real time): the trial's overall guard on virtual time.
+VIRTUAL_PER_REAL: Final = 1000.0
 
 
 def _add_figures(ms: Measurements, style: str, figures: Mapping[str, float]) -> None:
@@ -155,8 +158,9 @@ class Ros2SquareSuite(Suite):
         lap_s = 4.0 * float(p[N.side]) / float(p["speed_m_s"])
         # loop seconds: on virtual time they run on while the client process starts (real
         # seconds, bounded by client_timeout_s), many times faster than real time
-        timeout_s = 120.0 + 4.0 * lap_s + (
-            1000.0 * float(p["client_timeout_s"]) if style == N.trajectory else 0.0)
+        client_s = float(p["client_timeout_s"]) * (
+            VIRTUAL_PER_REAL if isinstance(asyncio.get_running_loop(), VirtualTimeLoop) else 1.0)
+        timeout_s = 120.0 + 4.0 * lap_s + (client_s if style == N.trajectory else 0.0)
         ctx.progress(f"{N.suite}: lap {trial_params[N.lap]} ({style})")
 
         async def body(samples: list[dict[str, Any]]) -> tuple[list[dict[str, Any]],
