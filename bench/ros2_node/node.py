@@ -1,6 +1,6 @@
 """The ROS 2 node of ``armbench ros2``: the driver's arm on a ROS 2 graph (real rclpy, Fast DDS).
 
-Topics (names fixed; ``docs/ros2.md``):
+Topics (under the node's namespace, ``/`` by default; ``docs/ros2.md``):
 
 =================================  ==============================  ============================
 ``/joint_states``                  ``sensor_msgs/JointState``      every reply of the arm
@@ -16,11 +16,16 @@ Threads: the driver runs on the asyncio loop of the command (virtual time for ``
 on an executor thread of its own. Publishing is done from the loop (rcl's publish is thread-safe);
 a subscription callback only copies the message into plain Python values, keeps the newest one in
 a slot of one and wakes the loop with ``call_soon_threadsafe``, so a peer cannot queue work
-without bound. On virtual time the loop never waits for ROS: the clock jumps to the next timer of
-the emulator as always and a trajectory is taken up at whatever virtual time it arrives; a waker
-from another thread is served at the next iteration. Stamps are loop time on virtual time (and
-``/clock`` carries the same time, published before each ``/joint_states``), else wall-clock time
-of the reply's arrival (``time.time()`` offset to loop time once at start).
+without bound. On virtual time the loop waits for ROS only to pace ``/joint_states``
+(``slow_subscriber="pace"``: every half history, until every reliable subscriber has acknowledged
+all, so nothing is lost); otherwise the clock jumps to the next timer of the emulator as always and
+a trajectory is taken up at whatever virtual time it arrives; a waker from another thread is
+served at the next iteration. Every writer's history is bounded (``KEEP_LAST``), and a message a
+writer refuses is counted and dropped, never raised: a peer cannot fill the node or stop it.
+
+Stamps are loop time on virtual time (and ``/clock`` carries the same time, published before each
+``/joint_states``), else wall-clock time of the reply's arrival (``time.time()`` offset to loop
+time once at start).
 
 Safety: a refused trajectory moves nothing; an empty one stops the arm; a new one replaces the one
 running (as ros_control does). When the arm falls silent the trajectory is abandoned and a hold is
