@@ -18,6 +18,13 @@ from typing import Any
 import pytest
 import pytest_asyncio
 
+from armbench.cli.pytest_plugin import (
+    CONFIG_OPTION,
+    PORT_OPTION,
+    RECORD_MODE_OPTION,
+    RECORD_OPTION,
+    SETTINGS_OPTION,
+)
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings
@@ -190,14 +197,14 @@ def summarize(trials: Sequence[Trial], limits: LimitsConfig | None) -> list[Meas
 def _session(config: pytest.Config) -> BenchSession:
     session = config.stash.get(_SESSION_KEY, None)
     if session is None:
-        port = str(config.getoption("--arm-port"))
-        settings_path = config.getoption("--arm-settings")
-        limits_path = config.getoption("--arm-config")
-        record_dir = config.getoption("--arm-record")
-        mode = str(config.getoption("--arm-record-mode", "new"))
+        port = str(config.getoption(PORT_OPTION))
+        settings_path = config.getoption(SETTINGS_OPTION)
+        limits_path = config.getoption(CONFIG_OPTION)
+        record_dir = config.getoption(RECORD_OPTION)
+        mode = str(config.getoption(RECORD_MODE_OPTION, "new"))
         try:
             target = target_of(port)
-            inputs = target.inputs(given_by({"settings": "--arm-settings"},
+            inputs = target.inputs(given_by({"settings": SETTINGS_OPTION},
                                             settings=settings_path))
             limits = load_limits(limits_path) if limits_path else None
             session = BenchSession(port, inputs.robot, inputs.given.settings, limits,
@@ -370,7 +377,7 @@ def configure(config: pytest.Config) -> None:
     if config.pluginmanager.has_plugin("asyncio") and hasattr(
             config.hook, "pytest_asyncio_loop_factories"):
         config.pluginmanager.register(_VirtualLoops(), "armbench-virtual-loops")
-    if config.getoption("--arm-record", None):
+    if config.getoption(RECORD_OPTION, None):
         _session(config)  # fail now on a bad option or a directory that holds a record
 
 
@@ -384,7 +391,7 @@ class _VirtualLoops:
     def pytest_asyncio_loop_factories(self, config: pytest.Config,
                                       item: pytest.Item) -> Mapping[str, Callable[[], Any]]:
         names = getattr(item, "fixturenames", ())
-        if "arm" in names and _virtual(str(config.getoption("--arm-port"))):
+        if "arm" in names and _virtual(str(config.getoption(PORT_OPTION))):
             from armbench.fakes.vclock import virtual_loop_factory
 
             return {"virtual_time": virtual_loop_factory}

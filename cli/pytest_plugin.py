@@ -40,25 +40,32 @@ import importlib.util
 
 import pytest
 
-__all__ = ["FIXTURES_PLUGIN", "pytest_addoption", "pytest_configure"]
+__all__ = ["CONFIG_OPTION", "FIXTURES_PLUGIN", "PORT_OPTION", "RECORD_MODE_OPTION",
+           "RECORD_OPTION", "SETTINGS_OPTION", "pytest_addoption", "pytest_configure"]
 
 #: The module holding the fixtures and hooks, registered under this name.
 FIXTURES_PLUGIN = "armbench.cli.pytest_bench"
+#: The options this plugin adds; the fixtures read them by these names (one spelling for both).
+PORT_OPTION = "--arm-port"
+SETTINGS_OPTION = "--arm-settings"
+CONFIG_OPTION = "--arm-config"
+RECORD_OPTION = "--arm-record"
+RECORD_MODE_OPTION = "--arm-record-mode"
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("armbench", "armbench bench tests")
-    group.addoption("--arm-port", default="fake://", metavar="PORT",
+    group.addoption(PORT_OPTION, default="fake://", metavar="PORT",
                     help="the arm's port for the 'arm' fixture (default fake://: a fresh "
                          "emulator per test on virtual time)")
-    group.addoption("--arm-settings", default=None, metavar="FILE",
+    group.addoption(SETTINGS_OPTION, default=None, metavar="FILE",
                     help="robot settings TOML for the 'arm' fixture")
-    group.addoption("--arm-config", default=None, metavar="FILE",
+    group.addoption(CONFIG_OPTION, default=None, metavar="FILE",
                     help="limits file (bench.toml) judging record_measurement values")
-    group.addoption("--arm-record", default=None, metavar="DIR",
+    group.addoption(RECORD_OPTION, default=None, metavar="DIR",
                     help="write the bench tests' run record (results.json, junit.xml, "
                          "report.html) to DIR")
-    group.addoption("--arm-record-mode", default="new", choices=("new", "replace", "resume"),
+    group.addoption(RECORD_MODE_OPTION, default="new", choices=("new", "replace", "resume"),
                     help="when DIR holds a record: new (default) refuses it, replace starts a "
                          "new record there, resume adds this session's tests to it")
 

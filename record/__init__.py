@@ -16,7 +16,9 @@ trials, suites), ``comparison``, ``environment``, ``run_record`` (the record, lo
 ``files`` (names, paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials
 appended between writes of ``results.json``, samples kept on disk), ``writer``. Beside them, what
 the bench and the report share about a record: ``limits``, ``baseline``, ``fleet_index``,
-``suite_contract`` and ``interim`` (the figures of a suite interrupted before its summary). A
+``suite_contract`` (what every suite's contract shares, and the registry that finds each by
+suite name; the contracts themselves live beside their suites) and ``interim`` (the figures of a
+suite interrupted before its summary). A
 layer below the bench, which writes records, and the report, which reads them
 (``docs/architecture.md``).
 """

@@ -6,9 +6,7 @@ independent reading of the structure that ``tests/test_architecture.py`` checks 
 script runs it over the installed ``armbench`` (a regular install or a strict-mode editable one,
 which lays the package out as a tree), or reads a ``--deps-output`` file it wrote, and checks:
 
-- every module is reachable from every other along imports, either way, but the pytest plugin
-  (pytest loads it by its entry point; it loads its fixtures by name, so that it imports nothing
-  but pytest in other projects' test runs);
+- every module is reachable from every other along imports, either way;
 - no import goes from a layer of pyproject.toml's ``layers`` contract to a layer above it.
 
 It prints the figures (modules, edges, components, upward edges) and exits 1 on a violation::
@@ -31,9 +29,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Modules allowed to stand apart from the graph (see the module's docstring).
-APART = frozenset({"armbench.cli.pytest_plugin"})
-
 Graph = Mapping[str, Sequence[str]]
 
 
@@ -48,11 +43,10 @@ class Structure:
     upward: list[tuple[str, str]]
     unplaced: list[str]
 
-    def problems(self, apart: frozenset[str] = APART) -> list[str]:
-        """One line per violation: a piece beside the main one that is not allowed to stand
-        apart, an upward import, a module in no layer."""
-        out = [f"not connected to the rest: {', '.join(c)}" for c in self.components[1:]
-               if not set(c) <= apart]
+    def problems(self) -> list[str]:
+        """One line per violation: a piece beside the main one, an upward import, a module in
+        no layer."""
+        out = [f"not connected to the rest: {', '.join(c)}" for c in self.components[1:]]
         out += [f"imports up: {a} -> {b}" for a, b in self.upward]
         out += [f"in no layer: {m}" for m in self.unplaced]
         return out
@@ -148,9 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         deps = json.loads(args.deps.read_text(encoding="utf-8"))
     found = examine(graph_of(deps), layers(args.pyproject))
-    apart = [c for c in found.components[1:] if set(c) <= APART]
-    print(f"modules {found.modules}, edges {found.edges}, components {len(found.components)} "
-          f"({len(apart)} allowed apart: {', '.join(m for c in apart for m in c) or 'none'}), "
+    print(f"modules {found.modules}, edges {found.edges}, components {len(found.components)}, "
           f"upward edges {len(found.upward)}")
     problems = found.problems()
     for line in problems:

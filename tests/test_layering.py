@@ -60,3 +60,16 @@ def test_the_worker_processes_import_nothing_of_the_runner() -> None:
     """No cycle between the runner and its worker processes: ``bench.workers`` only runs jobs."""
     mods = _modules_after("import armbench.bench.workers")
     assert not any(m.startswith("armbench.bench.runner") for m in mods), sorted(mods)
+
+
+def test_finding_the_suites_contracts_imports_no_suite() -> None:
+    """The contracts' registry, which record readers and the report use, imports the light
+    ``*_contract`` modules (and the suites' package, which is light) and no suite, not the
+    suites' interface, no runner, no driver, no emulator and no numpy."""
+    mods = _modules_after("from armbench.record.suite_contract import contracts; contracts()")
+    assert {"armbench.bench.suites.accuracy_contract", "armbench.bench.suites.startup_contract",
+            "armbench.bench.suites.twin_check_contract"} <= mods
+    suites = {m for m in mods if m.startswith("armbench.bench.suites.")}
+    assert all(m.endswith("_contract") for m in suites), suites  # not even the interface
+    assert not any(m.startswith(("armbench.drivers.arm", "armbench.bench.runner",
+                                 "armbench.fakes", "numpy")) for m in mods), sorted(mods)

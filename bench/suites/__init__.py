@@ -18,17 +18,22 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+from typing import TYPE_CHECKING, Any
 
-from armbench.bench.suites.base import (
-    PoseSource,
-    PowerSwitch,
-    Progress,
-    ReReferencing,
-    Suite,
-    SuiteContext,
-)
 from armbench.drivers.errors import ArmbenchError
 from armbench.record.suite_contract import BUILTIN_PACKAGE, contracts
+
+if TYPE_CHECKING:
+    from armbench.bench.suites.base import (
+        PoseSource,
+        PowerSwitch,
+        Progress,
+        ReReferencing,
+        Suite,
+        SuiteContext,
+    )
+
+    SUITES: dict[str, str]
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -65,9 +70,19 @@ def _suites() -> dict[str, str]:
     return _SUITES
 
 
-def __getattr__(name: str) -> dict[str, str]:
+#: The interface's names, re-exported from :mod:`.base` when first asked for, so importing this
+#: package (to reach a light ``*_contract`` module) imports nothing of the suites' interface.
+_BASE_NAMES = frozenset({"PoseSource", "PowerSwitch", "Progress", "ReReferencing", "Suite",
+                         "SuiteContext"})
+
+
+def __getattr__(name: str) -> Any:
     if name == "SUITES":
         return _suites()
+    if name in _BASE_NAMES:
+        from armbench.bench.suites import base
+
+        return getattr(base, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
@@ -122,6 +137,8 @@ def suite_class(name: str) -> type[Suite]:
         if not is_suite_spec(name):
             raise UnknownSuiteError(name)
         target = name
+    from armbench.bench.suites.base import Suite
+
     module_name, _, class_name = target.partition(":")
     try:
         module = importlib.import_module(module_name)
