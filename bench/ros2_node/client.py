@@ -12,7 +12,8 @@ Modes:
   (``{"names": [...], "points": [[q...]...], "times_s": [...]}``) and report the node's final
   status for it; given several times, each next one as soon as the previous one is under way,
   and the final status of each; ``seen``: the goals seen on ``/armbench/commanded``
-  (``--no-commanded``: not waited for) and the kinds of the events (``--wait-event KIND`` waits
+  (``--no-commanded``: not waited for; ``--no-states``: ``/joint_states`` not subscribed) and
+  the kinds of the events (``--wait-event KIND`` waits
   for one too: topics are not ordered with each other).
 * ``idle``: subscribe ``/joint_states`` (reliable, ``KEEP_ALL``) and never take a message: a
   subscriber that stopped reading. Prints ``{"subscribed": true}`` once the node's publisher is
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -36,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armbench.bench.ros2_node.node import TOPICS
+from armbench.bench.ros2_node.node import STATUS_DEPTH, TOPICS
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
@@ -150,9 +152,13 @@ def idle(node: Node, deadline: float) -> dict[str, Any]:
 
 
 class Sender:
-    """Publishes trajectories and waits for the node's final status of each."""
+    """Publishes trajectories and waits for the node's final status of each. With ``states``
+    it follows ``/joint_states`` (the arm's position, :attr:`q_rad`) and is ready once it has one;
+    without, it never subscribes the stream (on virtual time the node publishes it as fast as the
+    emulator runs, which a client on a loaded host need not take in) and is ready once matched."""
 
-    def __init__(self, node: Node, deadline: float) -> None:
+    def __init__(self, node: Node, deadline: float, *, states: bool = True) -> None:
+        from rclpy.qos import DurabilityPolicy, QoSProfile
         from sensor_msgs.msg import JointState as JointStateMsg
         from std_msgs.msg import String
         from trajectory_msgs.msg import JointTrajectory
@@ -161,9 +167,15 @@ class Sender:
         self.deadline = deadline
         self.statuses: list[dict[str, Any]] = []
         self.q_rad: list[float] | None = None
+        self.tag = os.getpid() % 2**31
+        """Our trajectories' ``header.stamp.sec`` (the node echoes it in their statuses)."""
         self.pub = node.create_publisher(JointTrajectory, TOPICS["trajectory"], 10)
-        self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, 50)
-        node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
+        # transient local, as the node's: a status published before the node's writer has
+        # matched this reader (discovery is not symmetric in time) is still received
+        self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, QoSProfile(
+            depth=STATUS_DEPTH, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        if states:
+            node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
         self.commanded: list[list[float]] = []
         """Goals seen on ``/armbench/commanded``."""
         self.events: list[str] = []
@@ -174,7 +186,8 @@ class Sender:
                                  lambda m: self.events.append(json.loads(m.data)["kind"]), 50)
         _spin_until(node, lambda: (self.pub.get_subscription_count() > 0
                                    and self.sub.get_publisher_count() > 0
-                                   and self.q_rad is not None), deadline, "the armbench node")
+                                   and (self.q_rad is not None or not states)), deadline,
+                    "the armbench node")
         self._n = 0
 
     def _on_status(self, msg: Any) -> None:
@@ -192,7 +205,7 @@ class Sender:
 
         self._n += 1
         msg = JointTrajectory()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 7, self._n  # our tag, echoed back
+        msg.header.stamp.sec, msg.header.stamp.nanosec = self.tag, self._n  # echoed back
         msg.joint_names = list(names)
         for q, t in zip(points, times_s, strict=True):
             p = JointTrajectoryPoint()
@@ -205,7 +218,7 @@ class Sender:
 
     def status(self, n: int, until: Sequence[str] = FINAL) -> dict[str, Any]:
         """The first status in ``until`` of the ``n``-th trajectory sent (waited for)."""
-        tag = [7, n]
+        tag = [self.tag, n]
 
         def final() -> dict[str, Any] | None:
             return next((s for s in self.statuses if s["stamp"] == tag
@@ -287,6 +300,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-commanded", action="store_true",
                    help="send: do not wait for the goals on /armbench/commanded (a node over "
                         "an arm that does not publish them)")
+    p.add_argument("--no-states", action="store_true",
+                   help="send: do not subscribe /joint_states (ready once matched)")
     p.add_argument("--namespace", default="",
                    help="the node's namespace (the armbench node's --namespace)")
     p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
@@ -318,7 +333,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif args.mode == "idle":
             out = idle(node, deadline)
         else:
-            sender = Sender(node, deadline)
+            sender = Sender(node, deadline, states=not (args.mode == "send" and args.no_states))
             if args.mode == "send":
                 trajectories = [json.loads(t) for t in args.trajectory]
                 for name in args.trajectory_file:

@@ -53,8 +53,8 @@ from armbench.drivers.paths import LOOKAHEAD_S, stream_path
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER", "TOPICS",
-           "ArmNode", "NodeOptions", "PublishingArm"]
+__all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER", "STATUS_DEPTH",
+           "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
 
 log = logging.getLogger("armbench.ros2")
 
@@ -73,6 +73,8 @@ TOPICS: Final = {
 #: not yet acknowledged may still get; the oldest of it goes first. Every writer of the node is
 #: bounded so: a peer that stops reading cannot fill the node's memory.
 JOINT_STATES_DEPTH: Final = 10_000
+#: Trajectory statuses kept for a client that matches late (transient local).
+STATUS_DEPTH: Final = 50
 #: What the node does on virtual time when a reliable subscriber of ``/joint_states`` falls behind:
 #: ``pace`` (hold the virtual clock until it has acknowledged, as a simulator in lock-step does)
 #: or ``drop`` (run on, the subscriber loses the oldest beyond the history's depth).
@@ -216,7 +218,11 @@ class ArmNode:
         self._pub_urdf = n.create_publisher(String, TOPICS["robot_description"], latched)
         self._pub_cmd = n.create_publisher(JointStateMsg, TOPICS["commanded"], 50)
         self._pub_events = n.create_publisher(String, TOPICS["events"], 50)
-        self._pub_status = n.create_publisher(String, TOPICS["status"], 50)
+        # transient local: a client whose reader this writer has not matched yet when a status
+        # is published (discovery is not symmetric in time) still gets it when it matches
+        self._pub_status = n.create_publisher(String, TOPICS["status"], QoSProfile(
+            depth=STATUS_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._pub_clock = (n.create_publisher(Clock, TOPICS["clock"], reliable)
                            if options.clock else None)
         n.create_subscription(JointTrajectory, TOPICS["trajectory"], self._on_trajectory, 10)
