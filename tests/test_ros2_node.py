@@ -180,6 +180,75 @@ def test_a_realtime_factor_holds_virtual_time_back() -> None:
     assert run_virtual(main()) >= 0.95
 
 
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+
+
+@pytest.mark.parametrize("mode", ["pace", "drop"])
+def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str) -> None:
+    """A reliable KEEP_ALL subscriber that takes nothing stops acknowledging once its own history
+    is full; the node's /joint_states history is bounded, so the node serves on (every reply
+    published or counted as dropped), its memory stays flat, and ``pace`` stops waiting for it."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    duration_s = 150.0  # ~60 000 replies: several times what the subscriber's history holds
+
+    async def main() -> tuple[Any, int, int, float]:
+        async with PublishingArm("fake://", S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True, slow_subscriber=mode,
+                                            pace_timeout_s=1.0))
+            idle = await asyncio.create_subprocess_exec(
+                *CLIENT, "idle", "--timeout", str(GUARD_S), stdout=asyncio.subprocess.PIPE)
+            try:
+                assert idle.stdout is not None
+                assert b"subscribed" in await idle.stdout.readline()  # matched before we run
+                rss0, seq0 = _rss_mb(), arm.state.seq
+                status = await node.run(duration_s)
+                grown, replies = _rss_mb() - rss0, arm.state.seq - seq0
+            finally:
+                idle.kill()
+                await idle.wait()
+            return node, status, replies, grown
+
+    node, status, replies, grown_mb = run_virtual(main())
+    assert status == 0  # before: the node's publish failed (RCLError) and the node stopped
+    # every reply while serving (the replies to the hold of the shutdown come after)
+    assert node.published + node.dropped >= 0.99 * replies > 0
+    assert node.dropped <= node.published / 10, (node.dropped, node.published)
+    assert grown_mb < 30, grown_mb  # the history's bound, not the stream's length
+    if mode == "drop":
+        assert node.paced_s == 0.0 and node.stalls == 0
+
+
+def test_nodes_in_namespaces_of_their_own_do_not_hear_each_other() -> None:
+    """Two arms on one ROS domain (or two bench trials measured at once): a trajectory sent to
+    one namespace moves that arm only."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    target = [0.1, 0.0, 0.0, 0.0]
+    t = {"names": NAMES, "points": [target], "times_s": [3.0]}
+
+    async def main() -> tuple[dict[str, Any], list[int], list[int]]:
+        async with PublishingArm("fake://", S) as arm_a, PublishingArm("fake://", S) as arm_b:
+            nodes = [ArmNode(arm_a, NodeOptions(namespace="/arm_a", clock=True)),
+                     ArmNode(arm_b, NodeOptions(namespace="/arm_b"))]
+            serving = [asyncio.ensure_future(n.run()) for n in nodes]
+            try:
+                got = await _client("send", "--namespace", "/arm_a", "--trajectory",
+                                    json.dumps(t))
+            finally:
+                for task in serving:
+                    task.cancel()
+                await asyncio.wait(serving)
+            return got, [n.accepted for n in nodes], [a.commands_sent for a in (arm_a, arm_b)]
+
+    got, accepted, sent = run_virtual(main())
+    assert got["state"] == "done" and got["seen"]["commanded"], got
+    assert accepted == [1, 0]
+    assert sent[1] == 1  # arm b: only the hold of its node's shutdown
+
+
 def test_an_empty_trajectory_stops_the_arm() -> None:
     _, arm, got, _ = _with_node("send", "--trajectory",
                                 json.dumps({"names": NAMES, "points": [], "times_s": []}))

@@ -107,6 +107,9 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     (["--realtime-factor", "nan"], "--realtime-factor"),
     (["--side", "2"], "--side"),
     (["--connect-timeout", "0"], "--connect-timeout"),
+    (["--history-depth", "1"], "--history-depth: 1 must be 2..1000000"),
+    (["--namespace", "arm 1"], "--namespace"),
+    (["--pace-timeout", "inf"], "--pace-timeout"),
 ])
 def test_bad_options_are_one_line_errors_before_anything_starts(
         capsys: pytest.CaptureFixture[str], args: list[str], expected: str) -> None:

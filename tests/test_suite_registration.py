@@ -28,7 +28,7 @@ def test_every_contract_has_its_section_and_headlines() -> None:
     assert names[:2] == ["accuracy", "repeatability"]  # by their contracts' order
     assert set(SECTIONS) == set(names)
     assert list(HEADLINES) == names
-    assert {"accuracy", "repeatability", "joints"} == TRUTH_SUITES
+    assert {"accuracy", "repeatability", "joints", "ros2-square"} == TRUTH_SUITES
 
 
 def test_a_section_module_added_to_the_package_is_found(tmp_path: Path,

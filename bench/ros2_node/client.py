@@ -8,22 +8,29 @@ Modes:
   the rate per stamp second, the latency of each message (receive wall time − stamp; in real
   time only the node stamps with wall-clock time) as p50/p99, and the client node's clock at the
   end (``--sim-time``: ``use_sim_time``, so the time of ``/clock``).
-* ``send --trajectory JSON``: publish one ``JointTrajectory`` (``{"names": [...], "points":
-  [[q...]...], "times_s": [...]}``) and report the node's final status for it; given several
-  times, each next one as soon as the previous one is under way, and the final status of each;
-  ``seen``: the goals seen on ``/armbench/commanded`` and the kinds of the events (``--wait-event
-  KIND`` waits for one too: topics are not ordered with each other).
+* ``send --trajectory JSON`` (or ``--trajectory-file FILE``): publish one ``JointTrajectory``
+  (``{"names": [...], "points": [[q...]...], "times_s": [...]}``) and report the node's final
+  status for it; given several times, each next one as soon as the previous one is under way,
+  and the final status of each; ``seen``: the goals seen on ``/armbench/commanded``
+  (``--no-commanded``: not waited for; ``--no-states``: ``/joint_states`` not subscribed) and
+  the kinds of the events (``--wait-event KIND`` waits
+  for one too: topics are not ordered with each other).
+* ``idle``: subscribe ``/joint_states`` (reliable, ``KEEP_ALL``) and never take a message: a
+  subscriber that stopped reading. Prints ``{"subscribed": true}`` once the node's publisher is
+  matched, then stays until ``--timeout``.
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
 
-Every wait is bounded by ``--timeout`` (real seconds), a guard against a hung graph only.
+``--namespace NS``: the node's namespace. Every wait is bounded by ``--timeout`` (real
+seconds), a guard against a hung graph only.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -31,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armbench.bench.ros2_node.node import TOPICS
+from armbench.bench.ros2_node.node import STATUS_DEPTH, TOPICS
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
@@ -128,10 +135,30 @@ def listen(node: Node, count: int, deadline: float) -> dict[str, Any]:
             "robot_description": urdf[0], "events": events}
 
 
-class Sender:
-    """Publishes trajectories and waits for the node's final status of each."""
+def idle(node: Node, deadline: float) -> dict[str, Any]:
+    """``idle`` mode (see the module doc): no executor ever spins, so no message is taken."""
+    from rclpy.qos import HistoryPolicy, QoSProfile
+    from sensor_msgs.msg import JointState as JointStateMsg
 
-    def __init__(self, node: Node, deadline: float) -> None:
+    sub = node.create_subscription(JointStateMsg, TOPICS["joint_states"], lambda m: None,
+                                   QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL))
+    while sub.get_publisher_count() == 0:
+        if time.monotonic() > deadline:
+            raise Timeout("timed out waiting for the node's /joint_states")
+        time.sleep(0.05)
+    print(json.dumps({"subscribed": True}), flush=True)
+    time.sleep(max(0.0, deadline - time.monotonic()))
+    return {"subscribed": True, "taken": 0}
+
+
+class Sender:
+    """Publishes trajectories and waits for the node's final status of each. With ``states``
+    it follows ``/joint_states`` (the arm's position, :attr:`q_rad`) and is ready once it has one;
+    without, it never subscribes the stream (on virtual time the node publishes it as fast as the
+    emulator runs, which a client on a loaded host need not take in) and is ready once matched."""
+
+    def __init__(self, node: Node, deadline: float, *, states: bool = True) -> None:
+        from rclpy.qos import DurabilityPolicy, QoSProfile
         from sensor_msgs.msg import JointState as JointStateMsg
         from std_msgs.msg import String
         from trajectory_msgs.msg import JointTrajectory
@@ -140,9 +167,15 @@ class Sender:
         self.deadline = deadline
         self.statuses: list[dict[str, Any]] = []
         self.q_rad: list[float] | None = None
+        self.tag = os.getpid() % 2**31
+        """Our trajectories' ``header.stamp.sec`` (the node echoes it in their statuses)."""
         self.pub = node.create_publisher(JointTrajectory, TOPICS["trajectory"], 10)
-        self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, 50)
-        node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
+        # transient local, as the node's: a status published before the node's writer has
+        # matched this reader (discovery is not symmetric in time) is still received
+        self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, QoSProfile(
+            depth=STATUS_DEPTH, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        if states:
+            node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
         self.commanded: list[list[float]] = []
         """Goals seen on ``/armbench/commanded``."""
         self.events: list[str] = []
@@ -153,7 +186,8 @@ class Sender:
                                  lambda m: self.events.append(json.loads(m.data)["kind"]), 50)
         _spin_until(node, lambda: (self.pub.get_subscription_count() > 0
                                    and self.sub.get_publisher_count() > 0
-                                   and self.q_rad is not None), deadline, "the armbench node")
+                                   and (self.q_rad is not None or not states)), deadline,
+                    "the armbench node")
         self._n = 0
 
     def _on_status(self, msg: Any) -> None:
@@ -171,7 +205,7 @@ class Sender:
 
         self._n += 1
         msg = JointTrajectory()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 7, self._n  # our tag, echoed back
+        msg.header.stamp.sec, msg.header.stamp.nanosec = self.tag, self._n  # echoed back
         msg.joint_names = list(names)
         for q, t in zip(points, times_s, strict=True):
             p = JointTrajectoryPoint()
@@ -184,7 +218,7 @@ class Sender:
 
     def status(self, n: int, until: Sequence[str] = FINAL) -> dict[str, Any]:
         """The first status in ``until`` of the ``n``-th trajectory sent (waited for)."""
-        tag = [7, n]
+        tag = [self.tag, n]
 
         def final() -> dict[str, Any] | None:
             return next((s for s in self.statuses if s["stamp"] == tag
@@ -198,17 +232,19 @@ class Sender:
 
 
 def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
-             wait_events: Sequence[str] = ()) -> dict[str, Any]:
+             wait_events: Sequence[str] = (), *, wait_commanded: bool = True) -> dict[str, Any]:
     """``send`` mode: each trajectory once the previous one is accepted (or refused), then the
     final status of the last (and the events of ``wait_events``: topics are not ordered with
-    each other); with several, ``{"statuses": [final status of each]}``."""
+    each other; and, with ``wait_commanded``, the goals of the last on ``/armbench/commanded``);
+    with several, ``{"statuses": [final status of each]}``."""
     if not trajectories:
         raise SystemExit("send: give --trajectory JSON")
     for k, t in enumerate(trajectories):
         last = k == len(trajectories) - 1
         out = sender.send(t["names"], t["points"], t["times_s"],
                           until=FINAL if last else ("accepted", *FINAL))
-    written = out.get("waypoints", 0)  # of a trajectory done: its goals, on a topic of their own
+    # of a trajectory done: its goals, on a topic of their own
+    written = out.get("waypoints", 0) if wait_commanded else 0
     _spin_until(sender.node, lambda: (all(k in sender.events for k in wait_events)
                                       and len(sender.commanded) >= written),
                 sender.deadline, f"the events {list(wait_events)} and {written} goals")
@@ -221,13 +257,14 @@ def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
 
 def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
                       centre_m: Sequence[float], side_m: float, speed_m_s: float,
-                      spacing_m: float, branch: str) -> tuple[list[list[float]], list[float]]:
+                      spacing_m: float, branch: str, *,
+                      roll_rad: float = 0.0) -> tuple[list[list[float]], list[float]]:
     """The square's waypoints (joint angles, rad) and their ``time_from_start`` (s, from the
     first corner) as :meth:`armbench.drivers.arm.Arm.follow_path` plans them."""
     corners = square_yz(centre_m, side_m)
     pts, qs = plan_path([*corners, corners[0]], settings,
                         (near_rad[0], near_rad[1], near_rad[2], near_rad[3]),
-                        spacing_m=spacing_m, branch=branch)
+                        roll_rad=roll_rad, spacing_m=spacing_m, branch=branch)
     times = [0.0]
     for k in range(1, len(qs)):
         seg_s = float(np.linalg.norm(pts[k] - pts[k - 1])) / speed_m_s
@@ -250,7 +287,7 @@ def square(sender: Sender, settings: RobotSettings, args: argparse.Namespace) ->
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m armbench.bench.ros2_node.client")
-    p.add_argument("mode", choices=("listen", "send", "square"))
+    p.add_argument("mode", choices=("listen", "send", "square", "idle"))
     p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
     p.add_argument("--count", type=int, default=200)
     p.add_argument("--sim-time", action="store_true",
@@ -258,6 +295,15 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--trajectory", action="append", default=[],
                    help="send: a trajectory as JSON; given again, each next one is sent as soon "
                         "as the previous one is under way (it replaces it)")
+    p.add_argument("--trajectory-file", action="append", default=[], metavar="FILE",
+                   help="send: a trajectory as a JSON file (after those of --trajectory)")
+    p.add_argument("--no-commanded", action="store_true",
+                   help="send: do not wait for the goals on /armbench/commanded (a node over "
+                        "an arm that does not publish them)")
+    p.add_argument("--no-states", action="store_true",
+                   help="send: do not subscribe /joint_states (ready once matched)")
+    p.add_argument("--namespace", default="",
+                   help="the node's namespace (the armbench node's --namespace)")
     p.add_argument("--wait-event", action="append", default=[], metavar="KIND",
                    help="send: also wait for an event of this kind on /armbench/events")
     p.add_argument("--settings", default=None)
@@ -278,16 +324,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init()
     from rclpy.parameter import Parameter
 
-    node = rclpy.create_node(f"armbench_client_{args.mode}", parameter_overrides=[
-        Parameter("use_sim_time", value=args.sim_time)])
+    node = rclpy.create_node(f"armbench_client_{args.mode}", namespace=args.namespace or None,
+                             parameter_overrides=[Parameter("use_sim_time",
+                                                            value=args.sim_time)])
     try:
         if args.mode == "listen":
             out = listen(node, args.count, deadline)
+        elif args.mode == "idle":
+            out = idle(node, deadline)
         else:
-            sender = Sender(node, deadline)
+            sender = Sender(node, deadline, states=not (args.mode == "send" and args.no_states))
             if args.mode == "send":
-                out = send_all(sender, [json.loads(t) for t in args.trajectory],
-                               args.wait_event)
+                trajectories = [json.loads(t) for t in args.trajectory]
+                for name in args.trajectory_file:
+                    with open(name, encoding="utf-8") as f:
+                        trajectories.append(json.load(f))
+                out = send_all(sender, trajectories, args.wait_event,
+                               wait_commanded=not args.no_commanded)
             else:
                 out = square(sender, load_settings(args.settings), args)
     except Timeout as exc:

@@ -1,6 +1,6 @@
 """The ROS 2 node of ``armbench ros2``: the driver's arm on a ROS 2 graph (real rclpy, Fast DDS).
 
-Topics (names fixed; ``docs/ros2.md``):
+Topics (under the node's namespace, ``/`` by default; ``docs/ros2.md``):
 
 =================================  ==============================  ============================
 ``/joint_states``                  ``sensor_msgs/JointState``      every reply of the arm
@@ -16,11 +16,16 @@ Threads: the driver runs on the asyncio loop of the command (virtual time for ``
 on an executor thread of its own. Publishing is done from the loop (rcl's publish is thread-safe);
 a subscription callback only copies the message into plain Python values, keeps the newest one in
 a slot of one and wakes the loop with ``call_soon_threadsafe``, so a peer cannot queue work
-without bound. On virtual time the loop never waits for ROS: the clock jumps to the next timer of
-the emulator as always and a trajectory is taken up at whatever virtual time it arrives; a waker
-from another thread is served at the next iteration. Stamps are loop time on virtual time (and
-``/clock`` carries the same time, published before each ``/joint_states``), else wall-clock time
-of the reply's arrival (``time.time()`` offset to loop time once at start).
+without bound. On virtual time the loop waits for ROS only to pace ``/joint_states``
+(``slow_subscriber="pace"``: every half history, until every reliable subscriber has acknowledged
+all, so nothing is lost); otherwise the clock jumps to the next timer of the emulator as always and
+a trajectory is taken up at whatever virtual time it arrives; a waker from another thread is
+served at the next iteration. Every writer's history is bounded (``KEEP_LAST``), and a message a
+writer refuses is counted and dropped, never raised: a peer cannot fill the node or stop it.
+
+Stamps are loop time on virtual time (and ``/clock`` carries the same time, published before each
+``/joint_states``), else wall-clock time of the reply's arrival (``time.time()`` offset to loop
+time once at start).
 
 Safety: a refused trajectory moves nothing; an empty one stops the arm; a new one replaces the one
 running (as ros_control does). When the arm falls silent the trajectory is abandoned and a hold is
@@ -48,23 +53,35 @@ from armbench.drivers.paths import LOOKAHEAD_S, stream_path
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["MAX_POINTS", "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
+__all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER", "STATUS_DEPTH",
+           "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
 
 log = logging.getLogger("armbench.ros2")
 
-#: Every topic of the node by its role.
+#: Every topic of the node by its role: relative names, so they resolve under the node's
+#: namespace (``/`` by default: ``/joint_states``); ``/clock`` is the graph's, absolute.
 TOPICS: Final = {
-    "joint_states": "/joint_states",
-    "robot_description": "/robot_description",
-    "trajectory": "/armbench/joint_trajectory",
-    "status": "/armbench/trajectory_status",
-    "commanded": "/armbench/commanded",
-    "events": "/armbench/events",
+    "joint_states": "joint_states",
+    "robot_description": "robot_description",
+    "trajectory": "armbench/joint_trajectory",
+    "status": "armbench/trajectory_status",
+    "commanded": "armbench/commanded",
+    "events": "armbench/events",
     "clock": "/clock",
 }
-#: History kept for ``/joint_states`` (reliable) in real time: what a subscriber that has not yet
-#: acknowledged may still get. On virtual time the history keeps everything (``KEEP_ALL``).
-JOINT_STATES_DEPTH: Final = 1000
+#: History kept for ``/joint_states`` (reliable, ``KEEP_LAST``): the most a subscriber that has
+#: not yet acknowledged may still get; the oldest of it goes first. Every writer of the node is
+#: bounded so: a peer that stops reading cannot fill the node's memory.
+JOINT_STATES_DEPTH: Final = 10_000
+#: Trajectory statuses kept for a client that matches late (transient local).
+STATUS_DEPTH: Final = 50
+#: What the node does on virtual time when a reliable subscriber of ``/joint_states`` falls behind:
+#: ``pace`` (hold the virtual clock until it has acknowledged, as a simulator in lock-step does)
+#: or ``drop`` (run on, the subscriber loses the oldest beyond the history's depth).
+SLOW_SUBSCRIBER: Final = ("pace", "drop")
+#: Real seconds a paced node waits for a subscriber that acknowledges nothing before it stops
+#: waiting for it (the subscriber then loses the oldest, as with ``drop``).
+PACE_TIMEOUT_S: Final = 5.0
 
 
 class PublishingArm(Arm):
@@ -81,17 +98,40 @@ class PublishingArm(Arm):
 
 @dataclass(frozen=True)
 class NodeOptions:
-    """``node_name``; ``clock``: publish ``/clock`` (virtual time); ``max_duty``: fastest duty a
-    trajectory may ask for; ``lookahead_s``: streaming look-ahead; ``domain_id``: ROS domain
-    (None: ``ROS_DOMAIN_ID``); ``realtime_factor``: on virtual time, at most this many virtual
-    seconds per real second (None: as fast as the emulator runs)."""
+    """``node_name``; ``namespace``: the node's namespace (topics resolve under it; "" is ``/``:
+    a second arm or a bench suite's node on the same graph takes one of its own); ``clock``:
+    publish ``/clock`` (virtual time); ``max_duty``: fastest duty a trajectory may ask for;
+    ``lookahead_s``: streaming look-ahead; ``domain_id``: ROS domain (None: ``ROS_DOMAIN_ID``);
+    ``realtime_factor``: on virtual time, at most this many virtual seconds per real second
+    (None: as fast as the emulator runs); ``history_depth``: the ``/joint_states`` history
+    (:data:`JOINT_STATES_DEPTH`); ``slow_subscriber``: on virtual time, ``pace`` or ``drop``
+    (:data:`SLOW_SUBSCRIBER`; real time always drops: the arm does not wait);
+    ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`."""
 
     node_name: str = "armbench"
+    namespace: str = ""
     clock: bool = False
     max_duty: int = MAX_DUTY
     lookahead_s: float = LOOKAHEAD_S
     domain_id: int | None = None
     realtime_factor: float | None = None
+    history_depth: int = JOINT_STATES_DEPTH
+    slow_subscriber: str = "pace"
+    pace_timeout_s: float = PACE_TIMEOUT_S
+
+    def __post_init__(self) -> None:
+        if not 2 <= self.history_depth <= 1_000_000:
+            raise ValueError(f"history_depth {self.history_depth!r} must be 2..1000000")
+        if self.slow_subscriber not in SLOW_SUBSCRIBER:
+            raise ValueError(f"slow_subscriber {self.slow_subscriber!r} must be one of "
+                             f"{', '.join(SLOW_SUBSCRIBER)}")
+        if not 0 < self.pace_timeout_s < float("inf"):
+            raise ValueError(f"pace_timeout_s {self.pace_timeout_s!r} must be > 0")
+
+    @property
+    def paced(self) -> bool:
+        """Whether the virtual clock waits for the subscribers of ``/joint_states``."""
+        return self.clock and self.slow_subscriber == "pace"
 
 
 #: A trajectory with more points is refused unread (a peer must not fill the node's memory).
@@ -113,10 +153,11 @@ def _time_msg(msg: Any, t_s: float) -> None:
 
 
 class ArmNode:
-    """The node over an open :class:`PublishingArm`; :meth:`run` until cancelled or the link is
-    lost (then returns 1)."""
+    """The node over an open arm; :meth:`run` until cancelled or the link is lost (then returns
+    1). ``/armbench/commanded`` needs a :class:`PublishingArm` (over another arm, such as a bench
+    run's connection, the topic stays silent: the run's capture has the commands)."""
 
-    def __init__(self, arm: PublishingArm, options: NodeOptions = NodeOptions()) -> None:
+    def __init__(self, arm: Arm, options: NodeOptions = NodeOptions()) -> None:
         self.arm = arm
         self.options = options
         self.names = [j.name for j in arm.settings.joints]
@@ -135,10 +176,21 @@ class ArmNode:
         self._job_id = 0
         self._abort_reason: str | None = None
         self._pace0: tuple[float, float] | None = None
+        self.paced_s = 0.0
+        """Real seconds the loop waited for subscribers of ``/joint_states`` (``pace``)."""
+        self.stalls = 0
+        """Times a subscriber acknowledged nothing for ``pace_timeout_s`` (``pace``)."""
+        self._stalled = False
+        self._checked = 0
+        self.refused: dict[str, int] = {}
+        """Messages the DDS writers refused, by topic role (:data:`TOPICS`)."""
+        self._refusing: set[str] = set()
+        self._pace_every = max(1, options.history_depth // 2)
         require_rclpy()  # imported here: without the extra this module still imports
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.impl.implementation_singleton import rclpy_implementation
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
@@ -147,24 +199,30 @@ class ArmNode:
         from trajectory_msgs.msg import JointTrajectory
 
         self._msg_js, self._msg_string = JointStateMsg, String
+        self._rcl_error: type[Exception] = rclpy_implementation.RCLError
         self.context = Context()
         rclpy.init(context=self.context, domain_id=options.domain_id,
                    signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(options.node_name, context=self.context)
+        self.node = rclpy.create_node(options.node_name, context=self.context,
+                                      namespace=options.namespace or None)
         n = self.node
         reliable = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        # on virtual time every message is kept until each reliable subscriber has it: the
-        # stream comes many times faster than real time, and a subscriber held up for a moment
-        # (a loaded host) would otherwise lose what the history of JOINT_STATES_DEPTH overflows
-        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"], (
-            QoSProfile(depth=JOINT_STATES_DEPTH, history=HistoryPolicy.KEEP_ALL)
-            if options.clock else JOINT_STATES_DEPTH))
+        # bounded (KEEP_LAST): a subscriber that stops acknowledging loses the oldest instead of
+        # filling the node's memory or blocking its publish; on virtual time ``pace`` holds the
+        # clock every half history until all is acknowledged, so nothing is lost meanwhile
+        self._pub_js = n.create_publisher(JointStateMsg, TOPICS["joint_states"], QoSProfile(
+            depth=options.history_depth, history=HistoryPolicy.KEEP_LAST,
+            reliability=ReliabilityPolicy.RELIABLE))
         self._pub_urdf = n.create_publisher(String, TOPICS["robot_description"], latched)
         self._pub_cmd = n.create_publisher(JointStateMsg, TOPICS["commanded"], 50)
         self._pub_events = n.create_publisher(String, TOPICS["events"], 50)
-        self._pub_status = n.create_publisher(String, TOPICS["status"], 50)
+        # transient local: a client whose reader this writer has not matched yet when a status
+        # is published (discovery is not symmetric in time) still gets it when it matches
+        self._pub_status = n.create_publisher(String, TOPICS["status"], QoSProfile(
+            depth=STATUS_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._pub_clock = (n.create_publisher(Clock, TOPICS["clock"], reliable)
                            if options.clock else None)
         n.create_subscription(JointTrajectory, TOPICS["trajectory"], self._on_trajectory, 10)
@@ -174,7 +232,8 @@ class ArmNode:
         self._js = JointStateMsg()
         self._js.name = list(self.names)
         self._clock = Clock()
-        arm.on_command = self._on_command
+        if isinstance(arm, PublishingArm):
+            arm.on_command = self._on_command
 
     # --- the ROS thread ---------------------------------------------------------------------
 
@@ -206,33 +265,59 @@ class ArmNode:
         """ROS time (s) of loop time ``loop_t_s``: virtual seconds, or wall-clock seconds."""
         return loop_t_s + self._wall_offset_s
 
+    @property
+    def dropped(self) -> int:
+        """``/joint_states`` messages the DDS writer refused (never published to anyone)."""
+        return self.refused.get("joint_states", 0)
+
+    def _publish(self, publisher: Any, msg: Any, role: str) -> bool:
+        """Publish ``msg`` on the topic of ``role``; a message the DDS writer refuses (a reliable
+        subscriber that stopped reading holds its history up) is counted in :attr:`refused`, with
+        one warning and one ``dropped`` event per episode, and the node goes on."""
+        try:
+            publisher.publish(msg)
+        except self._rcl_error as exc:
+            self.refused[role] = self.refused.get(role, 0) + 1
+            if role not in self._refusing:
+                self._refusing.add(role)
+                log.warning("%s: a message could not be published (%s): dropping while a "
+                            "subscriber holds the writer up", TOPICS[role], exc)
+                if role != "events":
+                    self.event("dropped", topic=TOPICS[role], reason=str(exc))
+            return False
+        if role in self._refusing:
+            self._refusing.discard(role)
+            log.warning("%s: publishing again after %d dropped", TOPICS[role],
+                        self.refused[role])
+        return True
+
     def publish_state(self, state: JointState) -> None:
         """``/clock`` (virtual time) and ``/joint_states`` for one reply."""
         t = self.stamp_s(state.t_s)
         if self._pub_clock is not None:
             _time_msg(self._clock.clock, t)
-            self._pub_clock.publish(self._clock)
+            self._publish(self._pub_clock, self._clock, "clock")
         js = self._js
         _time_msg(js.header.stamp, t)
         js.position = list(state.q_rad)
-        self._pub_js.publish(js)
-        self.published += 1
+        if self._publish(self._pub_js, js, "joint_states"):
+            self.published += 1
 
     def event(self, kind: str, **fields: Any) -> None:
         """Publish an event on ``/armbench/events`` (JSON: ``t_s``, ``kind`` and ``fields``)."""
         text = json.dumps({"t_s": self.stamp_s(self._loop.time()), "kind": kind, **fields})
-        self._pub_events.publish(self._msg_string(data=text))
+        self._publish(self._pub_events, self._msg_string(data=text), "events")
 
     def _status(self, job: int, state: str, stamp: tuple[int, int], **fields: Any) -> None:
         text = json.dumps({"id": job, "state": state, "stamp": list(stamp), **fields})
-        self._pub_status.publish(self._msg_string(data=text))
+        self._publish(self._pub_status, self._msg_string(data=text), "status")
 
     def _on_command(self, t_s: float, command: Command) -> None:
         msg = self._msg_js()
         _time_msg(msg.header.stamp, self.stamp_s(t_s))
         msg.name = list(self.names)
         msg.position = list(command.angles_rad(self.arm._lower, self.arm._upper))
-        self._pub_cmd.publish(msg)
+        self._publish(self._pub_cmd, msg, "commanded")
 
     # --- the loop ---------------------------------------------------------------------------
 
@@ -240,7 +325,8 @@ class ArmNode:
         """Serve until ``duration_s`` (loop seconds) passes or the task is cancelled: 0; or until
         the port is lost: 1. The arm is stopped on the way out either way."""
         self._thread.start()
-        self._pub_urdf.publish(self._msg_string(data=robot_urdf(self.arm.settings)))
+        self._publish(self._pub_urdf, self._msg_string(data=robot_urdf(self.arm.settings)),
+                      "robot_description")
         self.event("started", port=self.arm.port, joints=self.names)
         log.info("ROS 2 node %r serving %s", self.options.node_name, self.arm.port)
         states = asyncio.ensure_future(self._publish_states())
@@ -315,8 +401,43 @@ class ArmNode:
                 del buf[:]
                 for state in batch:
                     self.publish_state(state)
+                if self.options.paced:
+                    self._wait_for_subscribers()
                 if self.options.realtime_factor is not None:
                     self._pace(batch[-1].t_s if batch else self._loop.time())
+
+    def _wait_for_subscribers(self) -> None:
+        """``pace``: every half history, hold the loop (a blocking wait: virtual time must not run
+        on) until every reliable subscriber has acknowledged every ``/joint_states``, so the
+        history never drops what one has not got. A subscriber that acknowledges nothing for
+        ``pace_timeout_s`` is no longer waited for (event ``subscriber_stalled``) until all is
+        acknowledged again (``subscriber_back``)."""
+        offered = self.published + self.dropped
+        if offered - self._checked < self._pace_every:
+            return
+        self._checked = offered
+        from rclpy.duration import Duration
+
+        if self._pub_js.wait_for_all_acked(Duration(nanoseconds=0)):  # no wait: all caught up
+            if self._stalled:
+                self._stalled = False
+                log.warning("/joint_states: every subscriber keeps up again: pacing again")
+                self.event("subscriber_back")
+            return
+        if self._stalled:
+            return
+        t0 = time.perf_counter()
+        acked = self._pub_js.wait_for_all_acked(
+            Duration(nanoseconds=round(self.options.pace_timeout_s * 1e9)))
+        self.paced_s += time.perf_counter() - t0
+        if not acked:
+            self._stalled = True
+            self.stalls += 1
+            log.warning("/joint_states: a subscriber acknowledged nothing for %.3g s: no longer "
+                        "waiting for it; it loses the oldest beyond the history of %d",
+                        self.options.pace_timeout_s, self.options.history_depth)
+            self.event("subscriber_stalled", timeout_s=self.options.pace_timeout_s,
+                       history_depth=self.options.history_depth)
 
     def _pace(self, virtual_s: float) -> None:
         """Hold the loop (a blocking sleep: nothing else may run ahead) so that virtual time runs

@@ -13,6 +13,7 @@ import argparse
 import asyncio
 import json
 import math
+import re
 import signal
 from typing import Any
 
@@ -45,6 +46,9 @@ def register(sub: Any) -> None:
                    help="serve S seconds (loop time: simulated seconds on fake://), default: "
                         "until Ctrl-C or SIGTERM")
     p.add_argument("--node-name", default="armbench", help="ROS node name (default armbench)")
+    p.add_argument("--namespace", default="", metavar="NS",
+                   help="the node's namespace: its topics resolve under it (default: /, so "
+                        "/joint_states); one per arm when several share a graph")
     p.add_argument("--domain-id", type=int, default=None, metavar="N",
                    help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
@@ -52,6 +56,16 @@ def register(sub: Any) -> None:
     p.add_argument("--realtime-factor", type=float, default=None, metavar="X",
                    help="fake://: at most X simulated seconds per real second (default: as "
                         "fast as the emulator runs)")
+    p.add_argument("--history-depth", type=int, default=10_000, metavar="N",
+                   help="/joint_states messages kept for a subscriber that has not acknowledged "
+                        "them (default 10000); beyond it the oldest go first")
+    p.add_argument("--slow-subscriber", choices=("pace", "drop"), default="pace",
+                   help="fake://: when a subscriber of /joint_states falls behind, hold the "
+                        "virtual clock until it has caught up (pace, default) or run on and let "
+                        "it lose the oldest (drop); real time always drops")
+    p.add_argument("--pace-timeout", type=float, default=5.0, metavar="S",
+                   help="pace: stop waiting for a subscriber that acknowledges nothing for S "
+                        "real seconds (default 5)")
     p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
                    help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
     p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
@@ -73,9 +87,15 @@ def _check(args: argparse.Namespace) -> None:
                                                  and args.realtime_factor > 0):
         raise InvalidTargetError(None, "--realtime-factor", args.realtime_factor,
                                  "must be > 0")
+    if args.namespace and not re.fullmatch(r"(/[A-Za-z_][A-Za-z0-9_]*)+", args.namespace):
+        raise InvalidTargetError(None, "--namespace", args.namespace,
+                                 "must be /name[/name...] (letters, digits, _)")
+    if not 2 <= args.history_depth <= 1_000_000:
+        raise InvalidTargetError(None, "--history-depth", args.history_depth,
+                                 "must be 2..1000000")
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise InvalidTargetError(None, "--domain-id", args.domain_id, "must be 0..232")
-    for name in ("connect_timeout", "reply_timeout"):
+    for name in ("connect_timeout", "reply_timeout", "pace_timeout"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
             raise InvalidTargetError(None, "--" + name.replace("_", "-"), value, "must be > 0")
@@ -91,9 +111,12 @@ def _run(args: argparse.Namespace) -> int:
     from armbench.bench.ros2_node.node import NodeOptions
 
     settings = load_settings(args.settings)
-    options = NodeOptions(node_name=args.node_name, clock=target_of(args.port).virtual,
+    options = NodeOptions(node_name=args.node_name, namespace=args.namespace,
+                          clock=target_of(args.port).virtual,
                           max_duty=args.max_duty, domain_id=args.domain_id,
-                          realtime_factor=args.realtime_factor)
+                          realtime_factor=args.realtime_factor,
+                          history_depth=args.history_depth, slow_subscriber=args.slow_subscriber,
+                          pace_timeout_s=args.pace_timeout)
     if args.square:
         return run_on_port(args.port, _square(args, settings, options))
     return run_on_port(args.port, _serve(args, settings, options))

@@ -1,0 +1,71 @@
+"""The ros2-square suite's contract: what :mod:`armbench.bench.suites.ros2_square` records and
+its report section (``armbench.reports.sections.ros2_square``) reads, registered when imported
+(found by :func:`armbench.record.suite_contract.contracts`). Plain data only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+from armbench.record.suite_contract import Headline, register
+
+__all__ = ["ROS2_SQUARE", "Ros2SquareNames"]
+
+
+@dataclass(frozen=True, slots=True)
+class Ros2SquareNames:
+    """The ros2-square suite: the accuracy square through ROS 2 (a ``JointTrajectory`` from a
+    separate rclpy process) against the driver's own coordinated run, figures named as the
+    accuracy suite's."""
+
+    suite: str = "ros2-square"
+    #: place in the report (lower first), after the built-in suites of the default run
+    order: int = 50
+    #: whether the suite records true figures beside the encoders' (the scorecard says which)
+    has_true_figures: bool = True
+    #: None: the suite needs the extra ``armbench[ros2]``, so it is registered as an entry point
+    #: of ``armbench.suites`` (pyproject.toml), runs when named and is not in the default run
+    implementation: str | None = None
+    prefix: str = "ros2"
+    styles: tuple[str, ...] = ("coordinated", "trajectory")
+    coordinated: str = "coordinated"
+    trajectory: str = "trajectory"
+    # trial parameters
+    style: str = "style"
+    lap: str = "lap"
+    # suite parameters
+    centre: str = "centre_m"
+    side: str = "side_m"
+    # figures of a style (suffixes of its metric names, as the accuracy suite's)
+    mean: str = "mean_mm"
+    rms: str = "rms_mm"
+    max: str = "max_mm"
+    true_mean: str = "true_mean_mm"
+    lap_time: str = "lap_time_s"
+    laps: str = "laps"
+
+    def metric(self, style: str, figure: str) -> str:
+        """``ros2.<style>.<figure>``."""
+        return f"{self.prefix}.{style}.{figure}"
+
+    @property
+    def ratio(self) -> str:
+        """Mean path error through ROS 2 over the driver's own."""
+        return f"{self.prefix}.path_error_ratio"
+
+    @property
+    def true_ratio(self) -> str:
+        return f"{self.prefix}.true_path_error_ratio"
+
+    @property
+    def headlines(self) -> tuple[Headline, ...]:
+        return (
+            Headline("mean path error through ROS 2", self.metric(self.trajectory, self.mean)),
+            Headline("mean path error, the driver's own run",
+                     self.metric(self.coordinated, self.mean)),
+            Headline("path error ratio (ROS 2 / driver)", self.ratio),
+        )
+
+
+ROS2_SQUARE: Final = register(Ros2SquareNames())
