@@ -407,7 +407,8 @@ def pty_port(tmp_path: Path) -> Any:
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
         assert proc.stdout is not None
-        ready, _, _ = select.select([proc.stdout], [], [], 15.0)
+        # starting Python and the emulator takes seconds of CPU: far more on a loaded machine
+        ready, _, _ = select.select([proc.stdout], [], [], 120.0)
         line = proc.stdout.readline() if ready else ""
         assert "serving the arm on " in line, f"emulate did not start: {line!r}"
         yield line.split("serving the arm on ", 1)[1].split()[0]
@@ -429,7 +430,8 @@ def test_accuracy_over_a_pty_in_real_time(pty_port: str) -> None:
                                      "settle_s": 0.1})
 
     async def main() -> tuple[list[Trial], list[Measurement], float]:
-        async with asyncio.timeout(120), Arm.connect(pty_port) as arm:
+        # a starved emulator process may fall silent for longer than the default 0.5 s
+        async with asyncio.timeout(120), Arm.connect(pty_port, reply_timeout_s=5.0) as arm:
             return await _run(suite, params, arm, truth=False, power=False)
 
     trials, ms_list, robot_s = asyncio.run(main())
