@@ -837,12 +837,15 @@ def test_tcp_emulator_killed_reconnection_gives_up(emulators: Callable[..., Emul
                                reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
             mover = asyncio.create_task(arm.move_joints(TARGET, 99))
             await within(asyncio.sleep(0.1))
+            # counted from the kill: on a loaded machine the link may have dropped and been
+            # reconnected once before it (seen with both cores saturated)
+            attempts0, reconnects0 = arm.reconnect_attempts, arm.reconnects
             await asyncio.to_thread(emu.stop, signal.SIGKILL)
             t = loop.time()
             with pytest.raises(PortLostError) as info:
                 await within(mover, 5.0)
             assert "gave up after 3 reconnect attempts" in info.value.reason
-            assert arm.reconnect_attempts == 3 and arm.reconnects == 0
+            assert arm.reconnect_attempts - attempts0 == 3 and arm.reconnects == reconnects0
             assert loop.time() - t < 5.0  # three 20 ms attempts, however late the host
             with pytest.raises(PortLostError):
                 await within(arm.wait_state(lambda s: True))
