@@ -18,6 +18,8 @@ import pytest
 from netutil import free_port, listening
 
 ROOT = Path(__file__).resolve().parents[1]
+START_S = 120.0
+"""Deadline of a far end's start: a bound on a hung start, not on a slow machine."""
 
 
 class Emulator:
@@ -44,7 +46,8 @@ class Emulator:
                                           *self.extra],
                                          cwd=ROOT, stdout=subprocess.PIPE, stderr=err, text=True)
         assert self.proc.stdout is not None
-        ready, _, _ = select.select([self.proc.stdout], [], [], 20.0)
+        # starting Python and the emulator takes seconds of CPU: far more on a loaded machine
+        ready, _, _ = select.select([self.proc.stdout], [], [], START_S)
         line = self.proc.stdout.readline() if ready else ""
         assert "serving the arm on " in line, f"emulate did not start: {line!r}"
         self.started = time.monotonic()  # ~ the emulator's time 0 (its faults' at_s)
@@ -93,7 +96,7 @@ class Ser2net:
         self.proc = subprocess.Popen([self.exe, "-n", "-u", "-P", str(self.config) + ".pid",
                                       "-c", str(self.config)],
                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + START_S
         while not listening(self.tcp_port):
             assert self.proc.poll() is None, f"ser2net exited with {self.proc.returncode}"
             assert time.monotonic() < deadline, "ser2net does not listen"

@@ -291,8 +291,10 @@ def test_budget_on_a_pty(tmp_path: Path) -> None:
         assert m is not None
         out = tmp_path / "robot.toml"
         t0 = time.monotonic()
+        # a starved emulator process may fall silent for longer than the default 0.5 s
         proc = subprocess.run([sys.executable, "-m", "armbench", "calibrate", "--port",
-                               m.group(1), "--budget-s", "120", "--out", str(out)], cwd=ROOT,
+                               m.group(1), "--budget-s", "120", "--reply-timeout", "5",
+                               "--out", str(out)], cwd=ROOT,
                               capture_output=True, text=True, timeout=400)
         wall_s = time.monotonic() - t0
         assert proc.returncode == 0, proc.stderr
@@ -303,6 +305,28 @@ def test_budget_on_a_pty(tmp_path: Path) -> None:
     finally:
         emu.terminate()
         emu.wait(timeout=10)
+
+
+def test_reply_timeout_reaches_the_driver(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """``--reply-timeout S``: an arm that falls silent (a power cut, on virtual time) ends the
+    procedure after S s, in one line naming S; a bad S is refused before connecting."""
+    from conftest import cli, one_line_error
+
+    faults = tmp_path / "cut.toml"
+    faults.write_text('[[faults]]\nkind = "power_cut"\nat_s = 0.5\n')
+    for timeout_s in ("0.25", "1.5"):
+        status, _, err = cli(capsys, "calibrate", "--port", f"fake://?faults={faults}",
+                             "--reply-timeout", timeout_s, "--out", str(tmp_path / timeout_s))
+        last = err.strip().splitlines()[-1]  # after the procedure's progress lines
+        assert status == 2 and "Traceback" not in err, err
+        assert last.startswith("armbench calibrate: error: ") and (
+            f"no valid reply within {timeout_s} s" in last), err
+    for bad in ("0", "-1", "nan", "inf"):
+        status, _, err = cli(capsys, "calibrate", "--port", "fake://", "--reply-timeout", bad,
+                             "--out", str(tmp_path / "bad"))
+        one_line_error(status, err, "--reply-timeout")
+    assert not (tmp_path / "bad").exists()
 
 
 def test_out_as_a_toml_file_is_deprecated_but_kept(tmp_path: Path,

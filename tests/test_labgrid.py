@@ -36,6 +36,12 @@ if shutil.which("ser2net") is None and not os.path.exists("/usr/sbin/ser2net"):
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 ARMS = ("arm-a", "arm-b")
+REPLY_TIMEOUT_S = 5.0
+"""The driver's reply timeout here: an emulator process behind ser2net, starved of CPU, may fall
+silent for longer than the default 0.5 s."""
+MOVE_TIMEOUT_S = 20.0
+"""The small moves' timeout: a starved emulator drops the loops it cannot catch up, so the arm's
+time runs slower than the host's, which the default timeout (from law (12)) measures."""
 
 
 def _tool(name: str) -> str:
@@ -142,8 +148,8 @@ def test_url_and_coordinator(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 async def _move(port: str) -> float:
-    async with Arm.connect(port, connect_timeout_s=10.0) as arm:
-        state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
+    async with Arm.connect(port, connect_timeout_s=10.0, reply_timeout_s=REPLY_TIMEOUT_S) as arm:
+        state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99, timeout_s=MOVE_TIMEOUT_S)
         assert state is not None
         return float(state.q_rad[0])
 
@@ -152,9 +158,10 @@ def test_a_place_is_acquired_used_and_released(lab: Lab) -> None:
     port = lab.port("arm-a")
 
     async def main() -> None:
-        async with Arm.connect(port, connect_timeout_s=10.0) as arm:
+        async with Arm.connect(port, connect_timeout_s=10.0,
+                               reply_timeout_s=REPLY_TIMEOUT_S) as arm:
             assert _acquired_by(lab, "arm-a") != ""  # held for the run
-            state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99)
+            state = await arm.move_joints([0.05, 0.0, 0.0, 0.0], 99, timeout_s=MOVE_TIMEOUT_S)
             assert state is not None and abs(state.q_rad[0] - 0.05) < 3e-4  # arrival tolerance
 
     asyncio.run(main())
@@ -195,8 +202,9 @@ def test_an_unreachable_coordinator() -> None:
 
 def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:
     done = subprocess.run([sys.executable, "-m", "armbench", "move", "--port", lab.port("arm-a"),
-                           "0.02", "0", "0", "0"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=120, check=False)
+                           "--reply-timeout", str(REPLY_TIMEOUT_S),
+                           "--timeout", str(MOVE_TIMEOUT_S), "0.02", "0", "0", "0"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert _acquired_by(lab, "arm-a") == ""
     locked = lab.client("-p", "arm-a", "acquire", user="bob")
@@ -215,7 +223,8 @@ def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:
 def test_ctrl_c_releases_the_place(lab: Lab) -> None:
     """Ctrl-C to a monitor streaming from a labgrid place: no traceback, the place released."""
     monitor = subprocess.Popen([sys.executable, "-m", "armbench", "monitor", "--json", "--port",
-                                lab.port("arm-b")], cwd=ROOT, stdout=subprocess.PIPE,
+                                lab.port("arm-b"), "--reply-timeout", str(REPLY_TIMEOUT_S)],
+                               cwd=ROOT, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
     try:
         assert monitor.stdout is not None

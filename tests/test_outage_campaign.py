@@ -34,13 +34,17 @@ spec_version = "armbench-limits/1"
 
 [bench]
 outage_timeout_s = {timeout_s}
+reply_timeout_s = 5.0
+connect_timeout_s = 30.0
 
 [suites.accuracy]
 laps = 2
 styles = ["coordinated"]
 side_m = 0.04
 """
-"""Two coordinated laps of a 4 cm square: two trials of ~5 s in real time."""
+"""Two coordinated laps of a 4 cm square: two trials of ~5 s in real time. The reply and
+connection timeouts are a few seconds: an emulator process starved of CPU may fall silent for
+longer than the defaults, and the outages here are made by killing the far end."""
 NEAR = (0.05, 0.05, 0.05, 0.05)
 """A move whose default timeout is ~1.1 s: shorter than the outages below."""
 
@@ -98,7 +102,7 @@ def _run_with_outage(tmp: Path, far: FarEnd, *, down_s: float | None,
                             text=True)
     assert proc.stdout is not None
     lines: list[str] = []
-    deadline = time.monotonic() + 60.0
+    deadline = time.monotonic() + 180.0  # a loaded machine starts Python slowly
     try:
         while not any("trial 1/2 done" in line for line in lines):
             assert time.monotonic() < deadline, "".join(lines)
@@ -190,7 +194,8 @@ def test_an_outage_beyond_the_timeout_is_a_lost_port_not_a_move_timeout(
         second.error)
     (lost,) = _lost_port_events(second)
     assert lost["ongoing"] and lost["end_t_s"] is None and lost["reconnect_attempts"] >= 1
-    assert 2.0 <= lost["duration_s"] <= 4.0, lost
+    # no sooner than the timeout; a loaded host may notice it later (a few seconds at most)
+    assert 2.0 <= lost["duration_s"] <= 2.0 + 5.0, lost
     assert second.disturbed and "MoveTimeoutError" not in output
     _show(far_end, second, lost, status)
 
@@ -210,7 +215,7 @@ def test_a_move_waits_for_the_link_and_its_deadline_moves_by_the_outage(
 
     async def body() -> None:
         loop = asyncio.get_running_loop()
-        async with Arm.connect(emu.port, reconnect=policy) as arm:
+        async with Arm.connect(emu.port, reconnect=policy, reply_timeout_s=5.0) as arm:
             t0 = loop.time()
             mover = asyncio.create_task(arm.move_joints(NEAR, 10))
             await asyncio.sleep(0.05)
@@ -235,7 +240,7 @@ def test_a_link_lost_for_good_names_the_port_and_the_silence(tcp_emulator: Emula
 
     async def body() -> None:
         loop = asyncio.get_running_loop()
-        async with Arm.connect(emu.port, reconnect=policy) as arm:
+        async with Arm.connect(emu.port, reconnect=policy, reply_timeout_s=5.0) as arm:
             mover = asyncio.create_task(arm.move_joints(NEAR, 10))
             await asyncio.sleep(0.05)
             t_kill = loop.time()
@@ -244,9 +249,10 @@ def test_a_link_lost_for_good_names_the_port_and_the_silence(tcp_emulator: Emula
                 await asyncio.wait_for(mover, 10.0)
             err = info.value
             assert isinstance(err, PortLostError) and err.port == emu.port
-            assert 2.0 <= err.silent_s <= 2.0 + 0.5 and err.attempts >= 1
+            # no sooner than give_up_after_s; a loaded host may give up later, by seconds at most
+            assert 2.0 <= err.silent_s <= 2.0 + 3.0 and err.attempts >= 1
             assert f"silent for {err.silent_s:.1f} s" in str(err)
-            assert loop.time() - t_kill < 3.0
+            assert loop.time() - t_kill < 2.0 + 3.0
             (outage,) = arm.link_outages()
             assert outage.ended_s is None and outage.kind == "port lost"
             with pytest.raises(LinkLostError):  # every later call says the same

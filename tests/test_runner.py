@@ -346,7 +346,11 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     server = TcpServer(ArmEmulator())
     host, port = await server.start()
     try:
-        config = write_config(tmp_path, trials=1, extra="duty = 99\n")
+        # the emulator shares this process's loop over a real socket: a starved process may
+        # answer later than the default 0.5 s reply timeout, which a test cannot rely on
+        config = write_config(tmp_path, trials=1,
+                              extra="duty = 99\n\n[bench]\nreply_timeout_s = 5.0\n"
+                              "connect_timeout_s = 30.0\n")
         outcome = await run_bench(RunOptions(suites=["tiny"], port=f"socket://{host}:{port}",
                                              config=config, out=tmp_path / "r"))
     finally:

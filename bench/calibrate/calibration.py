@@ -48,8 +48,10 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                          budget_s: float = DEFAULT_BUDGET_S,
                          progress: Callable[[str], None] = lambda message: None,
                          tracker: PoseSource | None = None,
-                         page: PageRenderer | None = None) -> CalibrationResult:
-    """Run the procedure on ``port`` and write the outputs. ``tracker``: a reference instrument
+                         page: PageRenderer | None = None,
+                         reply_timeout_s: float = 0.5) -> CalibrationResult:
+    """Run the procedure on ``port`` and write the outputs. ``reply_timeout_s``: the longest
+    silence of the arm tolerated (the driver's). ``tracker``: a reference instrument
     (``--tracker``, ``bench/truth.py``) measuring the true joints and TCP at rest, opened and
     closed around the procedure. ``page`` renders the calibration page (without it none is
     written). A joint that does not move ends the procedure: what was measured is fitted and
@@ -61,7 +63,7 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
     if tracker is not None:
         await aopen_source(tracker)
     try:
-        async with Arm.connect(port, base) as arm:
+        async with Arm.connect(port, base, reply_timeout_s=reply_timeout_s) as arm:
             procedure = Procedure(arm, base, obs, budget_s=budget_s, save=lambda: obs.save(raw),
                                   progress=progress, tracker=tracker)
             try:

@@ -15,6 +15,7 @@ Exit status: 0 done, 2 bad input or an arm that does not move (the partial outpu
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,9 @@ def register(sub: Any) -> None:
                    help="overwrite outputs that exist (never a file of a run's record)")
     p.add_argument("--budget-s", type=float, default=DEFAULT_BUDGET_S, metavar="S",
                    help=f"robot time the procedure may take (default {DEFAULT_BUDGET_S:g} s)")
+    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
+                   help="with --port: give up after S s without a reply from the arm "
+                        "(default 0.5)")
     p.add_argument("--settings", metavar="FILE",
                    help="base settings: the nominal model and the priors (masses, payload) the "
                         "fit starts from (default: the default arm)")
@@ -66,6 +70,8 @@ def register(sub: Any) -> None:
 def _run(args: argparse.Namespace) -> int:
     if not 0 < args.budget_s <= 24 * 3600:
         raise InvalidTargetError(None, "--budget-s", args.budget_s, "must be in (0, 86400] s")
+    if not (math.isfinite(args.reply_timeout) and args.reply_timeout > 0):
+        raise InvalidTargetError(None, "--reply-timeout", args.reply_timeout, "must be > 0")
     out = _settings_path(Path(args.out))
     if out.parent.is_dir() or out == Path(args.out):  # a folder there, or the former FILE.toml
         check_out_files("--out", output_paths(out, observations=args.port is not None),
@@ -82,7 +88,7 @@ def _run(args: argparse.Namespace) -> int:
         result = run_on_port(port, calibrate_port(
             port, base, out, budget_s=args.budget_s,
             progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
-            page=render_page))
+            page=render_page, reply_timeout_s=args.reply_timeout))
     _summary(result, output_paths(out, observations=args.port is not None))
     return 0
 

@@ -40,7 +40,7 @@ import time
 from collections.abc import Iterator
 
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.arm import Arm
+from armbench.drivers.arm import CONNECT_TIMEOUT_S, Arm
 from armbench.drivers.protocol import REPLY_LEN, Command
 from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
@@ -129,8 +129,10 @@ def _percentile(values: list[float], q: float) -> float:
 # --- real time ----------------------------------------------------------------------------------
 
 @contextlib.contextmanager
-def serve_pty(timeout_s: float = 15.0) -> Iterator[str]:
-    """``armbench emulate --pty`` in a subprocess; yields the pty device it printed."""
+def serve_pty(timeout_s: float = 120.0) -> Iterator[str]:
+    """``armbench emulate --pty`` in a subprocess; yields the pty device it printed. Starting
+    Python and the emulator takes seconds of CPU, far more on a loaded machine: ``timeout_s``
+    bounds a start that hangs, not a slow one."""
     proc = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -149,10 +151,16 @@ def serve_pty(timeout_s: float = 15.0) -> Iterator[str]:
             proc.wait()
 
 
-async def _reply_rate(port: str, seconds: float, settings: RobotSettings) -> tuple[float, float]:
+async def _reply_rate(port: str, seconds: float, settings: RobotSettings,
+                      patience_s: float | None = None) -> tuple[float, float]:
     """Replies per second decoded from ``port`` over ``seconds`` (after a short warm-up), and
-    the longest gap (s) between two replies as the client received them."""
-    async with Arm.connect(port, settings) as arm:
+    the longest gap (s) between two replies as the client received them. ``patience_s``: the
+    connection and reply timeouts instead of the driver's defaults (for the emulator this module
+    starts: its rate is measured, not required, and a loaded machine may keep it waiting)."""
+    connect_s = CONNECT_TIMEOUT_S if patience_s is None else patience_s
+    reply_s = 0.5 if patience_s is None else patience_s
+    async with Arm.connect(port, settings, connect_timeout_s=connect_s,
+                           reply_timeout_s=reply_s) as arm:
         loop = asyncio.get_running_loop()
         await asyncio.sleep(0.2)
         n0, t0 = arm.frames_received, loop.time()
@@ -224,7 +232,7 @@ def run(options: PerfOptions) -> list[Figure]:
     best, best_gap = 0.0, math.inf
     with serve_pty() as path:
         for _ in range(runs):
-            rate, gap = asyncio.run(_reply_rate(path, seconds, robot))
+            rate, gap = asyncio.run(_reply_rate(path, seconds, robot, patience_s=30.0))
             best, best_gap = max(best, rate), min(best_gap, gap)
     figures.append(Figure(
         "driver.pty_reply_rate", best, "replies/s", bound, best / bound,
