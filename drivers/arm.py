@@ -181,7 +181,8 @@ class Arm(ArmLink):
                 reconnect: bool | ReconnectPolicy = False,
                 connect_timeout_s: float = CONNECT_TIMEOUT_S,
                 resend_after_s: float = RESEND_AFTER_S,
-                transport: Transport | None = None) -> Arm:
+                transport: Transport | None = None,
+                move_timeout_scale: float = 1.0) -> Arm:
         """A connection to the arm on ``port``, opened by ``async with`` (or ``await``).
 
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
@@ -192,11 +193,14 @@ class Arm(ArmLink):
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
         unopened transport to use instead of ``open_transport(port)`` (reconnections still use
-        ``open_transport``).
+        ``open_transport``). ``move_timeout_scale``: factor on every default move and path
+        timeout, for an arm that moves slower than law (12) says (a heavy payload, an emulator
+        on a starved machine).
         """
         return cls(port, settings, reply_timeout_s=reply_timeout_s, capture=capture,
                    reconnect=reconnect, connect_timeout_s=connect_timeout_s,
-                   resend_after_s=resend_after_s, transport=transport)
+                   resend_after_s=resend_after_s, transport=transport,
+                   move_timeout_scale=move_timeout_scale)
 
     @property
     def emulator(self) -> Any:
@@ -245,9 +249,11 @@ class Arm(ArmLink):
     def move_timeout_s(self, start: Sequence[float], target: Sequence[float],
                        duties: Sequence[int]) -> float:
         """Default timeout of a move: ``MOVE_TIMEOUT_MARGIN`` × the slowest joint's time by law
-        (12) + ``MOVE_TIMEOUT_SLACK_S`` + the command's time on the wire."""
+        (12) + ``MOVE_TIMEOUT_SLACK_S`` + the command's time on the wire, all times
+        :attr:`move_timeout_scale`."""
         slowest = max(joint_times_s(start, target, duties, self.settings))
-        return MOVE_TIMEOUT_MARGIN * slowest + MOVE_TIMEOUT_SLACK_S + self._command_wire_s
+        return self.move_timeout_scale * (
+            MOVE_TIMEOUT_MARGIN * slowest + MOVE_TIMEOUT_SLACK_S + self._command_wire_s)
 
     # --- waiting ------------------------------------------------------------------------------
 

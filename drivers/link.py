@@ -80,19 +80,23 @@ class ArmLink:
                  reconnect: bool | ReconnectPolicy = False,
                  connect_timeout_s: float = CONNECT_TIMEOUT_S,
                  resend_after_s: float = RESEND_AFTER_S,
-                 transport: Transport | None = None) -> None:
+                 transport: Transport | None = None,
+                 move_timeout_scale: float = 1.0) -> None:
         self.port = port
         """The port string (``/dev/ttyUSB0``, ``socket://h:p``, ``fake://``, ...)."""
         self.settings = settings if settings is not None else RobotSettings()
         """The robot model: limits, drive trains, geometry, line settings."""
         for name, v in (("reply_timeout_s", reply_timeout_s),
                         ("connect_timeout_s", connect_timeout_s),
-                        ("resend_after_s", resend_after_s)):
+                        ("resend_after_s", resend_after_s),
+                        ("move_timeout_scale", move_timeout_scale)):
             if not ((f := finite_float(v)) is not None and f > 0):
                 raise InvalidTargetError(None, name, v, "must be a number > 0")
         self.reply_timeout_s = float(reply_timeout_s)
         self.connect_timeout_s = float(connect_timeout_s)
         self.resend_after_s = float(resend_after_s)
+        self.move_timeout_scale = float(move_timeout_scale)
+        """Factor on every default move and path timeout (an arm slower than law (12))."""
         self._capture = capture if isinstance(capture, CaptureWriter) else None
         self.capture_path = (capture.path if isinstance(capture, CaptureWriter)
                              else FsPath(capture) if capture is not None else None)

@@ -155,7 +155,8 @@ async def stream_path(link: ArmLink, pts: FloatArray, cmds: Sequence[Command], p
     if len(cmds) == 1:
         return run
     if timeout_s is None:
-        timeout_s = MOVE_TIMEOUT_MARGIN * planned_s + MOVE_TIMEOUT_SLACK_S
+        timeout_s = link.move_timeout_scale * (MOVE_TIMEOUT_MARGIN * planned_s
+                                               + MOVE_TIMEOUT_SLACK_S)
     corners = _corners(pts)
     gen = link._supersede()
     link._recorders.append(run.states)

@@ -952,3 +952,15 @@ def test_perf_driver_figures() -> None:
     # reported by perf, not a property a test on a shared machine can hold
     ratio = figures["driver.pty_reply_rate"].ratio
     assert ratio is not None and 0.0 < ratio <= 1.5, ratio
+
+
+def test_the_move_timeout_scale_multiplies_every_default_timeout() -> None:
+    """``move_timeout_scale``: the default move timeout (law (12) with its margin) times the
+    factor; a factor that is not a number > 0 is refused, naming it."""
+    start, goal, duties = (0.0, 0.0, 0.0, 0.0), (1.0, -0.5, 0.3, 0.0), (99, 60, 30, 99)
+    plain = Arm("fake://").move_timeout_s(start, goal, duties)
+    assert Arm("fake://", move_timeout_scale=3.0).move_timeout_s(start, goal, duties) == \
+        pytest.approx(3.0 * plain)
+    for bad in (0.0, -2.0, math.nan, math.inf):
+        with pytest.raises(InvalidTargetError, match="move_timeout_scale"):
+            Arm("fake://", move_timeout_scale=bad)

@@ -23,6 +23,7 @@ from armbench.bench.runner.plan import BENCH_MAX, MAX_TRIALS
 from armbench.bench.suites import SUITES
 from armbench.drivers.settings import MAX_TOML_DEPTH
 from armbench.drivers.user_files import MAX_TOML_BYTES
+from armbench.record import load_record
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = Path(__file__).parent / "fixtures" / "records"
@@ -235,6 +236,7 @@ def _config(tmp_path: Path, table: str, line: str) -> Path:
     ("connect_timeout_s", "1e10"),
     ("outage_timeout_s", "1e10"),
     ("power_timeout_s", "1e10"),
+    ("move_timeout_scale", "1e10"),
     ("retries", "1000000"),
     ("workers", "1000000"),
 ])
@@ -336,3 +338,27 @@ def test_campaign_without_samples_says_it_is_required(
     one_line_error(status, err, "--samples", "required", str(MAX_TRIALS))
     assert "0 must be" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan", '"slow"'])
+def test_a_move_timeout_scale_that_is_no_factor_is_refused(
+        tmp_path: Path, value: str, capsys: pytest.CaptureFixture[str]) -> None:
+    config = _config(tmp_path, "bench", f"move_timeout_scale = {value}")
+    out = tmp_path / "r"
+    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    one_line_error(status, err, "bench.move_timeout_scale")
+    assert not out.exists()
+
+
+def test_the_move_timeout_scale_reaches_the_driver_of_every_trial(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``[bench] move_timeout_scale`` multiplies the driver's default move timeouts: at 0.01 no
+    move of the accuracy lap can finish in time, so each trial ends in ``MoveTimeoutError``."""
+    config = _config(tmp_path, "bench", "move_timeout_scale = 0.01")
+    config.write_text(config.read_text() + "\n[suites.accuracy]\nlaps = 1\n"
+                      'styles = ["paper"]\n')
+    out = tmp_path / "r"
+    cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    record = load_record(out / "results.json")
+    errors = [t.error for s in record.suites.values() for t in s.trials]
+    assert errors and all(e is not None and "MoveTimeoutError" in e for e in errors), errors

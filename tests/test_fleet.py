@@ -50,11 +50,13 @@ needs_chromium = pytest.mark.skipif(
 
 def _one_lap(tmp: Path) -> Path:
     """The default limits with one lap per accuracy style (a real-time run of ~20 s), with reply
-    and connection timeouts of seconds: an emulator process starved of CPU may fall silent for
-    longer than the defaults, and the arm lost here is lost by killing its emulator."""
+    and connection timeouts of seconds and move timeouts ten times the driver's: an emulator
+    process starved of CPU may fall silent for longer than the defaults and runs slower than the
+    host's clock; the arm lost here is lost by killing its emulator."""
     config = tmp / "one-lap.toml"
     config.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
                       + "\n[bench]\nreply_timeout_s = 5.0\nconnect_timeout_s = 30.0\n"
+                      + "move_timeout_scale = 10.0\n"
                       + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     return config
 

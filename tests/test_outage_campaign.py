@@ -36,6 +36,7 @@ spec_version = "armbench-limits/1"
 outage_timeout_s = {timeout_s}
 reply_timeout_s = 5.0
 connect_timeout_s = 30.0
+move_timeout_scale = 10.0
 
 [suites.accuracy]
 laps = 2
@@ -43,8 +44,9 @@ styles = ["coordinated"]
 side_m = 0.04
 """
 """Two coordinated laps of a 4 cm square: two trials of ~5 s in real time. The reply and
-connection timeouts are a few seconds: an emulator process starved of CPU may fall silent for
-longer than the defaults, and the outages here are made by killing the far end."""
+connection timeouts are a few seconds and the moves' ten times the driver's: an emulator process
+starved of CPU may fall silent for longer than the defaults, and runs slower than the host's clock
+(which a move's timeout measures); the outages here are made by killing the far end."""
 NEAR = (0.05, 0.05, 0.05, 0.05)
 """A move whose default timeout is ~1.1 s: shorter than the outages below."""
 

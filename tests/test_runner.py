@@ -350,7 +350,7 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
         # answer later than the default 0.5 s reply timeout, which a test cannot rely on
         config = write_config(tmp_path, trials=1,
                               extra="duty = 99\n\n[bench]\nreply_timeout_s = 5.0\n"
-                              "connect_timeout_s = 30.0\n")
+                              "connect_timeout_s = 30.0\nmove_timeout_scale = 10.0\n")
         outcome = await run_bench(RunOptions(suites=["tiny"], port=f"socket://{host}:{port}",
                                              config=config, out=tmp_path / "r"))
     finally:
@@ -574,10 +574,14 @@ def test_default_config_is_valid_and_names_real_metrics() -> None:
     from armbench.bench.runner import DEFAULT_CONFIG
     from armbench.record.limits import load_limits
 
+    from armbench.record.suite_contract import contracts
+
     config = load_limits(DEFAULT_CONFIG)
     assert config.limits, "the default limits file judges something"
+    prefixes = {getattr(c, "prefix", c.suite) for c in contracts()}
+    assert {"accuracy", "repeatability", "startup"} <= prefixes
     for limit in config.limits.values():
-        assert limit.metric.split(".")[0] in {"accuracy", "repeatability", "startup"}
+        assert limit.metric.split(".")[0] in prefixes, limit.metric  # a registered suite's
         assert limit.unit in {"mm", "mrad", "s", "%", ""}
     assert config.bench_params() == {}  # every runner default stays commented
     assert config.suites == {}

@@ -183,6 +183,7 @@ class BenchPlan:
     run_id: str
     runner_info: dict[str, Any] = field(default_factory=dict)
     outage_timeout_s: float = DEFAULT_OUTAGE_TIMEOUT_S
+    move_timeout_scale: float = 1.0
     """How long a lost port may stay lost before its trial ends in ``LinkLostError`` (``[bench]
     outage_timeout_s``): the reconnection's time bound, counted from the last reply."""
     workers: int = 1

@@ -71,12 +71,13 @@ MAX_TRIALS = 10_000
 BENCH_MAX: dict[str, float] = {
     "retries": 100, "workers": 1024, "reply_timeout_s": 60.0, "connect_timeout_s": 600.0,
     "outage_timeout_s": 600.0, "settle_s": 600.0, "power_timeout_s": 600.0,
+    "move_timeout_scale": 100.0,
 }
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "outage_timeout_s",
                "settle_s",
                "power_timeout_s", "tracker", "workers", "capture", "capture_max_bytes",
-               "scheduler"}
+               "scheduler", "move_timeout_scale"}
 
 
 @dataclass(slots=True)
@@ -107,6 +108,7 @@ class _BenchKnobs:
     capture: bool
     capture_max_bytes: int | None
     scheduler: str | None = None
+    move_timeout_scale: float = 1.0
 
 
 def _number(where: str, value: object, *, low: float, strict: bool, high: float) -> float:
@@ -289,7 +291,10 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
         outage_timeout_s=_seconds(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
         settle_s=_seconds(bench, "settle_s", 0.0, strict=False),
         power_timeout_s=_seconds(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
-        tracker_params=tracker_params, scheduler=scheduler)
+        tracker_params=tracker_params, scheduler=scheduler,
+        move_timeout_scale=_number("bench.move_timeout_scale",
+                                   bench.get("move_timeout_scale", 1.0), low=0, strict=True,
+                                   high=BENCH_MAX["move_timeout_scale"]))
 
 
 def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
@@ -493,6 +498,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
         out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
+        move_timeout_scale=knobs.move_timeout_scale,
         connect_timeout_s=knobs.connect_timeout_s, outage_timeout_s=knobs.outage_timeout_s,
         settle_s=knobs.settle_s, power=power,
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,

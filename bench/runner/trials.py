@@ -169,7 +169,8 @@ class TrialAttempts:
                                      - self.clock.elapsed_s(), truth=emulator_truth(transport))
             arm = Arm.connect(plan.port, plan.settings, reply_timeout_s=plan.reply_timeout_s,
                               capture=capture, reconnect=reconnect,
-                              connect_timeout_s=plan.connect_timeout_s, transport=transport)
+                              connect_timeout_s=plan.connect_timeout_s, transport=transport,
+                              move_timeout_scale=plan.move_timeout_scale)
             await arm.open()
             if emulator is None:  # a simulator may make its side channel when opened
                 emulator = getattr(transport, "emulator", None)

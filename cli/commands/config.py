@@ -123,6 +123,7 @@ def render_config(options: RunOptions) -> str:
         "retries": plan.retries, "workers": plan.workers, "isolation": plan.isolation,
         "reply_timeout_s": plan.reply_timeout_s, "connect_timeout_s": plan.connect_timeout_s,
         "outage_timeout_s": plan.outage_timeout_s, "settle_s": plan.settle_s,
+        "move_timeout_scale": plan.move_timeout_scale,
         "power_timeout_s": float(file_bench.get("power_timeout_s",
                                                 DEFAULT_COMMAND_TIMEOUT_S)),
         "capture": plan.capture,
