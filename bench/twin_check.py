@@ -17,9 +17,11 @@ times, each move from rest aligned at its start:
   names) against the twin's true TCP at the same instants.
 
 Each comparison has a floor computed from the capture: what a perfect twin would score. The
-link's timing scatter times the twin's speed and the angle's quantisation
-(:func:`armbench.bench.twin_align.floor_rad`), and the arm's reaction scatter (the spread of the
-measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
+link's timing scatter (the RMS of the replies' timing residuals, their tail too) times the twin's
+speed and the angle's quantisation (:func:`armbench.bench.twin_align.floor_rad`), the
+uncertainty of each move's start as the arm's own replies tell it times the speed
+(:func:`armbench.bench.twin_align.onset_floor_rad`), and the arm's reaction scatter (the spread
+of the measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
 compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``k × floor + abs`` (per joint in counts, for the arrivals in s, for the TCP in mm; ``k`` and
 ``abs`` in the config's ``[suites."twin-check"]``
@@ -56,6 +58,8 @@ from armbench.bench.twin_align import (
     interval_floor_s,
     late_stamps,
     move_shifts,
+    onset_floor_rad,
+    timing_rms_s,
     timing_scatter_s,
 )
 from armbench.bench.twin_replay import (
@@ -237,12 +241,15 @@ def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
     return np.asarray(rows).reshape(-1, 4)
 
 
-def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
+def _timed(replies: Sequence[tuple[float, Vec4]], start_s: float = -math.inf
+           ) -> list[tuple[float, Vec4]]:
     """The replies whose stamp is their time: not read in one go with the one before or after
-    (the last of a burst too was stamped when the host woke)."""
+    (the last of a burst too was stamped when the host woke); and those stamped before
+    ``start_s`` (the first command: the arm rests before it, so their stamps do not matter,
+    and they hold the pose the first move starts from)."""
     t = np.asarray([r[0] for r in replies])
     apart = np.diff(t) >= BURST_S
-    keep = np.append(apart, True) & np.insert(apart, 0, True)
+    keep = (np.append(apart, True) & np.insert(apart, 0, True)) | (t < start_s)
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 
@@ -339,8 +346,8 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     reaction scatter times the twin's speed."""
     allow = allowance or Allowance()
     twin_track = Track.of(twin)
-    timed = _timed(data.replies)
     times = [c[0] for c in data.commands]
+    timed = _timed(data.replies, times[0] - TIME_SLACK_S if times else -math.inf)
     scatter = timing_scatter_s(Track.of(timed), times)
     late = _read_late(Track.of(timed), times, scatter)
     untimed = len(data.replies) - len(timed) + int(late.sum())
@@ -367,10 +374,14 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     peak = np.max(np.abs(diff), axis=0)
     reaction = measured.scatter_s()
     command_scatter = scatter if reaction is None else max(scatter, reaction)
+    kept = Track(whole.t_s[~late], whole.q_rad[~late])
+    spread = timing_rms_s(kept, times)
+    spread = scatter if spread is None else max(scatter, spread)
     if floor_by_replay is None:
-        floor = floor_rad(speed, scatter, command_scatter, counts)
+        floor = floor_rad(speed, spread, command_scatter, counts)
     else:
-        floor = np.hypot(floor_rad(speed, scatter, 0.0, counts), floor_by_replay.rad)
+        floor = np.hypot(floor_rad(speed, spread, 0.0, counts), floor_by_replay.rad)
+    floor = np.hypot(floor, onset_floor_rad(measured, arm.t_s, times, speed))
     allowed = allow.floor_factor * floor * counts + allow.abs_counts
     per_command = command_shifts(shifts, data.commands, whole, settings)
     settled = _settled(arm, twin_track, times, shifts)
