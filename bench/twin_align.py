@@ -59,6 +59,8 @@ TICK_RAD: Final = 1.0 / TICKS_PER_RAD
 ONSET_TICKS: Final = 4.0
 #: Replies a move's start is traced back from.
 ONSET_REPLIES: Final = 5
+#: Replies the speed a start is traced back with is measured on (every two of them).
+SPEED_REPLIES: Final = 10
 #: The speed a start is traced back with: the stream's own, when within this band of the
 #: nominal one (times the nominal).
 SPEED_BAND: Final = (0.3, 1.5)
@@ -164,10 +166,16 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
         return None
     k = i0 + moved
     # the stream's own speed there (a joint that loses steps is slower than its law): the
-    # median of its replies' slopes (one stale reply does not move it); the nominal one when
-    # they do not say
-    dt = np.diff(t[k])
-    slopes = np.abs(np.diff(q[k]))[dt > 0] / dt[dt > 0]
+    # median of the slopes between every two of its first replies (one stale reply does not
+    # move it; pairs further apart than neighbours keep the wire's rounding of a slow joint
+    # out of it; up to where it stops, a short move's arrival); the nominal one when they do
+    # not say
+    m = i0 + np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:SPEED_REPLIES]
+    going = np.abs(np.diff(q[m])) > REST_TICKS * TICK_RAD
+    m = m[:max(len(k), len(m) if going.all() else int(np.argmin(going)) + 1)]
+    a, b = np.triu_indices(len(m), 1)
+    dt = t[m[b]] - t[m[a]]
+    slopes = np.abs(q[m[b]] - q[m[a]])[dt > 0] / dt[dt > 0]
     speed = float(np.median(slopes)) if len(slopes) else speed_rad_s
     if not SPEED_BAND[0] * speed_rad_s <= speed <= SPEED_BAND[1] * speed_rad_s:
         speed = speed_rad_s

@@ -16,6 +16,7 @@ from armbench.bench.calibrate import load_capture
 from armbench.bench.twin_align import (
     MEDIAN_EFFICIENCY,
     ONSET_REPLIES,
+    TICK_RAD,
     Track,
     move_shifts,
     timing_rms_s,
@@ -117,3 +118,29 @@ def test_a_first_move_after_a_burst_is_aligned(ideal_capture: Path, tmp_path: Pa
     assert result.joint_shifts_s is not None
     assert result.joint_shifts_s[0, 2] == pytest.approx(0.02, abs=1e-3)
     assert result.verdict == "pass", result.to_json()
+
+
+def _quantised(period_s: float, phase_s: float, speed_rad_s: float) -> Track:
+    """Joint 1 at rest at 0, then moving at ``speed_rad_s`` from 0.1005 s, as the wire reports
+    it (rounded to the tick), a reply every ``period_s`` from ``phase_s``."""
+    t = np.arange(phase_s, 0.4, period_s)
+    q = np.zeros((len(t), 4))
+    q[:, 0] = np.round(-speed_rad_s * np.clip(t - 0.1005, 0.0, None) / TICK_RAD) * TICK_RAD
+    return Track(t, q)
+
+
+@pytest.mark.parametrize("phase_s", [0.0, 0.0011, 0.0023, 0.0037])
+def test_a_slow_joints_start_is_timed_through_the_rounding(phase_s: float) -> None:
+    """A slow joint moves a few ticks between two replies, so neighbouring replies' slopes
+    are rounded by a tick in five (up to 25 %), and a start traced back at their median speed
+    was off by up to two ticks' time (2 ms), more than the whole move's timing scatter: the
+    arm (a reply every 5.24 ms) and the twin (every 2.38 ms) that started at the same instant
+    were aligned that far apart. The speed is now the median slope between every two of the first
+    replies."""
+    command = Command.from_rad((-0.2, 0.0, 0.0, 0.0), (90, 0, 0, 0))
+    speed = joint_speed_rad_s(90, IDEAL.joints[0].steps_per_rad)
+    arm, twin = _quantised(0.00524, phase_s, speed), _quantised(0.00238, 0.0, speed)
+    shifts = move_shifts(arm, twin, [(0.1, command)], IDEAL)
+    assert shifts.measured
+    # within the time of half a tick (the rounding of the pose a start is traced back from)
+    assert abs(shifts.per_joint_s[0, 0]) < 0.5 * TICK_RAD / speed, shifts.per_joint_s[0, 0]
