@@ -143,17 +143,18 @@ class Track:
         return np.where(inside[:, None], slope[i], 0.0)
 
 
-def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float
-             ) -> tuple[float, float] | None:
+def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float,
+             target_rad: float | None = None) -> tuple[float, float] | None:
     """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``), and the
     standard error of that time (s): each of the first :data:`ONSET_REPLIES` replies
     :data:`ONSET_TICKS` or more away from the pose at the command, traced back at the speed
-    they show (``speed_rad_s``, the nominal one, if that is outside :data:`SPEED_BAND`); their
-    median (a reply composed before a stall of the sender's loop and sent after it is stale:
-    one such reply does not move the median). Its standard error is that of a median of their
-    spread, less the wire angle's quantisation (already in the floor): how much the replies
-    disagree on the start, which a host that read them late by different amounts shows.
-    None when it did not leave."""
+    they show (the median slope between every two of the first :data:`SPEED_REPLIES` that have
+    not arrived at ``target_rad``; ``speed_rad_s``, the nominal one, if that is outside
+    :data:`SPEED_BAND`); their median (a reply composed before a stall of the sender's loop
+    and sent after it is stale: one such reply does not move the median). Its standard error
+    is that of a median of their spread, less the wire angle's quantisation (already in the
+    floor): how much the replies disagree on the start, which a host that read them late by
+    different amounts shows. None when it did not leave."""
     t, q = track.t_s, track.q_rad[:, joint]
     i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
     i1 = int(np.searchsorted(t, t1_s + SAME_INSTANT_S))
@@ -168,11 +169,12 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     # the stream's own speed there (a joint that loses steps is slower than its law): the
     # median of the slopes between every two of its first replies (one stale reply does not
     # move it; pairs further apart than neighbours keep the wire's rounding of a slow joint
-    # out of it; up to where it stops, a short move's arrival); the nominal one when they do
+    # out of it; not those that arrived, a short move's end); the nominal one when they do
     # not say
     m = i0 + np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:SPEED_REPLIES]
-    going = np.abs(np.diff(q[m])) > REST_TICKS * TICK_RAD
-    m = m[:max(len(k), len(m) if going.all() else int(np.argmin(going)) + 1)]
+    if target_rad is not None:
+        going = m[np.abs(q[m] - target_rad) > ONSET_TICKS * TICK_RAD]
+        m = going if len(going) >= len(k) else k
     a, b = np.triu_indices(len(m), 1)
     dt = t[m[b]] - t[m[a]]
     slopes = np.abs(q[m[b]] - q[m[a]])[dt > 0] / dt[dt > 0]
@@ -247,8 +249,9 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                                     & (np.asarray(cmd.duties) > 0)
                                     & _at_rest(arm, t_c) & _at_rest(twin, t_c)):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
-                a = _onset_s(arm, t_c, times[k + 1], int(j), speed)
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed)
+                goal = float(cmd.angles_rad(lower, upper)[j])
+                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, goal)
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, goal)
                 if a is not None and b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]

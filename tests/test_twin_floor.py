@@ -129,16 +129,17 @@ def _quantised(period_s: float, phase_s: float, speed_rad_s: float) -> Track:
     return Track(t, q)
 
 
+@pytest.mark.parametrize("duty", [90, 70])
 @pytest.mark.parametrize("phase_s", [0.0, 0.0011, 0.0023, 0.0037])
-def test_a_slow_joints_start_is_timed_through_the_rounding(phase_s: float) -> None:
+def test_a_slow_joints_start_is_timed_through_the_rounding(phase_s: float, duty: int) -> None:
     """A slow joint moves a few ticks between two replies, so neighbouring replies' slopes
     are rounded by a tick in five (up to 25 %), and a start traced back at their median speed
     was off by up to two ticks' time (2 ms), more than the whole move's timing scatter: the
     arm (a reply every 5.24 ms) and the twin (every 2.38 ms) that started at the same instant
     were aligned that far apart. The speed is now the median slope between every two of the first
-    replies."""
-    command = Command.from_rad((-0.2, 0.0, 0.0, 0.0), (90, 0, 0, 0))
-    speed = joint_speed_rad_s(90, IDEAL.joints[0].steps_per_rad)
+    replies (at duty 70 the twin's replies are less than a tick apart)."""
+    command = Command.from_rad((-0.2, 0.0, 0.0, 0.0), (duty, 0, 0, 0))
+    speed = joint_speed_rad_s(duty, IDEAL.joints[0].steps_per_rad)
     arm, twin = _quantised(0.00524, phase_s, speed), _quantised(0.00238, 0.0, speed)
     shifts = move_shifts(arm, twin, [(0.1, command)], IDEAL)
     assert shifts.measured
