@@ -18,7 +18,7 @@ from test_twin_check import _lap, _stall_twin
 from armbench.bench.calibrate import calibrate_port
 from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.stall import curve_factor
-from armbench.bench.calibrate.structure import JointSpeeds, choose_joint, held_out_chi2
+from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
 from armbench.bench.twin_check import twin_check
 from armbench.cli.main import main
 from armbench.drivers.arm import Arm
@@ -59,21 +59,6 @@ def test_duty_threshold_and_gear_ratio_are_found() -> None:
     assert fitted["loss_above_duty"].value == 90
     assert fitted["gear_ratio"].identified and fitted["gear_ratio"].covers(48.0)
     assert "held-out" in fitted["loss_law"].reason and "weight" in fitted["loss_law"].reason
-
-
-def test_a_duty_loss_held_out_on_one_side_is_predicted_from_the_other() -> None:
-    """The shared arm's joint 1 (gear 48, 10 % lost both ways above duty 95): four runs, at 99
-    and 95 each way. Leaving out a run at 99 leaves its direction with no run above the
-    threshold; the duty law predicted no loss there (held-out χ² 50: two misses of 25), so it
-    lost to the torque law, which shares one pull-out torque between the directions. It now
-    predicts the other direction's share, and holds its own against the torque law."""
-    s = 50.0 / 48.0
-    duty, direction = [99.0, 99.0, 95.0, 95.0], [1.0, -1.0, 1.0, -1.0]
-    ratio = [s * (0.9 if d > 95 else 1.0) for d in duty]
-    table = _table(ratio, duty, direction, [0.3] * 4, 1e-4)
-    assert held_out_chi2(table, "duty", True) < 10.0
-    fitted = _by_key(choose_joint(0, 50.0, PRIOR, table))
-    assert fitted["gear_ratio"].covers(48.0)
 
 
 def test_the_same_slowdown_at_every_duty_is_a_gear_ratio() -> None:

@@ -16,7 +16,7 @@ arm's own noise in this session. Each candidate structure predicts ``r`` for a r
   or 0 (only when a run stalled), with the prior's pull-out curve and with the other shape
   (``bench/calibrate/stall.py``: hyperbolic or linear in the rate), each a candidate;
 * ``duty`` — a fixed share is lost above a duty, per direction: ``r = s (1 − share±)`` above the
-  threshold, ``s`` below it (a direction with no run above the threshold takes the other's);
+  threshold, ``s`` below it;
 
 each with ``s = 1`` or with ``s`` fitted (the speed scale: the gear ratio is the nominal over
 ``s``). Every candidate is fitted leaving one run out and scored on that run (leave-one-out
@@ -234,19 +234,13 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
         w = 1.0 / d.sigma ** 2
         s = _clip_scale(_wmean(d.ratio[below], w[below])) if scaled and below.any() else 1.0
         params = {"s": s, "loss_above_duty": thr}
-        shares: dict[str, float | None] = {}
+        pred = np.full_like(d.ratio, s)
         for key, sign in (("loss_plus", 1.0), ("loss_minus", -1.0)):
             above = (~below) & (d.direction == sign)
-            shares[key] = (min(0.9, max(0.0, 1.0 - _wmean(d.ratio[above] / s, w[above])))
-                           if above.any() else None)
-        # a direction with no run above the threshold loses what the other does: the runs
-        # say nothing else, and a share of 0 there would be a claim they do not make
-        plus, minus = shares["loss_plus"], shares["loss_minus"]
-        params["loss_plus"] = plus if plus is not None else (minus or 0.0)
-        params["loss_minus"] = minus if minus is not None else (plus or 0.0)
-        pred = np.full_like(d.ratio, s)
-        pred[~below & (d.direction > 0)] *= 1.0 - params["loss_plus"]
-        pred[~below & (d.direction < 0)] *= 1.0 - params["loss_minus"]
+            share = 1.0 - _wmean(d.ratio[above] / s, w[above]) if above.any() else 0.0
+            share = min(0.9, max(0.0, share))
+            params[key] = share
+            pred[above] = s * (1.0 - share)
         if not below.any() and _same_both_ways(d, w):
             continue  # one share at every duty, both ways: a speed scale, not a duty threshold
         chi2 = float((((d.ratio - pred) ** 2) * w).sum())
