@@ -45,7 +45,8 @@ from armbench.drivers.protocol import TICKS_PER_RAD, Command
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
-           "late_stamps", "move_shifts", "onset_floor_rad", "timing_rms_s", "timing_scatter_s"]
+           "late_stamps", "move_shifts", "onset_floor_rad", "stamped_late_s", "timing_rms_s",
+           "timing_scatter_s"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -207,6 +208,9 @@ class Shifts:
     per_joint_s: FloatArray
     measured: list[tuple[int, float]]
     onset_se_s: FloatArray | None = None
+    #: Per command, the earliest of the arm's measured starts after it less its stamp (s; nan
+    #: where none was measured): the arm's reaction time as the capture's stamps show it.
+    arm_lag_s: FloatArray | None = None
 
     def deviations_s(self) -> list[float]:
         """Each measured shift minus its joint's median (s)."""
@@ -237,6 +241,7 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     ±:data:`MAX_SHIFT_S`."""
     out = np.zeros((len(commands), 4))
     onset_se = np.zeros((len(commands), 4))
+    lag = np.full(len(commands), np.nan)
     shift, se = np.zeros(4), np.zeros(4)
     measured: list[tuple[int, float]] = []
     times = [c[0] for c in commands] + [math.inf]
@@ -255,9 +260,31 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                 if a is not None and b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]
+                    lag[k] = np.fmin(lag[k], a[0] - t_c)
                     measured.append((int(j), float(shift[j])))
         out[k], onset_se[k] = shift, se
-    return Shifts(out, measured, onset_se)
+    return Shifts(out, measured, onset_se, lag)
+
+
+def stamped_late_s(arm_lag_s: FloatArray | None, command_times: Sequence[float],
+                   limit_s: float) -> FloatArray | None:
+    """Per command, how much earlier (s, <= 0) the arm acted on it than its stamp says, where
+    its own replies show it left more than ``limit_s`` before the stamp (``arm_lag_s``:
+    :attr:`Shifts.arm_lag_s`; a host stalled while writing the command stamped it late): by
+    that and the arm's median reaction time; the commands stamped between that instant and it
+    are moved alike (they keep their order). None when no command was."""
+    lag = arm_lag_s
+    if lag is None or int(np.isfinite(lag).sum()) < 3:
+        return None
+    early = np.isfinite(lag) & (lag < -limit_s)
+    if not early.any():
+        return None
+    out = np.where(early, lag - float(np.nanmedian(lag)), 0.0)
+    t = np.asarray(command_times)
+    for k in np.flatnonzero(early)[::-1]:
+        before = (t < t[k]) & (t > t[k] + out[k])
+        out[before] = np.minimum(out[before], out[k])
+    return np.asarray(out, dtype=np.float64)
 
 
 def command_shifts(shifts: FloatArray, commands: Sequence[tuple[float, Command]],
