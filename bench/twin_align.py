@@ -19,9 +19,12 @@ of that is the model's doing. So:
   aligned, not the motion;
 * the floor comes from the capture itself. The arm's own replies, where a joint moves steadily,
   scatter around the straight line through their neighbours by the link's timing scatter times
-  the joint's speed: that scatter (s, a robust spread of those residuals in time units) times the
-  twin's speed, plus the quantisation of the wire angle and of the encoder on both sides, is the
-  part of the per-joint floor (RMS, rad) the replies give; the start shifts' spread is the arm's
+  the joint's speed: that scatter (s; a robust spread of those residuals in time units finds the
+  replies read late, their RMS is what a perfect twin meets) times the twin's speed, plus the
+  quantisation of the wire angle and of the encoder on both sides, is the part of the per-joint
+  floor (RMS, rad) the replies give; a move's start, timed from the arm's first replies, is as
+  uncertain as those replies disagree on it, and the whole move is aligned by it (its standard
+  error times the twin's speed: :func:`onset_floor_rad`); the start shifts' spread is the arm's
   reaction scatter, which :mod:`armbench.bench.twin_check` turns into the rest of the floor by
   replaying the twin with its commands moved by draws of it. A perfect twin scores about the
   floor; the verdict allows ``k × floor + abs``.
@@ -42,7 +45,8 @@ from armbench.drivers.protocol import TICKS_PER_RAD, Command
 from armbench.drivers.settings import RobotSettings
 
 __all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
-           "late_stamps", "move_shifts", "timing_scatter_s"]
+           "late_stamps", "move_shifts", "onset_floor_rad", "stamped_late_s", "timing_rms_s",
+           "timing_scatter_s"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -56,6 +60,8 @@ TICK_RAD: Final = 1.0 / TICKS_PER_RAD
 ONSET_TICKS: Final = 4.0
 #: Replies a move's start is traced back from.
 ONSET_REPLIES: Final = 5
+#: Replies the speed a start is traced back with is measured on (every two of them).
+SPEED_REPLIES: Final = 10
 #: The speed a start is traced back with: the stream's own, when within this band of the
 #: nominal one (times the nominal).
 SPEED_BAND: Final = (0.3, 1.5)
@@ -67,6 +73,9 @@ REST_TICKS: Final = 1.5
 MAX_SHIFT_S: Final = 0.06
 #: Steady motion for the timing scatter: the two neighbours of a reply this many ticks apart.
 STEADY_TICKS: Final = 20.0
+#: The timing RMS takes a reply where the joint's speeds just outside its neighbours agree
+#: within this share of the larger (away from where it starts or stops).
+OUTER_SPEED_BAND: Final = 0.3
 #: Fewer residuals than this: the timing scatter is taken from the reply intervals instead.
 MIN_RESIDUALS: Final = 20
 #: A reply is stamped late when its angle is behind the straight line through its neighbours
@@ -82,6 +91,8 @@ LATE_WAY_TICKS: Final = 2.0 * LATE_TICKS
 LATE_ROUNDS: Final = 3
 #: Robust standard deviation from the median absolute value of a centred normal sample.
 MAD_TO_SIGMA: Final = 1.4826
+#: Variance of a sample's median over that of its mean (a normal sample): π / 2.
+MEDIAN_EFFICIENCY: Final = math.pi / 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,14 +144,18 @@ class Track:
         return np.where(inside[:, None], slope[i], 0.0)
 
 
-def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float
-             ) -> float | None:
-    """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``): each of the
-    first :data:`ONSET_REPLIES` replies :data:`ONSET_TICKS` or more away from the pose at the
-    command, traced back at the speed they show (``speed_rad_s``, the nominal one, if that is
-    outside :data:`SPEED_BAND`); their median (a reply composed before a stall of the sender's
-    loop and sent after it is stale: one such reply does not move the median).
-    None when it did not leave."""
+def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float,
+             target_rad: float | None = None) -> tuple[float, float] | None:
+    """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``), and the
+    standard error of that time (s): each of the first :data:`ONSET_REPLIES` replies
+    :data:`ONSET_TICKS` or more away from the pose at the command, traced back at the speed
+    they show (the median slope between every two of the first :data:`SPEED_REPLIES` that have
+    not arrived at ``target_rad``; ``speed_rad_s``, the nominal one, if that is outside
+    :data:`SPEED_BAND`); their median (a reply composed before a stall of the sender's loop
+    and sent after it is stale: one such reply does not move the median). Its standard error
+    is that of a median of their spread, less the wire angle's quantisation (already in the
+    floor): how much the replies disagree on the start, which a host that read them late by
+    different amounts shows. None when it did not leave."""
     t, q = track.t_s, track.q_rad[:, joint]
     i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
     i1 = int(np.searchsorted(t, t1_s + SAME_INSTANT_S))
@@ -153,14 +168,27 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
         return None
     k = i0 + moved
     # the stream's own speed there (a joint that loses steps is slower than its law): the
-    # median of its replies' slopes (one stale reply does not move it); the nominal one when
-    # they do not say
-    dt = np.diff(t[k])
-    slopes = np.abs(np.diff(q[k]))[dt > 0] / dt[dt > 0]
+    # median of the slopes between every two of its first replies (one stale reply does not
+    # move it; pairs further apart than neighbours keep the wire's rounding of a slow joint
+    # out of it; not those that arrived, a short move's end); the nominal one when they do
+    # not say
+    m = i0 + np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:SPEED_REPLIES]
+    if target_rad is not None:
+        going = m[np.abs(q[m] - target_rad) > ONSET_TICKS * TICK_RAD]
+        m = going if len(going) >= len(k) else k
+    a, b = np.triu_indices(len(m), 1)
+    dt = t[m[b]] - t[m[a]]
+    slopes = np.abs(q[m[b]] - q[m[a]])[dt > 0] / dt[dt > 0]
     speed = float(np.median(slopes)) if len(slopes) else speed_rad_s
     if not SPEED_BAND[0] * speed_rad_s <= speed <= SPEED_BAND[1] * speed_rad_s:
         speed = speed_rad_s
-    return float(np.median(t[k] - np.abs(q[k] - pose) / speed))
+    starts = t[k] - np.abs(q[k] - pose) / speed
+    start = float(np.median(starts))
+    if len(starts) < 2:
+        return start, 0.0
+    spread2 = float(np.sum((starts - start) ** 2)) / (len(starts) - 1)
+    quant2 = 2.0 * (TICK_RAD / speed) ** 2 / 12.0      # the reply's and the pose's
+    return start, math.sqrt(max(0.0, spread2 - quant2) * MEDIAN_EFFICIENCY / len(starts))
 
 
 def _at_rest(track: Track, t_s: float) -> npt.NDArray[np.bool_]:
@@ -174,10 +202,15 @@ def _at_rest(track: Track, t_s: float) -> npt.NDArray[np.bool_]:
 @dataclass(frozen=True, slots=True)
 class Shifts:
     """The start shifts: per command and joint (``(n, 4)``, s), and the measured ones
-    (joint, s)."""
+    (joint, s); per command and joint, the standard error (s) of the arm's start the shift
+    was measured at (``(n, 4)``, carried with the shift: 0 where none was measured)."""
 
     per_joint_s: FloatArray
     measured: list[tuple[int, float]]
+    onset_se_s: FloatArray | None = None
+    #: Per command, the earliest of the arm's measured starts after it less its stamp (s; nan
+    #: where none was measured): the arm's reaction time as the capture's stamps show it.
+    arm_lag_s: FloatArray | None = None
 
     def deviations_s(self) -> list[float]:
         """Each measured shift minus its joint's median (s)."""
@@ -207,7 +240,9 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     before otherwise (0 before the first measured start, or when a stream did not move). Within
     ±:data:`MAX_SHIFT_S`."""
     out = np.zeros((len(commands), 4))
-    shift = np.zeros(4)
+    onset_se = np.zeros((len(commands), 4))
+    lag = np.full(len(commands), np.nan)
+    shift, se = np.zeros(4), np.zeros(4)
     measured: list[tuple[int, float]] = []
     times = [c[0] for c in commands] + [math.inf]
     lower, upper = settings.lower_rad, settings.upper_rad
@@ -219,13 +254,37 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                                     & (np.asarray(cmd.duties) > 0)
                                     & _at_rest(arm, t_c) & _at_rest(twin, t_c)):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
-                a = _onset_s(arm, t_c, times[k + 1], int(j), speed)
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed)
+                goal = float(cmd.angles_rad(lower, upper)[j])
+                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, goal)
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, goal)
                 if a is not None and b is not None:
-                    shift[j] = float(np.clip(a - b, -MAX_SHIFT_S, MAX_SHIFT_S))
+                    shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
+                    se[j] = a[1]
+                    lag[k] = np.fmin(lag[k], a[0] - t_c)
                     measured.append((int(j), float(shift[j])))
-        out[k] = shift
-    return Shifts(out, measured)
+        out[k], onset_se[k] = shift, se
+    return Shifts(out, measured, onset_se, lag)
+
+
+def stamped_late_s(arm_lag_s: FloatArray | None, command_times: Sequence[float],
+                   limit_s: float) -> FloatArray | None:
+    """Per command, how much earlier (s, <= 0) the arm acted on it than its stamp says, where
+    its own replies show it left more than ``limit_s`` before the stamp (``arm_lag_s``:
+    :attr:`Shifts.arm_lag_s`; a host stalled while writing the command stamped it late): by
+    that and the arm's median reaction time; the commands stamped between that instant and it
+    are moved alike (they keep their order). None when no command was."""
+    lag = arm_lag_s
+    if lag is None or int(np.isfinite(lag).sum()) < 3:
+        return None
+    early = np.isfinite(lag) & (lag < -limit_s)
+    if not early.any():
+        return None
+    out = np.where(early, lag - float(np.nanmedian(lag)), 0.0)
+    t = np.asarray(command_times)
+    for k in np.flatnonzero(early)[::-1]:
+        before = (t < t[k]) & (t > t[k] + out[k])
+        out[before] = np.minimum(out[before], out[k])
+    return np.asarray(out, dtype=np.float64)
 
 
 def command_shifts(shifts: FloatArray, commands: Sequence[tuple[float, Command]],
@@ -241,16 +300,18 @@ def command_shifts(shifts: FloatArray, commands: Sequence[tuple[float, Command]]
     return out
 
 
-def timing_scatter_s(arm: Track, command_times: Sequence[float]) -> float:
-    """The link's timing scatter (s, a standard deviation) as the capture shows it: where a
-    joint moves steadily (its two neighbouring replies at least :data:`STEADY_TICKS` apart, no
-    command between them), the reply's distance from the straight line through its neighbours,
-    in time units (divided by the speed, scaled for the neighbours' own scatter); a robust
-    spread of all of them. With too few, the spread of the reply intervals over √2 (a steady
-    reply rate assumed: an overestimate otherwise)."""
+def _steady_residuals_s(arm: Track, command_times: Sequence[float], outer: bool = False
+                        ) -> FloatArray:
+    """Where a joint moves steadily (its two neighbouring replies at least
+    :data:`STEADY_TICKS` apart, no command between them), each reply's distance from the
+    straight line through its neighbours in time units (divided by the speed, scaled for the
+    neighbours' own scatter), pooled over the joints. With ``outer``, only where the joint's
+    speed before the neighbours and after them (the next replies out) agrees within
+    :data:`OUTER_SPEED_BAND` (no command between those either): a reply next to where the
+    joint starts or stops (a knee in its motion, not a timing matter) is left out."""
     t, q = arm.t_s, arm.q_rad
     if len(t) < 3:
-        return 0.0
+        return np.zeros(0)
     span = t[2:] - t[:-2]
     ok_t = span > 0
     w = np.where(ok_t, (t[1:-1] - t[:-2]) / np.where(ok_t, span, 1.0), 0.5)
@@ -264,10 +325,55 @@ def timing_scatter_s(arm: Track, command_times: Sequence[float]) -> float:
         steady = ok_t & same & (np.abs(dq) >= STEADY_TICKS * TICK_RAD)
         if not steady.any():
             continue
+        if outer:
+            steady &= _outer_steady(t, q[:, j], ct)
         v = dq[steady] / span[steady]
         r = q[1:-1, j][steady] - (q[:-2, j][steady] + w[steady] * dq[steady])
         pooled.append(r / v / scale[steady])
-    e = np.concatenate(pooled) if pooled else np.zeros(0)
+    return np.concatenate(pooled) if pooled else np.zeros(0)
+
+
+def _outer_steady(t: FloatArray, q: FloatArray, command_times: FloatArray
+                  ) -> npt.NDArray[np.bool_]:
+    """Per inner reply (``n - 2``) of one joint: whether the speed from the reply two before to
+    the one before and from the one after to the one two after agree (same sign, within
+    :data:`OUTER_SPEED_BAND` of the larger), with no command from the first to the last."""
+    out = np.zeros(max(0, len(t) - 2), dtype=bool)
+    if len(t) < 5:
+        return out
+    dt_l, dt_r = t[1:-3] - t[:-4], t[4:] - t[3:-1]
+    ok = (dt_l > 0) & (dt_r > 0)
+    v_l = (q[1:-3] - q[:-4]) / np.where(ok, dt_l, 1.0)
+    v_r = (q[4:] - q[3:-1]) / np.where(ok, dt_r, 1.0)
+    top = np.maximum(np.abs(v_l), np.abs(v_r))
+    same = np.searchsorted(command_times, t[:-4], side="right") == np.searchsorted(
+        command_times, t[4:], side="right")
+    out[1:-1] = ok & same & (v_l * v_r > 0) & (np.abs(v_l - v_r) <= OUTER_SPEED_BAND * top)
+    return out
+
+
+def timing_rms_s(arm: Track, command_times: Sequence[float]) -> float | None:
+    """The RMS of the timing residuals of :func:`timing_scatter_s` (s): every timing scatter
+    the replies show, its tail too (a loaded host reading some replies a little late, a sender
+    whose loop time varies), which a perfect twin's RMS divergence meets in full. None with
+    fewer than :data:`MIN_RESIDUALS` of them."""
+    e = _steady_residuals_s(arm, command_times, outer=True)
+    if len(e) < MIN_RESIDUALS:
+        return None
+    return float(np.sqrt(np.mean(e * e)))
+
+
+def timing_scatter_s(arm: Track, command_times: Sequence[float]) -> float:
+    """The link's timing scatter (s, a standard deviation) as the capture shows it: where a
+    joint moves steadily (its two neighbouring replies at least :data:`STEADY_TICKS` apart, no
+    command between them), the reply's distance from the straight line through its neighbours,
+    in time units (divided by the speed, scaled for the neighbours' own scatter); a robust
+    spread of all of them. With too few, the spread of the reply intervals over √2 (a steady
+    reply rate assumed: an overestimate otherwise)."""
+    t = arm.t_s
+    if len(t) < 3:
+        return 0.0
+    e = _steady_residuals_s(arm, command_times)
     if len(e) >= MIN_RESIDUALS:
         return float(MAD_TO_SIGMA * np.median(np.abs(e)))
     gaps = np.diff(t)
@@ -284,6 +390,21 @@ def floor_rad(speed_rad_s: FloatArray, reply_scatter_s: float, command_scatter_s
     quant = 2.0 * (TICK_RAD ** 2 + (1.0 / counts_per_rad) ** 2) / 12.0
     timing2 = reply_scatter_s ** 2 + command_scatter_s ** 2
     return np.asarray(np.sqrt(timing2 * mean_v2 + quant), dtype=np.float64)
+
+
+def onset_floor_rad(shifts: Shifts, t_s: FloatArray, command_times: Sequence[float],
+                    speed_rad_s: FloatArray) -> FloatArray:
+    """Per joint, the RMS divergence (rad) a perfect twin shows from the uncertainty of the
+    arm's starts the shifts were measured at: at each compared reply (times ``t_s``), the
+    standard error of its move's start (:attr:`Shifts.onset_se_s`, from the arm's own replies)
+    times the twin's speed there (``(n, 4)`` rad/s). A host that read a start's replies late by
+    different amounts aligns the whole move by a start that much off."""
+    if shifts.onset_se_s is None or not len(t_s) or not len(command_times):
+        return np.zeros(4)
+    k = np.clip(np.searchsorted(np.asarray(command_times), t_s + SAME_INSTANT_S, side="right")
+                - 1, 0, len(command_times) - 1)
+    se = shifts.onset_se_s[k]
+    return np.asarray(np.sqrt(np.mean((se * speed_rad_s) ** 2, axis=0)), dtype=np.float64)
 
 
 def interval_floor_s(arm: Track, twin: Track, reply_scatter_s: float,

@@ -17,9 +17,11 @@ times, each move from rest aligned at its start:
   names) against the twin's true TCP at the same instants.
 
 Each comparison has a floor computed from the capture: what a perfect twin would score. The
-link's timing scatter times the twin's speed and the angle's quantisation
-(:func:`armbench.bench.twin_align.floor_rad`), and the arm's reaction scatter (the spread of the
-measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
+link's timing scatter (the RMS of the replies' timing residuals, their tail too) times the twin's
+speed and the angle's quantisation (:func:`armbench.bench.twin_align.floor_rad`), the
+uncertainty of each move's start as the arm's own replies tell it times the speed
+(:func:`armbench.bench.twin_align.onset_floor_rad`), and the arm's reaction scatter (the spread
+of the measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
 compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``k × floor + abs`` (per joint in counts, for the arrivals in s, for the TCP in mm; ``k`` and
 ``abs`` in the config's ``[suites."twin-check"]``
@@ -57,6 +59,9 @@ from armbench.bench.twin_align import (
     interval_floor_s,
     late_stamps,
     move_shifts,
+    onset_floor_rad,
+    stamped_late_s,
+    timing_rms_s,
     timing_scatter_s,
 )
 from armbench.bench.twin_replay import (
@@ -169,6 +174,7 @@ class TwinCheck:
     shifts_s: list[float] = field(default_factory=list)
     joint_shifts_s: FloatArray | None = None
     shift_deviations_s: list[float] = field(default_factory=list)
+    arm_lag_s: FloatArray | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -237,12 +243,15 @@ def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
     return np.asarray(rows).reshape(-1, 4)
 
 
-def _timed(replies: Sequence[tuple[float, Vec4]]) -> list[tuple[float, Vec4]]:
+def _timed(replies: Sequence[tuple[float, Vec4]], start_s: float = -math.inf
+           ) -> list[tuple[float, Vec4]]:
     """The replies whose stamp is their time: not read in one go with the one before or after
-    (the last of a burst too was stamped when the host woke)."""
+    (the last of a burst too was stamped when the host woke); and those stamped before
+    ``start_s`` (the first command: the arm rests before it, so their stamps do not matter,
+    and they hold the pose the first move starts from)."""
     t = np.asarray([r[0] for r in replies])
     apart = np.diff(t) >= BURST_S
-    keep = np.append(apart, True) & np.insert(apart, 0, True)
+    keep = (np.append(apart, True) & np.insert(apart, 0, True)) | (t < start_s)
     return [r for r, k in zip(replies, keep, strict=True) if k]
 
 
@@ -339,8 +348,8 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     reaction scatter times the twin's speed."""
     allow = allowance or Allowance()
     twin_track = Track.of(twin)
-    timed = _timed(data.replies)
     times = [c[0] for c in data.commands]
+    timed = _timed(data.replies, times[0] - TIME_SLACK_S if times else -math.inf)
     scatter = timing_scatter_s(Track.of(timed), times)
     late = _read_late(Track.of(timed), times, scatter)
     untimed = len(data.replies) - len(timed) + int(late.sum())
@@ -367,10 +376,14 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     peak = np.max(np.abs(diff), axis=0)
     reaction = measured.scatter_s()
     command_scatter = scatter if reaction is None else max(scatter, reaction)
+    kept = Track(whole.t_s[~late], whole.q_rad[~late])
+    spread = timing_rms_s(kept, times)
+    spread = scatter if spread is None else max(scatter, spread)
     if floor_by_replay is None:
-        floor = floor_rad(speed, scatter, command_scatter, counts)
+        floor = floor_rad(speed, spread, command_scatter, counts)
     else:
-        floor = np.hypot(floor_rad(speed, scatter, 0.0, counts), floor_by_replay.rad)
+        floor = np.hypot(floor_rad(speed, spread, 0.0, counts), floor_by_replay.rad)
+    floor = np.hypot(floor, onset_floor_rad(measured, arm.t_s, times, speed))
     allowed = allow.floor_factor * floor * counts + allow.abs_counts
     per_command = command_shifts(shifts, data.commands, whole, settings)
     settled = _settled(arm, twin_track, times, shifts)
@@ -420,7 +433,7 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         settled_counts=[float(v) for v in settled_rms * counts], scatter_s=scatter,
         reaction_scatter_s=command_scatter,
         shifts_s=[float(v) for v in per_command], joint_shifts_s=shifts,
-        shift_deviations_s=measured.deviations_s())
+        shift_deviations_s=measured.deviations_s(), arm_lag_s=measured.arm_lag_s)
 
 
 def _verdict(measurements: Sequence[Measurement]) -> str:
@@ -528,9 +541,10 @@ def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> Floa
 def twin_check(data: CaptureData, settings: RobotSettings,
                config: str | Path | None = None,
                arm_tcp: Sequence[tuple[float, Sequence[float]]] | None = None) -> TwinCheck:
-    """Replay each session on a virtual-time loop and compare (see the module doc); then
-    replay it again with each command moved by a draw of the arm's reaction scatter, for the
-    floor (:func:`replay_floor`). ``arm_tcp``: the arm's true TCP (capture clock s, m) from a
+    """Replay each session on a virtual-time loop and compare (see the module doc; commands
+    stamped late, :func:`armbench.bench.twin_align.stamped_late_s`, when the arm got them);
+    then again with each command moved by a draw of the arm's reaction scatter, for the floor
+    (:func:`replay_floor`). ``arm_tcp``: the arm's true TCP (capture clock s, m) from a
     reference instrument; without it, the truth joints of an MCAP capture, if any."""
     from armbench.fakes.vclock import run_virtual
 
@@ -538,28 +552,37 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     allow = Allowance.of(limits.suite_params(TWIN_CHECK.suite))
     parts = sessions(data, settings)
     truth_tcp = list(arm_tcp) if arm_tcp is not None else arm_tcp_from_capture(data.path, settings)
-    # the twin's truth only when there is the arm's to compare it with: reading it syncs the
-    # joint boards, which a replay without it does not do (the replies stay bit-identical)
+    # the twin's truth only where the arm's is: reading it syncs the joint boards, which a
+    # replay without it does not do (the replies stay bit-identical)
     twin_truth = TwinTruth() if truth_tcp else None
-    twin: list[tuple[float, Vec4]] = []
-    for part in parts:
-        twin.extend(run_virtual(replay_twin(part.data, settings, twin_truth, part.in_flight)))
     merged = CaptureData(data.path, [c for p in parts for c in p.data.commands],
                          [r for p in parts for r in p.data.replies], data.bad_in_frames)
+
+    def replay(offsets: FloatArray | None, truth: TwinTruth | None) -> list[tuple[float, Vec4]]:
+        out: list[tuple[float, Vec4]] = []
+        k = 0
+        for part in parts:
+            n, k = len(part.data.commands), k + len(part.data.commands)
+            moved = None if offsets is None else [float(v) for v in offsets[k - n:k]]
+            out.extend(run_virtual(replay_twin(part.data, settings, truth, part.in_flight,
+                                               offsets_s=moved)))
+        return out
+
+    twin = replay(None, twin_truth)
     first = compare(merged, twin, settings, limits, allow)
+    # commands the host stamped late are replayed when the arm got them
+    late = stamped_late_s(first.arm_lag_s, [c[0] for c in merged.commands], MAX_REACTION_S)
+    if late is not None:
+        twin_truth = TwinTruth() if truth_tcp else None
+        twin = replay(late, twin_truth)
+        first = compare(merged, twin, settings, limits, allow)
+    base = np.zeros(len(merged.commands)) if late is None else late
     floors = []
     rng = np.random.default_rng(REACTION_SEED)
     for _ in range(REACTION_REPLAYS):
-        draws = _reaction_draws(first, len(merged.commands), rng)
+        draws = base + _reaction_draws(first, len(merged.commands), rng)
         moved_truth = TwinTruth() if truth_tcp else None
-        moved: list[tuple[float, Vec4]] = []
-        k = 0
-        for part in parts:
-            offsets = draws[k:k + len(part.data.commands)]
-            k += len(part.data.commands)
-            moved.extend(run_virtual(replay_twin(part.data, settings, moved_truth,
-                                                 part.in_flight,
-                                                 offsets_s=[float(v) for v in offsets])))
+        moved = replay(draws, moved_truth)
         truths = None if twin_truth is None or moved_truth is None else (
             twin_truth, moved_truth, [t for t, _ in truth_tcp])
         floors.append(replay_floor(merged, twin, moved, settings, truths))
