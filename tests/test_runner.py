@@ -573,7 +573,6 @@ def test_regression_gate_fails_on_an_injected_fault(
 def test_default_config_is_valid_and_names_real_metrics() -> None:
     from armbench.bench.runner import DEFAULT_CONFIG
     from armbench.record.limits import load_limits
-
     from armbench.record.suite_contract import contracts
 
     config = load_limits(DEFAULT_CONFIG)
