@@ -56,11 +56,36 @@ from armbench.metrics import (
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
 
-__all__ = ["STYLES", "AccuracySuite", "path_figures"]
+__all__ = ["STYLES", "AccuracySuite", "check_square", "path_figures"]
 
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ACCURACY.styles
 
+
+
+def check_square(where: str, settings: RobotSettings, params: Mapping[str, Any],
+                 styles_known: Sequence[str]) -> None:
+    """The parameters of a lap of the square that every square suite shares (centre, side,
+    approach duty, speed, spacing, laps, sampling, settling, branch, roll, styles), each checked
+    under ``where``, and the whole square reachable on the branch."""
+    centre = check_vec3(f"{where}.{ACCURACY.centre}", params[ACCURACY.centre])
+    side = check_number(f"{where}.{ACCURACY.side}", params[ACCURACY.side], low=0.0,
+                        low_open=True, high=0.5)
+    check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
+    check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
+    check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
+    check_int(f"{where}.laps", params["laps"], low=1, high=MAX_REPEATS)
+    check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
+    check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
+    branch = check_branch(f"{where}.branch", params["branch"])
+    roll = check_number(f"{where}.roll_rad", params["roll_rad"])
+    styles = params["styles"]
+    if (isinstance(styles, (str, bytes)) or not isinstance(styles, Sequence) or not styles
+            or any(s not in styles_known for s in styles) or len(set(styles)) != len(styles)):
+        raise SettingsError(f"{where}.styles", styles,
+                            f"must list some of {', '.join(styles_known)}, each once")
+    edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
+    check_reachable(f"{where}.{ACCURACY.centre}", edge, settings, branch=branch, roll_rad=roll)
 
 
 def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) -> dict[str, float]:
@@ -204,26 +229,9 @@ class AccuracySuite(Suite):
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
         """Types and ranges of every parameter, and the whole square reachable on ``branch``."""
         where = f"suites.{self.name}"
-        centre = check_vec3(f"{where}.{ACCURACY.centre}", params[ACCURACY.centre])
-        side = check_number(f"{where}.{ACCURACY.side}", params[ACCURACY.side], low=0.0,
-                            low_open=True, high=0.5)
         check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
-        check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
-        check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
-        check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
-        check_int(f"{where}.laps", params["laps"], low=1, high=MAX_REPEATS)
-        check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
-        check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
         check_number(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], low=0.0)
-        branch = check_branch(f"{where}.branch", params["branch"])
-        roll = check_number(f"{where}.roll_rad", params["roll_rad"])
-        styles = params["styles"]
-        if (isinstance(styles, (str, bytes)) or not isinstance(styles, Sequence) or not styles
-                or any(s not in STYLES for s in styles) or len(set(styles)) != len(styles)):
-            raise SettingsError(f"{where}.styles", styles,
-                                f"must list some of {', '.join(STYLES)}, each once")
-        edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
-        check_reachable(f"{where}.{ACCURACY.centre}", edge, settings, branch=branch, roll_rad=roll)
+        check_square(where, settings, params, STYLES)
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 paper, lap 0 coordinated, lap 1 paper, ..."""

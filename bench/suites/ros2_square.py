@@ -36,15 +36,11 @@ import numpy as np
 
 from armbench.bench.ros2_node import require_rclpy
 from armbench.bench.suites._common import (
-    MAX_REPEATS,
     Measurements,
     StateRecorder,
     TrialAborted,
-    check_branch,
     check_int,
     check_number,
-    check_reachable,
-    check_vec3,
     guarded_trial,
     loop_time,
     settled_state,
@@ -54,6 +50,7 @@ from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by
     _SIGNED,
     _axis_description,
     _pooled_figures,
+    check_square,
     path_figures,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
@@ -61,9 +58,9 @@ from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.paths import PathRun
 from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings
 from armbench.fakes.vclock import VirtualTimeLoop
-from armbench.metrics import sample_polyline, square_yz
+from armbench.metrics import square_yz
 from armbench.record import Measurement, Trial
 
 __all__ = ["STYLES", "Ros2SquareSuite"]
@@ -122,27 +119,10 @@ class Ros2SquareSuite(Suite):
         ``domain_id`` (-1: ``ROS_DOMAIN_ID`` of the environment) and the client's time guard."""
         require_rclpy()
         where = f"suites.{self.name}"
-        centre = check_vec3(f"{where}.{N.centre}", params[N.centre])
-        side = check_number(f"{where}.{N.side}", params[N.side], low=0.0, low_open=True,
-                            high=0.5)
-        check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
-        check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
-        check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
-        check_int(f"{where}.laps", params["laps"], low=1, high=MAX_REPEATS)
-        check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
-        check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
         check_int(f"{where}.domain_id", params["domain_id"], low=-1, high=232)
         check_number(f"{where}.client_timeout_s", params["client_timeout_s"], low=1.0,
                      high=3600.0)
-        branch = check_branch(f"{where}.branch", params["branch"])
-        roll = check_number(f"{where}.roll_rad", params["roll_rad"])
-        styles = params["styles"]
-        if (isinstance(styles, (str, bytes)) or not isinstance(styles, Sequence) or not styles
-                or any(s not in STYLES for s in styles) or len(set(styles)) != len(styles)):
-            raise SettingsError(f"{where}.styles", styles,
-                                f"must list some of {', '.join(STYLES)}, each once")
-        edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
-        check_reachable(f"{where}.{N.centre}", edge, settings, branch=branch, roll_rad=roll)
+        check_square(where, settings, params, STYLES)
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 coordinated, lap 0 trajectory, lap 1 ..."""
