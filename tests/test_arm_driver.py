@@ -851,8 +851,9 @@ def test_cli_move_reply_timeout(tmp_path: Path, capsys: pytest.CaptureFixture[st
                              "--reply-timeout", timeout_s, "1.0", "0", "0", "0")
         one_line_error(status, err, f"no valid reply within {timeout_s} s")
     for bad in ("0", "-1", "nan", "inf"):
-        status, _, err = cli(capsys, "move", "--reply-timeout", bad, "0", "0", "0", "0")
-        one_line_error(status, err, "--reply-timeout")
+        for flag in ("--reply-timeout", "--connect-timeout"):
+            status, _, err = cli(capsys, "move", flag, bad, "0", "0", "0", "0")
+            one_line_error(status, err, flag)
 
 
 def test_cli_i2c_scan(capsys: pytest.CaptureFixture[str]) -> None:

@@ -269,7 +269,10 @@ def test_move_against_a_busy_emulator_shows_the_servers_line(
             first.sendall(Command.from_rad([0.0, 0.0, 0.0, 0.0], 0).encode())
             first.settimeout(5)
             assert first.recv(4096)  # the first client is being served
-            assert main(["move", "0", "0", "0", "0", "--port", url]) == 2
+            # the busy line must come, not the first reply: a connect timeout a starved server
+            # cannot outlast
+            assert main(["move", "0", "0", "0", "0", "--port", url, "--connect-timeout",
+                         "30"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert "the server said: busy: another client" in err[-1], err
         assert err[-1].startswith("armbench move: error: ") and "no valid reply" not in err[-1]

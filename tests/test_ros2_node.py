@@ -319,7 +319,8 @@ def test_the_command_says_the_link_is_lost_and_exits_1() -> None:
                           f"127.0.0.1:{port}"], "serving the arm")
     try:
         node, _ = _start([sys.executable, "-m", "armbench", "-v", "ros2", "--port",
-                          f"socket://127.0.0.1:{port}", "--connect-timeout", str(GUARD_S)],
+                          f"socket://127.0.0.1:{port}", "--connect-timeout", str(GUARD_S),
+                          "--reply-timeout", "5"],  # the loss is the kill's, not a starved peer
                          "ROS 2 node 'armbench' serving")
         emulator.send_signal(signal.SIGTERM)
         out, _ = node.communicate(timeout=GUARD_S)

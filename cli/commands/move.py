@@ -19,6 +19,7 @@ from typing import Any
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.arm import Arm, InvalidTargetError, JointState
 from armbench.drivers.kinematics import BRANCHES
+from armbench.drivers.link import CONNECT_TIMEOUT_S
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import load_settings
 
@@ -56,6 +57,8 @@ def register(sub: Any) -> None:
                    help="give up after S seconds (default: from the distance and law (12))")
     p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
                    help="hold the arm and give up after S s without a reply (default 0.5)")
+    p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
+                   help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
     p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_run)
@@ -71,8 +74,10 @@ def _run(args: argparse.Namespace) -> int:
         raise InvalidTargetError(None, "target", args.q, "give joint angles or --xyz, not both")
     if args.xyz is None and (args.branch is not None or args.roll != 0.0):
         raise InvalidTargetError(None, "--roll/--branch", args.roll, "only apply with --xyz")
-    if not (math.isfinite(args.reply_timeout) and args.reply_timeout > 0):
-        raise InvalidTargetError(None, "--reply-timeout", args.reply_timeout, "must be > 0")
+    for flag, value in (("--reply-timeout", args.reply_timeout),
+                        ("--connect-timeout", args.connect_timeout)):
+        if not (math.isfinite(value) and value > 0):
+            raise InvalidTargetError(None, flag, value, "must be > 0")
     settings = load_settings(args.settings)
     return run_on_port(args.port, _move(args, settings))
 
@@ -84,7 +89,8 @@ def _describe(arm: Arm, state: JointState) -> dict[str, Any]:
 
 
 async def _move(args: argparse.Namespace, settings: Any) -> int:
-    async with Arm.connect(args.port, settings, reply_timeout_s=args.reply_timeout) as arm:
+    async with Arm.connect(args.port, settings, reply_timeout_s=args.reply_timeout,
+                           connect_timeout_s=args.connect_timeout) as arm:
         loop = asyncio.get_running_loop()
         start = arm.state
         t0 = loop.time()
