@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -198,6 +199,33 @@ def test_an_unreachable_coordinator() -> None:
     port = f"labgrid://arm-a?coordinator=127.0.0.1:{free_port()}"
     with pytest.raises(CoordinatorUnreachableError, match="did not answer"):
         asyncio.run(_move(port))
+
+
+def test_a_coordinator_that_starts_late_is_asked_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A coordinator starting (or restarting) when the session begins: the client asks again
+    until its deadline (here long enough for a coordinator started on a busy machine) and gets
+    the coordinator's own answer, not "did not answer"."""
+    from armbench.drivers.transports import labgrid as labgrid_transport
+
+    monkeypatch.setattr(labgrid_transport, "COORDINATOR_TIMEOUT_S", 120.0)
+    coordinator = f"127.0.0.1:{free_port()}"
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start() -> None:
+        procs.append(subprocess.Popen([_tool("labgrid-coordinator"), "--listen", coordinator],
+                                      cwd=tmp_path, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+
+    later = threading.Timer(1.0, start)
+    later.start()
+    try:
+        with pytest.raises(PlaceUnknownError, match="no place 'arm-z'"):
+            asyncio.run(_move(f"labgrid://arm-z?coordinator={coordinator}"))
+    finally:
+        later.cancel()
+        later.join()
+        _stop(procs)
 
 
 def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:

@@ -18,6 +18,7 @@ import asyncio
 import concurrent.futures
 import os
 import threading
+import time
 from typing import Any, ClassVar
 from urllib.parse import parse_qs, urlsplit
 
@@ -41,6 +42,8 @@ COORDINATOR_ENV = "LG_COORDINATOR"
 DEFAULT_COORDINATOR_PORT = 20408
 #: Longest wait for the coordinator to answer a session start, an acquire or a release.
 COORDINATOR_TIMEOUT_S = 10.0
+#: Pause (s) between two attempts to reach a coordinator that did not take the session.
+COORDINATOR_RETRY_S = 0.5
 #: The resource class of a serial port an exporter serves over the network.
 SERIAL_RESOURCE = "NetworkSerialPort"
 
@@ -113,18 +116,25 @@ class LabgridClient:
             return self.session
         from labgrid.remote.client import ClientSession
 
-        self._loop = asyncio.new_event_loop()
-        asyncio.set_event_loop(self._loop)  # gRPC's asyncio client looks it up
-        session = ClientSession(self.coordinator, self._loop)
-        try:
-            self.run(session.start())
-        except Exception as exc:  # labgrid's ServerError, gRPC errors, a timeout
-            self._end(session)
-            raise CoordinatorUnreachableError(
-                port, f"labgrid coordinator {self.coordinator} did not answer "
-                      f"({type(exc).__name__}: {exc})") from exc
-        self.session = session
-        return session
+        deadline = time.monotonic() + COORDINATOR_TIMEOUT_S
+        while True:
+            self._loop = asyncio.new_event_loop()
+            asyncio.set_event_loop(self._loop)  # gRPC's asyncio client looks it up
+            session = ClientSession(self.coordinator, self._loop)
+            try:
+                self.run(session.start())
+            except Exception as exc:  # labgrid's ServerError, gRPC errors, a timeout
+                self._end(session)
+                # a coordinator starting or restarting (or too busy to take the stream at once)
+                # is asked again until the deadline
+                if time.monotonic() + COORDINATOR_RETRY_S < deadline:
+                    time.sleep(COORDINATOR_RETRY_S)
+                    continue
+                raise CoordinatorUnreachableError(
+                    port, f"labgrid coordinator {self.coordinator} did not answer within "
+                          f"{COORDINATOR_TIMEOUT_S:g} s ({type(exc).__name__}: {exc})") from exc
+            self.session = session
+            return session
 
     def _end(self, session: Any = None) -> None:
         session = session if session is not None else self.session
