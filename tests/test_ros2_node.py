@@ -89,8 +89,8 @@ def test_joint_states_every_reply_with_clock_and_the_urdf_latched() -> None:
     assert got["count"] / len(window) >= 0.95
     assert got["clocks"] > 0 and got["clock_last_s"] is not None
     # a use_sim_time node runs on the bench's virtual time (its own /clock subscription may be
-    # a message or two ahead of the client's)
-    assert got["first_stamp_s"] <= got["node_now_s"] <= states[-1].t_s
+    # a message or two ahead of the client's; ROS times are whole nanoseconds, rounded)
+    assert got["first_stamp_s"] - 1e-9 <= got["node_now_s"] <= states[-1].t_s + 1e-9
     urdf = got["robot_description"]  # published before the client existed: transient local
     assert urdf.startswith("<?xml") and all(f'name="{n}"' in urdf for n in NAMES)
     assert node.published >= got["count"]
@@ -278,18 +278,6 @@ def test_a_silent_arm_aborts_the_trajectory_and_is_held(
     assert node.last_run is None
     messages = [r.getMessage() for r in caplog.records]
     assert any("abandoning the trajectory and holding the arm" in m for m in messages)
-
-
-def test_the_square_through_ros_matches_the_drivers_own_run(capsys: pytest.CaptureFixture[str],
-                                                            ) -> None:
-    from armbench.cli.main import main
-
-    status = main(["ros2", "--port", "fake://", "--square", "--side", "0.06"])
-    result = json.loads(capsys.readouterr().out.splitlines()[-1])
-    assert status == 0
-    assert result["client"]["lap"]["state"] == "done"
-    assert result["ros"]["waypoints"] == result["driver"]["waypoints"]
-    assert result["ratio"] == pytest.approx(1.0, abs=0.10), result
 
 
 def _start(argv: list[str], ready: str) -> tuple[subprocess.Popen[str], list[str]]:

@@ -105,7 +105,6 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     (["--domain-id", "999"], "--domain-id: 999 must be 0..232"),
     (["--max-duty", "0"], "--max-duty"),
     (["--realtime-factor", "nan"], "--realtime-factor"),
-    (["--side", "2"], "--side"),
     (["--connect-timeout", "0"], "--connect-timeout"),
     (["--history-depth", "1"], "--history-depth: 1 must be 2..1000000"),
     (["--namespace", "arm 1"], "--namespace"),

@@ -1,6 +1,6 @@
 """``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/robot_description``,
-trajectories on ``/armbench/joint_trajectory``, ``/clock`` on emulated targets); with ``--square``
-the accuracy square through ROS 2 against the driver's own coordinated run.
+trajectories on ``/armbench/joint_trajectory``, ``/clock`` on emulated targets). The accuracy
+square through ROS 2 against the driver's own run is the suite ``armbench run ros2-square``.
 
 Needs the extra ``armbench[ros2]`` (rclpy and the message packages from pip); without it the
 command says so in one line (exit 2). Against ``fake://`` the emulator runs in-process on virtual
@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import math
 import re
 import signal
@@ -70,11 +69,6 @@ def register(sub: Any) -> None:
                    help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
     p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
                    help="hold the arm and report it silent after S s without a reply")
-    p.add_argument("--square", action="store_true",
-                   help="drive the accuracy square with the driver, then from a separate rclpy "
-                        "process as a JointTrajectory; print both path errors as JSON")
-    p.add_argument("--side", type=float, default=0.15, metavar="M",
-                   help="--square: side of the square (m, default 0.15)")
     p.set_defaults(func=_run)
 
 
@@ -99,8 +93,6 @@ def _check(args: argparse.Namespace) -> None:
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
             raise InvalidTargetError(None, "--" + name.replace("_", "-"), value, "must be > 0")
-    if not (math.isfinite(args.side) and 0 < args.side <= 0.5):
-        raise InvalidTargetError(None, "--side", args.side, "must be in (0, 0.5] m")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -117,8 +109,6 @@ def _run(args: argparse.Namespace) -> int:
                           realtime_factor=args.realtime_factor,
                           history_depth=args.history_depth, slow_subscriber=args.slow_subscriber,
                           pace_timeout_s=args.pace_timeout)
-    if args.square:
-        return run_on_port(args.port, _square(args, settings, options))
     return run_on_port(args.port, _serve(args, settings, options))
 
 
@@ -148,13 +138,3 @@ async def _serve(args: argparse.Namespace, settings: RobotSettings, options: Any
             raise
         finally:
             loop.remove_signal_handler(signal.SIGTERM)
-
-
-async def _square(args: argparse.Namespace, settings: RobotSettings, options: Any) -> int:
-    from armbench.bench.ros2_node.square import SquareOptions, compare_square
-
-    result = await compare_square(args.port, settings, options, SquareOptions(side_m=args.side),
-                                  settings_file=args.settings, reply_timeout_s=args.reply_timeout,
-                                  connect_timeout_s=args.connect_timeout)
-    print(json.dumps(result))
-    return 0
