@@ -56,7 +56,7 @@ from armbench.metrics import (
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
 
-__all__ = ["STYLES", "AccuracySuite", "check_square", "path_figures"]
+__all__ = ["STYLES", "AccuracySuite", "check_square", "path_figures", "plan_laps"]
 
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ACCURACY.styles
@@ -86,6 +86,13 @@ def check_square(where: str, settings: RobotSettings, params: Mapping[str, Any],
                             f"must list some of {', '.join(styles_known)}, each once")
     edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
     check_reachable(f"{where}.{ACCURACY.centre}", edge, settings, branch=branch, roll_rad=roll)
+
+
+def plan_laps(params: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The trials of a square suite: one per (lap, style), the styles alternating within a lap
+    in the order ``params["styles"]`` lists them."""
+    return [{ACCURACY.style: style, ACCURACY.lap: lap}
+            for lap in range(int(params["laps"])) for style in params["styles"]]
 
 
 def path_figures(samples: Sequence[Mapping[str, Any]], corners_m: FloatArray) -> dict[str, float]:
@@ -235,8 +242,7 @@ class AccuracySuite(Suite):
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 paper, lap 0 coordinated, lap 1 paper, ..."""
-        return [{ACCURACY.style: style, ACCURACY.lap: lap}
-                for lap in range(int(params["laps"])) for style in params["styles"]]
+        return plan_laps(params)
 
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:

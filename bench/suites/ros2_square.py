@@ -52,6 +52,7 @@ from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by
     _pooled_figures,
     check_square,
     path_figures,
+    plan_laps,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
@@ -126,8 +127,7 @@ class Ros2SquareSuite(Suite):
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 coordinated, lap 0 trajectory, lap 1 ..."""
-        return [{N.style: style, N.lap: lap}
-                for lap in range(int(params["laps"])) for style in params["styles"]]
+        return plan_laps(params)
 
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:
