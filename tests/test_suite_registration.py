@@ -271,3 +271,15 @@ def test_a_broken_contract_entry_point_is_left_out_with_a_warning(
         suite_contract.forget("wobble")
         for name in [m for m in sys.modules if m.startswith("benchwobble")]:
             del sys.modules[name]
+
+
+def test_an_unknown_suite_names_every_registered_one() -> None:
+    """The error lists the built-in suites (default order first) and those registered only by
+    entry point (``ros2-square``, which is not in the default run)."""
+    from armbench.bench.suites import UnknownSuiteError, suite_class
+
+    with pytest.raises(UnknownSuiteError) as info:
+        suite_class("no-such-suite")
+    known = str(info.value).split("known: ", 1)[1].split(";", 1)[0].split(", ")
+    assert known[:3] == ["accuracy", "repeatability", "startup-recovery"], known
+    assert "ros2-square" in known, known

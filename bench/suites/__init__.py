@@ -98,7 +98,8 @@ class UnknownSuiteError(SuiteError):
     """A suite name that is neither registered nor a ``module:Class``; lists the known names."""
 
     def __init__(self, name: str) -> None:
-        super().__init__(f"unknown suite {name!r} (known: {', '.join(suite_names())}; or give "
+        known = [*suite_names(), *(n for n in registered_suites() if n not in _suites())]
+        super().__init__(f"unknown suite {name!r} (known: {', '.join(known)}; or give "
                          "package.module:Class of a Suite subclass)")
         self.name = name
 
