@@ -845,7 +845,9 @@ def test_tcp_emulator_killed_reconnection_gives_up(emulators: Callable[..., Emul
             with pytest.raises(PortLostError) as info:
                 await within(mover, 5.0)
             assert "gave up after 3 reconnect attempts" in info.value.reason
-            assert arm.reconnect_attempts - attempts0 == 3 and arm.reconnects == reconnects0
+            # a reconnection in flight when the kill was sent may still have completed
+            assert arm.reconnect_attempts - attempts0 == 3
+            assert arm.reconnects - reconnects0 in (0, 1)
             assert loop.time() - t < 5.0  # three 20 ms attempts, however late the host
             with pytest.raises(PortLostError):
                 await within(arm.wait_state(lambda s: True))
