@@ -31,8 +31,10 @@ def test_drawn_figures_are_freed_and_the_heap_is_thawed_after_the_page() -> None
 
 
 def freed_and_thawed() -> None:
-    """The body of the test above: a heap thawed before the page is thawed after it."""
-    assert gc.get_freeze_count() == 0
+    """The body of the test above: a heap thawed before the page is thawed after it (Python 3.12
+    starts with objects in the permanent generation: that freeze is the interpreter's, kept as a
+    caller's would be, and the figures are freed all the same)."""
+    before = gc.get_freeze_count()
     with figures_collected_alone():
         assert gc.get_freeze_count() > 0           # what existed is set aside
         figures = Figures()
@@ -40,7 +42,7 @@ def freed_and_thawed() -> None:
         _draw(figures)                             # collects the first figure's cycles
         assert first() is None
     assert "<svg" in svg
-    assert gc.get_freeze_count() == 0
+    assert gc.get_freeze_count() == before
 
 
 def test_a_freeze_of_the_caller_is_kept() -> None:
