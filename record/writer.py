@@ -77,19 +77,22 @@ class RecordWriter:
         self._written: dict[int, tuple[Trial, int]] = {}
         """The trials :meth:`write` put in ``results.json``, by their samples' identity, with
         the level they were encoded at."""
+        # temporary files of a writer killed mid-write (the run folder's lock keeps any other
+        # writer out): a fresh run into the folder of one that died before its first record
+        # removes them as a resume does
+        for stale in self.out_dir.glob(f".{self.path.name}.*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
         self.write()
 
     @classmethod
     def resume(cls, out_dir: str | Path, *, filename: str = RESULTS_FILE) -> RecordWriter:
-        """Continue the interrupted run in ``out_dir``: load and validate its record, remove
-        temporary files a crash may have left, note the resume time (``record.resumed``) and
-        continue the run clock where the record stopped."""
+        """Continue the interrupted run in ``out_dir``: load and validate its record, note the
+        resume time (``record.resumed``) and continue the run clock where the record stopped
+        (temporary files a crash may have left are removed as for a new writer)."""
         directory = Path(out_dir)
         path = path_inside(directory, filename)
         record = load_record(path)  # with the journal's trials
-        for stale in directory.glob(f".{path.name}.*.tmp"):
-            with contextlib.suppress(OSError):
-                stale.unlink()
         record.resumed.append(utc_timestamp())
         return cls(directory, record, filename=filename, overwrite=True)
 

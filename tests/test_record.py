@@ -578,3 +578,15 @@ def test_limit_json_shape() -> None:
                                     "high": 5.0}
     assert Measurement.from_json(m.to_json(), "m") == m
     assert m.limit == Limit("acc.mean_mm", "mm", None, 5.0)
+
+
+def test_a_new_writer_removes_what_a_writer_killed_mid_write_left(tmp_path: Path) -> None:
+    """A run killed during its first write leaves ``.results.json.<id>.tmp`` and no record; a
+    fresh run into that folder removes it (as a resume does), and nothing else."""
+    stale = tmp_path / ".results.json.0123456789ab.tmp"
+    stale.write_text('{"torn')
+    other = tmp_path / "notes.tmp"
+    other.write_text("the user's")
+    RecordWriter(tmp_path, _record())
+    assert not stale.exists() and other.read_text() == "the user's"
+    assert not list(tmp_path.glob(".results.json.*"))
