@@ -43,6 +43,7 @@ from armbench.bench.suites._common import (
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
+from armbench.drivers.arm import Arm
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.metrics import (
@@ -56,7 +57,8 @@ from armbench.metrics import (
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
 
-__all__ = ["STYLES", "AccuracySuite", "check_square", "path_figures", "plan_laps"]
+__all__ = ["STYLES", "AccuracySuite", "approach_square", "check_square", "path_figures",
+           "plan_laps"]
 
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ACCURACY.styles
@@ -86,6 +88,14 @@ def check_square(where: str, settings: RobotSettings, params: Mapping[str, Any],
                             f"must list some of {', '.join(styles_known)}, each once")
     edge = sample_polyline(square_yz(centre, side), 0.005, closed=True)
     check_reachable(f"{where}.{ACCURACY.centre}", edge, settings, branch=branch, roll_rad=roll)
+
+
+async def approach_square(arm: Arm, corners: FloatArray, params: Mapping[str, Any]) -> None:
+    """Bring the arm to the square's first corner (coordinated, at ``approach_duty``) and let it
+    settle for ``settle_s``: where every lap of a square suite starts."""
+    await arm.move_to(corners[0], float(params["roll_rad"]), branch=str(params["branch"]),
+                      duty=int(params["approach_duty"]), coordinated=True)
+    await settled_state(arm, float(params["settle_s"]))
 
 
 def plan_laps(params: Mapping[str, Any]) -> list[dict[str, Any]]:
@@ -258,9 +268,7 @@ class AccuracySuite(Suite):
                                                                list[Measurement]]:
             arm = ctx.arm
             branch, roll = str(p["branch"]), float(p["roll_rad"])
-            await arm.move_to(corners[0], roll, branch=branch, duty=int(p["approach_duty"]),
-                              coordinated=True)
-            await settled_state(arm, float(p["settle_s"]))
+            await approach_square(arm, corners, p)
             t0 = loop_time()
             async with StateRecorder(ctx, t0, float(p["sample_period_s"]), into=samples):
                 if style == ACCURACY.paper:

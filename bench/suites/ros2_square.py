@@ -43,13 +43,13 @@ from armbench.bench.suites._common import (
     check_number,
     guarded_trial,
     loop_time,
-    settled_state,
 )
 from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by design
     _DESCRIPTIONS,
     _SIGNED,
     _axis_description,
     _pooled_figures,
+    approach_square,
     check_square,
     path_figures,
     plan_laps,
@@ -147,9 +147,7 @@ class Ros2SquareSuite(Suite):
                                                                list[Measurement]]:
             arm = ctx.arm
             branch, roll = str(p["branch"]), float(p["roll_rad"])
-            await arm.move_to(corners[0], roll, branch=branch, duty=int(p["approach_duty"]),
-                              coordinated=True)
-            await settled_state(arm, float(p["settle_s"]))
+            await approach_square(arm, corners, p)
             t0 = loop_time()
             async with StateRecorder(ctx, t0, float(p["sample_period_s"]), into=samples):
                 if style == N.coordinated:
