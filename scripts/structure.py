@@ -114,7 +114,8 @@ def _is_package_of(module: str, graph: Graph) -> bool:
 
 
 def run_pydeps(out: Path) -> None:
-    """pydeps over the installed armbench, its JSON into ``out`` (no graphviz needed)."""
+    """pydeps over the sources of the installed armbench, its JSON into ``out`` (no graphviz
+    needed)."""
     import armbench
 
     tree = Path(next(iter(armbench.__path__)))
@@ -124,9 +125,15 @@ def run_pydeps(out: Path) -> None:
     exe = shutil.which("pydeps", path=str(Path(sys.executable).parent)) or shutil.which("pydeps")
     if exe is None:
         raise SystemExit("pydeps is not installed (pip install pydeps)")
-    subprocess.run([exe, str(tree), "--show-deps", "--no-output", "--max-bacon", "0",
-                    "--only", "armbench", "--deps-output", str(out)],
-                   check=True, stdout=subprocess.DEVNULL, timeout=600)
+    with tempfile.TemporaryDirectory() as tmp:
+        # a release build's compiled modules sit beside their sources and are found first, and
+        # an extension module's imports cannot be read: pydeps reads a copy without them
+        sources = Path(tmp) / "armbench"
+        shutil.copytree(tree, sources, ignore=shutil.ignore_patterns(
+            "*.so", "*.pyd", "__pycache__"))
+        subprocess.run([exe, str(sources), "--show-deps", "--no-output", "--max-bacon", "0",
+                        "--only", "armbench", "--deps-output", str(out)],
+                       check=True, stdout=subprocess.DEVNULL, timeout=600, cwd=tmp)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
