@@ -21,7 +21,7 @@ the reference square (:func:`armbench.metrics.path_errors`); figures in mm. See
 from __future__ import annotations
 
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Final
 
 import numpy as np
@@ -57,8 +57,8 @@ from armbench.metrics import (
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
 
-__all__ = ["STYLES", "AccuracySuite", "approach_square", "check_square", "path_figures",
-           "plan_laps"]
+__all__ = ["STYLES", "AccuracySuite", "add_square_figures", "approach_square", "check_square",
+           "path_figures", "plan_laps", "pooled_figures"]
 
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ACCURACY.styles
@@ -129,7 +129,7 @@ def _positions(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatA
     return reported, np.array([s["true_m"] for s in samples], dtype=np.float64).reshape(-1, 3)
 
 
-def _pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, float]:
+def pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, float]:
     """:func:`path_figures` of the samples of ``trials`` pooled, read one trial at a time and
     kept as error series only (a long run's samples are on disk, not in memory)."""
     series: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {"": ([], []), "true_": ([], [])}
@@ -201,10 +201,13 @@ _DESCRIPTIONS: Final = {
 _SIGNED: Final = re.compile(r"(true_)?[xyz]_mean_mm")
 
 
-def _add_figures(ms: Measurements, style: str, figures: Mapping[str, float]) -> None:
+def add_square_figures(ms: Measurements, metric: Callable[[str, str], str], style: str,
+                       figures: Mapping[str, float]) -> None:
+    """Add a lap's square figures (:func:`path_figures`, :func:`pooled_figures`) to ``ms``,
+    each named by ``metric(style, key)`` (the suite's contract), with its unit and meaning."""
     for key, value in figures.items():
         signed = _SIGNED.fullmatch(key) is not None
-        ms.add(ACCURACY.metric(style, key), value, "mm", undirected=signed,
+        ms.add(metric(style, key), value, "mm", undirected=signed,
                description=_DESCRIPTIONS.get(key) or _axis_description(key))
 
 
@@ -280,7 +283,7 @@ class AccuracySuite(Suite):
                                           roll_rad=roll)
                 lap_s = loop_time() - t0
             ms = Measurements(ctx)
-            _add_figures(ms, style, path_figures(samples, corners))
+            add_square_figures(ms, ACCURACY.metric, style, path_figures(samples, corners))
             ms.add(ACCURACY.metric(style, ACCURACY.lap_time), lap_s, "s", undirected=True,
                    description="time from the first command to the arrival back at the start")
             return samples, ms.items
@@ -297,11 +300,11 @@ class AccuracySuite(Suite):
         for style in STYLES:
             done = [t for t in trials
                     if t.status == "done" and t.params.get(ACCURACY.style) == style]
-            f = _pooled_figures(done, corners)
+            f = pooled_figures(done, corners)
             if not f:
                 continue
             figures[style] = f
-            _add_figures(ms, style, f)
+            add_square_figures(ms, ACCURACY.metric, style, f)
             laps = [m.value for t in done for m in t.measurements
                     if m.name == ACCURACY.metric(style, ACCURACY.lap_time)]
             if laps:

@@ -45,14 +45,12 @@ from armbench.bench.suites._common import (
     loop_time,
 )
 from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by design
-    _DESCRIPTIONS,
-    _SIGNED,
-    _axis_description,
-    _pooled_figures,
+    add_square_figures,
     approach_square,
     check_square,
     path_figures,
     plan_laps,
+    pooled_figures,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
@@ -72,12 +70,6 @@ N = ROS2_SQUARE
 #: Virtual seconds a trial may see pass per real second of its client process (the emulator
 #: alone runs a few hundred times real time): the trial's overall guard on virtual time.
 VIRTUAL_PER_REAL: Final = 1000.0
-
-
-def _add_figures(ms: Measurements, style: str, figures: Mapping[str, float]) -> None:
-    for key, value in figures.items():
-        ms.add(N.metric(style, key), value, "mm", undirected=_SIGNED.fullmatch(key) is not None,
-               description=_DESCRIPTIONS.get(key) or _axis_description(key))
 
 
 def _lap_window(samples: list[dict[str, Any]], t0: float, run: PathRun) -> None:
@@ -159,7 +151,7 @@ class Ros2SquareSuite(Suite):
                     run = await _ros_lap(ctx, p, index)
             _lap_window(samples, t0, run)
             ms = Measurements(ctx)
-            _add_figures(ms, style, path_figures(samples, corners))
+            add_square_figures(ms, N.metric, style, path_figures(samples, corners))
             ms.add(N.metric(style, N.lap_time), run.duration_s, "s", undirected=True,
                    description="time from the first path command to the arrival at the start")
             return samples, ms.items
@@ -175,11 +167,11 @@ class Ros2SquareSuite(Suite):
         figures: dict[str, dict[str, float]] = {}
         for style in STYLES:
             done = [t for t in trials if t.status == "done" and t.params.get(N.style) == style]
-            f = _pooled_figures(done, corners)
+            f = pooled_figures(done, corners)
             if not f:
                 continue
             figures[style] = f
-            _add_figures(ms, style, f)
+            add_square_figures(ms, N.metric, style, f)
             laps = [m.value for t in done for m in t.measurements
                     if m.name == N.metric(style, N.lap_time)]
             if laps:
