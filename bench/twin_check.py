@@ -21,7 +21,7 @@ link's timing scatter (the RMS of the replies' timing residuals, their tail too)
 speed and the angle's quantisation (:func:`armbench.bench.twin_align.floor_rad`), the
 uncertainty of each move's start as the arm's own replies tell it times the speed
 (:func:`armbench.bench.twin_align.onset_floor_rad`), and the arm's reaction scatter (the spread
-of the measured start shifts) by replay: the twin replayed with each command moved by a draw of it,
+of the measured start shifts) by replay: the twin replayed with each command moved by ± its RMS,
 compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``k × floor + abs`` (per joint in counts, for the arrivals in s, for the TCP in mm; ``k`` and
 ``abs`` in the config's ``[suites."twin-check"]``
@@ -92,7 +92,7 @@ SEEN_LATE: Final = 5.0
 MAX_REACTION_S: Final = 0.02
 #: Seed of the reaction draws of the floor's replays, and how many replays it averages.
 REACTION_SEED: Final = 0
-REACTION_REPLAYS: Final = 2
+REACTION_REPLAYS: Final = 4
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
 FloatArray = npt.NDArray[np.float64]
@@ -528,14 +528,20 @@ def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
 
 
 def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> FloatArray:
-    """Per command, a draw (s) of the arm's reaction scatter: one of the measured start shifts'
-    deviations from their joint's median, within ±:data:`MAX_REACTION_S`, drawn with
-    replacement (from a seeded generator: the check is reproducible); the reply timing scatter
-    as a normal spread without three of them."""
+    """Per command, a draw (s) of the arm's reaction scatter: its RMS with a random sign (from
+    a seeded generator: the check is reproducible). The RMS is that of the measured start
+    shifts' deviations from their joint's median, each within ±:data:`MAX_REACTION_S`; the
+    reply timing scatter without three of them. A move shifted by ± the RMS has the mean square
+    effect of one shifted by a draw from the deviations, but the floor no longer hangs on which
+    few commands drew the largest of them: a capture's floor is dominated by the handful of
+    moves whose shift changes the path (a reversal met earlier or later), and two replays of
+    pool draws leave that to chance."""
     if len(result.shift_deviations_s) >= 3:
         pool = np.clip(result.shift_deviations_s, -MAX_REACTION_S, MAX_REACTION_S)
-        return np.asarray(rng.choice(pool, size=n))
-    return np.asarray(rng.normal(0.0, result.scatter_s, size=n))
+        size = math.sqrt(float(np.mean(pool * pool)))
+    else:
+        size = result.scatter_s
+    return size * rng.choice(np.array([-1.0, 1.0]), size=n)
 
 
 def twin_check(data: CaptureData, settings: RobotSettings,
