@@ -86,9 +86,8 @@ DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
 #: An arrival seen after a gap of more than this many median reply intervals is not compared.
 SEEN_LATE: Final = 5.0
-#: A start shift further than this (s) from its joint's median is a start the onset did not
-#: time well (a stale or a late-read reply), not a reaction a streamed command meets: the draws
-#: take it as this much.
+#: A start shift further than this (s) from its joint's median is a start timed badly (a stale
+#: or late-read reply), not a reaction: the draws take it as this much.
 MAX_REACTION_S: Final = 0.02
 #: Seed of the reaction draws of the floor's replays, and how many replays it averages.
 REACTION_SEED: Final = 0
@@ -528,14 +527,9 @@ def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
 
 
 def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> FloatArray:
-    """Per command, a draw (s) of the arm's reaction scatter: its RMS with a random sign (from
-    a seeded generator: the check is reproducible). The RMS is that of the measured start
-    shifts' deviations from their joint's median, each within ±:data:`MAX_REACTION_S`; the
-    reply timing scatter without three of them. A move shifted by ± the RMS has the mean square
-    effect of one shifted by a draw from the deviations, but the floor no longer hangs on which
-    few commands drew the largest of them: a capture's floor is dominated by the handful of
-    moves whose shift changes the path (a reversal met earlier or later), and two replays of
-    pool draws leave that to chance."""
+    """Per command, ± the RMS (s) of the start shifts' deviations from their joint's median
+    (within ±:data:`MAX_REACTION_S`; without three, the reply timing scatter), seeded signs: a
+    draw's mean square, without the floor hanging on which moves drew the largest deviations."""
     if len(result.shift_deviations_s) >= 3:
         pool = np.clip(result.shift_deviations_s, -MAX_REACTION_S, MAX_REACTION_S)
         size = math.sqrt(float(np.mean(pool * pool)))
