@@ -45,8 +45,9 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from armbench.capture.jsonl import CaptureError
 
-__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
-           "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout"]
+__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_CHECK_KEY", "START_KEY", "START_METADATA",
+           "McapLayout", "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout",
+           "start_entries"]
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: The metadata record holding the run's identity and, under :data:`START_KEY`, the wall-clock
@@ -54,6 +55,9 @@ MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: in the capture counts from.
 START_METADATA: Final = "armbench"
 START_KEY: Final = "start_ns"
+#: The CRC-32 (8 hex digits) of :data:`START_KEY`'s value: a metadata record has no checksum of
+#: its own, and a flipped digit of the start would move every time of the capture.
+START_CHECK_KEY: Final = "start_ns_crc32"
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 _OP_CHANNEL: Final = int(Opcode.CHANNEL)
 _OP_CHUNK: Final = int(Opcode.CHUNK)
@@ -209,19 +213,35 @@ def mcap_layout(path: str | Path) -> McapLayout:
         return McapLayout(chunks, _closed(fh))
 
 
+def start_entries(start_ns: int) -> dict[str, str]:
+    """The entries of the ``armbench`` metadata record that say the run's start: its value and
+    its check (:data:`START_CHECK_KEY`)."""
+    return {START_KEY: str(start_ns), START_CHECK_KEY: _crc_hex(str(start_ns))}
+
+
+def _crc_hex(text: str) -> str:
+    return f"{zlib.crc32(text.encode('utf-8')):08x}"
+
+
 def capture_start_ns(path: str | Path) -> int:
     """The wall-clock nanoseconds of the run's start that a capture's times count from (its
     ``armbench`` metadata record, written before any message); 0 for a capture written before
-    the times were on the wall clock (they count from 0) or one cut short before it."""
+    the times were on the wall clock (they count from 0) or one cut short before it. A start
+    that does not match its check (captures written before it have none) is damage."""
     p = Path(path)
     with _open(p) as fh:
-        for _, record in _records(p, fh):
+        for pos, record in _records(p, fh):
             if isinstance(record, Metadata) and record.name == START_METADATA:
+                meta = record.metadata
+                check = meta.get(START_CHECK_KEY)
+                if check is not None and check != _crc_hex(meta.get(START_KEY, "")):
+                    raise _damaged(p, pos, "metadata", f"{START_KEY} "
+                                   f"{meta.get(START_KEY)!r} does not match its check {check!r}")
                 try:
-                    return max(0, int(record.metadata.get(START_KEY, "0")))
+                    return max(0, int(meta.get(START_KEY, "0")))
                 except ValueError:
                     raise CaptureError(str(p), None, f"metadata {START_KEY} "
-                                       f"{record.metadata[START_KEY]!r} is not a "
+                                       f"{meta[START_KEY]!r} is not a "
                                        "number of nanoseconds") from None
             if isinstance(record, (Chunk, Message)):
                 break

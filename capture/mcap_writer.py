@@ -37,7 +37,7 @@ import numpy.typing as npt
 from mcap.writer import CompressionType, IndexType, Writer
 
 from armbench.capture.jsonl import CaptureError, Direction
-from armbench.capture.mcap_walk import START_KEY, START_METADATA
+from armbench.capture.mcap_walk import START_KEY, START_METADATA, start_entries
 from armbench.capture.part import ERROR_FLAG, IN_FLAG, TRUTH_PERIOD_S, read_part
 from armbench.capture.read import decode_uart_frames
 from armbench.capture.tally import TALLY_METADATA, TrafficCounter
@@ -154,7 +154,7 @@ class McapCapture:
         self.messages: dict[str, int] = dict.fromkeys(_TOPICS, 0)
         """Messages written so far per topic."""
         self._writer.add_metadata(START_METADATA, {**(metadata or {}),
-                                                   START_KEY: str(start_ns)})
+                                                   **start_entries(start_ns)})
         self._add("/robot_description", start_ns, ros2.encode_string(robot_urdf(settings)))
         self._add("/tf_static", start_ns, ros2.TfEncoder(ros2.STATIC_PAIRS).encode(
             start_ns, ros2.static_transforms(settings)))

@@ -24,6 +24,7 @@ from hypothesis import strategies as st
 from armbench.bench.outputs import RUN_FILES
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
 from armbench.capture.jsonl import CaptureError
+from armbench.capture.mcap_walk import START_CHECK_KEY, START_KEY
 from armbench.capture.mcap_writer import McapCapture
 from armbench.capture.part import PartWriter
 from armbench.capture.read import mcap_layout, open_capture
@@ -125,6 +126,39 @@ def test_flipped_bytes_in_an_mcap_chunk(captures: dict[str, Path], tmp_path: Pat
     damaged = tmp_path / "capture.mcap"
     damaged.write_bytes(data)
     _both(damaged, tmp_path, f"chunk at byte {chunks[1]} is corrupt", process=True)
+
+
+def _start_value_at(data: bytes) -> int:
+    """Where the value of the capture's ``start_ns`` metadata entry begins."""
+    key = len(START_KEY).to_bytes(4, "little") + START_KEY.encode()
+    return data.index(key) + len(key) + 4
+
+
+def test_a_flipped_digit_of_the_start_is_named(captures: dict[str, Path],
+                                               tmp_path: Path) -> None:
+    """The run's start is kept in a metadata record, which has no checksum: a digit of it
+    flipped to another digit would move every time of the capture, so its check names it."""
+    data = bytearray(captures["mcap"].read_bytes())
+    at = _start_value_at(bytes(data))
+    assert data[at:at + 1] == b"0"
+    data[at] ^= 0x01
+    damaged = tmp_path / "capture.mcap"
+    damaged.write_bytes(data)
+    with pytest.raises(CaptureError, match=f"{START_KEY} '1' does not match its check"):
+        list(open_capture(damaged))
+    _both(damaged, tmp_path, "does not match its check")
+
+
+def test_a_start_without_its_check_is_read_as_before(captures: dict[str, Path],
+                                                     tmp_path: Path) -> None:
+    """A capture written before the start had a check (here: its key's name changed, which a
+    flipped byte also does) is read as it always was."""
+    data = captures["mcap"].read_bytes()
+    key = START_CHECK_KEY.encode()
+    assert data.count(key) == 1
+    older = tmp_path / "capture.mcap"
+    older.write_bytes(data.replace(key, key[:-1] + b"X"))
+    assert list(open_capture(older)) == list(open_capture(captures["mcap"]))
 
 
 def test_a_closed_mcap_with_a_record_past_its_end(captures: dict[str, Path],
