@@ -15,7 +15,7 @@ import io
 import os
 import struct
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any, Final, NamedTuple
 
@@ -46,8 +46,8 @@ from mcap.stream_reader import get_chunk_data_stream
 from armbench.capture.jsonl import CaptureError
 
 __all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_CHECK_KEY", "START_KEY", "START_METADATA",
-           "McapLayout", "RawMessage", "capture_start_ns", "iter_messages", "mcap_layout",
-           "start_entries"]
+           "McapLayout", "RawMessage", "capture_start_ns", "checked_entry", "entry_damage",
+           "iter_messages", "mcap_layout"]
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: The metadata record holding the run's identity and, under :data:`START_KEY`, the wall-clock
@@ -55,9 +55,9 @@ MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: in the capture counts from.
 START_METADATA: Final = "armbench"
 START_KEY: Final = "start_ns"
-#: The CRC-32 (8 hex digits) of :data:`START_KEY`'s value: a metadata record has no checksum of
-#: its own, and a flipped digit of the start would move every time of the capture.
-START_CHECK_KEY: Final = "start_ns_crc32"
+#: The check of :data:`START_KEY`'s value (:func:`checked_entry`): a flipped digit of the start
+#: would move every time of the capture.
+START_CHECK_KEY: Final = f"{START_KEY}_crc32"
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 _OP_CHANNEL: Final = int(Opcode.CHANNEL)
 _OP_CHUNK: Final = int(Opcode.CHUNK)
@@ -213,10 +213,19 @@ def mcap_layout(path: str | Path) -> McapLayout:
         return McapLayout(chunks, _closed(fh))
 
 
-def start_entries(start_ns: int) -> dict[str, str]:
-    """The entries of the ``armbench`` metadata record that say the run's start: its value and
-    its check (:data:`START_CHECK_KEY`)."""
-    return {START_KEY: str(start_ns), START_CHECK_KEY: _crc_hex(str(start_ns))}
+def checked_entry(key: str, value: str) -> dict[str, str]:
+    """A metadata entry with its check: ``{key}_crc32``, the CRC-32 of the value (8 hex
+    digits). A metadata record has no checksum of its own."""
+    return {key: value, f"{key}_crc32": _crc_hex(value)}
+
+
+def entry_damage(metadata: Mapping[str, str], key: str) -> str | None:
+    """What is wrong with ``metadata``'s ``key`` against its check (:func:`checked_entry`);
+    None when it matches, or has no check (written before entries had one)."""
+    check = metadata.get(f"{key}_crc32")
+    if check is None or check == _crc_hex(metadata.get(key, "")):
+        return None
+    return f"{key} {metadata.get(key)!r} does not match its check {check!r}"
 
 
 def _crc_hex(text: str) -> str:
@@ -233,10 +242,8 @@ def capture_start_ns(path: str | Path) -> int:
         for pos, record in _records(p, fh):
             if isinstance(record, Metadata) and record.name == START_METADATA:
                 meta = record.metadata
-                check = meta.get(START_CHECK_KEY)
-                if check is not None and check != _crc_hex(meta.get(START_KEY, "")):
-                    raise _damaged(p, pos, "metadata", f"{START_KEY} "
-                                   f"{meta.get(START_KEY)!r} does not match its check {check!r}")
+                if (problem := entry_damage(meta, START_KEY)) is not None:
+                    raise _damaged(p, pos, "metadata", problem)
                 try:
                     return max(0, int(meta.get(START_KEY, "0")))
                 except ValueError:

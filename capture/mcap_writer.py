@@ -37,10 +37,10 @@ import numpy.typing as npt
 from mcap.writer import CompressionType, IndexType, Writer
 
 from armbench.capture.jsonl import CaptureError, Direction
-from armbench.capture.mcap_walk import START_KEY, START_METADATA, start_entries
+from armbench.capture.mcap_walk import START_KEY, START_METADATA, checked_entry
 from armbench.capture.part import ERROR_FLAG, IN_FLAG, TRUTH_PERIOD_S, read_part
 from armbench.capture.read import decode_uart_frames
-from armbench.capture.tally import TALLY_METADATA, TrafficCounter
+from armbench.capture.tally import TALLY_KEY, TALLY_METADATA, TrafficCounter
 from armbench.drivers import ros2
 from armbench.drivers.protocol import REPLY_LEN, AngleDecoder, Reply
 from armbench.drivers.settings import RobotSettings
@@ -154,7 +154,7 @@ class McapCapture:
         self.messages: dict[str, int] = dict.fromkeys(_TOPICS, 0)
         """Messages written so far per topic."""
         self._writer.add_metadata(START_METADATA, {**(metadata or {}),
-                                                   **start_entries(start_ns)})
+                                                   **checked_entry(START_KEY, str(start_ns))})
         self._add("/robot_description", start_ns, ros2.encode_string(robot_urdf(settings)))
         self._add("/tf_static", start_ns, ros2.TfEncoder(ros2.STATIC_PAIRS).encode(
             start_ns, ros2.static_transforms(settings)))
@@ -349,7 +349,8 @@ class McapCapture:
         if self._fh is None:
             return
         try:
-            self._writer.add_metadata(TALLY_METADATA, {"tally": self.traffic.tally().to_json()})
+            self._writer.add_metadata(TALLY_METADATA,
+                                      checked_entry(TALLY_KEY, self.traffic.tally().to_json()))
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._fh.close()

@@ -44,10 +44,11 @@ from armbench.capture.mcap_walk import (
     McapLayout,
     RawMessage,
     capture_start_ns,
+    entry_damage,
     iter_messages,
     mcap_layout,
 )
-from armbench.capture.tally import TALLY_METADATA, TrafficTally
+from armbench.capture.tally import TALLY_KEY, TALLY_METADATA, TrafficTally
 from armbench.drivers.protocol import Command, Framer
 from armbench.drivers.ros2 import BENCH_EVENT, JOINT_STATE, SCHEMAS
 
@@ -206,7 +207,9 @@ def read_tally(path: str | Path) -> TrafficTally | None:
                 return None
             for meta in reader.iter_metadata():
                 if meta.name == TALLY_METADATA:
-                    return TrafficTally.from_json(meta.metadata["tally"])
+                    if entry_damage(meta.metadata, TALLY_KEY) is not None:
+                        return None  # damaged: the caller counts the records instead
+                    return TrafficTally.from_json(meta.metadata[TALLY_KEY])
     except (McapError, EOFError, struct.error, ValueError, KeyError):
         return None
     except OSError as exc:

@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 import zstandard
 
-__all__ = ["HEAD_LINES", "MAX_BINS", "TALLY_METADATA", "TEXT_LIMIT", "TrafficCounter",
+__all__ = ["HEAD_LINES", "MAX_BINS", "TALLY_KEY", "TALLY_METADATA", "TEXT_LIMIT", "TrafficCounter",
            "TrafficLine", "TrafficTally", "nice_bin", "short_text", "tally"]
 
 #: Bins of the frame-rate plot at most.
@@ -29,6 +29,8 @@ TEXT_LIMIT: Final = 96
 HEAD_LINES: Final = 20
 #: The MCAP metadata record holding the tally (key ``tally``: its JSON).
 TALLY_METADATA: Final = "armbench.traffic"
+#: The key of that record's entry holding the tally (JSON), written with its check.
+TALLY_KEY: Final = "tally"
 
 FloatArray = npt.NDArray[np.float64]
 #: Kind of a record: 0 host → arm frame, 1 arm → host frame, 2 and 3 the same with an error.

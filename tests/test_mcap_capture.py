@@ -36,8 +36,10 @@ from armbench.capture.read import (
     open_capture,
     read_attachment,
     read_joint_states,
+    read_tally,
     replay_capture,
 )
+from armbench.capture.tally import TALLY_KEY
 from armbench.drivers import ros2
 from armbench.drivers.kinematics import fk
 from armbench.drivers.protocol import AngleDecoder, Reply
@@ -296,6 +298,24 @@ def test_mcap_and_jsonl_give_the_same_records(tmp_path: Path) -> None:
         assert sum(1 for _ in lines) == len(a)
     assert [c.command for c in replay_capture(tmp_path / "capture.mcap")] == [
         c.command for c in replay_capture(jsonl)]
+
+
+def test_a_damaged_stored_tally_is_counted_again(tmp_path: Path) -> None:
+    """The stored tally is a metadata entry (no checksum of its own): with a digit of it
+    flipped, its check says so and the summary counts the records instead."""
+    _capture(PartWriter(tmp_path / "x.part", 10.0, batch_records=7))
+    capture = McapCapture(tmp_path / "capture.mcap", RobotSettings())
+    capture.add_part(tmp_path / "x.part")
+    capture.close()
+    path = tmp_path / "capture.mcap"
+    data = bytearray(path.read_bytes())
+    key = len(TALLY_KEY).to_bytes(4, "little") + TALLY_KEY.encode()
+    value = data.index(key) + len(key) + 4
+    digit = value + next(k for k, c in enumerate(data[value:]) if chr(c).isdigit())
+    data[digit] ^= 0x01
+    path.write_bytes(data)
+    assert read_tally(path) is None
+    _same_summaries(summarize_capture(path), summarize_capture(path, stored=False))
 
 
 def test_a_run_killed_mid_way_leaves_a_readable_capture(tmp_path: Path) -> None:
