@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, Final
+from typing import Any, ClassVar, Final, Protocol
 
 import numpy as np
 
@@ -57,8 +57,8 @@ from armbench.metrics import (
 from armbench.metrics.path import PathErrorSummary
 from armbench.record import PAPER_REFERENCE, Measurement, Trial
 
-__all__ = ["STYLES", "AccuracySuite", "add_square_figures", "approach_square", "check_square",
-           "path_figures", "plan_laps", "pooled_figures"]
+__all__ = ["STYLES", "AccuracySuite", "SquareNames", "add_square_figures", "approach_square",
+           "check_square", "path_figures", "plan_laps", "pooled_figures", "summarize_styles"]
 
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ACCURACY.styles
@@ -219,6 +219,43 @@ def _axis_description(key: str) -> str:
     return f"{what} along {axis} of the {'true' if true else 'reported'} TCP"
 
 
+class SquareNames(Protocol):
+    """What a square suite's contract names: the trials' style parameter, the lap figures and
+    each figure's metric."""
+
+    @property
+    def style(self) -> str: ...
+    @property
+    def lap_time(self) -> str: ...
+    @property
+    def laps(self) -> str: ...
+
+    def metric(self, style: str, figure: str) -> str: ...
+
+
+def summarize_styles(ms: Measurements, names: SquareNames, styles: Sequence[str],
+                     trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, dict[str, float]]:
+    """Per style, into ``ms``: the square figures over the samples of its done laps pooled, the
+    mean lap time and the laps measured. Returns the pooled figures of each style that has any
+    (for the suite's ratio of two styles)."""
+    figures: dict[str, dict[str, float]] = {}
+    for style in styles:
+        done = [t for t in trials if t.status == "done" and t.params.get(names.style) == style]
+        f = pooled_figures(done, corners_m)
+        if not f:
+            continue
+        figures[style] = f
+        add_square_figures(ms, names.metric, style, f)
+        laps = [m.value for t in done for m in t.measurements
+                if m.name == names.metric(style, names.lap_time)]
+        if laps:
+            ms.add(names.metric(style, names.lap_time), float(np.mean(laps)), "s",
+                   undirected=True, description="mean lap time")
+        ms.add(names.metric(style, names.laps), float(len(done)), "",
+               description="laps measured")
+    return figures
+
+
 class AccuracySuite(Suite):
     """The square in the YZ plane: paper style against coordinated streaming (see module doc)."""
 
@@ -296,22 +333,7 @@ class AccuracySuite(Suite):
         p = ctx.params
         corners = square_yz(p[ACCURACY.centre], float(p[ACCURACY.side]))
         ms = Measurements(ctx)
-        figures: dict[str, dict[str, float]] = {}
-        for style in STYLES:
-            done = [t for t in trials
-                    if t.status == "done" and t.params.get(ACCURACY.style) == style]
-            f = pooled_figures(done, corners)
-            if not f:
-                continue
-            figures[style] = f
-            add_square_figures(ms, ACCURACY.metric, style, f)
-            laps = [m.value for t in done for m in t.measurements
-                    if m.name == ACCURACY.metric(style, ACCURACY.lap_time)]
-            if laps:
-                ms.add(ACCURACY.metric(style, ACCURACY.lap_time), float(np.mean(laps)), "s",
-                       undirected=True, description="mean lap time")
-            ms.add(ACCURACY.metric(style, ACCURACY.laps), float(len(done)), "",
-                   description="laps measured")
+        figures = summarize_styles(ms, ACCURACY, STYLES, trials, corners)
         paper = figures.get(ACCURACY.paper, {})
         coord = figures.get(ACCURACY.coordinated, {})
         for key, name in ((ACCURACY.mean, ACCURACY.improvement),

@@ -32,8 +32,6 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar, Final
 
-import numpy as np
-
 from armbench.bench.ros2_node import require_rclpy
 from armbench.bench.suites._common import (
     Measurements,
@@ -50,7 +48,7 @@ from armbench.bench.suites.accuracy import (  # the accuracy suite's figures, by
     check_square,
     path_figures,
     plan_laps,
-    pooled_figures,
+    summarize_styles,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
@@ -164,20 +162,7 @@ class Ros2SquareSuite(Suite):
         p = ctx.params
         corners = square_yz(p[N.centre], float(p[N.side]))
         ms = Measurements(ctx)
-        figures: dict[str, dict[str, float]] = {}
-        for style in STYLES:
-            done = [t for t in trials if t.status == "done" and t.params.get(N.style) == style]
-            f = pooled_figures(done, corners)
-            if not f:
-                continue
-            figures[style] = f
-            add_square_figures(ms, N.metric, style, f)
-            laps = [m.value for t in done for m in t.measurements
-                    if m.name == N.metric(style, N.lap_time)]
-            if laps:
-                ms.add(N.metric(style, N.lap_time), float(np.mean(laps)), "s", undirected=True,
-                       description="mean lap time")
-            ms.add(N.metric(style, N.laps), float(len(done)), "", description="laps measured")
+        figures = summarize_styles(ms, N, STYLES, trials, corners)
         ros, own = figures.get(N.trajectory, {}), figures.get(N.coordinated, {})
         for key, name in ((N.mean, N.ratio), (N.true_mean, N.true_ratio)):
             if key in ros and own.get(key, 0.0) > 0.0:
