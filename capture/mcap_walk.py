@@ -45,8 +45,8 @@ from mcap.stream_reader import get_chunk_data_stream
 
 from armbench.capture.jsonl import CaptureError
 
-__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_CHECK_KEY", "START_KEY", "START_METADATA",
-           "McapLayout", "RawMessage", "capture_start_ns", "checked_entry", "entry_damage",
+__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
+           "RawMessage", "capture_start_ns", "check_key", "checked_entry", "entry_damage",
            "iter_messages", "mcap_layout"]
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
@@ -55,9 +55,6 @@ MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: in the capture counts from.
 START_METADATA: Final = "armbench"
 START_KEY: Final = "start_ns"
-#: The check of :data:`START_KEY`'s value (:func:`checked_entry`): a flipped digit of the start
-#: would move every time of the capture.
-START_CHECK_KEY: Final = f"{START_KEY}_crc32"
 _OP_MESSAGE: Final = int(Opcode.MESSAGE)
 _OP_CHANNEL: Final = int(Opcode.CHANNEL)
 _OP_CHUNK: Final = int(Opcode.CHUNK)
@@ -213,16 +210,22 @@ def mcap_layout(path: str | Path) -> McapLayout:
         return McapLayout(chunks, _closed(fh))
 
 
+def check_key(key: str) -> str:
+    """The key of the check of metadata entry ``key``: ``{key}_crc32``."""
+    return f"{key}_crc32"
+
+
 def checked_entry(key: str, value: str) -> dict[str, str]:
-    """A metadata entry with its check: ``{key}_crc32``, the CRC-32 of the value (8 hex
-    digits). A metadata record has no checksum of its own."""
-    return {key: value, f"{key}_crc32": _crc_hex(value)}
+    """A metadata entry with its check (:func:`check_key`): the CRC-32 of the value, 8 hex
+    digits. A metadata record has no checksum of its own, and a flipped digit of the run's start
+    would move every time of the capture."""
+    return {key: value, check_key(key): _crc_hex(value)}
 
 
 def entry_damage(metadata: Mapping[str, str], key: str) -> str | None:
     """What is wrong with ``metadata``'s ``key`` against its check (:func:`checked_entry`);
     None when it matches, or has no check (written before entries had one)."""
-    check = metadata.get(f"{key}_crc32")
+    check = metadata.get(check_key(key))
     if check is None or check == _crc_hex(metadata.get(key, "")):
         return None
     return f"{key} {metadata.get(key)!r} does not match its check {check!r}"

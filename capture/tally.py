@@ -27,7 +27,7 @@ MAX_BINS: Final = 100
 TEXT_LIMIT: Final = 96
 #: Records of the excerpt, and framing errors after it, kept as text.
 HEAD_LINES: Final = 20
-#: The MCAP metadata record holding the tally (key ``tally``: its JSON).
+#: The MCAP metadata record holding the tally (under :data:`TALLY_KEY`: its JSON).
 TALLY_METADATA: Final = "armbench.traffic"
 #: The key of that record's entry holding the tally (JSON), written with its check.
 TALLY_KEY: Final = "tally"

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from armbench.bench.outputs import RUN_FILES
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
 from armbench.capture.jsonl import CaptureError
-from armbench.capture.mcap_walk import START_CHECK_KEY, START_KEY
+from armbench.capture.mcap_walk import START_KEY, check_key
 from armbench.capture.mcap_writer import McapCapture
 from armbench.capture.part import PartWriter
 from armbench.capture.read import mcap_layout, open_capture
@@ -154,7 +154,7 @@ def test_a_start_without_its_check_is_read_as_before(captures: dict[str, Path],
     """A capture written before the start had a check (here: its key's name changed, which a
     flipped byte also does) is read as it always was."""
     data = captures["mcap"].read_bytes()
-    key = START_CHECK_KEY.encode()
+    key = check_key(START_KEY).encode()
     assert data.count(key) == 1
     older = tmp_path / "capture.mcap"
     older.write_bytes(data.replace(key, key[:-1] + b"X"))
