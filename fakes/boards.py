@@ -200,6 +200,7 @@ class Board:
         self.model = JointModel(
             self.joint, effects=self.settings.effects, seed=self.settings.seed * 31 + self.number
             + 1000 * self.boots, deadband_counts=self.settings.deadband_counts,
+            stop_rule=self.settings.stop_rule,
             motor_steps=self._motor_steps, counter=counter, tick=0,
             physics=None if physics is None else physics.joints[self.number - 1],
             load=None if mechanism is None else mechanism.load_of(self.number - 1),

@@ -15,8 +15,9 @@ from typing import Any, Literal
 
 from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.joint import CYCLE_S, PhysicalEffects
+from armbench.fakes.joint import CYCLE_S, PhysicalEffects, StopRule
 from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
+from armbench.fakes.stepper import STOP_RULES
 
 __all__ = ["CYCLE_S", "MAX_TIMES_S", "PROFILES", "ArmPhysics", "EmulatorSettings",
            "PhysicalEffects", "actual_robot", "emulator_settings", "with_emulator_overrides"]
@@ -45,7 +46,10 @@ class EmulatorSettings:
     reply_line_end: str = ""
     """Bytes after each reply's '#': the paper shows none (``Serial.print``)."""
     deadband_counts: int = 1
-    """A joint stops when |target − counter| ≤ this many encoder counts."""
+    """A joint at rest starts when |target − counter| exceeds this many encoder counts."""
+    stop_rule: StopRule = "window"
+    """When a moving joint stops: ``window``, once |target − counter| ≤ ``deadband_counts``;
+    ``reach``, once its counter meets or passes the target (``docs/emulator.md``)."""
     recovery_duty: int = 90
     """Duty used when driving to the Hall sensor at start-up (§5.2)."""
     eeprom_write_s_per_byte: float = 3.3e-3
@@ -85,7 +89,7 @@ _FLOATS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("floa
 #: The ``int`` fields: a whole number of any int type is made a plain int.
 _INTS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("int", int))
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
-                           "profile": str}
+                           "profile": str, "stop_rule": str}
 
 
 def actual_robot(robot: RobotSettings) -> RobotSettings:
@@ -221,6 +225,9 @@ def _validate(s: EmulatorSettings) -> None:
                             "must be '', '\\n' or '\\r\\n'")
     if not isinstance(s.deadband_counts, int) or s.deadband_counts < 0:
         raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be >= 0")
+    if s.stop_rule not in STOP_RULES:
+        raise SettingsError("emulator.stop_rule", s.stop_rule,
+                            f"must be one of {', '.join(map(repr, STOP_RULES))}")
     if not isinstance(s.recovery_duty, int) or not 1 <= s.recovery_duty <= 99:
         raise SettingsError("emulator.recovery_duty", s.recovery_duty, "must be 1..99")
     if not isinstance(s.seed, int) or not 0 <= s.seed < 2**32:

@@ -31,24 +31,19 @@ from armbench.fakes.stepper import (
     PWM_HIGH,
     PWM_LOW,
     STOP,
+    STOP_RULES,
     Motion,
     PhysicalEffects,
     PwmState,
     Run,
+    StopRule,
     Transition,
     clone_bits,
     step_period_ticks,
 )
 
-__all__ = [
-    "CYCLE_S",
-    "JointModel",
-    "Motion",
-    "PhysicalEffects",
-    "PwmState",
-    "Transition",
-    "step_period_ticks",
-]
+__all__ = ["CYCLE_S", "JointModel", "Motion", "PhysicalEffects", "PwmState", "StopRule",
+           "Transition", "step_period_ticks"]
 
 #: How often (s) a joint under ``loss_law = "stall"`` checks its rate against the pull-out (or,
 #: humming, the pull-in) rate at its load again, as the load changes under it.
@@ -56,12 +51,12 @@ STALL_RECHECK_S: Final = 0.005
 
 #: What :meth:`JointModel.__copy__` copies (all but the ``Final`` ``_CONSTANTS``); with them the
 #: ``__slots__``, so an attribute not named here fails at once (tests/test_compiled.py).
-_FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_miss_bits",
-           "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap",
-           "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle",
-           "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits", "_noise_p",
-           "_lost_carry", "_glitched", "_humming", "transitions", "pulses", "steps_taken",
-           "steps_missed", "steps_blocked", "spurious_counts", "iterations")
+_FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_reach",
+           "_miss_bits", "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s",
+           "_offset", "_gap", "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run",
+           "_idle", "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits",
+           "_noise_p", "_lost_carry", "_glitched", "_humming", "transitions", "pulses",
+           "steps_taken", "steps_missed", "steps_blocked", "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 
 
@@ -72,7 +67,9 @@ class JointModel:
     and the hard limits; ``motor_steps`` is the start position of the motor in microsteps (0 = joint
     angle 0), ``counter`` the start value of the position counter in encoder counts (default: the
     encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the start time in control
-    cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts. ``seed``
+    cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts and
+    ``stop_rule`` when a moving joint stops: ``"window"``, once inside the deadband; ``"reach"``,
+    once its counter meets or passes the target (it starts only beyond the deadband). ``seed``
     (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train and
     link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m, positive
     towards +q) as a function of its own link angle, read at each event (run planned, stop).
@@ -82,9 +79,9 @@ class JointModel:
     __slots__ = _FIELDS + _CONSTANTS
 
     def __init__(self, joint: JointSettings, *, effects: PhysicalEffects | None = None,
-                 seed: int = 0, deadband_counts: int = 1, motor_steps: int = 0,
-                 counter: int | None = None, tick: int = 0, physics: JointPhysics | None = None,
-                 load: Callable[[float], float] | None = None,
+                 seed: int = 0, deadband_counts: int = 1, stop_rule: StopRule = "window",
+                 motor_steps: int = 0, counter: int | None = None, tick: int = 0,
+                 physics: JointPhysics | None = None, load: Callable[[float], float] | None = None,
                  noise_per_count: float = 0.0) -> None:
         self._joint = joint
         cps = joint.counts_per_step
@@ -103,12 +100,15 @@ class JointModel:
                              f"{self.lower_steps}..{self.upper_steps}")
         if deadband_counts < 0:
             raise ValueError(f"deadband_counts {deadband_counts} is negative")
+        if stop_rule not in STOP_RULES:
+            raise ValueError(f"stop_rule {stop_rule!r} is not one of {', '.join(STOP_RULES)}")
         if seed < 0:
             raise ValueError(f"seed {seed} is negative")
         if not 0.0 <= noise_per_count < 1.0:
             raise ValueError(f"noise_per_count {noise_per_count!r} is not in [0, 1)")
         self._effects = effects if effects is not None else PhysicalEffects()
         self._deadband = deadband_counts
+        self._reach = stop_rule == "reach"
         self._physics = physics
         self._load = load
         self._load_nm = 0.0
@@ -293,10 +293,9 @@ class JointModel:
             if self._idle:
                 self._now = tick
             elif run is not None and run.done > 0 and run.pulses is not None:
-                # Fast path, the common case of a board sampling a moving joint: inside a
-                # stepping run that does not end before ``tick`` nothing but steps happens, so do
-                # what _execute/_pulse do for that case inline (no Hall, no limit, no motion
-                # change).
+                # Fast path, a board sampling a moving joint: inside a stepping run that does not
+                # end before ``tick`` only steps happen; do what _execute/_pulse do for that case
+                # inline (no Hall, no limit, no motion change).
                 period = run.period
                 # the pulses at start + k·period < tick, and the cycles since the last of them
                 done, lows = divmod(tick - 1 - run.start, period)
@@ -380,10 +379,12 @@ class JointModel:
     def _encoder(self, steps: int) -> int:
         return steps * self._num // self._den
 
-    def _error(self) -> int:
+    def _error(self, moving: bool = False) -> int:
         if self._homing_dir:
             return self._homing_dir
         err = self._target - self.counter
+        if moving and self._reach:  # on until the target is met or passed
+            return err if err * self._dir > 0 else 0
         return 0 if abs(err) <= self._deadband else err
 
     def _record(self, tick: int, counter: int) -> None:
@@ -429,7 +430,7 @@ class JointModel:
                     self._n += until - self._now
                     self._now = until
             else:
-                err = self._error()
+                err = self._error(moving=True)
                 if self._duty == 0 or err == 0:
                     self._state = STOP
                     self._glitched = False
@@ -540,11 +541,11 @@ class JointModel:
     def _steps_to_deadband(self, d: int) -> int:
         """Steps towards ``d`` before a PWM_HIGH check finds the error no longer beyond the
         deadband on side ``d`` (≥ 1 when called: the current check passed)."""
-        base = self._target - self._offset
-        if d > 0:  # continue while floor(s·c) < base − deadband
-            return -(-(base - self._deadband) * self._den // self._num) - self._s
-        # continue while floor(s·c) ≥ base + deadband + 1
-        return self._s + (-(base + self._deadband + 1) * self._den // self._num) + 1
+        base, band = self._target - self._offset, 0 if self._reach else self._deadband
+        if d > 0:  # continue while floor(s·c) < base − band
+            return -(-(base - band) * self._den // self._num) - self._s
+        # continue while floor(s·c) ≥ base + band + 1
+        return self._s + (-(base + band + 1) * self._den // self._num) + 1
 
     def _execute(self, run: Run, until: int) -> None:
         """Apply the run's pulses before ``until`` and land on the state at ``until`` (or at the

@@ -19,10 +19,12 @@ __all__ = [
     "PWM_HIGH",
     "PWM_LOW",
     "STOP",
+    "STOP_RULES",
     "Motion",
     "PhysicalEffects",
     "PwmState",
     "Run",
+    "StopRule",
     "Transition",
     "clone_bits",
     "step_period_ticks",
@@ -33,6 +35,13 @@ CYCLE_S: Final = 80e-6
 
 #: Macro state the EEPROM logic stores (paper §5.2): stopped, moving CW, moving CCW.
 Motion = Literal["stopped", "cw", "ccw"]
+
+#: When a moving joint stops (``docs/emulator.md``): ``window``, as soon as its error is within
+#: the deadband; ``reach``, once its counter meets or passes the target (the paper's "position
+#: error is null"; it starts only beyond the deadband, so with a deadband of a count or more a
+#: counter that skips the target does not hunt).
+StopRule = Literal["window", "reach"]
+STOP_RULES: Final[tuple[StopRule, ...]] = ("window", "reach")
 
 FOREVER: Final = 1 << 62  # horizon of next_event_tick's look-ahead; never reached in practice
 

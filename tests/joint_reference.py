@@ -17,14 +17,16 @@ from armbench.fakes.joint import Motion, PwmState, Transition
 class ReferenceJoint:
     """The Fig. 7 state machine run one control cycle at a time (see ``docs/emulator-joint.md``)."""
 
-    def __init__(self, joint: JointSettings, *, deadband_counts: int = 1, motor_steps: int = 0,
-                 counter: int | None = None, tick: int = 0) -> None:
+    def __init__(self, joint: JointSettings, *, deadband_counts: int = 1,
+                 stop_rule: str = "window", motor_steps: int = 0, counter: int | None = None,
+                 tick: int = 0) -> None:
         self.cps = joint.counts_per_step
         self.hall_step = round(joint.hall_rad * joint.steps_per_rad)
         self.hall_count = round(joint.hall_rad * joint.counts_per_rad)
         self.lower_steps = round(joint.lower_rad * joint.steps_per_rad)
         self.upper_steps = round(joint.upper_rad * joint.steps_per_rad)
         self.deadband = deadband_counts
+        self.reach = stop_rule == "reach"
         self.tick = tick
         self.state = PwmState.STOP
         self.n = 0
@@ -58,11 +60,14 @@ class ReferenceJoint:
         limit = self.upper_steps if self.direction > 0 else self.lower_steps
         return self.state is not PwmState.STOP and self.motor_steps == limit
 
-    def error(self) -> int:
-        """Position error as the firmware sees it (0 inside the deadband)."""
+    def error(self, moving: bool = False) -> int:
+        """Position error as the firmware sees it: 0 inside the deadband, and, ``moving`` under
+        the ``reach`` rule, 0 once the counter has met or passed the target."""
         if self.homing_dir:
             return self.homing_dir
         err = self.target - self.counter
+        if moving and self.reach:
+            return err if err * self.direction > 0 else 0
         return 0 if abs(err) <= self.deadband else err
 
     def cycle(self) -> None:
@@ -76,7 +81,7 @@ class ReferenceJoint:
                 self.direction = 1 if err > 0 else -1
                 self.transitions.append(Transition(t + 1, self.motion, self.counter))
         elif self.state is PwmState.PWM_HIGH:
-            err = self.error()
+            err = self.error(moving=True)
             if self.duty == 0 or err == 0:
                 self.state = PwmState.STOP
                 self.transitions.append(Transition(t + 1, "stopped", self.counter))

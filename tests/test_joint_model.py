@@ -19,6 +19,7 @@ from armbench.fakes.joint import (
     JointModel,
     PhysicalEffects,
     PwmState,
+    StopRule,
     Transition,
     step_period_ticks,
 )
@@ -79,7 +80,7 @@ DUTIES = st.one_of(st.just(0), st.integers(1, 99), st.integers(85, 99))
 
 
 @st.composite
-def scenarios(draw: st.DrawFn) -> tuple[JointSettings, dict[str, int | None], list[tuple[
+def scenarios(draw: st.DrawFn) -> tuple[JointSettings, dict[str, int | str | None], list[tuple[
         int, tuple[object, ...]]]]:
     """A joint, the model's start arguments, and timed inputs (≤ 40 000 cycles in all)."""
     joint = draw(joints())
@@ -87,11 +88,12 @@ def scenarios(draw: st.DrawFn) -> tuple[JointSettings, dict[str, int | None], li
     hi = round(joint.upper_rad * joint.steps_per_rad)
     c_lo = math.floor(lo * joint.counts_per_step) - 40
     c_hi = math.floor(hi * joint.counts_per_step) + 40
-    start: dict[str, int | None] = {
+    start: dict[str, int | str | None] = {
         "motor_steps": draw(st.integers(lo, hi)),
         "counter": draw(st.none() | st.integers(c_lo, c_hi)),
         "tick": draw(st.integers(0, 10**6)),
         "deadband_counts": draw(st.sampled_from([0, 1, 1, 1, 2, 3])),
+        "stop_rule": draw(st.sampled_from(["window", "reach"])),
     }
     action = st.one_of(
         st.tuples(st.just("ref"), st.integers(c_lo, c_hi), DUTIES),
@@ -113,7 +115,8 @@ def scenarios(draw: st.DrawFn) -> tuple[JointSettings, dict[str, int | None], li
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios())
 def test_model_matches_the_cycle_by_cycle_reference(
-        scenario: tuple[JointSettings, dict[str, int | None], list[tuple[int, tuple[object, ...]]]],
+        scenario: tuple[JointSettings, dict[str, int | str | None],
+                        list[tuple[int, tuple[object, ...]]]],
 ) -> None:
     joint, start, events = scenario
     model = JointModel(joint, **start)  # type: ignore[arg-type]
@@ -448,3 +451,54 @@ def test_encoder_noise_is_reproducible_and_the_loop_still_settles() -> None:
     assert a.motion == "stopped" and abs(a.counter - 125_000) <= 1
     assert a.motor_steps != 100_000  # the firmware trusted the glitches
     assert a.iterations <= 10 + 3 * a.spurious_counts
+
+
+@pytest.mark.parametrize("deadband", [1, 2])
+def test_the_reach_rule_stops_on_or_just_past_the_target_and_stays(deadband: int) -> None:
+    """With 5/4 counts per microstep the counter skips one value in five: ``reach`` stops on the
+    target or the count after it (never short, and with a deadband of a count or more never
+    hunting), ``window`` inside its deadband (with a deadband of 0 both rules hunt about a
+    skipped count)."""
+    joint = DEFAULT_JOINTS[0]
+    assert joint.counts_per_step == Fraction(5, 4)
+    rules: tuple[StopRule, ...] = ("window", "reach")
+    for rule in rules:
+        hunting = JointModel(joint, stop_rule=rule, deadband_counts=0, motor_steps=0)
+        hunting.set_reference(0, 1004, 99)  # never a value of the counter counting up from 0
+        hunting.advance(200_000)
+        assert hunting.pulses > 1000 > abs(hunting.counter - 1004)
+    for rule in rules:
+        for target in range(1000, 1020):
+            for direction in (1, -1):
+                start = target - direction * 500
+                model = JointModel(joint, stop_rule=rule, deadband_counts=deadband,
+                                   motor_steps=round(start / joint.counts_per_step))
+                model.set_reference(0, target, 99)
+                model.advance(200_000)
+                assert model.motion == "stopped", (rule, target, direction)
+                past = (model.counter - target) * direction
+                if rule == "reach":
+                    assert past in (0, 1), (target, direction, past)
+                else:
+                    assert abs(past) <= deadband
+                pulses = model.pulses
+                model.advance(400_000)
+                assert model.pulses == pulses  # at rest for good
+
+
+def test_the_reach_rule_restarts_only_beyond_the_deadband() -> None:
+    """At rest one count past the target (the skipped count) a ``reach`` joint stays; a target
+    moved beyond the deadband starts it again, towards the target."""
+    joint = DEFAULT_JOINTS[0]
+    model = JointModel(joint, stop_rule="reach", motor_steps=0, counter=1)
+    model.set_reference(0, 0, 99)
+    model.advance(10_000)
+    assert (model.pulses, model.counter) == (0, 1)
+    model.set_reference(model.tick, -5, 99)
+    model.advance(model.tick + 10_000)
+    assert model.motion == "stopped" and model.counter in (-5, -6) and model.pulses > 0
+
+
+def test_an_unknown_stop_rule_is_refused() -> None:
+    with pytest.raises(ValueError, match="stop_rule 'exact'"):
+        JointModel(DEFAULT_JOINTS[0], stop_rule="exact")  # type: ignore[arg-type]
