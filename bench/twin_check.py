@@ -69,6 +69,7 @@ from armbench.bench.twin_replay import (
     TIME_SLACK_S,
     Session,
     TwinTruth,
+    replay_sessions,
     replay_twin,
     sessions,
 )
@@ -163,6 +164,8 @@ class TwinCheck:
     twin_replies: list[tuple[float, Vec4]]
     tcp: dict[str, float] | None = None
     sessions: int = 1
+    hall_counters: bool = False
+    """Whether the twin's counters were as its Hall sensors set them (else a new arm's)."""
     series: Aligned | None = None
     arrivals: list[tuple[float, float | None, float | None]] = field(default_factory=list)
     floor_counts: list[float] = field(default_factory=list)
@@ -188,7 +191,7 @@ class TwinCheck:
                         "mean_dt_s": None if dt is None else float(dt.mean()),
                         "max_abs_dt_s": None if dt is None else float(np.abs(dt).max())},
             "tcp": self.tcp, "replies_compared": self.replies_compared,
-            "sessions": self.sessions,
+            "sessions": self.sessions, "hall_counters": self.hall_counters,
             "measurements": [{"name": m.name, "value": m.value, "unit": m.unit,
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
@@ -546,8 +549,6 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     then again with each command moved by a draw of the arm's reaction scatter, for the floor
     (:func:`replay_floor`). ``arm_tcp``: the arm's true TCP (capture clock s, m) from a
     reference instrument; without it, the truth joints of an MCAP capture, if any."""
-    from armbench.fakes.vclock import run_virtual
-
     limits = load_limits(config if config is not None else DEFAULT_CONFIG)
     allow = Allowance.of(limits.suite_params(TWIN_CHECK.suite))
     parts = sessions(data, settings)
@@ -558,23 +559,20 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     merged = CaptureData(data.path, [c for p in parts for c in p.data.commands],
                          [r for p in parts for r in p.data.replies], data.bad_in_frames)
 
-    def replay(offsets: FloatArray | None, truth: TwinTruth | None) -> list[tuple[float, Vec4]]:
-        out: list[tuple[float, Vec4]] = []
-        k = 0
-        for part in parts:
-            n, k = len(part.data.commands), k + len(part.data.commands)
-            moved = None if offsets is None else [float(v) for v in offsets[k - n:k]]
-            out.extend(run_virtual(replay_twin(part.data, settings, truth, part.in_flight,
-                                               offsets_s=moved)))
-        return out
-
-    twin = replay(None, twin_truth)
-    first = compare(merged, twin, settings, limits, allow)
+    # the twin's counters as a new arm's or as its Hall sensors set them (they differ after the
+    # twin passes a Hall sensor whose position error its settings give): the closer replay
+    tried = []
+    for hall in (False, True):
+        truth = TwinTruth() if truth_tcp else None
+        twin = replay_sessions(parts, settings, None, truth, hall)
+        tried.append((compare(merged, twin, settings, limits, allow), twin, truth, hall))
+    first, twin, twin_truth, hall = min(tried, key=lambda c: float(np.sum(np.square(
+        c[0].rms_counts))))
     # commands the host stamped late are replayed when the arm got them
     late = stamped_late_s(first.arm_lag_s, [c[0] for c in merged.commands], MAX_REACTION_S)
     if late is not None:
         twin_truth = TwinTruth() if truth_tcp else None
-        twin = replay(late, twin_truth)
+        twin = replay_sessions(parts, settings, late, twin_truth, hall)
         first = compare(merged, twin, settings, limits, allow)
     base = np.zeros(len(merged.commands)) if late is None else late
     floors = []
@@ -582,7 +580,7 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     for _ in range(REACTION_REPLAYS):
         draws = base + _reaction_draws(first, len(merged.commands), rng)
         moved_truth = TwinTruth() if truth_tcp else None
-        moved = replay(draws, moved_truth)
+        moved = replay_sessions(parts, settings, draws, moved_truth, hall)
         truths = None if twin_truth is None or moved_truth is None else (
             twin_truth, moved_truth, [t for t, _ in truth_tcp])
         floors.append(replay_floor(merged, twin, moved, settings, truths))
@@ -597,4 +595,4 @@ def twin_check(data: CaptureData, settings: RobotSettings,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *_judge_tcp(tcp, allow, limits)]
     return replace(result, tcp=tcp, sessions=len(parts), measurements=measurements,
-                   verdict=_verdict(measurements))
+                   verdict=_verdict(measurements), hall_counters=hall)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
+import numpy.typing as npt
 
 from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.twin_align import TICK_RAD
@@ -22,8 +23,8 @@ from armbench.drivers.settings import RobotSettings
 from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.emulator_settings import emulator_settings
 
-__all__ = ["BURST_S", "SILENCE_S", "TIME_SLACK_S", "Session", "TwinTruth", "replay_twin",
-           "sessions"]
+__all__ = ["BURST_S", "SILENCE_S", "TIME_SLACK_S", "Session", "TwinTruth", "replay_sessions",
+           "replay_twin", "sessions"]
 
 #: A reply further than this (rad) beyond what full speed allows since the previous one starts a
 #: new session (the capture of another emulator, or an arm moved by hand while off).
@@ -73,16 +74,19 @@ class TwinTruth:
 
 async def replay_twin(data: CaptureData, settings: RobotSettings,
                       truth: TwinTruth | None = None, in_flight: Command | None = None,
-                      offsets_s: Sequence[float] | None = None) -> list[tuple[float, Vec4]]:
+                      offsets_s: Sequence[float] | None = None, hall_counters: bool = False
+                      ) -> list[tuple[float, Vec4]]:
     """Replay ``data``'s commands into a twin built from ``settings`` on the running loop; the
     twin's replies from the first one at the session's first pose, on the capture's clock (that
     reply aligned with the capture's first). ``in_flight`` is written first, at once; with
     ``offsets_s``, each command that much later (earlier when negative; never before the one
     before it). With ``truth`` given, the twin's truth at each of its replies is appended to
-    it."""
+    it. ``hall_counters``: the twin's counters as its Hall sensors set them (an arm that ran
+    before, ``ArmEmulator(resumed=True)``); else as a new arm's, true at power-up."""
     loop = asyncio.get_running_loop()
     q0 = data.replies[0][1]
-    emulator = ArmEmulator(settings, emulator_settings(settings), initial_q_rad=q0)
+    emulator = ArmEmulator(settings, emulator_settings(settings), initial_q_rad=q0,
+                           resumed=hall_counters)
     framer = Framer("reply")
     decode = AngleDecoder(settings.lower_rad, settings.upper_rad)
     out: list[tuple[float, Vec4]] = []
@@ -138,6 +142,25 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
         n = len(truth.t_s) - len(out)
         truth.t_s[n:] = [t - offset for t in truth.t_s[n:]]
     return [(t - offset, q) for t, q in out]
+
+
+def replay_sessions(parts: Sequence[Session], settings: RobotSettings,
+                    offsets: Sequence[float] | npt.NDArray[np.float64] | None,
+                    truth: TwinTruth | None,
+                    hall_counters: bool) -> list[tuple[float, Vec4]]:
+    """Replay each session into a twin of its own, each on a virtual-time loop of its own, the
+    replies in order; ``offsets`` moves the commands of all sessions, in order (see
+    :func:`replay_twin`)."""
+    from armbench.fakes.vclock import run_virtual
+
+    out: list[tuple[float, Vec4]] = []
+    k = 0
+    for part in parts:
+        n, k = len(part.data.commands), k + len(part.data.commands)
+        moved = None if offsets is None else [float(v) for v in offsets[k - n:k]]
+        out.extend(run_virtual(replay_twin(part.data, settings, truth, part.in_flight,
+                                           offsets_s=moved, hall_counters=hall_counters)))
+    return out
 
 
 def _moving(data: CaptureData) -> bool:

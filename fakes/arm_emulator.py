@@ -58,12 +58,25 @@ class ArmEmulator:
 
     def __init__(self, robot: RobotSettings | None = None,
                  settings: EmulatorSettings | None = None, faults: Sequence[Fault] = (),
-                 initial_q_rad: Sequence[float] | None = None) -> None:
+                 initial_q_rad: Sequence[float] | None = None, resumed: bool = False) -> None:
+        """``initial_q_rad``: the joints' angles at power-up (rad; default 0: a new arm,
+        assembled at its zero pose, its counters at 0 there and EEPROM blank). ``resumed``: an
+        arm that ran before, stopped at that pose: each EEPROM holds a "stopped" record of it
+        and each counter agrees with its Hall sensor, which has set it (the motor stands the
+        Hall's position error away from the pose the counter says)."""
         self.robot = robot or RobotSettings()
         self.settings = settings or emulator_settings(self.robot)
         self.eeproms = [Eeprom(self.settings.eeprom_cells) for _ in self.robot.joints]
         q0 = list(initial_q_rad) if initial_q_rad is not None else [0.0] * len(self.robot.joints)
-        steps = [round(q * j.steps_per_rad) for q, j in zip(q0, self.robot.joints, strict=True)]
+        physics = self.settings.physics
+        hall_error_rad = ([p.hall_error_rad for p in physics.joints]
+                          if physics is not None and resumed else [0.0] * len(q0))
+        steps = [round((q + e) * j.steps_per_rad)
+                 for q, e, j in zip(q0, hall_error_rad, self.robot.joints, strict=True)]
+        if resumed:
+            for eeprom, q, j in zip(self.eeproms, q0, self.robot.joints, strict=True):
+                eeprom.store("stopped", round(q * j.counts_per_rad))
+                eeprom.land([0.0] * len(eeprom.last_written))
         self.clock = BusClock()
         self.bus = I2CBus(self.clock, self.settings.i2c_bit_s)
         # The Arduino core's receive buffer is a ring of rx_buffer_bytes that holds one byte
@@ -75,7 +88,6 @@ class ArmEmulator:
         self.master = MasterBoard(self.robot.joints[0], self.settings, self.eeproms[0], self.bus,
                                   self.uart, self.slaves, steps[0])
         self.boards: list[Board] = [self.master, *self.slaves]
-        physics = self.settings.physics
         self.mechanism = None if physics is None else Mechanism(physics, self.robot,
                                                                 self._link_angles_rad)
         """The arm's physics (gravity, deflection; ``fakes/physics.py``); None when ideal."""
