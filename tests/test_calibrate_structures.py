@@ -258,6 +258,9 @@ def test_foreign_arm_over_tcp_never_worse(tmp_path: Path) -> None:
     assert fitted["joints.j4.gear_ratio"]["identified"]
     assert abs(fitted["joints.j4.gear_ratio"]["value"] - 30.0) < 0.1
     assert fitted["emulator.physics.j2.loss_law"]["choice"] == "duty"
+    # its joints rest on their targets: the stop rule of a firmware that stops there
+    assert fitted["emulator.stop_rule"]["identified"]
+    assert fitted["emulator.stop_rule"]["choice"] == "reach"
     capture = held / "capture.mcap"
     calibrated = _real_time_rms(capture, load_settings(out))
     default = _real_time_rms(capture, RobotSettings())

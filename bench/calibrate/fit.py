@@ -21,6 +21,7 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.stop_rule import choose_stop_rule
 from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.kinematics import tcp_position
 from armbench.drivers.protocol import TICKS_PER_RAD
@@ -446,5 +447,5 @@ def fit_all(obs: Observations, base: RobotSettings,
     mech = Mechanism(model, base, lambda: [0.0] * 4)
     speeds = fit_speed_models(obs, base, model,
                               lambda q: link_estimate(q, before, model, mech), structures)
-    return [*fit_timing(obs), *play, *hall, *fit_stiffness(obs, base, model, play, before),
-            *speeds, *kinematics]
+    return [*fit_timing(obs), choose_stop_rule(obs, base), *play, *hall,
+            *fit_stiffness(obs, base, model, play, before), *speeds, *kinematics]

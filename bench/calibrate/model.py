@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from armbench.drivers.settings import RobotSettings
 
 __all__ = [
+    "APPROACH_OFFSET_RAD",
     "NO_TRUTH",
     "Approach",
     "ArmDoesNotMoveError",
@@ -35,6 +36,11 @@ __all__ = [
     "run_sigma",
     "session_scatter",
 ]
+
+
+#: Distance (rad) each ISO 230-2 approach starts from its target: beyond the widest gear play of
+#: the documented range and across the Hall sensor's position error.
+APPROACH_OFFSET_RAD: Final = 0.04
 
 
 class CalibrationError(ArmbenchError):

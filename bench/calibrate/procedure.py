@@ -30,6 +30,7 @@ from typing import Any, Final
 import numpy as np
 
 from armbench.bench.calibrate.model import (
+    APPROACH_OFFSET_RAD,
     Approach,
     ArmDoesNotMoveError,
     Hold,
@@ -49,9 +50,6 @@ __all__ = ["DEFAULT_BUDGET_S", "HOLD_POSES_RAD", "LADDER_DUTIES", "PHASES", "Pro
 #: Robot time a calibration may take by default (s): the issue's bound of 15 minutes.
 DEFAULT_BUDGET_S: Final = 900.0
 PHASES: Final = ("timing", "approaches", "holds", "ladder")
-#: Distance (rad) each approach starts from: beyond the widest gear play of the documented range
-#: and across the Hall sensor's position error.
-APPROACH_OFFSET_RAD: Final = 0.04
 APPROACH_CYCLES: Final = 10
 SETTLE_S: Final = 0.25
 IDLE_S: Final = 1.0
