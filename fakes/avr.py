@@ -42,6 +42,7 @@ __all__ = [
     "cache_dir",
     "data_symbols",
     "find_images",
+    "firmware_defines",
     "parse_avr_url",
     "stats_address",
 ]
@@ -95,8 +96,23 @@ def cache_dir() -> Path:
     return Path(base) / "armbench" / "firmware"
 
 
-def _source_digest(src: Path) -> str:
-    h = hashlib.sha256(" ".join(_AVR_CFLAGS).encode())
+def firmware_defines(robot: RobotSettings) -> tuple[str, ...]:
+    """The compiler's ``-D`` options that build the reference firmware with the robot's
+    ``[emulator]`` choices the firmware has (``deadband_counts``, ``stop_rule``): none for the
+    defaults, so the default build is the one without them."""
+    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
+
+    emu, default = emulator_settings(robot), EmulatorSettings()
+    out = []
+    if emu.deadband_counts != default.deadband_counts:
+        out.append(f"-DDEADBAND_COUNTS={emu.deadband_counts}")
+    if emu.stop_rule == "reach":
+        out.append("-DSTOP_RULE_REACH=1")
+    return tuple(out)
+
+
+def _source_digest(src: Path, defines: Sequence[str] = ()) -> str:
+    h = hashlib.sha256(" ".join([*_AVR_CFLAGS, *defines]).encode())
     for path in sorted(src.rglob("*")):
         if path.suffix in (".c", ".h") and path.is_file():
             h.update(str(path.relative_to(src)).encode())
@@ -126,14 +142,15 @@ def _run(cmd: Sequence[str], cwd: Path) -> None:
 
 
 def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
-          force: bool = False) -> Path:
-    """Compile the four firmware images (``jointN.elf``/``.hex``) and the harness into
-    ``out`` (default: a folder of :func:`cache_dir` named by the sources' digest); returns it.
-    An up-to-date build is reused unless ``force``."""
+          force: bool = False, defines: Sequence[str] = ()) -> Path:
+    """Compile the four firmware images (``jointN.elf``/``.hex``, with the compiler options
+    ``defines``, :func:`firmware_defines`) and the harness into ``out`` (default: a folder of
+    :func:`cache_dir` named by the sources' and options' digest); returns it. An up-to-date
+    build is reused unless ``force``."""
     if not (source / "firmware.h").is_file():
         raise FirmwareError(f"{source}: no firmware sources here (firmware.h missing)")
     _require_toolchain()
-    out = out if out is not None else cache_dir() / _source_digest(source)
+    out = out if out is not None else cache_dir() / _source_digest(source, defines)
     done = out / ".complete"
     if done.exists() and not force:
         return out
@@ -141,7 +158,7 @@ def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
         if done.exists() and not force:  # built by whoever held the lock before us
             return out
         done.unlink(missing_ok=True)
-        _build_into(source, out)
+        _build_into(source, out, defines)
         done.write_text("ok\n")
     return out
 
@@ -160,12 +177,12 @@ def _build_lock(out: Path) -> Iterator[None]:
         yield
 
 
-def _build_into(source: Path, out: Path) -> None:
+def _build_into(source: Path, out: Path, defines: Sequence[str]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for joint in range(1, 5):
         elf = out / f"joint{joint}.elf"
-        _run(["avr-gcc", *_AVR_CFLAGS, f"-DJOINT={joint}", "-o", str(elf), *_AVR_SOURCES],
-             source)
+        _run(["avr-gcc", *_AVR_CFLAGS, *defines, f"-DJOINT={joint}", "-o", str(elf),
+              *_AVR_SOURCES], source)
         _run(["avr-objcopy", "-O", "ihex", "-R", ".eeprom", str(elf),
               str(out / f"joint{joint}.hex")], source)
     harness_sources = sorted(str(p.relative_to(source)) for p in (source / "harness").glob("*.c"))
@@ -173,12 +190,13 @@ def _build_into(source: Path, out: Path) -> None:
           str(out / HARNESS_NAME), *harness_sources, "-lsimavr"], source)
 
 
-def find_images(firmware: str | Path | None) -> list[Path]:
+def find_images(firmware: str | Path | None, robot: RobotSettings | None = None) -> list[Path]:
     """The four images (joint 1..4) that ``firmware`` names: a folder holding ``jointN.elf`` or
     ``jointN.hex`` (the build's layout), a path with ``{n}`` for the joint number, or None or
-    ``""`` for the reference firmware (built if needed)."""
+    ``""`` for the reference firmware (built if needed, with ``robot``'s
+    :func:`firmware_defines`; images of a user's firmware are what they are)."""
     if firmware is None or str(firmware) == "":
-        folder = build()
+        folder = build(defines=() if robot is None else firmware_defines(robot))
         return [folder / f"joint{n}.elf" for n in range(1, 5)]
     text = str(firmware)
     if "{n}" in text:
@@ -259,7 +277,7 @@ class Harness:
         """Build if needed, start the harness on a new pty and wait until the cores run.
         ``control``: a FIFO (made if missing) that takes the same commands as the harness's
         stdin, e.g. ``echo power off > FIFO`` from a bench's power commands."""
-        images = find_images(firmware)
+        images = find_images(firmware, robot)
         exe = harness if harness is not None else build() / HARNESS_NAME
         args = ["--pty", "--speed", speed, "--boot-ms", str(boot_ms)]
         if eeprom_dir is not None:

@@ -83,7 +83,7 @@ def run_firmware(script: Sequence[tuple[float, Sequence[float], int]], until_s: 
                                        for t, frame in _frames(script)))
         args = [str(exe), "--speed", "max", "--seconds", str(until_s), "--script",
                 str(script_file), "--reply-log", str(log_file)]
-        for spec in board_specs(robot, find_images(firmware)):
+        for spec in board_specs(robot, find_images(firmware, robot)):
             args += ["--board", spec]
         subprocess.run(args, stdin=subprocess.DEVNULL, capture_output=True, check=True,
                        timeout=600)

@@ -147,9 +147,9 @@ class AvrTransport(SerialTransport):
     def preflight(self) -> None:
         """The URL's query, the firmware images and the harness (built now if needed, as
         :meth:`open` would)."""
-        _, firmware, _, _ = parse_avr_url(self.port)
+        robot, firmware, _, _ = parse_avr_url(self.port)
         try:
-            find_images(firmware)
+            find_images(firmware, robot)
             build()
         except FirmwareError as exc:
             raise self._error(str(exc)) from exc

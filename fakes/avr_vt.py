@@ -68,7 +68,7 @@ class LockstepHarness:
 
     def __init__(self, robot: RobotSettings, firmware: str | Path | None = None, *,
                  harness: Path | None = None, boot_ms: float = 100.0) -> None:
-        images = find_images(firmware)
+        images = find_images(firmware, robot)
         exe = harness if harness is not None else build() / HARNESS_NAME
         args = [str(exe), "--lockstep", "--boot-ms", str(boot_ms)]
         for spec in board_specs(robot, images):

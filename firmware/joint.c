@@ -2,7 +2,8 @@
  *
  * - The Fig. 7 PWM state machine runs in the 80 us Timer1 compare interrupt: STOP -> PWM_HIGH when
  *   the duty is positive and the error is beyond the deadband; PWM_HIGH makes one step and goes to
- *   PWM_LOW; PWM_LOW counts non_moved_steps up to 100 - duty. A step every 101 - duty cycles:
+ *   PWM_LOW, or stops inside the deadband (with -DSTOP_RULE_REACH=1: once the counter meets or
+ *   passes the target, emulator.stop_rule = "reach"); PWM_LOW counts non_moved_steps up to 100 - duty. A step every 101 - duty cycles:
  *   speed law (12), 1e6 / (80 (101 - v)) steps/s.
  * - The encoder counter follows channel A's rising edge (INT0): B high = CW, +1; else -1.
  * - The Hall sensor's rising edge (INT1) resets the counter to HALL_COUNT, once per arrival.
@@ -76,6 +77,13 @@ ISR(TIMER1_COMPA_vect)
         v = RECOVERY_DUTY;
     } else {
         err = target_counts - joint_counter;
+#if STOP_RULE_REACH
+        if (pwm_state == ST_PWM_HIGH) {   /* moving: on until the target is met or passed */
+            if (motion == MOTION_CW ? err <= 0 : err >= 0) {
+                err = 0;
+            }
+        } else
+#endif
         if (err <= DEADBAND_COUNTS && err >= -DEADBAND_COUNTS) {
             err = 0;
         }

@@ -53,7 +53,12 @@
 #error "JOINT must be 1..4"
 #endif
 
+#ifndef DEADBAND_COUNTS
 #define DEADBAND_COUNTS 1       /* |target - counter| <= 1 count: there (docs/emulator.md) */
+#endif
+#ifndef STOP_RULE_REACH
+#define STOP_RULE_REACH 0       /* 1: a moving joint stops once it meets or passes its target */
+#endif
 #define RECOVERY_DUTY 90        /* drive to the Hall sensor at start-up (§5.2) */
 #define RECOVERY_STALL_PULSES 64 /* pulses without a count while recovering: stalled at a limit */
 
