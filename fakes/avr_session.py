@@ -154,10 +154,11 @@ def _ideal_robot() -> RobotSettings:
     return with_emulator_overrides(RobotSettings(), profile="ideal")
 
 
-def run_emulator_session(session: Session) -> Outcome:
+def run_emulator_session(session: Session, robot: RobotSettings | None = None) -> Outcome:
     """Play the session to the emulator on virtual time (and :data:`SILENCE_S` beyond its end,
-    for the comparison of the firmware's last replies)."""
-    robot = _ideal_robot()
+    for the comparison of the firmware's last replies); ``robot``: its settings (default: the
+    default arm without physics, as the harness's joints)."""
+    robot = robot if robot is not None else _ideal_robot()
 
     async def main() -> Outcome:
         loop = asyncio.get_running_loop()
@@ -241,10 +242,12 @@ def _read_coverage(text: str, out: Outcome) -> None:
 
 
 def run_firmware_session(session: Session, *, coverage: bool = False,
-                         firmware: str | None = None) -> Outcome:
-    """Play the session to the firmware in the harness (full speed, simulated time)."""
+                         firmware: str | None = None,
+                         robot: RobotSettings | None = None) -> Outcome:
+    """Play the session to the firmware in the harness (full speed, simulated time), the
+    reference firmware built with ``robot``'s choices (``firmware_defines``) when given."""
     exe = build() / HARNESS_NAME
-    images = find_images(firmware)
+    images = find_images(firmware, robot)
     with tempfile.TemporaryDirectory(prefix="armbench-diff-") as tmp:
         script, replies = Path(tmp, "script.txt"), Path(tmp, "replies.txt")
         events, cov = Path(tmp, "events.txt"), Path(tmp, "coverage.txt")

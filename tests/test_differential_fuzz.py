@@ -104,6 +104,20 @@ def test_kept_divergences_replay_clean() -> None:
                            run_firmware_session(session)) == [], path.name
 
 
+def test_the_corpus_agrees_under_the_reach_rule() -> None:
+    """The fuzzer's corpus of sessions (power cuts, noise, overruns, reversals) on the firmware
+    built with ``-DSTOP_RULE_REACH=1`` and on the emulator with ``stop_rule = "reach"``: no
+    divergence beyond the check's tolerances (a count at rest is within them: where each rule
+    rests, exactly, is ``tests/test_firmware_stop_rule.py``'s)."""
+    robot = RobotSettings.from_mapping({"emulator": {"profile": "ideal", "stop_rule": "reach"}})
+    sessions = sorted(CORPUS.glob("*.session"))
+    assert len(sessions) >= 10
+    for path in sessions:
+        session = Session.from_text(path.read_text())
+        assert divergences(session, run_emulator_session(session, robot),
+                           run_firmware_session(session, robot=robot)) == [], path.name
+
+
 @pytest.fixture(scope="module")
 def old_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The firmware as it was: the five digits of a position summed in 16 bits, a slave that
