@@ -33,11 +33,16 @@ def test_the_setting_is_read_and_checked() -> None:
 
 
 @pytest.mark.parametrize("rule", ["window", "reach"])
-def test_calibrate_finds_the_rule_of_the_arm(rule: str, tmp_path: Path) -> None:
-    """An emulated arm of either rule, calibrated from the default settings (``window``): its
-    approaches' rests name its rule, written to the settings only where it differs."""
+@pytest.mark.parametrize("hall_deg", [0.025, -0.08])
+def test_calibrate_finds_the_rule_of_the_arm(rule: str, hall_deg: float, tmp_path: Path) -> None:
+    """An emulated arm of either rule, its Hall sensors off by ``hall_deg``, calibrated from the
+    default settings (``window``): its approaches' rests name its rule, written to the settings
+    only where it differs; so they do without the Hall errors the emulator's truth identifies
+    (over a port: each joint's error unknown within its range)."""
     arm = tmp_path / "arm.toml"
-    arm.write_text(f'[emulator]\nstop_rule = "{rule}"\n')
+    arm.write_text(f'[emulator]\nstop_rule = "{rule}"\n'
+                   + "".join(f"[emulator.physics.j{n}]\nhall_error_deg = {hall_deg}\n"
+                             for n in range(1, 5)))
     out = tmp_path / "fitted.toml"
     result = run_virtual(calibrate_port(f"fake://?settings={arm}", RobotSettings(), out,
                                         budget_s=60))
@@ -46,6 +51,8 @@ def test_calibrate_finds_the_rule_of_the_arm(rule: str, tmp_path: Path) -> None:
     assert fitted.identified == (rule == "reach"), fitted.reason
     assert emulator_settings(result.settings).stop_rule == rule
     assert "approaches rested" in fitted.reason
+    blind = choose_stop_rule(result.observations, RobotSettings())
+    assert (blind.choice, blind.identified) == (fitted.choice, fitted.identified), blind.reason
 
 
 def test_no_approaches_keep_the_prior() -> None:

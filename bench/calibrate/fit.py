@@ -447,5 +447,5 @@ def fit_all(obs: Observations, base: RobotSettings,
     mech = Mechanism(model, base, lambda: [0.0] * 4)
     speeds = fit_speed_models(obs, base, model,
                               lambda q: link_estimate(q, before, model, mech), structures)
-    return [*fit_timing(obs), choose_stop_rule(obs, base), *play, *hall,
+    return [*fit_timing(obs), choose_stop_rule(obs, base, hall), *play, *hall,
             *fit_stiffness(obs, base, model, play, before), *speeds, *kinematics]
