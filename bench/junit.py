@@ -16,6 +16,9 @@ Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
   so test reporters list no skipped tests for figures that are only recorded;
 - one ``<testcase name="trial">`` with an ``<error>`` per errored trial, and one per suite that
   errored or never finished (``name="suite"``), and per planned suite that never started;
+- untested is never passed: one ``<testcase name="trial">`` with ``<skipped>`` and its reason per
+  trial that measured nothing, one ``name="suite"`` per suite that measured nothing, and a
+  ``required`` testsuite with one skipped testcase per required figure no suite measured;
 - a ``baseline`` testsuite with one testcase per compared metric when the record has a baseline
   comparison; regressed metrics carry a ``<failure type="regression">``.
 """
@@ -82,6 +85,13 @@ def _error_case(classname: str, name: str, kind: str, message: str) -> ET.Elemen
     return case
 
 
+def _skipped_case(classname: str, name: str, message: str) -> ET.Element:
+    """A testcase the bench could not measure: untested, never passed."""
+    case = ET.Element("testcase", classname=classname, name=name, time="0")
+    ET.SubElement(case, "skipped", message=_text(message)).text = _text(message)
+    return case
+
+
 def _suite_head(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     """The ``<testsuite>`` element of ``suite`` with its properties and time, no testcases."""
     el = ET.Element("testsuite", name=_text(suite.name))
@@ -121,6 +131,8 @@ def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
         if trial.status == "error":
             yield _error_case(cls, "trial", "trial_error",
                               f"trial {trial.index} could not be carried out: {trial.error}")
+        elif trial.skipped is not None:
+            yield _skipped_case(cls, "trial", f"untested: {trial.skipped}")
         for m in () if _campaign(suite) else trial.measurements:
             if m.outcome != "unjudged":
                 yield _measurement_case(cls, m)
@@ -133,6 +145,8 @@ def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
     elif suite.status == "running":
         yield _error_case(base, "suite", "incomplete",
                           f"suite {suite.name} did not finish (the run was interrupted)")
+    elif (reason := suite.untested_reason()) is not None:
+        yield _skipped_case(base, "suite", f"suite {suite.name} untested: {reason}")
 
 
 def _row_case(row: ComparisonRow) -> ET.Element:
@@ -184,6 +198,12 @@ def _suites(record: RunRecord) -> Iterator[_Suite]:
             case = _error_case(f"armbench.{name}", "suite", "incomplete",
                                f"suite {name} was planned but never started")
             yield el, functools.partial(iter, (case,)), _none
+    missing = [(name, why) for name, why, _ in record.untested() if name not in record.suites]
+    if missing:
+        cases = [_skipped_case("armbench.required", name, f"required {name}: {why}")
+                 for name, why in missing]
+        yield (ET.Element("testsuite", name="required", time=_seconds(0.0)),
+               functools.partial(iter, cases), _none)
     baseline = record.baseline
     if baseline is not None:
         yield (_baseline_head(record), lambda: (_row_case(row) for row in baseline.rows),

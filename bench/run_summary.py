@@ -13,13 +13,15 @@ from pathlib import Path
 
 from armbench.bench.verdict import exit_status
 from armbench.record import REPORT_FILE, RunRecord
+from armbench.record.claims import truth_line, untested_lines
 
 __all__ = ["MAX_LINES", "append_summary", "markdown_summary", "write_step_summary"]
 
 #: Failed measurements, regressions and errors listed at most (each list).
 MAX_LINES = 20
 
-_ICON = {"pass": "✅", "fail": "❌", "regression": "📉", "error": "⚠️", "incomplete": "⚠️"}
+_ICON = {"pass": "✅", "fail": "❌", "regression": "📉", "error": "⚠️", "incomplete": "⚠️",
+         "untested": "⭕"}
 
 
 def _cell(text: str) -> str:
@@ -79,6 +81,11 @@ def markdown_summary(record: RunRecord, *, status: int | None = None,
         if len(errors) > MAX_LINES:
             lines.append(f"- … {len(errors) - MAX_LINES} more")
         lines.append("")
+    untested = untested_lines(record)
+    if untested:
+        lines += ["Untested (measured nothing, never a pass):", "",
+                  *(f"- {_cell(line)}" for line in untested[:MAX_LINES]), ""]
+    lines += [truth_line(record), ""]
     if report is not None:
         lines += [f"Full report: `{report}`", ""]
     return "\n".join(lines) + "\n"

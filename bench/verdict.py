@@ -9,6 +9,7 @@ A CI job tells the outcomes apart by the exit status alone:
 2     bad input: the bench could not run (reported before the arm moves)
 3     regressed against the baseline (every limit held)
 4     incomplete: a trial in error, a lost arm, a planned suite not finished
+5     untested: every limit held, but a required suite or figure measured nothing
 130   interrupted (continue with ``armbench run --resume DIR``)
 ====  ===========================================================================
 
@@ -28,8 +29,8 @@ from armbench.record.limits import LimitsConfig, load_limits
 
 __all__ = [
     "DEFAULT_CONFIG", "EXIT_ERROR", "EXIT_FAIL", "EXIT_INCOMPLETE", "EXIT_INTERRUPTED",
-    "EXIT_PASS", "EXIT_REGRESSION", "EXIT_STATUS_EPILOG", "exit_status", "load_config",
-    "worst_exit_status",
+    "EXIT_PASS", "EXIT_REGRESSION", "EXIT_STATUS_EPILOG", "EXIT_UNTESTED", "exit_status",
+    "load_config", "worst_exit_status",
 ]
 
 #: The limits file used when ``--config`` is not given (shipped with the package).
@@ -40,33 +41,35 @@ EXIT_FAIL: Final = 1
 EXIT_ERROR: Final = 2
 EXIT_REGRESSION: Final = 3
 EXIT_INCOMPLETE: Final = 4
+EXIT_UNTESTED: Final = 5
 EXIT_INTERRUPTED: Final = 130
 
 _EXIT_BY_VERDICT: Final[dict[Verdict, int]] = {
     "pass": EXIT_PASS, "fail": EXIT_FAIL, "regression": EXIT_REGRESSION,
-    "error": EXIT_INCOMPLETE, "incomplete": EXIT_INCOMPLETE,
+    "error": EXIT_INCOMPLETE, "incomplete": EXIT_INCOMPLETE, "untested": EXIT_UNTESTED,
 }
 
 #: From the worst: the status of several outcomes (a fleet's arms) is the first one present.
-_SEVERITY: Final = (EXIT_INTERRUPTED, EXIT_ERROR, EXIT_INCOMPLETE, EXIT_FAIL, EXIT_REGRESSION,
-                    EXIT_PASS)
+_SEVERITY: Final = (EXIT_INTERRUPTED, EXIT_ERROR, EXIT_INCOMPLETE, EXIT_FAIL, EXIT_UNTESTED,
+                    EXIT_REGRESSION, EXIT_PASS)
 
 #: The exit-status paragraph of every ``--help`` whose command can produce them.
 EXIT_STATUS_EPILOG: Final = (
     "Exit status: 0 pass, 1 a limit failed, 2 bad input (the bench could not run), 3 regressed "
-    "against the baseline (limits held), 4 incomplete run (a trial in error, a lost arm), 130 "
-    "interrupted (continue with --resume DIR). See docs/ci.md.")
+    "against the baseline (limits held), 4 incomplete run (a trial in error, a lost arm), 5 "
+    "untested (a required suite or figure measured nothing), 130 interrupted (continue with "
+    "--resume DIR). See docs/ci.md.")
 
 
 def exit_status(verdict: Verdict) -> int:
     """The exit status of a run with this verdict: 0 pass, 1 fail, 3 regression, 4 error or
-    incomplete."""
+    incomplete, 5 untested."""
     return _EXIT_BY_VERDICT[verdict]
 
 
 def worst_exit_status(statuses: Iterable[int]) -> int:
     """The status of several outcomes: interrupted, else bad input, incomplete, a limit failed,
-    a regression, pass (an unknown status counts as bad input)."""
+    untested, a regression, pass (an unknown status counts as bad input)."""
     present = {s if s in _SEVERITY else EXIT_ERROR for s in statuses}
     return next((s for s in _SEVERITY if s in present), EXIT_PASS)
 

@@ -45,6 +45,9 @@ class Environment:
     faults: tuple[Mapping[str, Any], ...]
     limits_spec_version: str | None
     config_path: str | None
+    truth_source: str | None = None
+    """The reference instrument the run measured the arm's truth with (the emulator's ground
+    truth, a tracker plug-in), None where the figures rest on the arm's encoders alone."""
 
     def to_json(self) -> EnvironmentJson:
         """The JSON object of this environment."""
@@ -57,6 +60,7 @@ class Environment:
             "seed": self.seed,
             "limits_spec_version": self.limits_spec_version,
             "config_path": self.config_path,
+            "truth_source": self.truth_source,
             "faults": [dict(f) for f in self.faults],
             "settings": dict(self.settings),
         }
@@ -85,6 +89,7 @@ class Environment:
             faults=tuple(_obj(f, f"{where}.faults[{i}]") for i, f in enumerate(faults)),
             limits_spec_version=opt_text("limits_spec_version"),
             config_path=opt_text("config_path"),
+            truth_source=_opt_str(d.get("truth_source"), f"{where}.truth_source"),
         )
 
 
@@ -116,6 +121,7 @@ def capture_environment(
     seed: int | None = None,
     faults: Iterable[Mapping[str, Any]] = (),
     limits: LimitsConfig | None = None,
+    truth_source: str | None = None,
 ) -> Environment:
     """The environment of this process: armbench version (package metadata), git revision,
     Python and platform, plus what the run was given. ``settings`` None records the defaults;
@@ -131,5 +137,6 @@ def capture_environment(
         faults=tuple(dict(f) for f in faults),
         limits_spec_version=None if limits is None else limits.spec_version,
         config_path=None if limits is None else limits.path,
+        truth_source=truth_source,
     )
 

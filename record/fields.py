@@ -25,7 +25,7 @@ Outcome = Literal["pass", "fail", "unjudged"]
 Better = Literal["lower", "higher"]
 TrialStatus = Literal["done", "error"]
 SuiteStatus = Literal["running", "done", "error"]
-Verdict = Literal["pass", "fail", "regression", "error", "incomplete"]
+Verdict = Literal["pass", "fail", "regression", "error", "incomplete", "untested"]
 RowStatus = Literal["compared", "new", "missing"]
 
 

@@ -42,7 +42,8 @@ SPEC_VERSION = "armbench-limits/1"
 #: when the file does not say otherwise.
 DEFAULT_TOLERANCE_PCT = 10.0
 
-_TOP_KEYS = {"spec_version", "limits", "regression", "bench", "suites"}
+_TOP_KEYS = {"spec_version", "required", "optional", "limits", "regression", "bench",
+             "suites"}
 _LIMIT_KEYS = {"low", "high", "unit"}
 _REGRESSION_KEYS = {"default_tolerance_pct", "metrics"}
 _TOLERANCE_KEYS = {"tolerance_pct", "tolerance_abs"}
@@ -120,6 +121,11 @@ class LimitsConfig:
     bench: Mapping[str, Any] = field(default_factory=dict)
     suites: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     path: str | None = None
+    required: tuple[str, ...] = ()
+    """What a run must measure to pass besides the suites it runs: suite names, metric names or
+    ``*`` patterns (``"accuracy.*.true_mean_mm"``: a lab that has a tracker)."""
+    optional: tuple[str, ...] = ()
+    """Suites a run may leave untested without failing its verdict (default: none)."""
 
     def limit_for(self, metric: str) -> Limit | None:
         """The limit of ``metric``: the most specific matching pattern's, or None."""
@@ -144,6 +150,8 @@ class LimitsConfig:
                       for name, t in self.tolerances.items()}
         return {
             "spec_version": self.spec_version,
+            "required": list(self.required),
+            "optional": list(self.optional),
             "bench": self.bench_params(),
             "limits": limits,
             "regression": {"default_tolerance_pct": self.default_tolerance_pct,
@@ -234,6 +242,8 @@ def parse_limits(data: Mapping[str, Any], *, path: str | None = None) -> LimitsC
         slack = _non_negative(f"{where}.tolerance_abs", t.get("tolerance_abs", 0.0))
         tolerances[metric] = Tolerance(pct, slack)
 
+    required = _names("required", data.get("required", []))
+    optional = _names("optional", data.get("optional", []))
     bench = _table("bench", data.get("bench", {}))
     suites = _table("suites", data.get("suites", {}))
     for name, table in suites.items():
@@ -246,7 +256,20 @@ def parse_limits(data: Mapping[str, Any], *, path: str | None = None) -> LimitsC
         bench=copy.deepcopy(dict(bench)),
         suites={name: copy.deepcopy(dict(table)) for name, table in suites.items()},
         path=path,
+        required=required,
+        optional=optional,
     )
+
+
+def _names(where: str, value: object) -> tuple[str, ...]:
+    """A list of suite or metric names (``*`` wildcards allowed), each checked."""
+    if not isinstance(value, list):
+        raise SettingsError(where, value, "is not a list of names")
+    for i, name in enumerate(value):
+        if not isinstance(name, str):
+            raise SettingsError(f"{where}[{i}]", name, "is not a string")
+        _check_name(f"{where}[{i}]", name)
+    return tuple(dict.fromkeys(value))
 
 
 def _parse_limit(metric: str, table: object) -> Limit:

@@ -164,6 +164,9 @@ class Trial:
     to the arm."""
     disturbed: bool = False
     """The link to the arm was lost during the trial: its measurements are kept but flagged."""
+    skipped: str | None = None
+    """Why the trial measured nothing though it ran (no power switch, no reference instrument):
+    an untested trial, never a passed one."""
 
     def __post_init__(self) -> None:
         where = f"trial {self.index}"
@@ -182,6 +185,8 @@ class Trial:
         _choice(self.status, f"{where}.status", get_args(TrialStatus))
         if (self.status == "error") != (self.error is not None):
             raise RecordError(f"{where}.error", "is given exactly when status is 'error'")
+        if self.skipped is not None and (self.status != "done" or not self.skipped):
+            raise RecordError(f"{where}.skipped", "is a non-empty reason of a done trial")
         if not isinstance(self.samples, StoredSamples):  # kept on disk, read when used
             object.__setattr__(self, "samples", tuple(self.samples))
         object.__setattr__(self, "measurements", tuple(self.measurements))
@@ -203,6 +208,7 @@ class Trial:
             "params": dict(self.params),
             "measurements": [m.to_json() for m in self.measurements],
             "disturbed": self.disturbed,
+            "skipped": self.skipped,
             "events": [dict(ev) for ev in self.events],
             "samples": list(self.samples),
         }
@@ -227,9 +233,10 @@ class Trial:
         disturbed = d.get("disturbed", False)
         if not isinstance(disturbed, bool):
             raise RecordError(f"{where}.disturbed", "must be true or false")
+        skipped = _opt_str(d.get("skipped"), f"{where}.skipped")  # absent before issue 37
         with _located(where):
             return cls(index, started_s, duration_s, params, samples, measurements, status,
-                       error, events, disturbed)
+                       error, events, disturbed, skipped)
 
 
 @dataclass(slots=True, kw_only=True)
@@ -254,6 +261,26 @@ class SuiteRecord:
     trials: list[Trial] = field(default_factory=list)
     superseded_trials: list[Trial] = field(default_factory=list)
     measurements: list[Measurement] = field(default_factory=list)
+
+    def untested_reason(self) -> str | None:
+        """Why this finished suite measured nothing, or None: no trial ran, every trial was
+        skipped (their reasons), or no trial left a figure. A running or errored suite is not
+        untested: it is incomplete or in error."""
+        if self.status != "done":
+            return None
+        done = [t for t in self.trials if t.status == "done"]
+        if not done:
+            return "no trial was measured (zero trials)"
+        if all(t.skipped is not None for t in done):
+            return "every trial skipped: " + "; ".join(dict.fromkeys(str(t.skipped)
+                                                                     for t in done))
+        if not self.measurements and not any(t.measurements for t in done):
+            return "no figure was measured"
+        return None
+
+    def skipped_trials(self) -> list[Trial]:
+        """The done trials that measured nothing (each with its reason)."""
+        return [t for t in self.trials if t.status == "done" and t.skipped is not None]
 
     def completed_trials(self) -> list[Trial]:
         """The trials with status ``"done"``, by index (a resumed suite skips these)."""

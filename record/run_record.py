@@ -24,6 +24,7 @@ from armbench.record.fields import (
     _str,
 )
 from armbench.record.journal import journal_path, read_journal
+from armbench.record.limits import best_match
 from armbench.record.measurement import Measurement, SuiteRecord, Trial
 from armbench.record.shapes import RecordJson
 
@@ -46,8 +47,10 @@ _CAMPAIGN_KEY = "campaign"
 class RunRecord:
     """The whole run. Mutable: :class:`RecordWriter` fills it in.
 
-    ``planned_suites`` are the suites the run means to execute, in order; ``suites`` those started
-    so far, by name; ``resumed`` the wall-clock labels of each resume; ``baseline`` the comparison
+    ``planned_suites`` are the suites the run means to execute, in order; ``required`` what the
+    run must measure to pass (suite names, metric names or ``*`` patterns; an untested one makes
+    the verdict ``untested``); ``suites`` those started so far, by name; ``resumed`` the
+    wall-clock labels of each resume; ``baseline`` the comparison
     with a baseline run, if one was given; ``reference`` the paper's figures for the report.
     """
 
@@ -55,6 +58,7 @@ class RunRecord:
     created: str
     environment: Environment
     planned_suites: list[str] = field(default_factory=list)
+    required: list[str] = field(default_factory=list)
     suites: dict[str, SuiteRecord] = field(default_factory=dict)
     resumed: list[str] = field(default_factory=list)
     baseline: Comparison | None = None
@@ -112,11 +116,50 @@ class RunRecord:
         return (f"{n} trial{'s' if n != 1 else ''} disturbed by link outages ({shown}): their "
                 "measurements are kept but flagged")
 
+    def untested(self) -> list[tuple[str, str, bool]]:
+        """What the run measured nothing of, as ``(name, reason, required)``: every finished
+        suite that is untested (:meth:`SuiteRecord.untested_reason`), then every required metric
+        pattern that no current measurement matches. Only a required one changes the verdict."""
+        out: list[tuple[str, str, bool]] = []
+        for suite in self.suites.values():
+            reason = suite.untested_reason()
+            if reason is not None:
+                out.append((suite.name, reason, suite.name in self.required))
+        names = [m.name for _, _, m in self.iter_measurements()]
+        for pattern in self.required:
+            if pattern in self.planned_suites or pattern in self.suites:
+                continue
+            if not any(best_match((pattern,), n) for n in names):
+                out.append((pattern, "not measured by any suite of the run", True))
+        return out
+
+    def suite_verdict(self, name: str) -> Verdict:
+        """One suite's verdict, with the run's precedence: ``error``, ``incomplete`` (also a
+        planned suite that never started), ``fail``, ``untested`` (it measured nothing),
+        ``regression`` (one of its metrics regressed), ``pass``."""
+        suite = self.suites.get(name)
+        if suite is None:
+            return "incomplete"
+        if suite.status == "error" or any(t.status == "error" for t in suite.trials):
+            return "error"
+        if suite.status == "running":
+            return "incomplete"
+        if any(m.outcome == "fail" for m in _judged(suite)):
+            return "fail"
+        if suite.untested_reason() is not None:
+            return "untested"
+        if self.baseline is not None:
+            names = {m.name for m in suite.measurements}
+            if any(r.regressed and r.name in names for r in self.baseline.rows):
+                return "regression"
+        return "pass"
+
     @property
     def verdict(self) -> Verdict:
         """The run's verdict, first that applies: ``"error"`` (a suite or current trial errored),
         ``"incomplete"`` (a planned suite did not start or did not end), ``"fail"`` (a measurement
-        outside its limit), ``"regression"`` (worse than the baseline), else ``"pass"``.
+        outside its limit), ``"untested"`` (a required suite or metric measured nothing),
+        ``"regression"`` (worse than the baseline), else ``"pass"``.
 
         A campaign suite (its parameters hold ``campaign``) is judged by its suite-level figures
         (the pass probabilities against their limits): a sample outside a limit is one of the
@@ -127,9 +170,10 @@ class RunRecord:
         if (any(s.status == "running" for s in suites)
                 or any(name not in self.suites for name in self.planned_suites)):
             return "incomplete"
-        if any(m.outcome == "fail" for s, t, m in self.iter_measurements()
-               if t is None or _CAMPAIGN_KEY not in s.params):
+        if any(m.outcome == "fail" for s in suites for m in _judged(s)):
             return "fail"
+        if any(required for _, _, required in self.untested()):
+            return "untested"
         if self.baseline is not None and self.baseline.regressed:
             return "regression"
         return "pass"
@@ -146,9 +190,19 @@ class RunRecord:
             "reference": dict(self.reference),
             "environment": self.environment.to_json(),
             "planned_suites": list(self.planned_suites),
+            "required": list(self.required),
             "baseline": None if self.baseline is None else self.baseline.to_json(),
             "suites": {name: s.to_json(trial_json) for name, s in self.suites.items()},
         }
+
+
+def _judged(suite: SuiteRecord) -> Iterator[Measurement]:
+    """The measurements that judge ``suite``: a campaign's suite-level figures only, else
+    every current one."""
+    if _CAMPAIGN_KEY not in suite.params:
+        for t in suite.trials:
+            yield from t.measurements
+    yield from suite.measurements
 
 
 def validate_record(data: object) -> RunRecord:
@@ -183,11 +237,13 @@ def validate_record(data: object) -> RunRecord:
     reference = _obj(_get(d, "reference", ""), "reference")
     resumed = _list(_get(d, "resumed", ""), "resumed")
     planned = _list(_get(d, "planned_suites", ""), "planned_suites")
+    required = _list(d.get("required", []), "required")  # absent before issue 37
     return RunRecord(
         run_id=_str(_get(d, "run_id", ""), "run_id"),
         created=_str(_get(d, "created", ""), "created"),
         environment=Environment.from_json(_get(d, "environment", ""), "environment"),
         planned_suites=[_str(p, f"planned_suites[{i}]") for i, p in enumerate(planned)],
+        required=[_str(r, f"required[{i}]") for i, r in enumerate(required)],
         suites=suites,
         resumed=[_str(r, f"resumed[{i}]") for i, r in enumerate(resumed)],
         baseline=None if baseline is None else Comparison.from_json(baseline, "baseline"),

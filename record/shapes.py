@@ -44,6 +44,7 @@ class TrialJson(TypedDict):
     params: dict[str, Any]
     measurements: list[MeasurementJson]
     disturbed: bool
+    skipped: str | None
     events: list[dict[str, Any]]
     samples: list[Mapping[str, Any]]
 
@@ -102,6 +103,7 @@ class EnvironmentJson(TypedDict):
     seed: int | None
     limits_spec_version: str | None
     config_path: str | None
+    truth_source: str | None
     faults: list[dict[str, Any]]
     settings: dict[str, Any]
 
@@ -117,5 +119,6 @@ class RecordJson(TypedDict):
     reference: dict[str, float]
     environment: EnvironmentJson
     planned_suites: list[str]
+    required: list[str]
     baseline: ComparisonJson | None
     suites: dict[str, SuiteJson]

@@ -40,6 +40,7 @@ __all__ = [
     "contracts",
     "forget",
     "lacks",
+    "records_truth",
     "register",
     "resolution",
 ]
@@ -198,6 +199,15 @@ def contract(suite: str) -> SuiteContract:
         raise UnknownContractError(f"no contract of suite {suite!r} (known: "
                                    f"{', '.join(c.suite for c in contracts())})")
     return found
+
+
+def records_truth(suite: str) -> bool:
+    """Whether ``suite`` records a ``true_`` figure beside each reported position figure when the
+    run has a reference instrument (False for a suite with no contract)."""
+    try:
+        return contract(suite).has_true_figures
+    except UnknownContractError:
+        return False
 
 
 def lacks(suite: str, shape: type) -> UnknownContractError:

@@ -28,7 +28,7 @@ __all__ = ["FLEET_PAGE", "ArmRow", "Cell", "HeadlineRow", "build_fleet_html", "r
 #: The fleet page's file name inside the fleet's run directory.
 FLEET_PAGE = "fleet.html"
 #: Verdicts from the worst: the fleet's verdict is its worst arm's.
-_ORDER = ("error", "incomplete", "fail", "regression", "pass")
+_ORDER = ("error", "incomplete", "fail", "untested", "regression", "pass")
 
 
 @dataclass(frozen=True, slots=True)

@@ -40,6 +40,7 @@ VERDICT_MARKS: Mapping[str, tuple[str, str]] = {
     "regression": ("▼", "REGRESSION"),
     "error": ("⚠", "ERROR"),
     "incomplete": ("◐", "INCOMPLETE"),
+    "untested": ("○", "UNTESTED"),
 }
 
 #: Measurement outcome -> (symbol, word).

@@ -22,13 +22,14 @@ from armbench.record.suite_contract import (
     UnknownContractError,
     contract,
     contracts,
+    records_truth,
 )
 from armbench.reports.format import format_duration, format_value, margin
 from armbench.reports.views import ScoreRow
 
 __all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "TRUTH_SUITES", "change_text",
-           "headline_figure", "headline_measurement", "score_rows", "suite_headlines",
-           "true_name"]
+           "headline_figure", "headline_measurement", "score_rows",
+           "suite_headlines", "true_name"]
 
 #: The headline figures of each suite the contract knows, by suite name, in the contracts' order
 #: (registered where each is defined, :func:`armbench.record.suite_contract.register`).
@@ -51,13 +52,7 @@ def suite_headlines(name: str) -> Sequence[Headline] | None:
         return None
 
 
-def _has_true_figures(name: str) -> bool:
-    try:
-        return contract(name).has_true_figures
-    except UnknownContractError:
-        return False
 _NO_LIMIT = "none set"
-_TRUE_LIMIT = "none set"
 
 
 def headline_measurement(suite: SuiteRecord, headline: Headline) -> Measurement | None:
@@ -123,34 +118,44 @@ def change_text(cmp: ComparisonRow) -> tuple[str, str]:
     return format_value(cmp.change_abs, cmp.unit, signed=True), word
 
 
+def _judging(m: Measurement, reported: Measurement | None) -> list[tuple[str, Measurement]]:
+    """The figures of a row that a limit judges, each with the view it is (``true``,
+    ``firmware``, or empty for a figure that is neither)."""
+    if reported is None:
+        return [] if m.limit is None else [("", m)]
+    return [(view, f) for view, f in (("true", m), ("firmware", reported)) if f.limit is not None]
+
+
 def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | None, *,
          reported: Measurement | None = None, view: str = "",
          no_limit: str | None = None) -> ScoreRow:
-    """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m`` (its limit
-    and outcome judge the row, as the run judged it)."""
+    """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m``. Each
+    figure a limit judges shows its own limit and margin, labelled with the figure it judges;
+    the row fails when either fails."""
     change, direction = ("", "") if cmp is None else change_text(cmp)
-    judged = reported if reported is not None and m.limit is None else m
-    if judged.limit is not None:
-        limit = judged.limit.describe()
-        if judged is reported:
-            limit += "*"
-    elif reported is not None:
-        limit = _TRUE_LIMIT
+    judging = _judging(m, reported)
+    if judging:
+        def tagged(text: str, which: str) -> str:
+            return f"{text} ({which})" if which and reported is not None else text
+
+        limit = "; ".join(tagged(f.limit.describe(), w) for w, f in judging if f.limit)
+        margins = "; ".join(tagged(format_value(margin(f), f.unit, signed=True), w)
+                            for w, f in judging)
+        outcome = "fail" if any(f.outcome == "fail" for _, f in judging) else judging[0][1].outcome
     else:
         limit = no_limit or _NO_LIMIT
+        margins, outcome = "-", m.outcome
     if not view and m.name.rpartition(".")[2].startswith("true_"):
         view = "true"  # a true figure on its own (a regressed one, say)
     warning = ""
     if m.unit == "years" and m.value < LIFE_WARN_YEARS:
         warning = f"⚠ < {LIFE_WARN_YEARS:g} years"
     return ScoreRow(
-        label=label, metric=m.name, value=_human_value(m), limit=limit,
-        margin=(format_value(margin(judged), judged.unit, signed=True)
-                if judged.limit is not None else "-"),
-        outcome=judged.outcome, change=change, direction=direction,
+        label=label, metric=m.name, value=_human_value(m), limit=limit, margin=margins,
+        outcome=outcome, change=change, direction=direction,
         paper="" if paper is None else format_value(paper, m.unit),
         reported="" if reported is None else format_value(reported.value, reported.unit),
-        view=view, warning=warning)
+        view=view, warning=warning, judges="+".join(w for w, _ in judging if w))
 
 
 def score_rows(record: RunRecord, suite: SuiteRecord,
@@ -179,7 +184,7 @@ def score_rows(record: RunRecord, suite: SuiteRecord,
                 rows.append(_row(h.label, true, cmp_rows.get(true.name), paper,
                                  reported=found, view="true", no_limit=h.no_limit))
             else:
-                view = ("encoders" if _has_true_figures(suite.name) and not has_truth
+                view = ("encoders" if records_truth(suite.name) and not has_truth
                         and _positional(found) else "")
                 rows.append(_row(h.label, found, cmp_rows.get(found.name), paper, view=view,
                                  no_limit=h.no_limit))
@@ -198,3 +203,4 @@ def _positional(m: Measurement) -> bool:
     """Whether ``m`` is a position or angle figure the encoders report (one a true reference
     would measure otherwise)."""
     return m.unit in ("mm", "mrad", "m", "rad", "deg") or m.name.endswith("ratio")
+

@@ -13,6 +13,7 @@ from armbench.record import (
     SuiteRecord,
     Trial,
 )
+from armbench.record.claims import truth_line, untested_lines
 from armbench.reports.format import (
     OUTCOME_MARKS,
     format_duration,
@@ -34,23 +35,8 @@ from armbench.reports.views import (
 
 
 def suite_verdict(record: RunRecord, name: str) -> str:
-    """A suite's own verdict, with the run's precedence: ``error``, ``incomplete`` (also a
-    planned suite that never started), ``fail``, ``regression`` (one of its metrics regressed),
-    ``pass``."""
-    suite = record.suites.get(name)
-    if suite is None:
-        return "incomplete"
-    if suite.status == "error" or any(t.status == "error" for t in suite.trials):
-        return "error"
-    if suite.status == "running":
-        return "incomplete"
-    if any(m.outcome == "fail" for m in all_measurements(suite)):
-        return "fail"
-    if record.baseline is not None:
-        names = {m.name for m in suite.measurements}
-        if any(r.regressed and r.name in names for r in record.baseline.rows):
-            return "regression"
-    return "pass"
+    """A suite's own verdict as the record judges it (:meth:`RunRecord.suite_verdict`)."""
+    return record.suite_verdict(name)
 
 
 def all_measurements(suite: SuiteRecord) -> Iterable[Measurement]:
@@ -82,6 +68,7 @@ def verdict_reasons(record: RunRecord) -> list[str]:
     if failed:
         shown = ", ".join(failed[:6]) + (f" and {len(failed) - 6} more" if len(failed) > 6 else "")
         reasons.append(f"{len(failed)} metric(s) outside their limits: {shown}")
+    reasons.extend(untested_lines(record))
     if record.baseline is not None:
         regressed = [r.name for r in record.baseline.regressions]
         if regressed:
@@ -90,9 +77,10 @@ def verdict_reasons(record: RunRecord) -> list[str]:
                            "in the scorecard")
     disturbed = record.disturbance_note()
     if not reasons:
-        reasons.append("every measurement within its limits" +
+        reasons.append("every judged measurement within its limits" +
                        ("" if record.baseline is None else
                         f", no regression against baseline {record.baseline.baseline_run_id}"))
+    reasons.append(truth_line(record))
     if disturbed is not None:
         reasons.append(disturbed)
     return reasons

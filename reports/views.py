@@ -226,6 +226,9 @@ class ScoreRow:
     run) or empty (not a position figure)."""
     warning: str = ""
     """A warning beside the value (a short lifetime)."""
+    judges: str = ""
+    """Which figures the limit column judges: ``true``, ``firmware``, ``true+firmware``, or
+    empty (a figure that is neither, or no limit)."""
 
 
 @dataclass(slots=True)

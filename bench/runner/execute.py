@@ -56,6 +56,7 @@ from armbench.bench.runner.options import (
 from armbench.bench.runner.parallel import ParallelTrials
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.progress import ProgressPrinter
+from armbench.bench.runner.required import truth_source_of
 from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
 from armbench.bench.truth import aclose_source, aopen_source
 from armbench.record import (
@@ -77,8 +78,12 @@ log = logging.getLogger("armbench.runner")
 def _new_record(plan: BenchPlan) -> RunRecord:
     env = capture_environment(port=plan.port, settings=plan.settings, seed=plan.seed,
                               faults=[dataclasses.asdict(f) for f in plan.faults],
-                              limits=plan.config)
-    return RunRecord.new(env, [s.name for s in plan.suites], run_id=plan.run_id)
+                              limits=plan.config, truth_source=truth_source_of(
+                                  plan.runner_info.get("tracker"), plan.target.capabilities.truth,
+                                  plan.target.scheme))
+    record = RunRecord.new(env, [s.name for s in plan.suites], run_id=plan.run_id)
+    record.required = list(plan.required)
+    return record
 
 
 async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedSuite) -> None:

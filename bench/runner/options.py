@@ -138,6 +138,11 @@ class RunOptions:
     ``[bench] scheduler`` or the local process pool."""
     shard: tuple[int, int] | None = None
     """``(I, N)``: measure only shard I of N (1-based) of every suite's trials (CI)."""
+    require: Sequence[str] = ()
+    """Suites or metric patterns the run must measure besides the planned suites
+    (``--require``)."""
+    optional: Sequence[str] = ()
+    """Planned suites the run may leave untested (``--optional``)."""
 
 
 @dataclass(slots=True)
@@ -200,6 +205,8 @@ class BenchPlan:
     shard: tuple[int, int] | None = None
     """``(I, N)``: only the trials of shard I of N (:func:`in_shard`); suites are not summarised
     (``armbench merge`` does it over every shard)."""
+    required: list[str] = field(default_factory=list)
+    """What the run must measure to pass (:func:`~armbench.bench.runner.required.required_of`)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""

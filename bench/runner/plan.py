@@ -35,6 +35,7 @@ from armbench.bench.runner.options import (
     PlannedSuite,
     RunOptions,
 )
+from armbench.bench.runner.required import required_of
 from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
@@ -474,6 +475,9 @@ def prepare(options: RunOptions) -> BenchPlan:
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
     _check_limit_units(planned, inputs.config)
+    required = (list(resume.required) if resume is not None else
+                required_of([s.name for s in planned], inputs.config,
+                            require=options.require, optional=options.optional))
     baseline = (None if options.baseline is None
                 else _load_checked_baseline(options.baseline, inputs.config, planned))
     tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
@@ -490,6 +494,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         "config": str(Path(inputs.config.path).resolve()) if inputs.config.path else None,
         "faults": str(Path(options.faults).resolve()) if options.faults is not None else None,
         "shard": None if options.shard is None else list(check_shard(options.shard)),
+        "tracker": options.tracker,
     }
     if resume is not None:
         runner_info = {**info, "suites": runner_info["suites"]}
@@ -504,7 +509,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
         capture=knobs.capture, capture_max_bytes=knobs.capture_max_bytes,
         warnings=_warnings(inputs.config), scheduler=knobs.scheduler,
-        shard=_shard_of(runner_info),
+        shard=_shard_of(runner_info), required=required,
     )
 
 

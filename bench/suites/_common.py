@@ -50,6 +50,7 @@ __all__ = [
     "Measurements",
     "StateRecorder",
     "TrialAborted",
+    "TrialSkipped",
     "TruthProbe",
     "check_bool",
     "check_branch",
@@ -81,6 +82,15 @@ MEASUREMENT_ERRORS: Final = (ArmbenchError, TimeoutError, OSError)
 
 class TrialAborted(ArmbenchError):
     """Raised inside a trial body to end it as ``status="error"`` with this reason."""
+
+
+class TrialSkipped(Exception):
+    """Raised inside a trial body that cannot measure on this bench (no power switch, no
+    reference instrument): the trial is kept as done but untested, with ``reason``."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
 
 
 # --------------------------------------------------------------------------------------------
@@ -409,8 +419,9 @@ async def guarded_trial(ctx: SuiteContext, index: int, params: Mapping[str, Any]
 
     ``body`` gets a list it may append samples to as it goes (kept in an error trial) and returns
     the final samples and measurements. A driver/transport error, a timeout, or
-    :class:`TrialAborted` makes the trial ``status="error"`` with the reason; the samples gathered
-    so far are kept. ``started_s`` is the loop time (s) the trial began: the runner re-stamps it
+    :class:`TrialAborted` makes the trial ``status="error"`` with the reason; :class:`TrialSkipped`
+    a done trial that measured nothing (``skipped``); the samples gathered so far are kept.
+    ``started_s`` is the loop time (s) the trial began: the runner re-stamps it
     on the run clock when it records the trial.
     """
     t0 = loop_time()
@@ -425,6 +436,9 @@ async def guarded_trial(ctx: SuiteContext, index: int, params: Mapping[str, Any]
     except MEASUREMENT_ERRORS as exc:
         return Trial(index, t0, max(0.0, loop_time() - t0), dict(params), partial, (),
                      "error", f"{type(exc).__name__}: {exc}")
+    except TrialSkipped as exc:
+        return Trial(index, t0, max(0.0, loop_time() - t0), dict(params), partial, (),
+                     skipped=exc.reason)
     return Trial(index, t0, max(0.0, loop_time() - t0), dict(params), samples, measurements)
 
 

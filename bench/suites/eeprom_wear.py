@@ -10,7 +10,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from armbench.bench.suites._common import Measurements, eeprom_counters, loop_time
+from armbench.bench.suites._common import (
+    Measurements,
+    TrialSkipped,
+    eeprom_counters,
+    loop_time,
+)
 from armbench.bench.suites.base import SuiteContext
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.bench.suites.workspace import (
@@ -55,9 +60,9 @@ async def measure_wear(ctx: SuiteContext, duration_s: float,
     arm = ctx.arm
     t0 = loop_time()
     if eeprom_counters(arm) is None:
-        samples.append({SAMPLE.t: 0.0, SAMPLE.event: STARTUP.ev_skipped,
-                        "reason": "EEPROM writes are not observable on this port"})
-        return samples, []
+        reason = "EEPROM writes are not observable on this port"
+        samples.append({SAMPLE.t: 0.0, SAMPLE.event: STARTUP.ev_skipped, "reason": reason})
+        raise TrialSkipped(reason)
     poses = iso_cube_poses(DEFAULT_CUBE_CENTRE_M, DEFAULT_CUBE_SIDE_M)
     corners = square_yz(DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M)
 

@@ -41,6 +41,7 @@ import numpy as np
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
+    TrialSkipped,
     TruthProbe,
     check_bool,
     check_int,
@@ -230,8 +231,10 @@ class StartupRecoverySuite(Suite):
             return s
 
         if ctx.power is None:
-            log(S.ev_skipped, reason="no power switch configured (ctx.power is None)")
-            return samples, []
+            reason = ("no power switch configured (give --power-command or --power-manual, or "
+                      "a labgrid place's power)")
+            log(S.ev_skipped, reason=reason)
+            raise TrialSkipped(reason)
         probe = TruthProbe(ctx)
         duty = int(p["duty"])
         start, end = targets(ctx, condition, joints)

@@ -7,7 +7,8 @@
 
 Exit status (:mod:`armbench.bench.verdict`): 0 every measurement within its limits and no
 regression, 1 a limit failed, 2 bad input (reported before the arm moves), 3 regressed against
-the baseline (every limit held), 4 the run is incomplete (a lost arm, a trial in error), 130
+the baseline (every limit held), 4 the run is incomplete (a lost arm, a trial in error), 5 a
+required suite or figure measured nothing (untested: ``--require``, ``--optional``), 130
 interrupted (resume with ``--resume DIR``). With several ``--port``: the worst arm's status, one
 line per arm (``docs/fleet.md``). ``--summary FILE.md`` appends a short Markdown summary for a CI
 job's step summary (``docs/ci.md``).
@@ -25,6 +26,7 @@ from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
+from armbench.record.claims import truth_line, untested_lines
 from armbench.record.fleet_index import is_fleet
 
 __all__ = ["register"]
@@ -86,6 +88,13 @@ def register(sub: Any) -> None:
                         "[bench] retries, else 0)")
     p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
                    help="do not capture the traffic (default: [bench] capture, else capture)")
+    p.add_argument("--require", action="append", default=[], metavar="SUITE|METRIC",
+                   help="a suite or figure (metric name or * pattern) the run must measure, else "
+                        "its verdict is untested (exit 5); repeatable. Every planned suite is "
+                        "required unless --optional or the config's optional list names it")
+    p.add_argument("--optional", action="append", default=[], metavar="SUITE",
+                   help="a planned suite that may measure nothing (no power switch, say) without "
+                        "making the run untested; repeatable")
     p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
                    help="stop the capture (a capture_stopped event says so) before capture.mcap "
                         "would exceed MB megabytes; the run goes on (default: [bench] "
@@ -116,7 +125,8 @@ def _run(args: argparse.Namespace) -> int:
         power_command=tuple(args.power_command) if args.power_command else None,
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
-        scheduler=args.scheduler, shard=args.shard)
+        scheduler=args.scheduler, shard=args.shard, require=list(args.require),
+        optional=list(args.optional))
     if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
         from armbench.cli.commands.fleet import run_fleet
 
@@ -141,6 +151,8 @@ def _summary(outcome: RunOutcome) -> None:
         notes.append(f"warning: {disturbed}")
     print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
+    for line in [*untested_lines(record), truth_line(record)]:
+        print(f"  {line}", file=out)
     for suite in record.suites.values():
         for trial in suite.trials:
             if trial.status == "error":

@@ -1,0 +1,46 @@
+"""What a verdict claims, in words every reader of a record prints the same way (the terminal,
+the Markdown summary, the HTML report): what the run did not test, and whose figures it judged —
+the arm's truth from a reference instrument, or the firmware's belief from its encoders alone."""
+
+from __future__ import annotations
+
+from armbench.record.run_record import RunRecord
+from armbench.record.suite_contract import records_truth
+
+__all__ = ["truth_line", "untested_lines"]
+
+
+def untested_lines(record: RunRecord) -> list[str]:
+    """One line per suite or required figure the run measured nothing of, and per suite some of
+    whose trials were skipped: what was not shown, and why."""
+    untested = record.untested()
+    lines = [f"{name}: untested, {reason}" + ("" if required else
+                                              " (optional: the verdict does not count it)")
+             for name, reason, required in untested]
+    named = {name for name, _, _ in untested}
+    for suite in record.suites.values():
+        skipped = suite.skipped_trials()
+        if skipped and suite.name not in named:
+            why = "; ".join(dict.fromkeys(str(t.skipped) for t in skipped))
+            lines.append(f"{suite.name}: {len(skipped)} of {len(suite.trials)} trials skipped "
+                         f"(measured nothing): {why}")
+    return lines
+
+
+def truth_line(record: RunRecord) -> str:
+    """Whose figures the verdict judged: the arm's truth (the run's reference instrument, how
+    many true figures were judged and how many fell outside) or the encoders alone (the position
+    figures of which suites)."""
+    source = record.environment.truth_source
+    true = [m for _, _, m in record.iter_measurements()
+            if m.name.rpartition(".")[2].startswith("true_")]
+    if source is not None or true:
+        judged = [m for m in true if m.outcome != "unjudged"]
+        failed = sum(m.outcome == "fail" for m in judged)
+        return (f"truth judged: {len(judged)} true figure(s) from {source or 'the record'} "
+                f"against their limits, {failed} outside; the firmware's belief judged beside "
+                "them")
+    alone = [name for name in record.suites if records_truth(name)]
+    return ("no reference instrument: the figures are the firmware's belief from its encoders"
+            + (f"; the position figures of {', '.join(alone)} rest on the encoders alone (their "
+               "true column: not measured)" if alone else ""))
