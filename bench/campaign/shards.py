@@ -81,6 +81,7 @@ def _check_same_run(shards: Sequence[_Shard]) -> None:
                 ("faults", a.environment.faults, b.environment.faults),
                 ("limits", a.environment.config_path, b.environment.config_path),
                 ("suites", a.planned_suites, b.planned_suites),
+                ("required figures", a.required, b.required),
                 ("campaign", first.info.get("campaign"), s.info.get("campaign")),
                 ("suite parameters", {n: (x.version, x.params) for n, x in a.suites.items()},
                  {n: (x.version, x.params) for n, x in b.suites.items()})):
@@ -136,6 +137,7 @@ async def _merge(shards: Sequence[_Shard], plan: BenchPlan) -> RunRecord:
     first = shards[0].record
     plan.out_dir.mkdir(parents=True, exist_ok=True)
     record = RunRecord.new(first.environment, first.planned_suites)
+    record.required = list(first.required)  # every shard was asked the same
     writer = BatchedWriter(plan.out_dir, record)
     runner = TrialRunner(plan, writer, ProgressPrinter(None, 0), default_emulator)
     for ps in plan.suites:
