@@ -13,7 +13,7 @@ from pathlib import Path
 
 from armbench.bench.verdict import exit_status
 from armbench.record import REPORT_FILE, RunRecord
-from armbench.record.claims import truth_line, untested_lines
+from armbench.record.claims import truth_line, uncovered_lines
 
 __all__ = ["MAX_LINES", "append_summary", "markdown_summary", "write_step_summary"]
 
@@ -81,10 +81,10 @@ def markdown_summary(record: RunRecord, *, status: int | None = None,
         if len(errors) > MAX_LINES:
             lines.append(f"- … {len(errors) - MAX_LINES} more")
         lines.append("")
-    untested = untested_lines(record)
-    if untested:
-        lines += ["Untested (measured nothing, never a pass):", "",
-                  *(f"- {_cell(line)}" for line in untested[:MAX_LINES]), ""]
+    uncovered = uncovered_lines(record)
+    if uncovered:
+        lines += ["Not covered by the verdict (untested or not judged, never a pass):", "",
+                  *(f"- {_cell(line)}" for line in uncovered[:MAX_LINES]), ""]
     lines += [truth_line(record), ""]
     if report is not None:
         lines += [f"Full report: `{report}`", ""]

@@ -7,12 +7,13 @@ from __future__ import annotations
 from armbench.record.run_record import RunRecord
 from armbench.record.suite_contract import records_truth
 
-__all__ = ["truth_line", "untested_lines"]
+__all__ = ["truth_line", "uncovered_lines"]
 
 
-def untested_lines(record: RunRecord) -> list[str]:
-    """One line per suite or required figure the run measured nothing of, and per suite some of
-    whose trials were skipped: what was not shown, and why."""
+def uncovered_lines(record: RunRecord) -> list[str]:
+    """What the verdict does not cover, a line each: every suite or required figure the run
+    showed nothing of (:meth:`RunRecord.untested`), and every suite some of whose trials were
+    skipped."""
     untested = record.untested()
     lines = [f"{name}: untested, {reason}" + ("" if required else
                                               " (optional: the verdict does not count it)")

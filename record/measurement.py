@@ -263,9 +263,10 @@ class SuiteRecord:
     measurements: list[Measurement] = field(default_factory=list)
 
     def untested_reason(self) -> str | None:
-        """Why this finished suite measured nothing, or None: no trial ran, every trial was
-        skipped (their reasons), or no trial left a figure. A running or errored suite is not
-        untested: it is incomplete or in error."""
+        """Why this finished suite showed nothing, or None: no trial ran, every trial was
+        skipped (their reasons), no trial left a figure, or no limit judged any figure (PASS means
+        measured *and* within limits). A running or errored suite is not untested: it is
+        incomplete or in error."""
         if self.status != "done":
             return None
         done = [t for t in self.trials if t.status == "done"]
@@ -274,8 +275,11 @@ class SuiteRecord:
         if all(t.skipped is not None for t in done):
             return "every trial skipped: " + "; ".join(dict.fromkeys(str(t.skipped)
                                                                      for t in done))
-        if not self.measurements and not any(t.measurements for t in done):
+        figures = [*(m for t in done for m in t.measurements), *self.measurements]
+        if not figures:
             return "no figure was measured"
+        if all(m.outcome == "unjudged" for m in figures):
+            return f"no limit judges any of its {len(figures)} figures (recorded, not judged)"
         return None
 
     def skipped_trials(self) -> list[Trial]:

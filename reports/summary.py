@@ -13,7 +13,7 @@ from armbench.record import (
     SuiteRecord,
     Trial,
 )
-from armbench.record.claims import truth_line, untested_lines
+from armbench.record.claims import truth_line, uncovered_lines
 from armbench.reports.format import (
     OUTCOME_MARKS,
     format_duration,
@@ -68,7 +68,7 @@ def verdict_reasons(record: RunRecord) -> list[str]:
     if failed:
         shown = ", ".join(failed[:6]) + (f" and {len(failed) - 6} more" if len(failed) > 6 else "")
         reasons.append(f"{len(failed)} metric(s) outside their limits: {shown}")
-    reasons.extend(untested_lines(record))
+    reasons.extend(uncovered_lines(record))
     if record.baseline is not None:
         regressed = [r.name for r in record.baseline.regressions]
         if regressed:

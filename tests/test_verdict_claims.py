@@ -179,6 +179,26 @@ def test_optional_and_require_name_suites_of_the_run(tmp_path: Path,
     assert not (tmp_path / "run").exists()
 
 
+def test_figures_no_limit_judges_are_untested(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A config that judges none of a suite's figures makes no claim about it: the suite is
+    untested (exit 5), not passed; zero trials likewise."""
+    config = tmp_path / "bare.toml"
+    config.write_text('spec_version = "armbench-limits/1"\n[suites.startup-recovery]\n'
+                      "trials = 1\nwear_duration_s = 0\nconditions = [\"stopped-near\"]\n",
+                      encoding="utf-8")
+    status, out, _ = cli(capsys, "run", "startup-recovery", "--config", str(config), "--out",
+                         str(tmp_path / "run"), "--no-capture", "--workers", "1")
+    assert status == EXIT_UNTESTED, out
+    assert "no limit judges any of its" in out
+    config.write_text(config.read_text(encoding="utf-8").replace("trials = 1", "trials = 0"),
+                      encoding="utf-8")
+    status, out, _ = cli(capsys, "run", "startup-recovery", "--config", str(config), "--out",
+                         str(tmp_path / "zero"), "--no-capture", "--workers", "1")
+    assert status == EXIT_UNTESTED, out
+    assert "no trial was measured (zero trials)" in out
+
+
 def test_a_record_keeps_what_was_required(lap: Path) -> None:
     """The record says what the run had to measure: a later reader judges it the same."""
     raw = json.loads((lap / "results.json").read_text(encoding="utf-8"))

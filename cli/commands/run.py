@@ -26,7 +26,7 @@ from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
-from armbench.record.claims import truth_line, untested_lines
+from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.fleet_index import is_fleet
 
 __all__ = ["register"]
@@ -151,7 +151,7 @@ def _summary(outcome: RunOutcome) -> None:
         notes.append(f"warning: {disturbed}")
     print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
-    for line in [*untested_lines(record), truth_line(record)]:
+    for line in [*uncovered_lines(record), truth_line(record)]:
         print(f"  {line}", file=out)
     for suite in record.suites.values():
         for trial in suite.trials:
