@@ -5,7 +5,7 @@ crosses from the record to the file and to other programs (``compare --json``). 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 from armbench.record.fields import Better, Outcome, RowStatus, SuiteStatus, TrialStatus
 from armbench.record.limits import LimitJson
@@ -17,6 +17,7 @@ __all__ = [
     "MeasurementJson",
     "RecordJson",
     "SuiteJson",
+    "TargetJson",
     "TrialJson",
 ]
 
@@ -46,6 +47,7 @@ class TrialJson(TypedDict):
     disturbed: bool
     events: list[dict[str, Any]]
     samples: list[Mapping[str, Any]]
+    wall_s: NotRequired[float]
 
 
 class SuiteJson(TypedDict):
@@ -62,6 +64,7 @@ class SuiteJson(TypedDict):
     measurements: list[MeasurementJson]
     trials: list[object]
     superseded_trials: list[object]
+    wall_s: NotRequired[float]
 
 
 class ComparisonRowJson(TypedDict):
@@ -91,6 +94,13 @@ class ComparisonJson(TypedDict):
     rows: list[ComparisonRowJson]
 
 
+class TargetJson(TypedDict):
+    """The kind of target a run measured and whether it had a truth source."""
+
+    kind: str
+    truth: bool | None
+
+
 class EnvironmentJson(TypedDict):
     """What the run ran on and with."""
 
@@ -104,6 +114,9 @@ class EnvironmentJson(TypedDict):
     config_path: str | None
     faults: list[dict[str, Any]]
     settings: dict[str, Any]
+    dut: NotRequired[dict[str, Any]]
+    ci: NotRequired[dict[str, str | None]]
+    target: NotRequired[TargetJson]
 
 
 class RecordJson(TypedDict):
