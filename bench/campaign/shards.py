@@ -79,6 +79,7 @@ def _check_same_run(shards: Sequence[_Shard]) -> None:
                 ("settings", a.environment.settings, b.environment.settings),
                 ("seed", a.environment.seed, b.environment.seed),
                 ("faults", a.environment.faults, b.environment.faults),
+                ("unit under test", a.environment.dut.to_json(), b.environment.dut.to_json()),
                 ("limits", a.environment.config_path, b.environment.config_path),
                 ("suites", a.planned_suites, b.planned_suites),
                 ("campaign", first.info.get("campaign"), s.info.get("campaign")),

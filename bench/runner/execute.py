@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -67,6 +68,7 @@ from armbench.record import (
     load_record,
 )
 from armbench.record.baseline import BaselineError, compare
+from armbench.record.ci_run import ci_run
 from armbench.record.files import make_directory
 
 __all__ = ["execute", "run_bench", "run_sync"]
@@ -77,7 +79,9 @@ log = logging.getLogger("armbench.runner")
 def _new_record(plan: BenchPlan) -> RunRecord:
     env = capture_environment(port=plan.port, settings=plan.settings, seed=plan.seed,
                               faults=[dataclasses.asdict(f) for f in plan.faults],
-                              limits=plan.config)
+                              limits=plan.config, dut=plan.dut, ci=ci_run(os.environ),
+                              target_kind=plan.target.scheme or "serial",
+                              truth=plan.target.capabilities.truth or plan.tracker is not None)
     return RunRecord.new(env, [s.name for s in plan.suites], run_id=plan.run_id)
 
 

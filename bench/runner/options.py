@@ -27,6 +27,7 @@ from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports.target import Target
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
+from armbench.record.dut import Dut
 from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
@@ -138,6 +139,10 @@ class RunOptions:
     ``[bench] scheduler`` or the local process pool."""
     shard: tuple[int, int] | None = None
     """``(I, N)``: measure only shard I of N (1-based) of every suite's trials (CI)."""
+    dut: str | None = None
+    """The unit under test's name (``--dut``), over the config's ``[dut] name``."""
+    meta: Sequence[str] = ()
+    """``KEY=VALUE`` pairs of the unit under test (``--meta``), over the config's ``[dut]``."""
 
 
 @dataclass(slots=True)
@@ -200,6 +205,9 @@ class BenchPlan:
     shard: tuple[int, int] | None = None
     """``(I, N)``: only the trials of shard I of N (:func:`in_shard`); suites are not summarised
     (``armbench merge`` does it over every shard)."""
+    dut: Dut = field(default_factory=Dut)
+    """The unit under test: the config's ``[dut]`` with ``--dut`` and ``--meta`` over it (a
+    resumed run's as recorded)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""
