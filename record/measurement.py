@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, get_args
+from typing import Any, TypedDict, get_args
 
 from armbench.drivers.settings import SettingsError
 from armbench.record.fields import (
@@ -130,6 +130,25 @@ def judge(
                        default_better(unit) if better is None else better, description)
 
 
+def _wall_s(value: float | None, where: str) -> float | None:
+    """A wall-clock time (s): None, or a finite number >= 0."""
+    if value is None:
+        return None
+    seconds = _num(value, where)
+    if seconds < 0:
+        raise RecordError(where, "must be >= 0")
+    return seconds
+
+
+class _WallJson(TypedDict, total=False):
+    wall_s: float
+
+
+def _wall_json(wall_s: float | None) -> _WallJson:
+    """``{"wall_s": ...}`` when the time was measured, else nothing (records before it)."""
+    return {} if wall_s is None else {"wall_s": wall_s}
+
+
 def _unique_names(measurements: Sequence[Measurement], where: str) -> None:
     seen: set[str] = set()
     for m in measurements:
@@ -164,6 +183,9 @@ class Trial:
     to the arm."""
     disturbed: bool = False
     """The link to the arm was lost during the trial: its measurements are kept but flagged."""
+    wall_s: float | None = None
+    """Wall-clock seconds the trial took (robot time is ``duration_s``); None when not
+    measured."""
 
     def __post_init__(self) -> None:
         where = f"trial {self.index}"
@@ -179,6 +201,7 @@ class Trial:
         object.__setattr__(self, "duration_s", _num(self.duration_s, f"{where}.duration_s"))
         if self.duration_s < 0:
             raise RecordError(f"{where}.duration_s", "must be >= 0")
+        object.__setattr__(self, "wall_s", _wall_s(self.wall_s, f"{where}.wall_s"))
         _choice(self.status, f"{where}.status", get_args(TrialStatus))
         if (self.status == "error") != (self.error is not None):
             raise RecordError(f"{where}.error", "is given exactly when status is 'error'")
@@ -204,6 +227,7 @@ class Trial:
             "measurements": [m.to_json() for m in self.measurements],
             "disturbed": self.disturbed,
             "events": [dict(ev) for ev in self.events],
+            **_wall_json(self.wall_s),
             "samples": list(self.samples),
         }
 
@@ -227,9 +251,10 @@ class Trial:
         disturbed = d.get("disturbed", False)
         if not isinstance(disturbed, bool):
             raise RecordError(f"{where}.disturbed", "must be true or false")
+        wall_s = _opt_num(d.get("wall_s"), f"{where}.wall_s")  # absent before issue 37
         with _located(where):
             return cls(index, started_s, duration_s, params, samples, measurements, status,
-                       error, events, disturbed)
+                       error, events, disturbed, wall_s)
 
 
 @dataclass(slots=True, kw_only=True)
@@ -254,6 +279,9 @@ class SuiteRecord:
     trials: list[Trial] = field(default_factory=list)
     superseded_trials: list[Trial] = field(default_factory=list)
     measurements: list[Measurement] = field(default_factory=list)
+    wall_s: float | None = None
+    """Wall-clock seconds the suite took from its start to its end (robot time is
+    ``ended_s - started_s``); None while it runs and in records before it was kept."""
 
     def completed_trials(self) -> list[Trial]:
         """The trials with status ``"done"``, by index (a resumed suite skips these)."""
@@ -293,6 +321,7 @@ class SuiteRecord:
             "measurements": [m.to_json() for m in self.measurements],
             "trials": [trial_json(t) for t in self.trials],
             "superseded_trials": [trial_json(t) for t in self.superseded_trials],
+            **_wall_json(self.wall_s),
         }
 
     @classmethod
@@ -317,6 +346,7 @@ class SuiteRecord:
             superseded_trials=trials("superseded_trials"),
             measurements=[Measurement.from_json(m, f"{where}.measurements[{i}]")
                           for i, m in enumerate(ms)],
+            wall_s=_wall_s(_opt_num(d.get("wall_s"), f"{where}.wall_s"), f"{where}.wall_s"),
         )
         indices = [t.index for t in suite.trials]
         if len(set(indices)) != len(indices):

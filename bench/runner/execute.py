@@ -94,6 +94,7 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
         runner.progress.message(f"[{name}] done in the record, skipped")
         return
     writer.begin_suite(name, ps.suite.version, ps.params)
+    runner.begin_wall(name)
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
     shard = runner.plan.shard
@@ -113,11 +114,11 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
                 stopped = trial
                 break
     if stopped is not None:
-        writer.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
+        runner.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
         runner.progress.message(f"[{name}] stopped: trial {stopped.index}: {stopped.error}")
         return
     if shard is not None:  # a summary of one shard's trials would mislead: merge summarises
-        writer.end_suite(name)
+        runner.end_suite(name)
         runner.progress.message(f"[{name}] shard {shard[0]}/{shard[1]} done (summary: "
                                 "armbench merge)")
         return
