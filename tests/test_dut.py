@@ -23,6 +23,7 @@ from armbench.bench.runner import RunOptions, prepare
 from armbench.bench.suites import SUITES
 from armbench.cli import main as cli
 from armbench.cli.commands.config import render_config
+from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
 from armbench.record import git_revision, load_record
 from armbench.record.ci_run import CiRun, ci_run
@@ -164,6 +165,18 @@ def test_the_cli_exits_2_before_anything_is_made(tmp_path: Path,
     err = capsys.readouterr().err
     assert "armbench run: error: --meta serial:" in err and "not printable" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_a_resumed_run_keeps_the_unit_it_began_on(tmp_path: Path) -> None:
+    config = write_config(tmp_path, trials=1)
+    status, text = _run_cli("tiny", "--config", str(config), "--out", str(tmp_path / "r"),
+                            "--dut", "arm-7")
+    assert status == 0, text
+    for flags in ({"dut": "arm-8"}, {"meta": ("serial=S2",)}):
+        with pytest.raises(ArmbenchError, match="the run being resumed"):
+            prepare(RunOptions(resume=tmp_path / "r", **flags))
+    plan = prepare(RunOptions(resume=tmp_path / "r"))
+    assert plan.dut == Dut(name="arm-7")
 
 
 def test_records_written_before_the_identity_still_load() -> None:
