@@ -2,7 +2,16 @@
 
 Layout (the common "Jenkins" dialect, as pytest's ``--junitxml`` writes it):
 
-- one ``<testsuite>`` per bench suite, with the suite's version and the run's id as properties;
+- one ``<testsuite>`` per bench suite, with the suite's version, the run's id, the robot time
+  (``robot_time_s``: the run clock's seconds, simulated ones on a virtual-time target), the
+  target's kind, the unit under test (``dut.name``, ``dut.serial``, ``dut.firmware_commit``,
+  ``dut.host_commit``, ``dut.meta.<key>``) and the CI job (``ci.system``, ``ci.url``, ...) as
+  properties; every testsuite (the baseline's and a never started suite's too) carries the
+  run's properties;
+- ``time`` attributes are wall-clock seconds: a testsuite's is the suite's wall time, a trial's
+  wall time is on the trial's first testcase (the others measured in the same trial have 0, so
+  the testcases add up to the trials' time); 0 where the record holds none (a record written
+  before wall time was kept);
 - one ``<testcase>`` per judged measurement (one a limit applies to): suite-level ones have
   ``classname="armbench.<suite>"``, trial-level ones ``"armbench.<suite>.trial<index>"``; a
   failed measurement carries a ``<failure type="limit">`` with value and limit, a passed one its
@@ -38,6 +47,7 @@ from armbench.record import (
     Measurement,
     RunRecord,
     SuiteRecord,
+    Trial,
 )
 from armbench.record.files import atomic_write
 
@@ -92,19 +102,36 @@ def _skipped_case(classname: str, name: str, message: str) -> ET.Element:
     return case
 
 
+def _run_properties(record: RunRecord, props: ET.Element) -> None:
+    """Add the run's properties to ``props``: what was tested (the target's kind, the unit under
+    test) and the CI job."""
+    env = record.environment
+    pairs = [("target_kind", env.kind), *((f"dut.{k}", v) for k, v in env.dut.items()),
+             *((f"ci.{k}", v) for k, v in (env.ci.items() if env.ci is not None else ()))]
+    for key, value in pairs:
+        ET.SubElement(props, "property", name=_text(key), value=_text(value))
+
+
+def _head(name: str, record: RunRecord, wall_s: float | None,
+          own: tuple[tuple[str, str], ...] = ()) -> ET.Element:
+    """A ``<testsuite>`` head: ``wall_s`` as its time, its ``own`` properties, the run's."""
+    el = ET.Element("testsuite", name=_text(name), time=_seconds(wall_s or 0.0))
+    props = ET.SubElement(el, "properties")
+    for key, value in own:
+        ET.SubElement(props, "property", name=key, value=_text(value))
+    _run_properties(record, props)
+    return el
+
+
 def _suite_head(record: RunRecord, suite: SuiteRecord) -> ET.Element:
     """The ``<testsuite>`` element of ``suite`` with its properties and time, no testcases."""
-    el = ET.Element("testsuite", name=_text(suite.name))
-    props = ET.SubElement(el, "properties")
-    for key, value in (("run_id", record.run_id), ("suite_version", suite.version),
-                       ("status", suite.status)):
-        ET.SubElement(props, "property", name=key, value=_text(value))
+    robot_s = 0.0 if suite.ended_s is None else suite.ended_s - suite.started_s
+    own = [("run_id", record.run_id), ("suite_version", suite.version),
+           ("status", suite.status), ("robot_time_s", _seconds(robot_s))]
     disturbed = [str(t.index) for t in suite.trials if t.disturbed]
     if disturbed:  # measured while the link to the arm was lost at least once: kept, flagged
-        ET.SubElement(props, "property", name="disturbed_trials", value=", ".join(disturbed))
-    duration = 0.0 if suite.ended_s is None else suite.ended_s - suite.started_s
-    el.set("time", _seconds(duration))
-    return el
+        own.append(("disturbed_trials", ", ".join(disturbed)))
+    return _head(suite.name, record, suite.wall_s, tuple(own))
 
 
 def _campaign(suite: SuiteRecord) -> bool:
@@ -123,19 +150,32 @@ def _unjudged_properties(suite: SuiteRecord) -> Iterator[ET.Element]:
             yield ET.Element("property", name=_text(m.name), value=_text(_value(m)))
 
 
+def _trial_cases(suite: SuiteRecord, trial: Trial) -> Iterator[ET.Element]:
+    """The testcases of one trial: its error or why it measured nothing, its judged
+    measurements."""
+    cls = f"armbench.{suite.name}.trial{trial.index}"
+    if trial.status == "error":
+        yield _error_case(cls, "trial", "trial_error",
+                          f"trial {trial.index} could not be carried out: {trial.error}")
+    elif trial.skipped is not None:
+        yield _skipped_case(cls, "trial", f"untested: {trial.skipped}")
+    for m in () if _campaign(suite) else trial.measurements:
+        if m.outcome != "unjudged":
+            yield _measurement_case(cls, m)
+
+
 def _suite_cases(suite: SuiteRecord) -> Iterator[ET.Element]:
-    """The testcases of ``suite``, one at a time (a long run has hundreds of thousands)."""
+    """The testcases of ``suite``, one at a time (a long run has hundreds of thousands); the
+    first of each trial's carries the trial's wall-clock time."""
     base = f"armbench.{suite.name}"
     for trial in suite.trials:
-        cls = f"{base}.trial{trial.index}"
-        if trial.status == "error":
-            yield _error_case(cls, "trial", "trial_error",
-                              f"trial {trial.index} could not be carried out: {trial.error}")
-        elif trial.skipped is not None:
-            yield _skipped_case(cls, "trial", f"untested: {trial.skipped}")
-        for m in () if _campaign(suite) else trial.measurements:
-            if m.outcome != "unjudged":
-                yield _measurement_case(cls, m)
+        cases = _trial_cases(suite, trial)
+        first = next(cases, None)
+        if first is None:
+            continue
+        first.set("time", _seconds(trial.wall_s or 0.0))
+        yield first
+        yield from cases
     for m in suite.measurements:
         if m.outcome != "unjudged":
             yield _measurement_case(base, m)
@@ -169,11 +209,8 @@ def _row_case(row: ComparisonRow) -> ET.Element:
 
 def _baseline_head(record: RunRecord) -> ET.Element:
     assert record.baseline is not None
-    el = ET.Element("testsuite", name="baseline", time=_seconds(0.0))
-    props = ET.SubElement(el, "properties")
-    ET.SubElement(props, "property", name="baseline_run_id",
-                  value=_text(record.baseline.baseline_run_id))
-    return el
+    return _head("baseline", record, None,
+                 (("baseline_run_id", record.baseline.baseline_run_id),))
 
 
 #: A testsuite head, a function that yields its testcases and one that yields the properties it
@@ -194,7 +231,7 @@ def _suites(record: RunRecord) -> Iterator[_Suite]:
                functools.partial(_unjudged_properties, suite))
     for name in record.planned_suites:
         if name not in record.suites:
-            el = ET.Element("testsuite", name=_text(name), time=_seconds(0.0))
+            el = _head(name, record, None)
             case = _error_case(f"armbench.{name}", "suite", "incomplete",
                                f"suite {name} was planned but never started")
             yield el, functools.partial(iter, (case,)), _none
@@ -202,7 +239,7 @@ def _suites(record: RunRecord) -> Iterator[_Suite]:
     if missing:
         cases = [_skipped_case("armbench.required", name, f"required {name}: {why}")
                  for name, why in missing]
-        yield (ET.Element("testsuite", name="required", time=_seconds(0.0)),
+        yield (_head("required", record, None),
                functools.partial(iter, cases), _none)
     baseline = record.baseline
     if baseline is not None:

@@ -1,10 +1,11 @@
 """The short Markdown summary of a run (``armbench run --summary FILE.md``), for a CI job's step
 summary (``$GITHUB_STEP_SUMMARY``, a GitLab job's artifact).
 
-It says what the record says and judges nothing again: the verdict and exit status, the count of
-measurements (trial-level and suite-level, as the report counts them) judged and failed, the
-regressions against the baseline, trials in error, and where the full report is. Long lists are
-cut to :data:`MAX_LINES` lines with a note of how many more there are.
+It says what the record says and judges nothing again: the verdict and exit status, what was
+tested (the unit under test and its code, the CI job), the count of measurements (trial-level and
+suite-level, as the report counts them) judged and failed, the regressions against the baseline,
+trials in error, and where the full report is. Long lists are cut to :data:`MAX_LINES` lines with
+a note of how many more there are.
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ def markdown_summary(record: RunRecord, *, status: int | None = None,
              f"(exit {code})", "",
              f"{len(every)} measurements, {len(judged)} judged against limits, "
              f"{len(failed)} outside them; suites: {', '.join(record.planned_suites)}; port "
-             f"`{record.environment.port}`, seed {record.environment.seed}.", ""]
+             f"`{record.environment.port}`, seed {record.environment.seed}.", "",
+             *_tested(record)]
     if failed:
         rows = [f"| {_cell(suite)} | {_cell(m.name)}"
                 + (f" (trial {t.index})" if t is not None else "")
@@ -89,6 +91,27 @@ def markdown_summary(record: RunRecord, *, status: int | None = None,
     if report is not None:
         lines += [f"Full report: `{report}`", ""]
     return "\n".join(lines) + "\n"
+
+
+def _code(text: str) -> str:
+    """``text`` as inline code (a backtick in it cannot end the span early)."""
+    return f"`{text.replace('`', chr(39))}`"
+
+
+def _tested(record: RunRecord) -> list[str]:
+    """The lines that say what was tested: the unit under test, the CI job (none when the
+    record knows neither)."""
+    env = record.environment
+    lines = []
+    if env.dut:
+        lines.append("Unit under test: " + ", ".join(
+            f"{key.replace('_', ' ')} {_code(value)}" for key, value in env.dut.items()) + ".")
+    if env.ci is not None:
+        ci = env.ci
+        lines.append(f"CI: {ci.system}" + "".join(
+            f", {key.replace('_', ' ')} {_code(value)}" for key, value in ci.items()
+            if key != "system") + ".")
+    return [*lines, ""] if lines else []
 
 
 def append_summary(path: str | Path, text: str) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import os
 import re
 import shutil
 from collections.abc import AsyncIterator, Callable, Generator, Mapping, Sequence
@@ -44,6 +45,7 @@ from armbench.record import (
     default_better,
     judge,
 )
+from armbench.record.ci_run import ci_run
 from armbench.record.journal import journal_path
 from armbench.record.limits import Limit, LimitsConfig, load_limits
 
@@ -117,7 +119,8 @@ class BenchSession:
                 for old in (results, journal_path(results)):
                     old.unlink(missing_ok=True)
                 shutil.rmtree(out_dir / "captures", ignore_errors=True)
-            env = capture_environment(port=port, settings=settings, limits=limits)
+            env = capture_environment(port=port, settings=settings, limits=limits,
+                                      ci=ci_run(os.environ))
             record = RunRecord.new(env, [SUITE_NAME])
             self.writer = RecordWriter(out_dir, record)
         self.writer.begin_suite(SUITE_NAME, SUITE_VERSION, {"port": port})

@@ -78,7 +78,11 @@ def text_summary(record: RunRecord) -> str:
     """A plain-text summary of a record: verdict, suites, failed measurements, regressions."""
     lines = [f"armbench run {record.run_id}  created {record.created}  verdict {record.verdict}",
              f"port {record.environment.port}  seed {record.environment.seed}  "
-             f"git {record.environment.git_revision}", ""]
+             f"armbench git {record.environment.git_revision}"]
+    if record.environment.dut:
+        lines.append("unit under test: " + ", ".join(
+            f"{key} {value}" for key, value in record.environment.dut.items()))
+    lines.append("")
     for name in record.planned_suites:
         s = record.suites.get(name)
         if s is None:

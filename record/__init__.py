@@ -12,7 +12,8 @@ Times: ``created``/``resumed`` are wall-clock ISO 8601 labels; every ``*_s`` fie
 run time on the monotonic clock (see :meth:`RecordWriter.elapsed_s`).
 
 Rooms: ``fields`` (vocabulary, errors, checked JSON access), ``measurement`` (measurements,
-trials, suites), ``comparison``, ``environment``, ``run_record`` (the record, loading it),
+trials, suites), ``comparison``, ``environment`` (with ``dut``, the unit under test, and
+``ci_run``, the CI job), ``run_record`` (the record, loading it),
 ``files`` (names, paths, atomic writes), ``jsonformat`` (the JSON text), ``journal`` (trials
 appended between writes of ``results.json``, samples kept on disk), ``writer``. Beside them, what
 the bench and the report share about a record: ``limits``, ``baseline``, ``fleet_index``,

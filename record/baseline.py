@@ -159,7 +159,8 @@ def format_comparison(comparison: Comparison, *, run_id: str | None = None) -> s
 
     target = f"run {run_id}" if run_id else "this run"
     title = (f"{target} against baseline {comparison.baseline_run_id} "
-             f"({comparison.baseline_created}, git {comparison.baseline_git_revision[:12]})")
+             f"({comparison.baseline_created}, armbench git "
+             f"{comparison.baseline_git_revision[:12]})")
     body = [render(header), "  ".join("-" * w for w in widths)]
     body += [render(cells) for cells in lines]
     counts = {s: sum(r.status == s for r in comparison.rows) for s in ("compared", "new",

@@ -1,5 +1,6 @@
 """What a run ran on and when: the :class:`Environment` (versions, port, settings, seed, faults,
-limits file), the git revision, and the run's wall-clock labels and id."""
+limits file, the unit under test, the CI job, the target's kind), armbench's own git revision,
+and the run's wall-clock labels and id."""
 
 from __future__ import annotations
 
@@ -8,17 +9,23 @@ import platform
 import secrets
 import subprocess
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from armbench.drivers.settings import RobotSettings
+from armbench.record.ci_run import CiRun
+from armbench.record.dut import Dut
 from armbench.record.fields import _get, _int, _list, _obj, _opt_str, _str
 from armbench.record.limits import LimitsConfig
 from armbench.record.shapes import EnvironmentJson
 
-__all__ = ["Environment", "capture_environment", "git_revision", "new_run_id", "utc_timestamp"]
+__all__ = ["NOT_A_CHECKOUT", "Environment", "capture_environment", "git_revision", "new_run_id",
+           "port_kind", "utc_timestamp"]
+
+#: :func:`git_revision` of an armbench that is not a git checkout (installed from a wheel).
+NOT_A_CHECKOUT = "not a checkout"
 
 
 def utc_timestamp() -> str:
@@ -30,10 +37,25 @@ def new_run_id() -> str:
     """A fresh run id: UTC time plus random hex, e.g. ``"20240501T120301Z-3f9a2c"``."""
     return f"{datetime.now(UTC):%Y%m%dT%H%M%SZ}-{secrets.token_hex(3)}"
 
+def port_kind(port: str | None) -> str:
+    """The kind of target a port string names: its URL scheme (``fake``, ``avr``, ``socket``,
+    ``rfc2217``, ``labgrid``, a plug-in's), ``serial`` for a device name, ``unknown`` for none:
+    what a record written before the kind was recorded is read with."""
+    if port is None:
+        return "unknown"
+    scheme, sep, _ = port.partition("://")
+    return scheme.lower() if sep and scheme else "serial"
+
+
 @dataclass(frozen=True, slots=True)
 class Environment:
     """What the run ran on and with: versions, port, robot settings, seed, injected faults and the
-    limits file. ``settings`` is :meth:`RobotSettings.to_mapping` (units in the keys)."""
+    limits file. ``settings`` is :meth:`RobotSettings.to_mapping` (units in the keys).
+
+    ``git_revision`` is armbench's own (:func:`git_revision`), never the arm's firmware: the
+    unit under test and its code are ``dut``. ``ci`` is the CI job the run was part of;
+    ``target_kind`` the kind of target the port named (:func:`port_kind`), None in records
+    written before it was kept."""
 
     armbench_version: str
     git_revision: str
@@ -48,10 +70,24 @@ class Environment:
     truth_source: str | None = None
     """The reference instrument the run measured the arm's truth with (the emulator's ground
     truth, a tracker plug-in), None where the figures rest on the arm's encoders alone."""
+    dut: Dut = field(default_factory=Dut)
+    ci: CiRun | None = None
+    target_kind: str | None = None
+
+    @property
+    def kind(self) -> str:
+        """The kind of target the run measured: as recorded, else the port's."""
+        return self.target_kind if self.target_kind is not None else port_kind(self.port)
+
+    @property
+    def declares_truth(self) -> bool:
+        """Whether the run had a truth source (``truth_source``)."""
+        return self.truth_source is not None
 
     def to_json(self) -> EnvironmentJson:
-        """The JSON object of this environment."""
-        return {
+        """The JSON object of this environment (``dut``, ``ci`` and ``target`` only when
+        known)."""
+        data: EnvironmentJson = {
             "armbench_version": self.armbench_version,
             "git_revision": self.git_revision,
             "python": self.python,
@@ -64,6 +100,13 @@ class Environment:
             "faults": [dict(f) for f in self.faults],
             "settings": dict(self.settings),
         }
+        if self.dut:
+            data["dut"] = self.dut.to_json()
+        if self.ci is not None:
+            data["ci"] = self.ci.to_json()
+        if self.target_kind is not None:
+            data["target"] = {"kind": self.target_kind}
+        return data
 
     @classmethod
     def from_json(cls, data: object, where: str) -> Environment:
@@ -78,6 +121,8 @@ class Environment:
 
         seed = _get(d, "seed", where)
         faults = _list(_get(d, "faults", where), f"{where}.faults")
+        ci = d.get("ci")  # dut, ci and target: absent from records before issue 37
+        target = _obj(d.get("target", {}), f"{where}.target")
         return cls(
             armbench_version=text("armbench_version"),
             git_revision=text("git_revision"),
@@ -89,22 +134,41 @@ class Environment:
             faults=tuple(_obj(f, f"{where}.faults[{i}]") for i, f in enumerate(faults)),
             limits_spec_version=opt_text("limits_spec_version"),
             config_path=opt_text("config_path"),
-            truth_source=_opt_str(d.get("truth_source"), f"{where}.truth_source"),
+            truth_source=_truth_source(d, port_kind(opt_text("port")), where),
+            dut=Dut.from_json(d.get("dut", {}), f"{where}.dut"),
+            ci=None if ci is None else CiRun.from_json(ci, f"{where}.ci"),
+            target_kind=_opt_str(target.get("kind"), f"{where}.target.kind"),
         )
 
 
-def git_revision() -> str:
-    """``git rev-parse HEAD`` of the armbench checkout, or ``"unknown"`` (not a checkout, no git,
-    git failing or hanging)."""
+def _truth_source(d: Mapping[str, object], kind: str, where: str) -> str | None:
+    """The recorded ``truth_source``; a record written before it was kept had one exactly when
+    it ran on the emulator (``fake``), the one built-in target with ground truth then."""
+    if "truth_source" in d:
+        return _opt_str(d["truth_source"], f"{where}.truth_source")
+    return "the emulator's ground truth" if kind == "fake" else None
+
+
+def _git(args: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=5.0,
+                          check=False)
+
+
+def git_revision(module: Path | None = None) -> str:
+    """armbench's own revision: ``git rev-parse HEAD`` of the checkout that holds ``module``
+    (default: this file) when git tracks it there; :data:`NOT_A_CHECKOUT` when it does not (an
+    install from a wheel, even one inside another project's checkout, whose revision is not
+    armbench's); ``"unknown"`` when git cannot tell (not installed, failing, hanging)."""
+    path = (module or Path(__file__)).resolve()
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
-            capture_output=True, text=True, timeout=5.0, check=True,
-        )
+        tracked = _git(["ls-files", "--error-unmatch", "--", path.name], path.parent)
+        if tracked.returncode == 1 or "not a git repository" in tracked.stderr:
+            return NOT_A_CHECKOUT
+        head = _git(["rev-parse", "HEAD"], path.parent)
     except (OSError, subprocess.SubprocessError):
         return "unknown"
-    rev = out.stdout.strip()
-    return rev or "unknown"
+    rev = head.stdout.strip()
+    return rev if tracked.returncode == 0 and head.returncode == 0 and rev else "unknown"
 
 
 def _armbench_version() -> str:
@@ -122,10 +186,14 @@ def capture_environment(
     faults: Iterable[Mapping[str, Any]] = (),
     limits: LimitsConfig | None = None,
     truth_source: str | None = None,
+    dut: Dut | None = None,
+    ci: CiRun | None = None,
+    target_kind: str | None = None,
 ) -> Environment:
-    """The environment of this process: armbench version (package metadata), git revision,
+    """The environment of this process: armbench version (package metadata), its git revision,
     Python and platform, plus what the run was given. ``settings`` None records the defaults;
-    ``faults`` are plain mappings (``dataclasses.asdict`` of each fault)."""
+    ``faults`` are plain mappings (``dataclasses.asdict`` of each fault); ``dut`` None takes
+    the limits file's ``[dut]`` table."""
     return Environment(
         armbench_version=_armbench_version(),
         git_revision=git_revision(),
@@ -138,5 +206,8 @@ def capture_environment(
         limits_spec_version=None if limits is None else limits.spec_version,
         config_path=None if limits is None else limits.path,
         truth_source=truth_source,
+        dut=dut if dut is not None else (Dut() if limits is None else limits.dut),
+        ci=ci,
+        target_kind=target_kind,
     )
 

@@ -3,8 +3,9 @@
 Limits live apart from suite code so a lab can tighten them without touching Python. Each limit
 names a metric (``*`` wildcards allowed), its unit and a ``low`` and/or ``high`` bound; a metric
 with no matching limit is reported but not judged. The same file holds the regression tolerances
-used against a baseline run and the raw ``[bench]`` / ``[suites.<name>]`` parameter tables read by
-the suites. The format and the matching rules are documented in ``docs/record.md``.
+used against a baseline run, the raw ``[bench]`` / ``[suites.<name>]`` parameter tables read by
+the suites, and the ``[dut]`` table naming the unit under test (:mod:`armbench.record.dut`). The
+format and the matching rules are documented in ``docs/record.md``.
 
 Errors in the file raise :class:`~armbench.drivers.settings.SettingsError` naming the dotted field.
 """
@@ -22,6 +23,7 @@ from typing import Any, TypedDict
 
 from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import SettingsError, read_toml
+from armbench.record.dut import Dut, parse_dut
 
 __all__ = [
     "DEFAULT_TOLERANCE_PCT",
@@ -43,7 +45,7 @@ SPEC_VERSION = "armbench-limits/1"
 DEFAULT_TOLERANCE_PCT = 10.0
 
 _TOP_KEYS = {"spec_version", "required", "optional", "limits", "regression", "bench",
-             "suites"}
+             "suites", "dut"}
 _LIMIT_KEYS = {"low", "high", "unit"}
 _REGRESSION_KEYS = {"default_tolerance_pct", "metrics"}
 _TOLERANCE_KEYS = {"tolerance_pct", "tolerance_abs"}
@@ -111,7 +113,8 @@ class LimitsConfig:
     """A parsed limits file. The empty default judges nothing and uses the default tolerance.
 
     ``limits`` and ``tolerances`` are keyed by metric pattern; ``bench`` and ``suites`` are the
-    raw parameter tables; ``path`` is the file it came from (None when built in code).
+    raw parameter tables; ``dut`` the unit under test its ``[dut]`` table names; ``path`` is the
+    file it came from (None when built in code).
     """
 
     spec_version: str = SPEC_VERSION
@@ -126,6 +129,7 @@ class LimitsConfig:
     ``*`` patterns (``"accuracy.*.true_mean_mm"``: a lab that has a tracker)."""
     optional: tuple[str, ...] = ()
     """Suites a run may leave untested without failing its verdict (default: none)."""
+    dut: Dut = field(default_factory=Dut)
 
     def limit_for(self, metric: str) -> Limit | None:
         """The limit of ``metric``: the most specific matching pattern's, or None."""
@@ -157,6 +161,8 @@ class LimitsConfig:
             "regression": {"default_tolerance_pct": self.default_tolerance_pct,
                            "metrics": tolerances},
             "suites": {name: self.suite_params(name) for name in self.suites},
+            **({"dut": {**{k: v for k, v in self.dut.items() if not k.startswith("meta.")},
+                        "meta": dict(self.dut.meta)}} if self.dut else {}),
         }
 
     def bench_params(self) -> dict[str, Any]:
@@ -258,6 +264,7 @@ def parse_limits(data: Mapping[str, Any], *, path: str | None = None) -> LimitsC
         path=path,
         required=required,
         optional=optional,
+        dut=parse_dut(data.get("dut", {})),
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, get_args
+from typing import Any, TypedDict, get_args
 
 from armbench.drivers.settings import SettingsError
 from armbench.record.fields import (
@@ -130,6 +130,25 @@ def judge(
                        default_better(unit) if better is None else better, description)
 
 
+def _wall_s(value: float | None, where: str) -> float | None:
+    """A wall-clock time (s): None, or a finite number >= 0."""
+    if value is None:
+        return None
+    seconds = _num(value, where)
+    if seconds < 0:
+        raise RecordError(where, "must be >= 0")
+    return seconds
+
+
+class _WallJson(TypedDict, total=False):
+    wall_s: float
+
+
+def _wall_json(wall_s: float | None) -> _WallJson:
+    """``{"wall_s": ...}`` when the time was measured, else nothing (records before it)."""
+    return {} if wall_s is None else {"wall_s": wall_s}
+
+
 def _unique_names(measurements: Sequence[Measurement], where: str) -> None:
     seen: set[str] = set()
     for m in measurements:
@@ -167,6 +186,9 @@ class Trial:
     skipped: str | None = None
     """Why the trial measured nothing though it ran (no power switch, no reference instrument):
     an untested trial, never a passed one."""
+    wall_s: float | None = None
+    """Wall-clock seconds the trial took (robot time is ``duration_s``); None when not
+    measured."""
 
     def __post_init__(self) -> None:
         where = f"trial {self.index}"
@@ -182,6 +204,7 @@ class Trial:
         object.__setattr__(self, "duration_s", _num(self.duration_s, f"{where}.duration_s"))
         if self.duration_s < 0:
             raise RecordError(f"{where}.duration_s", "must be >= 0")
+        object.__setattr__(self, "wall_s", _wall_s(self.wall_s, f"{where}.wall_s"))
         _choice(self.status, f"{where}.status", get_args(TrialStatus))
         if (self.status == "error") != (self.error is not None):
             raise RecordError(f"{where}.error", "is given exactly when status is 'error'")
@@ -210,6 +233,7 @@ class Trial:
             "disturbed": self.disturbed,
             "skipped": self.skipped,
             "events": [dict(ev) for ev in self.events],
+            **_wall_json(self.wall_s),
             "samples": list(self.samples),
         }
 
@@ -234,9 +258,10 @@ class Trial:
         if not isinstance(disturbed, bool):
             raise RecordError(f"{where}.disturbed", "must be true or false")
         skipped = _opt_str(d.get("skipped"), f"{where}.skipped")  # absent before issue 37
+        wall_s = _opt_num(d.get("wall_s"), f"{where}.wall_s")  # absent before issue 37
         with _located(where):
             return cls(index, started_s, duration_s, params, samples, measurements, status,
-                       error, events, disturbed, skipped)
+                       error, events, disturbed, skipped, wall_s)
 
 
 @dataclass(slots=True, kw_only=True)
@@ -261,6 +286,9 @@ class SuiteRecord:
     trials: list[Trial] = field(default_factory=list)
     superseded_trials: list[Trial] = field(default_factory=list)
     measurements: list[Measurement] = field(default_factory=list)
+    wall_s: float | None = None
+    """Wall-clock seconds the suite took from its start to its end (robot time is
+    ``ended_s - started_s``); None while it runs and in records before it was kept."""
 
     def untested_reason(self) -> str | None:
         """Why this finished suite showed nothing, or None: no trial ran, every trial was
@@ -324,6 +352,7 @@ class SuiteRecord:
             "measurements": [m.to_json() for m in self.measurements],
             "trials": [trial_json(t) for t in self.trials],
             "superseded_trials": [trial_json(t) for t in self.superseded_trials],
+            **_wall_json(self.wall_s),
         }
 
     @classmethod
@@ -348,6 +377,7 @@ class SuiteRecord:
             superseded_trials=trials("superseded_trials"),
             measurements=[Measurement.from_json(m, f"{where}.measurements[{i}]")
                           for i, m in enumerate(ms)],
+            wall_s=_wall_s(_opt_num(d.get("wall_s"), f"{where}.wall_s"), f"{where}.wall_s"),
         )
         indices = [t.index for t in suite.trials]
         if len(set(indices)) != len(indices):

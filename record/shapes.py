@@ -5,7 +5,7 @@ crosses from the record to the file and to other programs (``compare --json``). 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 from armbench.record.fields import Better, Outcome, RowStatus, SuiteStatus, TrialStatus
 from armbench.record.limits import LimitJson
@@ -17,6 +17,7 @@ __all__ = [
     "MeasurementJson",
     "RecordJson",
     "SuiteJson",
+    "TargetJson",
     "TrialJson",
 ]
 
@@ -47,6 +48,7 @@ class TrialJson(TypedDict):
     skipped: str | None
     events: list[dict[str, Any]]
     samples: list[Mapping[str, Any]]
+    wall_s: NotRequired[float]
 
 
 class SuiteJson(TypedDict):
@@ -63,6 +65,7 @@ class SuiteJson(TypedDict):
     measurements: list[MeasurementJson]
     trials: list[object]
     superseded_trials: list[object]
+    wall_s: NotRequired[float]
 
 
 class ComparisonRowJson(TypedDict):
@@ -92,6 +95,12 @@ class ComparisonJson(TypedDict):
     rows: list[ComparisonRowJson]
 
 
+class TargetJson(TypedDict):
+    """The kind of target a run measured (its truth source is ``truth_source``)."""
+
+    kind: str
+
+
 class EnvironmentJson(TypedDict):
     """What the run ran on and with."""
 
@@ -106,6 +115,9 @@ class EnvironmentJson(TypedDict):
     truth_source: str | None
     faults: list[dict[str, Any]]
     settings: dict[str, Any]
+    dut: NotRequired[dict[str, Any]]
+    ci: NotRequired[dict[str, str | None]]
+    target: NotRequired[TargetJson]
 
 
 class RecordJson(TypedDict):

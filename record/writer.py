@@ -255,11 +255,13 @@ class RecordWriter:
         suite.place(trial)
 
     def end_suite(self, name: str, measurements: Iterable[Measurement] = (), *,
-                  error: str | None = None, ended_s: float | None = None) -> None:
+                  error: str | None = None, ended_s: float | None = None,
+                  wall_s: float | None = None) -> None:
         """End suite ``name`` with its suite-level ``measurements`` and write the record.
 
         With ``error`` the suite ends as ``"error"`` (a resumed run continues it). Suite-level
-        names must be unique across the record. ``ended_s`` (s, run time) defaults to now.
+        names must be unique across the record. ``ended_s`` (s, run time) defaults to now;
+        ``wall_s`` is the wall-clock seconds the suite took, if measured.
         """
         suite = self.suite(name)
         ms = list(measurements)
@@ -276,6 +278,7 @@ class RecordWriter:
         suite.status = "done" if error is None else "error"
         suite.error = error
         suite.ended_s = self.elapsed_s() if ended_s is None else ended_s
+        suite.wall_s = wall_s
         self.write()
 
     def set_baseline(self, comparison: Comparison | None) -> None:

@@ -1,4 +1,5 @@
-"""The run's environment as the report shows it: where and how it ran, the robot settings in
+"""The run's environment as the report shows it: what was tested (the unit under test, its code,
+the target), where and how it ran (the CI job, armbench's own revision), the robot settings in
 short, and the faults injected into the emulator."""
 
 from __future__ import annotations
@@ -9,7 +10,23 @@ from typing import Any
 from armbench.record import RunRecord
 from armbench.reports.views import FaultRow, num, text
 
-__all__ = ["environment_rows", "fault_rows", "settings_summary"]
+__all__ = ["dut_rows", "environment_rows", "fault_rows", "settings_summary"]
+
+
+def dut_rows(record: RunRecord) -> list[tuple[str, str]]:
+    """What was tested: the unit under test (name, serial, firmware and host commits, its free
+    facts), the kind of target and whether the run had a truth source, and the CI job."""
+    env = record.environment
+    dut = env.dut
+    rows = [("unit under test", dut.label() if dut else "not named (armbench run --dut)")]
+    rows += [(key.removeprefix("meta.").replace("_", " "), value) for key, value in dut.items()
+             if key not in ("name", "serial")]
+    truth = (f"truth: {env.truth_source}" if env.truth_source is not None
+             else "no reference instrument")
+    rows.append(("target", f"{env.kind} ({truth})"))
+    if env.ci is not None:
+        rows += [(f"CI {key.replace('_', ' ')}", value) for key, value in env.ci.items()]
+    return rows
 
 
 def environment_rows(record: RunRecord) -> list[tuple[str, str]]:
@@ -21,8 +38,9 @@ def environment_rows(record: RunRecord) -> list[tuple[str, str]]:
         ("run id", record.run_id),
         ("created (UTC)", record.created),
         ("resumed", ", ".join(record.resumed) or "never"),
+        *dut_rows(record),
         ("armbench version", env.armbench_version),
-        ("git revision", env.git_revision),
+        ("armbench's own git revision", env.git_revision),
         ("port", env.port or "-"),
         ("seed", "-" if env.seed is None else str(env.seed)),
         ("limits file", limits),

@@ -8,9 +8,8 @@ the reason, never silently skipped.
 
 from __future__ import annotations
 
-import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -19,19 +18,21 @@ from urllib.parse import quote
 from armbench.record import (
     REPORT_FILE,
     RESULTS_FILE,
-    Measurement,
     RecordError,
     RunRecord,
     atomic_write_bytes,
 )
 from armbench.record.baseline import read_record
+from armbench.record.limits import Limit
 from armbench.record.suite_contract import Headline
 from armbench.reports import plots, plots_over_runs
 from armbench.reports.format import format_value, jinja_environment
 from armbench.reports.scorecard import HEADLINES, headline_figure
+from armbench.reports.trends import TrendPoint, TrendSeries, trend_series
 from armbench.reports.views import FigureView
 
-__all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index"]
+__all__ = ["INDEX_FILE", "KEY_METRICS", "IndexRow", "KeyMetric", "key_metrics", "render_index",
+           "trend_figures"]
 
 #: The index's file name inside the runs directory.
 INDEX_FILE = "index.html"
@@ -46,12 +47,11 @@ TABLE_HEADLINES = 2
 @dataclass(frozen=True, slots=True)
 class KeyMetric:
     """A key metric of one run: value in ``unit`` (None when the run lacks it), whether it failed
-    its limit, the limit's bound for the trend plot, and where it came from."""
+    its limit, and where it came from (the measurement's name)."""
 
     value: float | None
     unit: str
     failed: bool = False
-    limit: float | None = None
     source: str = ""
     regressed: bool = False
     """Whether the run found this metric regressed against its baseline."""
@@ -73,6 +73,8 @@ class IndexRow:
     port: str
     suites: str
     metrics: list[KeyMetric]
+    unit_under_test: str
+    kind: str
     href: str
     has_report: bool
     error: str | None = None
@@ -80,17 +82,11 @@ class IndexRow:
     """Metrics the run found regressed against its baseline."""
 
 
-def _bound(m: Measurement) -> float | None:
-    if m.limit is None:
-        return None
-    return m.limit.high if m.limit.high is not None else m.limit.low
-
-
 def key_metrics(record: RunRecord) -> list[KeyMetric]:
     """The index's key metrics of ``record``, in :data:`KEY_METRICS` order: the recorded
     suite-level figure of each headline, the true one where the record holds it (as the
-    scorecard shows; its limit then judges the firmware's figure and is not drawn), None when
-    the run lacks it."""
+    scorecard shows, its limit then judging the firmware's figure), None when the run lacks
+    it. The trends do not mix the two: :mod:`armbench.reports.trends`."""
     out = []
     worse = set() if record.baseline is None else {r.name for r in record.baseline.regressions}
     for suite_name, h in KEY_METRICS:
@@ -101,8 +97,8 @@ def key_metrics(record: RunRecord) -> list[KeyMetric]:
             continue
         m, reported = shown  # the true figure where the run has one, as the scorecard shows
         judged = m if reported is None or m.limit is not None else reported
-        out.append(KeyMetric(m.value, m.unit, judged.outcome == "fail",
-                             _bound(m) if judged is m else None, m.name, m.name in worse))
+        out.append(KeyMetric(m.value, m.unit, judged.outcome == "fail", m.name,
+                             m.name in worse))
     return out
 
 
@@ -132,6 +128,44 @@ def _href(target: Path, out_dir: Path) -> str:
     return quote(Path(rel).as_posix(), safe="/")
 
 
+def _listing(s: TrendSeries) -> str:
+    """The points of a series in words: ``"arm-3 · fake: run 1 0.8 mm, run 3 2.5 mm (outside
+    <= 2 mm)"``."""
+    def point(p: TrendPoint) -> str:
+        text = f"run {p.run} {format_value(p.value, s.unit)}"
+        if not p.outside:
+            return text
+        limit = Limit(p.metric, s.unit, p.low, p.high).describe()
+        return f"{text} (outside limit {limit})"
+
+    return f"{s.label}: " + ", ".join(point(p) for p in s.points)
+
+
+def trend_figures(series: Sequence[TrendSeries], runs: Sequence[int]) -> list[FigureView]:
+    """A trend plot per headline figure and view (believed, true), one line per unit under
+    test and kind of target; the caption lists the points outside their limits, the plot's
+    description every point."""
+    groups: dict[tuple[str, str, str, str], list[TrendSeries]] = {}
+    for s in series:
+        groups.setdefault((s.suite, s.headline, s.view, s.unit), []).append(s)
+    figures = []
+    for k, ((suite_name, label, view, unit), members) in enumerate(groups.items()):
+        lines = [plots_over_runs.TrendLine(
+            s.label, [p.run for p in s.points], [p.value for p in s.points],
+            [p.outside for p in s.points], [p.low for p in s.points],
+            [p.high for p in s.points], [p.regressed for p in s.points]) for s in members]
+        panel = plots_over_runs.TrendPanel(f"{label} ({view})", unit, runs, lines)
+        title = f"{suite_name}: {label} ({view}) across runs"
+        outside = [f"run {p.run} ({s.label})" for s in members for p in s.outside]
+        caption = f"{suite_name}: {label} ({view})" + (
+            f"; outside the limit: {', '.join(outside)}" if outside else "")
+        figures.append(FigureView(
+            plots.to_svg(plots_over_runs.trend_plots([panel], 3.6, 2.3), f"t{k + 1}",
+                         f"{title}. " + "; ".join(_listing(s) for s in members)),
+            caption, label))
+    return figures
+
+
 def render_index(runs_dir: str | os.PathLike[str],
                  out_path: str | os.PathLike[str] | None = None,
                  warn: Callable[[str], object] | None = None) -> Path:
@@ -159,41 +193,25 @@ def render_index(runs_dir: str | os.PathLike[str],
     loaded.sort(key=lambda item: (item[0], item[1]))
 
     rows: list[IndexRow] = []
+    measured: list[tuple[int, RunRecord]] = []
     for number, (_, _, d, rec, error) in enumerate(loaded, start=1):
         report = d / REPORT_FILE
         if rec is None:
             rows.append(IndexRow(number, d.name, "-", "-", "unreadable", "-", "-",
-                                 [KeyMetric(None, "") for _ in KEY_METRICS],
+                                 [KeyMetric(None, "") for _ in KEY_METRICS], "-", "-",
                                  _href(report, out.parent), report.is_file(), error))
             continue
+        measured.append((number, rec))
         rows.append(IndexRow(
             number=number, directory=d.name, run_id=rec.run_id, created=_when(rec.created),
             verdict=rec.verdict, port=rec.environment.port or "-",
             suites=", ".join(rec.suites) or "-",
-            metrics=key_metrics(rec),
+            metrics=key_metrics(rec), unit_under_test=rec.environment.dut.label(),
+            kind=rec.environment.kind,
             regressions=0 if rec.baseline is None else len(rec.baseline.regressions),
             href=_href(report, out.parent), has_report=report.is_file()))
 
-    figures = []
-    for k, (suite_name, h) in enumerate(KEY_METRICS):
-        values = [r.metrics[k] for r in rows]
-        if not any(m.value is not None for m in values):
-            continue
-        unit = next(m.unit for m in values if m.value is not None)
-        limits = [m.limit for m in values if m.limit is not None]
-        true = any(m.source.rpartition(".")[2].startswith("true_") for m in values)
-        panel = plots_over_runs.TrendPanel(
-            title=h.label + (" (true)" if true else ""), unit=unit, runs=[r.number for r in rows],
-            values=[m.value if m.value is not None and math.isfinite(m.value) else None
-                    for m in values],
-            failed=[m.failed for m in values], limit=limits[-1] if limits else None,
-            regressed=[m.regressed for m in values])
-        shown = [f"run {r.number}: {m.text}" for r, m in zip(rows, values, strict=True)
-                 if m.value is not None]
-        figures.append(FigureView(
-            plots.to_svg(plots_over_runs.trend_plots([panel], 3.6, 2.3), f"t{k + 1}",
-                         f"{suite_name}: {h.label} across runs. " + "; ".join(shown)),
-            f"{suite_name}: {h.label}", h.label))
+    figures = trend_figures(trend_series(measured), [r.number for r in rows])
     columns = [(s, h.label) for s, hs in HEADLINES.items() for h in hs[:TABLE_HEADLINES]]
     shown_k = [k for k, (s, h) in enumerate(KEY_METRICS)
                if (s, h.label) in columns]

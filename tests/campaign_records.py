@@ -1,6 +1,7 @@
 """Comparing two run records as ``scripts/same_figures.py`` does, and further: every suite's
 trials (index, parameters, samples, measurements, status, error, duration) and suite-level
-measurements, run id and timestamps (``created``, ``started_s``, ``ended_s``) aside."""
+measurements, run id and timestamps (``created``, ``started_s``, ``ended_s``) and wall-clock times
+(``wall_s``: how long the machine took, never the same twice) aside."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-TIMES = {"started_s", "ended_s"}
+TIMES = {"started_s", "ended_s", "wall_s"}
 
 
 def load(directory: Path) -> dict[str, Any]:

@@ -2,10 +2,20 @@
 
 from __future__ import annotations
 
+import asyncio
+import time
 import xml.etree.ElementTree as ET
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
+
+import pytest
+from test_runner import CONFIG, TinySuite
 
 from armbench.bench.junit import to_junit, write_junit
+from armbench.bench.runner import RunOptions, run_bench
+from armbench.bench.suites import SUITES, SuiteContext
+from armbench.fakes.vclock import run_virtual
 from armbench.record import (
     Environment,
     RecordWriter,
@@ -59,13 +69,18 @@ def test_passing_record(tmp_path: Path) -> None:
     # a figure without a limit is recorded, not tested: a property, never a skipped test
     assert root.get("skipped") == "0"
     acc = _suite(root, "accuracy")
-    assert float(acc.get("time", "")) > 0
+    # a record written before wall time was kept: no time to give, and never the robot's
+    suite = record.suites["accuracy"]
+    assert suite.wall_s is None and acc.get("time") == "0.000"
+    assert suite.ended_s is not None
+    robot_s = f"{suite.ended_s - suite.started_s:.3f}"
     props = {p.get("name"): p.get("value") for p in acc.iter("property")}
     unjudged = {(f"trial{t.index}." if t is not None else "") + m.name: f"{m.value:g} {m.unit}"
                 for s, t, m in record.iter_measurements()
                 if s.name == "accuracy" and m.outcome == "unjudged"}
     assert unjudged
     assert props == {"run_id": record.run_id, "suite_version": "1", "status": "done",
+                     "robot_time_s": robot_s, "target_kind": "serial",
                      **{k: v.rstrip() for k, v in unjudged.items()}}
     suite_level = acc.find("testcase[@classname='armbench.accuracy']"
                            "[@name='accuracy.coordinated.mean_mm']")
@@ -151,3 +166,49 @@ def test_streamed_file_is_the_tree_serialised(tmp_path: Path) -> None:
         ET.indent(tree)
         whole = ET.tostring(tree, encoding="utf-8", xml_declaration=True) + b"\n"
         assert write_junit(record, tmp_path / f"{name}.xml").read_bytes() == whole, name
+
+
+# --------------------------------------------------------------------------------------------
+# Wall-clock times of a real run
+
+
+class SleepySuite(TinySuite):
+    """``sleepy``: each trial of the tiny suite after 40 s of robot time waiting (on the
+    virtual clock: a fraction of a second of wall time)."""
+
+    name = "sleepy"
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        await asyncio.sleep(40.0)
+        return await super().run_trial(ctx, index, trial_params)
+
+
+def test_times_are_wall_clock_and_robot_time_a_property(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(SUITES, "sleepy", f"{__name__}:SleepySuite")
+    config = tmp_path / "bench.toml"
+    config.write_text(CONFIG.format(trials=2, move_high=60.0).replace("[suites.tiny]",
+                                                                     "[suites.sleepy]"))
+    wall0 = time.perf_counter()
+    outcome = run_virtual(run_bench(RunOptions(suites=["sleepy"], config=config,
+                                               out=tmp_path / "run", workers=1)))
+    wall_s = time.perf_counter() - wall0
+    assert outcome.exit_status == 0
+    record = load_record(tmp_path / "run" / "results.json")
+    suite = record.suites["sleepy"]
+    assert suite.ended_s is not None and suite.wall_s is not None
+    robot_s = suite.ended_s - suite.started_s
+    assert robot_s > 80.0 > wall_s  # 40 s of robot time per trial, fractions of it of wall time
+    assert 0.0 < suite.wall_s <= wall_s
+    assert all(t.wall_s is not None and 0.0 < t.wall_s <= suite.wall_s for t in suite.trials)
+    root = ET.parse(write_junit(record, tmp_path / "junit.xml")).getroot()
+    head = _suite(root, "sleepy")
+    assert head.get("time") == f"{suite.wall_s:.3f}"
+    props = {p.get("name"): p.get("value") for p in head.iter("property")}
+    assert props["robot_time_s"] == f"{robot_s:.3f}"
+    for trial in suite.trials:  # the trial's wall time on its first testcase, none on the rest
+        cases = head.findall(f"testcase[@classname='armbench.sleepy.trial{trial.index}']")
+        assert [c.get("time") for c in cases] == [f"{trial.wall_s:.3f}"] + ["0"] * (
+            len(cases) - 1)
+    assert float(root.get("time", "")) == pytest.approx(suite.wall_s, abs=2e-3)

@@ -894,6 +894,16 @@ def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> Non
         assert value == pytest.approx(measurements(runs[1])[key][0], rel=1e-9, abs=1e-12), key
     assert [x for t in trials for x in (t.started_s, t.duration_s)] == pytest.approx(
         [x for t in runs[1].suites["tiny"].trials for x in (t.started_s, t.duration_s)], abs=1e-9)
+    # each trial's wall-clock time, measured in the worker, crossed back with it; junit.xml
+    # gives it, never the robot time
+    suite = runs[2].suites["tiny"]
+    assert suite.wall_s is not None and all(t.wall_s is not None and 0 < t.wall_s < suite.wall_s
+                                            for t in trials)
+    head = ET.parse(tmp_path / "w2" / "junit.xml").getroot().find("testsuite[@name='tiny']")
+    assert head is not None and head.get("time") == f"{suite.wall_s:.3f}"
+    for t in trials:
+        first = head.find(f"testcase[@classname='armbench.tiny.trial{t.index}']")
+        assert first is not None and first.get("time") == f"{t.wall_s:.3f}"
 
 
 def test_a_worker_that_dies_is_a_trial_error_and_the_run_goes_on(

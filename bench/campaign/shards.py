@@ -4,9 +4,10 @@ shard records into one record, as an unsharded run would have written it: the sa
 exactly once, by index) and the suite summaries computed over all of them by the same code.
 
 The shards must be of one run: the same shard count, each shard once, the same port, settings,
-seed, faults, limits file, suites, suite versions and parameters. Run ids, timestamps and
-``started_s`` (each shard's own clock) differ from an unsharded run; the traffic capture is not
-merged (each shard keeps its own ``capture.mcap``).
+seed, unit under test, faults, limits file, suites, suite versions and parameters. Run ids,
+timestamps and ``started_s`` (each shard's own clock) differ from an unsharded run; a merged
+suite's wall-clock time is its trials' (measured in the shards) plus its summary's; the traffic
+capture is not merged (each shard keeps its own ``capture.mcap``).
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ def _check_same_run(shards: Sequence[_Shard]) -> None:
                 ("port", a.environment.port, b.environment.port),
                 ("settings", a.environment.settings, b.environment.settings),
                 ("seed", a.environment.seed, b.environment.seed),
+                ("unit under test", a.environment.dut.to_json(), b.environment.dut.to_json()),
                 ("faults", a.environment.faults, b.environment.faults),
                 ("limits", a.environment.config_path, b.environment.config_path),
                 ("suites", a.planned_suites, b.planned_suites),
@@ -154,8 +156,9 @@ async def _merge(shards: Sequence[_Shard], plan: BenchPlan) -> RunRecord:
                 writer.add_trial(ps.name, t)
             if attempts[-1].status == "error" and stopped is None:
                 stopped = attempts[-1]
+        runner.begin_wall(ps.name)  # the shards' trials' wall time, then the summary's
         if stopped is not None:
-            writer.end_suite(ps.name, error=f"trial {stopped.index}: {stopped.error}")
+            runner.end_suite(ps.name, error=f"trial {stopped.index}: {stopped.error}")
             continue
         await runner.summarize(ps)
     writer.write()

@@ -32,6 +32,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -68,6 +69,7 @@ from armbench.record import (
     load_record,
 )
 from armbench.record.baseline import BaselineError, compare
+from armbench.record.ci_run import ci_run
 from armbench.record.files import make_directory
 
 __all__ = ["execute", "run_bench", "run_sync"]
@@ -78,7 +80,9 @@ log = logging.getLogger("armbench.runner")
 def _new_record(plan: BenchPlan) -> RunRecord:
     env = capture_environment(port=plan.port, settings=plan.settings, seed=plan.seed,
                               faults=[dataclasses.asdict(f) for f in plan.faults],
-                              limits=plan.config, truth_source=truth_source_of(
+                              limits=plan.config, dut=plan.dut, ci=ci_run(os.environ),
+                              target_kind=plan.target.scheme or "serial",
+                              truth_source=truth_source_of(
                                   plan.runner_info.get("tracker"), plan.target.capabilities.truth,
                                   plan.target.scheme))
     record = RunRecord.new(env, [s.name for s in plan.suites], run_id=plan.run_id)
@@ -95,6 +99,7 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
         runner.progress.message(f"[{name}] done in the record, skipped")
         return
     writer.begin_suite(name, ps.suite.version, ps.params)
+    runner.begin_wall(name)
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
     shard = runner.plan.shard
@@ -114,11 +119,11 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
                 stopped = trial
                 break
     if stopped is not None:
-        writer.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
+        runner.end_suite(name, error=f"trial {stopped.index}: {stopped.error}")
         runner.progress.message(f"[{name}] stopped: trial {stopped.index}: {stopped.error}")
         return
     if shard is not None:  # a summary of one shard's trials would mislead: merge summarises
-        writer.end_suite(name)
+        runner.end_suite(name)
         runner.progress.message(f"[{name}] shard {shard[0]}/{shard[1]} done (summary: "
                                 "armbench merge)")
         return

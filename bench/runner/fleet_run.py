@@ -2,8 +2,9 @@
 at once, one :func:`~armbench.bench.runner.execute.execute` per arm on one event loop.
 
 Each arm is a run of its own in ``RUN_DIR/<arm>/`` (its record, capture and reports, exactly as a
-single-port run lays them out); ``RUN_DIR/fleet.json`` lists the arms, their ports, verdicts and
-exit statuses (what the fleet page reads). An arm is named by ``--port NAME=PORT``, else by its
+single-port run lays them out; its name is its unit under test's, so ``--dut`` is refused);
+``RUN_DIR/fleet.json`` lists the arms, their ports, verdicts and exit statuses (what the fleet
+page reads). An arm is named by ``--port NAME=PORT``, else by its
 port: the place of a ``labgrid://PLACE``, the port with everything but letters, digits, ``.``,
 ``_`` and ``-`` turned into ``-`` otherwise (``/dev/ttyUSB0`` → ``dev-ttyUSB0``).
 
@@ -40,6 +41,7 @@ from armbench.bench.runner.options import (
 from armbench.bench.runner.plan import prepare
 from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import SettingsError
 from armbench.drivers.transports.target import target_of
 from armbench.record import RESULTS_FILE, load_record, new_run_id
 from armbench.record.files import make_directory
@@ -131,9 +133,10 @@ class FleetOutcome:
 
 
 def _arm_options(options: RunOptions, arm: Arm, out_dir: Path) -> RunOptions:
-    """The options of one arm: its port, its folder, its own baseline in the baseline fleet."""
+    """The options of one arm: its port, its folder, its own baseline in the baseline fleet, its
+    name as its unit's name (``--dut``: one arm's)."""
     return dataclasses.replace(options, port=arm.port, out=out_dir / arm.name,
-                               baseline=_own_baseline(options, arm), resume=None)
+                               baseline=_own_baseline(options, arm), resume=None, dut=arm.name)
 
 
 def _own_baseline(options: RunOptions, arm: Arm) -> Path | None:
@@ -252,6 +255,9 @@ def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | No
         arms = [Arm(a.name, a.port) for a in index.arms]
         plans = [prepare(_resumed_options(options, arm, out_dir)) for arm in arms]
     else:
+        if options.dut is not None:
+            raise ArmbenchError("--dut names one unit; a fleet's arms are named by --port "
+                                "NAME=PORT, each name its unit's")
         arms = parse_arms(ports)
         fleet_id = new_run_id()
         out_dir = (Path(options.out) if options.out is not None
@@ -260,6 +266,9 @@ def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | No
             raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; resume it "
                                 "(--resume) or choose another --out")
         plans = [prepare(_arm_options(options, arm, out_dir)) for arm in arms]
+        if len(plans) > 1 and plans[0].dut.serial is not None:
+            raise SettingsError("dut.serial", plans[0].dut.serial,
+                                f"is one arm's serial number, not each of {len(plans)} arms'")
     for plan, arm in zip(plans, arms, strict=True):
         if plan.resume is None:
             plan.run_id = f"{fleet_id}-{arm.name}"

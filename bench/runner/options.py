@@ -27,6 +27,7 @@ from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports.target import Target
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
+from armbench.record.dut import Dut
 from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
@@ -143,6 +144,10 @@ class RunOptions:
     (``--require``)."""
     optional: Sequence[str] = ()
     """Planned suites the run may leave untested (``--optional``)."""
+    dut: str | None = None
+    """The unit under test's name (``--dut``), over the config's ``[dut] name``."""
+    meta: Sequence[str] = ()
+    """``KEY=VALUE`` pairs of the unit under test (``--meta``), over the config's ``[dut]``."""
 
 
 @dataclass(slots=True)
@@ -207,6 +212,9 @@ class BenchPlan:
     (``armbench merge`` does it over every shard)."""
     required: list[str] = field(default_factory=list)
     """What the run must measure to pass (:func:`~armbench.bench.runner.required.required_of`)."""
+    dut: Dut = field(default_factory=Dut)
+    """The unit under test: the config's ``[dut]`` with ``--dut`` and ``--meta`` over it (a
+    resumed run's as recorded)."""
 
     def total_trials(self) -> int:
         """Trials still to measure (done trials of a resumed record excluded)."""

@@ -54,6 +54,7 @@ from armbench.record import (
     path_inside,
 )
 from armbench.record.baseline import BaselineError, check_suite_versions, load_baseline, read_record
+from armbench.record.dut import dut_flags
 from armbench.record.files import check_directory_writable
 from armbench.record.limits import LimitsConfig, load_limits
 
@@ -413,7 +414,8 @@ def _resume_target(options: RunOptions) -> Path:
     for flag, given in (("SUITE", bool(options.suites)), ("--config", options.config),
                         ("--seed", options.seed is not None),
                         ("--settings", options.settings), ("--faults", options.faults),
-                        ("--shard", options.shard is not None)):
+                        ("--shard", options.shard is not None),
+                        ("--dut", options.dut is not None), ("--meta", bool(options.meta))):
         if given:
             raise ArmbenchError(f"--resume: {flag} comes from the run being resumed and "
                                 "cannot be given again")
@@ -429,7 +431,8 @@ def _check_text_inputs(options: RunOptions) -> None:
     given = (("--config", options.config), ("--settings", options.settings),
              ("--faults", options.faults), ("--out", options.out),
              ("--baseline", options.baseline), ("--resume", options.resume),
-             ("--port", options.port), ("--tracker", options.tracker),
+             ("--port", options.port), ("--tracker", options.tracker), ("--dut", options.dut),
+             *(("--meta", meta) for meta in options.meta),
              ("runs folder", options.runs_root),
              *(("SUITE", suite) for suite in options.suites))
     for flag, value in given:
@@ -471,6 +474,8 @@ def prepare(options: RunOptions) -> BenchPlan:
     inputs = (_resumed_inputs(resume, info, target) if resume is not None
               else _new_inputs(options, target))
     knobs = _bench_knobs(inputs.config, options, target)
+    dut = (resume.environment.dut if resume is not None
+           else inputs.config.dut.with_flags(dut_flags(options.dut, options.meta)))
     target.check_settings(inputs.settings)  # an emulator's [emulator] table, checked now
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
@@ -509,7 +514,7 @@ def prepare(options: RunOptions) -> BenchPlan:
         tracker=tracker, run_id=run_id, runner_info=runner_info, workers=knobs.workers,
         capture=knobs.capture, capture_max_bytes=knobs.capture_max_bytes,
         warnings=_warnings(inputs.config), scheduler=knobs.scheduler,
-        shard=_shard_of(runner_info), required=required,
+        shard=_shard_of(runner_info), required=required, dut=dut,
     )
 
 

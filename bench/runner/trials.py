@@ -34,6 +34,7 @@ from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports.capabilities import FreshArm
 from armbench.record import (
     RESULTS_FILE,
+    Measurement,
     RecordWriter,
     RunRecord,
     Trial,
@@ -230,11 +231,13 @@ class TrialAttempts:
                       trial_params: Mapping[str, Any] | None = None) -> Trial:
         """Measure trial ``index`` of ``ps`` once (its parameters ``trial_params``, by default
         ``ps.trials[index]``): the trial, or a trial in error (a lost arm on hardware raises
-        :class:`RunAborted`)."""
+        :class:`RunAborted`). Its ``wall_s`` is the wall-clock time the attempt took in this
+        process (a worker's own, for a trial measured in one)."""
         plan = self.plan
         clock = self.clock
         if trial_params is None:
             trial_params = ps.trials[index]
+        wall0 = time.perf_counter()
         t0 = clock.elapsed_s()
         t_loop0 = asyncio.get_running_loop().time()
         own: Connection | None = None
@@ -259,8 +262,9 @@ class TrialAttempts:
             if result.index != index:
                 raise ValueError(f"run_trial({index}) returned trial index {result.index}")
             duration = max(0.0, clock.elapsed_s() - t0)
-            return self._with_outages(dataclasses.replace(result, started_s=t0,
-                                                          duration_s=duration), arm, t_loop0)
+            return self._with_outages(dataclasses.replace(
+                result, started_s=t0, duration_s=duration,
+                wall_s=time.perf_counter() - wall0), arm, t_loop0)
         except RunAborted:
             raise
         except Exception as exc:
@@ -269,7 +273,8 @@ class TrialAttempts:
                           exc_info=True)
             return self._with_outages(
                 Trial(index, t0, max(0.0, clock.elapsed_s() - t0), params=trial_params,
-                      status="error", error=describe(exc)), arm, t_loop0)
+                      status="error", error=describe(exc), wall_s=time.perf_counter() - wall0),
+                arm, t_loop0)
         finally:
             if own is not None:
                 self.unmerged.append(own.part)
@@ -325,6 +330,24 @@ class TrialRunner:
         self.attempts = TrialAttempts(plan, writer, progress, emulator_factory)
         if plan.capture:
             self.attempts.captures.open_run(plan.settings, writer.record)
+        self._wall0: dict[str, float] = {}
+
+    def begin_wall(self, name: str) -> None:
+        """Start the wall clock of suite ``name`` (begun in the record), counting the wall time
+        earlier sessions of a resumed run spent on it (its recorded time, else its trials')."""
+        suite = self.writer.suite(name)
+        carried = suite.wall_s
+        if carried is None:
+            carried = sum(t.wall_s or 0.0 for t in (*suite.trials, *suite.superseded_trials))
+        self._wall0[name] = time.perf_counter() - carried
+
+    def end_suite(self, name: str, measurements: Sequence[Measurement] = (), *,
+                  error: str | None = None) -> None:
+        """End suite ``name`` in the record with the wall-clock time since :meth:`begin_wall`
+        (None if its clock was never started)."""
+        wall0 = self._wall0.pop(name, None)
+        self.writer.end_suite(name, measurements, error=error,
+                              wall_s=None if wall0 is None else time.perf_counter() - wall0)
 
     @property
     def captures(self) -> CaptureParts:
@@ -376,10 +399,10 @@ class TrialRunner:
                                                                "summary"))
         try:
             measurements = ps.suite.summarize(ctx, writer.completed_trials(ps.name))
-            writer.end_suite(ps.name, measurements)
+            self.end_suite(ps.name, measurements)
         except Exception as exc:
             log.debug("summary of %s failed", ps.name, exc_info=True)
-            writer.end_suite(ps.name, error=f"summary: {describe(exc)}")
+            self.end_suite(ps.name, error=f"summary: {describe(exc)}")
             self.progress.message(f"[{ps.name}] summary failed: {describe(exc)}")
             return
         suite = writer.suite(ps.name)

@@ -6,7 +6,8 @@ What ``armbench run`` with the same arguments would use (its own planning,
 regression tolerances of ``--config`` (it replaces the packaged ``default_bench.toml`` as a
 whole), else of the packaged file; every ``[bench]`` parameter, from the command line's flag, else
 the config file, else the bench's default; every parameter of each suite, from the file's
-``[suites.<name>]`` table, else the suite's default. ``armbench compare`` and ``armbench campaign``
+``[suites.<name>]`` table, else the suite's default; the unit under test's ``[dut]`` keys, from
+``--dut`` or ``--meta``, else the file. ``armbench compare`` and ``armbench campaign``
 judge with the same limits and tolerances. The output reads back as a ``--config`` file: a run given
 it plans the same (the ``[bench]`` defaults that depend on the port, ``isolation``, are the
 port's).
@@ -27,7 +28,9 @@ import tomli_w
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S
 from armbench.bench.runner import RunOptions, prepare
 from armbench.bench.verdict import DEFAULT_CONFIG
+from armbench.cli.commands.run import add_dut_arguments
 from armbench.drivers.settings import read_toml
+from armbench.record.dut import Dut, dut_flags
 
 __all__ = ["register", "render_config"]
 
@@ -61,6 +64,7 @@ def register(sub: Any) -> None:
     show.add_argument("--retries", type=int, default=None, metavar="N")
     show.add_argument("--no-capture", dest="capture", action="store_false", default=None)
     show.add_argument("--capture-max-mb", type=float, default=None, metavar="MB")
+    add_dut_arguments(show)
     show.set_defaults(func=_show)
 
 
@@ -144,6 +148,8 @@ def render_config(options: RunOptions) -> str:
         lines += ["", *_table(f"regression.metrics.{_quote(name)}",
                               {"tolerance_pct": t.tolerance_pct,
                                "tolerance_abs": t.tolerance_abs}, {}, source)]
+    if plan.dut:
+        lines += ["", *_dut_table(plan.dut, options, source)]
     for name, limit in config.limits.items():
         lines += ["", *_table(f"limits.{_quote(name)}",
                               {"low": limit.low, "high": limit.high, "unit": limit.unit}, {},
@@ -157,10 +163,29 @@ def render_config(options: RunOptions) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _dut_table(dut: Dut, options: RunOptions, source: str) -> list[str]:
+    """The ``[dut]`` table of the run, each value with its origin: ``--dut``, ``--meta`` or
+    the config file."""
+    flags = dut_flags(options.dut, options.meta)
+
+    def origin(key: str) -> str:
+        if key not in flags:
+            return source
+        return "--dut" if key == "name" and options.dut is not None else "--meta"
+
+    named = {k: v for k, v in dut.items() if not k.startswith("meta.")}
+    meta = {k[5:]: v for k, v in dut.items() if k.startswith("meta.")}
+    lines = _table("dut", named, {k: origin(k) for k in named})
+    if meta:
+        lines += ["", *_table("dut.meta", meta, {k: origin(f"meta.{k}") for k in meta})]
+    return lines
+
+
 def _show(args: argparse.Namespace) -> int:
     options = RunOptions(suites=list(args.suites), port=args.port, config=args.config,
                          settings=args.settings, workers=args.workers,
                          scheduler=args.scheduler, retries=args.retries, capture=args.capture,
-                         capture_max_mb=args.capture_max_mb)
+                         capture_max_mb=args.capture_max_mb, dut=args.dut,
+                         meta=tuple(args.meta))
     sys.stdout.write(render_config(options))
     return 0

@@ -3,7 +3,8 @@
 ``armbench run [SUITE ...] [--port PORT] [--config bench.toml] [--out DIR] [--baseline FILE]
 [--resume DIR] [--seed N] [--settings FILE] [--faults FILE] [--tracker MODULE:CLASS]
 [--power-command CMD_OFF CMD_ON | --power-manual] [--retries N] [--workers N] [--no-capture]
-[--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N]``
+[--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N] [--dut NAME]
+[--meta KEY=VALUE ...]``
 
 Exit status (:mod:`armbench.bench.verdict`): 0 every measurement within its limits and no
 regression, 1 a limit failed, 2 bad input (reported before the arm moves), 3 regressed against
@@ -50,6 +51,7 @@ def register(sub: Any) -> None:
                         "(see docs/fleet.md)")
     p.add_argument("--config", metavar="FILE",
                    help="limits and suite parameters (default: the packaged default_bench.toml)")
+    add_dut_arguments(p)
     p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
     p.add_argument("--baseline", metavar="FILE",
                    help="results.json of an earlier run: fail on regressions against it (with "
@@ -102,6 +104,17 @@ def register(sub: Any) -> None:
     p.set_defaults(func=_run)
 
 
+def add_dut_arguments(p: argparse.ArgumentParser) -> None:
+    """``--dut NAME`` and ``--meta KEY=VALUE``: the unit under test, over the config's
+    ``[dut]`` table (``armbench run`` and ``armbench config show``)."""
+    p.add_argument("--dut", metavar="NAME",
+                   help="the unit under test's name (over the config's [dut] name); recorded "
+                        "in results.json, junit.xml, the report and the summary")
+    p.add_argument("--meta", action="append", default=[], metavar="KEY=VALUE",
+                   help="a fact about the unit under test, repeatable: serial, firmware_commit "
+                        "or host_commit set that [dut] key, any other KEY is free")
+
+
 def shard_arg(text: str) -> tuple[int, int]:
     """``I/N`` → ``(I, N)`` with 1 <= I <= N (an argparse type)."""
     i, sep, n = text.partition("/")
@@ -126,7 +139,8 @@ def _run(args: argparse.Namespace) -> int:
         power_manual=args.power_manual, retries=args.retries,
         workers=args.workers, capture=args.capture, capture_max_mb=args.capture_max_mb,
         scheduler=args.scheduler, shard=args.shard, require=list(args.require),
-        optional=list(args.optional))
+        optional=list(args.optional), dut=args.dut,
+        meta=tuple(args.meta))
     if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
         from armbench.cli.commands.fleet import run_fleet
 
