@@ -30,8 +30,10 @@ its allowance, judged against the limits of a bench config (``--config``, else t
 ``twin_check.toml``, ``high = 1``). Where moves settled and where the twin rests no timing
 enters: there the floor is the quantisation alone (``settled_per_allowed``, and the TCP at rest
 against ``tcp_abs_mm``). The verdict is ``pass`` when every judged figure is within, else
-``fail`` (the figures judged in :mod:`armbench.bench.twin_figures`).
-:mod:`armbench.bench.twin_record` writes a check as a run record.
+``fail`` (the figures judged in :mod:`armbench.bench.twin_figures`). Each failing joint gets a
+diagnosis: what its divergence looks like and what to do
+(:mod:`armbench.bench.twin_diagnosis`). :mod:`armbench.bench.twin_record` writes a check as a run
+record.
 
 A capture of several sessions (a run's capture holds one emulator per trial, a foreign arm
 restarts at each connection) is cut where the replies jump further than the joints can move, or
@@ -65,6 +67,7 @@ from armbench.bench.twin_align import (
     timing_rms_s,
     timing_scatter_s,
 )
+from armbench.bench.twin_diagnosis import Diagnosis, diagnose_joints, failing_joints
 from armbench.bench.twin_figures import (
     Allowance,
     arrival_measurements,
@@ -156,6 +159,8 @@ class TwinCheck:
     joint_shifts_s: FloatArray | None = None
     shift_deviations_s: list[float] = field(default_factory=list)
     arm_lag_s: FloatArray | None = None
+    diagnoses: list[Diagnosis | None] = field(default_factory=lambda: [None] * 4)
+    """Per joint, what its divergence looks like and what to do (where the joint failed)."""
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -175,6 +180,7 @@ class TwinCheck:
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
             "verdict": self.verdict,
+            "diagnosis": [None if d is None else d.to_json() for d in self.diagnoses],
         }
 
 
@@ -491,5 +497,9 @@ def twin_check(data: CaptureData, settings: RobotSettings,
     count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *tcp_measurements(tcp, allow, limits)]
+    series = result.series
+    diagnoses = result.diagnoses if series is None else diagnose_joints(
+        series.t_s, series.arm_rad, series.twin_rad, series.counts_per_rad,
+        [c[0] for c in merged.commands], TICK_RAD, failing_joints(measurements))
     return replace(result, tcp=tcp, sessions=len(parts), measurements=measurements,
-                   verdict=verdict_of(measurements), hall_counters=hall)
+                   verdict=verdict_of(measurements), hall_counters=hall, diagnoses=diagnoses)

@@ -53,13 +53,17 @@ def register(sub: Any) -> None:
 
 
 def format_twin_check(result: TwinCheck, capture: str) -> str:
-    """The text report of ``result`` for a terminal: verdict, per-joint divergence, arrivals,
-    the TCP divergence and every judged figure (``--json`` has the same as one object)."""
+    """The text report of ``result`` for a terminal: verdict, per-joint divergence (under a
+    failing joint what it looks like and what to do), arrivals, the TCP divergence and every
+    judged figure (``--json`` has the same as one object)."""
     lines = [f"twin-check {capture}: verdict {result.verdict} "
              f"({result.replies_compared} replies, {result.moves} commands)"]
     for j in range(4):
         lines.append(f"  j{j + 1}: RMS {result.rms_counts[j]:8.2f} counts "
                      f"({result.rms_rad[j]:.3g} rad), max {result.max_counts[j]:8.1f} counts")
+        diagnosis = result.diagnoses[j]
+        if diagnosis is not None:
+            lines.extend(f"      {line}" for line in diagnosis.lines())
     body = result.to_json()["arrival"]
     if body["compared"]:
         lines.append(f"  arrivals: {body['compared']} moves compared, mean twin − arm "
