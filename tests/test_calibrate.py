@@ -283,6 +283,40 @@ def test_sensitivity_where_no_figure_moves_says_so() -> None:
     assert "(j2.pullout_nm) moves when any assumption is set to either end" in table.note
 
 
+def test_held_out_check_says_what_to_do(capture: Path, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``calibrate --check HELD_OUT``: the fitted twin is checked on a capture the fit did not
+    use. The fit's capture never moves joint 3, so a base geared 4 % low there keeps that
+    gear; on a held-out session that moves joint 3 the check fails (exit status 1) and the
+    output names joint 3's divergence as gear/scale and the next step. A held-out capture that
+    cannot be read is bad input (exit status 2)."""
+    held_out = tmp_path / "held_out.jsonl"
+
+    async def session() -> None:
+        async with Arm.connect("fake://", capture=held_out) as arm:
+            for duty in (99, 90):
+                for target in ([0.0, 0.3, -0.9, 0.0], [0.0, 0.3, 0.0, 0.0]):
+                    await asyncio.sleep(0.1)
+                    await arm.move_joints(target, duty)
+
+    run_virtual(session())
+    base = tmp_path / "base.toml"
+    base.write_text(f"[joints.j3]\ngear_ratio = {38 * 0.96}\n")
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--capture", str(capture), "--settings", str(base), "--out",
+                 str(out), "--check", str(held_out)]) == 1
+    text = capsys.readouterr().out
+    assert f"held-out check on {held_out}: verdict fail" in text
+    j3 = text.split("  j3: RMS", 1)[1]
+    assert "diagnosis: gear/scale: grows with the joint's travel" in j3
+    assert "next: calibrate the gear ratio" in j3 and "--budget-s" in j3
+    assert "  j2: RMS" not in text                       # only the failing joints
+    assert (out / "robot.toml").exists()                 # the calibration is written
+    assert main(["calibrate", "--capture", str(capture), "--out", str(tmp_path / "other"),
+                 "--check", str(tmp_path / "missing.jsonl")]) == 2
+    assert not (tmp_path / "other" / "robot.toml").exists()
+
+
 def test_capture_truncated(capture: Path, tmp_path: Path) -> None:
     lines = capture.read_text().splitlines()
     cut = tmp_path / "cut.jsonl"
