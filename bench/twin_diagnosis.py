@@ -81,8 +81,8 @@ _NEXT: Final = {
             "instrument; without one the play and stick-slip are the prior's)",
     "offset": "measure the link side: armbench calibrate --tracker MODULE:CLASS (a reference "
               "instrument; without one the offsets and Hall positions are the prior's)",
-    "unexplained": "none of the known effects explains it: a model the evidence did not "
-                   "support; look at the arm-vs-twin overlay of that span (twin-check --out)",
+    "unexplained": "the twin has a model the evidence did not support: look at the arm-vs-twin "
+                   "overlay of that span (in the report of twin-check --out)",
 }
 
 
@@ -114,9 +114,9 @@ class Diagnosis:
         """The diagnosis for a terminal: what it looks like, how much that explains, where it is
         largest, what to do."""
         a, b = self.span_s
-        return [f"diagnosis: {self.label}: {self.looks}; explains {self.explained:.0%} of the "
-                f"mean square, largest at {a:.2f}..{b:.2f} s",
-                f"next: {self.next_step}"]
+        what = (self.looks if self.kind == "unexplained" else
+                f"{self.label}: {self.looks}; explains {self.explained:.0%} of the mean square")
+        return [f"diagnosis: {what}, largest at {a:.2f}..{b:.2f} s", f"next: {self.next_step}"]
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -306,8 +306,8 @@ def diagnose(joint: int, t_s: FloatArray, arm_counts: FloatArray, twin_counts: F
         kind = "step_loss"
     if fractions[kind] < EXPLAINS:
         best = max(fractions, key=lambda k: fractions[k])
-        looks = (f"none of the known effects explains it (the best, {KINDS[best]}, "
-                 f"{fractions[best]:.0%})")
+        looks = (f"none of the known effects explains it (the best, {KINDS[best]}, explains "
+                 f"{fractions[best]:.0%} of the mean square)")
         return Diagnosis(joint, "unexplained", fractions[kind], fractions, _span(t, r), looks)
     if kind == "step_loss":
         looks = ("grows in some moves only, always one way: the "

@@ -163,8 +163,9 @@ def test_what_no_known_effect_explains_is_said_so(what: str) -> None:
     d = diagnose(2, t, arm, np.round(arm + off), [m[0] for m in moves], TICK_COUNTS)
     assert d.kind == "unexplained", d.fractions
     assert d.explained < 0.5
-    assert "none of the known effects" in d.looks
+    assert d.looks.startswith("none of the known effects explains it (the best, ")
     assert "a model the evidence did not support" in d.next_step
+    assert d.lines()[0].startswith("diagnosis: none of the known effects explains it")
 
 
 def test_only_failing_joints_are_diagnosed() -> None:
