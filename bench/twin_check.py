@@ -30,7 +30,10 @@ its allowance, judged against the limits of a bench config (``--config``, else t
 ``twin_check.toml``, ``high = 1``). Where moves settled and where the twin rests no timing
 enters: there the floor is the quantisation alone (``settled_per_allowed``, and the TCP at rest
 against ``tcp_abs_mm``). The verdict is ``pass`` when every judged figure is within, else
-``fail``. :mod:`armbench.bench.twin_record` writes a check as a run record.
+``fail`` (the figures judged in :mod:`armbench.bench.twin_figures`). Each failing joint gets a
+diagnosis: what its divergence looks like and what to do
+(:mod:`armbench.bench.twin_diagnosis`). :mod:`armbench.bench.twin_record` writes a check as a run
+record.
 
 A capture of several sessions (a run's capture holds one emulator per trial, a foreign arm
 restarts at each connection) is cut where the replies jump further than the joints can move, or
@@ -41,8 +44,8 @@ that was in flight at the cut written first.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Final
 
@@ -64,6 +67,14 @@ from armbench.bench.twin_align import (
     timing_rms_s,
     timing_scatter_s,
 )
+from armbench.bench.twin_diagnosis import Diagnosis, diagnose_joints, failing_joints
+from armbench.bench.twin_figures import (
+    Allowance,
+    arrival_measurements,
+    joint_measurements,
+    tcp_measurements,
+    verdict_of,
+)
 from armbench.bench.twin_replay import (
     BURST_S,
     TIME_SLACK_S,
@@ -74,7 +85,7 @@ from armbench.bench.twin_replay import (
     sessions,
 )
 from armbench.bench.twin_tcp import arm_tcp_from_capture, tcp_divergence
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.settings import RobotSettings
 from armbench.record import Measurement, judge
 from armbench.record.limits import LimitsConfig, load_limits
 
@@ -96,35 +107,6 @@ REACTION_REPLAYS: Final = 4
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
 FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True, slots=True)
-class Allowance:
-    """How far above its floor a twin may score: ``k × floor + abs`` per joint (counts), for the
-    arrival times (s) and the TCP (mm). Read from the config's ``[suites."twin-check"]``."""
-
-    floor_factor: float = 3.0
-    abs_counts: float = 2.0
-    arrival_factor: float = 3.0
-    arrival_abs_s: float = 0.01
-    tcp_factor: float = 3.0
-    tcp_abs_mm: float = 1.5
-
-    @classmethod
-    def of(cls, table: Mapping[str, Any]) -> Allowance:
-        """From a config table; unknown keys and values that are not numbers >= 0 raise
-        :class:`SettingsError` naming the key."""
-        known = {f.name for f in fields(cls)}
-        out: dict[str, float] = {}
-        for key, value in table.items():
-            where = f'suites."twin-check".{key}'
-            if key not in known:
-                raise SettingsError(where, value, "is not a known setting")
-            if isinstance(value, bool) or not isinstance(value, int | float) or not (
-                    math.isfinite(value) and value >= 0):
-                raise SettingsError(where, value, "is not a number >= 0")
-            out[key] = float(value)
-        return cls(**out)
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,6 +159,8 @@ class TwinCheck:
     joint_shifts_s: FloatArray | None = None
     shift_deviations_s: list[float] = field(default_factory=list)
     arm_lag_s: FloatArray | None = None
+    diagnoses: list[Diagnosis | None] = field(default_factory=lambda: [None] * 4)
+    """Per joint, what its divergence looks like and what to do (where the joint failed)."""
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -196,6 +180,7 @@ class TwinCheck:
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
             "verdict": self.verdict,
+            "diagnosis": [None if d is None else d.to_json() for d in self.diagnoses],
         }
 
 
@@ -408,9 +393,9 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         dt_floor = math.hypot(interval_floor_s(whole, twin_track, scatter, 0.0),
                               floor_by_replay.dt_s)
     n = TWIN_CHECK
-    measurements = _joint_measurements(rms, peak, counts, floor, allowed, settled_rms,
-                                       settled_allowed if len(settled) else None, limits)
-    measurements += _arrival_measurements(dts, dt_floor, allow, limits)
+    measurements = joint_measurements(rms, peak, counts, floor, allowed, settled_rms,
+                                      settled_allowed if len(settled) else None, limits)
+    measurements += arrival_measurements(dts, dt_floor, allow, limits)
     for figure, value, unit, what in (
             (n.scatter, scatter, "s", "timing scatter of the link, from the arm's replies"),
             (n.reaction, command_scatter, "s",
@@ -428,7 +413,7 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     return TwinCheck(
         [float(v) for v in rms], [float(v) for v in peak], [float(v) for v in rms * counts],
         [float(v) for v in peak * counts], dts, len(data.commands), arm_only, twin_only,
-        len(rows), measurements, _verdict(measurements), list(twin), series=aligned,
+        len(rows), measurements, verdict_of(measurements), list(twin), series=aligned,
         arrivals=[(c[0], a, b) for c, (a, b) in zip(data.commands, pairs, strict=True)],
         floor_counts=[float(v) for v in floor * counts],
         allowed_counts=[float(v) for v in allowed],
@@ -436,88 +421,6 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
         reaction_scatter_s=command_scatter,
         shifts_s=[float(v) for v in per_command], joint_shifts_s=shifts,
         shift_deviations_s=measured.deviations_s(), arm_lag_s=measured.arm_lag_s)
-
-
-def _verdict(measurements: Sequence[Measurement]) -> str:
-    """``fail`` when a figure is outside its limit, else ``pass``."""
-    return "fail" if any(m.outcome == "fail" for m in measurements) else "pass"
-
-
-def _joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
-                        floor: FloatArray, allowed: FloatArray, settled: FloatArray,
-                        settled_allowed: FloatArray | None,
-                        limits: LimitsConfig | None) -> list[Measurement]:
-    """Per joint: the RMS and largest divergence (counts, rad), the floor and the allowance
-    (counts), the RMS over its allowance (the judged figure), where moves settled (counts)."""
-    n = TWIN_CHECK
-    out = []
-    for j in range(4):
-        for figure, value, unit, what in (
-                (n.rms_counts, rms[j] * counts[j], "counts", "RMS divergence"),
-                (n.max_counts, peak[j] * counts[j], "counts", "largest divergence"),
-                (n.rms_rad, rms[j], "rad", "RMS divergence"),
-                (n.max_rad, peak[j], "rad", "largest divergence"),
-                (n.floor_counts, floor[j] * counts[j], "counts", "floor (a perfect twin's RMS)"),
-                (n.allowed_counts, allowed[j], "counts", "allowed RMS: k x floor + abs"),
-                (n.per_allowed, rms[j] * counts[j] / allowed[j], "", "RMS over allowed RMS"),
-                (n.settled_counts, settled[j] * counts[j], "counts",
-                 "RMS divergence where the moves settled")):
-            out.append(judge(n.joint_metric(j + 1, figure), float(value), unit, limits,
-                             better="lower", description=f"{what} of the reported angle"))
-        if settled_allowed is not None:
-            out.append(judge(n.joint_metric(j + 1, n.settled_per_allowed),
-                             float(settled[j] * counts[j] / settled_allowed[j]), "", limits,
-                             better="lower", description="RMS divergence where the moves "
-                             "settled over k x quantisation + abs"))
-    return out
-
-
-def _arrival_measurements(dts: Sequence[float], floor_s: float, allow: Allowance,
-                          limits: LimitsConfig | None) -> list[Measurement]:
-    """The arrival-time differences: mean, largest, RMS, its floor and RMS over allowance."""
-    if not dts:
-        return []
-    n = TWIN_CHECK
-    dt = np.asarray(dts)
-    rms = float(np.sqrt(np.mean(dt * dt)))
-    allowed = allow.arrival_factor * floor_s + allow.arrival_abs_s
-    return [
-        replace(judge(n.metric(n.mean_dt), float(dt.mean()), "s", limits,
-                      description="mean arrival-time difference, twin - arm"), better=None),
-        judge(n.metric(n.max_abs_dt), float(np.abs(dt).max()), "s", limits,
-              description="largest arrival-time difference, |twin - arm|"),
-        judge(n.metric(n.rms_dt), rms, "s", limits, better="lower",
-              description="RMS arrival-time difference"),
-        judge(n.metric(n.floor_dt), floor_s, "s", limits,
-              description="floor of the arrival-time difference (a perfect twin's RMS)"),
-        judge(n.metric(n.arrival_per_allowed), rms / allowed, "", limits, better="lower",
-              description="RMS arrival-time difference over its allowance"),
-    ]
-
-
-def _judge_tcp(tcp: dict[str, float] | None, allow: Allowance,
-               limits: LimitsConfig) -> list[Measurement]:
-    """The TCP divergence as measurements, where the capture had truth."""
-    if not tcp:
-        return []
-    n = TWIN_CHECK
-    allowed = allow.tcp_factor * tcp["floor_mm"] + allow.tcp_abs_mm
-    out = [judge(n.metric(name), tcp[key], "mm", limits, better="lower",
-                 description=f"{what} of the TCP, arm against twin")
-           for name, key, what in ((n.tcp_rms, "rms_mm", "RMS divergence"),
-                                   (n.tcp_max, "max_mm", "largest divergence"),
-                                   (n.tcp_floor, "floor_mm", "floor of the RMS divergence"))]
-    out.append(judge(n.metric(n.tcp_per_allowed), tcp["rms_mm"] / allowed, "", limits,
-                     better="lower", description="RMS TCP divergence over its allowance"))
-    if "rest_rms_mm" in tcp:
-        out.append(judge(n.metric(n.tcp_rest), tcp["rest_rms_mm"], "mm", limits,
-                         better="lower", description="RMS TCP divergence where the twin rests"))
-        out.append(judge(n.metric(n.tcp_rest_per_allowed), tcp["rest_rms_mm"] / allow.tcp_abs_mm,
-                         "", limits, better="lower",
-                         description="RMS TCP divergence at rest over its allowance (abs)"))
-    out.append(judge(n.metric(n.tcp_samples), tcp["samples"], "", limits,
-                     description="truth samples compared"))
-    return out
 
 
 def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
@@ -593,6 +496,10 @@ def twin_check(data: CaptureData, settings: RobotSettings,
         tcp["floor_mm"] = math.hypot(tcp["floor_mm"], floor.tcp_mm)
     count = judge(TWIN_CHECK.metric(TWIN_CHECK.sessions), float(len(parts)), "", limits,
                   description="sessions replayed, each into a fresh twin")
-    measurements = [*result.measurements, count, *_judge_tcp(tcp, allow, limits)]
+    measurements = [*result.measurements, count, *tcp_measurements(tcp, allow, limits)]
+    series = result.series
+    diagnoses = result.diagnoses if series is None else diagnose_joints(
+        series.t_s, series.arm_rad, series.twin_rad, series.counts_per_rad,
+        [c[0] for c in merged.commands], TICK_RAD, failing_joints(measurements))
     return replace(result, tcp=tcp, sessions=len(parts), measurements=measurements,
-                   verdict=_verdict(measurements), hall_counters=hall)
+                   verdict=verdict_of(measurements), hall_counters=hall, diagnoses=diagnoses)

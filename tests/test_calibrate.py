@@ -28,7 +28,8 @@ from armbench.bench.calibrate import (
     fit_all,
 )
 from armbench.bench.calibrate.fit import fit_play, instrument_offsets
-from armbench.bench.calibrate.model import Approach
+from armbench.bench.calibrate.model import Approach, Fitted
+from armbench.bench.calibrate.sensitivity import sensitivity
 from armbench.cli.main import main
 from armbench.drivers.arm import Arm
 from armbench.drivers.settings import RobotSettings, load_settings
@@ -244,6 +245,76 @@ def test_calibrate_from_capture(capture: Path, tmp_path: Path) -> None:
     kept = {f.key: f for f in own.fitted}["emulator.physics.j2.pullout_nm"]
     assert not kept.identified and kept.value == DEFAULT_JOINT_PHYSICS[1].pullout_nm
     assert "better than the prior" in kept.reason
+
+
+def test_page_sensitivity_table_or_why_not(capture: Path, tmp_path: Path) -> None:
+    """The page's sensitivity table was an empty header when nothing torque-dependent was
+    fitted (the template tested the table object, always true). From a base whose pull-out
+    torque is wrong, joint 2's is fitted and the table has a row per assumption with the fitted
+    value at both ends of its range; from the default arm's own base nothing depends on the
+    assumptions, and the page has no table but a sentence saying why (the JSON too)."""
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("[emulator.physics.j2]\npullout_nm = 1.0\n")
+    calibrate_capture(capture, load_settings(wrong), tmp_path / "fitted.toml", page=render_page)
+    page = (tmp_path / "fitted.html").read_text()
+    table = page.split("Sensitivity to the assumptions", 1)[1].split("<h2>", 1)[0]
+    assert '<th class="num">j2.pullout_nm</th>' in table
+    rows = re.findall(r"<tr><td><span class=\"name\">(\w+)</span></td><td>([^<]+)</td>"
+                      r"<td class=\"num\">([^<]*)</td></tr>", table)
+    assert {name for name, _, _ in rows} >= {"mass_kg", "efficiency", "payload_kg"}, rows
+    assert all(re.fullmatch(r"[0-9.e+-]+ / [0-9.e+-]+", cell) for _, _, cell in rows), rows
+    calibrate_capture(capture, RobotSettings(), tmp_path / "own.toml", page=render_page)
+    page = (tmp_path / "own.html").read_text()
+    section = page.split("Sensitivity to the assumptions", 1)[1].split("<h2>", 1)[0]
+    assert "<table" not in section
+    assert "No table: no figure that rests on the assumed torques was identified" in section
+    fit = json.loads((tmp_path / "own.json").read_text())["sensitivity"]
+    assert fit["rows"] == [] and fit["note"].startswith("no figure that rests on")
+
+
+def test_sensitivity_where_no_figure_moves_says_so() -> None:
+    """A figure that rests on the assumptions but does not move across any of their ranges
+    (here a refit that returns the same): a table of blank cells would show nothing, so there
+    are no rows and the note names the figures."""
+    fitted = [Fitted("emulator.physics.j2.pullout_nm", 2.0, 0.1, "N·m", True, "fitted")]
+    table = sensitivity(Observations(source="test"), RobotSettings(), fitted,
+                        lambda obs, base: fitted)
+    assert table.keys == ["j2.pullout_nm"] and table.rows == []
+    assert "(j2.pullout_nm) moves when any assumption is set to either end" in table.note
+
+
+def test_held_out_check_says_what_to_do(capture: Path, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``calibrate --check HELD_OUT``: the fitted twin is checked on a capture the fit did not
+    use. The fit's capture never moves joint 3, so a base geared 4 % low there keeps that
+    gear; on a held-out session that moves joint 3 the check fails (exit status 1) and the
+    output names joint 3's divergence as gear/scale and the next step. A held-out capture that
+    cannot be read is bad input (exit status 2)."""
+    held_out = tmp_path / "held_out.jsonl"
+
+    async def session() -> None:
+        async with Arm.connect("fake://", capture=held_out) as arm:
+            for duty in (99, 90):
+                for target in ([0.0, 0.3, -0.9, 0.0], [0.0, 0.3, 0.0, 0.0]):
+                    await asyncio.sleep(0.1)
+                    await arm.move_joints(target, duty)
+
+    run_virtual(session())
+    base = tmp_path / "base.toml"
+    base.write_text(f"[joints.j3]\ngear_ratio = {38 * 0.96}\n")
+    out = tmp_path / "cal"
+    assert main(["calibrate", "--capture", str(capture), "--settings", str(base), "--out",
+                 str(out), "--check", str(held_out)]) == 1
+    text = capsys.readouterr().out
+    assert f"held-out check on {held_out}: verdict fail" in text
+    j3 = text.split("  j3: RMS", 1)[1]
+    assert "diagnosis: gear/scale: grows with the joint's travel" in j3
+    assert "next: calibrate the gear ratio" in j3 and "--budget-s" in j3
+    assert "  j2: RMS" not in text                       # only the failing joints
+    assert (out / "robot.toml").exists()                 # the calibration is written
+    assert main(["calibrate", "--capture", str(capture), "--out", str(tmp_path / "other"),
+                 "--check", str(tmp_path / "missing.jsonl")]) == 2
+    assert not (tmp_path / "other" / "robot.toml").exists()
 
 
 def test_capture_truncated(capture: Path, tmp_path: Path) -> None:

@@ -99,6 +99,42 @@ def test_cli_json_and_gate(default_capture: Path, tmp_path: Path) -> None:
     assert max(body["rms_rad"]) > 1e-3
 
 
+def test_a_wrong_gear_ratio_is_diagnosed_as_such(default_capture: Path) -> None:
+    """The default arm's lap checked against a twin whose joint 3 is geared 4 % low (it moves
+    4 % faster): joint 3 fails, and under it the text and the JSON say the divergence grows
+    with the travel (gear/scale, most of it explained, the twin faster) and to calibrate the
+    gear ratio with a longer --budget-s; the joints that pass get no diagnosis."""
+    from armbench.cli.commands.twin_check import format_twin_check
+
+    wrong = RobotSettings.from_mapping({"joints": {"j3": {"gear_ratio": 38 * 0.96}}})
+    result = twin_check(load_capture(default_capture, wrong), wrong)
+    assert result.verdict == "fail"
+    body = json.loads(json.dumps(result.to_json()))["diagnosis"]
+    assert [d is None for d in body] == [True, True, False, True], body
+    j3 = body[2]
+    assert j3["kind"] == "scale" and j3["explained"] > 0.8, j3
+    assert "faster" in j3["looks"] and "joints.j3.gear_ratio" in j3["next_step"]
+    a, b = j3["span_s"]
+    assert 0.0 <= a < b
+    lines = format_twin_check(result, "cap.jsonl").splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("  j3: RMS"))
+    assert lines[at + 1].startswith("      diagnosis: gear/scale: grows with the joint's travel")
+    assert lines[at + 2].startswith("      next: calibrate the gear ratio: re-run armbench "
+                                    "calibrate with a longer --budget-s")
+
+
+def test_a_missing_step_loss_is_diagnosed_as_such(default_capture: Path) -> None:
+    """The same lap against a twin that loses no step: joint 2 (lifting at full duty, the one
+    move where the default arm loses steps) is a step loss, the arm behind along the motion."""
+    lossless = RobotSettings.from_mapping({"emulator": {"physics": {
+        f"j{j}": {"loss_law": "none"} for j in range(1, 5)}}})
+    result = twin_check(load_capture(default_capture, lossless), lossless)
+    j2 = result.diagnoses[1]
+    assert j2 is not None and j2.kind == "step_loss", j2
+    assert "the arm behind along the motion" in j2.looks
+    assert "j2.loss_law" in j2.next_step and "--budget-s" in j2.next_step
+
+
 def test_bad_captures(default_capture: Path, tmp_path: Path) -> None:
     lines = default_capture.read_text().splitlines()
     cut = tmp_path / "cut.jsonl"

@@ -6,6 +6,8 @@ traffic shows (masses, payload, worm efficiency, friction, the pull-out curve's 
 and spin-up: ``docs/robot-model.md`` marks them as assumptions). Each is set to both ends of its
 documented range (``JOINT_RANGES``, ``ARM_RANGES``) in the base, every joint at once, and the fit
 is repeated on the same observations: the table gives each identified figure at the two ends.
+When there is nothing to show (no such figure was identified, or none moves) the table has no
+rows and its ``note`` says why.
 """
 
 from __future__ import annotations
@@ -19,11 +21,16 @@ from armbench.bench.calibrate.model import Fitted, Observations
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
 
-__all__ = ["ASSUMPTIONS", "Sensitivity", "SensitivityRow", "sensitivity"]
+__all__ = ["ASSUMPTIONS", "NOTHING_TO_VARY", "Sensitivity", "SensitivityRow", "sensitivity"]
 
 #: The assumed per-joint defaults varied (``docs/robot-model.md``: none has a public source).
 ASSUMPTIONS: Final = ("mass_kg", "com_fraction", "efficiency", "friction_nm",
                       "corner_steps_per_s", "inertia_kgm2", "spinup_s")
+#: Why a calibration has no sensitivity table when it identified no figure the assumptions enter.
+NOTHING_TO_VARY: Final = (
+    "no figure that rests on the assumed torques was identified (the stiffness, which needs a "
+    "reference instrument; pull-out torques, loss shares and gear ratios, which need speed runs "
+    "that show a step loss or a speed scale beyond the noise): there is nothing to vary")
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,14 +44,16 @@ class SensitivityRow:
 
 @dataclass(frozen=True, slots=True)
 class Sensitivity:
-    """The headline figures (keys) and one row per assumption."""
+    """The headline figures (keys) and one row per assumption; without rows, ``note`` says why
+    there is nothing to show."""
 
     keys: list[str]
     rows: list[SensitivityRow]
+    note: str = ""
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready mapping."""
-        return {"keys": self.keys,
+        return {"keys": self.keys, "note": self.note,
                 "rows": [{"name": r.name, "range": r.range, "cells": r.cells} for r in self.rows]}
 
 
@@ -74,7 +83,7 @@ def sensitivity(obs: Observations, base: RobotSettings, fitted: Sequence[Fitted]
     keys = sorted(nominal)
     rows: list[SensitivityRow] = []
     if not keys:
-        return Sensitivity([], [])
+        return Sensitivity([], [], NOTHING_TO_VARY)
     for name in (*ASSUMPTIONS, "payload_kg"):
         low, high = ARM_RANGES[name] if name == "payload_kg" else JOINT_RANGES[name]
         ends = [_headline(fit(obs, _with(base, name, v))) for v in (low, high)]
@@ -84,4 +93,8 @@ def sensitivity(obs: Observations, base: RobotSettings, fitted: Sequence[Fitted]
             same = all(math.isclose(v, nominal[k], rel_tol=1e-6) for v in (lo, hi))
             cells.append("" if same else f"{lo:.4g} / {hi:.4g}")
         rows.append(SensitivityRow(name, f"{low:g}..{high:g}", cells))
+    if not any(any(r.cells) for r in rows):
+        return Sensitivity(keys, [], f"no identified figure that rests on them ({', '.join(keys)})"
+                                     " moves when any assumption is set to either end of its "
+                                     "range")
     return Sensitivity(keys, rows)

@@ -9,7 +9,11 @@ the observations), ``DIR/robot.html`` (the calibration page) and, for ``--port``
 still writes FILE.toml with FILE.json, FILE.html beside it, with a deprecation note.
 Every output is checked before the arm moves or the capture is read: an existing one is
 overwritten only with ``--force``, a file of a run's record never, an unwritable path is refused.
-Exit status: 0 done, 2 bad input or an arm that does not move (the partial outputs are written).
+``--check HELD_OUT`` then twin-checks the fitted settings on a capture the fit did not use (read
+before the arm moves) and prints, per failing joint, what its divergence looks like and what to do
+(:mod:`armbench.bench.twin_diagnosis`).
+Exit status: 0 done, 1 the held-out check failed (the outputs are written), 2 bad input or an arm
+that does not move (the partial outputs are written).
 """
 
 from __future__ import annotations
@@ -21,10 +25,13 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
+from armbench.bench.calibrate.capture_data import CaptureData, load_capture
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.outputs import check_out_dir, check_out_files
 from armbench.bench.truth import load_tracker
+from armbench.bench.twin_check import twin_check
 from armbench.cli.commands.monitor import run_on_port
+from armbench.cli.commands.twin_check import format_failures
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 from armbench.reports.calibration_page import render_page
@@ -40,8 +47,8 @@ def register(sub: Any) -> None:
                     "stiffness, pull-out torque, DH errors, reply timing) from moves on PORT or "
                     "from a capture, and write a settings file with each fitted value's "
                     "standard error, the fit as JSON and an HTML calibration page.",
-        epilog="Exit status: 0 done, 2 bad input or a joint that does not move (what was "
-               "measured is written).")
+        epilog="Exit status: 0 done, 1 the held-out check (--check) failed, 2 bad input or a "
+               "joint that does not move (what was measured is written).")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--port", help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or "
                                     "fake://... (the emulator on virtual time)")
@@ -64,6 +71,10 @@ def register(sub: Any) -> None:
                    help="reference instrument plug-in (a laser tracker driver implementing "
                         "PoseSource, as for run): the link side (play, stiffness, DH errors) "
                         "is then identified over any port")
+    p.add_argument("--check", metavar="CAPTURE",
+                   help="a held-out capture of the same arm (not the one fitted): twin-check the "
+                        "fitted settings on it and, per failing joint, say what its divergence "
+                        "looks like and what to do (exit status 1 when it fails)")
     p.set_defaults(func=_run)
 
 
@@ -80,6 +91,7 @@ def _run(args: argparse.Namespace) -> int:
         check_out_dir("--out", out.parent, [])
         out.parent.mkdir(parents=True)
     base = load_settings(args.settings)
+    held_out = None if args.check is None else load_capture(args.check, base)
     if args.capture is not None:
         result = calibrate_capture(args.capture, base, out, page=render_page)
     else:
@@ -90,7 +102,20 @@ def _run(args: argparse.Namespace) -> int:
             progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
             page=render_page, reply_timeout_s=args.reply_timeout))
     _summary(result, output_paths(out, observations=args.port is not None))
-    return 0
+    return 0 if held_out is None else _held_out_check(result, held_out, args.check)
+
+
+def _held_out_check(result: CalibrationResult, data: CaptureData, capture: str) -> int:
+    """Twin-check the fitted settings on a capture the fit did not use; print the verdict and,
+    per failing joint, what its divergence looks like and what to do. 0 pass, 1 fail."""
+    print(f"checking the fitted twin on {capture}", file=sys.stderr, flush=True)
+    check = twin_check(data, result.settings)
+    print(f"held-out check on {capture}: verdict {check.verdict} "
+          f"({check.replies_compared} replies, {check.moves} commands)")
+    for line in format_failures(check):
+        print(line)
+    sys.stdout.flush()
+    return 0 if check.verdict == "pass" else 1
 
 
 #: The settings file of a calibration written to ``--out DIR``.

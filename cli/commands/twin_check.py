@@ -23,9 +23,10 @@ from armbench.bench.twin_check import DEFAULT_CONFIG, TwinCheck, twin_check
 from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
 from armbench.cli.reporting import write_reports
 from armbench.drivers.settings import load_settings
+from armbench.record import Measurement
 from armbench.record.limits import load_limits
 
-__all__ = ["format_twin_check", "register"]
+__all__ = ["format_failures", "format_twin_check", "register"]
 
 
 def register(sub: Any) -> None:
@@ -53,13 +54,17 @@ def register(sub: Any) -> None:
 
 
 def format_twin_check(result: TwinCheck, capture: str) -> str:
-    """The text report of ``result`` for a terminal: verdict, per-joint divergence, arrivals,
-    the TCP divergence and every judged figure (``--json`` has the same as one object)."""
+    """The text report of ``result`` for a terminal: verdict, per-joint divergence (under a
+    failing joint what it looks like and what to do), arrivals, the TCP divergence and every
+    judged figure (``--json`` has the same as one object)."""
     lines = [f"twin-check {capture}: verdict {result.verdict} "
              f"({result.replies_compared} replies, {result.moves} commands)"]
     for j in range(4):
         lines.append(f"  j{j + 1}: RMS {result.rms_counts[j]:8.2f} counts "
                      f"({result.rms_rad[j]:.3g} rad), max {result.max_counts[j]:8.1f} counts")
+        diagnosis = result.diagnoses[j]
+        if diagnosis is not None:
+            lines.extend(f"      {line}" for line in diagnosis.lines())
     body = result.to_json()["arrival"]
     if body["compared"]:
         lines.append(f"  arrivals: {body['compared']} moves compared, mean twin − arm "
@@ -71,12 +76,27 @@ def format_twin_check(result: TwinCheck, capture: str) -> str:
     else:
         lines.append(f"  TCP: RMS {tcp['rms_mm']:.3f} mm, max {tcp['max_mm']:.3f} mm (floor "
                      f"{tcp['floor_mm']:.3f} mm, {int(tcp['samples'])} samples)")
-    judged = [m for m in result.measurements if m.outcome != "unjudged"]
-    for m in judged:
-        lines.append(f"  {'FAIL' if m.outcome == 'fail' else 'pass':<4}  {m.name} = "
-                     f"{m.value:.4g} {m.unit}".rstrip()
-                     + f" (limit {m.limit.describe() if m.limit else '-'})")
+    lines.extend(_judged(m) for m in result.measurements if m.outcome != "unjudged")
     return "\n".join(lines)
+
+
+def format_failures(result: TwinCheck) -> list[str]:
+    """Per failing joint, its RMS against its allowance and what its divergence looks like and
+    what to do; then every judged figure outside its limit."""
+    lines = []
+    for j, diagnosis in enumerate(result.diagnoses):
+        if diagnosis is not None:
+            lines.append(f"  j{j + 1}: RMS {result.rms_counts[j]:.2f} counts, allowed "
+                         f"{result.allowed_counts[j]:.2f}")
+            lines.extend(f"      {line}" for line in diagnosis.lines())
+    lines.extend(_judged(m) for m in result.measurements if m.outcome == "fail")
+    return lines
+
+
+def _judged(m: Measurement) -> str:
+    """A judged figure's line: its outcome, value and limit."""
+    return (f"  {'FAIL' if m.outcome == 'fail' else 'pass':<4}  {m.name} = {m.value:.4g} "
+            f"{m.unit}".rstrip() + f" (limit {m.limit.describe() if m.limit else '-'})")
 
 
 def _run(args: argparse.Namespace) -> int:
