@@ -66,7 +66,7 @@ def joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
     (counts), the RMS over its allowance (the judged figure), where moves settled (counts)."""
     n = TWIN_CHECK
     out = []
-    for j in range(4):
+    for j, joint in enumerate(n.joints):
         for figure, value, unit, what in (
                 (n.rms_counts, rms[j] * counts[j], "counts", "RMS divergence"),
                 (n.max_counts, peak[j] * counts[j], "counts", "largest divergence"),
@@ -77,10 +77,10 @@ def joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
                 (n.per_allowed, rms[j] * counts[j] / allowed[j], "", "RMS over allowed RMS"),
                 (n.settled_counts, settled[j] * counts[j], "counts",
                  "RMS divergence where the moves settled")):
-            out.append(judge(n.joint_metric(j + 1, figure), float(value), unit, limits,
+            out.append(judge(n.joint_metric(joint, figure), float(value), unit, limits,
                              better="lower", description=f"{what} of the reported angle"))
         if settled_allowed is not None:
-            out.append(judge(n.joint_metric(j + 1, n.settled_per_allowed),
+            out.append(judge(n.joint_metric(joint, n.settled_per_allowed),
                              float(settled[j] * counts[j] / settled_allowed[j]), "", limits,
                              better="lower", description="RMS divergence where the moves "
                              "settled over k x quantisation + abs"))

@@ -34,6 +34,7 @@ __all__ = [
     "Tolerance",
     "best_match",
     "load_limits",
+    "matches",
     "parse_limits",
 ]
 
@@ -200,10 +201,16 @@ def best_match(patterns: Iterable[str], metric: str) -> str | None:
     literal characters; then the one whose first ``*`` comes later; then the fewest ``*``; a
     remaining tie goes to the pattern that sorts first.
     """
-    matches = [p for p in patterns if _compile(p).fullmatch(metric)]
-    if not matches:
+    matching = [p for p in patterns if matches(p, metric)]
+    if not matching:
         return None
-    return min(matches, key=lambda p: (tuple(-k for k in _specificity(p)), p))
+    return min(matching, key=lambda p: (tuple(-k for k in _specificity(p)), p))
+
+
+def matches(pattern: str, metric: str) -> bool:
+    """Whether the limits file's ``pattern`` (``*`` wildcards, see :func:`best_match`) matches
+    the metric name ``metric``."""
+    return _compile(pattern).fullmatch(metric) is not None
 
 
 # --------------------------------------------------------------------------------------------

@@ -116,6 +116,8 @@ def test_on_virtual_time_the_square_through_ros_matches_the_drivers_own(tmp_path
     suite = record["suites"][ROS2_SQUARE.suite]
     assert [t["status"] for t in suite["trials"]] == ["done"] * 4
     ros, acc = _figures(record, ROS2_SQUARE.suite), _figures(record, ACCURACY.suite)
+    recorded = {*ros, *(m["name"] for t in suite["trials"] for m in t["measurements"])}
+    assert recorded <= ROS2_SQUARE.metric_names(ROS2_SQUARE.styles)  # what the config check knows
     # the accuracy suite's coordinated figures, under the same names, for both styles
     own = {n.removeprefix(f"{ACCURACY.suite}.{ACCURACY.coordinated}.") for n in acc
            if n.startswith(f"{ACCURACY.suite}.{ACCURACY.coordinated}.")}

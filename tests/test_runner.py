@@ -84,6 +84,10 @@ class TinySuite(Suite):
         if not isinstance(params["trials"], int) or params["trials"] < 1:
             raise SettingsError("suites.tiny.trials", params["trials"], "must be >= 1")
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        return frozenset({"tiny.move_s", "tiny.error_mm", "tiny.move_mean_s",
+                          "tiny.error_max_mm"})
+
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         return [{"q1": (-1) ** k * (0.1 + 0.05 * k)} for k in range(params["trials"])]
 

@@ -118,6 +118,9 @@ class WobbleSuite(Suite):
     def default_params(self, settings):
         return {"trials": 2, "duty": 90}
 
+    def metric_names(self, params):
+        return frozenset({WOBBLE.trial_move, WOBBLE.mean_move, WOBBLE.max_move})
+
     def plan(self, params):
         return [{"q1": (-1) ** k * (0.1 + 0.05 * k)} for k in range(params["trials"])]
 

@@ -59,6 +59,7 @@ def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path) -> None:
     assert list(record.suites) == [N.suite] and record.planned_suites == [N.suite]
     suite = record.suites[N.suite]
     ms = {m.name: m for m in suite.measurements}
+    assert {*ms, *(m.name for t in suite.trials for m in t.measurements)} <= N.metric_names()
     for j in range(1, 5):
         assert ms[N.joint_metric(j, N.rms_counts)].value == 0.0
         assert ms[N.joint_metric(j, N.per_allowed)].outcome == "pass"

@@ -21,8 +21,8 @@ import numpy as np
 from armbench.record import Better, Measurement, Trial, judge
 from armbench.record.limits import LimitsConfig
 
-__all__ = ["ALL_LIMITS", "CAMPAIGN_KEY", "Z95", "MetricDistribution", "campaign_measurements",
-           "collect", "wilson_interval"]
+__all__ = ["ALL_LIMITS", "CAMPAIGN", "CAMPAIGN_KEY", "Z95", "CampaignNames", "MetricDistribution",
+           "campaign_measurements", "collect", "wilson_interval"]
 
 #: The key of the suite parameters that holds the campaign's own (samples, seed, uncertainties).
 CAMPAIGN_KEY: Final = "campaign"
@@ -46,6 +46,52 @@ def wilson_interval(passed: int, n: int, z: float = Z95) -> tuple[float, float]:
 ALL_LIMITS = "all_limits"
 #: The quantiles recorded, as (statistic name, fraction).
 QUANTILES = (("p05", 0.05), ("p50", 0.50), ("p95", 0.95))
+
+
+@dataclass(frozen=True, slots=True)
+class CampaignNames:
+    """The names of a campaign's figures: ``campaign.<metric>.<statistic>`` of each metric of
+    the samples, and the campaign's own counts ``campaign.samples``, ...; what
+    :func:`campaign_measurements` records and the config check knows."""
+
+    prefix: str = "campaign"
+    samples: str = "samples"
+    samples_in_error: str = "samples_in_error"
+    # the distribution of a metric over the samples (the quantiles: QUANTILES)
+    n: str = "n"
+    mean: str = "mean"
+    std: str = "std"
+    min: str = "min"
+    max: str = "max"
+    # a yes/no metric's rate, and a judged metric's pass probability, each with its interval
+    rate: str = "rate_pct"
+    rate_low: str = "rate_ci_low_pct"
+    rate_high: str = "rate_ci_high_pct"
+    passed: str = "pass_pct"
+    pass_low: str = "pass_ci_low_pct"
+    pass_high: str = "pass_ci_high_pct"
+
+    def metric(self, name: str, stat: str | None = None) -> str:
+        """``campaign.<name>`` or ``campaign.<name>.<stat>``."""
+        return f"{self.prefix}.{name}" if stat is None else f"{self.prefix}.{name}.{stat}"
+
+    @property
+    def stats(self) -> tuple[str, ...]:
+        """Every statistic of a metric: distribution, rate, pass probability."""
+        return (self.n, self.mean, self.std, self.min, *(s for s, _ in QUANTILES), self.max,
+                self.rate, self.rate_low, self.rate_high, self.passed, self.pass_low,
+                self.pass_high)
+
+    def metric_names(self, sample_names: Iterable[str]) -> frozenset[str]:
+        """Every figure a campaign records over samples whose metrics are ``sample_names``."""
+        return frozenset({self.metric(self.samples), self.metric(self.samples_in_error),
+                          *(self.metric(ALL_LIMITS, s)
+                            for s in (self.passed, self.pass_low, self.pass_high)),
+                          *(self.metric(name, s) for name in sample_names for s in self.stats)})
+
+
+#: The names of a campaign's figures.
+CAMPAIGN: Final = CampaignNames()
 
 
 @dataclass(slots=True)
@@ -124,41 +170,41 @@ def campaign_measurements(trials: Sequence[Trial],
         return dataclasses.replace(judge(name, value, unit, limits, description=description),
                                    better=better)
 
+    c = CAMPAIGN
     done = [t for t in trials if t.status == "done"]
-    ms = [_stat("campaign.samples", float(len(done)), "", "samples measured"),
-          _stat("campaign.samples_in_error", float(len(trials) - len(done)), "",
+    ms = [_stat(c.metric(c.samples), float(len(done)), "", "samples measured"),
+          _stat(c.metric(c.samples_in_error), float(len(trials) - len(done)), "",
                 "samples that could not be measured")]
     for name, d in collect(trials).items():
-        prefix = f"campaign.{name}"
         if d.values:
             v = np.asarray(d.values, dtype=np.float64)
-            ms.append(_stat(f"{prefix}.n", float(v.size), "", f"samples with {name}"))
-            ms.append(_stat(f"{prefix}.mean", float(v.mean()), d.unit, f"mean of {name}"))
-            ms.append(_stat(f"{prefix}.std", float(v.std(ddof=1)) if v.size > 1 else 0.0,
+            ms.append(_stat(c.metric(name, c.n), float(v.size), "", f"samples with {name}"))
+            ms.append(_stat(c.metric(name, c.mean), float(v.mean()), d.unit, f"mean of {name}"))
+            ms.append(_stat(c.metric(name, c.std), float(v.std(ddof=1)) if v.size > 1 else 0.0,
                             d.unit, f"standard deviation of {name} (n − 1)"))
-            ms.append(_stat(f"{prefix}.min", float(v.min()), d.unit, f"smallest {name}"))
+            ms.append(_stat(c.metric(name, c.min), float(v.min()), d.unit, f"smallest {name}"))
             for stat, q in QUANTILES:
-                ms.append(_stat(f"{prefix}.{stat}", float(np.quantile(v, q)), d.unit,
+                ms.append(_stat(c.metric(name, stat), float(np.quantile(v, q)), d.unit,
                                 f"{round(q * 100)} % quantile of {name}"))
-            ms.append(_stat(f"{prefix}.max", float(v.max()), d.unit, f"largest {name}"))
+            ms.append(_stat(c.metric(name, c.max), float(v.max()), d.unit, f"largest {name}"))
             if d.unit == "bool":  # a yes/no figure: its rate, with the same interval
                 yes = int(np.count_nonzero(v))
                 low, high = wilson_interval(yes, int(v.size))
-                ms.append(_stat(f"{prefix}.rate_pct", 100.0 * yes / v.size, "%",
+                ms.append(_stat(c.metric(name, c.rate), 100.0 * yes / v.size, "%",
                                 f"samples in which {name} is true ({yes} of {v.size})"))
-                ms.append(_stat(f"{prefix}.rate_ci_low_pct", 100.0 * low, "%",
+                ms.append(_stat(c.metric(name, c.rate_low), 100.0 * low, "%",
                                 "95 % Wilson interval of the rate, lower end"))
-                ms.append(_stat(f"{prefix}.rate_ci_high_pct", 100.0 * high, "%",
+                ms.append(_stat(c.metric(name, c.rate_high), 100.0 * high, "%",
                                 "95 % Wilson interval of the rate, upper end"))
         if d.judged:
             low, high = d.pass_interval()
             what = ("samples passing every limit" if name == ALL_LIMITS
                     else f"samples whose {name} passes {d.limit}")
-            ms.append(_stat(f"{prefix}.pass_pct", 100.0 * d.passed / d.judged, "%",
+            ms.append(_stat(c.metric(name, c.passed), 100.0 * d.passed / d.judged, "%",
                             f"{what} ({d.passed} of {d.judged} samples; a sample in error or "
                             "without the figure does not pass)", better="higher"))
-            ms.append(_stat(f"{prefix}.pass_ci_low_pct", 100.0 * low, "%",
+            ms.append(_stat(c.metric(name, c.pass_low), 100.0 * low, "%",
                             "95 % Wilson interval of the pass probability, lower end"))
-            ms.append(_stat(f"{prefix}.pass_ci_high_pct", 100.0 * high, "%",
+            ms.append(_stat(c.metric(name, c.pass_high), 100.0 * high, "%",
                             "95 % Wilson interval of the pass probability, upper end"))
     return ms

@@ -27,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Final
 
 from armbench.bench.campaign.draws import Uncertain, apply_arm, draw_arm
-from armbench.bench.campaign.stats import CAMPAIGN_KEY, campaign_measurements
+from armbench.bench.campaign.stats import CAMPAIGN, CAMPAIGN_KEY, campaign_measurements
 from armbench.bench.runner.options import derive_seed
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.drivers.settings import RobotSettings
@@ -63,6 +63,11 @@ class CampaignSuite(Suite):
     def default_params(self, settings: RobotSettings) -> dict[str, Any]:
         """The wrapped suite's."""
         return self.inner.default_params(settings)
+
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """A sample's figures (the wrapped suite's) and the campaign's over them."""
+        inner = self.inner.metric_names(_inner(params))
+        return inner | CAMPAIGN.metric_names(inner)
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per sample: ``{"sample": i, "arm": {key: value}, "trials": [...]}``."""

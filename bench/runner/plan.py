@@ -7,10 +7,11 @@ Checked, in order: the run directory (or the record to resume), the port's targe
 seed, the fault file (each of these from one source: a flag over the port's query over the robot
 settings file over the default, :func:`~armbench.drivers.transports.target.resolve`), the
 ``[bench]`` table, each suite's
-parameters (``Suite.params``) and plan, the baseline (readable, same record schema, same limits
-spec, same suite versions), the tracker plug-in and the power switch. Any problem raises an
-:class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI prints one line and
-exits 2.
+parameters (``Suite.params``) and plan, every limit and tolerance pattern and ``[suites.NAME]``
+table of the config (:mod:`~armbench.bench.runner.config_check`), the baseline (readable, same
+record schema, same limits spec, same suite versions), the tracker plug-in and the power switch.
+Any problem raises an :class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI
+prints one line and exits 2.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
+from armbench.bench.runner.config_check import check_config, closest
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
     DEFAULT_OUTAGE_TIMEOUT_S,
@@ -255,8 +257,10 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
     bench = config.bench_params()
     for key, value in bench.items():
         if key not in _BENCH_KEYS:
-            raise SettingsError(f"bench.{key}", value, "is not a bench parameter (known: "
-                                f"{', '.join(sorted(_BENCH_KEYS))})")
+            near = closest(key, _BENCH_KEYS)
+            raise SettingsError(f"bench.{key}", value, "is not a bench parameter ("
+                                + (f"closest: {', '.join(near)}; " if near else "")
+                                + f"known: {', '.join(sorted(_BENCH_KEYS))})")
     retries = _integer("bench.retries", bench.get("retries", 0), BENCH_MAX["retries"])
     if options.retries is not None:
         retries = _integer("--retries", options.retries, BENCH_MAX["retries"])
@@ -480,6 +484,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
     _check_limit_units(planned, inputs.config)
+    check_config(inputs.config, inputs.settings, planned)
     required = (list(resume.required) if resume is not None else
                 required_of([s.name for s in planned], inputs.config,
                             require=options.require, optional=options.optional))

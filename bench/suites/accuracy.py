@@ -132,7 +132,8 @@ def _positions(samples: Sequence[Mapping[str, Any]]) -> tuple[FloatArray, FloatA
 def pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, float]:
     """:func:`path_figures` of the samples of ``trials`` pooled, read one trial at a time and
     kept as error series only (a long run's samples are on disk, not in memory)."""
-    series: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {"": ([], []), "true_": ([], [])}
+    true_ = ACCURACY.true
+    series: dict[str, tuple[list[FloatArray], list[FloatArray]]] = {"": ([], []), true_: ([], [])}
     belief: list[FloatArray] = []
     with_truth = True
     for t in trials:
@@ -140,7 +141,7 @@ def pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, 
             continue
         reported, true = _positions(t.samples)
         with_truth = with_truth and true is not None
-        for prefix, points in (("", reported), ("true_", true if with_truth else None)):
+        for prefix, points in (("", reported), (true_, true if with_truth else None)):
             if points is not None:
                 e = path_errors(points, corners_m, closed=True)
                 series[prefix][0].append(e.error_mm)
@@ -150,7 +151,7 @@ def pooled_figures(trials: Sequence[Trial], corners_m: FloatArray) -> dict[str, 
     out: dict[str, float] = {}
     if not series[""][0]:
         return out
-    for prefix in ("", "true_") if with_truth else ("",):
+    for prefix in ("", true_) if with_truth else ("",):
         error_mm, euclidean_mm = series[prefix]
         _summary(out, prefix, summarize_errors(np.concatenate(error_mm),
                                                np.concatenate(euclidean_mm)))
@@ -164,25 +165,25 @@ def _figures(reported: FloatArray, true: FloatArray | None,
     out: dict[str, float] = {}
     _summary(out, "", error_summary(path_errors(reported, corners_m, closed=True)))
     if true is not None:
-        _summary(out, "true_", error_summary(path_errors(true, corners_m, closed=True)))
+        _summary(out, ACCURACY.true, error_summary(path_errors(true, corners_m, closed=True)))
         _belief(out, np.linalg.norm(reported - true, axis=1) * MM_PER_M)
     return out
 
 
 def _belief(out: dict[str, float], belief: FloatArray) -> None:
-    out["belief_mean_mm"] = float(belief.mean())
-    out["belief_rms_mm"] = float(np.sqrt(np.mean(belief * belief)))
-    out["belief_max_mm"] = float(belief.max())
+    values = (belief.mean(), np.sqrt(np.mean(belief * belief)), belief.max())
+    for stat, value in zip(ACCURACY.stats, values, strict=True):
+        out[ACCURACY.square_figure(stat, ACCURACY.belief)] = float(value)
 
 
 def _summary(out: dict[str, float], prefix: str, s: PathErrorSummary) -> None:
-    out[f"{prefix}mean_mm"] = s.mean_mm
-    out[f"{prefix}rms_mm"] = s.rms_mm
-    out[f"{prefix}max_mm"] = s.max_mm
-    for axis, st in (("x", s.x), ("y", s.y), ("z", s.z)):
-        out[f"{prefix}{axis}_mean_mm"] = st.mean_mm
-        out[f"{prefix}{axis}_rms_mm"] = st.rms_mm
-        out[f"{prefix}{axis}_max_mm"] = st.max_abs_mm
+    """The figures of one TCP (``prefix``: "" reported, ``true_`` true), named by the contract:
+    mean, RMS and largest distance, then per axis the signed bias, RMS and largest |error|."""
+    per_axis = ((st.mean_mm, st.rms_mm, st.max_abs_mm) for st in (s.x, s.y, s.z))
+    for axis, values in zip(("", *ACCURACY.axes), ((s.mean_mm, s.rms_mm, s.max_mm), *per_axis),
+                            strict=True):
+        for stat, value in zip(ACCURACY.stats, values, strict=True):
+            out[ACCURACY.square_figure(stat, prefix, axis)] = value
 
 
 _DESCRIPTIONS: Final = {
@@ -289,6 +290,10 @@ class AccuracySuite(Suite):
         check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
         check_number(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], low=0.0)
         check_square(where, settings, params, STYLES)
+
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """The figures of each style driven, and the improvement ratios when both are."""
+        return ACCURACY.metric_names(params["styles"])
 
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 paper, lap 0 coordinated, lap 1 paper, ..."""

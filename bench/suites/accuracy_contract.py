@@ -6,6 +6,7 @@ it, and importing it registers the contract (:func:`armbench.record.suite_contra
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Final
 
@@ -36,19 +37,66 @@ class AccuracyNames:
     centre: str = "centre_m"
     side: str = "side_m"
     paper_mean: str = "paper_mean_error_mm"
-    # figures of a style (suffixes of its metric names)
+    # figures of a style (suffixes of its metric names): statistics of the distance to the
+    # square, overall and along each axis, of the reported TCP and (``true_``) of the true one;
+    # of the distance between the two (``belief_``)
     mean: str = "mean_mm"
     rms: str = "rms_mm"
     max: str = "max_mm"
-    true_mean: str = "true_mean_mm"
-    belief_mean: str = "belief_mean_mm"
-    belief_max: str = "belief_max_mm"
+    axes: tuple[str, ...] = ("x", "y", "z")
+    true: str = "true_"
+    belief: str = "belief_"
     lap_time: str = "lap_time_s"
     laps: str = "laps"
 
     def metric(self, style: str, figure: str) -> str:
         """``accuracy.<style>.<figure>``."""
         return f"{self.suite}.{style}.{figure}"
+
+    def square_figure(self, stat: str, prefix: str = "", axis: str = "") -> str:
+        """A figure of a lap of the square: ``[true_|belief_][<axis>_]<stat>`` (``mean_mm``,
+        ``true_x_rms_mm``, ``belief_max_mm``)."""
+        return f"{prefix}{axis}{'_' if axis else ''}{stat}"
+
+    @property
+    def stats(self) -> tuple[str, ...]:
+        """The statistics of a distance: mean, RMS, largest."""
+        return (self.mean, self.rms, self.max)
+
+    def square_figures(self) -> tuple[str, ...]:
+        """Every figure of a lap of the square, in the order the suites record them: of the
+        reported TCP and of the true one (overall, then per axis), then the belief figures."""
+        return (*(self.square_figure(stat, prefix, axis) for prefix in ("", self.true)
+                  for axis in ("", *self.axes) for stat in self.stats),
+                *(self.square_figure(stat, self.belief) for stat in self.stats))
+
+    @property
+    def true_mean(self) -> str:
+        return self.square_figure(self.mean, self.true)
+
+    @property
+    def belief_mean(self) -> str:
+        return self.square_figure(self.mean, self.belief)
+
+    @property
+    def belief_max(self) -> str:
+        return self.square_figure(self.max, self.belief)
+
+    def square_names(self, metric: Callable[[str, str], str], styles: Iterable[str],
+                     pair: tuple[str, str], ratios: tuple[str, ...]) -> frozenset[str]:
+        """What a square suite records driving ``styles``: the figures of a lap of each (named
+        ``metric(style, figure)``), and ``ratios`` of the two styles of ``pair`` when both are
+        driven (the true and belief figures of a bench with a reference instrument included)."""
+        driven = set(styles)
+        per_style = (*self.square_figures(), self.lap_time, self.laps)
+        both = set(pair) <= driven
+        return frozenset({metric(style, figure) for style in driven for figure in per_style}
+                         | (set(ratios) if both else set()))
+
+    def metric_names(self, styles: Iterable[str]) -> frozenset[str]:
+        """Every metric the suite records driving ``styles``: the improvement ratios need both."""
+        return self.square_names(self.metric, styles, (self.paper, self.coordinated),
+                                 (self.improvement, self.true_improvement))
 
     @property
     def improvement(self) -> str:

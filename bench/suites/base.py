@@ -110,7 +110,16 @@ class Suite(abc.ABC):
         """Parameters when the config gives none (must be reachable within the joint limits)."""
 
     def params(self, settings: RobotSettings, configured: Mapping[str, Any]) -> dict[str, Any]:
-        """Defaults overridden by the config's ``[suites.<name>]`` table; unknown keys refused."""
+        """Defaults overridden by the config's ``[suites.<name>]`` table; unknown keys refused;
+        validated."""
+        params = self.configured_params(settings, configured)
+        self.validate(settings, params)
+        return params
+
+    def configured_params(self, settings: RobotSettings,
+                          configured: Mapping[str, Any]) -> dict[str, Any]:
+        """Defaults overridden by the config's ``[suites.<name>]`` table, unknown keys refused,
+        not validated: what the config check reads the metric names of a suite not run with."""
         from armbench.drivers.settings import SettingsError
 
         params = self.default_params(settings)
@@ -120,12 +129,19 @@ class Suite(abc.ABC):
                                     f"is not a parameter of {self.name} "
                                     f"(known: {', '.join(sorted(params))})")
             params[key] = value
-        self.validate(settings, params)
         return params
 
     def validate(self, settings: RobotSettings,  # noqa: B027 (an optional hook)
                  params: Mapping[str, Any]) -> None:
         """Raise ``SettingsError`` naming the field for an invalid parameter (before any motion)."""
+
+    @abc.abstractmethod
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """Every metric name the suite can record with ``params``: its trials' and its
+        summary's, the figures of a bench with a reference instrument (``true_``, ``belief_``)
+        included. Before any motion the runner refuses a limit or tolerance pattern of the
+        config that matches no name of any suite (``docs/record.md``); a suite derives the names
+        from its contract, as it makes them, so the two cannot drift."""
 
     @abc.abstractmethod
     def plan(self, params: Mapping[str, Any]) -> Sequence[Mapping[str, Any]]:

@@ -81,7 +81,8 @@ async def measure_wear(ctx: SuiteContext, duration_s: float,
     total_writes = [0, 0, 0, 0]
     total_wear = [0, 0, 0, 0]
     total_s = 0.0
-    for phase, body, start in (("ptp", ptp, poses[0]), ("streaming", streaming, corners[0])):
+    for phase, body, start in ((STARTUP.ptp_phase, ptp, poses[0]),
+                               (STARTUP.streaming_phase, streaming, corners[0])):
         await arm.move_to(start, branch="front-up", coordinated=True)
         before = eeprom_counters(arm)
         t_phase = loop_time()

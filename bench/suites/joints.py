@@ -41,13 +41,12 @@ from armbench.record import Measurement, Trial
 __all__ = ["JointsSuite", "joint_figures", "joint_targets"]
 
 MRAD_PER_RAD: Final = 1000.0
-_DESCRIPTIONS: Final = {
-    "accuracy_mrad": "ISO 230-2 bidirectional accuracy A",
-    "repeatability_mrad": "ISO 230-2 bidirectional repeatability R",
-    "reversal_mrad": "ISO 230-2 reversal error B (largest over the targets)",
-    "mean_reversal_mrad": "ISO 230-2 mean reversal error (signed)",
-    "systematic_mrad": "ISO 230-2 bidirectional systematic positioning error E",
-}
+_DESCRIPTIONS: Final = dict(zip(JOINTS.all_figures, (
+    "ISO 230-2 bidirectional accuracy A",
+    "ISO 230-2 bidirectional repeatability R",
+    "ISO 230-2 reversal error B (largest over the targets)",
+    "ISO 230-2 mean reversal error (signed)",
+    "ISO 230-2 bidirectional systematic positioning error E"), strict=True))
 
 
 def joint_targets(settings: RobotSettings, joint: int, fractions: Sequence[float]) -> list[float]:
@@ -69,11 +68,9 @@ def joint_figures(samples: Sequence[Mapping[str, Any]], key: str = "q_rad"
         f = axis_positioning(targets, up, down)
     except MetricsInputError:
         return {}
-    return {"accuracy_mrad": f.accuracy * MRAD_PER_RAD,
-            "repeatability_mrad": f.repeatability * MRAD_PER_RAD,
-            "reversal_mrad": f.reversal * MRAD_PER_RAD,
-            "mean_reversal_mrad": f.mean_reversal * MRAD_PER_RAD,
-            "systematic_mrad": f.systematic * MRAD_PER_RAD}
+    values = (f.accuracy, f.repeatability, f.reversal, f.mean_reversal, f.systematic)
+    return {figure: value * MRAD_PER_RAD
+            for figure, value in zip(JOINTS.all_figures, values, strict=True)}
 
 
 class JointsSuite(Suite):
@@ -123,6 +120,10 @@ class JointsSuite(Suite):
                 raise SettingsError(f"{where}.overtravel_rad", over,
                                     f"takes joint {j} beyond its limits")
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """The figures of each joint of ``joints``, reported and true."""
+        return JOINTS.metric_names(params["joints"])
+
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per joint."""
         return [{JOINTS.joint: j} for j in params["joints"]]
@@ -167,7 +168,7 @@ class JointsSuite(Suite):
                 await asyncio.sleep(0)
             ms = Measurements(ctx)
             _add(ms, joint, "", joint_figures(samples))
-            _add(ms, joint, "true_", joint_figures(samples, JOINTS.true_angle))
+            _add(ms, joint, JOINTS.true, joint_figures(samples, JOINTS.true_angle))
             return samples, ms.items
 
         timeout_s = 60.0 + 20.0 * int(p["cycles"]) * len(targets)
@@ -181,7 +182,7 @@ class JointsSuite(Suite):
                 continue
             joint = int(t.params[JOINTS.joint])
             _add(ms, joint, "", joint_figures(t.samples))
-            _add(ms, joint, "true_", joint_figures(t.samples, JOINTS.true_angle))
+            _add(ms, joint, JOINTS.true, joint_figures(t.samples, JOINTS.true_angle))
         return ms.items
 
 
@@ -189,5 +190,5 @@ def _add(ms: Measurements, joint: int, prefix: str, figures: Mapping[str, float]
     for key, value in figures.items():
         what = "true" if prefix else "reported"
         ms.add(JOINTS.metric(joint, key, true=bool(prefix)), value, "mrad",
-               undirected=key == "mean_reversal_mrad",
+               undirected=key == JOINTS.mean_reversal,
                description=f"{_DESCRIPTIONS[key]}, {what} angle")

@@ -6,6 +6,7 @@ it, and importing it registers the contract (:func:`armbench.record.suite_contra
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
@@ -45,6 +46,18 @@ class JointsNames:
     def figures(self) -> tuple[str, ...]:
         """The figures shown per joint, in order."""
         return (self.accuracy, self.repeatability, self.reversal, self.systematic)
+
+    @property
+    def all_figures(self) -> tuple[str, ...]:
+        """Every figure of a joint, in the order the suite records them."""
+        return (self.accuracy, self.repeatability, self.reversal, self.mean_reversal,
+                self.systematic)
+
+    def metric_names(self, joints: Iterable[int]) -> frozenset[str]:
+        """Every metric the suite records measuring ``joints``: each figure of the reported
+        angle and of the true one."""
+        return frozenset(self.metric(int(j), figure, true) for j in joints
+                         for figure in self.all_figures for true in (False, True))
 
     @property
     def headlines(self) -> tuple[Headline, ...]:

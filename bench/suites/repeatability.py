@@ -114,10 +114,10 @@ def pose_figures(samples: Sequence[Mapping[str, Any]], commanded_m: Sequence[flo
     if pts is None:
         return {}
     ap = pose_accuracy(pts, commanded_m)
-    out = {"ap_mm": ap.ap_p_mm, "ap_x_mm": ap.ap_x_mm, "ap_y_mm": ap.ap_y_mm,
-           "ap_z_mm": ap.ap_z_mm}
+    out = dict(zip(R.with_axes(R.ap), (ap.ap_p_mm, ap.ap_x_mm, ap.ap_y_mm, ap.ap_z_mm),
+                   strict=True))
     if len(pts) >= 2:
-        out["rp_mm"] = pose_repeatability(pts).rp_mm
+        out[R.rp] = pose_repeatability(pts).rp_mm
     return out
 
 
@@ -130,9 +130,8 @@ def distance_figures(first: Sequence[Mapping[str, Any]], second: Sequence[Mappin
     if a is None or b is None or len(a) != len(b) or len(a) < 2:
         return {}
     d = distance_characteristics(a, b, commanded_first_m, commanded_second_m)
-    return {"ad_mm": d.ad_p_mm, "ad_x_mm": d.ad_x_mm, "ad_y_mm": d.ad_y_mm,
-            "ad_z_mm": d.ad_z_mm, "rd_mm": d.rd_p_mm, "rd_x_mm": d.rd_x_mm,
-            "rd_y_mm": d.rd_y_mm, "rd_z_mm": d.rd_z_mm}
+    return dict(zip(R.distance_figures, (d.ad_p_mm, d.ad_x_mm, d.ad_y_mm, d.ad_z_mm, d.rd_p_mm,
+                                         d.rd_x_mm, d.rd_y_mm, d.rd_z_mm), strict=True))
 
 
 def vap_figures(by_direction: Sequence[Sequence[Mapping[str, Any]]],
@@ -143,8 +142,8 @@ def vap_figures(by_direction: Sequence[Sequence[Mapping[str, Any]]],
     if len(groups) < 2 or any(g is None for g in groups):
         return {}
     v = multidirectional_variation([g for g in groups if g is not None])
-    return {"vap_mm": v.vap_p_mm, "vap_x_mm": v.vap_x_mm, "vap_y_mm": v.vap_y_mm,
-            "vap_z_mm": v.vap_z_mm}
+    return dict(zip(R.vap_figures, (v.vap_p_mm, v.vap_x_mm, v.vap_y_mm, v.vap_z_mm),
+                    strict=True))
 
 
 def path_reference(start_m: Sequence[float], end_m: Sequence[float],
@@ -173,9 +172,9 @@ def path_figures(paths: Sequence[Sequence[Mapping[str, Any]]], reference_m: Floa
                                   method="normal_planes")
     except MetricsInputError:
         return {}
-    out = {"at_mm": pc.at_mm}
+    out = {R.at: pc.at_mm}
     if pc.rt_mm is not None:
-        out["rt_mm"] = pc.rt_mm
+        out[R.rt] = pc.rt_mm
     return out
 
 
@@ -254,6 +253,11 @@ class RepeatabilitySuite(Suite):
         points += list(np.linspace(a, b, 21))
         check_reachable(f"{w}.{R.cube_centre}", points, settings, branch=branch, roll_rad=roll)
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """Per speed of ``speeds_pct``: the pose figures of each ISO pose, vAP of each pose of
+        ``vap_poses``, distance and path figures; the per-trial figures."""
+        return R.metric_names(params[R.speeds], POSE_NAMES, params["vap_poses"])
+
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """Per speed: the pose cycles, then the vAP cycles, then the path cycles; each trial one
         cycle (``{"kind", "speed_pct", "duty", "cycle"}``)."""
@@ -325,11 +329,12 @@ class RepeatabilitySuite(Suite):
                                             roll_rad=roll, max_duty=duty)
             ms = Measurements(ctx)
             ref = path_reference(a, b, float(p["path_spacing_m"]))
-            for prefix, key in (("", "reported_m"), ("true_", "true_m")):
+            for prefix, key in (("", "reported_m"), (R.true, "true_m")):
                 f = path_figures([samples], ref, key)
                 ms.add(f"{R.trial_path_prefix}.{prefix}{R.at}", f.get(R.at), "mm",
                        description="ISO 9283 path accuracy AT of this one path")
-            ms.add(f"{R.trial_path_prefix}.duration_s", run.duration_s, "s", undirected=True,
+            ms.add(f"{R.trial_path_prefix}.{R.path_duration}", run.duration_s, "s",
+                   undirected=True,
                    description="time from the first path command to the arrival at P4")
             return samples, ms.items
 
@@ -356,7 +361,7 @@ class RepeatabilitySuite(Suite):
         poses = iso_cube_poses(p[R.cube_centre], float(p[R.cube_side]), str(p[R.plane]))
         ms = Measurements(ctx)
         done = [t for t in trials if t.status == "done"]
-        keys = (("", "reported_m"), ("true_", "true_m"))
+        keys = (("", "reported_m"), (R.true, "true_m"))
         for v in p[R.speeds]:
             label = R.at_speed(float(v))
             at_speed = [t for t in done if float(t.params.get(R.speed, -1)) == float(v)]
@@ -401,13 +406,13 @@ class RepeatabilitySuite(Suite):
         return ms.items
 
 
-_SIGNED_KEYS: Final = frozenset({"ap_x_mm", "ap_y_mm", "ap_z_mm", "ad_mm", "ad_x_mm", "ad_y_mm",
-                                 "ad_z_mm"})
+#: The signed figures (a bias, either way): AP along each axis, AD and along each axis.
+_SIGNED_KEYS: Final = frozenset({*R.with_axes(R.ap)[1:], *R.with_axes(R.ad)})
 
 
 def _add(ms: Measurements, prefix: str, figures: Mapping[str, float], what: str) -> None:
     """Add ``figures`` as ``prefix + key`` (mm); signed figures get no regression direction."""
-    source = "true position" if prefix.endswith("true_") else "FK of the reported joints"
+    source = "true position" if prefix.endswith(R.true) else "FK of the reported joints"
     for key, value in figures.items():
         ms.add(f"{prefix}{key}", value, "mm", undirected=key in _SIGNED_KEYS,
                description=f"{what} {key.removesuffix('_mm').upper()}, {source}")
@@ -424,10 +429,10 @@ def _pose_error_measurements(ctx: SuiteContext,
                              samples: Sequence[Mapping[str, Any]]) -> list[Measurement]:
     """Per trial: the largest distance (mm) between a sampled pose and its commanded position."""
     ms = Measurements(ctx)
-    for prefix, key in (("", "reported_m"), ("true_", "true_m")):
+    for prefix, key in (("", "reported_m"), (R.true, "true_m")):
         errs = [float(np.linalg.norm(np.subtract(s[key], s["commanded_m"]))) * MM_PER_M
                 for s in samples if key in s]
         if errs and len(errs) == len(samples):
-            ms.add(f"{R.cycle_prefix}.{prefix}pose_error_max_mm", max(errs), "mm",
+            ms.add(f"{R.cycle_prefix}.{prefix}{R.pose_error_max}", max(errs), "mm",
                    description="largest distance of a sampled pose to its commanded position")
     return ms.items

@@ -6,6 +6,7 @@ it, and importing it registers the contract (:func:`armbench.record.suite_contra
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
@@ -38,14 +39,46 @@ class RepeatabilityNames:
     cube_side: str = "cube_side_m"
     plane: str = "plane"
     speeds: str = "speeds_pct"
-    # figures
+    # figures: of the reported TCP, and with ``true_`` of the true one; AP, AD, RD and vAP also
+    # along each axis (``ap_x_mm``)
     ap: str = "ap_mm"
     rp: str = "rp_mm"
     vap: str = "vap_mm"
     at: str = "at_mm"
     rt: str = "rt_mm"
+    ad: str = "ad_mm"
     rd: str = "rd_mm"
     cycles: str = "cycles"
+    true: str = "true_"
+    axes: tuple[str, ...] = ("x", "y", "z")
+    # per-trial figures: a cycle's worst pose, a path's duration
+    pose_error_max: str = "pose_error_max_mm"
+    path_duration: str = "duration_s"
+
+    def with_axes(self, figure: str) -> tuple[str, ...]:
+        """``figure`` and its components along each axis: ``ap_mm``, ``ap_x_mm``, ..."""
+        stem = figure.removesuffix("_mm")
+        return (figure, *(f"{stem}_{axis}_mm" for axis in self.axes))
+
+    @property
+    def pose_figures(self) -> tuple[str, ...]:
+        """AP (and along each axis) and RP of one pose."""
+        return (*self.with_axes(self.ap), self.rp)
+
+    @property
+    def distance_figures(self) -> tuple[str, ...]:
+        """AD and RD between P2 and P4, each also along each axis."""
+        return (*self.with_axes(self.ad), *self.with_axes(self.rd))
+
+    @property
+    def vap_figures(self) -> tuple[str, ...]:
+        """vAP of one pose, and along each axis."""
+        return self.with_axes(self.vap)
+
+    @property
+    def path_figures(self) -> tuple[str, ...]:
+        """AT and RT of the path."""
+        return (self.at, self.rt)
 
     def speed_label(self, speed_pct: float) -> str:
         """The name part of a speed: ``v100``, ``v50``, ``v10`` (``v12.5`` for fractions)."""
@@ -71,6 +104,26 @@ class RepeatabilityNames:
     def trial_path_prefix(self) -> str:
         """Per-trial figures of one path: ``repeatability.path``."""
         return f"{self.suite}.path"
+
+    def metric_names(self, speeds_pct: Iterable[float], poses: Iterable[str],
+                     vap_poses: Iterable[str]) -> frozenset[str]:
+        """Every metric the suite records at ``speeds_pct`` with ISO poses ``poses`` and vAP
+        measured at ``vap_poses`` (the per-trial figures and the true ones included)."""
+        speeds = [float(v) for v in speeds_pct]
+        figures = [(pose, figure) for pose in poses for figure in self.pose_figures]
+        figures += [(pose, figure) for pose in vap_poses for figure in self.vap_figures]
+        names = {f"{self.at_speed(v)}.{self.cycles}" for v in speeds}
+        for true in ("", self.true):
+            for v in speeds:
+                names.update(self.pose_metric(v, pose, true + figure) for pose, figure in figures)
+                names.update(f"{self.at_speed(v)}.{true}{figure}"
+                             for figure in self.distance_figures)
+                names.update(f"{self.path_prefix(v)}.{true}{figure}"
+                             for figure in self.path_figures)
+            names.add(f"{self.cycle_prefix}.{true}{self.pose_error_max}")
+            names.add(f"{self.trial_path_prefix}.{true}{self.at}")
+        names.add(f"{self.trial_path_prefix}.{self.path_duration}")
+        return frozenset(names)
 
     @property
     def headlines(self) -> tuple[Headline, ...]:

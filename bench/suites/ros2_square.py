@@ -115,6 +115,10 @@ class Ros2SquareSuite(Suite):
                      high=3600.0)
         check_square(where, settings, params, STYLES)
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """The figures of each style driven, and the path error ratios when both are."""
+        return N.metric_names(params["styles"])
+
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """One trial per (lap, style): lap 0 coordinated, lap 0 trajectory, lap 1 ..."""
         return plan_laps(params)

@@ -5,9 +5,11 @@ its report section (``armbench.reports.sections.ros2_square``) reads, registered
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
+from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.record.suite_contract import Headline, register
 
 __all__ = ["ROS2_SQUARE", "Ros2SquareNames"]
@@ -37,17 +39,23 @@ class Ros2SquareNames:
     # suite parameters
     centre: str = "centre_m"
     side: str = "side_m"
-    # figures of a style (suffixes of its metric names, as the accuracy suite's)
-    mean: str = "mean_mm"
-    rms: str = "rms_mm"
-    max: str = "max_mm"
-    true_mean: str = "true_mean_mm"
-    lap_time: str = "lap_time_s"
-    laps: str = "laps"
+    # figures of a style (suffixes of its metric names): the accuracy suite's
+    mean: str = ACCURACY.mean
+    rms: str = ACCURACY.rms
+    max: str = ACCURACY.max
+    true_mean: str = ACCURACY.true_mean
+    lap_time: str = ACCURACY.lap_time
+    laps: str = ACCURACY.laps
 
     def metric(self, style: str, figure: str) -> str:
         """``ros2.<style>.<figure>``."""
         return f"{self.prefix}.{style}.{figure}"
+
+    def metric_names(self, styles: Iterable[str]) -> frozenset[str]:
+        """Every metric the suite records driving ``styles`` (the accuracy suite's figures of a
+        lap): the path error ratios need both."""
+        return ACCURACY.square_names(self.metric, styles, (self.coordinated, self.trajectory),
+                                     (self.ratio, self.true_ratio))
 
     @property
     def ratio(self) -> str:

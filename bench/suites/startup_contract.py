@@ -7,6 +7,7 @@ it, and importing it registers the contract (:func:`armbench.record.suite_contra
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
@@ -53,6 +54,9 @@ class StartupNames:
     f_expected: str = "expected_to_recover"
     f_error_mrad: str = "error_mrad"
     f_error_mm: str = "error_mm"
+    # the phases of the wear trial (typical use: point-to-point, then streaming)
+    ptp_phase: str = "ptp"
+    streaming_phase: str = "streaming"
 
     def metric(self, figure: str) -> str:
         """``startup.<figure>`` (the metrics keep the short prefix of the limits files)."""
@@ -139,6 +143,33 @@ class StartupNames:
     @property
     def eeprom_life_hours(self) -> str:
         return self.metric("eeprom_life_hours")
+
+    @property
+    def cut_figures(self) -> tuple[str, ...]:
+        """The figures of one power cut (its position error in mm: measured by a tracker)."""
+        return (self.recovered, self.recovery_time, self.first_reply, self.position_error_mrad,
+                self.position_error_mm, self.eeprom_writes)
+
+    @property
+    def summary_figures(self) -> tuple[str, ...]:
+        """The figures over every cut, besides the rate per condition."""
+        return (self.trials_measured, self.success_rate, self.expected_success_rate,
+                self.recovery_time_max, self.recovery_time_mean, self.position_error_max,
+                self.recovered_position_error_max, self.eeprom_writes_per_cut)
+
+    @property
+    def wear_figures(self) -> tuple[str, ...]:
+        """The figures of the wear trial, which the summary repeats."""
+        return (*(self.phase_writes(p) for p in (self.ptp_phase, self.streaming_phase)),
+                self.eeprom_writes_per_hour, self.eeprom_cell_wear_per_hour,
+                self.eeprom_life_years, self.eeprom_life_hours)
+
+    def metric_names(self, conditions: Iterable[str], wear: bool) -> frozenset[str]:
+        """Every metric the suite records cutting the power in ``conditions``, with the wear
+        trial or (``wear`` False) without."""
+        return frozenset({*self.cut_figures, *self.summary_figures,
+                          *(self.condition_rate(str(c)) for c in conditions),
+                          *(self.wear_figures if wear else ())})
 
     @property
     def headlines(self) -> tuple[Headline, ...]:

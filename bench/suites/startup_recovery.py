@@ -182,6 +182,11 @@ class StartupRecoverySuite(Suite):
                                             f"leaves joint {j} less than 0.02 rad of room on "
                                             f"its {'+' if side > 0 else '-'} side")
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        """The figures of a cut and over all cuts, the rate of each of ``conditions``, and the
+        wear figures when ``wear_duration_s`` > 0."""
+        return S.metric_names(params["conditions"], float(params["wear_duration_s"]) > 0)
+
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         """``trials`` cuts cycling through ``conditions`` (inner) and ``joint_sets`` (outer: the
         first round of conditions moves the first set, ...), then the wear trial (if any)."""

@@ -84,6 +84,23 @@ class TwinCheckNames:
     tcp_rms: str = "tcp.rms_mm"
     tcp_max: str = "tcp.max_mm"
 
+    joints: tuple[int, ...] = (1, 2, 3, 4)
+
+    def metric_names(self) -> frozenset[str]:
+        """Every figure the check records: per joint, of the arrival times, of the TCP (where
+        the capture has truth) and of the whole check."""
+        per_joint = (self.rms_counts, self.max_counts, self.rms_rad, self.max_rad,
+                     self.floor_counts, self.allowed_counts, self.per_allowed,
+                     self.settled_counts, self.settled_per_allowed)
+        whole = (self.mean_dt, self.max_abs_dt, self.rms_dt, self.floor_dt,
+                 self.arrival_per_allowed, self.moves, self.compared, self.arm_only,
+                 self.twin_only, self.replies, self.untimed, self.sessions, self.scatter,
+                 self.reaction, self.shift_mean, self.shift_max, self.tcp_floor,
+                 self.tcp_per_allowed, self.tcp_samples, self.tcp_rest,
+                 self.tcp_rest_per_allowed, self.tcp_rms, self.tcp_max)
+        return frozenset({*(self.joint_metric(j, f) for j in self.joints for f in per_joint),
+                          *(self.metric(f) for f in whole)})
+
     def joint_metric(self, joint: int, figure: str) -> str:
         """``twin.j<N>.<figure>``."""
         return f"{self.prefix}.j{joint}.{figure}"

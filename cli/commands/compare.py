@@ -3,7 +3,8 @@
 Prints the metric-by-metric table of :func:`armbench.record.baseline.format_comparison` (or JSON
 with ``--json``). Exit status: 3 when a metric regressed beyond its tolerance, 0 otherwise, 2 when a
 record cannot be used (missing, invalid, another schema, limits spec or suite version, a changed
-unit, or a run B that measured none of the baseline's metrics).
+unit, or a run B that measured none of the baseline's metrics) or the config names a metric no
+suite records (:mod:`armbench.bench.runner.config_check`).
 Tolerances come from ``--config bench.toml`` (``[regression]``), else from the packaged
 ``default_bench.toml``: the same file, and the same function
 (:func:`armbench.record.baseline.compare`), ``armbench run --baseline`` judges with.
@@ -18,8 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.runner.config_check import check_config
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.settings import RobotSettings
 from armbench.record import RESULTS_FILE
 from armbench.record.baseline import compare, format_comparison, load_baseline, read_record
 
@@ -71,6 +74,7 @@ def _note_other_config(recorded: str | None, given: str | None) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
+    check_config(config, RobotSettings())  # a misspelt tolerance would apply to nothing
     baseline = load_baseline(_results(args.baseline))
     current = read_record(_results(args.current))
     comparison = compare(current, baseline, config)
