@@ -23,6 +23,7 @@ from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
+from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.fleet_index import is_fleet
@@ -86,10 +87,10 @@ def register(sub: Any) -> None:
                         "[bench] retries, else 0)")
     p.add_argument("--no-capture", dest="capture", action="store_false", default=None,
                    help="do not capture the traffic (default: [bench] capture, else capture)")
-    p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
-                   help="stop the capture (a capture_stopped event says so) before capture.mcap "
-                        "would exceed MB megabytes; the run goes on (default: [bench] "
-                        "capture_max_bytes, else unbounded)")
+    add_bounded(p, "--capture-max-mb", CAPTURE_MAX_MB, default=None, metavar="MB",
+                help="stop the capture (a capture_stopped event says so) before capture.mcap "
+                     "would exceed MB megabytes; the run goes on (default: [bench] "
+                     "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 
 
