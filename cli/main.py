@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from armbench import __version__
+from armbench.cli.bounds import check_bounds
 from armbench.drivers.errors import ArmbenchError
 
 __all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "build_parser", "main"]
@@ -113,7 +114,8 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one subcommand; user errors print one line on stderr and exit with status 2."""
+    """Run one subcommand; user errors (a number option out of its bound among them,
+    :mod:`armbench.cli.bounds`) print one line on stderr and exit with status 2."""
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(words)
     args = parser.parse_args(words)
@@ -122,6 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                2: logging.DEBUG}[level],
                         format="%(levelname)s %(name)s: %(message)s")
     try:
+        check_bounds(args)
         status: int = args.func(args)
     except ArmbenchError as exc:
         print(f"armbench {args.command}: error: {exc}", file=sys.stderr)

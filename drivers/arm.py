@@ -22,7 +22,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path as FsPath
 from typing import Any, Final, Literal
 
@@ -287,16 +287,10 @@ class Arm(ArmLink):
                 assert timeout_s is not None
                 raise WaitTimeoutError("wait_state", timeout_s, self._state)
 
-    @contextlib.contextmanager
-    def record_states(self) -> Iterator[list[JointState]]:
+    def record_states(self) -> contextlib.AbstractContextManager[list[JointState]]:
         """``with arm.record_states() as states:`` collects every state received inside the block
         (not only the newest of each read)."""
-        buf: list[JointState] = []
-        self._recorders.append(buf)
-        try:
-            yield buf
-        finally:
-            self._recorders.remove(buf)
+        return self._recording([])
 
     async def _settle(self, t_s: float) -> JointState:
         """The first state that arrived at or after loop time ``t_s``."""

@@ -14,7 +14,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path as FsPath
 from types import TracebackType
 from typing import Any, Final, Self
@@ -487,6 +487,18 @@ class ArmLink:
         self._generation += 1
         self._waiters.wake_all()
         return self._generation
+
+    @contextlib.contextmanager
+    def _recording(self, buf: list[JointState]) -> Iterator[list[JointState]]:
+        """Every state received inside the block is appended to ``buf``. Taken out by identity,
+        not by value: two recorders holding the same states (two empty ones) are equal lists,
+        and ``list.remove`` would take out the other one, which then gets nothing while this
+        one grows for as long as the link lives."""
+        self._recorders.append(buf)
+        try:
+            yield buf
+        finally:
+            self._recorders[:] = [r for r in self._recorders if r is not buf]
 
     # --- sending ------------------------------------------------------------------------------
 

@@ -9,7 +9,6 @@ sends each waypoint and waits with the shared
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -159,31 +158,29 @@ async def stream_path(link: ArmLink, pts: FloatArray, cmds: Sequence[Command], p
                                                + MOVE_TIMEOUT_SLACK_S)
     corners = _corners(pts)
     gen = link._supersede()
-    link._recorders.append(run.states)
     resends0 = link.resends
     last = len(cmds) - 1
     try:
-        k = 1
-        t = await link._send(cmds[k])
-        run.t_start_s = t
-        tracker = ArrivalTracker(link, tol, t + timeout_s, timeout_s, gen, since=t)
-        while True:
-            goal = cmds[k].angles_rad(link._lower, link._upper)
-            run.waypoints.append(_sent(t, goal, cmds[k], pts[k]))
-            tracker.aim(cmds[k], goal, t, 0.0 if (k == last or k in corners) else lookahead_s)
-            state = await tracker.arrive()
-            if k == last:
-                run.t_end_s = state.t_s
-                return run
-            k += 1
+        with link._recording(run.states):
+            k = 1
             t = await link._send(cmds[k])
+            run.t_start_s = t
+            tracker = ArrivalTracker(link, tol, t + timeout_s, timeout_s, gen, since=t)
+            while True:
+                goal = cmds[k].angles_rad(link._lower, link._upper)
+                run.waypoints.append(_sent(t, goal, cmds[k], pts[k]))
+                tracker.aim(cmds[k], goal, t, 0.0 if (k == last or k in corners) else lookahead_s)
+                state = await tracker.arrive()
+                if k == last:
+                    run.t_end_s = state.t_s
+                    return run
+                k += 1
+                t = await link._send(cmds[k])
     except HOLD_ON:
         await link._hold_best_effort()
         raise
     finally:
         run.resends = link.resends - resends0
-        with contextlib.suppress(ValueError):
-            link._recorders.remove(run.states)
 
 
 def _sent(t: float, goal: Vec4, cmd: Command, xyz: FloatArray) -> SentWaypoint:

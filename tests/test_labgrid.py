@@ -187,6 +187,19 @@ def test_a_place_locked_by_someone_else_is_refused_with_the_owner(lab: Lab) -> N
         assert lab.client("-p", "arm-b", "release", user="alice").returncode == 0
 
 
+def test_the_coordinators_text_is_quoted_shortened(lab: Lab) -> None:
+    """An owner's name comes from the coordinator (a peer): the error quotes its start and its
+    length (:mod:`armbench.drivers.peer_text`), the exception keeps it whole."""
+    user = "u" * 5000
+    assert lab.client("-p", "arm-b", "acquire", user=user).returncode == 0
+    try:
+        with pytest.raises(PlaceLockedError, match="characters") as caught:
+            asyncio.run(_move(lab.port("arm-b")))
+        assert len(str(caught.value)) < 1000 and caught.value.owner.endswith("/" + user)
+    finally:
+        assert lab.client("-p", "arm-b", "release", user=user).returncode == 0
+
+
 def test_an_unknown_place_and_a_place_without_an_arm(lab: Lab) -> None:
     with pytest.raises(PlaceUnknownError, match=r"no place 'arm-z'.*arm-a, arm-b"):
         asyncio.run(_move(lab.port("arm-z")))

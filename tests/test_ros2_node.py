@@ -15,6 +15,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Awaitable, Callable, Iterator
 from typing import Any
 
@@ -137,6 +138,45 @@ def test_a_new_trajectory_replaces_the_one_running() -> None:
     assert node.accepted == 2
 
 
+def test_a_trajectory_cut_short_by_the_shutdown_is_aborted_not_preempted() -> None:
+    """Shutdown is not a newer trajectory: the one running ends ``aborted``, reason
+    ``shutdown`` (it was reported ``preempted``), and the client still gets it."""
+    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+
+    slow = {"names": NAMES, "points": [[2.0, 0.0, 0.0, 0.0]], "times_s": [200.0]}
+
+    async def main() -> tuple[Any, dict[str, Any]]:
+        async with PublishingArm("fake://", S) as arm:
+            node = ArmNode(arm, NodeOptions(clock=True))
+            serving = asyncio.ensure_future(node.run())
+            client = asyncio.ensure_future(_client("send", "--trajectory", json.dumps(slow)))
+            while node.accepted == 0:
+                await asyncio.sleep(0.01)
+            await asyncio.sleep(1.0)  # under way: ~200 simulated s to go
+            serving.cancel()
+            await asyncio.wait({serving})
+            return node, await client
+
+    node, got = run_virtual(main())
+    assert (got["state"], got["reason"]) == ("aborted", "shutdown"), got
+    assert node.finals == {"aborted": 1}
+
+
+def test_a_huge_joint_name_is_echoed_shortened(tmp_path: Any,
+                                               caplog: pytest.LogCaptureFixture) -> None:
+    """A 10 MB joint name (through ROS, as a peer sends it) is refused, and the status, the
+    event and the log line quote its first characters and its length, not the 10 MB."""
+    path = tmp_path / "huge.json"
+    path.write_text(json.dumps({"names": ["x" * 10_000_000, *NAMES[1:]],
+                                "points": [[0.0] * 4], "times_s": [1.0]}))
+    _, _, got, _ = _with_node("send", "--trajectory-file", str(path), "--wait-event",
+                              "trajectory_rejected")
+    assert got["state"] == "rejected" and "(10000000 characters)" in got["reason"], got
+    assert len(got["reason"]) < 1000, len(got["reason"])
+    rejected = [r.getMessage() for r in caplog.records if "rejected" in r.getMessage()]
+    assert rejected and all(len(m) < 1000 for m in rejected), [len(m) for m in rejected]
+
+
 def test_a_trajectory_of_too_many_points_is_refused_unread(
         caplog: pytest.LogCaptureFixture) -> None:
     from types import SimpleNamespace
@@ -151,7 +191,7 @@ def test_a_trajectory_of_too_many_points_is_refused_unread(
         async with PublishingArm("fake://", S) as arm:
             node = ArmNode(arm, NodeOptions(clock=True))
             serving = asyncio.ensure_future(node.run())
-            node._on_trajectory(msg)  # as the executor thread hands it over
+            node.intake.receive(msg, None)  # as the executor thread hands it over
             await asyncio.sleep(0.5)
             sent = arm.commands_sent
             serving.cancel()
@@ -299,6 +339,33 @@ def test_the_command_stops_the_arm_on_sigterm_and_says_so() -> None:
     out, _ = proc.communicate(timeout=GUARD_S)
     assert proc.returncode == 0, out
     assert "node shut down: stopped the arm" in out
+
+
+def test_the_command_hears_sigterm_while_it_holds_virtual_time_back() -> None:
+    """``--realtime-factor 0.001``: a reply of the arm every ~2.4 real s. The hold was a blocking
+    sleep per reply, and the loop saw the signal only after hundreds of them (at 1e-5: ~240 s a
+    reply); now SIGTERM ends it at once, the arm stopped, exit 0."""
+    proc, _ = _start([sys.executable, "-m", "armbench", "-v", "ros2", "--port", "fake://",
+                      "--realtime-factor", "0.001"], "ROS 2 node 'armbench' serving")
+    try:
+        time.sleep(3.0)  # holding
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, out
+    assert "node shut down: stopped the arm" in out
+
+
+def test_ctrl_c_stops_the_arm_and_exits_130() -> None:
+    """SIGINT is an interruption (exit 130, as everywhere in armbench); SIGTERM, the way a
+    service is stopped, a clean 0 (above). The arm is stopped either way."""
+    proc, _ = _start([sys.executable, "-m", "armbench", "-v", "ros2", "--port", "fake://"],
+                     "ROS 2 node 'armbench' serving")
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=GUARD_S)
+    assert proc.returncode == 130, out
+    assert "node shut down: stopped the arm" in out and "Traceback" not in out
 
 
 def test_the_command_says_the_link_is_lost_and_exits_1() -> None:

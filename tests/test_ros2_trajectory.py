@@ -109,6 +109,14 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
     (["--history-depth", "1"], "--history-depth: 1 must be 2..1000000"),
     (["--namespace", "arm 1"], "--namespace"),
     (["--pace-timeout", "inf"], "--pace-timeout"),
+    (["--pace-timeout", "1e300"], "--pace-timeout: 1e+300 must be in (0, 86400] s"),
+    (["--realtime-factor", "1e-300"], "--realtime-factor: 1e-300 must be in [0.001, 1e+06]"),
+    (["--realtime-factor", "1e-5"], "--realtime-factor: 1e-05 must be in [0.001, 1e+06]"),
+    (["--reply-timeout", "1e-300"], "--reply-timeout: 1e-300 must be in [0.01, 3600] s"),
+    (["--node-name", "bad-name"], "--node-name: 'bad-name' must be a ROS node name"),
+    (["--node-name", ""], "--node-name: '' must be a ROS node name"),
+    (["--node-name", "1abc"], "--node-name: '1abc' must be a ROS node name"),
+    (["--namespace", "/" + "a" * 220], "at most 220 characters"),
 ])
 def test_bad_options_are_one_line_errors_before_anything_starts(
         capsys: pytest.CaptureFixture[str], args: list[str], expected: str) -> None:

@@ -21,6 +21,19 @@ Modes:
 * ``square``: the accuracy square as the driver plans it (:func:`armbench.drivers.paths.plan_path`,
   segment times of :func:`armbench.drivers.motion.segment_duties` at ``--speed``), sent as two
   trajectories: to the first corner, then the lap; report both statuses.
+* ``flood --count N``: with ``--twice`` a trajectory to a pose, waited for, and the same again
+  (the arm is there already; the two statuses on a line of their own); then N trajectories back
+  to back (``--window W``: at most W of them without a status yet) with ``header.stamp`` zero,
+  every ``--same-every``-th to where the arm is (its newest ``/joint_states``), the others small
+  moves; then wait for each one's final status, matched by its source (this client's publisher
+  GID and sequence number), and for ``--settle`` more ``/joint_states``. Reports the final
+  states counted, the trajectories with none (``missing``) or several (``duplicates``), and the
+  two first statuses.
+
+A sender matches a status to its trajectory by ``source`` (its publisher's GID and the
+trajectory's publication sequence number, a range for a lost one), or by ``header.stamp`` where the
+middleware gives no source (``send`` and ``square`` stamp each trajectory with the process id and
+its number).
 
 ``--namespace NS``: the node's namespace. Every wait is bounded by ``--timeout`` (real
 seconds), a guard against a hung graph only.
@@ -29,6 +42,7 @@ seconds), a guard against a hung graph only.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import sys
@@ -38,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from armbench.bench.ros2_node.node import STATUS_DEPTH, TOPICS
+from armbench.bench.ros2_node.node import FINAL, STATUS_DEPTH, TOPICS
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.motion import joint_times_s, segment_duties
 from armbench.drivers.paths import plan_path
@@ -52,8 +66,6 @@ if TYPE_CHECKING:  # rclpy and the messages are imported where used: the module 
 
 __all__ = ["main", "square_trajectory"]
 
-#: Terminal states of a trajectory status.
-FINAL = ("done", "rejected", "aborted", "preempted", "stopped")
 #: Time given to the approach to the first corner, on top of what duty 99 needs.
 APPROACH_MARGIN = 1.5
 
@@ -80,8 +92,12 @@ def _executor(node: Node) -> Executor:
 _EXECUTORS: dict[int, Executor] = {}
 
 
+def _executor_of(node: Node) -> Executor:
+    return _EXECUTORS.get(id(node)) or _EXECUTORS.setdefault(id(node), _executor(node))
+
+
 def _spin_until(node: Node, done: Callable[[], bool], deadline: float, what: str) -> None:
-    ex = _EXECUTORS.get(id(node)) or _EXECUTORS.setdefault(id(node), _executor(node))
+    ex = _executor_of(node)
     while not done():
         if time.monotonic() > deadline:
             raise Timeout(f"timed out waiting for {what}")
@@ -167,6 +183,8 @@ class Sender:
         self.deadline = deadline
         self.statuses: list[dict[str, Any]] = []
         self.q_rad: list[float] | None = None
+        self.states = 0
+        """``/joint_states`` messages taken."""
         self.tag = os.getpid() % 2**31
         """Our trajectories' ``header.stamp.sec`` (the node echoes it in their statuses)."""
         self.pub = node.create_publisher(JointTrajectory, TOPICS["trajectory"], 10)
@@ -174,8 +192,8 @@ class Sender:
         # matched this reader (discovery is not symmetric in time) is still received
         self.sub = node.create_subscription(String, TOPICS["status"], self._on_status, QoSProfile(
             depth=STATUS_DEPTH, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        if states:
-            node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 10)
+        if states:  # the newest only: on virtual time the stream comes far faster than needed
+            node.create_subscription(JointStateMsg, TOPICS["joint_states"], self._on_state, 1)
         self.commanded: list[list[float]] = []
         """Goals seen on ``/armbench/commanded``."""
         self.events: list[str] = []
@@ -189,23 +207,36 @@ class Sender:
                                    and (self.q_rad is not None or not states)), deadline,
                     "the armbench node")
         self._n = 0
+        self.gid = next((bytes(i.endpoint_gid).hex()
+                         for i in node.get_publishers_info_by_topic(self.pub.topic_name)
+                         if (i.node_name, i.node_namespace)
+                         == (node.get_name(), node.get_namespace())), None)
+        """This client's publisher's GID (hex), as the node's statuses give it in ``source``."""
 
     def _on_status(self, msg: Any) -> None:
         self.statuses.append(json.loads(msg.data))
 
     def _on_state(self, msg: Any) -> None:
         self.q_rad = [float(v) for v in msg.position]
+        self.states += 1
 
     def send(self, names: Sequence[str], points: Sequence[Sequence[float]],
              times_s: Sequence[float], *, until: Sequence[str] = FINAL) -> dict[str, Any]:
         """Publish one trajectory; its first status in ``until`` (default: its final status,
         ``state`` one of :data:`FINAL`)."""
+        return self.status(self.publish(names, points, times_s), until)
+
+    def publish(self, names: Sequence[str], points: Sequence[Sequence[float]],
+                times_s: Sequence[float], *, stamped: bool = True) -> int:
+        """Publish one trajectory (``header.stamp``: the process id and its number, or zero
+        without ``stamped``); its number (1 for the first, as its sequence number)."""
         from builtin_interfaces.msg import Duration
         from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
         self._n += 1
         msg = JointTrajectory()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = self.tag, self._n  # echoed back
+        if stamped:  # echoed back
+            msg.header.stamp.sec, msg.header.stamp.nanosec = self.tag, self._n
         msg.joint_names = list(names)
         for q, t in zip(points, times_s, strict=True):
             p = JointTrajectoryPoint()
@@ -214,18 +245,25 @@ class Sender:
             p.time_from_start = Duration(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
             msg.points.append(p)
         self.pub.publish(msg)
-        return self.status(self._n, until)
+        return self._n
+
+    def mine(self, status: dict[str, Any], n: int) -> bool:
+        """Whether ``status`` is one of the ``n``-th trajectory sent."""
+        source = status.get("source")
+        if source is not None and self.gid is not None:
+            return bool(source["gid"] == self.gid
+                        and source["seq"] <= n <= source.get("seq_last", source["seq"]))
+        return bool(status["stamp"] == [self.tag, n])
 
     def status(self, n: int, until: Sequence[str] = FINAL) -> dict[str, Any]:
         """The first status in ``until`` of the ``n``-th trajectory sent (waited for)."""
-        tag = [self.tag, n]
 
         def final() -> dict[str, Any] | None:
-            return next((s for s in self.statuses if s["stamp"] == tag
-                         and s["state"] in until), None)
+            return next((s for s in self.statuses if s["state"] in until and self.mine(s, n)),
+                        None)
 
         _spin_until(self.node, lambda: final() is not None, self.deadline,
-                    f"the status of trajectory {tag}")
+                    f"the status of trajectory {n} of {self.gid or self.tag}")
         out = final()
         assert out is not None
         return out
@@ -253,6 +291,90 @@ def send_all(sender: Sender, trajectories: Sequence[dict[str, Any]],
         return {**out, "seen": seen}
     return {"statuses": [sender.status(n) for n in range(1, len(trajectories) + 1)],
             "seen": seen}
+
+
+#: ``flood``: the pose of the trajectory sent twice, and the times of every trajectory (s).
+FLOOD_POSE_RAD = (0.1, -0.1, 0.1, 0.1)
+FLOOD_TIME_S = 1.0
+
+
+class _Tally:
+    """The statuses of a sender's trajectories by number (its sequence numbers), as they come."""
+
+    def __init__(self, sender: Sender, first: int) -> None:
+        self.sender = sender
+        self.first = first
+        self.any: set[int] = set()
+        """Trajectories with a status of any state."""
+        self.finals: dict[int, list[str]] = {}
+        """The final states of each trajectory (one each, if all is well)."""
+        self._read = 0
+
+    def update(self) -> None:
+        """Count the statuses received since the last call."""
+        statuses = self.sender.statuses
+        for s in statuses[self._read:]:
+            source = s.get("source")
+            if not source or source["gid"] != self.sender.gid:
+                continue
+            for n in range(source["seq"], source.get("seq_last", source["seq"]) + 1):
+                self.any.add(n)
+                if s["state"] in FINAL:
+                    self.finals.setdefault(n, []).append(s["state"])
+        self._read = len(statuses)
+
+    def answered(self, n: int) -> bool:
+        """Whether trajectory ``n`` has a status yet (not one of the flood's: True)."""
+        self.update()
+        return n < self.first or n in self.any
+
+    def all_final(self, ns: range) -> bool:
+        """Whether each of ``ns`` has a final status yet."""
+        self.update()
+        return all(n in self.finals for n in ns)
+
+
+def flood(sender: Sender, names: Sequence[str], count: int, same_every: int, window: int,
+          settle: int, *, twice: bool) -> dict[str, Any]:
+    """``flood`` mode (see the module doc)."""
+    pose = list(FLOOD_POSE_RAD)
+    out: dict[str, Any] = {}
+    if twice:
+        out["first"] = sender.send(names, [pose], [FLOOD_TIME_S])
+        out["again"] = sender.send(names, [pose], [FLOOD_TIME_S])  # where the arm is already
+        print(json.dumps(out), flush=True)  # a line before the result: under way
+    sent = range(sender._n + 1, sender._n + 1 + count)
+    tally = _Tally(sender, sent[0])
+    for k, n in enumerate(sent):
+        if window:  # no more than ``window`` without a status yet
+            before = n - window
+            _spin_until(sender.node, functools.partial(tally.answered, before), sender.deadline,
+                        f"a status of trajectory {before}")
+        assert sender.q_rad is not None
+        step = 0.02 * (k % 5 - 2)
+        q = sender.q_rad if k % same_every == 0 else [pose[0] + step, *pose[1:]]
+        sender.publish(names, [q], [FLOOD_TIME_S], stamped=False)
+        _executor_of(sender.node).spin_once(timeout_sec=0.0)  # statuses in, the newest state
+    try:
+        _spin_until(sender.node, lambda: tally.all_final(sent), sender.deadline,
+                    f"a final status of each of {count} trajectories")
+    except Timeout as exc:
+        missing = [n for n in sent if n not in tally.finals]
+        raise Timeout(f"{exc}: none for {len(missing)} (the first: {missing[:10]}, "
+                      f"without any status: {[n for n in missing if n not in tally.any][:10]})"
+                      ) from None
+    seen = sender.states
+    _spin_until(sender.node, lambda: sender.states >= seen + settle, sender.deadline,
+                f"{settle} more /joint_states after the flood")
+    tally.update()  # a second final status, had one come meanwhile
+    states: dict[str, int] = {}
+    for n in sent:
+        for state in tally.finals.get(n, []):
+            states[state] = states.get(state, 0) + 1
+    return {**out, "finals": states,
+            "missing": [n for n in sent if n not in tally.finals],
+            "duplicates": [n for n in sent if len(tally.finals[n]) > 1],
+            "states_after": sender.states - seen, "gid": sender.gid}
 
 
 def square_trajectory(settings: RobotSettings, near_rad: Sequence[float],
@@ -287,9 +409,20 @@ def square(sender: Sender, settings: RobotSettings, args: argparse.Namespace) ->
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m armbench.bench.ros2_node.client")
-    p.add_argument("mode", choices=("listen", "send", "square", "idle"))
+    p.add_argument("mode", choices=("listen", "send", "square", "idle", "flood"))
     p.add_argument("--timeout", type=float, default=60.0, help="real seconds, a hang guard")
-    p.add_argument("--count", type=int, default=200)
+    p.add_argument("--count", type=int, default=200,
+                   help="listen: joint states to take; flood: trajectories to send")
+    p.add_argument("--same-every", type=int, default=3,
+                   help="flood: every K-th trajectory to where the arm is")
+    p.add_argument("--twice", action="store_true",
+                   help="flood: first a pose and, once done, the same pose again (printed on a "
+                        "line of its own)")
+    p.add_argument("--window", type=int, default=0,
+                   help="flood: at most W trajectories sent without a status yet (default 0: "
+                        "back to back)")
+    p.add_argument("--settle", type=int, default=100,
+                   help="flood: /joint_states to take after the last final status")
     p.add_argument("--sim-time", action="store_true",
                    help="run the client's node with use_sim_time (its clock follows /clock)")
     p.add_argument("--trajectory", action="append", default=[],
@@ -324,7 +457,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     rclpy.init()
     from rclpy.parameter import Parameter
 
-    node = rclpy.create_node(f"armbench_client_{args.mode}", namespace=args.namespace or None,
+    node = rclpy.create_node(f"armbench_client_{args.mode}_{os.getpid()}",
+                             namespace=args.namespace or None,
                              parameter_overrides=[Parameter("use_sim_time",
                                                             value=args.sim_time)])
     try:
@@ -341,6 +475,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         trajectories.append(json.load(f))
                 out = send_all(sender, trajectories, args.wait_event,
                                wait_commanded=not args.no_commanded)
+            elif args.mode == "flood":
+                out = flood(sender, [j.name for j in load_settings(args.settings).joints],
+                            args.count, args.same_every, args.window, args.settle,
+                            twice=args.twice)
             else:
                 out = square(sender, load_settings(args.settings), args)
     except Timeout as exc:

@@ -13,15 +13,16 @@ Topics (under the node's namespace, ``/`` by default; ``docs/ros2.md``):
 =================================  ==============================  ============================
 
 Threads: the driver runs on the asyncio loop of the command (virtual time for ``fake://``), rclpy
-on an executor thread of its own. Publishing is done from the loop (rcl's publish is thread-safe);
-a subscription callback only copies the message into plain Python values, keeps the newest one in
-a slot of one and wakes the loop with ``call_soon_threadsafe``, so a peer cannot queue work
-without bound. On virtual time the loop waits for ROS only to pace ``/joint_states``
-(``slow_subscriber="pace"``: every half history, until every reliable subscriber has acknowledged
-all, so nothing is lost); otherwise the clock jumps to the next timer of the emulator as always and
-a trajectory is taken up at whatever virtual time it arrives; a waker from another thread is
-served at the next iteration. Every writer's history is bounded (``KEEP_LAST``), and a message a
-writer refuses is counted and dropped, never raised: a peer cannot fill the node or stop it.
+on an executor thread of its own. Publishing is done from the loop (rcl's publish is thread-safe),
+but for the statuses :mod:`.intake` publishes on the executor thread. The subscription callback
+only hands the message to :class:`~.intake.Intake`, which copies it into plain Python values,
+keeps the newest one in a slot of one and wakes the loop with ``call_soon_threadsafe``, so a peer
+cannot queue work without bound; every trajectory the node hears of gets exactly one final
+status. On virtual time the loop waits for ROS only to pace ``/joint_states`` (:mod:`.pacing`);
+otherwise the clock jumps to the next timer of the emulator as always and a trajectory is taken up
+at whatever virtual time it arrives; a waker from another thread is served at the next iteration.
+Every writer's history is bounded (``KEEP_LAST``), and a message a writer refuses is counted and
+dropped, never raised: a peer cannot fill the node or stop it.
 
 Stamps are loop time on virtual time (and ``/clock`` carries the same time, published before each
 ``/joint_states``), else wall-clock time of the reply's arrival (``time.time()`` offset to loop
@@ -30,13 +31,15 @@ time once at start).
 Safety: a refused trajectory moves nothing; an empty one stops the arm; a new one replaces the one
 running (as ros_control does). When the arm falls silent the trajectory is abandoned and a hold is
 sent; when the port is lost, or the node is shut down, the arm is stopped where it can be and the
-node logs and publishes what it did.
+node logs and publishes what it did (a trajectory cut short by the shutdown: ``aborted``, reason
+``shutdown``).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import json
 import logging
 import threading
@@ -46,35 +49,33 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from armbench.bench.ros2_node import require_rclpy
-from armbench.bench.ros2_node.trajectory import TrajectoryError, TrajectoryPlan, plan_trajectory
+from armbench.bench.ros2_node.intake import MAX_POINTS, Intake, Request, Tag
+from armbench.bench.ros2_node.names import TOPICS, namespace_problem, node_name_problem
+from armbench.bench.ros2_node.pacing import RealtimePacer, SubscriberPacer
+from armbench.bench.ros2_node.trajectory import TrajectoryPlan, plan_trajectory
 from armbench.drivers.arm import Arm, JointState, PathRun, ReplyTimeoutError
-from armbench.drivers.errors import DriverError, PortLostError
+from armbench.drivers.errors import ArmbenchError, DriverError, PortLostError
 from armbench.drivers.paths import LOOKAHEAD_S, stream_path
 from armbench.drivers.protocol import MAX_DUTY, Command
 from armbench.drivers.urdf import robot_urdf
 
-__all__ = ["JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER", "STATUS_DEPTH",
-           "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
+__all__ = ["FINAL", "JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER",
+           "STATUS_DEPTH", "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
 
 log = logging.getLogger("armbench.ros2")
 
-#: Every topic of the node by its role: relative names, so they resolve under the node's
-#: namespace (``/`` by default: ``/joint_states``); ``/clock`` is the graph's, absolute.
-TOPICS: Final = {
-    "joint_states": "joint_states",
-    "robot_description": "robot_description",
-    "trajectory": "armbench/joint_trajectory",
-    "status": "armbench/trajectory_status",
-    "commanded": "armbench/commanded",
-    "events": "armbench/events",
-    "clock": "/clock",
-}
 #: History kept for ``/joint_states`` (reliable, ``KEEP_LAST``): the most a subscriber that has
 #: not yet acknowledged may still get; the oldest of it goes first. Every writer of the node is
 #: bounded so: a peer that stops reading cannot fill the node's memory.
 JOINT_STATES_DEPTH: Final = 10_000
-#: Trajectory statuses kept for a client that matches late (transient local).
-STATUS_DEPTH: Final = 50
+#: Trajectory statuses kept for a client that has not acknowledged them yet, or that matches late
+#: (transient local): a flood of trajectories gets two statuses each (accepted, final), and a
+#: status the history drops before a client has it never reaches it.
+STATUS_DEPTH: Final = 1000
+#: Real seconds the node waits at shutdown for its last statuses to be acknowledged.
+STATUS_FLUSH_S: Final = 1.0
+#: The final states of a trajectory's status: each trajectory gets exactly one of them.
+FINAL: Final = ("done", "preempted", "aborted", "rejected", "stopped")
 #: What the node does on virtual time when a reliable subscriber of ``/joint_states`` falls behind:
 #: ``pace`` (hold the virtual clock until it has acknowledged, as a simulator in lock-step does)
 #: or ``drop`` (run on, the subscriber loses the oldest beyond the history's depth).
@@ -120,6 +121,13 @@ class NodeOptions:
     pace_timeout_s: float = PACE_TIMEOUT_S
 
     def __post_init__(self) -> None:
+        for name, value, problem in (("node_name", self.node_name, node_name_problem),
+                                     ("namespace", self.namespace, namespace_problem)):
+            why = problem(value)
+            if why is not None:
+                raise ValueError(f"{name} {value!r} {why}")
+        if self.realtime_factor is not None and not 0 < self.realtime_factor < float("inf"):
+            raise ValueError(f"realtime_factor {self.realtime_factor!r} must be > 0")
         if not 2 <= self.history_depth <= 1_000_000:
             raise ValueError(f"history_depth {self.history_depth!r} must be 2..1000000")
         if self.slow_subscriber not in SLOW_SUBSCRIBER:
@@ -132,19 +140,6 @@ class NodeOptions:
     def paced(self) -> bool:
         """Whether the virtual clock waits for the subscribers of ``/joint_states``."""
         return self.clock and self.slow_subscriber == "pace"
-
-
-#: A trajectory with more points is refused unread (a peer must not fill the node's memory).
-MAX_POINTS: Final = 100_000
-
-
-@dataclass
-class _Request:
-    names: list[str]
-    positions: list[list[float]]
-    times_s: list[float]
-    stamp: tuple[int, int]
-    too_many: int = 0
 
 
 def _time_msg(msg: Any, t_s: float) -> None:
@@ -169,23 +164,19 @@ class ArmNode:
         """The path run of the last trajectory executed to its end."""
         self._loop = asyncio.get_running_loop()
         self._wall_offset_s = 0.0 if options.clock else time.time() - self._loop.time()
-        self._slot: _Request | None = None
-        self._slot_lock = threading.Lock()
         self._wake = asyncio.Event()
+        self.intake = Intake(self._status, self._wake_threadsafe)
+        """Where the trajectories arrive (:class:`~.intake.Intake`)."""
         self._job: asyncio.Task[None] | None = None
-        self._job_id = 0
-        self._abort_reason: str | None = None
-        self._pace0: tuple[float, float] | None = None
-        self.paced_s = 0.0
-        """Real seconds the loop waited for subscribers of ``/joint_states`` (``pace``)."""
-        self.stalls = 0
-        """Times a subscriber acknowledged nothing for ``pace_timeout_s`` (``pace``)."""
-        self._stalled = False
-        self._checked = 0
+        self._cancel_as: tuple[str, str] | None = None
+        self.finals: dict[str, int] = {}
+        """Final statuses published, by state (``done``, ``preempted``, ...)."""
         self.refused: dict[str, int] = {}
         """Messages the DDS writers refused, by topic role (:data:`TOPICS`)."""
         self._refusing: set[str] = set()
-        self._pace_every = max(1, options.history_depth // 2)
+        self._books = threading.Lock()  # the two above, and finals: statuses come from 2 threads
+        self._realtime = (RealtimePacer(options.realtime_factor)
+                          if options.realtime_factor is not None else None)
         require_rclpy()  # imported here: without the extra this module still imports
         import rclpy
         from rclpy.context import Context
@@ -225,13 +216,22 @@ class ArmNode:
             durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._pub_clock = (n.create_publisher(Clock, TOPICS["clock"], reliable)
                            if options.clock else None)
-        n.create_subscription(JointTrajectory, TOPICS["trajectory"], self._on_trajectory, 10)
+        # KEEP_ALL: the node's queue never drops one, so the last trajectory of a client is
+        # never lost in another's flood (the middleware bounds it, 5000 with Fast DDS, and then
+        # stops acknowledging: a flooding writer's own history drops its oldest, which the
+        # node sees as a gap in its sequence numbers and answers, :mod:`.intake`)
+        n.create_subscription(JointTrajectory, TOPICS["trajectory"], self.intake.receive,
+                              QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL,
+                                         reliability=ReliabilityPolicy.RELIABLE))
         self._executor = SingleThreadedExecutor(context=self.context)
         self._executor.add_node(n)
         self._thread = threading.Thread(target=self._spin, name="rclpy-executor", daemon=True)
         self._js = JointStateMsg()
         self._js.name = list(self.names)
         self._clock = Clock()
+        self._subscribers = SubscriberPacer(self._pub_js, max(1, options.history_depth // 2),
+                                            options.pace_timeout_s, options.history_depth,
+                                            self.event)
         if isinstance(arm, PublishingArm):
             arm.on_command = self._on_command
 
@@ -243,19 +243,7 @@ class ArmNode:
         with contextlib.suppress(ExternalShutdownException):
             self._executor.spin()
 
-    def _on_trajectory(self, msg: Any) -> None:
-        """On the executor thread: copy the message, keep the newest, wake the loop."""
-        stamp = (int(msg.header.stamp.sec), int(msg.header.stamp.nanosec))
-        n = len(msg.points)
-        if n > MAX_POINTS:
-            req = _Request([], [], [], stamp, n)
-        else:
-            req = _Request([str(s) for s in msg.joint_names],
-                           [[float(v) for v in p.positions] for p in msg.points],
-                           [p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
-                            for p in msg.points], stamp)
-        with self._slot_lock:
-            self._slot = req
+    def _wake_threadsafe(self) -> None:
         with contextlib.suppress(RuntimeError):  # the loop is closed: the node is going away
             self._loop.call_soon_threadsafe(self._wake.set)
 
@@ -270,6 +258,16 @@ class ArmNode:
         """``/joint_states`` messages the DDS writer refused (never published to anyone)."""
         return self.refused.get("joint_states", 0)
 
+    @property
+    def paced_s(self) -> float:
+        """Real seconds the loop waited for subscribers of ``/joint_states`` (``pace``)."""
+        return self._subscribers.paced_s
+
+    @property
+    def stalls(self) -> int:
+        """Times a subscriber acknowledged nothing for ``pace_timeout_s`` (``pace``)."""
+        return self._subscribers.stalls
+
     def _publish(self, publisher: Any, msg: Any, role: str) -> bool:
         """Publish ``msg`` on the topic of ``role``; a message the DDS writer refuses (a reliable
         subscriber that stopped reading holds its history up) is counted in :attr:`refused`, with
@@ -277,16 +275,19 @@ class ArmNode:
         try:
             publisher.publish(msg)
         except self._rcl_error as exc:
-            self.refused[role] = self.refused.get(role, 0) + 1
-            if role not in self._refusing:
+            with self._books:
+                self.refused[role] = self.refused.get(role, 0) + 1
+                first = role not in self._refusing
                 self._refusing.add(role)
+            if first:
                 log.warning("%s: a message could not be published (%s): dropping while a "
                             "subscriber holds the writer up", TOPICS[role], exc)
                 if role != "events":
                     self.event("dropped", topic=TOPICS[role], reason=str(exc))
             return False
         if role in self._refusing:
-            self._refusing.discard(role)
+            with self._books:
+                self._refusing.discard(role)
             log.warning("%s: publishing again after %d dropped", TOPICS[role],
                         self.refused[role])
         return True
@@ -308,8 +309,15 @@ class ArmNode:
         text = json.dumps({"t_s": self.stamp_s(self._loop.time()), "kind": kind, **fields})
         self._publish(self._pub_events, self._msg_string(data=text), "events")
 
-    def _status(self, job: int, state: str, stamp: tuple[int, int], **fields: Any) -> None:
-        text = json.dumps({"id": job, "state": state, "stamp": list(stamp), **fields})
+    def _status(self, tag: Tag, state: str, **fields: Any) -> None:
+        """Publish a status of the trajectory ``tag`` (from the loop or the executor thread)."""
+        text = json.dumps({"id": tag.id, "state": state,
+                           "stamp": None if tag.stamp is None else list(tag.stamp),
+                           "source": None if tag.source is None else tag.source.as_json(),
+                           **fields})
+        if state in FINAL:
+            with self._books:
+                self.finals[state] = self.finals.get(state, 0) + 1
         self._publish(self._pub_status, self._msg_string(data=text), "status")
 
     def _on_command(self, t_s: float, command: Command) -> None:
@@ -342,17 +350,23 @@ class ArmNode:
             self.event("link_lost", reason=str(exc))
             status = 1
         finally:
+            why = "shutdown" if status == 0 else "the link was lost"
+            self._cancel_as = ("aborted", why)
             for running in (states, jobs, self._job):
                 if running is not None:
                     running.cancel()
             await asyncio.gather(states, jobs, *([self._job] if self._job else []),
                                  return_exceptions=True)
+            waiting = self.intake.close()  # from now on the intake answers what comes itself
+            if waiting is not None:
+                self._status(waiting.tag, "aborted", reason=why)
             if status == 0:
                 await self._stop_on_exit()
             self.close()
         return status
 
     async def _stop_on_exit(self) -> None:
+        """The hold of a shutdown, logged and published."""
         try:
             state = await asyncio.shield(self.arm.stop())
         except ReplyTimeoutError as exc:
@@ -372,7 +386,11 @@ class ArmNode:
 
         if not self.context.ok():
             return
+        from rclpy.duration import Duration
+
         self._executor.shutdown(timeout_sec=2.0)
+        # the last statuses (the shutdown's aborts) reach a client before the writer goes
+        self._pub_status.wait_for_all_acked(Duration(nanoseconds=round(STATUS_FLUSH_S * 1e9)))
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
         if self._thread.is_alive():
@@ -402,62 +420,15 @@ class ArmNode:
                 for state in batch:
                     self.publish_state(state)
                 if self.options.paced:
-                    self._wait_for_subscribers()
-                if self.options.realtime_factor is not None:
-                    self._pace(batch[-1].t_s if batch else self._loop.time())
-
-    def _wait_for_subscribers(self) -> None:
-        """``pace``: every half history, hold the loop (a blocking wait: virtual time must not run
-        on) until every reliable subscriber has acknowledged every ``/joint_states``, so the
-        history never drops what one has not got. A subscriber that acknowledges nothing for
-        ``pace_timeout_s`` is no longer waited for (event ``subscriber_stalled``) until all is
-        acknowledged again (``subscriber_back``)."""
-        offered = self.published + self.dropped
-        if offered - self._checked < self._pace_every:
-            return
-        self._checked = offered
-        from rclpy.duration import Duration
-
-        if self._pub_js.wait_for_all_acked(Duration(nanoseconds=0)):  # no wait: all caught up
-            if self._stalled:
-                self._stalled = False
-                log.warning("/joint_states: every subscriber keeps up again: pacing again")
-                self.event("subscriber_back")
-            return
-        if self._stalled:
-            return
-        t0 = time.perf_counter()
-        acked = self._pub_js.wait_for_all_acked(
-            Duration(nanoseconds=round(self.options.pace_timeout_s * 1e9)))
-        self.paced_s += time.perf_counter() - t0
-        if not acked:
-            self._stalled = True
-            self.stalls += 1
-            log.warning("/joint_states: a subscriber acknowledged nothing for %.3g s: no longer "
-                        "waiting for it; it loses the oldest beyond the history of %d",
-                        self.options.pace_timeout_s, self.options.history_depth)
-            self.event("subscriber_stalled", timeout_s=self.options.pace_timeout_s,
-                       history_depth=self.options.history_depth)
-
-    def _pace(self, virtual_s: float) -> None:
-        """Hold the loop (a blocking sleep: nothing else may run ahead) so that virtual time runs
-        at most ``realtime_factor`` times real time."""
-        rtf = self.options.realtime_factor
-        assert rtf is not None
-        now = time.perf_counter()
-        if self._pace0 is None:
-            self._pace0 = (virtual_s, now)
-            return
-        v0, r0 = self._pace0
-        ahead = (virtual_s - v0) / rtf - (now - r0)
-        if ahead > 0:
-            time.sleep(ahead)
+                    await self._subscribers.check(self.published + self.dropped)
+                if self._realtime is not None:
+                    await self._realtime.pace(batch[-1].t_s if batch else self._loop.time())
 
     async def _on_silence(self, exc: ReplyTimeoutError) -> None:
         log.error("%s: %s: abandoning the trajectory and holding the arm", self.arm.port, exc)
         self.event("link_silent", reason=str(exc), action="holding the arm")
         if self._job is not None and not self._job.done():
-            self._abort_reason = f"the arm fell silent: {exc}"
+            self._cancel_as = ("aborted", f"the arm fell silent: {exc}")
             self._job.cancel()
         with contextlib.suppress(DriverError, PortLostError):
             await self.arm.stop(wait=False)
@@ -466,69 +437,83 @@ class ArmNode:
         while True:
             await self._wake.wait()
             self._wake.clear()
-            with self._slot_lock:
-                req, self._slot = self._slot, None
-            if req is not None:
+            req = self.intake.take()
+            if req is None:
+                continue
+            try:
                 await self._start(req)
+            except asyncio.CancelledError:  # before its own status: the shutdown's
+                self._status(req.tag, "aborted", reason="shutdown")
+                raise
 
-    async def _start(self, req: _Request) -> None:
-        self._job_id += 1
-        job = self._job_id
+    async def _start(self, req: Request) -> None:
+        """Take ``req`` up: a final status for it here, or ``accepted`` and its execution (which
+        gives the final one). Cancelled, it has given none."""
+        job = req.tag.id
         running = self._job
         if running is not None and not running.done():
+            self._cancel_as = ("preempted", f"replaced by trajectory {job}")
             running.cancel()
             await asyncio.wait({running})
+            self._cancel_as = None  # used, or not needed: the job had just ended
         if req.too_many:
             reason = f"trajectory: {req.too_many} points, more than the {MAX_POINTS} accepted"
-            log.error("trajectory %d rejected, nothing moved: %s", job, reason)
-            self.event("trajectory_rejected", id=job, reason=reason)
-            self._status(job, "rejected", req.stamp, reason=reason)
+            self._reject(req.tag, reason)
             return
         if not req.positions:
             try:
                 state = await self.arm.stop()
-            except DriverError as exc:  # silent: the state task says so and holds
-                self._status(job, "aborted", req.stamp, reason=str(exc))
+            except (DriverError, PortLostError) as exc:  # the state task says so and holds
+                self._status(req.tag, "aborted", reason=str(exc))
                 return
             log.info("trajectory %d: empty: stopped the arm", job)
-            self._status(job, "stopped", req.stamp, q_rad=list(state.q_rad))
+            self._status(req.tag, "stopped", q_rad=list(state.q_rad))
             return
         try:
             plan = plan_trajectory(req.names, req.positions, req.times_s, self.arm.settings,
                                    self.arm.state.q_rad, max_duty=self.options.max_duty)
-        except TrajectoryError as exc:
-            log.error("trajectory %d rejected, nothing moved: %s", job, exc)
-            self.event("trajectory_rejected", id=job, reason=str(exc))  # before the status:
-            self._status(job, "rejected", req.stamp, reason=str(exc))  # a client may stop then
+        except ArmbenchError as exc:  # TrajectoryError, or the arm itself outside its limits
+            self._reject(req.tag, str(exc))
             return
         log.info("trajectory %d accepted: %d points, %.3f s planned", job, plan.points,
                  plan.planned_s)
-        self._status(job, "accepted", req.stamp, points=plan.points, planned_s=plan.planned_s)
+        self._status(req.tag, "accepted", points=plan.points, planned_s=plan.planned_s)
         self.accepted += 1
-        self._job = asyncio.ensure_future(self._execute(job, req.stamp, plan))
+        self._job = asyncio.ensure_future(self._execute(req.tag, plan))
+        self._job.add_done_callback(functools.partial(self._cancelled, req.tag))
 
-    async def _execute(self, job: int, stamp: tuple[int, int], plan: TrajectoryPlan) -> None:
+    def _reject(self, tag: Tag, reason: str) -> None:
+        """Log, event and status of a trajectory refused: ``reason`` echoes the peer's values
+        shortened (:mod:`armbench.drivers.peer_text`)."""
+        log.error("trajectory %d rejected, nothing moved: %s", tag.id, reason)
+        self.event("trajectory_rejected", id=tag.id, reason=reason)  # before the status:
+        self._status(tag, "rejected", reason=reason)  # a client may stop then
+
+    def _cancelled(self, tag: Tag, job: asyncio.Future[None]) -> None:
+        """The final status of a job cancelled: under way, or before it ever ran (a task
+        cancelled before its first step never runs its coroutine's handlers)."""
+        if not job.cancelled():
+            return
+        (state, reason), self._cancel_as = self._cancel_as or ("aborted", "cancelled"), None
+        if state == "aborted":
+            log.error("trajectory %d aborted: %s", tag.id, reason)
+        self._status(tag, state, reason=reason)
+
+    async def _execute(self, tag: Tag, plan: TrajectoryPlan) -> None:
+        """Stream ``plan``; its final status (``done`` or ``aborted``; when cancelled,
+        :meth:`_cancelled` gives it)."""
         arm = self.arm
         try:
             seq = arm.state.seq  # start on a reply, as the driver's own paths do
             await arm.wait_state(lambda s: s.seq > seq)
             run = await stream_path(arm, plan.tcp_m, plan.commands, plan.planned_s,
                                     arm.default_tolerance_rad(), self.options.lookahead_s, None)
-        except asyncio.CancelledError:
-            reason, self._abort_reason = self._abort_reason, None
-            if reason is None:
-                self._status(job, "preempted", stamp)
-            else:
-                log.error("trajectory %d aborted: %s", job, reason)
-                self._status(job, "aborted", stamp, reason=reason)
-            raise
         except (DriverError, PortLostError) as exc:
-            log.error("trajectory %d aborted: %s", job, exc)
-            self._status(job, "aborted", stamp, reason=str(exc))
+            log.error("trajectory %d aborted: %s", tag.id, exc)
+            self._status(tag, "aborted", reason=str(exc))
             return
         self.last_run = run
-        self._status(job, "done", stamp, duration_s=max(0.0, run.duration_s),  # at the goal: 0
+        self._status(tag, "done", duration_s=max(0.0, run.duration_s),  # at the goal: 0
                      waypoints=len(run.waypoints),
                      states=len(run.states), q_rad=list(run.states[-1].q_rad)
                      if run.states else list(arm.state.q_rad))
-

@@ -29,6 +29,7 @@ from armbench.drivers.errors import ArmbenchError, InvalidTargetError
 from armbench.drivers.kinematics import Vec4, tcp_position
 from armbench.drivers.motion import CYCLE_S, segment_duties
 from armbench.drivers.move_targets import check_target, wire_command
+from armbench.drivers.peer_text import peer_repr
 from armbench.drivers.protocol import JOINTS, MAX_DUTY, Command
 from armbench.drivers.settings import RobotSettings
 
@@ -72,8 +73,8 @@ def _order(names: Sequence[str], settings: RobotSettings) -> list[int]:
     """For each of the arm's joints, its index in ``names``."""
     arm = [j.name for j in settings.joints]
     if len(names) != len(set(names)) or sorted(names) != sorted(arm):
-        raise TrajectoryError(None, f"joint_names {list(names)!r} must be the arm's joints "
-                                    f"{arm!r}, each once, in any order")
+        raise TrajectoryError(None, f"joint_names {peer_repr(list(names))} must be the arm's "
+                                    f"joints {arm!r}, each once, in any order")
     return [list(names).index(n) for n in arm]
 
 

@@ -19,7 +19,6 @@ that does not move (the partial outputs are written).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -30,9 +29,9 @@ from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.outputs import check_out_dir, check_out_files
 from armbench.bench.truth import load_tracker
 from armbench.bench.twin_check import twin_check
+from armbench.cli.bounds import REPLY_TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.cli.commands.twin_check import format_failures
-from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
 from armbench.reports.calibration_page import render_page
 
@@ -59,11 +58,11 @@ def register(sub: Any) -> None:
                         "deprecated: FILE.toml with FILE.json and FILE.html beside it")
     p.add_argument("--force", "--overwrite", action="store_true",
                    help="overwrite outputs that exist (never a file of a run's record)")
-    p.add_argument("--budget-s", type=float, default=DEFAULT_BUDGET_S, metavar="S",
-                   help=f"robot time the procedure may take (default {DEFAULT_BUDGET_S:g} s)")
-    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
-                   help="with --port: give up after S s without a reply from the arm "
-                        "(default 0.5)")
+    add_bounded(p, "--budget-s", Bound(0.0, 86_400.0, "s", low_open=True),
+                default=DEFAULT_BUDGET_S, metavar="S",
+                help=f"robot time the procedure may take (default {DEFAULT_BUDGET_S:g} s)")
+    add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
+                help="with --port: give up after S s without a reply from the arm (default 0.5)")
     p.add_argument("--settings", metavar="FILE",
                    help="base settings: the nominal model and the priors (masses, payload) the "
                         "fit starts from (default: the default arm)")
@@ -79,10 +78,6 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    if not 0 < args.budget_s <= 24 * 3600:
-        raise InvalidTargetError(None, "--budget-s", args.budget_s, "must be in (0, 86400] s")
-    if not (math.isfinite(args.reply_timeout) and args.reply_timeout > 0):
-        raise InvalidTargetError(None, "--reply-timeout", args.reply_timeout, "must be > 0")
     out = _settings_path(Path(args.out))
     if out.parent.is_dir() or out == Path(args.out):  # a folder there, or the former FILE.toml
         check_out_files("--out", output_paths(out, observations=args.port is not None),

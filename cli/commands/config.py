@@ -28,6 +28,7 @@ import tomli_w
 from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S
 from armbench.bench.runner import RunOptions, prepare
 from armbench.bench.verdict import DEFAULT_CONFIG
+from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.commands.run import add_dut_arguments
 from armbench.drivers.settings import read_toml
 from armbench.record.dut import Dut, dut_flags
@@ -63,7 +64,7 @@ def register(sub: Any) -> None:
     show.add_argument("--scheduler", metavar="tcp://HOST:PORT", default=None)
     show.add_argument("--retries", type=int, default=None, metavar="N")
     show.add_argument("--no-capture", dest="capture", action="store_false", default=None)
-    show.add_argument("--capture-max-mb", type=float, default=None, metavar="MB")
+    add_bounded(show, "--capture-max-mb", CAPTURE_MAX_MB, default=None, metavar="MB")
     add_dut_arguments(show)
     show.set_defaults(func=_show)
 

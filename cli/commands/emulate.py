@@ -6,7 +6,6 @@ import argparse
 import asyncio
 import contextlib
 import logging
-import math
 import sys
 from typing import Any
 
@@ -17,8 +16,8 @@ from armbench.bench.live import (
     follow_emulator,
     live_view,
 )
+from armbench.cli.bounds import DURATION_S, TIMEOUT_S, add_bounded
 from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
 from armbench.drivers.transports.target import given_by, resolve
 from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.avr_serve import serve_firmware
@@ -53,25 +52,17 @@ def register(sub: Any) -> None:
                    help="serve compiled firmware on four simulated ATmega328P instead (a folder "
                         "of joint1..4.elf/.hex, a path with {n}, or '' for the reference "
                         "firmware; docs/firmware.md)")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop after S seconds (default: until Ctrl-C)")
-    p.add_argument("--idle-timeout", type=float, default=300.0, metavar="S",
-                   help="with --tcp: disconnect a client silent for S seconds (default 300)")
+    add_bounded(p, "--duration", DURATION_S, default=None, metavar="S",
+                help="stop after S seconds (default: until Ctrl-C)")
+    add_bounded(p, "--idle-timeout", TIMEOUT_S, default=300.0, metavar="S",
+                help="with --tcp: disconnect a client silent for S seconds (default 300)")
     p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
                    help="serve the joint stream (reported and true) to Foxglove over WebSocket "
                         f"(default {DEFAULT_ENDPOINT}: loopback unless a host is given)")
     p.set_defaults(func=_run)
 
 
-def _seconds(option: str, value: float | None) -> None:
-    """A duration option: None, or a finite number of seconds above 0."""
-    if value is not None and not (math.isfinite(value) and value > 0):
-        raise SettingsError(option, value, "must be a finite number of seconds > 0")
-
-
 def _run(args: argparse.Namespace) -> int:
-    _seconds("--duration", args.duration)
-    _seconds("--idle-timeout", args.idle_timeout)
     # flag > settings file > default, as everywhere (docs/targets.md): a --faults list replaces
     # the file's [[faults]]
     inputs = FakeTransport.arm_inputs("fake://", resolve(given_by(

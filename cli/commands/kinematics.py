@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from armbench.cli.bounds import Bound, add_bounded
 from armbench.drivers.kinematics import (
     IKSolution,
     KinematicsError,
@@ -26,7 +27,7 @@ from armbench.drivers.kinematics import (
     ik,
     protocol_to_dh,
 )
-from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
+from armbench.drivers.settings import RobotSettings, load_settings
 
 __all__ = ["register"]
 
@@ -46,8 +47,8 @@ def _accept_negative_numbers(p: argparse.ArgumentParser) -> None:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--d4", type=float, default=None, metavar="M",
-                   help="gripper offset d4 in metres (overrides the settings file)")
+    add_bounded(p, "--d4", Bound(0.0, MAX_GRIPPER_OFFSET_M, "m"), default=None, metavar="M",
+                help="gripper offset d4 in metres (overrides the settings file)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--settings", default=None, metavar="FILE",
                    help="robot settings TOML file (default: built-in robot model)")
@@ -94,9 +95,6 @@ def register(sub: Any) -> None:
 def _settings(args: argparse.Namespace) -> RobotSettings:
     settings = load_settings(args.settings)
     if args.d4 is not None:
-        if not 0.0 <= args.d4 <= MAX_GRIPPER_OFFSET_M:  # NaN fails too
-            raise SettingsError("--d4", args.d4, f"must be a gripper offset d4_m of "
-                                                 f"0..{MAX_GRIPPER_OFFSET_M:g} m")
         settings = settings.with_d4(args.d4)
     return settings
 

@@ -19,6 +19,7 @@ from collections.abc import AsyncIterator, Coroutine
 from typing import Any, TextIO, TypeVar
 
 from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, check_live_endpoint, live_view
+from armbench.cli.bounds import DURATION_S, REPLY_TIMEOUT_S, Bound, add_bounded
 from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
 from armbench.drivers.settings import RobotSettings
 from armbench.drivers.transports import Transport
@@ -35,6 +36,8 @@ T = TypeVar("T")
 DEFAULT_FAKE_DURATION_S = 10.0
 #: Window of the frame-rate estimate, seconds.
 RATE_WINDOW_S = 1.0
+#: ``--rate``: refreshes of the display per second, at least one every ten seconds.
+REFRESH_HZ = Bound(0.1, 1000.0, "Hz")
 
 
 def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
@@ -81,14 +84,14 @@ def register(sub: Any) -> None:
                    help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or fake:// "
                         "(default fake://, the emulator on virtual time)")
     p.add_argument("--json", action="store_true", help="one JSON object per state on stdout")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="stop after S seconds (default: until Ctrl-C; "
-                        f"{DEFAULT_FAKE_DURATION_S:g} simulated s on fake://)")
+    add_bounded(p, "--duration", DURATION_S, default=None, metavar="S",
+                help="stop after S seconds (default: until Ctrl-C; "
+                     f"{DEFAULT_FAKE_DURATION_S:g} simulated s on fake://)")
     p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
-    p.add_argument("--rate", type=float, default=10.0, metavar="HZ",
-                   help="display refreshes per second without --json (default 10)")
-    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
-                   help="report the arm as silent after S seconds without a reply (default 0.5)")
+    add_bounded(p, "--rate", REFRESH_HZ, default=10.0, metavar="HZ",
+                help="display refreshes per second without --json (default 10)")
+    add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
+                help="report the arm as silent after S seconds without a reply (default 0.5)")
     p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
                    help="serve the joint stream to Foxglove over WebSocket (default "
                         f"{DEFAULT_ENDPOINT}: loopback unless a host is given)")
@@ -104,10 +107,6 @@ def _run(args: argparse.Namespace) -> int:
     duration = args.duration
     if duration is None and target.virtual:
         duration = DEFAULT_FAKE_DURATION_S
-    if duration is not None and not (math.isfinite(duration) and duration > 0):
-        from armbench.drivers.arm import InvalidTargetError
-
-        raise InvalidTargetError(None, "--duration", duration, "must be > 0")
     if args.foxglove is not None:  # refused before connecting; live_view warns
         check_live_endpoint(args.foxglove, args.allow_remote)
     return run_on_port(args.port, monitor(args.port, settings, json_lines=args.json,

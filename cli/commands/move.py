@@ -16,6 +16,7 @@ import re
 import sys
 from typing import Any
 
+from armbench.cli.bounds import REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.arm import Arm, InvalidTargetError, JointState
 from armbench.drivers.kinematics import BRANCHES
@@ -25,6 +26,8 @@ from armbench.drivers.settings import load_settings
 
 __all__ = ["register"]
 
+#: ``--tolerance``: more than a radian off would count a pose far from the target as arrived.
+TOLERANCE_RAD = Bound(0.0, 1.0, "rad", low_open=True)
 _NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
 
 
@@ -51,14 +54,14 @@ def register(sub: Any) -> None:
                    help="PWM duty 1..99 of speed law (12) (default 99, the fastest)")
     p.add_argument("--coordinated", action="store_true",
                    help="slow the joints with shorter ways so that all arrive together")
-    p.add_argument("--tolerance", type=float, default=None, metavar="RAD",
-                   help="arrival tolerance per joint in radians (default: a few ticks)")
-    p.add_argument("--timeout", type=float, default=None, metavar="S",
-                   help="give up after S seconds (default: from the distance and law (12))")
-    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
-                   help="hold the arm and give up after S s without a reply (default 0.5)")
-    p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
-                   help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
+    add_bounded(p, "--tolerance", TOLERANCE_RAD, default=None, metavar="RAD",
+                help="arrival tolerance per joint in radians (default: a few ticks)")
+    add_bounded(p, "--timeout", TIMEOUT_S, default=None, metavar="S",
+                help="give up after S seconds (default: from the distance and law (12))")
+    add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
+                help="hold the arm and give up after S s without a reply (default 0.5)")
+    add_bounded(p, "--connect-timeout", TIMEOUT_S, default=CONNECT_TIMEOUT_S, metavar="S",
+                help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
     p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_run)
@@ -74,10 +77,6 @@ def _run(args: argparse.Namespace) -> int:
         raise InvalidTargetError(None, "target", args.q, "give joint angles or --xyz, not both")
     if args.xyz is None and (args.branch is not None or args.roll != 0.0):
         raise InvalidTargetError(None, "--roll/--branch", args.roll, "only apply with --xyz")
-    for flag, value in (("--reply-timeout", args.reply_timeout),
-                        ("--connect-timeout", args.connect_timeout)):
-        if not (math.isfinite(value) and value > 0):
-            raise InvalidTargetError(None, flag, value, "must be > 0")
     settings = load_settings(args.settings)
     return run_on_port(args.port, _move(args, settings))
 

@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import math
-import re
 import signal
 from typing import Any
 
+from armbench.bench.ros2_node.names import namespace_problem, node_name_problem
+from armbench.cli.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.link import CONNECT_TIMEOUT_S
@@ -23,7 +23,11 @@ from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import RobotSettings, load_settings
 from armbench.drivers.transports.target import target_of
 
-__all__ = ["register"]
+__all__ = ["REALTIME_FACTOR", "register"]
+
+#: ``--realtime-factor``: a thousand times slower than real time (a reply every ~2.4 s) to a
+#: million times faster (no holding back at all).
+REALTIME_FACTOR = Bound(0.001, 1e6)
 
 
 def register(sub: Any) -> None:
@@ -35,16 +39,19 @@ def register(sub: Any) -> None:
                     "/armbench/joint_trajectory executed with the driver's coordinated streaming, "
                     "/armbench/trajectory_status, /armbench/commanded, /armbench/events, and "
                     "/clock from the virtual clock on fake://. Stops the arm on exit.",
-        epilog="Exit status: 0 after --duration or Ctrl-C/SIGTERM (the arm stopped), 1 when the "
-               "port is lost, 2 for bad options or a missing ros2 extra.")
+        epilog="Exit status: 0 after --duration or SIGTERM (the arm stopped), 130 after Ctrl-C "
+               "(SIGINT; the arm stopped too), 1 when the port is lost, 2 for bad options or a "
+               "missing ros2 extra.")
     p.add_argument("--port", default="fake://",
                    help="any port armbench speaks: serial device, socket://, rfc2217://, "
                         "labgrid://, avr:// or fake:// (default, the emulator on virtual time)")
     p.add_argument("--settings", default=None, metavar="FILE", help="robot settings TOML")
-    p.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="serve S seconds (loop time: simulated seconds on fake://), default: "
-                        "until Ctrl-C or SIGTERM")
-    p.add_argument("--node-name", default="armbench", help="ROS node name (default armbench)")
+    add_bounded(p, "--duration", DURATION_S, default=None, metavar="S",
+                help="serve S seconds (loop time: simulated seconds on fake://), default: until "
+                     "Ctrl-C or SIGTERM")
+    p.add_argument("--node-name", default="armbench",
+                   help="ROS node name: letters, digits and _, not starting with a digit "
+                        "(default armbench)")
     p.add_argument("--namespace", default="", metavar="NS",
                    help="the node's namespace: its topics resolve under it (default: /, so "
                         "/joint_states); one per arm when several share a graph")
@@ -52,9 +59,9 @@ def register(sub: Any) -> None:
                    help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
                    help="refuse trajectory segments that need a duty above V (default 99)")
-    p.add_argument("--realtime-factor", type=float, default=None, metavar="X",
-                   help="fake://: at most X simulated seconds per real second (default: as "
-                        "fast as the emulator runs)")
+    add_bounded(p, "--realtime-factor", REALTIME_FACTOR, default=None, metavar="X",
+                help=f"fake://: at most X simulated seconds per real second, X in "
+                     f"{REALTIME_FACTOR} (default: as fast as the emulator runs)")
     p.add_argument("--history-depth", type=int, default=10_000, metavar="N",
                    help="/joint_states messages kept for a subscriber that has not acknowledged "
                         "them (default 10000); beyond it the oldest go first")
@@ -62,37 +69,30 @@ def register(sub: Any) -> None:
                    help="fake://: when a subscriber of /joint_states falls behind, hold the "
                         "virtual clock until it has caught up (pace, default) or run on and let "
                         "it lose the oldest (drop); real time always drops")
-    p.add_argument("--pace-timeout", type=float, default=5.0, metavar="S",
-                   help="pace: stop waiting for a subscriber that acknowledges nothing for S "
-                        "real seconds (default 5)")
-    p.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT_S, metavar="S",
-                   help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
-    p.add_argument("--reply-timeout", type=float, default=0.5, metavar="S",
-                   help="hold the arm and report it silent after S s without a reply")
+    add_bounded(p, "--pace-timeout", TIMEOUT_S, default=5.0, metavar="S",
+                help="pace: stop waiting for a subscriber that acknowledges nothing for S real "
+                     "seconds (default 5)")
+    add_bounded(p, "--connect-timeout", TIMEOUT_S, default=CONNECT_TIMEOUT_S, metavar="S",
+                help=f"wait S s for the arm's first reply (default {CONNECT_TIMEOUT_S:g})")
+    add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
+                help="hold the arm and report it silent after S s without a reply")
     p.set_defaults(func=_run)
 
 
 def _check(args: argparse.Namespace) -> None:
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        raise InvalidTargetError(None, "--duration", args.duration, "must be > 0")
+    """The options a bound does not cover (:mod:`armbench.cli.bounds` checks the numbers)."""
     if not 1 <= args.max_duty <= MAX_DUTY:
         raise InvalidTargetError(None, "--max-duty", args.max_duty, f"must be 1..{MAX_DUTY}")
-    if args.realtime_factor is not None and not (math.isfinite(args.realtime_factor)
-                                                 and args.realtime_factor > 0):
-        raise InvalidTargetError(None, "--realtime-factor", args.realtime_factor,
-                                 "must be > 0")
-    if args.namespace and not re.fullmatch(r"(/[A-Za-z_][A-Za-z0-9_]*)+", args.namespace):
-        raise InvalidTargetError(None, "--namespace", args.namespace,
-                                 "must be /name[/name...] (letters, digits, _)")
+    for flag, value, problem in (("--node-name", args.node_name, node_name_problem),
+                                 ("--namespace", args.namespace, namespace_problem)):
+        why = problem(value)
+        if why is not None:
+            raise InvalidTargetError(None, flag, value, why)
     if not 2 <= args.history_depth <= 1_000_000:
         raise InvalidTargetError(None, "--history-depth", args.history_depth,
                                  "must be 2..1000000")
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
         raise InvalidTargetError(None, "--domain-id", args.domain_id, "must be 0..232")
-    for name in ("connect_timeout", "reply_timeout", "pace_timeout"):
-        value = getattr(args, name)
-        if not (math.isfinite(value) and value > 0):
-            raise InvalidTargetError(None, "--" + name.replace("_", "-"), value, "must be > 0")
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -25,6 +25,7 @@ from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
+from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
@@ -97,10 +98,10 @@ def register(sub: Any) -> None:
     p.add_argument("--optional", action="append", default=[], metavar="SUITE",
                    help="a planned suite that may measure nothing (no power switch, say) without "
                         "making the run untested; repeatable")
-    p.add_argument("--capture-max-mb", type=float, default=None, metavar="MB",
-                   help="stop the capture (a capture_stopped event says so) before capture.mcap "
-                        "would exceed MB megabytes; the run goes on (default: [bench] "
-                        "capture_max_bytes, else unbounded)")
+    add_bounded(p, "--capture-max-mb", CAPTURE_MAX_MB, default=None, metavar="MB",
+                help="stop the capture (a capture_stopped event says so) before capture.mcap "
+                     "would exceed MB megabytes; the run goes on (default: [bench] "
+                     "capture_max_bytes, else unbounded)")
     p.set_defaults(func=_run)
 
 

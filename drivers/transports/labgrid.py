@@ -30,6 +30,7 @@ from armbench.drivers.errors import (
     PlaceUnknownError,
     TransportError,
 )
+from armbench.drivers.peer_text import peer_str
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.transports.base import Transport
 
@@ -132,7 +133,8 @@ class LabgridClient:
                     continue
                 raise CoordinatorUnreachableError(
                     port, f"labgrid coordinator {self.coordinator} did not answer within "
-                          f"{COORDINATOR_TIMEOUT_S:g} s ({type(exc).__name__}: {exc})") from exc
+                          f"{COORDINATOR_TIMEOUT_S:g} s ({type(exc).__name__}: "
+                          f"{peer_str(str(exc))})") from exc
             self.session = session
             return session
 
@@ -174,22 +176,22 @@ class LabgridPlace:
         try:
             place = session.places.get(self.place)
             if place is None:
-                known = ", ".join(sorted(session.places)) or "none"
+                known = peer_str(", ".join(sorted(session.places))) or "none"
                 raise PlaceUnknownError(self.port, f"no place {self.place!r} {where} "
                                                    f"(places: {known})")
             if place.acquired:
                 raise PlaceLockedError(self.port, f"place {self.place!r} is acquired by "
-                                                  f"{place.acquired}", place.acquired)
+                                                  f"{peer_str(place.acquired)}", place.acquired)
             try:
                 self.client.run(session.stub.AcquirePlace(
                     pb.AcquirePlaceRequest(placename=self.place)))
                 self.client.run(session.sync_with_coordinator())
             except Exception as exc:
-                detail = exc.details() if hasattr(exc, "details") else str(exc)
+                detail = peer_str(exc.details() if hasattr(exc, "details") else str(exc))
                 owner = session.places[self.place].acquired
                 if owner:  # someone was faster
                     raise PlaceLockedError(self.port, f"place {self.place!r} is acquired by "
-                                                      f"{owner}", owner) from exc
+                                                      f"{peer_str(owner)}", owner) from exc
                 raise LabgridError(self.port, f"the coordinator did not give place "
                                               f"{self.place!r}: {detail} (its exporter could not "
                                               f"serve the resources?)") from exc
@@ -204,7 +206,8 @@ class LabgridPlace:
         serial = [r for (_, cls), r in sorted(resources.items()) if cls == SERIAL_RESOURCE]
         available = [r for r in serial if r.avail]
         if not available:
-            have = ", ".join(sorted(f"{name} ({cls})" for name, cls in resources)) or "nothing"
+            have = peer_str(", ".join(sorted(f"{name} ({cls})" for name, cls in resources)))
+            have = have or "nothing"
             why = "none is available (exporter gone?)" if serial else f"it has {have}"
             raise NoSerialResourceError(self.port, f"place {self.place!r} has no "
                                                    f"{SERIAL_RESOURCE}: {why}")
