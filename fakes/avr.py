@@ -30,6 +30,7 @@ from urllib.parse import parse_qs, urlsplit
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
 from armbench.drivers.transports.capabilities import Capabilities
+from armbench.fakes.joint import end_stop_steps
 
 __all__ = [
     "DEBIAN_PACKAGES",
@@ -247,8 +248,9 @@ def data_symbols(image: Path, names: Sequence[str]) -> dict[str, int]:
 def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:
     per_rad = joint.steps_per_rad
     c = joint.counts_per_step
-    return [round(joint.lower_rad * per_rad), round(joint.upper_rad * per_rad),
-            round(joint.hall_rad * per_rad), c.numerator, c.denominator, motor_steps]
+    lower, upper = end_stop_steps(joint)  # the Python emulator's end stops
+    return [lower, upper, round(joint.hall_rad * per_rad), c.numerator, c.denominator,
+            motor_steps]
 
 
 def board_specs(robot: RobotSettings, images: Sequence[Path],

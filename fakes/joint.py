@@ -16,6 +16,7 @@ steps every 101 − v cycles (speed law (12)); ``counter = offset + floor(motor_
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Final
@@ -42,12 +43,28 @@ from armbench.fakes.stepper import (
     step_period_ticks,
 )
 
-__all__ = ["CYCLE_S", "JointModel", "Motion", "PhysicalEffects", "PwmState", "StopRule",
-           "Transition", "step_period_ticks"]
+__all__ = ["CYCLE_S", "END_STOP_MARGIN_RAD", "JointModel", "Motion", "PhysicalEffects", "PwmState",
+           "StopRule", "Transition", "end_stop_steps", "step_period_ticks"]
 
 #: How often (s) a joint under ``loss_law = "stall"`` checks its rate against the pull-out (or,
 #: humming, the pull-in) rate at its load again, as the load changes under it.
 STALL_RECHECK_S: Final = 0.005
+
+#: How far beyond each of its configured limits a joint's end stop lies (rad): 1°, twice the
+#: largest Hall sensor error a settings file may give (``hall_error_deg``, ±0.5°). The firmware
+#: counts angles from where its Hall sensor really is; an end stop on the limit itself lies that
+#: error inside the limit as the firmware counts, so the limit on that side cannot be reached
+#: (joint 1, Hall error 0.02°: a move to +2.4434 rad stopped at 2.4431 and timed out). A real
+#: arm's end stops, too, lie beyond its working range.
+END_STOP_MARGIN_RAD: Final = math.radians(1.0)
+
+
+def end_stop_steps(joint: JointSettings) -> tuple[int, int]:
+    """The motor positions (microsteps) of the joint's two end stops: its limits widened by
+    :data:`END_STOP_MARGIN_RAD`."""
+    return (round((joint.lower_rad - END_STOP_MARGIN_RAD) * joint.steps_per_rad),
+            round((joint.upper_rad + END_STOP_MARGIN_RAD) * joint.steps_per_rad))
+
 
 #: What :meth:`JointModel.__copy__` copies (all but the ``Final`` ``_CONSTANTS``); with them the
 #: ``__slots__``, so an attribute not named here fails at once (tests/test_compiled.py).
@@ -92,9 +109,10 @@ class JointModel:
         self.hall_step: Final = round((joint.hall_rad + hall_error) * joint.steps_per_rad)
         #: Counter value the Hall sensor sets, encoder counts.
         self.hall_count: Final = round(joint.hall_rad * joint.counts_per_rad)
-        #: Hard limits of the motor position, microsteps (inclusive).
-        self.lower_steps: Final = round(joint.lower_rad * joint.steps_per_rad)
-        self.upper_steps: Final = round(joint.upper_rad * joint.steps_per_rad)
+        lower, upper = end_stop_steps(joint)
+        #: Hard limits of the motor position, microsteps (inclusive): the end stops.
+        self.lower_steps: Final = lower
+        self.upper_steps: Final = upper
         if not self.lower_steps <= motor_steps <= self.upper_steps:
             raise ValueError(f"motor_steps {motor_steps} outside the limits "
                              f"{self.lower_steps}..{self.upper_steps}")
