@@ -24,6 +24,7 @@ from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibr
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.outputs import check_out_dir, check_out_files
 from armbench.bench.truth import load_tracker
+from armbench.capture.jsonl import open_capture_file
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.errors import InvalidTargetError
 from armbench.drivers.settings import load_settings
@@ -73,11 +74,15 @@ def _run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.reply_timeout) and args.reply_timeout > 0):
         raise InvalidTargetError(None, "--reply-timeout", args.reply_timeout, "must be > 0")
     out = _settings_path(Path(args.out))
-    if out.parent.is_dir() or out == Path(args.out):  # a folder there, or the former FILE.toml
+    new_folder = not (out.parent.is_dir() or out == Path(args.out))  # else the former FILE.toml
+    if new_folder:  # nothing in it to overwrite; made once its parent is known writable
+        check_out_dir("--out", out.parent, [])
+    else:
         check_out_files("--out", output_paths(out, observations=args.port is not None),
                         force=args.force)
-    else:  # a new folder: nothing in it to overwrite; made once its parent is known writable
-        check_out_dir("--out", out.parent, [])
+    if args.capture is not None:  # missing, a FIFO, a device: refused before --out is made
+        open_capture_file(args.capture).close()
+    if new_folder:
         out.parent.mkdir(parents=True)
     base = load_settings(args.settings)
     if args.capture is not None:
