@@ -14,6 +14,9 @@ from pathlib import Path
 import pytest
 
 from armbench.cli.main import main
+from armbench.fakes.avr import FIRMWARE_SOURCE
+from armbench.record import RecordError
+from armbench.record.files import atomic_write_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = ROOT / "tests" / "fixtures" / "records"
@@ -43,6 +46,88 @@ def _refused_process(*argv: str | Path, cwd: Path = ROOT) -> str:
     assert done.returncode == 2, done.stdout + done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
     return done.stderr
+
+
+# --- output paths --------------------------------------------------------------------------------
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    """Every file below ``folder`` (path → bytes): what must stay as it was."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+@pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="no AVR toolchain")
+def test_firmware_build_out_is_relative_to_the_working_directory(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A copy of the sources holding a folder named as ``--out``: the build went there (exit 0)
+    or failed to find the folder the compiler, running in the sources, was given; now it goes
+    where the user is, and the sources stay as they were."""
+    source = tmp_path / "firmware"
+    shutil.copytree(FIRMWARE_SOURCE, source)
+    (source / "relout").mkdir()
+    before = _tree(source)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["firmware", "build", "--source", str(source), "--out", "relout"]) == 0
+    assert {p.name for p in (work / "relout").iterdir()} >= {
+        *(f"joint{n}.{ext}" for n in range(1, 5) for ext in ("elf", "hex")), "armfw-harness"}
+    assert _tree(source) == before
+
+
+def test_firmware_build_out_that_cannot_be_a_folder(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    afile, fifo = tmp_path / "afile", tmp_path / "fifo"
+    afile.write_text("mine\n")
+    os.mkfifo(fifo)
+    for out, problem in ((afile, "is not a directory"), (fifo, "is not a directory"),
+                         (Path("/proc/armbench-nowhere"), "cannot write in /proc"),
+                         (FIRMWARE_SOURCE / "harness", "is inside the firmware sources")):
+        err = _refused(capsys, "firmware", "build", "--out", out)
+        assert f"--out {out}: {problem}" in err, err
+    assert afile.read_text() == "mine\n" and fifo.is_fifo()
+    assert not any(tmp_path.glob(".*.lock")) and not any(p.suffix == ".elf" for p in
+                                                         FIRMWARE_SOURCE.rglob("*"))
+
+
+def test_merge_out_is_checked_before_a_shard_is_read(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """(No shard here: the out is refused first; with real shards it was a traceback.)"""
+    err = _refused(capsys, "merge", tmp_path, "--out", "/proc/armbench-merged")
+    assert "--out: /proc/armbench-merged cannot be written" in err, err
+
+
+def test_compare_html_never_replaces_a_fifo_or_a_folder(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--html /dev/null`` run as root replaced the device with a regular file (the page was
+    written beside it and renamed over it); a FIFO stands in for the device here."""
+    fifo = tmp_path / "page.html"
+    os.mkfifo(fifo)
+    records = (RECORDS / "passing.json", RECORDS / "passing.json")
+    err = _refused(capsys, "compare", *records, "--html", fifo)
+    assert f"--html {fifo}: {fifo} is a FIFO, not a file; it is never replaced" in err
+    assert fifo.is_fifo()
+    err = _refused(capsys, "compare", *records, "--html", tmp_path)
+    assert "is a directory" in err
+    assert capsys.readouterr().out == ""  # refused before the comparison
+
+
+def test_an_atomic_write_never_replaces_a_fifo(tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(RecordError, match="is a FIFO, not a file; it is never replaced"):
+        atomic_write_bytes(fifo, b"data")
+    assert fifo.is_fifo() and [p.name for p in tmp_path.iterdir()] == ["fifo"]
+
+
+def test_report_index_is_checked_before_any_report(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(RECORDS / "passing.json", run / "results.json")
+    err = _refused(capsys, "report", run, "--index", "/proc/armbench-runs")
+    assert "--index /proc/armbench-runs/index.html" in err
+    assert not (run / "report.html").exists()
 
 
 # --- captures ------------------------------------------------------------------------------------

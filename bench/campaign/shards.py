@@ -31,6 +31,7 @@ from armbench.bench.runner.plan import json_equal
 from armbench.bench.runner.trials import TrialRunner, default_emulator
 from armbench.drivers.errors import ArmbenchError
 from armbench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
+from armbench.record.files import check_directory_writable
 
 __all__ = ["MergeError", "merge_shards"]
 
@@ -168,6 +169,7 @@ def merge_shards(directories: Sequence[str | Path], out: str | Path) -> RunOutco
     if not directories:
         raise MergeError("no shard directories given")
     out_dir = Path(out)
+    check_directory_writable(out_dir, "--out")  # before a shard is read
     if (out_dir / RESULTS_FILE).exists():
         raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; choose "
                                                        "another --out")

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.outputs import check_out_files
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 from armbench.drivers.errors import ArmbenchError
 from armbench.record import RESULTS_FILE
@@ -70,6 +71,8 @@ def _note_other_config(recorded: str | None, given: str | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.html is not None:  # an existing page is replaced; a device, a folder never
+        check_out_files("--html", [Path(args.html)], force=True)
     config = load_config(args.config)
     baseline = load_baseline(_results(args.baseline))
     current = read_record(_results(args.current))
