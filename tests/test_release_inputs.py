@@ -5,6 +5,7 @@ each bad input is one line naming it, exit status 2, before any work, and nothin
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
@@ -12,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from tmpfs import mounted_tmpfs
 
 from armbench.cli.main import main
 from armbench.fakes.avr import FIRMWARE_SOURCE
@@ -128,6 +130,53 @@ def test_report_index_is_checked_before_any_report(tmp_path: Path,
     err = _refused(capsys, "report", run, "--index", "/proc/armbench-runs")
     assert "--index /proc/armbench-runs/index.html" in err
     assert not (run / "report.html").exists()
+
+
+# --- run --summary -------------------------------------------------------------------------------
+
+def test_a_fifo_as_the_summary_is_refused_before_the_run(tmp_path: Path) -> None:
+    """It blocked after the whole run, waiting for a reader that never came."""
+    fifo = tmp_path / "summary.md"
+    os.mkfifo(fifo)
+    err = _refused_process("run", "accuracy", "--summary", fifo, "--out", tmp_path / "run")
+    assert f"--summary {fifo}: is a FIFO" in err
+    assert fifo.is_fifo() and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(("summary", "problem"), [
+    ("{tmp}", "is a directory"),
+    ("/dev/full", "is a character device"),
+    ("{tmp}/missing/summary.md", "cannot be written: its folder {tmp}/missing does not exist"),
+])
+def test_an_unwritable_summary_is_refused_before_the_run(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], summary: str, problem: str) -> None:
+    """Each was a traceback and exit 1 after the whole run."""
+    path = summary.format(tmp=tmp_path)
+    err = _refused(capsys, "run", "accuracy", "--summary", path, "--out", tmp_path / "run")
+    assert f"--summary {path}: {problem.format(tmp=tmp_path)}" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_summary_that_fails_after_the_run_keeps_its_status(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The disk of the summary fills during the run (a real full tmpfs): one warning line, the
+    run's exit status and results as they are."""
+    with mounted_tmpfs(tmp_path / "disk", "size=64k") as disk:
+        summary = disk / "summary.md"
+        earlier = "# earlier steps\n" * 256  # a whole page: appending needs another
+        summary.write_text(earlier)
+        with contextlib.suppress(OSError), (disk / "filler").open("wb") as fh:
+            while fh.write(bytes(4096)):
+                fh.flush()
+        status = main(["run", "accuracy", "--seed", "3", "--summary", str(summary), "--out",
+                       str(tmp_path / "run")])
+        err = capsys.readouterr().err
+        assert summary.read_text() == earlier
+    assert status == 0, err
+    warning = [line for line in err.splitlines() if "--summary" in line]
+    assert warning == [f"armbench run: warning: --summary {summary}: could not be written: No "
+                       f"space left on device; the run's results are in {tmp_path / 'run'}"]
+    assert (tmp_path / "run" / "results.json").is_file()
 
 
 # --- captures ------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from armbench.cli.reporting import write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.fleet_index import is_fleet
 
-__all__ = ["register"]
+__all__ = ["register", "step_summary"]
 
 
 def register(sub: Any) -> None:
@@ -106,6 +106,10 @@ def shard_arg(text: str) -> tuple[int, int]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.summary is not None:  # before anything moves: not a traceback after the whole run
+        from armbench.bench.run_summary import check_summary_file
+
+        check_summary_file(args.summary)
     ports: list[str] = args.port or []
     options = RunOptions(
         suites=list(args.suites),
@@ -126,10 +130,21 @@ def _run(args: argparse.Namespace) -> int:
         done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
     _summary(outcome)
     if args.summary is not None:
-        from armbench.bench.run_summary import write_step_summary
-
-        write_step_summary(args.summary, outcome.record, outcome.out_dir, outcome.exit_status)
+        step_summary(args.summary, outcome)
     return outcome.exit_status
+
+
+def step_summary(path: str, outcome: RunOutcome) -> None:
+    """Append the run's Markdown summary to ``path`` (``--summary``); a failure now (the disk
+    filled, the file was replaced by a FIFO) is one line on stderr and changes nothing else: the
+    run's results are on disk and its exit status stands."""
+    from armbench.bench.run_summary import SummaryError, write_step_summary
+
+    try:
+        write_step_summary(path, outcome.record, outcome.out_dir, outcome.exit_status)
+    except SummaryError as exc:
+        print(f"armbench run: warning: {exc}; the run's results are in {outcome.out_dir}",
+              file=sys.stderr, flush=True)
 
 
 def _summary(outcome: RunOutcome) -> None:
