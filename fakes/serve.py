@@ -23,9 +23,10 @@ from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.protocol import Framer
 from armbench.drivers.server_notes import note_line
 from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.pty_link import LinkError, claim_link, release_link, require_pty
 
-__all__ = ["ClientStream", "FrameLogger", "LinkError", "PtyServer", "ReceiveBuffer", "TcpServer",
-           "claim_link", "parse_host_port", "real_time_loop", "release_link"]
+__all__ = ["ClientStream", "FrameLogger", "PtyServer", "ReceiveBuffer", "TcpServer",
+           "parse_host_port", "real_time_loop"]
 
 log = logging.getLogger("armbench.emulator")
 
@@ -175,51 +176,6 @@ class ReceiveBuffer:
             self._timer = None
 
 
-#: Where the kernel puts pseudo-terminal slaves: a symlink into it is one an emulator made.
-PTY_DEVICE_DIR = "/dev/pts/"
-
-
-class LinkError(ArmbenchError):
-    """``--link PATH`` cannot be made without destroying something that is not ours."""
-
-
-def _is_own_link(path: Path) -> bool:
-    """A symlink to a pty slave (live or gone) is the kind an earlier emulator left there."""
-    return path.is_symlink() and os.readlink(path).startswith(PTY_DEVICE_DIR)
-
-
-def claim_link(link: Path, device: str) -> None:
-    """Make ``link`` a symlink to ``device``, replacing only an emulator's earlier pty link.
-
-    Anything else at ``link`` (a file, a device node such as the real arm's ``/dev/ttyUSB0``, a
-    directory, another symlink) is refused with :class:`LinkError` and left as it is; the swap is
-    atomic, so no moment exists where ``link`` points nowhere or at something half-made.
-    """
-    if not link.parent.is_dir():
-        raise LinkError(f"--link {link}: folder {link.parent} does not exist")
-    if os.path.lexists(link) and not _is_own_link(link):
-        raise LinkError(f"--link {link}: something is already there (not an emulator's pty "
-                        f"link); refusing to replace it")
-    staging = link.with_name(f".{link.name}.{os.getpid()}.armbench-link")
-    try:
-        os.symlink(device, staging)
-        if os.path.lexists(link) and not _is_own_link(link):  # appeared meanwhile
-            raise LinkError(f"--link {link}: something appeared there; refusing to replace it")
-        os.replace(staging, link)
-    except OSError as exc:
-        raise LinkError(f"--link {link}: cannot make the link ({exc.strerror or exc})") from exc
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(staging)
-
-
-def release_link(link: Path, device: str) -> None:
-    """Remove ``link`` if it is still the symlink to ``device`` this server made, else leave it."""
-    with contextlib.suppress(OSError):
-        if link.is_symlink() and os.readlink(link) == device:
-            link.unlink()
-
-
 class PtyServer:
     """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
 
@@ -239,7 +195,9 @@ class PtyServer:
         """The receive buffer; its ``overrun_bytes`` counts what the pty's clients lost."""
 
     async def start(self) -> str:
-        """Create the pty, start the arm and return the device path (POSIX only)."""
+        """Create the pty, start the arm and return the device path (POSIX only:
+        :func:`~armbench.fakes.pty_link.require_pty`)."""
+        require_pty()
         import termios  # POSIX: imported by the server that makes a pty
         import tty
 
