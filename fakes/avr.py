@@ -30,7 +30,7 @@ from urllib.parse import parse_qs, urlsplit
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
 from armbench.drivers.transports.capabilities import Capabilities
-from armbench.fakes.joint import end_stop_steps
+from armbench.fakes.physics import end_stop_steps
 
 __all__ = [
     "DEBIAN_PACKAGES",

@@ -16,7 +16,6 @@ steps every 101 − v cycles (speed law (12)); ``counter = offset + floor(motor_
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Final
@@ -25,7 +24,7 @@ import numpy as np
 
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.physics import JointPhysics
+from armbench.fakes.physics import JointPhysics, end_stop_steps
 from armbench.fakes.stepper import (
     CYCLE_S,
     FOREVER,
@@ -43,28 +42,12 @@ from armbench.fakes.stepper import (
     step_period_ticks,
 )
 
-__all__ = ["CYCLE_S", "END_STOP_MARGIN_RAD", "JointModel", "Motion", "PhysicalEffects", "PwmState",
-           "StopRule", "Transition", "end_stop_steps", "step_period_ticks"]
+__all__ = ["CYCLE_S", "JointModel", "Motion", "PhysicalEffects", "PwmState", "StopRule",
+           "Transition", "step_period_ticks"]
 
 #: How often (s) a joint under ``loss_law = "stall"`` checks its rate against the pull-out (or,
 #: humming, the pull-in) rate at its load again, as the load changes under it.
 STALL_RECHECK_S: Final = 0.005
-
-#: How far beyond each of its configured limits a joint's end stop lies (rad): 1°, twice the
-#: largest Hall sensor error a settings file may give (``hall_error_deg``, ±0.5°). The firmware
-#: counts angles from where its Hall sensor really is; an end stop on the limit itself lies that
-#: error inside the limit as the firmware counts, so the limit on that side cannot be reached
-#: (joint 1, Hall error 0.02°: a move to +2.4434 rad stopped at 2.4431 and timed out). A real
-#: arm's end stops, too, lie beyond its working range.
-END_STOP_MARGIN_RAD: Final = math.radians(1.0)
-
-
-def end_stop_steps(joint: JointSettings) -> tuple[int, int]:
-    """The motor positions (microsteps) of the joint's two end stops: its limits widened by
-    :data:`END_STOP_MARGIN_RAD`."""
-    return (round((joint.lower_rad - END_STOP_MARGIN_RAD) * joint.steps_per_rad),
-            round((joint.upper_rad + END_STOP_MARGIN_RAD) * joint.steps_per_rad))
-
 
 #: What :meth:`JointModel.__copy__` copies (all but the ``Final`` ``_CONSTANTS``); with them the
 #: ``__slots__``, so an attribute not named here fails at once (tests/test_compiled.py).
@@ -80,17 +63,17 @@ _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 class JointModel:
     """One joint board's control loop, encoder, Hall sensor and drive, event-driven.
 
-    ``joint`` gives the drive train (``counts_per_step``, ``steps_per_rad``), the Hall position
-    and the hard limits; ``motor_steps`` is the start position of the motor in microsteps (0 = joint
-    angle 0), ``counter`` the start value of the position counter in encoder counts (default: the
-    encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the start time in control
-    cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts and
-    ``stop_rule`` when a moving joint stops: ``"window"``, once inside the deadband; ``"reach"``,
-    once its counter meets or passes the target (it starts only beyond the deadband). ``seed``
-    (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train and
-    link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m, positive
-    towards +q) as a function of its own link angle, read at each event (run planned, stop).
-    ``noise_per_count``: chance of a spurious ±1 count per encoder count.
+    ``joint`` gives the drive train (``counts_per_step``, ``steps_per_rad``), the Hall position and
+    the limits (the end stops beyond them); ``motor_steps`` is the start position of the motor in
+    microsteps (0 = joint angle 0), ``counter`` the start value of the position counter in encoder
+    counts (default: the encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the
+    start time in control cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in
+    counts and ``stop_rule`` when a moving joint stops: ``"window"``, once inside the deadband;
+    ``"reach"``, once its counter meets or passes the target (it starts only beyond the deadband).
+    ``seed`` (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train
+    and link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m,
+    positive towards +q) as a function of its own link angle, read at each event (run planned,
+    stop). ``noise_per_count``: chance of a spurious ±1 count per encoder count.
     """
 
     __slots__ = _FIELDS + _CONSTANTS
@@ -109,10 +92,9 @@ class JointModel:
         self.hall_step: Final = round((joint.hall_rad + hall_error) * joint.steps_per_rad)
         #: Counter value the Hall sensor sets, encoder counts.
         self.hall_count: Final = round(joint.hall_rad * joint.counts_per_rad)
-        lower, upper = end_stop_steps(joint)
         #: Hard limits of the motor position, microsteps (inclusive): the end stops.
-        self.lower_steps: Final = lower
-        self.upper_steps: Final = upper
+        self.lower_steps: Final = end_stop_steps(joint)[0]
+        self.upper_steps: Final = end_stop_steps(joint)[1]
         if not self.lower_steps <= motor_steps <= self.upper_steps:
             raise ValueError(f"motor_steps {motor_steps} outside the limits "
                              f"{self.lower_steps}..{self.upper_steps}")

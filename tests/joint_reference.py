@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.joint import Motion, PwmState, Transition, end_stop_steps
+from armbench.fakes.joint import Motion, PwmState, Transition
+from armbench.fakes.physics import end_stop_steps
 
 
 class ReferenceJoint:

@@ -27,7 +27,7 @@ from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.faults import Fault, parse_faults
 from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
 from armbench.fakes.i2c_messages import I2CMessage
-from armbench.fakes.joint import END_STOP_MARGIN_RAD
+from armbench.fakes.physics import END_STOP_MARGIN_RAD
 from armbench.fakes.vclock import run_virtual
 
 ROBOT = RobotSettings()

@@ -18,7 +18,7 @@ from armbench.drivers.arm import Arm
 from armbench.drivers.errors import MoveTimeoutError
 from armbench.drivers.protocol import TICKS_PER_RAD
 from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.joint import END_STOP_MARGIN_RAD
+from armbench.fakes.physics import END_STOP_MARGIN_RAD
 from armbench.fakes.vclock import run_virtual
 
 
