@@ -23,11 +23,11 @@ from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
-from armbench.cli.reporting import write_reports
+from armbench.cli.reporting import step_summary, write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.fleet_index import is_fleet
 
-__all__ = ["register", "step_summary"]
+__all__ = ["register"]
 
 
 def register(sub: Any) -> None:
@@ -132,19 +132,6 @@ def _run(args: argparse.Namespace) -> int:
     if args.summary is not None:
         step_summary(args.summary, outcome)
     return outcome.exit_status
-
-
-def step_summary(path: str, outcome: RunOutcome) -> None:
-    """Append the run's Markdown summary to ``path`` (``--summary``); a failure now (the disk
-    filled, the file was replaced by a FIFO) is one line on stderr and changes nothing else: the
-    run's results are on disk and its exit status stands."""
-    from armbench.bench.run_summary import SummaryError, write_step_summary
-
-    try:
-        write_step_summary(path, outcome.record, outcome.out_dir, outcome.exit_status)
-    except SummaryError as exc:
-        print(f"armbench run: warning: {exc}; the run's results are in {outcome.out_dir}",
-              file=sys.stderr, flush=True)
 
 
 def _summary(outcome: RunOutcome) -> None:
