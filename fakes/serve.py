@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.log_limit import LogLimit
 from armbench.drivers.protocol import Framer
 from armbench.drivers.server_notes import note_line
 from armbench.fakes.arm_emulator import ArmEmulator
@@ -295,6 +296,9 @@ class TcpServer:
         self.clients_taken_over = 0
         """Silent clients disconnected because another one asked for the arm."""
         self.on_client: Callable[[str], None] | None = None
+        # a client storm logs a few lines of each kind, then how many it held back
+        self._refusals = LogLimit(log, logging.WARNING, "refused clients")
+        self._sessions = LogLimit(log, logging.INFO, "client lines")
 
     @property
     def overrun_bytes(self) -> int:
@@ -319,7 +323,7 @@ class TcpServer:
         self._client_peer = peer
         self._last_input_s = asyncio.get_running_loop().time()
         self.clients_served += 1
-        log.info("client %s connected", peer)
+        self._sessions("client %s connected", peer)
         if self.on_client is not None:
             self.on_client(peer)
         try:
@@ -330,7 +334,7 @@ class TcpServer:
             writer.close()
             with contextlib.suppress(ConnectionError, OSError):
                 await writer.wait_closed()
-            log.info("client %s left", peer)
+            self._sessions("client %s left", peer)
             self._slot_free.set()
 
     async def _take_slot(self, peer: str, writer: asyncio.StreamWriter) -> bool:
@@ -341,7 +345,8 @@ class TcpServer:
             silent_s = asyncio.get_running_loop().time() - self._last_input_s
             if silent_s < self.idle_timeout_s:
                 self.clients_refused += 1
-                log.warning("refusing %s: client %s is connected", peer, self._client_peer)
+                self._refusals("refusing %s: client %s is connected", peer,
+                               self._client_peer)
                 await _say_and_close(writer, f"busy: another client ({self._client_peer}) has the "
                                              f"arm; it frees after {self.idle_timeout_s:g} s "
                                              f"without input from that client")
@@ -423,10 +428,12 @@ class TcpServer:
         except TimeoutError:
             log.warning("client %s idle for %.0f s: disconnected", peer, self.idle_timeout_s)
         except (ConnectionError, OSError) as exc:
-            log.info("client %s: %s", peer, exc)
+            self._sessions("client %s: %s", peer, exc)
 
     async def close(self) -> None:
         """Stop listening, drop the client, power the arm down."""
+        self._refusals.flush()
+        self._sessions.flush()
         if self._server is not None:
             self._server.close()
             if self._client is not None:
