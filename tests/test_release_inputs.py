@@ -222,6 +222,26 @@ def test_a_run_directory_given_as_a_capture_names_its_capture(
     assert f"is a directory, not a capture (give {tmp_path / 'capture.mcap'})" in err
 
 
+# --- a run directory's own files ---------------------------------------------------------------
+
+@pytest.mark.parametrize(("argv", "fifo_name"), [
+    (("report", "{run}"), "results.journal.jsonl"),
+    (("merge", "{run}", "--out", "{tmp}/merged"), "runner.json"),
+    (("run", "--resume", "{run}"), "runner.json"),
+    (("campaign", "--resume", "{run}"), "runner.json"),
+])
+def test_a_fifo_among_a_run_directorys_files_is_refused(tmp_path: Path, argv: tuple[str, ...],
+                                                        fifo_name: str) -> None:
+    """A run directory is the user's: a FIFO where its journal or runner.json should be
+    blocked ``report``, ``merge``, ``run --resume`` and ``campaign --resume`` for ever."""
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(RECORDS / "interrupted.json", run / "results.json")
+    os.mkfifo(run / fifo_name)
+    err = _refused_process(*(a.format(run=run, tmp=tmp_path) for a in argv))
+    assert f"{run / fifo_name}: is a FIFO" in err, err
+
+
 # --- settings ------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("value", "problem"), [

@@ -30,6 +30,7 @@ from armbench.bench.runner import (
 from armbench.bench.runner.plan import json_equal
 from armbench.bench.runner.trials import TrialRunner, default_emulator
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
 from armbench.record.files import check_directory_writable
 
@@ -52,8 +53,9 @@ class _Shard:
 def _read_shard(directory: Path) -> _Shard:
     record = load_record(directory / RESULTS_FILE)
     try:
-        info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
+        info = json.loads(read_regular_file(directory / RUNNER_FILE, "a runner.json",
+                                            MAX_JSON_BYTES))
+    except (FileRefused, ValueError, RecursionError) as exc:
         raise MergeError(f"{directory}: no readable {RUNNER_FILE} ({exc}): not a run "
                          "directory") from None
     shard = info.get("shard") if isinstance(info, dict) else None
