@@ -112,6 +112,7 @@ def test_a_chunk_that_claims_hundreds_of_mb(tmp_path: Path, bomb_data: bytes,
     for argv in (("twin-check", path), ("calibrate", "--capture", path, "--out",
                                         tmp_path / "fit")):
         _refused_cheaply(capsys, path, *argv, reason=f"claims {BOMB_BYTES} bytes uncompressed")
+    assert not (tmp_path / "fit").exists()  # calibrate's --out folder is not left behind
 
 
 def test_a_chunk_that_expands_past_what_it_claims(tmp_path: Path, bomb_data: bytes,
@@ -120,6 +121,7 @@ def test_a_chunk_that_expands_past_what_it_claims(tmp_path: Path, bomb_data: byt
     for argv in (("twin-check", path), ("calibrate", "--capture", path, "--out",
                                         tmp_path / "fit")):
         _refused_cheaply(capsys, path, *argv, reason="expands past the 1048576 bytes it claims")
+    assert not (tmp_path / "fit").exists()
 
 
 def test_a_metadata_record_of_tens_of_mb(tmp_path: Path,

@@ -15,6 +15,7 @@ Exit status: 0 done, 2 bad input or an arm that does not move (the partial outpu
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 from pathlib import Path
@@ -84,18 +85,27 @@ def _run(args: argparse.Namespace) -> int:
         open_capture_file(args.capture).close()
     if new_folder:
         out.parent.mkdir(parents=True)
-    base = load_settings(args.settings)
-    if args.capture is not None:
-        result = calibrate_capture(args.capture, base, out, page=render_page)
-    else:
-        port: str = args.port
-        tracker = None if args.tracker is None else load_tracker(args.tracker, base)
-        result = run_on_port(port, calibrate_port(
-            port, base, out, budget_s=args.budget_s,
-            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
-            page=render_page, reply_timeout_s=args.reply_timeout))
+    try:
+        result = _calibrate(args, out)
+    except BaseException:
+        if new_folder:  # a capture refused, an arm that failed: no empty folder is left
+            with contextlib.suppress(OSError):
+                out.parent.rmdir()
+        raise
     _summary(result, output_paths(out, observations=args.port is not None))
     return 0
+
+
+def _calibrate(args: argparse.Namespace, out: Path) -> CalibrationResult:
+    base = load_settings(args.settings)
+    if args.capture is not None:
+        return calibrate_capture(args.capture, base, out, page=render_page)
+    port: str = args.port
+    tracker = None if args.tracker is None else load_tracker(args.tracker, base)
+    return run_on_port(port, calibrate_port(
+        port, base, out, budget_s=args.budget_s,
+        progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
+        page=render_page, reply_timeout_s=args.reply_timeout))
 
 
 #: The settings file of a calibration written to ``--out DIR``.
