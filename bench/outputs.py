@@ -2,12 +2,12 @@
 long calibration or replay never ends in an unwritable path or over a file of the user's.
 
 :func:`check_out_files` refuses, with one line naming the path: a directory, or a file, in the
-way; a path under a file or in a missing directory; a directory that cannot be written
-(read-only file system, no permission; found by creating a file there, which also holds for
-root); an existing file unless ``force`` is given; and, even with ``force``, a file of a run's
-record (``results.json``, its journal, ``report.html``, the capture, ...) in a directory that
-holds a run. :func:`check_out_dir` does the same for a directory a command fills (its writer
-creates it if missing). Writers then replace each file atomically
+way; a device or a FIFO; a path under a file or in a missing directory; a directory that cannot
+be written (read-only file system, no permission; found by creating a file there, which also
+holds for root); an existing file unless ``force`` is given; and, even with ``force``, a file
+of a run's record (``results.json``, its journal, ``report.html``, the capture, ...) in a
+directory that holds a run. :func:`check_out_dir` does the same for a directory a command
+fills (its writer creates it if missing). Writers then replace each file atomically
 (:func:`armbench.record.files.atomic_write`).
 """
 
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Final
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.user_files import file_kind
 from armbench.record.files import (
     CAPTURE_FILE,
     JOURNAL_FILE,
@@ -90,6 +91,9 @@ def check_out_files(option: str, paths: Sequence[Path], *, force: bool = False) 
     for path in paths:
         if path.is_dir():
             raise OutputError(option, shown, f"{path} is a directory")
+        if os.path.lexists(path) and not (path.is_symlink() or path.is_file()):
+            raise OutputError(option, shown, f"{path} is {file_kind(os.stat(path).st_mode)}, "
+                                             "not a file; it is never replaced")
         if is_run_file(path):
             raise OutputError(option, shown, f"{path} belongs to the run record in "
                                              f"{path.parent}; it is never overwritten")

@@ -13,10 +13,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from armbench.bench.verdict import exit_status
+from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.user_files import FileRefused, append_regular_file, check_appendable_file
 from armbench.record import REPORT_FILE, RunRecord
 from armbench.record.claims import truth_line, uncovered_lines
 
-__all__ = ["MAX_LINES", "append_summary", "markdown_summary", "write_step_summary"]
+__all__ = ["MAX_LINES", "SummaryError", "append_summary", "check_summary_file", "markdown_summary",
+           "write_step_summary"]
 
 #: Failed measurements, regressions and errors listed at most (each list).
 MAX_LINES = 20
@@ -114,11 +117,32 @@ def _tested(record: RunRecord) -> list[str]:
     return [*lines, ""] if lines else []
 
 
+class SummaryError(ArmbenchError):
+    """The ``--summary`` file cannot be written; names it and says why."""
+
+
+def _summary_error(exc: FileRefused) -> SummaryError:
+    return SummaryError(f"--summary {exc}")
+
+
+def check_summary_file(path: str | Path) -> None:
+    """Refuse, before the run, a ``--summary`` path that cannot be appended to: a directory, a
+    device (``/dev/full``), a FIFO (appending would block until someone reads it), a missing
+    folder, a place nothing can be written (:class:`SummaryError`)."""
+    try:
+        check_appendable_file(path, "a summary file")
+    except FileRefused as exc:
+        raise _summary_error(exc) from None
+
+
 def append_summary(path: str | Path, text: str) -> None:
     """Append ``text`` to ``path`` (created if missing): a step summary file may hold what
-    earlier steps wrote, which is never lost."""
-    with open(path, "a", encoding="utf-8") as fh:
-        fh.write(text)
+    earlier steps wrote, which is never lost. Only a regular file is written, without blocking;
+    a failure (a full disk) is a :class:`SummaryError`."""
+    try:
+        append_regular_file(path, text.encode("utf-8"), "a summary file")
+    except FileRefused as exc:
+        raise _summary_error(exc) from None
 
 
 def write_step_summary(path: str | Path, record: RunRecord, out_dir: Path, status: int) -> None:

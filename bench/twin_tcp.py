@@ -61,6 +61,21 @@ def tcp_divergence(arm_tcp: Sequence[tuple[float, Sequence[float]]], twin: TwinT
     return out
 
 
+#: Bytes of an attached ``results.json`` read for its ``environment``, which a record writes
+#: near its start (a long run's record is tens of MB; a bomb's is as large as it claims).
+RECORD_HEAD_BYTES: Final = 1 << 20
+
+
+def _environment(head: bytes) -> Any:
+    """The ``environment`` object of a run record of which ``head`` is the start (the whole
+    record when it is shorter than :data:`RECORD_HEAD_BYTES`)."""
+    text = head.decode("utf-8", "replace")
+    if len(head) < RECORD_HEAD_BYTES:
+        return json.loads(text)["environment"]
+    rest = text[text.index('"environment":') + len('"environment":'):]
+    return json.JSONDecoder().raw_decode(rest.lstrip())[0]
+
+
 def _arm_model(path: str, settings: RobotSettings) -> RobotSettings:
     """The actual robot model of the arm an MCAP capture recorded, as far as the capture says:
     a run's capture of a simulated arm with ground truth (``fake://``) attaches its record, whose
@@ -69,9 +84,9 @@ def _arm_model(path: str, settings: RobotSettings) -> RobotSettings:
     they cancel)."""
     from armbench.drivers.transports.target import target_of
 
-    raw = read_attachment(path, "results.json")
+    raw = read_attachment(path, "results.json", RECORD_HEAD_BYTES)
     try:
-        env = json.loads(raw)["environment"] if raw is not None else {}
+        env = _environment(raw) if raw is not None else {}
         port = str(env.get("port") or "")
         if not port or not target_of(port).capabilities.truth:
             return actual_robot(settings)

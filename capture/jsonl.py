@@ -34,6 +34,7 @@ from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import Command
 from armbench.drivers.settings import SettingsError
+from armbench.drivers.user_files import FileRefused, open_regular_file
 
 __all__ = [
     "BATCH_INTERVAL_S",
@@ -47,6 +48,8 @@ __all__ = [
     "capture_options",
     "capture_stopped",
     "merge_capture",
+    "not_a_capture",
+    "open_capture_file",
     "read_capture",
     "shift_capture",
     "stop_event",
@@ -75,6 +78,47 @@ class CaptureError(ArmbenchError, ValueError):
         self.path = path
         self.line = line
         self.reason = reason
+
+
+#: What a run directory holds beside its capture, and what a user may give instead of it.
+_CAPTURE_NAMES: Final = ("capture.mcap", "capture.jsonl")
+#: How a run record's ``results.json`` begins (``armbench.record``'s schema, not imported: the
+#: record layer is above this one).
+_RUN_RECORD_MARK: Final = b'"schema": "armbench-run/'
+
+
+def open_capture_file(path: str | Path) -> IO[bytes]:
+    """The capture file ``path`` opened for reading; a missing file, a directory (a run
+    directory: its capture is named), a FIFO or a device is a :class:`CaptureError`, at once
+    (a FIFO nobody writes to would block the reader for ever)."""
+    try:
+        return open_regular_file(path, "a capture")
+    except FileRefused as exc:
+        p = Path(path)
+        inside = [p / name for name in _CAPTURE_NAMES if (p / name).is_file()] if p.is_dir() \
+            else []
+        hint = f" (give {inside[0]})" if inside else ""
+        raise CaptureError(str(path), None, exc.reason + hint) from None
+
+
+def _head(fh: IO[bytes]) -> bytes:
+    """The first 4 KiB of the open file ``fh`` (read again from its start)."""
+    fh.seek(0)
+    return fh.read(4096)
+
+
+def not_a_capture(path: Path, head: bytes, first: object = None) -> CaptureError | None:
+    """The error for a file that is another of a run's files given as a capture (its
+    ``results.json``, or the journal beside it), judged from its first bytes ``head`` and its
+    first JSON object ``first``; None when it is not one of them."""
+    if _RUN_RECORD_MARK in head:
+        what = "a run record (results.json)"
+    elif isinstance(first, dict) and {"suite", "trial"} <= first.keys():
+        what = "a run record's journal (results.journal.jsonl)"
+    else:
+        return None
+    return CaptureError(str(path), None, f"is {what}, not a capture: give the run's "
+                                         f"{' or '.join(_CAPTURE_NAMES)} (beside it)")
 
 
 class CaptureRecord(NamedTuple):
@@ -311,12 +355,12 @@ def stop_event(t_s: float, max_bytes: int) -> str:
 def _tail_lines(path: Path, size: int = 4096) -> list[bytes]:
     """The complete lines in the last ``size`` bytes of ``path`` (none if it is missing)."""
     try:
-        with path.open("rb") as fh:
+        with open_regular_file(path, "a capture") as fh:
             fh.seek(0, 2)
             end = fh.tell()
             fh.seek(max(0, end - size))
             data = fh.read()
-    except OSError:
+    except (OSError, FileRefused):
         return []
     lines = data.split(b"\n")
     return lines[1:-1] if end > size else lines[:-1]
@@ -382,12 +426,8 @@ def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
     :data:`MAX_LINE_BYTES`) and a record whose time is before the previous one's are a
     :class:`CaptureError` naming the line."""
     p = str(path)
-    try:
-        fh = Path(path).open("rb")  # noqa: SIM115 - closed by the with below
-    except OSError as exc:
-        raise CaptureError(p, None, f"cannot read: {exc.strerror or exc}") from exc
     last: tuple[float, int] | None = None  # the previous record's time and line
-    with fh:
+    with open_capture_file(path) as fh:
         for n, raw in enumerate(iter(lambda: fh.readline(MAX_LINE_BYTES + 1), b""), 1):
             if len(raw) > MAX_LINE_BYTES:
                 raise CaptureError(p, n, f"is longer than {MAX_LINE_BYTES} bytes: not a "
@@ -400,11 +440,15 @@ def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
                 raise CaptureError(p, n, f"is not text: byte 0x{raw[exc.start]:02x} at column "
                                          f"{exc.start + 1}") from None
             except ValueError as exc:
-                raise CaptureError(p, n, f"is not JSON: {exc}") from None
+                raise not_a_capture(Path(p), _head(fh)) or CaptureError(
+                    p, n, f"is not JSON: {exc}") from None
             except RecursionError:
                 raise CaptureError(p, n, "is not a capture record: JSON nested too "
                                          "deeply") from None
-            record = _record(obj, p, n)
+            try:
+                record = _record(obj, p, n)
+            except CaptureError as exc:
+                raise not_a_capture(Path(p), _head(fh), obj) or exc from None
             if record is None:
                 continue
             if last is not None and record.t_s < last[0]:

@@ -11,13 +11,14 @@ summary, a record half written) is read up to its last complete record.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import struct
 import zlib
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import IO, Any, Final, NamedTuple
+from typing import IO, Any, Final, NamedTuple, cast
 
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -41,13 +42,13 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
-from mcap.stream_reader import get_chunk_data_stream
 
-from armbench.capture.jsonl import CaptureError
+from armbench.capture.jsonl import CaptureError, open_capture_file
 
-__all__ = ["MAX_CHUNK_BYTES", "MCAP_MAGIC", "START_KEY", "START_METADATA", "McapLayout",
-           "RawMessage", "capture_start_ns", "check_key", "checked_entry", "entry_damage",
-           "iter_messages", "mcap_layout"]
+__all__ = ["MAX_CHUNK_BYTES", "MAX_METADATA_BYTES", "MAX_RECORD_BYTES", "MCAP_MAGIC", "START_KEY",
+           "START_METADATA", "AttachmentAt", "McapLayout", "RawMessage", "capture_start_ns",
+           "check_key", "checked_entry", "entry_damage", "iter_messages", "mcap_layout",
+           "mcap_records", "read_attachment", "summary_metadata"]
 
 MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
 #: The metadata record holding the run's identity and, under :data:`START_KEY`, the wall-clock
@@ -61,6 +62,9 @@ _OP_CHUNK: Final = int(Opcode.CHUNK)
 _OP_DATA_END: Final = int(Opcode.DATA_END)
 _OP_FOOTER: Final = int(Opcode.FOOTER)
 _OP_STATISTICS: Final = int(Opcode.STATISTICS)
+_OP_ATTACHMENT: Final = int(Opcode.ATTACHMENT)
+_OP_METADATA: Final = int(Opcode.METADATA)
+_OP_METADATA_INDEX: Final = int(Opcode.METADATA_INDEX)
 #: The MCAP records and their parsers: every record of the data section is parsed as what its
 #: opcode says (a flipped opcode then fails to parse, or is caught by the summary's chunk count);
 #: an opcode outside these (reserved, or user-defined, which armbench never writes) is damage.
@@ -72,13 +76,22 @@ _PARSERS: Final[dict[int, Any]] = {int(op): cls for op, cls in (
     (Opcode.STATISTICS, Statistics), (Opcode.METADATA, Metadata),
     (Opcode.METADATA_INDEX, MetadataIndex), (Opcode.SUMMARY_OFFSET, SummaryOffset),
     (Opcode.DATA_END, DataEnd))}
-#: Uncompressed bytes of a chunk at most: far above any writer's chunks (armbench's are 4 MiB),
-#: so a size field that was damaged is not allocated.
-MAX_CHUNK_BYTES: Final = 1 << 30
+#: Uncompressed bytes of a chunk at most: 16 times armbench's chunks (4 MiB). A chunk that
+#: claims more, or whose data expands to more than it claims (a compression bomb: a few kB of
+#: zstd that expand to a gigabyte), is refused; decompression stops at the claimed size, so no
+#: more than this is ever held.
+MAX_CHUNK_BYTES: Final = 64 << 20
+#: Bytes of a metadata record at most: armbench's two are a few kB (the run's identity, the
+#: traffic tally of at most 100 bins). A metadata record is read whole, so it is bounded.
+MAX_METADATA_BYTES: Final = 1 << 20
+#: Bytes of any other record read whole at most (chunks are bounded by :data:`MAX_CHUNK_BYTES`;
+#: an attachment's data is never read by the walk, only where it lies: :class:`AttachmentAt`).
+MAX_RECORD_BYTES: Final = 16 << 20
 #: A footer record's bytes (opcode, length, two offsets, CRC).
 _FOOTER_BYTES: Final = 1 + 8 + 8 + 8 + 4
 _HEAD: Final = struct.Struct("<BQ")  # a record's opcode and length
 _U64: Final = struct.Struct("<Q")
+_U32: Final = struct.Struct("<I")
 _MESSAGE_HEAD: Final = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
 
 
@@ -90,6 +103,16 @@ class RawMessage(NamedTuple):
     data: bytes
 
 
+class AttachmentAt(NamedTuple):
+    """An attachment of an MCAP file as the walk finds it: its name and media type and where
+    its data lies (byte offset and length), the data left unread."""
+
+    name: str
+    media_type: str
+    data_offset: int
+    data_length: int
+
+
 class McapLayout(NamedTuple):
     """What an MCAP file holds, before its messages are read: its complete chunks, and whether it
     was closed (its footer and closing magic are there) or cut short (a killed run)."""
@@ -98,11 +121,6 @@ class McapLayout(NamedTuple):
     closed: bool
 
 
-def _open(path: Path) -> IO[bytes]:
-    try:
-        return path.open("rb")
-    except OSError as exc:
-        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
 
 
 def _damaged(path: Path, pos: int, what: str, problem: object) -> CaptureError:
@@ -128,8 +146,9 @@ def _parse(path: Path, pos: int, opcode: int, body: bytes) -> McapRecord:
                        ) from None
 
 
-def _summary_chunks(path: Path, fh: IO[bytes], size: int) -> int | None:
-    """The chunk count of a closed file's summary statistics (None: it has none)."""
+def _summary_records(path: Path, fh: IO[bytes], size: int) -> Iterator[tuple[int, int, int]]:
+    """(byte offset, opcode, length) of each record of a closed file's summary section (none
+    when it has none), ``fh`` at the record's body when each is yielded."""
     at = size - len(MCAP_MAGIC) - _FOOTER_BYTES
     fh.seek(at)
     head = fh.read(_FOOTER_BYTES)
@@ -139,24 +158,104 @@ def _summary_chunks(path: Path, fh: IO[bytes], size: int) -> int | None:
     footer = Footer.read(ReadDataStream(io.BytesIO(head[_HEAD.size:])))
     pos = footer.summary_start
     if pos == 0:
-        return None
+        return
     if not len(MCAP_MAGIC) <= pos <= at:
         raise _damaged(path, at, "footer", f"its summary starts at byte {pos}")
-    fh.seek(pos)
     while pos + _HEAD.size <= at:
+        fh.seek(pos)
         opcode, length = _HEAD.unpack(fh.read(_HEAD.size))
         if pos + _HEAD.size + length > at:
             raise _damaged(path, pos, "summary record", "it runs past the footer")
+        yield pos, opcode, length
+        pos += _HEAD.size + length
+
+
+def _summary_chunks(path: Path, fh: IO[bytes], size: int) -> int | None:
+    """The chunk count of a closed file's summary statistics (None: it has none)."""
+    for pos, opcode, length in _summary_records(path, fh, size):
         if opcode == _OP_STATISTICS:
+            _check_length(path, pos, opcode, length)
             stats = _parse(path, pos, opcode, fh.read(length))
             assert isinstance(stats, Statistics)
             return int(stats.chunk_count)
-        pos += _HEAD.size + length
-        fh.seek(pos)
     return None
 
 
-def _records(path: Path, fh: IO[bytes]) -> Iterator[tuple[int, McapRecord]]:
+def summary_metadata(path: str | Path, name: str) -> Metadata | None:
+    """The metadata record ``name`` of a closed MCAP file, found through its summary's metadata
+    index (the chunks are not read); None for a file cut short, one without that record, or one
+    whose record is larger than :data:`MAX_METADATA_BYTES` (not read). A damaged summary is a
+    :class:`CaptureError`."""
+    p = Path(path)
+    with open_capture_file(p) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        if not _closed(fh):
+            return None
+        for pos, opcode, length in _summary_records(p, fh, size):
+            if opcode != _OP_METADATA_INDEX:
+                continue
+            _check_length(p, pos, opcode, length)
+            index = _parse(p, pos, opcode, fh.read(length))
+            assert isinstance(index, MetadataIndex)
+            if index.name != name:
+                continue
+            if not _HEAD.size <= index.length <= _HEAD.size + MAX_METADATA_BYTES or \
+                    index.offset + index.length > size:
+                return None
+            fh.seek(index.offset)
+            opcode, length = _HEAD.unpack(fh.read(_HEAD.size))
+            if opcode != _OP_METADATA or length != index.length - _HEAD.size:
+                raise _damaged(p, index.offset, "metadata", "not where its index says")
+            record = _parse(p, index.offset, opcode, fh.read(length))
+            assert isinstance(record, Metadata)
+            return record
+    return None
+
+
+def _check_length(path: Path, pos: int, opcode: int, length: int) -> None:
+    """Refuse a record longer than its kind may be (it would be read whole)."""
+    bound = {_OP_CHUNK: 2 * MAX_CHUNK_BYTES, _OP_METADATA: MAX_METADATA_BYTES}.get(
+        opcode, MAX_RECORD_BYTES)
+    if length > bound:
+        what = Opcode(opcode).name.lower().replace("_", " ")
+        raise CaptureError(str(path), None, f"{what} at byte {pos} holds {length} bytes, more "
+                                            f"than the {bound} a capture's {what} may hold: "
+                                            "not read")
+
+
+def _attachment_at(path: Path, fh: IO[bytes], pos: int, length: int) -> AttachmentAt:
+    """The attachment record at ``pos`` (``length`` bytes after its opcode and length), its
+    fields before the data parsed and the data skipped."""
+    body = pos + _HEAD.size
+    head = fh.read(min(length, 1 << 16))
+    try:
+        at = 16  # log time, create time
+        (n,) = _U32.unpack_from(head, at)
+        name = head[at + 4:at + 4 + n].decode("utf-8")
+        at += 4 + n
+        (n,) = _U32.unpack_from(head, at)
+        media_type = head[at + 4:at + 4 + n].decode("utf-8")
+        at += 4 + n
+        (data_length,) = _U64.unpack_from(head, at)
+        at += 8
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise _damaged(path, pos, "attachment", exc) from None
+    if at + data_length + 4 != length:
+        raise _damaged(path, pos, "attachment", f"its data of {data_length} bytes does not fit "
+                                                f"its record of {length}")
+    return AttachmentAt(name, media_type, body + at, data_length)
+
+
+def mcap_records(path: str | Path) -> Iterator[tuple[int, McapRecord | AttachmentAt]]:
+    """(byte offset, record) of each record of an MCAP file's data section, checked as
+    :func:`iter_messages` checks them (attachments as :class:`AttachmentAt`, their data
+    unread)."""
+    p = Path(path)
+    with open_capture_file(p) as fh:
+        yield from _records(p, fh)
+
+
+def _records(path: Path, fh: IO[bytes]) -> Iterator[tuple[int, McapRecord | AttachmentAt]]:
     """(byte offset, record) of each record of the data section, parsed as its opcode says. A
     record cut short by the end of the file ends the walk when the file was not closed (a killed
     run's last record); in a closed file it is damage, as an unknown opcode, a record that does
@@ -187,6 +286,12 @@ def _records(path: Path, fh: IO[bytes]) -> Iterator[tuple[int, McapRecord]]:
                 raise _damaged(path, pos, "record", f"its length ({length} bytes) runs past "
                                                     f"the end of the file ({size} bytes)")
             return  # cut short: the record was being written
+        if opcode == _OP_ATTACHMENT:
+            yield pos, _attachment_at(path, fh, pos, length)
+            fh.seek(end)
+            pos = end
+            continue
+        _check_length(path, pos, opcode, length)
         record = _parse(path, pos, opcode, fh.read(length))
         if opcode in (_OP_DATA_END, _OP_FOOTER):
             break
@@ -205,7 +310,7 @@ def mcap_layout(path: str | Path) -> McapLayout:
     """The complete chunks of an MCAP file and whether it was closed (the chunks are not
     decompressed); a :class:`CaptureError` if the file is damaged or not MCAP."""
     p = Path(path)
-    with _open(p) as fh:
+    with open_capture_file(p) as fh:
         chunks = sum(isinstance(r, Chunk) for _, r in _records(p, fh))
         return McapLayout(chunks, _closed(fh))
 
@@ -241,7 +346,7 @@ def capture_start_ns(path: str | Path) -> int:
     the times were on the wall clock (they count from 0) or one cut short before it. A start
     that does not match its check (captures written before it have none) is damage."""
     p = Path(path)
-    with _open(p) as fh:
+    with open_capture_file(p) as fh:
         for pos, record in _records(p, fh):
             if isinstance(record, Metadata) and record.name == START_METADATA:
                 meta = record.metadata
@@ -266,7 +371,7 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
     wanted = None if topics is None else set(topics)
     channels: dict[int, str] = {}
     p = Path(path)
-    with _open(p) as fh:
+    with open_capture_file(p) as fh:
         for pos, record in _records(p, fh):
             if isinstance(record, Chunk):
                 yield from _chunk_messages(p, pos, record, channels, wanted)
@@ -309,26 +414,86 @@ def _chunk_messages(path: Path, at: int, chunk: Chunk, channels: dict[int, str],
 
 
 def _chunk_data(path: Path, at: int, chunk: Chunk) -> tuple[bytes, int]:
-    """The chunk's records, decompressed and checked against the chunk's size and CRC."""
-    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
-        raise _damaged(path, at, "chunk", f"it claims {chunk.uncompressed_size} bytes "
-                                          f"uncompressed (at most {MAX_CHUNK_BYTES} are read)")
+    """The chunk's records, decompressed and checked against the chunk's size and CRC; never
+    more than the size the chunk claims, at most :data:`MAX_CHUNK_BYTES`, is decompressed."""
+    claimed = chunk.uncompressed_size
+    if claimed > MAX_CHUNK_BYTES:
+        raise _damaged(path, at, "chunk", f"it claims {claimed} bytes uncompressed (at most "
+                                          f"{MAX_CHUNK_BYTES} are read)")
     try:
-        if chunk.compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(
-                chunk.data, max_output_size=chunk.uncompressed_size)
-        elif chunk.compression == "":
-            data = chunk.data
-        else:
-            stream, size = get_chunk_data_stream(chunk)
-            data = stream.read(size)
+        data = _decompressed(chunk.compression, chunk.data, claimed + 1)
     except (zstandard.ZstdError, McapError, EOFError, ValueError, RuntimeError, OverflowError,
             MemoryError) as exc:
         raise _damaged(path, at, "chunk", f"{chunk.compression} data: "
                                           f"{str(exc) or type(exc).__name__}") from None
-    if len(data) != chunk.uncompressed_size:
-        raise _damaged(path, at, "chunk", f"{len(data)} bytes decompressed, "
-                                          f"{chunk.uncompressed_size} expected")
+    if len(data) != claimed:
+        raise _damaged(path, at, "chunk", "its data expands past the "
+                       f"{claimed} bytes it claims (a compression bomb?); not read further"
+                       if len(data) > claimed else
+                       f"{len(data)} bytes decompressed, {claimed} expected")
     if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
         raise _damaged(path, at, "chunk", "its CRC does not match its records")
     return data, len(data)
+
+
+class _Range:
+    """``length`` bytes of the open file ``fh`` from where it stands, as a stream: what a
+    decompressor reads of one attachment, and no further."""
+
+    def __init__(self, fh: IO[bytes], length: int) -> None:
+        self._fh = fh
+        self._left = length
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._fh.read(self._left if size < 0 else min(size, self._left))
+        self._left -= len(data)
+        return data
+
+
+def read_attachment(path: str | Path, name: str, max_bytes: int = MAX_CHUNK_BYTES
+                    ) -> bytes | None:
+    """The attachment ``name`` of an MCAP file (``name.zst`` decompressed when only that is
+    there), at most its first ``max_bytes`` bytes (decompressed as they are read: a bomb costs
+    no more); None if it has neither, or the compressed one does not decompress. A damaged file
+    is read up to the damage."""
+    p = Path(path)
+    found: dict[str, AttachmentAt] = {}
+    with open_capture_file(p) as fh:
+        with contextlib.suppress(CaptureError):
+            for _, record in _records(p, fh):
+                if isinstance(record, AttachmentAt) and record.name in (name, name + ".zst"):
+                    found[record.name] = record
+        at = found.get(name) or found.get(name + ".zst")
+        if at is None:
+            return None
+        fh.seek(at.data_offset)
+        if at.name == name:
+            return fh.read(min(at.data_length, max_bytes))
+        out = bytearray()
+        try:
+            source = cast(IO[bytes], _Range(fh, at.data_length))  # read() is all it needs
+            with zstandard.ZstdDecompressor().stream_reader(source, closefd=False) as reader:
+                while len(out) < max_bytes and (
+                        piece := reader.read(min(max_bytes - len(out), 1 << 20))):
+                    out += piece
+        except zstandard.ZstdError:
+            return None
+        return bytes(out)
+
+
+def _decompressed(compression: str, data: bytes, limit: int) -> bytes:
+    """``data`` decompressed as ``compression`` says, streamed, at most ``limit`` bytes of it:
+    what a chunk or an attachment expands to is never held beyond the bound."""
+    if compression == "":
+        return data[:limit]
+    if compression == "zstd":
+        with zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True) as reader:
+            out = bytearray()
+            while len(out) < limit and (piece := reader.read(min(limit - len(out), 1 << 20))):
+                out += piece
+            return bytes(out)
+    if compression == "lz4":
+        import lz4.frame  # type: ignore[import-untyped]  # a foreign writer's chunks only
+
+        return bytes(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=limit))
+    raise McapError(f"unknown compression {compression!r}")

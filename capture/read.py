@@ -23,11 +23,6 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-import zstandard
-from mcap.exceptions import McapError
-from mcap.reader import make_reader
-from mcap.records import Attachment
-from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import generate_dynamic
 
 from armbench.capture.jsonl import (
@@ -35,6 +30,7 @@ from armbench.capture.jsonl import (
     CaptureRecord,
     Direction,
     ReplayCommand,
+    open_capture_file,
     read_capture,
 )
 from armbench.capture.jsonl import capture_stopped as jsonl_stopped
@@ -47,6 +43,8 @@ from armbench.capture.mcap_walk import (
     entry_damage,
     iter_messages,
     mcap_layout,
+    read_attachment,
+    summary_metadata,
 )
 from armbench.capture.tally import TALLY_KEY, TALLY_METADATA, TrafficTally
 from armbench.drivers.protocol import Command, Framer
@@ -78,11 +76,11 @@ _PLAIN = re.compile(rb'[ !#-\[\]-~]*')
 
 def is_mcap(path: str | Path) -> bool:
     """Whether ``path`` starts with the MCAP magic (else it is taken as JSON Lines)."""
-    try:
-        with Path(path).open("rb") as fh:
+    with open_capture_file(path) as fh:
+        try:
             return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
-    except OSError as exc:
-        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
+        except OSError as exc:
+            raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
 
 
 def _strings(data: bytes, pos: int) -> tuple[list[bytes], int]:
@@ -195,26 +193,18 @@ def _lines(path: Path) -> Iterator[bytes]:
 def read_tally(path: str | Path) -> TrafficTally | None:
     """The traffic's tally an MCAP capture stores when it is closed
     (:class:`~armbench.capture.tally.TrafficCounter`); None for a JSON Lines capture, a
-    file cut short or one without it. Read through the summary's metadata index: the chunks are
-    not read."""
+    file cut short or one without it (or with it damaged, or larger than a tally can be). Read
+    through the summary's metadata index: the chunks are not read."""
     p = Path(path)
     if not is_mcap(p):
         return None
     try:
-        with p.open("rb") as fh:
-            reader = make_reader(fh)
-            if reader.get_summary() is None:
-                return None
-            for meta in reader.iter_metadata():
-                if meta.name == TALLY_METADATA:
-                    if entry_damage(meta.metadata, TALLY_KEY) is not None:
-                        return None  # damaged: the caller counts the records instead
-                    return TrafficTally.from_json(meta.metadata[TALLY_KEY])
-    except (McapError, EOFError, struct.error, ValueError, KeyError):
+        meta = summary_metadata(p, TALLY_METADATA)
+        if meta is None or entry_damage(meta.metadata, TALLY_KEY) is not None:
+            return None  # damaged: the caller counts the records instead
+        return TrafficTally.from_json(meta.metadata[TALLY_KEY])
+    except (CaptureError, ValueError, KeyError):
         return None
-    except OSError as exc:
-        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
-    return None
 
 
 def capture_stopped(path: str | Path) -> bool:
@@ -264,26 +254,6 @@ def _event_decoder() -> Callable[[bytes], Any]:
     return decoder
 
 
-def read_attachment(path: str | Path, name: str) -> bytes | None:
-    """The attachment ``name`` of an MCAP file (``name.zst`` decompressed when only that is
-    there), None if it has neither."""
-    found: dict[str, bytes] = {}
-    try:
-        with Path(path).open("rb") as fh:
-            for record in StreamReader(fh, emit_chunks=True).records:
-                if isinstance(record, Attachment) and record.name in (name, name + ".zst"):
-                    found[record.name] = record.data
-    except (McapError, EOFError, struct.error, ValueError):
-        pass
-    except OSError as exc:
-        raise CaptureError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
-    if name in found:
-        return found[name]
-    if name + ".zst" in found:
-        return zstandard.ZstdDecompressor().decompressobj().decompress(found[name + ".zst"])
-    return None
-
-
 @contextmanager
 def capture_lines(path: str | Path) -> Iterator[Iterator[bytes] | IO[bytes]]:
     """The capture as JSON Lines bytes, line by line: the file itself for JSON Lines, the
@@ -292,7 +262,7 @@ def capture_lines(path: str | Path) -> Iterator[Iterator[bytes] | IO[bytes]]:
     if is_mcap(p):
         yield _lines(p)
         return
-    with p.open("rb") as fh:
+    with open_capture_file(p) as fh:
         yield fh
 
 

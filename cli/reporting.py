@@ -1,5 +1,6 @@
 """The human-facing files of a run record: ``junit.xml`` and ``report.html``, written by whoever
-ran the bench (the ``run`` command, the pytest plugin) once the record is on disk. The runner
+ran the bench (the ``run`` command, the pytest plugin) once the record is on disk, and the
+Markdown step summary of ``run --summary``. The runner
 itself only writes the record; the report package is imported here, when a report is asked
 for."""
 
@@ -7,13 +8,14 @@ from __future__ import annotations
 
 import html
 import logging
+import sys
 from pathlib import Path
 
-from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE
+from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE, RunOutcome
 from armbench.drivers.errors import ArmbenchError
 from armbench.record import RunRecord, atomic_write_bytes, path_inside
 
-__all__ = ["text_summary", "write_reports"]
+__all__ = ["step_summary", "text_summary", "write_reports"]
 
 log = logging.getLogger("armbench.runner")
 
@@ -106,3 +108,16 @@ def text_summary(record: RunRecord) -> str:
         lines += ["", f"baseline {record.baseline.baseline_run_id}:",
                   format_comparison(record.baseline)]
     return "\n".join(lines) + "\n"
+
+
+def step_summary(path: str, outcome: RunOutcome) -> None:
+    """Append the run's Markdown summary to ``path`` (``--summary``); a failure now (the disk
+    filled, the file was replaced by a FIFO) is one line on stderr and changes nothing else: the
+    run's results are on disk and its exit status stands."""
+    from armbench.bench.run_summary import SummaryError, write_step_summary
+
+    try:
+        write_step_summary(path, outcome.record, outcome.out_dir, outcome.exit_status)
+    except SummaryError as exc:
+        print(f"armbench run: warning: {exc}; the run's results are in {outcome.out_dir}",
+              file=sys.stderr, flush=True)

@@ -30,6 +30,7 @@ from armbench.drivers.errors import (
     TransportError,
 )
 from armbench.drivers.link_outages import LinkOutage, OutageLog, ReconnectPolicy
+from armbench.drivers.log_limit import LogLimit
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.protocol import COMMAND_LEN, Command, FrameError, Reply
 from armbench.drivers.replies import ReplyStream
@@ -135,9 +136,11 @@ class ArmLink:
         """Every loss of the link (see :mod:`~armbench.drivers.link_outages`)."""
         self._tx_since_rx = 0
         self._notes = ServerNotes()
+        self._note_log = LogLimit(log, logging.WARNING, "server notes")
         self.server_note: str | None = None
         """The newest line the server wrote between frames (``armbench emulate``'s ``busy``,
-        ``overrun``, ...); each is logged as a warning when it arrives."""
+        ``overrun``, ...); each is logged as a warning when it arrives (from a server that
+        sends many, a few per interval, then their count: :mod:`armbench.drivers.log_limit`)."""
         self._note_frames = -1
 
     @property
@@ -193,6 +196,7 @@ class ArmLink:
         if self._closed:
             return
         self._closed = True
+        self._note_log.flush()
         self._waiters.close()
         try:
             reader, self._reader = self._reader, None
@@ -321,7 +325,7 @@ class ArmLink:
                 return
         batch = replies.receive(data, t, every=bool(recorders))
         for note in self._notes.feed(data):
-            log.warning("%s: the server says: %s", self.port, note)
+            self._note_log("%s: the server says: %s", self.port, note)
             self.server_note = note
             self._note_frames = replies.frames_received
         if batch.states:

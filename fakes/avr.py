@@ -30,6 +30,7 @@ from urllib.parse import parse_qs, urlsplit
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
 from armbench.drivers.transports.capabilities import Capabilities
+from armbench.fakes.physics import end_stop_steps
 
 __all__ = [
     "DEBIAN_PACKAGES",
@@ -147,19 +148,24 @@ def build(source: Path = FIRMWARE_SOURCE, out: Path | None = None, *,
     ``defines``, :func:`firmware_defines`) and the harness into ``out`` (default: a folder of
     :func:`cache_dir` named by the sources' and options' digest); returns it. An up-to-date
     build is reused unless ``force``."""
+    source = source.absolute()  # the compiler runs in ``source``: every path it is given
     if not (source / "firmware.h").is_file():
         raise FirmwareError(f"{source}: no firmware sources here (firmware.h missing)")
     _require_toolchain()
-    out = out if out is not None else cache_dir() / _source_digest(source, defines)
+    # relative to the working directory, never to ``source``, where the compiler runs
+    out = out.absolute() if out is not None else cache_dir() / _source_digest(source, defines)
     done = out / ".complete"
     if done.exists() and not force:
         return out
-    with _build_lock(out):
-        if done.exists() and not force:  # built by whoever held the lock before us
-            return out
-        done.unlink(missing_ok=True)
-        _build_into(source, out, defines)
-        done.write_text("ok\n")
+    try:
+        with _build_lock(out):
+            if done.exists() and not force:  # built by whoever held the lock before us
+                return out
+            done.unlink(missing_ok=True)
+            _build_into(source, out, defines)
+            done.write_text("ok\n")
+    except OSError as exc:  # a file in the way, a place nothing can be made
+        raise FirmwareError(f"cannot build into {out}: {exc.strerror or exc}") from None
     return out
 
 
@@ -247,8 +253,9 @@ def data_symbols(image: Path, names: Sequence[str]) -> dict[str, int]:
 def _joint_spec(joint: JointSettings, motor_steps: int) -> list[int]:
     per_rad = joint.steps_per_rad
     c = joint.counts_per_step
-    return [round(joint.lower_rad * per_rad), round(joint.upper_rad * per_rad),
-            round(joint.hall_rad * per_rad), c.numerator, c.denominator, motor_steps]
+    lower, upper = end_stop_steps(joint)  # the Python emulator's end stops
+    return [lower, upper, round(joint.hall_rad * per_rad), c.numerator, c.denominator,
+            motor_steps]
 
 
 def board_specs(robot: RobotSettings, images: Sequence[Path],

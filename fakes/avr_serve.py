@@ -14,6 +14,7 @@ from pathlib import Path
 
 from armbench.drivers.settings import RobotSettings
 from armbench.fakes.avr import Harness
+from armbench.fakes.pty_link import claim_link, release_link
 from armbench.fakes.signals import stop_on_signals
 
 __all__ = ["bridge_tcp", "serve_firmware"]
@@ -65,11 +66,8 @@ async def serve_firmware(robot: RobotSettings, firmware: str, args: argparse.Nam
         try:
             if host_port is None:
                 where = harness.pty
-                if args.link:
-                    link = Path(args.link)
-                    if link.is_symlink():
-                        link.unlink()
-                    link.symlink_to(harness.pty)
+                if args.link:  # only an earlier emulator's link is replaced, as for --pty
+                    claim_link(Path(args.link), harness.pty)
                     where += f" (link {args.link})"
             else:
                 host, port, server = await bridge_tcp(harness, *host_port, stop)
@@ -85,6 +83,6 @@ async def serve_firmware(robot: RobotSettings, firmware: str, args: argparse.Nam
             stop.set()
             if server is not None:
                 server.close()
-            if host_port is None and args.link and Path(args.link).is_symlink():
-                Path(args.link).unlink()
+            if host_port is None and args.link:
+                release_link(Path(args.link), harness.pty)
             await harness.stop()

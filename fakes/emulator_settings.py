@@ -11,7 +11,7 @@ from __future__ import annotations
 import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from armbench.drivers.numbers import finite_float, is_real
 from armbench.drivers.settings import RobotSettings, SettingsError
@@ -19,8 +19,9 @@ from armbench.fakes.joint import CYCLE_S, PhysicalEffects, StopRule
 from armbench.fakes.physics import PROFILES, ArmPhysics, arm_physics
 from armbench.fakes.stepper import STOP_RULES
 
-__all__ = ["CYCLE_S", "MAX_TIMES_S", "PROFILES", "ArmPhysics", "EmulatorSettings",
-           "PhysicalEffects", "actual_robot", "emulator_settings", "with_emulator_overrides"]
+__all__ = ["CYCLE_S", "MAX_DEADBAND_COUNTS", "MAX_TIMES_S", "PROFILES", "ArmPhysics",
+           "EmulatorSettings", "PhysicalEffects", "actual_robot", "emulator_settings",
+           "with_emulator_overrides"]
 
 @dataclass(frozen=True, slots=True)
 class EmulatorSettings:
@@ -83,6 +84,13 @@ class EmulatorSettings:
 #: or an EEPROM byte of a second, a boot of a minute are already far beyond any ATmega328P.
 MAX_TIMES_S: dict[str, float] = {"loop_overhead_s": 1.0, "eeprom_write_s_per_byte": 1.0,
                                  "boot_s": 60.0}
+
+#: The widest firmware deadband the emulator takes (encoder counts): 4 mrad on joints 1–2 and
+#: 7 mrad on joint 4, over ten times the driver's default arrival tolerance (3e-4 rad) and four
+#: times the start-up suite's 1 mrad. A firmware that stops that far from its target holds no
+#: position the bench can judge; a larger value is a mistake (100 000 counts holds every joint
+#: still, and every move of a run then times out).
+MAX_DEADBAND_COUNTS: Final = 64
 
 #: The ``float`` fields: made plain floats, as the compiled boards read them.
 _FLOATS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("float", float))
@@ -223,8 +231,10 @@ def _validate(s: EmulatorSettings) -> None:
     if s.reply_line_end not in ("", "\n", "\r\n"):
         raise SettingsError("emulator.reply_line_end", s.reply_line_end,
                             "must be '', '\\n' or '\\r\\n'")
-    if not isinstance(s.deadband_counts, int) or s.deadband_counts < 0:
-        raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be >= 0")
+    if isinstance(s.deadband_counts, bool) or not isinstance(s.deadband_counts, int) or \
+            not 0 <= s.deadband_counts <= MAX_DEADBAND_COUNTS:
+        raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be a whole "
+                            f"number of encoder counts 0..{MAX_DEADBAND_COUNTS}")
     if s.stop_rule not in STOP_RULES:
         raise SettingsError("emulator.stop_rule", s.stop_rule,
                             f"must be one of {', '.join(map(repr, STOP_RULES))}")

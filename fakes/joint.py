@@ -24,7 +24,7 @@ import numpy as np
 
 from armbench.drivers.protocol import MAX_DUTY
 from armbench.drivers.settings import JointSettings
-from armbench.fakes.physics import JointPhysics
+from armbench.fakes.physics import JointPhysics, end_stop_steps
 from armbench.fakes.stepper import (
     CYCLE_S,
     FOREVER,
@@ -63,17 +63,17 @@ _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 class JointModel:
     """One joint board's control loop, encoder, Hall sensor and drive, event-driven.
 
-    ``joint`` gives the drive train (``counts_per_step``, ``steps_per_rad``), the Hall position
-    and the hard limits; ``motor_steps`` is the start position of the motor in microsteps (0 = joint
-    angle 0), ``counter`` the start value of the position counter in encoder counts (default: the
-    encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the start time in control
-    cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in counts and
-    ``stop_rule`` when a moving joint stops: ``"window"``, once inside the deadband; ``"reach"``,
-    once its counter meets or passes the target (it starts only beyond the deadband). ``seed``
-    (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train and
-    link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m, positive
-    towards +q) as a function of its own link angle, read at each event (run planned, stop).
-    ``noise_per_count``: chance of a spurious ±1 count per encoder count.
+    ``joint`` gives the drive train (``counts_per_step``, ``steps_per_rad``), the Hall position and
+    the limits (the end stops beyond them); ``motor_steps`` is the start position of the motor in
+    microsteps (0 = joint angle 0), ``counter`` the start value of the position counter in encoder
+    counts (default: the encoder position ``floor(motor_steps × counts_per_step)``), ``tick`` the
+    start time in control cycles. ``deadband_counts`` (≥ 0) is the firmware's position tolerance in
+    counts and ``stop_rule`` when a moving joint stops: ``"window"``, once inside the deadband;
+    ``"reach"``, once its counter meets or passes the target (it starts only beyond the deadband).
+    ``seed`` (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train
+    and link (``fakes/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m,
+    positive towards +q) as a function of its own link angle, read at each event (run planned,
+    stop). ``noise_per_count``: chance of a spurious ±1 count per encoder count.
     """
 
     __slots__ = _FIELDS + _CONSTANTS
@@ -92,9 +92,9 @@ class JointModel:
         self.hall_step: Final = round((joint.hall_rad + hall_error) * joint.steps_per_rad)
         #: Counter value the Hall sensor sets, encoder counts.
         self.hall_count: Final = round(joint.hall_rad * joint.counts_per_rad)
-        #: Hard limits of the motor position, microsteps (inclusive).
-        self.lower_steps: Final = round(joint.lower_rad * joint.steps_per_rad)
-        self.upper_steps: Final = round(joint.upper_rad * joint.steps_per_rad)
+        #: Hard limits of the motor position, microsteps (inclusive): the end stops.
+        self.lower_steps: Final = end_stop_steps(joint)[0]
+        self.upper_steps: Final = end_stop_steps(joint)[1]
         if not self.lower_steps <= motor_steps <= self.upper_steps:
             raise ValueError(f"motor_steps {motor_steps} outside the limits "
                              f"{self.lower_steps}..{self.upper_steps}")

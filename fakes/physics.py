@@ -28,10 +28,11 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Final, NamedTuple
 
 from armbench.drivers.kinematics import dh_parameters
-from armbench.drivers.settings import Geometry, RobotSettings, SettingsError
+from armbench.drivers.settings import Geometry, JointSettings, RobotSettings, SettingsError
 
 __all__ = [
     "DEFAULT_JOINT_PHYSICS",
+    "END_STOP_MARGIN_RAD",
     "LOSS_LAWS",
     "PROFILES",
     "PULLOUT_CURVES",
@@ -41,6 +42,7 @@ __all__ = [
     "Mechanism",
     "TruthSample",
     "arm_physics",
+    "end_stop_steps",
 ]
 
 #: The emulator's profiles: ``physical`` (the default arm of ``docs/robot-model.md``) and
@@ -255,6 +257,22 @@ JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
     "loss_minus": (0.0, 0.9),
     "pullin_share": (0.5, 1.0),
 }
+#: How far beyond each of its configured limits a joint's end stop lies (rad): 1°, twice the
+#: largest Hall sensor error a settings file may give (``hall_error_deg``, ±0.5°). The firmware
+#: counts angles from where its Hall sensor really is; an end stop on the limit itself lies that
+#: error inside the limit as the firmware counts, so the limit on that side cannot be reached
+#: (joint 1, Hall error 0.02°: a move to +2.4434 rad stopped at 2.4431 and timed out). A real
+#: arm's end stops, too, lie beyond its working range.
+END_STOP_MARGIN_RAD: Final = math.radians(1.0)
+
+
+def end_stop_steps(joint: JointSettings) -> tuple[int, int]:
+    """The motor positions (microsteps) of the joint's two end stops: its limits widened by
+    :data:`END_STOP_MARGIN_RAD`."""
+    return (round((joint.lower_rad - END_STOP_MARGIN_RAD) * joint.steps_per_rad),
+            round((joint.upper_rad + END_STOP_MARGIN_RAD) * joint.steps_per_rad))
+
+
 #: The step-loss laws of ``JointPhysics.loss_law`` (``docs/robot-model.md``, Step loss).
 LOSS_LAWS: Final = ("torque", "stall", "duty", "none")
 #: The shapes of the pull-out curve (``JointPhysics.pullout_curve``, ``docs/robot-model.md``).

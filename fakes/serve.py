@@ -20,12 +20,14 @@ from collections.abc import Callable
 from pathlib import Path
 
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.log_limit import LogLimit
 from armbench.drivers.protocol import Framer
 from armbench.drivers.server_notes import note_line
 from armbench.fakes.arm_emulator import ArmEmulator
+from armbench.fakes.pty_link import LinkError, claim_link, release_link, require_pty
 
-__all__ = ["ClientStream", "FrameLogger", "LinkError", "PtyServer", "ReceiveBuffer", "TcpServer",
-           "claim_link", "parse_host_port", "real_time_loop", "release_link"]
+__all__ = ["ClientStream", "FrameLogger", "PtyServer", "ReceiveBuffer", "TcpServer",
+           "parse_host_port", "real_time_loop"]
 
 log = logging.getLogger("armbench.emulator")
 
@@ -175,51 +177,6 @@ class ReceiveBuffer:
             self._timer = None
 
 
-#: Where the kernel puts pseudo-terminal slaves: a symlink into it is one an emulator made.
-PTY_DEVICE_DIR = "/dev/pts/"
-
-
-class LinkError(ArmbenchError):
-    """``--link PATH`` cannot be made without destroying something that is not ours."""
-
-
-def _is_own_link(path: Path) -> bool:
-    """A symlink to a pty slave (live or gone) is the kind an earlier emulator left there."""
-    return path.is_symlink() and os.readlink(path).startswith(PTY_DEVICE_DIR)
-
-
-def claim_link(link: Path, device: str) -> None:
-    """Make ``link`` a symlink to ``device``, replacing only an emulator's earlier pty link.
-
-    Anything else at ``link`` (a file, a device node such as the real arm's ``/dev/ttyUSB0``, a
-    directory, another symlink) is refused with :class:`LinkError` and left as it is; the swap is
-    atomic, so no moment exists where ``link`` points nowhere or at something half-made.
-    """
-    if not link.parent.is_dir():
-        raise LinkError(f"--link {link}: folder {link.parent} does not exist")
-    if os.path.lexists(link) and not _is_own_link(link):
-        raise LinkError(f"--link {link}: something is already there (not an emulator's pty "
-                        f"link); refusing to replace it")
-    staging = link.with_name(f".{link.name}.{os.getpid()}.armbench-link")
-    try:
-        os.symlink(device, staging)
-        if os.path.lexists(link) and not _is_own_link(link):  # appeared meanwhile
-            raise LinkError(f"--link {link}: something appeared there; refusing to replace it")
-        os.replace(staging, link)
-    except OSError as exc:
-        raise LinkError(f"--link {link}: cannot make the link ({exc.strerror or exc})") from exc
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(staging)
-
-
-def release_link(link: Path, device: str) -> None:
-    """Remove ``link`` if it is still the symlink to ``device`` this server made, else leave it."""
-    with contextlib.suppress(OSError):
-        if link.is_symlink() and os.readlink(link) == device:
-            link.unlink()
-
-
 class PtyServer:
     """The arm on a pseudo-terminal pair; ``path`` is the device a client opens."""
 
@@ -239,7 +196,9 @@ class PtyServer:
         """The receive buffer; its ``overrun_bytes`` counts what the pty's clients lost."""
 
     async def start(self) -> str:
-        """Create the pty, start the arm and return the device path (POSIX only)."""
+        """Create the pty, start the arm and return the device path (POSIX only:
+        :func:`~armbench.fakes.pty_link.require_pty`)."""
+        require_pty()
         import termios  # POSIX: imported by the server that makes a pty
         import tty
 
@@ -337,6 +296,9 @@ class TcpServer:
         self.clients_taken_over = 0
         """Silent clients disconnected because another one asked for the arm."""
         self.on_client: Callable[[str], None] | None = None
+        # a client storm logs a few lines of each kind, then how many it held back
+        self._refusals = LogLimit(log, logging.WARNING, "refused clients")
+        self._sessions = LogLimit(log, logging.INFO, "client lines")
 
     @property
     def overrun_bytes(self) -> int:
@@ -361,7 +323,7 @@ class TcpServer:
         self._client_peer = peer
         self._last_input_s = asyncio.get_running_loop().time()
         self.clients_served += 1
-        log.info("client %s connected", peer)
+        self._sessions("client %s connected", peer)
         if self.on_client is not None:
             self.on_client(peer)
         try:
@@ -372,7 +334,7 @@ class TcpServer:
             writer.close()
             with contextlib.suppress(ConnectionError, OSError):
                 await writer.wait_closed()
-            log.info("client %s left", peer)
+            self._sessions("client %s left", peer)
             self._slot_free.set()
 
     async def _take_slot(self, peer: str, writer: asyncio.StreamWriter) -> bool:
@@ -383,7 +345,8 @@ class TcpServer:
             silent_s = asyncio.get_running_loop().time() - self._last_input_s
             if silent_s < self.idle_timeout_s:
                 self.clients_refused += 1
-                log.warning("refusing %s: client %s is connected", peer, self._client_peer)
+                self._refusals("refusing %s: client %s is connected", peer,
+                               self._client_peer)
                 await _say_and_close(writer, f"busy: another client ({self._client_peer}) has the "
                                              f"arm; it frees after {self.idle_timeout_s:g} s "
                                              f"without input from that client")
@@ -465,10 +428,12 @@ class TcpServer:
         except TimeoutError:
             log.warning("client %s idle for %.0f s: disconnected", peer, self.idle_timeout_s)
         except (ConnectionError, OSError) as exc:
-            log.info("client %s: %s", peer, exc)
+            self._sessions("client %s: %s", peer, exc)
 
     async def close(self) -> None:
         """Stop listening, drop the client, power the arm down."""
+        self._refusals.flush()
+        self._sessions.flush()
         if self._server is not None:
             self._server.close()
             if self._client is not None:

@@ -6,10 +6,13 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import stat
+import tempfile
 from collections.abc import Callable
 from pathlib import Path, PurePath
 from typing import BinaryIO
 
+from armbench.drivers.user_files import file_kind
 from armbench.record.fields import RecordError
 
 __all__ = [
@@ -85,8 +88,9 @@ def _display(path: Path) -> str:
 def check_directory_writable(directory: str | Path, what: str) -> None:
     """Raise a RecordError naming ``what`` (``--out DIR``) unless ``directory`` is, or can be
     made, a directory this process can write into: checked on the nearest part of the path that
-    exists (a file in the way, a path under a file, a read-only file system or folder), without
-    creating anything."""
+    exists (a file in the way, a path under a file, a read-only file system or folder, a place
+    such as ``/proc`` where nothing can be made), creating nothing but a probe file that is
+    removed at once."""
     target = Path(directory)
     probe = target
     while not probe.exists() and probe != probe.parent:
@@ -96,10 +100,15 @@ def check_directory_writable(directory: str | Path, what: str) -> None:
     if not probe.is_dir():
         where = "is" if probe == target else f"is under {_display(probe)}, which is"
         raise RecordError(what, f"{_display(target)} {where} a file, not a directory")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        reason = "a read-only file system" if _read_only(probe) else "no write permission"
+    try:  # made and removed, not os.access: root passes that check where nothing can be made
+        with tempfile.TemporaryFile(dir=probe, prefix=".armbench-probe-"):
+            pass
+    except OSError as exc:
+        reason = ("a read-only file system" if _read_only(probe)
+                  else "no write permission" if isinstance(exc, PermissionError)
+                  else exc.strerror or str(exc))
         raise RecordError(what, f"{_display(target)} cannot be written: {reason} at "
-                                f"{_display(probe)}")
+                                f"{_display(probe)}") from None
 
 
 def _read_only(path: Path) -> bool:
@@ -146,8 +155,15 @@ def atomic_write(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
     """Replace ``path`` atomically with what ``write`` writes to the file it is given: a
     temporary file in the same directory is written, fsync'ed and renamed over ``path``
     (``os.replace``), then the directory is fsync'ed. Readers see the old or the new content,
-    never a mix; no temporary file is left behind."""
+    never a mix; no temporary file is left behind. A device, a FIFO or a directory at ``path``
+    is refused (as root, renaming over ``/dev/null`` would replace the device with a file); a
+    symbolic link is replaced, not what it points to."""
     target = Path(path)
+    with contextlib.suppress(FileNotFoundError):
+        mode = os.lstat(target).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISLNK(mode)):
+            raise RecordError(str(target), f"is {file_kind(mode)}, not a file; it is never "
+                                           "replaced")
     tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
     try:
         # 0o666 and the umask, like any new file (mkstemp would make it private, 0o600).

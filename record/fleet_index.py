@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RecordError, atomic_write_bytes
 
 __all__ = ["FLEET_FILE", "FLEET_SCHEMA", "FleetArm", "FleetIndex", "is_fleet", "read_fleet_index",
@@ -66,8 +67,8 @@ def read_fleet_index(directory: Path) -> FleetIndex:
     is missing or malformed."""
     path = directory / FLEET_FILE
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
+        data = json.loads(read_regular_file(path, "a fleet.json", MAX_JSON_BYTES))
+    except (FileRefused, ValueError, RecursionError) as exc:
         raise RecordError(str(path), f"cannot be read: {exc}") from None
     if not isinstance(data, dict) or data.get("schema") != FLEET_SCHEMA:
         raise RecordError(f"{path}.schema", f"is not {FLEET_SCHEMA!r}")

@@ -18,6 +18,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict, overload
 
+from armbench.drivers.user_files import FileRefused, open_regular_file
 from armbench.record.fields import RecordError
 from armbench.record.files import fsync_directory
 
@@ -60,12 +61,12 @@ def read_journal(path: Path) -> Iterator[tuple[int, JournalEntry]]:
     """The entries of journal ``path`` with their line numbers (nothing if there is none). A last
     line without its newline is a write a crash cut short and is skipped; any other line that is
     not an entry raises a RecordError naming the line."""
-    try:
-        fh = path.open("rb")
-    except FileNotFoundError:
-        return
-    except OSError as exc:
-        raise RecordError(str(path), f"cannot be read: {exc.strerror or exc}") from None
+    try:  # a FIFO or a device there is refused, not waited on
+        fh = open_regular_file(path, "a journal")
+    except FileRefused as exc:
+        if not os.path.lexists(path):
+            return
+        raise RecordError(str(path), exc.reason) from None
     with fh:
         for number, raw in enumerate(fh, start=1):
             if not raw.endswith(b"\n"):

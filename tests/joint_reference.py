@@ -12,6 +12,7 @@ import math
 
 from armbench.drivers.settings import JointSettings
 from armbench.fakes.joint import Motion, PwmState, Transition
+from armbench.fakes.physics import end_stop_steps
 
 
 class ReferenceJoint:
@@ -23,8 +24,7 @@ class ReferenceJoint:
         self.cps = joint.counts_per_step
         self.hall_step = round(joint.hall_rad * joint.steps_per_rad)
         self.hall_count = round(joint.hall_rad * joint.counts_per_rad)
-        self.lower_steps = round(joint.lower_rad * joint.steps_per_rad)
-        self.upper_steps = round(joint.upper_rad * joint.steps_per_rad)
+        self.lower_steps, self.upper_steps = end_stop_steps(joint)
         self.deadband = deadband_counts
         self.reach = stop_rule == "reach"
         self.tick = tick

@@ -78,7 +78,7 @@ def test_reader_errors_name_file_and_line(tmp_path: Path) -> None:
         with pytest.raises(CaptureError, match=match) as info:
             list(read_capture(path))
         assert info.value.line == 3 and info.value.path == str(path)
-    with pytest.raises(CaptureError, match="cannot read"):
+    with pytest.raises(CaptureError, match=r"missing\.jsonl: does not exist"):
         list(read_capture(tmp_path / "missing.jsonl"))
     with pytest.raises(CaptureError, match="cannot write"):
         CaptureWriter(tmp_path / "no" / "dir" / "c.jsonl", 0.0)

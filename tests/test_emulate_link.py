@@ -7,6 +7,7 @@ as a ``mknod`` character device is, and needs no privilege.
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -15,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from armbench.cli.main import main
-from armbench.fakes.serve import LinkError, claim_link, release_link
+from armbench.fakes.pty_link import LinkError, claim_link, release_link
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -107,3 +108,33 @@ def test_cli_in_a_process_keeps_the_file(tmp_path: Path) -> None:
     assert proc.returncode == 2, proc.stderr
     assert "refusing" in proc.stderr and "Traceback" not in proc.stderr
     assert link.read_text(encoding="utf-8") == "a user's notes\n"
+
+
+@pytest.mark.skipif(shutil.which("avr-gcc") is None, reason="no AVR toolchain")
+@pytest.mark.parametrize("kind", ["symlink elsewhere", "regular file"])
+def test_firmware_in_the_loop_keeps_what_is_at_the_link(tmp_path: Path, kind: str,
+                                                        capsys: pytest.CaptureFixture[str]
+                                                        ) -> None:
+    """``emulate --firmware`` made its own link: it deleted any symlink there (a file was a
+    traceback); it now claims the link as ``--pty`` does."""
+    link = tmp_path / "ttyUSB0"
+    MAKERS[kind](link)
+    before = _snapshot(link)
+    assert main(["emulate", "--firmware", "", "--pty", "--link", str(link),
+                 "--duration", "0.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines()[-1].startswith("armbench emulate: error: --link") and "refusing" in err
+    assert _snapshot(link) == before
+
+
+def test_pty_without_termios_is_one_line() -> None:
+    """Where ``termios`` is missing (Windows; made unimportable here), ``--pty`` says what it
+    needs instead of a ``ModuleNotFoundError`` traceback."""
+    code = ("import sys; sys.modules['termios'] = None; from armbench.cli.main import main; "
+            "sys.exit(main(['emulate', '--pty', '--duration', '0.1']))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "armbench emulate: error: --pty needs a POSIX pseudo-terminal; use --tcp HOST:PORT "
+        "(this Python has no termios)"]

@@ -27,6 +27,7 @@ from armbench.fakes.emulator_settings import emulator_settings
 from armbench.fakes.faults import Fault, parse_faults
 from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
 from armbench.fakes.i2c_messages import I2CMessage
+from armbench.fakes.physics import END_STOP_MARGIN_RAD
 from armbench.fakes.vclock import run_virtual
 
 ROBOT = RobotSettings()
@@ -319,7 +320,7 @@ def test_recovery_driving_away_from_the_hall_fails_at_the_limit() -> None:
     emulate(body, initial_q_rad=[1.0, 0.0, 0.0, 0.0])
     true_q1, model, _ = out[0]
     assert model is not None and model.homing and model.at_limit
-    assert true_q1 == pytest.approx(UPPER[0], abs=1e-3)
+    assert true_q1 == pytest.approx(UPPER[0] + END_STOP_MARGIN_RAD, abs=1e-3)  # the end stop
 
 
 # --- faults ----------------------------------------------------------------------------------

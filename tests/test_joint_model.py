@@ -261,12 +261,12 @@ def test_homing_on_the_hall_completes_at_once() -> None:
 
 
 def test_a_move_into_a_limit_stalls_there_and_keeps_pulsing() -> None:
-    joint = replace(DEFAULT_JOINTS[1], gear_ratio=1.0)  # upper 70° = 311 steps
+    joint = replace(DEFAULT_JOINTS[1], gear_ratio=1.0)  # end stop 70° + 1° = 316 steps
     model = JointModel(joint)
     model.set_reference(0, 10_000, 99)
     model.advance(100_000)
-    assert model.motor_steps == model.upper_steps == 311 and model.at_limit
-    assert model.counter == math.floor(311 * Fraction(5, 4))
+    assert model.motor_steps == model.upper_steps == 316 and model.at_limit
+    assert model.counter == math.floor(316 * Fraction(5, 4))
     assert model.pulses == model.steps_taken + model.steps_blocked
     assert model.state in (PwmState.PWM_HIGH, PwmState.PWM_LOW)
     assert model.next_event_tick() is None

@@ -20,12 +20,12 @@ import shutil
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
+from tmpfs import mounted_tmpfs
 
 import armbench.cli.main
 from armbench.capture.jsonl import CaptureRecord, CaptureWriter
@@ -356,20 +356,6 @@ def test_a_config_path_that_is_not_utf8_is_refused_naming_it(tmp_path: Path) -> 
     assert not out.exists() and not (tmp_path / "runs").exists()
 
 
-@contextlib.contextmanager
-def _tmpfs(where: Path, *options: str) -> Iterator[Path]:
-    """A tmpfs mounted at ``where`` (skipped where mount is not permitted), unmounted after."""
-    where.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", ",".join(options), "tmpfs",
-                              str(where)], capture_output=True, text=True, check=False)
-    if mounted.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {mounted.stderr.strip()}")
-    try:
-        yield where
-    finally:
-        subprocess.run(["umount", "-l", str(where)], check=False)
-
-
 @pytest.mark.parametrize("case", ["file in the way", "under a file", "read-only"])
 def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> None:
     blocker = tmp_path / "file"
@@ -380,7 +366,7 @@ def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> 
         elif case == "under a file":
             out = blocker / "run"
         else:
-            out = stack.enter_context(_tmpfs(tmp_path / "ro", "ro", "size=64k")) / "run"
+            out = stack.enter_context(mounted_tmpfs(tmp_path / "ro", "ro", "size=64k")) / "run"
         refused = _bench("run", "accuracy", "--out", str(out))
         line = _one_line_error(refused, "--out")
         assert {"file in the way": "a file, not a directory",
@@ -397,7 +383,7 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
     the capture parts the full disk kept out of ``capture.mcap``: moved to a disk with room
     and resumed, the run ends with the whole run's capture."""
     moved = tmp_path / "moved"
-    with _tmpfs(tmp_path / "small", "size=1200k") as disk:
+    with mounted_tmpfs(tmp_path / "small", "size=1200k") as disk:
         out = disk / "run"
         full = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
         assert full.returncode == 2, full.stderr

@@ -36,6 +36,7 @@ from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json
 from armbench.bench.runner.trials import LoopClockWriter
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
+from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
 from armbench.record.baseline import read_record
 
@@ -100,10 +101,13 @@ def _resumed(options: CampaignOptions) -> BenchPlan:
     directory = Path(options.resume)
     record = read_record(path_inside(directory, RESULTS_FILE))
     try:
-        info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
+        info = json.loads(read_regular_file(directory / RUNNER_FILE, "a runner.json",
+                                            MAX_JSON_BYTES))
         campaign = info["campaign"]
         suite, samples = str(campaign["suite"]), int(campaign["samples"])
-    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+    except FileRefused as exc:
+        raise RecordError(str(exc.path), exc.reason) from None
+    except (ValueError, KeyError, TypeError, RecursionError):
         raise RecordError(str(directory / RUNNER_FILE), "does not describe a campaign; "
                                                         "armbench run --resume continues a "
                                                         "run") from None

@@ -31,7 +31,9 @@ from armbench.bench.runner import (
 from armbench.bench.runner.plan import json_equal
 from armbench.bench.runner.trials import TrialRunner, default_emulator
 from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
+from armbench.record.files import check_directory_writable
 
 __all__ = ["MergeError", "merge_shards"]
 
@@ -52,8 +54,9 @@ class _Shard:
 def _read_shard(directory: Path) -> _Shard:
     record = load_record(directory / RESULTS_FILE)
     try:
-        info = json.loads((directory / RUNNER_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
+        info = json.loads(read_regular_file(directory / RUNNER_FILE, "a runner.json",
+                                            MAX_JSON_BYTES))
+    except (FileRefused, ValueError, RecursionError) as exc:
         raise MergeError(f"{directory}: no readable {RUNNER_FILE} ({exc}): not a run "
                          "directory") from None
     shard = info.get("shard") if isinstance(info, dict) else None
@@ -173,6 +176,7 @@ def merge_shards(directories: Sequence[str | Path], out: str | Path) -> RunOutco
     if not directories:
         raise MergeError("no shard directories given")
     out_dir = Path(out)
+    check_directory_writable(out_dir, "--out")  # before a shard is read
     if (out_dir / RESULTS_FILE).exists():
         raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; choose "
                                                        "another --out")

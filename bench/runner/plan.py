@@ -47,6 +47,7 @@ from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.drivers.transports.target import Target, given_by, target_of
+from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import (
     RESULTS_FILE,
     RecordError,
@@ -168,11 +169,11 @@ def json_equal(a: object, b: object) -> bool:
 
 def _load_runner_info(directory: Path) -> dict[str, Any]:
     path = directory / RUNNER_FILE
-    if not path.exists():
+    if not os.path.lexists(path):
         return {}
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
+    try:  # a FIFO or a device in a folder given to --resume is refused, not waited on
+        data = json.loads(read_regular_file(path, "a runner.json", MAX_JSON_BYTES))
+    except (FileRefused, ValueError, RecursionError) as exc:
         raise RecordError(str(path), f"cannot be read: {exc}") from None
     if not isinstance(data, dict):
         raise RecordError(str(path), "is not a JSON object")

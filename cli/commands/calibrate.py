@@ -19,6 +19,7 @@ that does not move (the partial outputs are written).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.outputs import check_out_dir, check_out_files
 from armbench.bench.truth import load_tracker
 from armbench.bench.twin_check import twin_check
+from armbench.capture.jsonl import open_capture_file
 from armbench.cli.bounds import REPLY_TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.cli.commands.twin_check import format_failures
@@ -79,23 +81,25 @@ def register(sub: Any) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     out = _settings_path(Path(args.out))
-    if out.parent.is_dir() or out == Path(args.out):  # a folder there, or the former FILE.toml
+    new_folder = not (out.parent.is_dir() or out == Path(args.out))  # else the former FILE.toml
+    if new_folder:  # nothing in it to overwrite; made once its parent is known writable
+        check_out_dir("--out", out.parent, [])
+    else:
         check_out_files("--out", output_paths(out, observations=args.port is not None),
                         force=args.force)
-    else:  # a new folder: nothing in it to overwrite; made once its parent is known writable
-        check_out_dir("--out", out.parent, [])
+    if args.capture is not None:  # missing, a FIFO, a device: refused before --out is made
+        open_capture_file(args.capture).close()
+    held_out = (None if args.check is None
+                else load_capture(args.check, load_settings(args.settings)))
+    if new_folder:
         out.parent.mkdir(parents=True)
-    base = load_settings(args.settings)
-    held_out = None if args.check is None else load_capture(args.check, base)
-    if args.capture is not None:
-        result = calibrate_capture(args.capture, base, out, page=render_page)
-    else:
-        port: str = args.port
-        tracker = None if args.tracker is None else load_tracker(args.tracker, base)
-        result = run_on_port(port, calibrate_port(
-            port, base, out, budget_s=args.budget_s,
-            progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
-            page=render_page, reply_timeout_s=args.reply_timeout))
+    try:
+        result = _calibrate(args, out)
+    except BaseException:
+        if new_folder:  # a capture refused, an arm that failed: no empty folder is left
+            with contextlib.suppress(OSError):
+                out.parent.rmdir()
+        raise
     _summary(result, output_paths(out, observations=args.port is not None))
     return 0 if held_out is None else _held_out_check(result, held_out, args.check)
 
@@ -111,6 +115,18 @@ def _held_out_check(result: CalibrationResult, data: CaptureData, capture: str) 
         print(line)
     sys.stdout.flush()
     return 0 if check.verdict == "pass" else 1
+
+
+def _calibrate(args: argparse.Namespace, out: Path) -> CalibrationResult:
+    base = load_settings(args.settings)
+    if args.capture is not None:
+        return calibrate_capture(args.capture, base, out, page=render_page)
+    port: str = args.port
+    tracker = None if args.tracker is None else load_tracker(args.tracker, base)
+    return run_on_port(port, calibrate_port(
+        port, base, out, budget_s=args.budget_s,
+        progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
+        page=render_page, reply_timeout_s=args.reply_timeout))
 
 
 #: The settings file of a calibration written to ``--out DIR``.

@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.outputs import check_out_files
 from armbench.bench.runner.config_check import check_config
 from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 from armbench.drivers.errors import ArmbenchError
@@ -73,6 +74,8 @@ def _note_other_config(recorded: str | None, given: str | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.html is not None:  # an existing page is replaced; a device, a folder never
+        check_out_files("--html", [Path(args.html)], force=True)
     config = load_config(args.config)
     check_config(config, RobotSettings())  # a misspelt tolerance would apply to nothing
     baseline = load_baseline(_results(args.baseline))

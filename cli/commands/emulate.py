@@ -22,6 +22,7 @@ from armbench.drivers.transports.target import given_by, resolve
 from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.avr_serve import serve_firmware
 from armbench.fakes.emulator_settings import emulator_settings
+from armbench.fakes.pty_link import require_pty
 from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from armbench.fakes.signals import stop_on_signals
 from armbench.fakes.transport import FakeTransport
@@ -75,6 +76,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.link and not args.pty:
         raise ArmbenchError("--link: only with --pty")
     host_port = parse_host_port(args.tcp) if args.tcp else None
+    if host_port is None:  # --pty, the default: before anything is built
+        require_pty()
     if args.foxglove is not None:  # refused before anything starts; live_view warns
         check_live_endpoint(args.foxglove, args.allow_remote)
     if host_port is not None:

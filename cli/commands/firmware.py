@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.outputs import OutputError, check_out_dir
 from armbench.fakes.avr import FIRMWARE_SOURCE, build
 
 __all__ = ["register"]
@@ -23,12 +24,19 @@ def register(sub: Any) -> None:
     b.add_argument("--source", type=Path, default=FIRMWARE_SOURCE, metavar="DIR",
                    help="firmware sources (default: the checkout's firmware/)")
     b.add_argument("--out", type=Path, default=None, metavar="DIR",
-                   help="output folder (default: ~/.cache/armbench/firmware/<digest>)")
+                   help="output folder, relative to the working directory (default: "
+                        "~/.cache/armbench/firmware/<digest>); never inside the sources")
     b.add_argument("--force", action="store_true", help="rebuild even if up to date")
     b.set_defaults(func=_build)
 
 
 def _build(args: argparse.Namespace) -> int:
-    out = build(args.source, args.out, force=args.force)
-    print(out)
+    source = Path(args.source).absolute()
+    out = None if args.out is None else Path(args.out).absolute()
+    if out is not None:  # checked before anything is compiled
+        if out.resolve() == source.resolve() or source.resolve() in out.resolve().parents:
+            raise OutputError("--out", Path(args.out), f"is inside the firmware sources "
+                                                       f"{source}; build elsewhere")
+        check_out_dir("--out", out, ())
+    print(build(source, out, force=args.force))
     return 0

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 from armbench.bench.runner import RunOptions
 from armbench.bench.runner.fleet_run import FleetOutcome, run_fleet_sync
-from armbench.cli.reporting import write_reports
+from armbench.cli.reporting import step_summary, write_reports
 
 __all__ = ["print_summary", "run_fleet"]
 
@@ -37,12 +37,9 @@ def run_fleet(options: RunOptions, ports: Sequence[str], *, summary: str | None 
         log.warning("the fleet page failed (%s: %s)", type(exc).__name__, exc)
     print_summary(outcome)
     if summary is not None:
-        from armbench.bench.run_summary import write_step_summary
-
         for arm_outcome in outcome.outcomes:
             if arm_outcome is not None:
-                write_step_summary(summary, arm_outcome.record, arm_outcome.out_dir,
-                                   arm_outcome.exit_status)
+                step_summary(summary, arm_outcome)
     if page.exists():
         print(f"  fleet page  {page}", file=sys.stdout)
     return outcome.exit_status

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from armbench.bench.outputs import check_out_files
 from armbench.drivers.errors import ArmbenchError
 from armbench.record import REPORT_FILE, RESULTS_FILE, TOO_DEEP
 
@@ -36,12 +37,14 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from armbench.reports import render_index, render_report
+    from armbench.reports import INDEX_FILE, render_index, render_report
 
     if not args.dirs and args.index is None:
         print("armbench report: error: give run directories, --index RUNS_DIR, or both",
               file=sys.stderr)
         return 2
+    if args.index is not None:  # checked before any report is rendered
+        check_out_files("--index", [Path(args.index) / INDEX_FILE], force=True)
     status = 0
     for d in args.dirs:
         path = Path(d)

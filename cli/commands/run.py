@@ -26,7 +26,7 @@ from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import suite_names
 from armbench.bench.verdict import EXIT_STATUS_EPILOG
 from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
-from armbench.cli.reporting import write_reports
+from armbench.cli.reporting import step_summary, write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.fleet_index import is_fleet
@@ -129,6 +129,10 @@ def shard_arg(text: str) -> tuple[int, int]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.summary is not None:  # before anything moves: not a traceback after the whole run
+        from armbench.bench.run_summary import check_summary_file
+
+        check_summary_file(args.summary)
     ports: list[str] = args.port or []
     options = RunOptions(
         suites=list(args.suites),
@@ -151,9 +155,7 @@ def _run(args: argparse.Namespace) -> int:
         done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
     _summary(outcome)
     if args.summary is not None:
-        from armbench.bench.run_summary import write_step_summary
-
-        write_step_summary(args.summary, outcome.record, outcome.out_dir, outcome.exit_status)
+        step_summary(args.summary, outcome)
     return outcome.exit_status
 
 

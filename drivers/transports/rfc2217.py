@@ -26,6 +26,7 @@ import logging
 from collections.abc import Callable
 
 from armbench.drivers.errors import PortLostError
+from armbench.drivers.log_limit import LogLimit
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.telnet import (
     BINARY,
@@ -102,6 +103,7 @@ class Rfc2217Transport(Transport):
         self._resumed = asyncio.Event()
         self._lost_reason: str | None = None
         self._opened = False
+        self._option_log = LogLimit(_log, logging.WARNING, "COM-PORT-OPTION lines")
 
     @property
     def is_open(self) -> bool:
@@ -253,7 +255,7 @@ class Rfc2217Transport(Transport):
         elif (isinstance(event, OptionEnabled | OptionDisabled | OptionRefused)
               and event.option == COM_PORT_OPTION and self._opened
               and not codec.local_enabled(COM_PORT_OPTION)):
-            _log.warning("%s: the server turned COM-PORT-OPTION off", self.port)
+            self._option_log("%s: the server turned COM-PORT-OPTION off", self.port)
         self._changed.set()
 
     def _set_lost(self, reason: str) -> None:
@@ -312,6 +314,7 @@ class Rfc2217Transport(Transport):
     # --- close ----------------------------------------------------------------------------------
     async def close(self) -> None:
         self._opened = False
+        self._option_log.flush()
         await self._shutdown()
 
     async def _shutdown(self) -> None:
