@@ -12,8 +12,8 @@ __all__ = ["truth_line", "uncovered_lines"]
 
 def uncovered_lines(record: RunRecord) -> list[str]:
     """What the verdict does not cover, a line each: every suite or required figure the run
-    showed nothing of (:meth:`RunRecord.untested`), and every suite some of whose trials were
-    skipped."""
+    measured nothing of (:meth:`RunRecord.untested`), every suite some of whose trials were
+    skipped, and every suite whose figures no limit judged."""
     untested = record.untested()
     lines = [f"{name}: untested, {reason}" + ("" if required else
                                               " (optional: the verdict does not count it)")
@@ -25,6 +25,9 @@ def uncovered_lines(record: RunRecord) -> list[str]:
             why = "; ".join(dict.fromkeys(str(t.skipped) for t in skipped))
             lines.append(f"{suite.name}: {len(skipped)} of {len(suite.trials)} trials skipped "
                          f"(measured nothing): {why}")
+        if suite.name not in named and (n := suite.unjudged_figures()):
+            lines.append(f"{suite.name}: {n} figures recorded, none judged (no limit in the "
+                         "config): its pass claims nothing")
     return lines
 
 

@@ -291,10 +291,9 @@ class SuiteRecord:
     ``ended_s - started_s``); None while it runs and in records before it was kept."""
 
     def untested_reason(self) -> str | None:
-        """Why this finished suite showed nothing, or None: no trial ran, every trial was
-        skipped (their reasons), no trial left a figure, or no limit judged any figure (PASS means
-        measured *and* within limits). A running or errored suite is not untested: it is
-        incomplete or in error."""
+        """Why this finished suite measured nothing, or None: no trial ran, every trial was
+        skipped (their reasons), or no trial left a figure. A running or errored suite is not
+        untested: it is incomplete or in error."""
         if self.status != "done":
             return None
         done = [t for t in self.trials if t.status == "done"]
@@ -303,12 +302,15 @@ class SuiteRecord:
         if all(t.skipped is not None for t in done):
             return "every trial skipped: " + "; ".join(dict.fromkeys(str(t.skipped)
                                                                      for t in done))
-        figures = [*(m for t in done for m in t.measurements), *self.measurements]
-        if not figures:
+        if not self.measurements and not any(t.measurements for t in done):
             return "no figure was measured"
-        if all(m.outcome == "unjudged" for m in figures):
-            return f"no limit judges any of its {len(figures)} figures (recorded, not judged)"
         return None
+
+    def unjudged_figures(self) -> int:
+        """How many figures this suite recorded when no limit judged any of them (0 when one
+        was judged): measured but no claim, which the verdict says beside pass."""
+        figures = [*(m for t in self.trials for m in t.measurements), *self.measurements]
+        return 0 if any(m.outcome != "unjudged" for m in figures) else len(figures)
 
     def skipped_trials(self) -> list[Trial]:
         """The done trials that measured nothing (each with its reason)."""
