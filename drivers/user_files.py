@@ -16,7 +16,7 @@ from pathlib import Path
 
 from armbench.drivers.errors import ArmbenchError
 
-__all__ = ["MAX_TOML_BYTES", "FileRefused", "read_regular_file"]
+__all__ = ["MAX_TOML_BYTES", "FileRefused", "file_kind", "read_regular_file"]
 
 #: The most bytes a TOML file a user hands over (limits, settings, faults) may hold: 1 MiB,
 #: a hundred times the packaged limits file.
@@ -24,7 +24,7 @@ MAX_TOML_BYTES = 1 << 20
 
 _KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
           (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-          (stat.S_ISSOCK, "a socket"))
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISREG, "a regular file"))
 
 
 class FileRefused(ArmbenchError):
@@ -36,8 +36,9 @@ class FileRefused(ArmbenchError):
         self.reason = reason
 
 
-def _kind(mode: int) -> str:
-    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, for people: ``"a FIFO"``, ``"a directory"``..."""
+    return next((name for test, name in _KINDS if test(mode)), "a file of another kind")
 
 
 def read_regular_file(path: str | Path, what: str, max_bytes: int | None = None) -> bytes:
@@ -61,7 +62,7 @@ def read_regular_file(path: str | Path, what: str, max_bytes: int | None = None)
         raise FileRefused(p, f"cannot be read: {exc.strerror or exc}") from None
     if not stat.S_ISREG(mode):
         os.close(fd)
-        raise FileRefused(p, f"is {_kind(mode)}, not {what} (only a regular file is read)")
+        raise FileRefused(p, f"is {file_kind(mode)}, not {what} (only a regular file is read)")
     with os.fdopen(fd, "rb") as fh:
         try:
             data = fh.read() if max_bytes is None else fh.read(max_bytes + 1)
