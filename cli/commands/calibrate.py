@@ -78,7 +78,8 @@ def _run(args: argparse.Namespace) -> int:
                         force=args.force)
     else:  # a new folder: nothing in it to overwrite; made once its parent is known writable
         check_out_dir("--out", out.parent, [])
-        out.parent.mkdir(parents=True)
+        if args.capture is not None:  # on a port: once the arm answered (calibrate_port)
+            out.parent.mkdir(parents=True)
     base = load_settings(args.settings)
     if args.capture is not None:
         result = calibrate_capture(args.capture, base, out, page=render_page)
