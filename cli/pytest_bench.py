@@ -207,6 +207,7 @@ def _session(config: pytest.Config) -> BenchSession:
         mode = str(config.getoption(RECORD_MODE_OPTION, "new"))
         try:
             target = target_of(port)
+            target.preflight()  # the address, the device looked at: not opened
             inputs = target.inputs(given_by({"settings": SETTINGS_OPTION},
                                             settings=settings_path))
             limits = load_limits(limits_path) if limits_path else None

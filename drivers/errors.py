@@ -33,7 +33,20 @@ __all__ = [
     "TransportError",
     "WaitTimeoutError",
     "format_q_rad",
+    "shown_port",
 ]
+
+#: The most characters of a port string an error message shows: a longer one (a 10 kB device
+#: name, a URL with a pasted file in its query) is cut, so the message stays one readable line.
+SHOWN_PORT_CHARS = 400
+
+
+def shown_port(port: str, limit: int = SHOWN_PORT_CHARS) -> str:
+    """``port`` (or a part of it) as an error message shows it: whole up to ``limit``
+    characters, else its start and how long it is."""
+    if len(port) <= limit:
+        return port
+    return f"{port[:limit]}... ({len(port)} characters)"
 
 
 class LastReply(Protocol):
@@ -56,7 +69,7 @@ class TransportError(ArmbenchError, OSError):
     """A transport could not be opened, configured or used; names the port."""
 
     def __init__(self, port: str, reason: str) -> None:
-        super().__init__(f"{port}: {reason}")
+        super().__init__(f"{shown_port(port)}: {reason}")
         self.port = port
         self.reason = reason
 

@@ -31,7 +31,7 @@ MAX_JSON_BYTES = 16 << 20
 
 _KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
           (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-          (stat.S_ISSOCK, "a socket"))
+          (stat.S_ISSOCK, "a socket"), (stat.S_ISREG, "a regular file"))
 _NONBLOCK = getattr(os, "O_NONBLOCK", 0)
 _BINARY = getattr(os, "O_BINARY", 0)
 
@@ -46,8 +46,8 @@ class FileRefused(ArmbenchError):
 
 
 def file_kind(mode: int) -> str:
-    """What a file of ``mode`` (``st_mode``) is, for people: ``"a FIFO"``, ``"a directory"``."""
-    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+    """What a file of ``st_mode`` ``mode`` is, for people: ``"a FIFO"``, ``"a directory"``..."""
+    return next((name for test, name in _KINDS if test(mode)), "a file of another kind")
 
 
 def _open_regular(p: Path, flags: int, what: str, verb: str) -> int:

@@ -25,14 +25,16 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs
 
 from armbench.drivers.errors import ArmbenchError, TransportError
 from armbench.drivers.settings import JointSettings, RobotSettings, load_settings
 from armbench.drivers.transports.capabilities import Capabilities
+from armbench.drivers.transports.url_parts import split_port
 from armbench.fakes.physics import end_stop_steps
 
 __all__ = [
+    "AVR_FORM",
     "DEBIAN_PACKAGES",
     "FIRMWARE_SOURCE",
     "LOCKSTEP_CAPABILITIES",
@@ -49,6 +51,8 @@ __all__ = [
 ]
 
 _KNOWN = {"firmware", "settings", "eeprom", "control"}
+#: What an ``avr://`` port holds.
+AVR_FORM = "avr://[?firmware=DIR&settings=FILE&eeprom=DIR&control=FIFO]"
 
 #: What ``avr://`` can do on a virtual-time loop, the boards in lockstep with it
 #: (:class:`~armbench.fakes.avr_vt.AvrVirtualTransport`): fresh per trial, in workers, with
@@ -58,8 +62,9 @@ LOCKSTEP_CAPABILITIES = Capabilities(clock="virtual", fresh_per_trial=True, para
 
 
 def parse_avr_url(port: str) -> tuple[RobotSettings, str | None, Path | None, Path | None]:
-    """Robot settings, firmware, EEPROM folder and control FIFO named by an ``avr://`` URL."""
-    parts = urlsplit(port)
+    """Robot settings, firmware, EEPROM folder and control FIFO named by an ``avr://`` URL; an
+    unknown query parameter, or anything but a query after ``avr://``, is refused naming it."""
+    parts = split_port(port, AVR_FORM, address=False, query=True)
     if parts.scheme.lower() != "avr":
         raise TransportError(port, "not an avr:// port")
     query = parse_qs(parts.query, keep_blank_values=True)

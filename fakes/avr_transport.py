@@ -28,14 +28,16 @@ import asyncio
 import logging
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs
 
 from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import Capabilities
 from armbench.drivers.transports.serial_port import SerialTransport
+from armbench.drivers.transports.url_parts import split_port
 from armbench.fakes.avr import (
+    AVR_FORM,
     LOCKSTEP_CAPABILITIES,
     FirmwareError,
     Harness,
@@ -67,7 +69,7 @@ class AvrTransport(SerialTransport):
         """Lockstep boards on the run's virtual time, fresh per trial, in workers, with truth
         from the joint model and their own power switch; with ``eeprom=`` or ``control=``
         (things that outlive one set of boards) the harness's pty in real time."""
-        query = parse_qs(urlsplit(port).query)
+        query = parse_qs(split_port(port, AVR_FORM, address=False, query=True).query)
         if "eeprom" in query or "control" in query:
             return Capabilities(clock="real", power=True)
         return LOCKSTEP_CAPABILITIES

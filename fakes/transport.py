@@ -21,12 +21,13 @@ laser tracker and a relay give on a real bench).
 from __future__ import annotations
 
 from collections.abc import Mapping
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs
 
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
 from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 from armbench.drivers.transports.target import given_by, resolve
+from armbench.drivers.transports.url_parts import split_port
 from armbench.fakes.arm_emulator import ArmEmulator
 from armbench.fakes.emulator_settings import emulator_settings, with_emulator_overrides
 from armbench.fakes.faults import Fault, faults_from_settings, load_faults
@@ -60,8 +61,9 @@ class FakeTransport(InProcessTransport[ArmEmulator]):
     @classmethod
     def query(cls, port: str) -> Given:
         """The query's ``seed``, ``faults``, ``settings``, ``profile`` and ``payload``; an unknown
-        parameter or a seed that is not an integer is refused naming it."""
-        parts = urlsplit(port)
+        parameter, a seed that is not an integer, or anything but a query after ``fake://`` is
+        refused naming it."""
+        parts = split_port(port, "fake://[?QUERY]", address=False, query=True)
         if parts.scheme.lower() != "fake":
             raise ArmbenchError(f"{port}: not a fake:// port")
         query = parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)

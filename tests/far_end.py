@@ -109,9 +109,10 @@ class Ser2net:
 
 
 @contextlib.contextmanager
-def ser2net_over(tmp: Path, emu: Emulator) -> Iterator[Ser2net]:
-    """ser2net serving, as ``rfc2217://``, the pty of ``emu`` (``armbench emulate --pty
-    --link``); the test is skipped when ser2net is not installed."""
+def ser2net_over(tmp: Path, device: str | Path) -> Iterator[Ser2net]:
+    """ser2net serving ``device`` as ``rfc2217://`` (the link of an ``armbench emulate --pty
+    --link``, a pty where nothing answers, a device that is not there); the test is skipped when
+    ser2net is not installed."""
     exe = shutil.which("ser2net") or shutil.which("ser2net", path="/usr/sbin:/usr/local/sbin")
     if exe is None:
         pytest.skip("ser2net not installed (Debian package 'ser2net'): the RFC 2217 campaign "
@@ -121,7 +122,7 @@ def ser2net_over(tmp: Path, emu: Emulator) -> Iterator[Ser2net]:
     config.write_text(
         "connection: &armbench\n"
         f"  accepter: telnet(rfc2217),tcp,127.0.0.1,{tcp_port}\n"
-        f"  connector: serialdev,{emu.link},115200n81,local\n"
+        f"  connector: serialdev,{device},115200n81,local\n"
         "  options:\n"
         "    chardelay: false\n")
     server = Ser2net(exe, config, tcp_port)

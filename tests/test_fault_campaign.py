@@ -862,7 +862,7 @@ def ser2net(tmp_path: Path, emulators: Callable[..., Emulator]) -> Iterator[tupl
     """ser2net serving, as ``rfc2217://``, the pty that ``armbench emulate --pty --link``
     provides."""
     emu = emulators("pty")
-    with ser2net_over(tmp_path, emu) as server:
+    with ser2net_over(tmp_path, emu.link) as server:
         yield server, emu
 
 

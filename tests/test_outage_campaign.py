@@ -75,7 +75,7 @@ def far_end(request: pytest.FixtureRequest, tmp_path: Path,
     kind: str = request.param
     if kind == "rfc2217":
         emu = emulators("pty")
-        with ser2net_over(tmp_path, emu) as server:
+        with ser2net_over(tmp_path, emu.link) as server:
             yield FarEnd(server.port, server.kill, server.start, True)
         return
     emu = emulators(kind)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -182,6 +183,20 @@ def test_arm_record_mode_replace_and_resume(pytester: pytest.Pytester) -> None:
     replaced.assert_outcomes(passed=2)
     record = load_record(out / "results.json")
     assert [t.index for t in record.suites["pytest"].trials] == [0, 1] and not record.resumed
+
+
+def test_a_port_that_cannot_be_an_arm_is_a_usage_error(pytester: pytest.Pytester) -> None:
+    """Checked as ``armbench run`` checks it, before a test runs or a record is made."""
+    pytester.makeini("[pytest]\n")
+    pytester.makepyfile(test_my_bench=DOC_EXAMPLE)
+    fifo = pytester.path / "a-fifo"
+    os.mkfifo(fifo)
+    out = pytester.path / "rec"
+    result = pytester.runpytest_subprocess(*plugin(), "--arm-port", str(fifo), "--arm-record",
+                                           str(out))
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines(["*a-fifo: is a FIFO, not a serial device*"])
+    assert not out.exists()
 
 
 def test_without_a_record_measurements_still_fail_tests(user_tests: pytest.Pytester) -> None:

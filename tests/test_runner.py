@@ -342,8 +342,9 @@ def test_one_emulator_for_the_whole_run_with_isolation_run(tmp_path: Path) -> No
 
 
 async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
-    """A port that is not fake:// runs in real time with one reconnecting connection: here the
-    emulator served on a TCP socket, as ``armbench emulate --tcp`` does for a remote robot."""
+    """A port that is not fake:// runs in real time with one reconnecting connection, after the
+    probe's connection found the arm there: here the emulator served on a TCP socket, as
+    ``armbench emulate --tcp`` does for a remote robot."""
     from armbench.fakes.arm_emulator import ArmEmulator
     from armbench.fakes.serve import TcpServer
 
@@ -365,7 +366,7 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     assert {m.name for m in trial.measurements} == {"tiny.move_s"}  # no truth on hardware
     assert trial.duration_s > 0.05  # real seconds on the loop's (monotonic) clock
     assert record.environment.port == f"socket://{host}:{port}"
-    assert server.clients_served == 1
+    assert server.clients_served == 2  # the probe's connection, then the run's one
     assert list(open_capture(tmp_path / "r" / "capture.mcap"))
 
 

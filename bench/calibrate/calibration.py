@@ -64,6 +64,8 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
         await aopen_source(tracker)
     try:
         async with Arm.connect(port, base, reply_timeout_s=reply_timeout_s) as arm:
+            # the outputs' folder once the arm answered: a wrong port leaves nothing behind
+            out.parent.mkdir(parents=True, exist_ok=True)
             procedure = Procedure(arm, base, obs, budget_s=budget_s, save=lambda: obs.save(raw),
                                   progress=progress, tracker=tracker)
             try:

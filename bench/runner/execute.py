@@ -56,6 +56,7 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.parallel import ParallelTrials
 from armbench.bench.runner.plan import prepare
+from armbench.bench.runner.probe import probe_arm, probe_arms_sync
 from armbench.bench.runner.progress import ProgressPrinter
 from armbench.bench.runner.required import truth_source_of
 from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
@@ -233,8 +234,10 @@ def _close_capture(runner: TrialRunner, writer: LoopClockWriter) -> None:
 
 async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
                     emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
-    """Validate ``options`` (raising before any motion) and run them on the running loop."""
+    """Validate ``options`` and find the arm (raising before any motion or folder), then run
+    them on the running loop."""
     plan = prepare(options)
+    await probe_arm(plan)
     return await execute(plan, progress=progress, emulator_factory=emulator_factory)
 
 
@@ -248,12 +251,14 @@ def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     there).
 
     A folder to resume is locked before its record is read (a run still writing it is
-    refused before anything of it is read or written); a new run's folder once it is made.
+    refused before anything of it is read or written); a new run's folder once it is made, after
+    the arm answered at the port (:mod:`~armbench.bench.runner.probe`).
     """
     with contextlib.ExitStack() as held:
         if options.resume is not None and (Path(options.resume) / RESULTS_FILE).is_file():
             held.enter_context(hold_run_folder(options.resume))
         plan = prepare(options)
+        probe_arms_sync([plan])
         if plan.resume is None:
             make_directory(plan.out_dir, "--out" if options.out is not None else "run folder")
         held.enter_context(hold_run_folder(plan.out_dir))

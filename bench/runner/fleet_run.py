@@ -8,9 +8,11 @@ page reads). An arm is named by ``--port NAME=PORT``, else by its
 port: the place of a ``labgrid://PLACE``, the port with everything but letters, digits, ``.``,
 ``_`` and ``-`` turned into ``-`` otherwise (``/dev/ttyUSB0`` → ``dev-ttyUSB0``).
 
-Every arm's plan is prepared (checked) before any arm moves. One arm failing (a lost port, a
-limit, a bug) does not stop the others; the fleet's exit status is the worst of the arms'
-(:func:`fleet_exit_status`) and :attr:`FleetOutcome.failed` names the arms that did not pass.
+Every arm's plan is prepared (checked), and every arm that is already there must answer at its
+port (:mod:`~armbench.bench.runner.probe`), before any arm moves or the fleet's folder is made:
+a port where no arm answers refuses the fleet as bad input. Once begun, one arm failing (a lost
+port, a limit, a bug) does not stop the others; the fleet's exit status is the worst of the
+arms' (:func:`fleet_exit_status`) and :attr:`FleetOutcome.failed` names the arms that did not pass.
 The loop is the virtual-time one when every arm is ``fake://``, a real one otherwise (a
 ``fake://`` arm beside real ones then runs on real time).
 """
@@ -39,6 +41,7 @@ from armbench.bench.runner.options import (
     RunOutcome,
 )
 from armbench.bench.runner.plan import prepare
+from armbench.bench.runner.probe import probe_arms_sync
 from armbench.bench.verdict import worst_exit_status
 from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.settings import SettingsError
@@ -272,6 +275,7 @@ def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | No
     for plan, arm in zip(plans, arms, strict=True):
         if plan.resume is None:
             plan.run_id = f"{fleet_id}-{arm.name}"
+    probe_arms_sync(plans)  # every arm answers before the fleet's folder is made
     make_directory(out_dir, "--out" if options.out is not None else "run folder")
     held.enter_context(hold_run_folder(out_dir))
     _write_index(out_dir, fleet_id, arms, [None] * len(arms), [None] * len(arms), None)

@@ -43,7 +43,7 @@ from armbench.bench.suites import SuiteError, load_suite, registered_suites, sui
 from armbench.bench.suites.base import PowerSwitch
 from armbench.bench.truth import load_tracker
 from armbench.capture.jsonl import capture_options
-from armbench.drivers.errors import ArmbenchError, TransportError
+from armbench.drivers.errors import ArmbenchError
 from armbench.drivers.numbers import finite_float
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.drivers.transports.target import Target, given_by, target_of
@@ -182,13 +182,11 @@ def _load_runner_info(directory: Path) -> dict[str, Any]:
 
 def _check_port(port: str) -> Target:
     """The port's target: its scheme and transport, its address (``socket://HOST:PORT`` with
-    both), a serial device that exists, the settings its query carries."""
+    both, nothing more), a serial device that exists and is a character device, the settings its
+    query carries. Whether an arm answers there is asked later (:mod:`.probe`)."""
     target = target_of(port)  # unknown scheme or a transport that cannot be imported
-    if target.scheme is None and "/" in port and not Path(port).exists():
-        raise TransportError(port, "no such serial device (is the arm plugged in? "
-                                   "'python3 -m serial.tools.list_ports' lists the ports)")
     target.query()  # its query checked
-    target.preflight()  # built, not opened: its constructor checks the address
+    target.preflight()  # built, not opened: the address, the device looked at
     return target
 
 

@@ -303,13 +303,36 @@ class TrialAttempts:
             self.conn = None
             await self.disconnect(conn)
             self.messages.message("the arm connection was lost; connecting again")
-        try:
-            self.conn = await self.connect(
-                derive_seed(self.plan.seed, "emulator", "run")
+        seed = (derive_seed(self.plan.seed, "emulator", "run")
                 if self.plan.target.capabilities.fresh_per_trial else 0)
+        try:
+            self.conn = await (self.connect(seed) if self.last_arm is not None
+                               else self._first_connection(seed))
         except ArmbenchError as exc:
             raise RunAborted(f"cannot connect to {self.plan.port}: {exc}") from exc
         return self.conn
+
+    async def _first_connection(self, emulator_seed: int) -> Connection:
+        """The run's first connection, tried again with the reconnection's back-off for up to
+        ``[bench] outage_timeout_s``: the arm answered the probe a moment ago
+        (:mod:`~armbench.bench.runner.probe`), so a refusal now is an outage (a server that
+        serves one client at a time still closing the probe's connection, a board that resets
+        as its port opens), not a wrong port."""
+        from armbench.drivers.arm import ReconnectPolicy
+
+        loop = asyncio.get_running_loop()
+        give_up_s = loop.time() + self.plan.outage_timeout_s
+        delays = ReconnectPolicy(max_attempts=None).delays()
+        while True:
+            try:
+                return await self.connect(emulator_seed)
+            except ArmbenchError as exc:
+                delay_s = next(delays)
+                if loop.time() + delay_s > give_up_s:
+                    raise
+                log.info("%s: the first connection failed (%s); connecting again", self.plan.port,
+                         exc)
+            await asyncio.sleep(delay_s)
 
     async def close(self) -> None:
         """Close the run's connection, if open."""

@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace) -> int:
         open_capture_file(args.capture).close()
     held_out = (None if args.check is None
                 else load_capture(args.check, load_settings(args.settings)))
-    if new_folder:
+    if new_folder and args.capture is not None:  # on a port: once the arm answered
         out.parent.mkdir(parents=True)
     try:
         result = _calibrate(args, out)

@@ -7,6 +7,7 @@ benchmark is running, with ``--json`` too (stdout then holds the one JSON object
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import sys
 import time
@@ -15,7 +16,7 @@ from typing import Any
 from armbench.cli.perf import Figure, PerfOptions, run_benchmarks
 from armbench.hot_modules import build_name
 
-__all__ = ["format_figure", "register"]
+__all__ = ["check_port", "format_figure", "register"]
 
 
 def register(sub: Any) -> None:
@@ -42,7 +43,24 @@ def format_figure(f: Figure) -> str:
     return f"{f.name:32s} {f.value:>14,.1f} {f.unit}{extra}{note}"
 
 
+def check_port(port: str) -> None:
+    """``--port`` checked before minutes of measuring: its form, the device, and an arm
+    answering there (as the figure against it will connect: default settings and timeouts)."""
+    from armbench.bench.runner.probe import find_arm, needs_probe
+    from armbench.drivers.arm import CONNECT_TIMEOUT_S
+    from armbench.drivers.settings import RobotSettings
+    from armbench.drivers.transports.target import target_of
+
+    target = target_of(port)
+    target.preflight()
+    if needs_probe(target):
+        asyncio.run(find_arm(port, RobotSettings(), connect_timeout_s=CONNECT_TIMEOUT_S,
+                             reply_timeout_s=0.5, not_done="nothing was measured"))
+
+
 def _run(args: argparse.Namespace) -> int:
+    if args.port is not None:
+        check_port(args.port)
     opts = PerfOptions(port=args.port, repeats=max(1, args.repeats), quick=args.quick)
     t0 = time.monotonic()
 

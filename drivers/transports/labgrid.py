@@ -20,7 +20,7 @@ import os
 import threading
 import time
 from typing import Any, ClassVar
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import parse_qs
 
 from armbench.drivers.errors import (
     CoordinatorUnreachableError,
@@ -29,10 +29,12 @@ from armbench.drivers.errors import (
     PlaceLockedError,
     PlaceUnknownError,
     TransportError,
+    shown_port,
 )
 from armbench.drivers.peer_text import peer_str
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.transports.base import Transport
+from armbench.drivers.transports.url_parts import PART_CHARS, split_port
 
 __all__ = ["COORDINATOR_ENV", "DEFAULT_COORDINATOR_PORT", "LabgridClient", "LabgridPlace",
            "LabgridTransport", "parse_labgrid_url"]
@@ -45,16 +47,23 @@ DEFAULT_COORDINATOR_PORT = 20408
 COORDINATOR_TIMEOUT_S = 10.0
 #: Pause (s) between two attempts to reach a coordinator that did not take the session.
 COORDINATOR_RETRY_S = 0.5
+#: What a labgrid port holds.
+LABGRID_FORM = "labgrid://PLACE[?coordinator=HOST:PORT]"
 #: The resource class of a serial port an exporter serves over the network.
 SERIAL_RESOURCE = "NetworkSerialPort"
 
 
 def parse_labgrid_url(port: str) -> tuple[str, str]:
-    """``(place, coordinator HOST:PORT)`` of a ``labgrid://PLACE[?coordinator=HOST:PORT]`` port."""
-    parts = urlsplit(port)
+    """``(place, coordinator HOST:PORT)`` of a ``labgrid://PLACE[?coordinator=HOST:PORT]`` port;
+    anything else in it (a path after the place, a fragment) is refused naming it."""
+    parts = split_port(port, LABGRID_FORM, address=True, query=True, path=True)
     place = parts.netloc or parts.path.strip("/")
     if parts.scheme.lower() != "labgrid" or not place:
         raise TransportError(port, "not a labgrid://PLACE port")
+    if parts.netloc and parts.path.strip("/"):
+        shown = shown_port(parts.path, PART_CHARS)
+        raise TransportError(port, f"the path {shown!r} after the place is not understood "
+                                   f"({LABGRID_FORM} takes none)")
     query = parse_qs(parts.query, keep_blank_values=True)
     unknown = sorted(set(query) - {"coordinator"})
     if unknown:

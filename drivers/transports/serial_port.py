@@ -13,15 +13,68 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
+import os
+import stat
 from typing import Any
 
+from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.transports.streams import StreamTransport
+from armbench.drivers.user_files import file_kind
 
-__all__ = ["OPEN_TIMEOUT_S", "SerialTransport", "pyserial_settings"]
+__all__ = ["NO_DEVICE", "OPEN_TIMEOUT_S", "SerialTransport", "check_device", "pyserial_settings"]
 
 OPEN_TIMEOUT_S = 5.0
 """Seconds :meth:`SerialTransport.open` waits for the device to open (USB adapters can be slow)."""
+
+#: Why a device name that names nothing is refused, with where to look.
+NO_DEVICE = ("no such serial device (is the arm plugged in? 'python3 -m serial.tools.list_ports' "
+             "lists the ports)")
+
+#: The controlling terminal of whoever runs armbench: a terminal, never an arm.
+CONTROLLING_TERMINAL = "/dev/tty"
+
+
+def check_device(port: str) -> None:
+    """Refuse, naming it, a device name that cannot be a serial port, found by looking at it
+    without opening it: a name that names nothing (or is too long to name anything), anything
+    but a character device (a regular file, a FIFO, a directory) and the controlling terminal.
+    POSIX only: ``COM3`` names no file."""
+    if os.name != "posix":
+        return
+    try:
+        mode = os.stat(port).st_mode
+    except FileNotFoundError:
+        raise TransportError(port, NO_DEVICE) from None
+    except ValueError:  # a NUL byte
+        raise TransportError(port, "is not a device name (it holds a NUL character)") from None
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            raise TransportError(port, f"no such serial device: a name of {len(port)} "
+                                       "characters is longer than a file name may be") from None
+        raise TransportError(port, f"cannot be looked at: {exc.strerror or exc}") from None
+    if not stat.S_ISCHR(mode):
+        raise TransportError(port, f"is {file_kind(mode)}, not a serial device (a character "
+                                   "device such as /dev/ttyUSB0)")
+    if os.path.realpath(port) == CONTROLLING_TERMINAL:
+        raise TransportError(port, "is the controlling terminal of this process, not a serial "
+                                   "device")
+
+
+def _is_terminal(port: str) -> bool:
+    """Whether the device ``port`` is a terminal (True when it cannot be told): asked only once
+    opening it failed, so the failure can say that /dev/null or /dev/zero is no serial port."""
+    if os.name != "posix":
+        return True
+    try:
+        fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return True
+    try:
+        return os.isatty(fd)
+    finally:
+        os.close(fd)
 
 
 
@@ -65,6 +118,7 @@ class SerialTransport(StreamTransport):
         # termios, so it is imported when a port opens, not when the module loads
         import serial_asyncio_fast
 
+        check_device(self.port)
         try:
             async with asyncio.timeout(self.open_timeout_s):
                 return await serial_asyncio_fast.open_serial_connection(
@@ -73,7 +127,14 @@ class SerialTransport(StreamTransport):
         except TimeoutError:
             raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
         except _open_errors() as exc:  # serial.SerialException is an OSError
+            if not _is_terminal(self.port):
+                raise self._error("is not a serial device (a character device that is not a "
+                                  "terminal)") from exc
             raise self._error(f"cannot open: {exc}") from exc
+
+    def preflight(self) -> None:
+        """The device name looked at, not opened (:func:`check_device`)."""
+        check_device(self.port)
 
     def _loss(self, exc: OSError) -> str:
         return f"device lost: {exc}"

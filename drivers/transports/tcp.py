@@ -6,11 +6,11 @@ the bridge's business and are ignored here.
 from __future__ import annotations
 
 import asyncio
-import urllib.parse
 
 from armbench.drivers.errors import TransportError
 from armbench.drivers.settings import SerialSettings
 from armbench.drivers.transports.streams import CLOSE_TIMEOUT_S, StreamTransport, close_writer
+from armbench.drivers.transports.url_parts import split_port
 
 __all__ = [
     "CLOSE_TIMEOUT_S",
@@ -26,9 +26,11 @@ CONNECT_TIMEOUT_S = 5.0
 
 def parse_host_port(port: str) -> tuple[str, int]:
     """``(host, tcp_port)`` of ``scheme://HOST:PORT`` (IPv6 as ``[::1]``); raises
-    :class:`TransportError` naming ``port`` when either is missing or the port is not 1..65535."""
+    :class:`TransportError` naming ``port`` when either is missing, the port is not 1..65535, or
+    the URL holds more (a path, a query, a fragment, a user name: nothing reads them)."""
+    scheme = port.partition("://")[0] or "scheme"
+    url = split_port(port, f"{scheme}://HOST:PORT", address=True, query=False)
     try:
-        url = urllib.parse.urlsplit(port)
         tcp_port = url.port
     except ValueError as exc:
         raise TransportError(port, f"is not scheme://HOST:PORT ({exc})") from None
