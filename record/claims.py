@@ -41,9 +41,8 @@ def truth_line(record: RunRecord) -> str:
     if source is not None or true:
         judged = [m for m in true if m.outcome != "unjudged"]
         failed = sum(m.outcome == "fail" for m in judged)
-        return (f"truth judged: {len(judged)} true figure(s) from {source or 'the record'} "
-                f"against their limits, {failed} outside; the firmware's belief judged beside "
-                "them")
+        return (f"truth judged: {len(judged)} true figures ({source or 'from the record'}), "
+                f"{failed} outside their limits; the firmware's belief beside them")
     alone = [name for name in record.suites if records_truth(name)]
     return ("no reference instrument: the figures are the firmware's belief from its encoders"
             + (f"; the position figures of {', '.join(alone)} rest on the encoders alone (their "

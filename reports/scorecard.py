@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from fnmatch import fnmatchcase
 
 from armbench.record import ComparisonRow, Measurement, RunRecord, SuiteRecord
+from armbench.record.limits import Limit
 from armbench.record.suite_contract import (
     LIFE_WARN_YEARS,
     Headline,
@@ -24,7 +25,7 @@ from armbench.record.suite_contract import (
     contracts,
     records_truth,
 )
-from armbench.reports.format import format_duration, format_value, margin
+from armbench.reports.format import format_duration, format_number, format_value, margin
 from armbench.reports.views import ScoreRow
 
 __all__ = ["GENERIC_HEADLINES", "HEADLINES", "LIFE_WARN_YEARS", "TRUTH_SUITES", "change_text",
@@ -100,7 +101,7 @@ def headline_figure(suite: SuiteRecord,
 def _human_value(m: Measurement) -> str:
     """The value in its unit, a lifetime or duration in units people read (``13.1 h``)."""
     if m.unit == "years" and m.value < 2.0:
-        return f"{format_duration(m.value * _YEAR_S)} ({format_value(m.value, m.unit)})"
+        return format_duration(m.value * _YEAR_S)  # the years are in the metric's table
     if m.unit == "h" and m.value >= 48.0:
         return f"{m.value / 24.0:.3g} days"
     if m.unit == "s" and m.value >= 60.0:
@@ -118,6 +119,33 @@ def change_text(cmp: ComparisonRow) -> tuple[str, str]:
     return format_value(cmp.change_abs, cmp.unit, signed=True), word
 
 
+#: The order of a true figure's row's limits and margins: the arm's truth, the firmware's belief.
+_PAIR = ("true", "firmware")
+
+
+#: How the margin column names the figure whose margin it shows.
+_SHORT_VIEW = {"true": "true", "firmware": "fw"}
+
+
+def _pair_limits(limits: Sequence[Limit | None]) -> str:
+    """A true figure's limit and the firmware's, ``true · firmware`` on one line: ``≤ 5 · 2 mm``
+    where both bound the same side in the same unit, else each written out (``-``: none)."""
+    def bound(lim: Limit) -> tuple[str, float | None]:
+        return ("≤", lim.high) if lim.low is None else ("≥", lim.low) if lim.high is None \
+            else ("", None)
+
+    set_ = [lim for lim in limits if lim is not None]
+    kinds = {bound(lim)[0] for lim in set_}
+    if len(set_) == 2 and len(kinds) == 1 and "" not in kinds and \
+            len({lim.unit for lim in set_}) == 1:
+        op = kinds.pop()
+        values = " · ".join(f"{bound(lim)[1]:g}" for lim in set_)
+        return f"{op} {values} {set_[0].unit}".rstrip()
+    return " · ".join("-" if lim is None else
+                      lim.describe().replace("<= ", "≤ ").replace(">= ", "≥ ")
+                      for lim in limits)
+
+
 def _judging(m: Measurement, reported: Measurement | None) -> list[tuple[str, Measurement]]:
     """The figures of a row that a limit judges, each with the view it is (``true``,
     ``firmware``, or empty for a figure that is neither)."""
@@ -129,19 +157,23 @@ def _judging(m: Measurement, reported: Measurement | None) -> list[tuple[str, Me
 def _row(label: str, m: Measurement, cmp: ComparisonRow | None, paper: float | None, *,
          reported: Measurement | None = None, view: str = "",
          no_limit: str | None = None) -> ScoreRow:
-    """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m``. Each
-    figure a limit judges shows its own limit and margin, labelled with the figure it judges;
-    the row fails when either fails."""
+    """A row showing ``m``; ``reported``: the firmware's figure beside the true ``m``. Such a
+    row's limit and margin read ``true · firmware``, each judging its own figure ("-": none
+    set); the row fails when either fails."""
     change, direction = ("", "") if cmp is None else change_text(cmp)
     judging = _judging(m, reported)
-    if judging:
-        def tagged(text: str, which: str) -> str:
-            return f"{text} ({which})" if which and reported is not None else text
-
-        limit = "; ".join(tagged(f.limit.describe(), w) for w, f in judging if f.limit)
-        margins = "; ".join(tagged(format_value(margin(f), f.unit, signed=True), w)
-                            for w, f in judging)
-        outcome = "fail" if any(f.outcome == "fail" for _, f in judging) else judging[0][1].outcome
+    if judging and reported is not None:  # true · firmware, each judging its own figure
+        by_view = dict(judging)
+        limit = _pair_limits([by_view[w].limit if w in by_view else None for w in _PAIR])
+        # the margin shown is the tighter one, named; both are in its title
+        view_name, tight = min(judging, key=lambda vf: margin(vf[1]) or 0.0)
+        margins = f"{format_number(margin(tight), signed=True, unit=tight.unit)} " \
+                  f"({_SHORT_VIEW[view_name]})"  # the unit is the limit's, beside it
+        outcome = "fail" if any(f.outcome == "fail" for _, f in judging) else "pass"
+    elif judging:
+        limit = m.limit.describe() if m.limit else _NO_LIMIT
+        margins = format_value(margin(m), m.unit, signed=True)
+        outcome = m.outcome
     else:
         limit = no_limit or _NO_LIMIT
         margins, outcome = "-", m.outcome

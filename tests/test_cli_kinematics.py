@@ -112,7 +112,7 @@ def test_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str], argv: tuple[st
 
 @pytest.mark.parametrize(("argv", "message"), [
     (("fk", "0", "nan", "0", "0"), "finite"),
-    (("fk", "0", "0", "0", "0", "--d4", "inf"), "d4_m"),
+    (("fk", "0", "0", "0", "0", "--d4", "inf"), "--d4"),
     (("fk", "0", "0", "0", "0", "--settings", "/nonexistent/robot.toml"), "does not exist"),
     (("ik", "0.4", "0", "0.6", "--settings", "/nonexistent/robot.toml"), "does not exist"),
     (("ik", "0.4", "0", "0.6", "--roll", "nan"), "roll"),

@@ -47,6 +47,10 @@ class TrendSuite(Suite):
     def plan(self, params: Mapping[str, Any]) -> list[dict[str, Any]]:
         return [{"q1": 0.1 * (k + 1)} for k in range(params["trials"])]
 
+    def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
+        return frozenset({"trend.err_mm", "trend.true_err_mm", "trend.mean_mm",
+                          "trend.true_mean_mm"})
+
     async def run_trial(self, ctx: SuiteContext, index: int,
                         trial_params: Mapping[str, Any]) -> Trial:
         target = [trial_params["q1"], 0.0, 0.0, 0.0]

@@ -88,7 +88,8 @@ def test_a_true_figure_over_its_limit_fails_the_run(tmp_path: Path,
 
 def test_the_scorecard_margin_is_of_the_figure_its_limit_judges(lap: Path) -> None:
     """Seen: the margin column printed ``+1.909 mm`` (the firmware's margin) beside 3.303 mm.
-    Each limit and margin now names its figure, and the true margin is the true figure's."""
+    A true figure's row reads its limits ``true · firmware``, and its margin is the tighter of
+    the two, computed for the figure it names."""
     record = load_record(lap / "results.json")
     suite = record.suites["accuracy"]
     rows = {r.metric: r for r in score_rows(record, suite, suite_headlines("accuracy"), {})}
@@ -98,14 +99,14 @@ def test_the_scorecard_margin_is_of_the_figure_its_limit_judges(lap: Path) -> No
     believed = measured["accuracy.coordinated.mean_mm"]
     assert row.judges == "true+firmware"
     assert true.limit is not None and believed.limit is not None
-    assert "(true)" in row.limit and "(firmware)" in row.limit
-    true_margin, firmware_margin = row.margin.split("; ")
-    assert true_margin.endswith("(true)") and firmware_margin.endswith("(firmware)")
     assert true.limit.high is not None and believed.limit.high is not None
-    assert float(true_margin.split()[0]) == pytest.approx(true.limit.high - true.value,
-                                                          abs=0.01)
-    assert float(firmware_margin.split()[0]) == pytest.approx(
-        believed.limit.high - believed.value, abs=0.01)
+    assert row.limit == f"≤ {true.limit.high:g} · {believed.limit.high:g} mm"
+    true_margin = true.limit.high - true.value
+    firmware_margin = believed.limit.high - believed.value
+    shown, which = row.margin.rsplit(" ", 1)
+    tighter = min(true_margin, firmware_margin)
+    assert which == ("(true)" if tighter == true_margin else "(fw)")
+    assert float(shown) == pytest.approx(tighter, abs=0.01)
 
 
 @pytest.fixture(scope="module")
