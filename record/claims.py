@@ -4,10 +4,12 @@ the arm's truth from a reference instrument, or the firmware's belief from its e
 
 from __future__ import annotations
 
-from armbench.record.run_record import RunRecord
-from armbench.record.suite_contract import records_truth
+from fnmatch import fnmatchcase
 
-__all__ = ["truth_line", "uncovered_lines"]
+from armbench.record.run_record import RunRecord
+from armbench.record.suite_contract import contract, records_truth
+
+__all__ = ["encoder_headlines", "truth_line", "uncovered_lines"]
 
 
 def uncovered_lines(record: RunRecord) -> list[str]:
@@ -43,7 +45,27 @@ def truth_line(record: RunRecord) -> str:
         failed = sum(m.outcome == "fail" for m in judged)
         return (f"truth judged: {len(judged)} true figures ({source or 'from the record'}), "
                 f"{failed} outside their limits; the firmware's belief beside them")
-    alone = [name for name in record.suites if records_truth(name)]
+    alone = encoder_headlines(record)
+    shown = ", ".join(alone[:8]) + (f" and {len(alone) - 8} more" if len(alone) > 8 else "")
     return ("no reference instrument: the figures are the firmware's belief from its encoders"
-            + (f"; the position figures of {', '.join(alone)} rest on the encoders alone (their "
-               "true column: not measured)" if alone else ""))
+            + (f"; headline figures resting on the encoders alone: {shown}" if alone else ""))
+
+
+#: Units of the position figures a reference instrument would measure otherwise.
+_POSITION_UNITS = frozenset({"mm", "m", "mrad", "rad", "deg"})
+
+
+def encoder_headlines(record: RunRecord) -> list[str]:
+    """The headline figures (``"suite: label"``) of the suites that record a true figure beside
+    each position figure when they can, where this run recorded the position figure alone."""
+    out = []
+    for suite in record.suites.values():
+        if not records_truth(suite.name):
+            continue
+        names = {m.name: m.unit for m in suite.measurements}
+        for h in contract(suite.name).headlines:
+            units = [u for n, u in names.items()
+                     if (fnmatchcase(n, h.metric) if h.worst_of else n == h.metric)]
+            if units and units[0] in _POSITION_UNITS:
+                out.append(f"{suite.name}: {h.label}")
+    return out

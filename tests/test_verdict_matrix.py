@@ -193,3 +193,4 @@ def test_verdict_matrix(row: Row, tmp_path: Path, served: Callable[[], Emulator]
         assert (record.environment.truth_source is not None) == (row.truth == "present")
     if row.truth == "absent" and row.situation == "a true figure over its limit":
         assert "no reference instrument" in output
+        assert "resting on the encoders alone: accuracy: coordinated mean path error" in output
