@@ -19,6 +19,7 @@ import time
 from contextlib import redirect_stdout
 from pathlib import Path
 
+import numpy as np
 import pytest
 from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
@@ -28,6 +29,7 @@ from armbench.bench.runner.options import DEFAULT_CONFIG
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.cli import main as cli
 from armbench.drivers.errors import ArmbenchError
+from armbench.metrics import path_errors, square_yz
 from armbench.record import RunRecord, load_record
 from armbench.record.fleet_index import read_fleet_index
 from armbench.reports.fleet_page import render_fleet
@@ -245,6 +247,22 @@ def _figures(out_dir: Path, names: tuple[str, ...]) -> dict[str, list[float]]:
             for n in names}
 
 
+def _along_the_path(record: RunRecord, style: str) -> tuple[float, float]:
+    """The lap of ``style``: its mean distance to the square along the path the arm reported
+    (each stretch between two samples weighted by its length, not by the time it took: the
+    dwell at a corner and when the host happened to read do not count) and the longest stretch
+    between two samples (mm). The distance moves by at most as much as the arm: an average over
+    stretches at most ``h`` long is within ``h / 4`` of the path's own."""
+    suite = record.suites[ACCURACY.suite]
+    corners = square_yz(suite.params[ACCURACY.centre], float(suite.params[ACCURACY.side]))
+    (lap,) = (t for t in suite.trials if t.params[ACCURACY.style] == style)
+    points = np.array([s["reported_m"] for s in lap.samples], dtype=np.float64)
+    error_mm = path_errors(points, corners, closed=True).euclidean_mm
+    step_mm = 1000.0 * np.linalg.norm(np.diff(points, axis=0), axis=1)
+    mean_mm = float(np.sum(step_mm * (error_mm[1:] + error_mm[:-1]) / 2) / np.sum(step_mm))
+    return mean_mm, float(step_mm.max())
+
+
 @needs_lab
 def test_accuracy_on_two_labgrid_places_at_once(lab: Lab, tmp_path: Path) -> None:
     config = str(_one_lap(tmp_path))
@@ -263,15 +281,24 @@ def test_accuracy_on_two_labgrid_places_at_once(lab: Lab, tmp_path: Path) -> Non
     via_pty = _figures(tmp_path / "pty", arms)
     report = {n: [round(a / b, 4) for a, b in zip(via_lab[n], via_pty[n], strict=True)]
               for n in arms}
+    paths = {f"{n} {style}": [_along_the_path(load_record(tmp_path / link / n / "results.json"),
+                                              style) for link in ("lab", "pty")]
+             for n in arms for style in ACCURACY.styles}
     ARTIFACTS.mkdir(exist_ok=True)
     (ARTIFACTS / "fleet-labgrid-vs-pty.json").write_text(json.dumps(
-        {"labgrid": via_lab, "pty": via_pty, "ratio": report}, indent=1), encoding="utf-8")
-    # the same arm through labgrid and ser2net: the same figures up to real-time jitter (the
-    # 10 % target is measured over repeated runs in docs/fleet.md, not asserted in a timed test;
-    # this bound catches a lost or doubled frame, a wrong place or a wrong arm)
-    for n in arms:
-        for k, (a, b) in enumerate(zip(via_lab[n], via_pty[n], strict=True)):
-            assert abs(a - b) <= 0.25 * abs(b), (n, ACCURACY.headlines[k].label, a, b)
+        {"labgrid": via_lab, "pty": via_pty, "ratio": report, "along the path": paths},
+        indent=1), encoding="utf-8")
+    # The same arm through labgrid and ser2net as through its bare pty: the same path (the
+    # coordinated one up to when each waypoint came: micrometres in docs/fleet.md). The
+    # headline figures are averages over the lap's time, in which the host's timing counts (a
+    # busy host reacts late: the arm waits at a corner, a waypoint streamed late stops it on the
+    # square), so they are compared over repeated runs in docs/fleet.md, not here. Along the
+    # path the figures are the arm's own, up to where the samples fell: this catches a lost or
+    # doubled frame stream, or a lap that is not the square (the places are told apart by the
+    # names above: their emulators drive the same path).
+    for name, ((lab_mm, lab_step_mm), (pty_mm, pty_step_mm)) in paths.items():
+        assert abs(lab_mm - pty_mm) <= (lab_step_mm + pty_step_mm) / 4, (
+            name, lab_mm, pty_mm, lab_step_mm, pty_step_mm)
 
 
 # --- the fleet page in a browser ------------------------------------------------------------------

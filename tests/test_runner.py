@@ -507,6 +507,60 @@ def test_resume_after_cancellation_matches_an_uninterrupted_run(tmp_path: Path) 
     assert times == sorted(times)
 
 
+class _CancelWhileConnecting(io.StringIO):
+    """A progress stream that cancels ``task`` (what Ctrl-C does to ``asyncio.run``'s task)
+    ``after_s`` of loop time after the line of trial 1 (the next trial is connecting then)."""
+
+    def __init__(self, after_s: float) -> None:
+        super().__init__()
+        self.after_s = after_s
+        self.task: asyncio.Task[RunOutcome] | None = None
+
+    def write(self, s: str) -> int:
+        if " trial 1/" in s and "done" in s and self.task is not None:
+            asyncio.get_running_loop().call_later(self.after_s, self.task.cancel)
+        return super().write(s)
+
+
+def test_ctrl_c_while_a_trial_connects_keeps_its_frames_out_of_the_capture(
+        tmp_path: Path) -> None:
+    """Each trial's fresh arm garbles its replies for its first second: its connection waits for
+    a valid reply while the garbage is captured. Ctrl-C half-way through trial 2's connection:
+    the capture holds no frame of that trial (its record does not hold it), and the resumed run's
+    capture is the uninterrupted one's. (Ctrl-C landing between an arm's first reply and the
+    connection's return is the same case, in a window too short to hit by hand: a resumed
+    ``test_run_folder_safety.py`` run under load had a frame too many.)"""
+    config = write_config(tmp_path, trials=3)
+    faults = tmp_path / "garbled-start.toml"
+    faults.write_text('[[faults]]\nkind = "uart_corrupt"\nat_s = 0.0\nduration_s = 1.0\n'
+                      'probability = 1.0\n')
+    inputs: dict[str, Any] = {"suites": ["tiny"], "config": config, "seed": 3, "faults": faults,
+                              "workers": 1}
+    whole = run(RunOptions(out=tmp_path / "a", **inputs))
+    assert whole.record.verdict == "pass"
+    out = tmp_path / "b"
+    stream = _CancelWhileConnecting(0.5)
+
+    async def interrupted() -> None:
+        task = asyncio.get_running_loop().create_task(run_bench(
+            RunOptions(out=out, **inputs), progress=stream))
+        stream.task = task
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+    run_virtual(interrupted())
+    partial = load_record(out / "results.json")
+    (trial,) = partial.suites["tiny"].trials
+    frames = list(open_capture(out / "capture.mcap"))
+    assert any(r.error is not None for r in frames)  # trial 1's garbled start is captured
+    assert [r for r in frames if r.t_s > trial.ended_s + 1e-6] == []
+    assert len(list(out.glob(".capture.part*"))) == 1  # trial 2's, for the resume to judge
+    run(RunOptions(resume=out, workers=1))
+    assert list(open_capture(out / "capture.mcap")) == list(open_capture(tmp_path / "a"
+                                                                         / "capture.mcap"))
+    assert not list(out.glob(".capture.part*"))
+
+
 def test_resume_refuses_changed_inputs(tmp_path: Path) -> None:
     config = write_config(tmp_path, trials=2)
     out = tmp_path / "r"

@@ -13,6 +13,7 @@ trial samples stored in the record. One accuracy run goes over a real pty to
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import os
 import random
@@ -27,7 +28,12 @@ import numpy as np
 import pytest
 
 from armbench.bench.power import EmulatorPower
-from armbench.bench.suites._common import duty_for_speed_pct, fk_m, speed_pct_for_duty
+from armbench.bench.suites._common import (
+    StateRecorder,
+    duty_for_speed_pct,
+    fk_m,
+    speed_pct_for_duty,
+)
 from armbench.bench.suites.accuracy import AccuracySuite, path_figures
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.repeatability import POSE_NAMES, RepeatabilitySuite, speed_label
@@ -41,6 +47,7 @@ from armbench.bench.suites.startup_recovery import (
 from armbench.bench.truth import EmulatorTruth
 from armbench.drivers.arm import Arm
 from armbench.drivers.kinematics import ik
+from armbench.drivers.protocol import REPLY_LEN, TICKS_PER_RAD, encode_reply
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.fakes.eeprom import RATED_CYCLES
 from armbench.fakes.vclock import run_virtual
@@ -445,3 +452,46 @@ def test_accuracy_over_a_pty_in_real_time(pty_port: str) -> None:
     # the host's seconds here (~10 on an idle machine): bounded only by the timeout above, as a
     # loaded host runs the laps slower; the laps' robot time is judged on fake://
     assert robot_s > 0.0
+
+
+def test_replies_read_at_once_are_sampled_on_the_lines_clock() -> None:
+    """A host too busy to read lets the replies wait in the port's buffer and reads them at once
+    (one loop time for all): the recorder still keeps one sample per ``sample_period_s`` of the
+    line, which carried them one reply period apart at least, not one per read (a busy host's
+    lap had 86 mm of its 752 mm path unsampled). A real pty; the test is the arm, writing a
+    hundred replies in one go, joint 1's ticks numbering them."""
+    master, slave = os.openpty()
+    period_s, backlog = 0.01, 100
+    reply_s = REPLY_LEN * SETTINGS.serial.byte_time_s
+    per_sample = math.ceil(period_s / reply_s - 1e-9)  # replies of the line in one period
+
+    async def main() -> list[dict[str, Any]]:
+        # the far end is silent between its writes: the reply timeout bounds a hung test only
+        arm = Arm(os.ttyname(slave), SETTINGS, reply_timeout_s=60.0)
+        opening = asyncio.ensure_future(arm.open())
+        try:
+            while not opening.done():  # until the driver reads a first reply
+                os.write(master, encode_reply(0, 0, 0, 0))
+                await asyncio.sleep(0.05)
+            await opening
+            ctx = SuiteContext(arm=arm, settings=SETTINGS, limits=LimitsConfig(), params={},
+                               rng=random.Random(0))
+            async with StateRecorder(ctx, asyncio.get_running_loop().time(), period_s) as rec:
+                os.write(master, b"".join(encode_reply(k, 0, 0, 0)
+                                          for k in range(1, backlog + 1)))
+                await arm.wait_state(lambda s: s.ticks[0] == backlog, timeout_s=60.0)
+            return rec.samples
+        finally:
+            await arm.close()
+
+    try:
+        samples = asyncio.run(main())
+    finally:
+        os.close(master)
+        os.close(slave)
+    replies = [round(s["q_rad"][0] * TICKS_PER_RAD) for s in samples]
+    assert replies[0] == 0 and replies[-1] == backlog, replies
+    gaps = [b - a for a, b in itertools.pairwise(replies)]
+    assert min(gaps) > 0 and max(gaps) <= per_sample, replies
+    times = [s["t_s"] for s in samples]
+    assert times == sorted(times)

@@ -142,9 +142,14 @@ class TrialAttempts:
         """Capture parts of trials not yet in the record (merged once they are)."""
         self.last_arm: Arm | None = None
 
-    async def connect(self, emulator_seed: int, robot: RobotSettings | None = None) -> Connection:
+    async def connect(self, emulator_seed: int, robot: RobotSettings | None = None, *,
+                      own: bool = False) -> Connection:
         """Open the arm (on a target that starts fresh arms a new one seeded with
-        ``emulator_seed``, playing the arm ``robot``, by default the plan's)."""
+        ``emulator_seed``, playing the arm ``robot``, by default the plan's). A connection that
+        fails (or is interrupted) leaves what its arm said in its capture part: a trial's
+        ``own`` part goes to :attr:`unmerged`, merged once that trial is in the record (a run
+        stopped by Ctrl-C while it connects keeps no frame of a trial its record lacks); the
+        run's connection's is merged now, as at its close."""
         from armbench.capture.part import PartWriter
         from armbench.drivers.arm import Arm, ReconnectPolicy
 
@@ -183,7 +188,10 @@ class TrialAttempts:
             if emulator is not None:
                 with contextlib.suppress(Exception):
                     await emulator.close()
-            self.captures.merge(part)
+            if own:
+                self.unmerged.append(part)
+            else:
+                self.captures.merge(part)
             raise
         self.last_arm = arm
         return Connection(arm, emulator, part, capture)
@@ -246,7 +254,8 @@ class TrialAttempts:
             if plan.isolation == "trial":
                 own = await self.connect(derive_seed(plan.seed, "emulator", ps.name, index,
                                                      attempt),
-                                         ps.suite.emulated_settings(plan.settings, trial_params))
+                                         ps.suite.emulated_settings(plan.settings, trial_params),
+                                         own=True)
                 conn = own
             else:
                 conn = await self._run_connection()

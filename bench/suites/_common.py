@@ -34,7 +34,7 @@ from armbench.drivers.motion import (
     step_rate,
 )
 from armbench.drivers.numbers import finite_float
-from armbench.drivers.protocol import MAX_DUTY
+from armbench.drivers.protocol import MAX_DUTY, REPLY_LEN
 from armbench.drivers.settings import RobotSettings, SettingsError
 from armbench.drivers.tasks import cancel_and_wait
 from armbench.record import Better, Measurement, Trial
@@ -320,11 +320,14 @@ class TruthProbe:
 class StateRecorder:
     """``async with StateRecorder(ctx, t0, period_s) as rec:`` records the reply stream.
 
-    A background task follows the newest state and keeps one sample per ``period_s`` (s; 0 =
-    every new state): ``{"t_s": s from t0, "q_rad": reported joints, "reported_m": FK of them,
-    "true_m": true TCP (when truth exists)}`` plus ``extra`` keys. The driver raises on a silent
-    arm (``reply_timeout_s``) or a lost port; the error is kept and re-raised by :meth:`check`
-    and on exit, so a trial whose recording broke becomes an error trial.
+    A background task follows the reply stream and keeps one sample per ``period_s`` (s; 0 =
+    every reply): ``{"t_s": s from t0, "q_rad": reported joints, "reported_m": FK of them,
+    "true_m": true TCP (when truth exists)}`` plus ``extra`` keys. The period is kept on the
+    line's clock too: a busy host reads the replies that waited for it all at once, at one loop
+    time, but the line carried them a reply period (:data:`REPLY_LEN` bytes) apart at least, so
+    they are sampled as they came (:meth:`_take`), not one per read. The driver raises on a
+    silent arm (``reply_timeout_s``) or a lost port; the error is kept and re-raised by
+    :meth:`check` and on exit, so a trial whose recording broke becomes an error trial.
     """
 
     def __init__(self, ctx: SuiteContext, t0: float, period_s: float, *,
@@ -341,6 +344,14 @@ class StateRecorder:
         self.error: BaseException | None = None
         """Why the recording stopped early, if it did."""
         self.last_state: JointState | None = None
+        self._reply_s = REPLY_LEN * ctx.settings.serial.byte_time_s
+        self._last_t = -math.inf
+        """Loop time of the last sample (its reply's, dated on the line's clock)."""
+        self._last_seq = 0
+        self._seen = 0
+        """Number of the newest reply looked at."""
+        self._received: list[JointState] = []
+        """Every reply received since the task last ran (the driver's recorder list)."""
 
     def sample(self, state: JointState, **extra: Any) -> dict[str, Any]:
         """Record ``state`` now (also used for single pose samples) and return the sample."""
@@ -354,22 +365,43 @@ class StateRecorder:
         self.last_state = state
         return s
 
+    def _due(self, state: JointState, t_s: float) -> bool:
+        """Whether a reply dated ``t_s`` is a period after the last sample, on the loop's clock
+        or by the replies the line carried since."""
+        period = self._period
+        return (t_s - self._last_t + 1e-9 >= period
+                or (state.seq - self._last_seq) * self._reply_s + 1e-9 >= period)
+
+    def _take(self, replies: Sequence[JointState]) -> None:
+        """Sample the replies received since the last call (oldest first) that are due. Each is
+        dated no later than its read, nor than the newest one's read less a reply period for
+        each reply after it (the latest it can have come off the line), nor before the last
+        sample: replies read one at a time keep their reads' times."""
+        newest = replies[-1]
+        for state in replies:
+            if state.seq <= self._seen:
+                continue
+            t_s = max(self._last_t, min(state.t_s, newest.t_s
+                                        - (newest.seq - state.seq) * self._reply_s))
+            if self._due(state, t_s):
+                self.sample(state if t_s == state.t_s else state._replace(t_s=t_s))
+                self._last_t, self._last_seq = t_s, state.seq
+        self._seen = max(self._seen, newest.seq)
+
     async def _run(self) -> None:
         arm = self._ctx.arm
-        period = self._period
-        last_t = -math.inf
-        seen = 0
-
-        def due(state: JointState) -> bool:
-            return state.seq > seen and state.t_s - last_t + 1e-9 >= period
-
-        # The driver checks ``due`` on each new state and wakes this task only for a state to
-        # record, not for every reply (~420/s) as ``async for state in arm.states()`` would.
+        # The driver checks the newest reply of each read and wakes this task only when it is
+        # due (its older ones, kept by the driver's recorder, are dated before it), not for
+        # every reply (~420/s) as ``async for state in arm.states()`` would.
         try:
-            while True:
-                state = await arm.wait_state(due)
-                last_t, seen = state.t_s, state.seq
-                self.sample(state)
+            with arm.record_states() as received:
+                self._received = received
+                while True:
+                    state = await arm.wait_state(
+                        lambda s: s.seq > self._seen and self._due(s, s.t_s))
+                    replies = received[:] or [state]  # the current one, when due at the start
+                    del received[:]
+                    self._take(replies)
         except DriverClosedError:
             return  # the connection ended: so does the recording
         except asyncio.CancelledError:
@@ -401,6 +433,9 @@ class StateRecorder:
             return
         await cancel_and_wait(task)
         if self.error is None:
+            if self._received:  # replies the task did not get to
+                self._take(self._received)
+                del self._received[:]
             with contextlib.suppress(ArmbenchError):
                 state = self._ctx.arm.state
                 if self.last_state is None or state.seq != self.last_state.seq:
