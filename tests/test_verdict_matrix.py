@@ -11,28 +11,22 @@ power cuts it makes leave the arm powered (the suite still measures each recover
 from __future__ import annotations
 
 import re
-import select
 import signal
-import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from conftest import cli
 from far_end import ROOT, Emulator, emulator_maker
 from netutil import free_port
+from test_exit_classes import MID_RUN_LAPS, _lose_after_first_trial
 
 from armbench.bench.verdict import load_config
 from armbench.record import load_record
 
 DOC = ROOT / "docs" / "ci.md"
-RUN_DEADLINE_S = 300.0
-"""Bound on one ``armbench run`` process: a hung run, not a slow machine."""
-LAPS_LOST = 10
-"""Laps of the run whose link is lost after the first: the suite stops at the trial in error."""
 
 
 @dataclass(frozen=True)
@@ -125,29 +119,6 @@ def served(tmp_path: Path) -> Iterator[Callable[[], Emulator]]:
         yield lambda: make("tcp")
 
 
-def _lost_mid_run(args: list[str], emulator: Emulator) -> int:
-    """``armbench run`` in a process; the emulator killed once the first lap is done."""
-    proc = subprocess.Popen([sys.executable, "-m", "armbench", *args], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    assert proc.stdout is not None
-    lines: list[str] = []
-    deadline = time.monotonic() + RUN_DEADLINE_S
-    try:
-        while not any(f"trial 1/{LAPS_LOST} done" in line for line in lines):
-            assert time.monotonic() < deadline, "".join(lines)
-            if select.select([proc.stdout], [], [], 1.0)[0]:
-                line = proc.stdout.readline()
-                assert line, "".join(lines)
-                lines.append(line)
-        emulator.stop(signal.SIGKILL)
-        proc.communicate(timeout=RUN_DEADLINE_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-    return proc.returncode
-
-
 def test_the_table_covers_every_axis() -> None:
     """The table holds both truths, a power switch and none, and every situation the issue
     names; each situation has its run here."""
@@ -165,7 +136,7 @@ def test_verdict_matrix(row: Row, tmp_path: Path, served: Callable[[], Emulator]
     if situation.zero_trials:
         config = re.sub(r"trials = 2\n", "trials = 0\n", config)
     if row.situation == "link lost mid-run":
-        config = config.replace("laps = 1\n", f"laps = {LAPS_LOST}\n")
+        config = config.replace("laps = 1\n", f"laps = {MID_RUN_LAPS}\n")
     (tmp_path / "bench.toml").write_text(config, encoding="utf-8")
     out = tmp_path / "run"
     args = ["run", situation.suite, "--config", str(tmp_path / "bench.toml"), "--out", str(out),
@@ -181,7 +152,8 @@ def test_verdict_matrix(row: Row, tmp_path: Path, served: Callable[[], Emulator]
         args += ["--power-command", "true", "true"]  # a relay that switches nothing (mock)
     if row.situation == "link lost mid-run":
         assert emulator is not None
-        status, output = _lost_mid_run(args, emulator), ""
+        rig = SimpleNamespace(lose=lambda: emulator.stop(signal.SIGKILL))
+        status, output = _lose_after_first_trial(rig, args)  # type: ignore[arg-type]
     else:
         status, output, err = cli(capsys, *args)
         output += err
