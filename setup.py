@@ -2,7 +2,7 @@
 the hot modules compiled by mypyc.
 
 The checkout keeps its packages at the top, one folder each (``SUBPACKAGES``: ``cli/``,
-``reports/``, ``bench/``, ``record/``, ``metrics/``, ``fakes/``, ``drivers/``, ``capture/``; their
+``frontends/``, ``reports/``, ``bench/``, ``record/``, ``metrics/``, ``fakes/``, ``drivers/``; their
 layers are in ``docs/architecture.md``). They install as one namespace, ``armbench`` (``api/``
 holds the package's own modules: the public API, ``python -m armbench`` and the list of compiled
 modules), through setuptools' ``package_dir`` mapping, and the firmware sources (``firmware/``)
@@ -12,7 +12,8 @@ from anywhere, ``import armbench`` finds the installed build (the compiled wheel
 plain-Python one or an editable install), never a second copy of the source
 (``docs/performance.md``).
 
-A regular (wheel) build compiles the modules named in ``api/hot_modules.py`` when mypyc (a build
+A regular (wheel) build compiles the modules named in ``cli/perf/hot_modules.py`` when mypyc (a
+build
 requirement) and a C compiler are at hand, as black's release wheels are built: each compiled
 module sits beside its source in the installed package and Python imports it first. mypyc names a
 module by its path, so it compiles a staged copy of the package laid out as it installs
@@ -33,7 +34,7 @@ from setuptools import find_namespace_packages, setup
 
 ROOT = Path(__file__).resolve().parent
 #: Each installed package and the checkout folder it comes from.
-SUBPACKAGES = ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports")
+SUBPACKAGES = ("bench", "cli", "drivers", "fakes", "frontends", "metrics", "record", "reports")
 PACKAGE_DIR = {"armbench": "api", "armbench.firmware": "firmware",
                **{f"armbench.{name}": name for name in SUBPACKAGES}}
 PACKAGES = ["armbench", "armbench.firmware",
@@ -43,7 +44,7 @@ PACKAGES = ["armbench", "armbench.firmware",
 #: Data installed with the code: configs, templates, and the firmware's C sources and Makefile.
 PACKAGE_DATA = {"": ["*.toml", "*.j2", "*.html", "*.css", "py.typed"],
                 "armbench.firmware": ["Makefile", "*.c", "*.h", "harness/*.c", "harness/*.h"]}
-HOT_MODULES: tuple[str, ...] = runpy.run_path(str(ROOT / "api" / "hot_modules.py"))[
+HOT_MODULES: tuple[str, ...] = runpy.run_path(str(ROOT / "cli" / "perf" / "hot_modules.py"))[
     "HOT_MODULES"]
 PURE_ENV = "ARMBENCH_PURE_PYTHON"
 #: mypyc's shared library of the group, inside the package: ``armbench/hot__mypyc.*.so``.

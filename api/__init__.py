@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from armbench.drivers.errors import (
+from armbench.drivers.model.errors import (
     ArmbenchError,
     DriverClosedError,
     DriverError,
@@ -26,9 +26,9 @@ from armbench.drivers.errors import (
 )
 
 if TYPE_CHECKING:
-    from armbench.drivers.arm import Arm, PathRun, ReconnectPolicy
-    from armbench.drivers.settings import RobotSettings
-    from armbench.drivers.state import JointState
+    from armbench.drivers.host.arm import Arm, PathRun, ReconnectPolicy
+    from armbench.drivers.host.state import JointState
+    from armbench.drivers.model.settings import RobotSettings
 
 __version__ = "0.1.0"
 
@@ -56,12 +56,12 @@ __all__ = [
 ]
 
 _LAZY = {
-    "Arm": "armbench.drivers.arm",
-    "PathRun": "armbench.drivers.arm",
-    "ReconnectPolicy": "armbench.drivers.arm",
-    "connect": "armbench.drivers.arm",
-    "RobotSettings": "armbench.drivers.settings",
-    "JointState": "armbench.drivers.state",
+    "Arm": "armbench.drivers.host.arm",
+    "PathRun": "armbench.drivers.host.arm",
+    "ReconnectPolicy": "armbench.drivers.host.arm",
+    "connect": "armbench.drivers.host.arm",
+    "RobotSettings": "armbench.drivers.model.settings",
+    "JointState": "armbench.drivers.host.state",
 }
 
 

@@ -12,11 +12,11 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from importlib.metadata import version
 from typing import Any
 
-from armbench import __version__
-from armbench.cli.bounds import check_bounds
-from armbench.drivers.errors import ArmbenchError
+from armbench.cli.commands.bounds import check_bounds
+from armbench.drivers.model.errors import ArmbenchError
 
 __all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "build_parser", "main"]
 
@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "run": (_COMMANDS + "run", "run bench suites and judge them against limits and a baseline"),
     "fk": (_COMMANDS + "kinematics", "forward kinematics: joint angles → TCP pose"),
     "ik": (_COMMANDS + "kinematics", "inverse kinematics: TCP position → every joint solution"),
-    "perf": (_COMMANDS + "perf", "measure codec, emulator and driver throughput"),
+    "perf": ("armbench.cli.perf.command", "measure codec, emulator and driver throughput"),
     "emulate": (_COMMANDS + "emulate", "serve the emulated arm on a pty or TCP port"),
     "monitor": (_COMMANDS + "monitor",
                 "live joint angles, TCP position, frame rate and error counts"),
@@ -94,7 +94,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         prog="armbench",
         description="Hardware-in-the-loop test bench for the Igus RoboLink 4-DoF arm.",
         epilog="Run 'armbench COMMAND --help' for a command's options and exit statuses.")
-    parser.add_argument("--version", action="version", version=f"armbench {__version__}")
+    parser.add_argument("--version", action="version", version=f"armbench {version('armbench')}")
     _verbosity_options(parser, 0)
     common = argparse.ArgumentParser(add_help=False)
     _verbosity_options(common, argparse.SUPPRESS)
@@ -115,7 +115,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand; user errors (a number option out of its bound among them,
-    :mod:`armbench.cli.bounds`) print one line on stderr and exit with status 2."""
+    :mod:`armbench.cli.commands.bounds`) print one line on stderr and exit with status 2."""
     words = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(words)
     args = parser.parse_args(words)

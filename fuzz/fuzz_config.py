@@ -41,12 +41,12 @@ from _harness import fuzz_main
 with atheris.instrument_imports(include=["tomllib", "drivers", "fakes"]):
     import tomllib
 
-    from armbench.drivers.protocol import Command
-    from armbench.drivers.settings import RobotSettings, SettingsError
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
-    from armbench.fakes.faults import Fault, faults_from_settings
-    from armbench.fakes.vclock import run_virtual
+    from armbench.drivers.model.protocol import Command
+    from armbench.drivers.model.settings import RobotSettings, SettingsError
+    from armbench.fakes.clock.vclock import run_virtual
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.firmware.emulator_settings import EmulatorSettings, emulator_settings
+    from armbench.fakes.firmware.faults import Fault, faults_from_settings
 
 #: Anything the emulator would allocate per unit beyond this is reported instead of run.
 MAX_ALLOCATION = 1 << 20

@@ -4,10 +4,10 @@
     python fuzz/fuzz_differential.py --sessions 20 --seed 7
     python fuzz/fuzz_differential.py --replay fuzz/corpus/differential   # saved sessions
 
-Each session (``fakes/avr_fuzz.py``: valid commands, malformed frames, noise, split writes,
+Each session (``fakes/avr/fuzzer.py``: valid commands, malformed frames, noise, split writes,
 bursts, pauses, power cuts; 0.25–0.45 simulated seconds) is played to the emulator on virtual
 time and to the firmware in the harness, and the two outcomes are compared
-(``fakes/avr_session.py``): the commands each master took, exactly, and the replies within the
+(``fakes/avr/fuzz_session.py``): the commands each master took, exactly, and the replies within the
 differential check's tolerances. Sessions reaching new firmware code (the harness's
 ``--coverage``) join the corpus and are mutated. A divergence is minimised and saved as
 ``WORKDIR/divergences/<n>.session`` (a harness script; replay it with ``--replay``) with what
@@ -31,9 +31,9 @@ from pathlib import Path
 
 from _harness import ROOT
 
-from armbench.fakes.avr_fuzz import Campaign, firmware_lines
-from armbench.fakes.avr_session import Session, run_emulator_session, run_firmware_session
-from armbench.fakes.avr_session import divergences as session_divergences
+from armbench.fakes.avr.fuzz_session import Session, run_emulator_session, run_firmware_session
+from armbench.fakes.avr.fuzz_session import divergences as session_divergences
+from armbench.fakes.avr.fuzzer import Campaign, firmware_lines
 
 CORPUS = ROOT / "fuzz" / "corpus" / "differential"
 

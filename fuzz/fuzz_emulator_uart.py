@@ -1,6 +1,7 @@
 """atheris harness: arbitrary bytes on the emulated master's UART, then one valid command.
 
-Each input runs a fresh ``ArmEmulator`` on a fresh virtual-time loop (``armbench.fakes.vclock``),
+Each input runs a fresh ``ArmEmulator`` on a fresh virtual-time loop
+(``armbench.fakes.clock.vclock``),
 so a
 crash reproduces from the input alone; about 0.2 s of robot time, a few ms of wall time.
 
@@ -38,11 +39,11 @@ import atheris
 from _harness import fuzz_main
 
 with atheris.instrument_imports(include=["drivers", "fakes"]):
-    from armbench.drivers.protocol import Command
-    from armbench.drivers.settings import RobotSettings
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
-    from armbench.fakes.vclock import run_virtual
+    from armbench.drivers.model.protocol import Command
+    from armbench.drivers.model.settings import RobotSettings
+    from armbench.fakes.clock.vclock import run_virtual
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.firmware.emulator_settings import EmulatorSettings, emulator_settings
 
 MAX_BYTES = 1024
 MAX_PAIRS = 15

@@ -1,4 +1,4 @@
-"""atheris harness: ``armbench.drivers.protocol.Framer`` (both kinds) on arbitrary bytes in
+"""atheris harness: ``armbench.drivers.model.protocol.Framer`` (both kinds) on arbitrary bytes in
 arbitrary chunks.
 
 Input layout (``atheris.FuzzedDataProvider`` takes integers from the end, bytes from the front)::
@@ -28,7 +28,7 @@ import atheris
 from _harness import fuzz_main, split
 
 with atheris.instrument_imports(include=["drivers"]):
-    from armbench.drivers.protocol import (
+    from armbench.drivers.model.protocol import (
         COMMAND_LEN,
         REPLY_LEN,
         Command,

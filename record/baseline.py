@@ -15,7 +15,7 @@ import math
 from collections.abc import Mapping
 from pathlib import Path
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import (
     Comparison,
     ComparisonRow,

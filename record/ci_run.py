@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record.dut import printable_text
 from armbench.record.fields import _obj, _opt_str, _str
 

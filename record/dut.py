@@ -5,7 +5,7 @@ The identity comes from the ``[dut]`` table of the bench config and the command 
 ``--dut NAME`` and ``--meta KEY=VALUE`` (a flag wins over the file, key by key): the arm's
 ``name`` and ``serial`` number, the ``firmware_commit`` it runs and the lab's ``host_commit``,
 plus free ``meta`` pairs. Every value is printable text of at most :data:`MAX_TEXT` characters;
-anything else is a :class:`~armbench.drivers.settings.SettingsError` naming the key.
+anything else is a :class:`~armbench.drivers.model.settings.SettingsError` naming the key.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record.fields import _obj, _opt_str, _str
 
 __all__ = ["DUT_KEYS", "MAX_META", "MAX_TEXT", "Dut", "DutJson", "dut_flags", "parse_dut",

@@ -14,7 +14,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 from armbench.record.ci_run import CiRun
 from armbench.record.dut import Dut
 from armbench.record.fields import _get, _int, _list, _obj, _opt_str, _str

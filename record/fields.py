@@ -8,8 +8,8 @@ import contextlib
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any, Literal
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.numbers import finite_float, is_real
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.numbers import finite_float, is_real
 
 __all__ = [
     "Better",

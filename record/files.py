@@ -12,7 +12,7 @@ from collections.abc import Callable
 from pathlib import Path, PurePath
 from typing import BinaryIO
 
-from armbench.drivers.user_files import file_kind
+from armbench.drivers.model.user_files import file_kind
 from armbench.record.fields import RecordError
 
 __all__ = [
@@ -37,7 +37,7 @@ RESULTS_FILE = "results.json"
 JOURNAL_FILE = "results.journal.jsonl"
 #: The HTML report beside it.
 REPORT_FILE = "report.html"
-#: The traffic capture (MCAP, ``armbench.capture.mcap_writer``) beside it.
+#: The traffic capture (MCAP, ``armbench.drivers.capture.mcap_writer``) beside it.
 CAPTURE_FILE = "capture.mcap"
 #: The older JSON Lines capture (runs before MCAP), still read by every reader.
 LEGACY_CAPTURE_FILE = "capture.jsonl"

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
+from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RecordError, atomic_write_bytes
 
 __all__ = ["FLEET_FILE", "FLEET_SCHEMA", "FleetArm", "FleetIndex", "is_fleet", "read_fleet_index",

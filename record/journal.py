@@ -18,7 +18,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypedDict, overload
 
-from armbench.drivers.user_files import FileRefused, open_regular_file
+from armbench.drivers.model.user_files import FileRefused, open_regular_file
 from armbench.record.fields import RecordError
 from armbench.record.files import fsync_directory
 

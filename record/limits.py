@@ -7,7 +7,8 @@ used against a baseline run, the raw ``[bench]`` / ``[suites.<name>]`` parameter
 the suites, and the ``[dut]`` table naming the unit under test (:mod:`armbench.record.dut`). The
 format and the matching rules are documented in ``docs/record.md``.
 
-Errors in the file raise :class:`~armbench.drivers.settings.SettingsError` naming the dotted field.
+Errors in the file raise :class:`~armbench.drivers.model.settings.SettingsError` naming the dotted
+field.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict
 
-from armbench.drivers.numbers import finite_float, is_real
-from armbench.drivers.settings import SettingsError, read_toml
+from armbench.drivers.model.numbers import finite_float, is_real
+from armbench.drivers.model.settings import SettingsError, read_toml
 from armbench.record.dut import Dut, parse_dut
 
 __all__ = [

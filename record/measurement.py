@@ -7,7 +7,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypedDict, get_args
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record.fields import (
     Better,
     Outcome,

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import get_args
 
-from armbench.drivers.user_files import FileRefused, read_regular_file
+from armbench.drivers.model.user_files import FileRefused, read_regular_file
 from armbench.record.comparison import Comparison
 from armbench.record.environment import Environment, new_run_id, utc_timestamp
 from armbench.record.fields import (

@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path, PurePath
 from typing import Any, BinaryIO, cast
 
-from armbench.capture.jsonl import capture_end_s
+from armbench.drivers.capture.jsonl import capture_end_s
 from armbench.record.comparison import Comparison
 from armbench.record.environment import utc_timestamp
 from armbench.record.fields import RecordError

@@ -5,7 +5,7 @@ the driver to the message in the subscriber (p50, p99; real time only, where sta
 
     python scripts/ros2_figures.py [--count 4000] [--domain 42]
 
-The subscriber is :mod:`armbench.bench.ros2_node.client` ``listen``; prints one JSON object.
+The subscriber is :mod:`armbench.frontends.ros2_node.client` ``listen``; prints one JSON object.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import subprocess
 import sys
 from typing import Any
 
-from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
 
 async def _listen(port: str, count: int, clock: bool) -> dict[str, Any]:
@@ -30,7 +30,7 @@ async def _listen(port: str, count: int, clock: bool) -> dict[str, Any]:
         try:
             with arm.record_states() as states:
                 proc = await asyncio.create_subprocess_exec(
-                    sys.executable, "-m", "armbench.bench.ros2_node.client", "listen",
+                    sys.executable, "-m", "armbench.frontends.ros2_node.client", "listen",
                     "--count", str(count), "--timeout", "300", stdout=asyncio.subprocess.PIPE)
                 out, _ = await proc.communicate()
         finally:

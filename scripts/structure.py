@@ -76,7 +76,8 @@ def graph_of(deps: Mapping[str, Any], package: str = "armbench") -> dict[str, li
 
 
 def examine(graph: Graph, order: Sequence[Sequence[str]],
-            outside: frozenset[str] = frozenset({"armbench", "armbench.hot_modules"})) -> Structure:
+            outside: frozenset[str] = frozenset({"armbench", "armbench.cli.perf.hot_modules"}),
+            ) -> Structure:
     """The figures and violations of ``graph`` against the layer ``order`` (top first);
     ``outside``: modules no layer holds (the root package's lazy public names, the build's list
     of compiled modules), as in ``tests/test_architecture.py``."""

@@ -16,12 +16,12 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.arm import Arm
-from armbench.drivers.protocol import Command
-from armbench.drivers.settings import load_settings
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.vclock import run_virtual
-from armbench.hot_modules import build_name
+from armbench.cli.perf.hot_modules import build_name
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.protocol import Command
+from armbench.drivers.model.settings import load_settings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
 SETTINGS = """
 [emulator]
@@ -97,7 +97,8 @@ def trace() -> dict[str, Any]:
     """The sessions' trace (JSON types only), with the build that ran them."""
     out: dict[str, Any] = {"build": build_name(), "modules": {
         name: Path(sys.modules[name].__file__ or "").name
-        for name in ("armbench.drivers.protocol", "armbench.fakes.boards", "armbench.fakes.joint")}}
+        for name in ("armbench.drivers.model.protocol", "armbench.fakes.firmware.boards",
+        "armbench.fakes.twin.joint")}}
     with tempfile.TemporaryDirectory() as tmp:
         for receive, fused, i2c_hz, faults in (("polling", "true", 100_000, ""),
                                                ("polling", "false", 400_000, FAULTS),

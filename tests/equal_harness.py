@@ -1,4 +1,4 @@
-"""Calls into the hot modules (``api/hot_modules.py``) on request: what
+"""Calls into the hot modules (``cli/perf/hot_modules.py``) on request: what
 ``tests/test_compiled_equal.py`` runs in the compiled build and in the plain-Python one, the same
 calls in both, to compare.
 
@@ -93,8 +93,7 @@ def canon(value: object) -> str:
 
 
 def _protocol(name: str, *args: Any) -> object:
-    from armbench.drivers import protocol as p
-
+    from armbench.drivers.model import protocol as p
     if name == "rad_to_ticks":
         return p.rad_to_ticks(*args)
     if name == "ticks_to_rad":
@@ -129,18 +128,17 @@ def _protocol(name: str, *args: Any) -> object:
 
 
 def _robot(emulator: object = None) -> Any:
-    from armbench.drivers.settings import RobotSettings
+    from armbench.drivers.model.settings import RobotSettings
 
     return RobotSettings(sections={} if emulator is None else {"emulator": emulator})
 
 
 def _physics(name: str, *args: Any) -> object:
-    from armbench.fakes import physics as ph
-
+    from armbench.fakes.twin import physics as ph
     if name == "arm_physics":
         return ph.arm_physics(*args)
     if name == "emulator_settings":
-        from armbench.fakes.emulator_settings import actual_robot, emulator_settings
+        from armbench.fakes.firmware.emulator_settings import actual_robot, emulator_settings
 
         robot = _robot(args[0])
         return emulator_settings(robot), actual_robot(robot)
@@ -166,9 +164,8 @@ def _physics(name: str, *args: Any) -> object:
 
 
 def _stepper(name: str, *args: Any) -> object:
-    from armbench.fakes import joint as jo
-    from armbench.fakes import stepper as st
-
+    from armbench.fakes.twin import joint as jo
+    from armbench.fakes.twin import stepper as st
     if name == "step_period_ticks":
         return st.step_period_ticks(args[0]), jo.step_period_ticks(args[0])
     if name == "physical_effects":
@@ -182,9 +179,9 @@ def _stepper(name: str, *args: Any) -> object:
 
 
 def _joint(name: str, *args: Any) -> object:
-    from armbench.drivers.settings import DEFAULT_JOINTS
-    from armbench.fakes.joint import JointModel, PhysicalEffects
-    from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS
+    from armbench.drivers.model.settings import DEFAULT_JOINTS
+    from armbench.fakes.twin.joint import JointModel, PhysicalEffects
+    from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS
 
     if name != "joint_model":
         raise ValueError(f"no joint call {name!r}")
@@ -225,8 +222,8 @@ class _Device:
 
 
 def _i2c(name: str, *args: Any) -> object:
-    from armbench.fakes import i2c
-    from armbench.fakes.i2c_messages import I2CMessage
+    from armbench.fakes.firmware import i2c
+    from armbench.fakes.firmware.i2c_messages import I2CMessage
 
     def message(spec: list[Any]) -> Any:
         address, read, data = spec
@@ -258,7 +255,7 @@ def _i2c(name: str, *args: Any) -> object:
 
 
 def _uart(name: str, *args: Any) -> object:
-    from armbench.fakes.uart import Uart
+    from armbench.fakes.firmware.uart import Uart
 
     if name != "uart":
         raise ValueError(f"no uart call {name!r}")
@@ -291,11 +288,11 @@ def _uart(name: str, *args: Any) -> object:
 
 
 def _boards(name: str, *args: Any) -> object:
-    from armbench.drivers.settings import DEFAULT_JOINTS
-    from armbench.fakes.boards import SlaveBoard
-    from armbench.fakes.eeprom import Eeprom
-    from armbench.fakes.emulator_settings import emulator_settings
-    from armbench.fakes.i2c import BusClock, I2CBus
+    from armbench.drivers.model.settings import DEFAULT_JOINTS
+    from armbench.fakes.firmware.boards import SlaveBoard
+    from armbench.fakes.firmware.eeprom import Eeprom
+    from armbench.fakes.firmware.emulator_settings import emulator_settings
+    from armbench.fakes.firmware.i2c import BusClock, I2CBus
 
     if name == "emulator":
         return _emulator(*args)
@@ -317,9 +314,9 @@ def _boards(name: str, *args: Any) -> object:
 def _emulator(emulator: object, q_rad: list[float], duty: int) -> object:
     """The whole emulator built from an ``[emulator]`` table (the boards read their settings
     there), on virtual time: one command, the replies of the next 1.5 s, the statistics."""
-    from armbench.drivers.protocol import Command
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.vclock import run_virtual
+    from armbench.drivers.model.protocol import Command
+    from armbench.fakes.clock.vclock import run_virtual
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
     async def session() -> object:
         arm = ArmEmulator(_robot(emulator))
@@ -351,7 +348,7 @@ def answer(line: str) -> str:
 
 def main() -> None:
     """Answer requests until stdin closes; the first line says which build answers."""
-    from armbench.hot_modules import build_name
+    from armbench.cli.perf.hot_modules import build_name
 
     print(json.dumps({"build": build_name()}), flush=True)
     for line in sys.stdin:

@@ -1,5 +1,5 @@
 """Hidden arms for the identification tests: physical parameters drawn at random within the ranges
-documented in ``docs/robot-model.md`` (``armbench.fakes.physics``), served as
+documented in ``docs/robot-model.md`` (``armbench.fakes.twin.physics``), served as
 ``fake://?settings=hidden.toml``, and the check of a calibration against them.
 
 Only what ``docs/calibration.md`` lists as identifiable is drawn; the rest (link masses, worm
@@ -17,7 +17,7 @@ from typing import Any
 
 from armbench.bench.calibrate.model import Fitted
 from armbench.bench.calibrate.output import toml_text
-from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
+from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
 
 __all__ = ["check_recovery", "draw_hidden", "truth_of_key", "write_hidden"]
 

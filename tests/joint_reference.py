@@ -1,5 +1,5 @@
 """Cycle-by-cycle reference of one joint board's control loop, the oracle of
-``armbench.fakes.joint``.
+``armbench.fakes.twin.joint``.
 
 Deliberately naive: one Python iteration per 80 µs control cycle, the counter kept incrementally
 as the firmware's encoder interrupt would, no physical effects. Same time convention as the model:
@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import math
 
-from armbench.drivers.settings import JointSettings
-from armbench.fakes.joint import Motion, PwmState, Transition
-from armbench.fakes.physics import end_stop_steps
+from armbench.drivers.model.settings import JointSettings
+from armbench.fakes.twin.joint import Motion, PwmState, Transition
+from armbench.fakes.twin.physics import end_stop_steps
 
 
 class ReferenceJoint:

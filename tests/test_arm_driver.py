@@ -1,7 +1,7 @@
 """One driver test suite over three links, no mocks:
 
 * ``fake``: ``fake://``, the emulator in-process on virtual time
-(``armbench.fakes.vclock.run_virtual``);
+(``armbench.fakes.clock.vclock.run_virtual``);
 * ``pty``: a real pseudo-terminal served by ``armbench emulate --pty`` in a subprocess (real time);
 * ``tcp``: a TCP socket served by ``armbench emulate --tcp 127.0.0.1:PORT`` (real time).
 
@@ -37,7 +37,7 @@ from armbench.cli.commands import i2c as i2c_cmd
 from armbench.cli.commands import monitor as monitor_cmd
 from armbench.cli.commands import move as move_cmd
 from armbench.cli.perf.driver_perf import reply_rate_bound
-from armbench.drivers.arm import (
+from armbench.drivers.host.arm import (
     Arm,
     DriverClosedError,
     InvalidTargetError,
@@ -48,18 +48,18 @@ from armbench.drivers.arm import (
     ReplyTimeoutError,
     WaitTimeoutError,
 )
-from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
-from armbench.drivers.kinematics import (
+from armbench.drivers.host.motion import joint_times_s, line
+from armbench.drivers.model.errors import ArmbenchError, PortLostError, TransportError
+from armbench.drivers.model.kinematics import (
     JointLimitError,
     KinematicsError,
     UnreachableError,
     tcp_position,
 )
-from armbench.drivers.motion import joint_times_s, line
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.emulator_settings import EmulatorSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.emulator_settings import EmulatorSettings
 
 T = TypeVar("T")
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,5 +1,5 @@
 """``avr://`` on virtual time: the firmware harness in lockstep with the run's virtual-time loop
-(``fakes/avr_vt.py``, ``firmware/harness/lockstep.c``). Real toolchain, real harness process,
+(``fakes/avr/lockstep.py``, ``firmware/harness/lockstep.c``). Real toolchain, real harness process,
 real driver; every time asserted is virtual (the boards' clock), so a loaded machine only makes
 the tests slower."""
 
@@ -19,20 +19,20 @@ import pytest
 from test_firmware import needs_toolchain
 from test_soak import cpu_guard
 
-from armbench.bench.power import HarnessPower, port_power
+from armbench.bench.runner.power import HarnessPower, port_power
+from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites._common import eeprom_counters
-from armbench.bench.truth import EmulatorTruth
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
-from armbench.drivers.motion import joint_times_s
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.avr import FirmwareError
-from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
-from armbench.fakes.avr_transport import AvrTransport
-from armbench.fakes.avr_vt import AvrBoards, AvrVirtualTransport, fresh_boards
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.vclock import VirtualTimeLoop, run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.host.motion import joint_times_s
+from armbench.drivers.model.errors import ArmbenchError, PortLostError, TransportError
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.avr.avr_transport import AvrTransport
+from armbench.fakes.avr.differential import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
+from armbench.fakes.avr.harness import FirmwareError
+from armbench.fakes.avr.lockstep import AvrBoards, AvrVirtualTransport, fresh_boards
+from armbench.fakes.clock.vclock import VirtualTimeLoop, run_virtual
+from armbench.fakes.firmware.emulator_settings import emulator_settings
 
 pytestmark = needs_toolchain
 

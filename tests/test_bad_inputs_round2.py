@@ -21,8 +21,8 @@ from conftest import cli, one_line_error
 
 from armbench.bench.runner.plan import BENCH_MAX, MAX_TRIALS
 from armbench.bench.suites import SUITES
-from armbench.drivers.settings import MAX_TOML_DEPTH
-from armbench.drivers.user_files import MAX_TOML_BYTES
+from armbench.drivers.model.settings import MAX_TOML_DEPTH
+from armbench.drivers.model.user_files import MAX_TOML_BYTES
 from armbench.record import load_record
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import (
     Better,
     Environment,

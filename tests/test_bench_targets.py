@@ -16,8 +16,8 @@ from toy_target import ToyTransport
 
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.runner.plan import prepare
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SettingsError
 from armbench.drivers.transports import TRANSPORTS
 from armbench.drivers.transports.capabilities import Capabilities, Given
 from armbench.drivers.transports.target import given_by, resolve, target_of
@@ -129,7 +129,7 @@ def test_faults_on_a_target_that_takes_none_are_refused_naming_the_flag(tmp_path
 
 
 def test_the_pytest_plugin_resolves_the_same_way(robot_file: Path) -> None:
-    from armbench.cli.pytest_bench import BenchSession
+    from armbench.cli.plugin.pytest_bench import BenchSession
 
     target = target_of(f"fake://?settings={robot_file}&seed=4")
     inputs = target.inputs(given_by({"settings": "--arm-settings"}, settings=None))
@@ -177,8 +177,7 @@ def test_a_simulator_registered_by_entry_point_is_a_target(toy_entry_point: None
 def _run_toy(tmp_path: Path, port: str, name: str, **options: Any) -> tuple[Any, str, bool]:
     """Run the joints suite (two trials) on ``port``: the outcome, the progress text, whether the
     run went on a virtual-time loop."""
-    from armbench.fakes import vclock
-
+    from armbench.fakes.clock import vclock
     config = tmp_path / "bench.toml"
     config.write_text(JOINTS_CONFIG)
     used: list[bool] = []
@@ -245,7 +244,7 @@ def test_a_real_time_target_gets_one_arm_for_the_run(tmp_path: Path, toy: None) 
 
 def test_monitor_and_i2c_ask_the_target(toy: None, capsys: pytest.CaptureFixture[str]) -> None:
     from armbench.cli.commands.monitor import run_on_port
-    from armbench.fakes.vclock import VirtualTimeLoop
+    from armbench.fakes.clock.vclock import VirtualTimeLoop
 
     async def loop_kind() -> bool:
         return isinstance(asyncio.get_running_loop(), VirtualTimeLoop)
@@ -259,7 +258,7 @@ def test_monitor_and_i2c_ask_the_target(toy: None, capsys: pytest.CaptureFixture
 
 
 def test_the_capture_names_the_targets_clock(toy: None) -> None:
-    from armbench.bench.capture_run import _clock_of
+    from armbench.bench.runner.capture_run import _clock_of
 
     assert _clock_of("fake://?seed=2") == "virtual"
     assert _clock_of("toy://?caps=virtual") == "virtual"

@@ -31,11 +31,11 @@ from armbench.bench.calibrate.fit import fit_play, instrument_offsets
 from armbench.bench.calibrate.model import Approach, Fitted
 from armbench.bench.calibrate.sensitivity import sensitivity
 from armbench.cli.main import main
-from armbench.drivers.arm import Arm
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics
-from armbench.fakes.vclock import run_virtual
-from armbench.reports.calibration_page import render_page
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.settings import RobotSettings, load_settings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics
+from armbench.reports.pages.calibration_page import render_page
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,13 +19,13 @@ from armbench.bench.calibrate import calibrate_port
 from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.stall import curve_factor
 from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
-from armbench.bench.twin_check import twin_check
+from armbench.bench.twin_check.check import twin_check
 from armbench.cli.main import main
-from armbench.drivers.arm import Arm
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.physics import JointPhysics
-from armbench.fakes.vclock import run_virtual
-from armbench.reports.calibration_page import render_page
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.settings import RobotSettings, load_settings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.twin.physics import JointPhysics
+from armbench.reports.pages.calibration_page import render_page
 
 PRIOR = JointPhysics(pullout_nm=1.5)
 DUTIES = np.array([99, 90, 95, 97, 93, 98, 96], dtype=np.float64)
@@ -221,7 +221,7 @@ def test_no_instrument_says_what_is_only_the_prior(tmp_path: Path) -> None:
     assert "No reference instrument" in (tmp_path / "r.html").read_text()
 
 
-@pytest.mark.parametrize("spec", ["nosuchmodule:Tracker", "armbench.bench.truth:nothing"])
+@pytest.mark.parametrize("spec", ["nosuchmodule:Tracker", "armbench.bench.runner.truth:nothing"])
 def test_tracker_errors_are_one_line(spec: str, tmp_path: Path,
                                      capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["calibrate", "--port", "fake://", "--tracker", spec,

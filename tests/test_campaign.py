@@ -25,12 +25,12 @@ from armbench.bench.campaign import (
     wilson_interval,
 )
 from armbench.bench.campaign.draws import draw_arm
-from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
 from armbench.cli.main import main
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record import load_record
-from armbench.reports.campaign_page import build_campaign_html
-from armbench.reports.format import CSP, format_value
+from armbench.record.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
+from armbench.reports.pages.campaign_page import build_campaign_html
+from armbench.reports.render.format import CSP, format_value
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
@@ -214,7 +214,7 @@ def test_campaign_verdict_and_exit_status_from_its_limits(
     record = load_record(tmp_path / "s" / "results.json")
     assert record.verdict == "fail"
     # in junit.xml the campaign's figures are the tests, not the samples' own limits
-    from armbench.bench.junit import to_junit
+    from armbench.reports.files.junit import to_junit
 
     cases = list(to_junit(record).iter("testcase"))
     failed = [c.get("name") for c in cases if c.find("failure") is not None]

@@ -7,8 +7,8 @@ import asyncio
 
 import pytest
 
-from armbench.drivers.tasks import cancel_and_wait
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.tasks import cancel_and_wait
+from armbench.fakes.clock.vclock import run_virtual
 
 
 async def _slow_to_stop(stopped: list[str]) -> None:

@@ -11,16 +11,16 @@ from typing import TypeVar
 
 import pytest
 
-from armbench.capture.jsonl import (
+from armbench.drivers.capture.jsonl import (
     CaptureError,
     CaptureRecord,
     CaptureWriter,
     read_capture,
 )
-from armbench.capture.read import replay_capture
-from armbench.drivers.arm import Arm, JointState
-from armbench.drivers.protocol import Command
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.capture.read import replay_capture
+from armbench.drivers.host.arm import Arm, JointState
+from armbench.drivers.model.protocol import Command
+from armbench.fakes.clock.vclock import run_virtual
 
 T = TypeVar("T")
 COMMAND = Command.from_rad([0.1, 0.2, -0.3, 0.4], 50).encode().decode()

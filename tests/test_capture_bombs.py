@@ -24,16 +24,16 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.records import Attachment, Chunk, DataEnd, Footer, Header, Metadata, MetadataIndex
 
-from armbench.bench.twin_tcp import RECORD_HEAD_BYTES
-from armbench.capture.mcap_walk import (
+from armbench.bench.twin_check.tool_point import RECORD_HEAD_BYTES
+from armbench.cli.main import main
+from armbench.drivers.capture.mcap_walk import (
     MAX_CHUNK_BYTES,
     MAX_METADATA_BYTES,
     MCAP_MAGIC,
     read_attachment,
 )
-from armbench.capture.read import open_capture, read_tally
-from armbench.capture.tally import TALLY_METADATA
-from armbench.cli.main import main
+from armbench.drivers.capture.read import open_capture, read_tally
+from armbench.drivers.capture.tally import TALLY_METADATA
 
 #: What each bomb expands to: 512 MiB, eight times the chunk bound.
 BOMB_BYTES = 512 << 20

@@ -10,14 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from armbench.capture.jsonl import (
+from armbench.drivers.capture.jsonl import (
     CaptureWriter,
     capture_options,
     merge_capture,
     read_capture,
 )
-from armbench.capture.read import capture_stopped
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.capture.read import capture_stopped
+from armbench.drivers.model.settings import SettingsError
 from armbench.record import CAPTURE_FILE, RESULTS_FILE, load_record
 
 ROOT = Path(__file__).resolve().parents[1]

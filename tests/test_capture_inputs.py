@@ -21,17 +21,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.outputs import RUN_FILES
 from armbench.bench.runner.options import JUNIT_FILE, RUNNER_FILE
-from armbench.capture.jsonl import CaptureError
-from armbench.capture.mcap_walk import START_KEY, check_key
-from armbench.capture.mcap_writer import McapCapture
-from armbench.capture.part import PartWriter
-from armbench.capture.read import mcap_layout, open_capture
+from armbench.bench.runner.outputs import RUN_FILES
 from armbench.cli.main import main
-from armbench.drivers.arm import Arm
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.capture.jsonl import CaptureError
+from armbench.drivers.capture.mcap_walk import START_KEY, check_key
+from armbench.drivers.capture.mcap_writer import McapCapture
+from armbench.drivers.capture.part import PartWriter
+from armbench.drivers.capture.read import mcap_layout, open_capture
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
 from armbench.record import CAPTURE_FILE, JOURNAL_FILE, REPORT_FILE, RESULTS_FILE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -417,9 +417,10 @@ def test_compiled_build_loads_its_own_calibration(armbench_wheel: Path, tmp_path
     assert done.returncode == 0, done.stderr[-3000:]
     assert out.with_suffix(".html").read_text().startswith("<!DOCTYPE html>")
     assert "[emulator.physics.geometry_error]" in out.read_text()
-    probe = ("import sys; from armbench.hot_modules import build_name; "
-             "from armbench.drivers.settings import load_settings; "
-             "from armbench.fakes.emulator_settings import emulator_settings; print(build_name()); "
+    probe = ("import sys; from armbench.cli.perf.hot_modules import build_name; "
+             "from armbench.drivers.model.settings import load_settings; "
+             "from armbench.fakes.firmware.emulator_settings import emulator_settings; "
+             "print(build_name()); "
              "[print(emulator_settings(load_settings(p)).physics.geometry_error.d1_m) "
              "for p in sys.argv[1:]]")
     done = subprocess.run([sys.executable, "-c", probe, str(hand), str(out)], env=env,

@@ -14,8 +14,8 @@ from typing import Any
 
 import yaml  # type: ignore[import-untyped]
 
-from armbench.bench.verdict import EXIT_FAIL, EXIT_PASS, EXIT_REGRESSION
 from armbench.record import load_record
+from armbench.record.verdict import EXIT_FAIL, EXIT_PASS, EXIT_REGRESSION
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "ci.md"
 

@@ -1,4 +1,5 @@
-"""Every number option of the command line has a range (:mod:`armbench.cli.bounds`), and a value
+"""Every number option of the command line has a range (:mod:`armbench.cli.commands.bounds`), and a
+value
 outside it is one line naming the option, the value and the range, exit 2, before anything runs.
 
 Found by issue 38: ``armbench ros2 --pace-timeout 1e300`` and ``--realtime-factor 1e-300`` died
@@ -16,7 +17,7 @@ from collections.abc import Iterator
 import pytest
 from conftest import cli, one_line_error
 
-from armbench.cli.bounds import Bound, bounds_of
+from armbench.cli.commands.bounds import Bound, bounds_of
 from armbench.cli.main import build_parser
 
 #: Float options the robot model checks instead: (command, destination).

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from armbench.cli.main import main
-from armbench.drivers.kinematics import fk_dh, tcp_position
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.kinematics import fk_dh, tcp_position
+from armbench.drivers.model.settings import RobotSettings
 
 DEFAULT = RobotSettings()
 NUMBER = re.compile(r"[-+]?\d+\.\d+")

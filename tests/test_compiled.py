@@ -1,4 +1,4 @@
-"""The release build: the hot modules compiled by mypyc (``api/hot_modules.py``) must behave
+"""The release build: the hot modules compiled by mypyc (``cli/perf/hot_modules.py``) must behave
 exactly as their Python source. Two wheels are built from a copy of this checkout, as ``pip install
 .`` builds them (compiled, and with ``ARMBENCH_PURE_PYTHON=1``), and the same emulated sessions run
 on both."""
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 import armbench
-from armbench.hot_modules import HOT_MODULES, build_name
+from armbench.cli.perf.hot_modules import HOT_MODULES, build_name
 
 HERE = Path(__file__).resolve().parent
 #: Where this process imports armbench from (the checkout, or an environment's site-packages).

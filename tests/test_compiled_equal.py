@@ -28,8 +28,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_compiled import _env
 
-from armbench.drivers.protocol import MAX_TICKS, Command, Reply
-from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
+from armbench.drivers.model.protocol import MAX_TICKS, Command, Reply
+from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
 
 pytestmark = pytest.mark.slow  # two wheels are built (the tests of test_compiled.py share them)
 

@@ -16,12 +16,12 @@ from armbench.bench.runner import RunOptions, prepare, run_sync
 from armbench.bench.runner.config_check import check_config
 from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.suites.startup_contract import STARTUP
-from armbench.bench.verdict import DEFAULT_CONFIG, load_config
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record import RunRecord, Trial, judge
 from armbench.record.limits import load_limits, parse_limits
 from armbench.record.suite_contract import contract
+from armbench.record.verdict import DEFAULT_CONFIG, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = ROOT / "tests" / "fixtures" / "records"

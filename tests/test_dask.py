@@ -16,10 +16,10 @@ from campaign_records import record_differences
 
 from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.runner import RunOptions, run_sync
-from armbench.bench.verdict import EXIT_INCOMPLETE
-from armbench.capture.read import open_capture
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.capture.read import open_capture
+from armbench.drivers.model.settings import SettingsError
 from armbench.record import CAPTURE_FILE
+from armbench.record.verdict import EXIT_INCOMPLETE
 
 distributed = pytest.importorskip("distributed")
 

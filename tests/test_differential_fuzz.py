@@ -1,4 +1,5 @@
-"""The differential fuzzer of the UART (``fakes/avr_fuzz.py``, ``fakes/avr_session.py``): a few
+"""The differential fuzzer of the UART (``fakes/avr/fuzzer.py``, ``fakes/avr/fuzz_session.py``): a
+few
 sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
 (minimised divergences, fixed or explained) replay without divergence; and the comparison does
 catch the firmware bugs it found (the old 16-bit position sum, the slave that waited for its
@@ -15,11 +16,9 @@ from pathlib import Path
 import pytest
 from test_firmware import needs_toolchain
 
-from armbench.drivers.protocol import rad_to_ticks
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.avr import FIRMWARE_SOURCE, build
-from armbench.fakes.avr_fuzz import Campaign, generate, minimise, normalise
-from armbench.fakes.avr_session import (
+from armbench.drivers.model.protocol import rad_to_ticks
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.avr.fuzz_session import (
     BOOT_S,
     BYTE_S,
     Event,
@@ -31,7 +30,9 @@ from armbench.fakes.avr_session import (
     run_emulator_session,
     run_firmware_session,
 )
-from armbench.fakes.eeprom import EepromRecord, decode_record
+from armbench.fakes.avr.fuzzer import Campaign, generate, minimise, normalise
+from armbench.fakes.avr.harness import FIRMWARE_SOURCE, build
+from armbench.fakes.firmware.eeprom import EepromRecord, decode_record
 
 pytestmark = needs_toolchain
 

@@ -14,24 +14,24 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.drivers import arrival
-from armbench.drivers.arm import Arm
-from armbench.drivers.arrival import ArrivalTracker
-from armbench.drivers.errors import JointRangeError
-from armbench.drivers.link import ArmLink
-from armbench.drivers.motion import line
-from armbench.drivers.move_targets import (
+from armbench.drivers.host import arrival
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.host.arrival import ArrivalTracker
+from armbench.drivers.host.link import ArmLink
+from armbench.drivers.host.motion import line
+from armbench.drivers.host.move_targets import (
     LIMIT_SLACK_RAD,
     TICK_RAD,
     check_command,
     check_target,
     wire_command,
 )
-from armbench.drivers.protocol import MAX_TICKS, REPLY_LEN, Command, Reply, encode_reply
-from armbench.drivers.replies import ReplyStream
-from armbench.drivers.settings import RobotSettings
-from armbench.drivers.state import JointState
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.replies import ReplyStream
+from armbench.drivers.host.state import JointState
+from armbench.drivers.model.errors import JointRangeError
+from armbench.drivers.model.protocol import MAX_TICKS, REPLY_LEN, Command, Reply, encode_reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
 
 T = TypeVar("T")
 SETTINGS = RobotSettings()

@@ -23,8 +23,8 @@ from armbench.bench.runner import RunOptions, prepare
 from armbench.bench.suites import SUITES
 from armbench.cli import main as cli
 from armbench.cli.commands.config import render_config
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record import git_revision, load_record
 from armbench.record.ci_run import CiRun, ci_run
 from armbench.record.dut import MAX_TEXT, Dut

@@ -18,9 +18,9 @@ import pytest
 import serial
 
 from armbench.cli.main import main
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.serve import TcpServer, real_time_loop
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.links.serve import TcpServer, real_time_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -155,8 +155,8 @@ def test_tcp_listener_stays_and_a_stalled_client_is_dropped() -> None:
     does) stays past the timeout; one that neither writes nor reads is disconnected. Real sockets
     on a real-time loop; the client that stalls has a tiny receive buffer so the server's send
     buffer fills within seconds."""
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.serve import TcpServer
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.links.serve import TcpServer
 
     async def main() -> None:
         server = TcpServer(ArmEmulator(), idle_timeout_s=0.3, stalled_buffer_bytes=2048)
@@ -301,7 +301,7 @@ def test_foxglove_refuses_a_remote_bind_without_the_flag(
 
 
 def test_remote_binds_are_warned_about_with_the_flag() -> None:
-    from armbench.bench.live import check_bind, check_live_endpoint, is_loopback
+    from armbench.frontends.foxglove.live import check_bind, check_live_endpoint, is_loopback
 
     assert all(is_loopback(h) for h in ("127.0.0.1", "127.3.2.1", "::1", "localhost"))
     assert not any(is_loopback(h) for h in ("0.0.0.0", "::", "10.0.0.1", "example.org", ""))

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from armbench.cli.main import main
-from armbench.fakes.pty_link import LinkError, claim_link, release_link
+from armbench.fakes.links.pty_link import LinkError, claim_link, release_link
 
 ROOT = Path(__file__).resolve().parents[1]
 

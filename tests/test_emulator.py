@@ -1,6 +1,7 @@
 """The emulated firmware as a whole: Algorithm 1/2 over I²C, UART timing, EEPROM, recovery, faults.
 
-Everything runs on virtual time (``armbench.fakes.vclock``); each test drives the arm like a host
+Everything runs on virtual time (``armbench.fakes.clock.vclock``); each test drives the arm like a
+host
 would,
 through ``host_write`` and the reply stream, and checks against ground truth.
 """
@@ -19,16 +20,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armbench.drivers.protocol import Command, FrameError, Framer, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm_emulator import ArmEmulator, ArmStats
-from armbench.fakes.eeprom import Eeprom, EepromRecord, record_write_times
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.faults import Fault, parse_faults
-from armbench.fakes.i2c import REG_STATUS, I2CBus, transaction_bits
-from armbench.fakes.i2c_messages import I2CMessage
-from armbench.fakes.physics import END_STOP_MARGIN_RAD
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.protocol import Command, FrameError, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator, ArmStats
+from armbench.fakes.firmware.eeprom import Eeprom, EepromRecord, record_write_times
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.firmware.faults import Fault, parse_faults
+from armbench.fakes.firmware.i2c import REG_STATUS, I2CBus, transaction_bits
+from armbench.fakes.firmware.i2c_messages import I2CMessage
+from armbench.fakes.twin.physics import END_STOP_MARGIN_RAD
 
 ROBOT = RobotSettings()
 LOWER, UPPER = ROBOT.lower_rad, ROBOT.upper_rad
@@ -477,7 +478,7 @@ def test_same_faults_and_seed_reproduce_the_same_run() -> None:
 
 
 def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> None:
-    from armbench.fakes.transport import parse_fake_url
+    from armbench.fakes.links.fake_transport import parse_fake_url
 
     robot = tmp_path / "robot.toml"
     robot.write_text('[[faults]]\nkind = "power_cut"\nat_s = 2.0\n')
@@ -501,7 +502,7 @@ def test_faults_in_the_robot_settings_file_reach_fake_ports(tmp_path: Path) -> N
     ({"kind": "uart_drop", "at_s": 1, "colour": "red"}, "faults[0].colour"),
 ])
 def test_bad_fault_entries_name_the_field(item: dict[str, Any], field: str) -> None:
-    from armbench.drivers.settings import SettingsError
+    from armbench.drivers.model.settings import SettingsError
 
     with pytest.raises(SettingsError) as info:
         parse_faults([item])

@@ -1,4 +1,5 @@
-"""The in-process transport base (``fakes/in_process.py``) through ``fake://``: the real emulator
+"""The in-process transport base (``fakes/links/in_process.py``) through ``fake://``: the real
+emulator
 on virtual time, read as the driver reads it. Reads, the receiver, the bounded buffer and close
 are the base's, so they hold for ``avr://`` on virtual time and any third in-process target
 (``tests/test_avr_virtual_time.py`` covers the boards' side)."""
@@ -10,19 +11,19 @@ from typing import Any, ClassVar
 
 import pytest
 
-from armbench.drivers.errors import PortLostError, TransportError
-from armbench.drivers.protocol import Framer, Reply
-from armbench.drivers.settings import RobotSettings, SerialSettings
+from armbench.drivers.model.errors import PortLostError, TransportError
+from armbench.drivers.model.protocol import Framer, Reply
+from armbench.drivers.model.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports.base import READ_CHUNK
 from armbench.drivers.transports.target import target_of
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.avr import LOCKSTEP_CAPABILITIES
-from armbench.fakes.avr_transport import AvrTransport
-from armbench.fakes.avr_vt import AvrVirtualTransport
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.in_process import MAX_UNREAD_BYTES, InProcessTransport
-from armbench.fakes.transport import FAKE_CAPABILITIES, FakeTransport
-from armbench.fakes.vclock import run_virtual
+from armbench.fakes.avr.avr_transport import AvrTransport
+from armbench.fakes.avr.harness import LOCKSTEP_CAPABILITIES
+from armbench.fakes.avr.lockstep import AvrVirtualTransport
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.links.fake_transport import FAKE_CAPABILITIES, FakeTransport
+from armbench.fakes.links.in_process import MAX_UNREAD_BYTES, InProcessTransport
 
 PORT = "fake://?profile=ideal"
 

@@ -80,7 +80,7 @@ the float noise of the virtual clock (``test_kill_9_then_resume``).
 
 A bug found by this campaign and fixed: a trial's figures depended on the absolute virtual time
 it ran at (the master's bus clock drifted by float rounding; ``NS_PER_CYCLE`` in
-``fakes/boards.py``), pinned by ``test_a_trial_measures_the_same_at_any_loop_time``; see
+``fakes/firmware/boards.py``), pinned by ``test_a_trial_measures_the_same_at_any_loop_time``; see
 ``docs/reliability.md``.
 """
 
@@ -104,17 +104,17 @@ import pytest
 from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
 from armbench.bench.runner import RunOptions, run_bench
-from armbench.capture.read import open_capture
-from armbench.cli.reporting import write_reports
-from armbench.drivers.arm import (
+from armbench.cli.commands.run_files import write_reports
+from armbench.drivers.capture.read import open_capture
+from armbench.drivers.host.arm import (
     Arm,
     JointState,
     MoveTimeoutError,
     ReconnectPolicy,
     ReplyTimeoutError,
 )
-from armbench.drivers.errors import PortLostError
-from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.drivers.model.errors import PortLostError
+from armbench.fakes.clock.vclock import VirtualTimeLoop
 from armbench.record import load_record
 
 T = TypeVar("T")
@@ -530,7 +530,8 @@ def test_power_cut_by_frame_count_raises_nothing_in_the_emulator(tmp_path: Path)
 def test_a_trial_measures_the_same_at_any_loop_time(tmp_path: Path) -> None:
     """The same trial run at loop times 0, 10.9 s and 987.6 s gives the same figures (it did not
     while the master's bus clock drifted with the absolute time: see ``NS_PER_CYCLE`` in
-    ``fakes/boards.py``); a lap time may differ in its last bits, as a difference of two absolute
+    ``fakes/firmware/boards.py``); a lap time may differ in its last bits, as a difference of two
+    absolute
     loop times."""
     config = tmp_path / "bench.toml"
     config.write_text(SMALL_ACCURACY)

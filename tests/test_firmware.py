@@ -20,10 +20,10 @@ from typing import Any
 
 import pytest
 
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes import avr
-from armbench.fakes.avr import (
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.avr import harness as avr
+from armbench.fakes.avr.harness import (
     FIRMWARE_SOURCE,
     HARNESS_NAME,
     FirmwareError,

@@ -19,15 +19,15 @@ import pytest
 from test_avr_virtual_time import dated_as_sampled
 from test_firmware import needs_toolchain
 
-from armbench.bench.power import HarnessPower, port_power
+from armbench.bench.runner.power import HarnessPower, port_power
 from armbench.bench.suites import ReReferencing
-from armbench.drivers.arm import Arm
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import open_transport
-from armbench.fakes.avr import Harness
-from armbench.fakes.avr_diff import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
-from armbench.fakes.avr_transport import AvrTransport
+from armbench.fakes.avr.avr_transport import AvrTransport
+from armbench.fakes.avr.differential import DEFAULT_SCRIPT, compare, run_emulator, run_firmware
+from armbench.fakes.avr.harness import Harness
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from test_firmware import needs_toolchain, run_harness
 
-from armbench.drivers.protocol import Command, Framer
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.protocol import Command, Framer
+from armbench.drivers.model.settings import RobotSettings
 
 pytestmark = needs_toolchain
 

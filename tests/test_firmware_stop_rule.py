@@ -8,11 +8,11 @@ from collections.abc import Sequence
 import pytest
 from test_firmware import needs_toolchain
 
-from armbench.drivers.protocol import Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.avr import firmware_defines
-from armbench.fakes.avr_diff import run_emulator, run_firmware
-from armbench.fakes.emulator_settings import with_emulator_overrides
+from armbench.drivers.model.protocol import Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.avr.differential import run_emulator, run_firmware
+from armbench.fakes.avr.harness import firmware_defines
+from armbench.fakes.firmware.emulator_settings import with_emulator_overrides
 
 pytestmark = needs_toolchain
 

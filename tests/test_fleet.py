@@ -28,13 +28,13 @@ from armbench.bench.runner.fleet_run import arm_name, fleet_exit_status, parse_a
 from armbench.bench.runner.options import DEFAULT_CONFIG
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.cli import main as cli
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.metrics import path_errors, square_yz
 from armbench.record import RunRecord, load_record
 from armbench.record.fleet_index import read_fleet_index
-from armbench.reports.fleet_page import render_fleet
-from armbench.reports.format import format_value
-from armbench.reports.scorecard import headline_figure, headline_measurement
+from armbench.reports.pages.fleet_page import render_fleet
+from armbench.reports.render.format import format_value
+from armbench.reports.render.scorecard import headline_figure, headline_measurement
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = ROOT / "test-artifacts"

@@ -14,10 +14,10 @@ import pytest
 from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from foreign_arms.tracker_client import TrackerStream
 
-from armbench.drivers.arm import DEFAULT_TOLERANCE_RAD, Arm
-from armbench.drivers.errors import MoveTimeoutError
-from armbench.drivers.motion import joint_speed_rad_s
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.host.arm import DEFAULT_TOLERANCE_RAD, Arm
+from armbench.drivers.host.motion import joint_speed_rad_s
+from armbench.drivers.model.errors import MoveTimeoutError
+from armbench.drivers.model.settings import RobotSettings
 
 SETTINGS = RobotSettings()
 

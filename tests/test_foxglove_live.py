@@ -23,8 +23,8 @@ import pytest
 import websockets
 from rosbags.typesys import Stores, get_typestore
 
-from armbench.bench.live import parse_endpoint
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.frontends.foxglove.live import parse_endpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 TOPICS = ("/joint_states", "/joint_states/true", "/tf", "/robot_description")

@@ -24,7 +24,7 @@ from typing import Any
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armbench.drivers.protocol import (
+from armbench.drivers.model.protocol import (
     COMMAND_LEN,
     REPLY_LEN,
     Command,
@@ -33,7 +33,7 @@ from armbench.drivers.protocol import (
     Framer,
     Reply,
 )
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
@@ -54,8 +54,8 @@ from armbench.drivers.telnet import (
     TelnetCodec,
     coalesce,
 )
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.faults import FAULT_KINDS, Fault, parse_faults
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.firmware.faults import FAULT_KINDS, Fault, parse_faults
 
 FAST = settings(max_examples=100, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])

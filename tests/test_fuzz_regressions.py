@@ -16,12 +16,12 @@ import tomllib
 
 import pytest
 
-from armbench.drivers.protocol import Command
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
-from armbench.fakes.faults import Fault, faults_from_settings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.protocol import Command
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import EmulatorSettings, emulator_settings
+from armbench.fakes.firmware.faults import Fault, faults_from_settings
 
 DID_NOT_RAISE = pytest.fail.Exception  # what pytest.raises raises when nothing was raised
 
@@ -77,7 +77,8 @@ def _names(exc: SettingsError, field: str) -> bool:
     return exc.field == field or exc.field.startswith(field + ".")
 
 
-# --- drivers/settings.py: RobotSettings.from_mapping ----------------------------------------------
+# --- drivers/model/settings.py: RobotSettings.from_mapping
+# ----------------------------------------------
 @pytest.mark.parametrize(("text", "field"), [
     ("[geometry]\nd4_m = 1" + "0" * 309, "geometry.d4_m"),
     ("[joints.j2]\nmicrosteps = 1" + "0" * 309, "joints.j2.microsteps"),
@@ -107,7 +108,8 @@ def test_gear_ratio_whose_steps_per_radian_overflow(text: str, field: str) -> No
     rejected_or_runs(text, field)
 
 
-# --- fakes/emulator_settings.py: emulator_settings ------------------------------------------------
+# --- fakes/firmware/emulator_settings.py: emulator_settings
+# ------------------------------------------------
 def test_huge_integer_in_an_emulator_setting() -> None:
     rejected("[emulator]\nloop_overhead_s = 1" + "0" * 309, "emulator.loop_overhead_s")
 
@@ -133,7 +135,8 @@ def test_eeprom_cells_that_exhaust_memory() -> None:
     rejected("[emulator]\neeprom_cells = 1_000_000_000_000", "emulator.eeprom_cells")
 
 
-# --- fakes/faults.py: parse_faults ----------------------------------------------------------------
+# --- fakes/firmware/faults.py: parse_faults
+# ----------------------------------------------------------------
 @pytest.mark.parametrize(("line", "field"), [
     ("probability = 'high'", "faults[0].probability"),
     ("count = 'many'", "faults[0].count"),
@@ -177,7 +180,7 @@ def test_float_fault_joint() -> None:
 # --- fixed while the campaign ran (commit b29e4c9): keep them fixed -------------------------------
 @pytest.mark.parametrize("value", ['"uart_insert"', "1", "[-1000, -1000]"])
 def test_emulator_section_that_is_not_a_table(value: str) -> None:
-    # was ValueError/TypeError@fakes/emulator_settings.py:57 (dict() of a str, int or list)
+    # was ValueError/TypeError@fakes/firmware/emulator_settings.py:57 (dict() of a str, int or list)
     rejected(f"emulator = {value}", "emulator")
 
 

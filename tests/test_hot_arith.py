@@ -7,8 +7,8 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from armbench.drivers.protocol import encode_reply
-from armbench.fakes.boards import round_even
+from armbench.drivers.model.protocol import encode_reply
+from armbench.fakes.firmware.boards import round_even
 
 
 @given(st.floats(allow_nan=False, allow_infinity=False)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-#: What ``firmware build`` and ``avr://`` need (Debian packages named by ``fakes/avr.py``).
+#: What ``firmware build`` and ``avr://`` need (Debian packages named by ``fakes/avr/harness.py``).
 _AVR_TOOLS = ("avr-gcc", "simavr", "gcc")
 
 

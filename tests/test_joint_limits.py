@@ -14,12 +14,12 @@ from pathlib import Path
 import pytest
 
 from armbench.cli.main import main
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import MoveTimeoutError
-from armbench.drivers.protocol import TICKS_PER_RAD
-from armbench.drivers.settings import RobotSettings, load_settings
-from armbench.fakes.physics import END_STOP_MARGIN_RAD
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.errors import MoveTimeoutError
+from armbench.drivers.model.protocol import TICKS_PER_RAD
+from armbench.drivers.model.settings import RobotSettings, load_settings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.twin.physics import END_STOP_MARGIN_RAD
 
 
 def _wire_limits(settings: RobotSettings) -> list[tuple[float, float]]:

@@ -1,4 +1,5 @@
-"""The event-driven joint model (``fakes/joint.py``) against the cycle-by-cycle reference and the
+"""The event-driven joint model (``fakes/twin/joint.py``) against the cycle-by-cycle reference and
+the
 paper: speed law (12), Hall homing, limits, and the physical effects."""
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from joint_reference import ReferenceJoint
 
-from armbench.drivers.settings import DEFAULT_JOINTS, JointSettings
-from armbench.fakes.joint import (
+from armbench.drivers.model.settings import DEFAULT_JOINTS, JointSettings
+from armbench.fakes.twin.joint import (
     CYCLE_S,
     JointModel,
     PhysicalEffects,

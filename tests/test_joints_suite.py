@@ -12,15 +12,15 @@ from typing import Any
 
 import pytest
 
+from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites import load_suite, suite_names
 from armbench.bench.suites.base import SuiteContext
 from armbench.bench.suites.joints import JointsSuite, joint_figures
-from armbench.bench.truth import EmulatorTruth
 from armbench.cli.main import main
-from armbench.drivers.arm import Arm
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS
 from armbench.metrics import MetricsInputError
 from armbench.metrics.iso230 import axis_positioning
 from armbench.record import Measurement, Trial

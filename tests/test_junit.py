@@ -1,4 +1,5 @@
-"""armbench.bench.junit: the XML parses back, failures/errors/skips land where CI expects them."""
+"""armbench.reports.files.junit: the XML parses back, failures/errors/skips land where CI expects
+them."""
 
 from __future__ import annotations
 
@@ -12,10 +13,9 @@ from typing import Any
 import pytest
 from test_runner import CONFIG, TinySuite
 
-from armbench.bench.junit import to_junit, write_junit
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.bench.suites import SUITES, SuiteContext
-from armbench.fakes.vclock import run_virtual
+from armbench.fakes.clock.vclock import run_virtual
 from armbench.record import (
     Environment,
     RecordWriter,
@@ -25,6 +25,7 @@ from armbench.record import (
     load_record,
 )
 from armbench.record.limits import SPEC_VERSION, parse_limits
+from armbench.reports.files.junit import to_junit, write_junit
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.kinematics import (
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.kinematics import (
     BRANCHES,
     IKSolution,
     JointLimitError,
@@ -29,7 +29,7 @@ from armbench.drivers.kinematics import (
     tcp_position,
     wrap_protocol,
 )
-from armbench.drivers.settings import Geometry, RobotSettings
+from armbench.drivers.model.settings import Geometry, RobotSettings
 
 #: Forward kinematics of the paper's DH table computed by independent libraries (its "source"
 #: says which), kept in the repository so that every checkout and CI run checks against it.

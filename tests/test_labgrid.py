@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 from netutil import free_port, listening
 
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import (
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.errors import (
     CoordinatorUnreachableError,
     NoSerialResourceError,
     PlaceLockedError,
@@ -189,7 +189,7 @@ def test_a_place_locked_by_someone_else_is_refused_with_the_owner(lab: Lab) -> N
 
 def test_the_coordinators_text_is_quoted_shortened(lab: Lab) -> None:
     """An owner's name comes from the coordinator (a peer): the error quotes its start and its
-    length (:mod:`armbench.drivers.peer_text`), the exception keeps it whole."""
+    length (:mod:`armbench.drivers.model.peer_text`), the exception keeps it whole."""
     user = "u" * 5000
     assert lab.client("-p", "arm-b", "acquire", user=user).returncode == 0
     try:

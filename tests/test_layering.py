@@ -13,14 +13,14 @@ def _modules_after(statement: str) -> set[str]:
 
 
 def test_emulator_does_not_import_the_driver() -> None:
-    mods = _modules_after("import armbench.fakes.arm_emulator, armbench.fakes.serve, "
-                          "armbench.fakes.transport")
-    assert "armbench.drivers.arm" not in mods
+    mods = _modules_after("import armbench.fakes.firmware.arm_emulator, "
+                          "armbench.fakes.links.serve, armbench.fakes.links.fake_transport")
+    assert "armbench.drivers.host.arm" not in mods
     assert not any(m.startswith(("armbench.bench", "armbench.reports")) for m in mods)
 
 
 def test_driver_does_not_import_bench_reports_or_the_emulator() -> None:
-    mods = _modules_after("import armbench.drivers.arm")
+    mods = _modules_after("import armbench.drivers.host.arm")
     assert not any(m.startswith(("armbench.bench", "armbench.reports", "armbench.fakes"))
                    for m in mods)
 
@@ -29,13 +29,13 @@ def test_the_packages_import_nothing_by_themselves() -> None:
     """``armbench`` and the packages the emulator and the driver share are light: importing them
     imports no driver, no numpy and no emulator module."""
     mods = _modules_after("import armbench, armbench.drivers, armbench.fakes, armbench.bench")
-    assert not any(m.startswith(("armbench.drivers.arm", "armbench.fakes.", "numpy"))
+    assert not any(m.startswith(("armbench.drivers.host.arm", "armbench.fakes.", "numpy"))
                    for m in mods), sorted(mods)
 
 
 def test_driver_names_are_exported_lazily() -> None:
     mods = _modules_after("import armbench; armbench.Arm; armbench.connect")
-    assert "armbench.drivers.arm" in mods
+    assert "armbench.drivers.host.arm" in mods
 
 
 def test_the_driver_reaches_the_fake_transport_only_by_name() -> None:
@@ -46,19 +46,19 @@ def test_the_driver_reaches_the_fake_transport_only_by_name() -> None:
     assert not any(m.startswith("armbench.fakes") for m in mods), sorted(mods)
     mods = _modules_after("from armbench.drivers.transports import open_transport as o; "
                           "o('fake://')")
-    assert "armbench.fakes.transport" in mods
+    assert "armbench.fakes.links.fake_transport" in mods
 
 
 def test_the_runner_writes_records_and_renders_nothing() -> None:
     """The runner imports no report code; ``cli.reporting`` (the run command's and the pytest
     plugin's) imports it only when a report is written."""
-    mods = _modules_after("import armbench.bench.runner, armbench.cli.reporting")
+    mods = _modules_after("import armbench.bench.runner, armbench.cli.commands.run_files")
     assert not any(m.startswith("armbench.reports") for m in mods), sorted(mods)
 
 
 def test_the_worker_processes_import_nothing_of_the_runner() -> None:
     """No cycle between the runner and its worker processes: ``bench.workers`` only runs jobs."""
-    mods = _modules_after("import armbench.bench.workers")
+    mods = _modules_after("import armbench.bench.runner.workers")
     assert not any(m.startswith("armbench.bench.runner") for m in mods), sorted(mods)
 
 
@@ -71,5 +71,5 @@ def test_finding_the_suites_contracts_imports_no_suite() -> None:
             "armbench.bench.suites.twin_check_contract"} <= mods
     suites = {m for m in mods if m.startswith("armbench.bench.suites.")}
     assert all(m.endswith("_contract") for m in suites), suites  # not even the interface
-    assert not any(m.startswith(("armbench.drivers.arm", "armbench.bench.runner",
+    assert not any(m.startswith(("armbench.drivers.host.arm", "armbench.bench.runner",
                                  "armbench.fakes", "numpy")) for m in mods), sorted(mods)

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record.limits import (
     DEFAULT_TOLERANCE_PCT,
     SPEC_VERSION,

@@ -1,4 +1,4 @@
-"""Log lines a peer causes once per event come at a bounded rate (``drivers/log_limit.py``,
+"""Log lines a peer causes once per event come at a bounded rate (``drivers/model/log_limit.py``,
 ``docs/reliability.md``, third round): a few per interval, then one line with the count held
 back. Before, ``armbench emulate --tcp`` under a 50-client storm logged one WARNING per refused
 connection, 125 000 lines (11 MB) in 60 s.
@@ -11,13 +11,13 @@ import logging
 
 import pytest
 
-from armbench.drivers.arm import Arm
-from armbench.drivers.log_limit import DEFAULT_INTERVAL_S, DEFAULT_LINES, LogLimit
-from armbench.drivers.protocol import Reply
-from armbench.drivers.server_notes import note_line
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.serve import TcpServer, real_time_loop
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.log_limit import DEFAULT_INTERVAL_S, DEFAULT_LINES, LogLimit
+from armbench.drivers.model.protocol import Reply
+from armbench.drivers.model.server_notes import note_line
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.links.serve import TcpServer, real_time_loop
 
 STORM_CLIENTS = 200
 

@@ -10,10 +10,10 @@ from dataclasses import replace
 import pytest
 from test_physics import J2, run_to
 
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.joint import CYCLE_S, JointModel
-from armbench.fakes.physics import DEFAULT_JOINT_PHYSICS, LOSS_LAWS, JointPhysics
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.twin.joint import CYCLE_S, JointModel
+from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS, LOSS_LAWS, JointPhysics
 
 ROBOT = RobotSettings()
 

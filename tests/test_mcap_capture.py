@@ -26,10 +26,10 @@ from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from armbench.bench.runner import EXIT_PASS, RunOptions, run_sync
-from armbench.capture.jsonl import CaptureWriter
-from armbench.capture.mcap_writer import McapCapture
-from armbench.capture.part import PartWriter
-from armbench.capture.read import (
+from armbench.drivers.capture.jsonl import CaptureWriter
+from armbench.drivers.capture.mcap_writer import McapCapture
+from armbench.drivers.capture.part import PartWriter
+from armbench.drivers.capture.read import (
     capture_lines,
     capture_start_ns,
     is_mcap,
@@ -39,14 +39,14 @@ from armbench.capture.read import (
     read_tally,
     replay_capture,
 )
-from armbench.capture.tally import TALLY_KEY
-from armbench.drivers import ros2
-from armbench.drivers.kinematics import fk
-from armbench.drivers.protocol import AngleDecoder, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.drivers.urdf import robot_urdf
+from armbench.drivers.capture.tally import TALLY_KEY
+from armbench.drivers.model import ros2
+from armbench.drivers.model.kinematics import fk
+from armbench.drivers.model.protocol import AngleDecoder, Reply
+from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.model.urdf import robot_urdf
 from armbench.record import RunRecord, load_record
-from armbench.reports.capture_summary import summarize_capture
+from armbench.reports.render.capture_summary import summarize_capture
 
 TOPICS = {"/uart/tx", "/uart/rx", "/joint_states", "/joint_states/true", "/joint_states_goal",
           "/tf", "/tf_static", "/robot_description", "/bench/events"}
@@ -70,7 +70,7 @@ class _Emulators(list[Any]):
     """Emulator factory keeping every emulator, for their counters."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from armbench.fakes.arm_emulator import ArmEmulator
+        from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)
@@ -400,7 +400,7 @@ def test_the_report_joins_the_finished_capture(run_dir: tuple[Path, _Emulators],
     left as it was."""
     from mcap.stream_reader import StreamReader
 
-    from armbench.cli.reporting import write_reports
+    from armbench.cli.commands.run_files import write_reports
 
     out, _ = run_dir
     for bound, name in ((None, "free"), (1, "bounded")):
@@ -435,7 +435,7 @@ def test_a_capture_without_summary_gets_no_attachment(run_dir: tuple[Path, _Emul
                                                       tmp_path: Path) -> None:
     """A killed run's capture (cut before its summary) or a file that is not MCAP is left as it
     was: ``append_attachment`` reads only the file's head and tail and says False."""
-    from armbench.capture.append import append_attachment
+    from armbench.drivers.capture.append import append_attachment
 
     out, _ = run_dir
     whole = (out / "capture.mcap").read_bytes()

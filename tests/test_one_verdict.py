@@ -12,7 +12,12 @@ import pytest
 
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites import load_suite, suite_names
-from armbench.bench.verdict import (
+from armbench.cli import main as cli
+from armbench.drivers.model.settings import RobotSettings
+from armbench.record import load_record
+from armbench.record.baseline import compare
+from armbench.record.limits import parse_limits
+from armbench.record.verdict import (
     EXIT_ERROR,
     EXIT_FAIL,
     EXIT_INCOMPLETE,
@@ -22,11 +27,6 @@ from armbench.bench.verdict import (
     load_config,
     worst_exit_status,
 )
-from armbench.cli import main as cli
-from armbench.drivers.settings import RobotSettings
-from armbench.record import load_record
-from armbench.record.baseline import compare
-from armbench.record.limits import parse_limits
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

@@ -25,8 +25,8 @@ from typing import Any
 import pytest
 from far_end import ROOT, Emulator, emulator_maker, ser2net_over
 
-from armbench.drivers.arm import Arm, ReconnectPolicy
-from armbench.drivers.errors import LinkLostError, PortLostError
+from armbench.drivers.host.arm import Arm, ReconnectPolicy
+from armbench.drivers.model.errors import LinkLostError, PortLostError
 from armbench.record import load_record
 
 TWO_LAPS = """\

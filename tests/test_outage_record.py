@@ -13,11 +13,10 @@ from typing import Any
 
 import pytest
 
-from armbench.bench.junit import write_junit
 from armbench.bench.runner import RunOptions, run_bench
-from armbench.cli.reporting import write_reports
-from armbench.drivers.link_outages import LinkOutage, OutageLog
-from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.cli.commands.run_files import write_reports
+from armbench.drivers.host.link_outages import LinkOutage, OutageLog
+from armbench.fakes.clock.vclock import VirtualTimeLoop
 from armbench.record import (
     Environment,
     RecordError,
@@ -27,7 +26,8 @@ from armbench.record import (
     load_record,
 )
 from armbench.record.limits import SPEC_VERSION
-from armbench.reports.summary import verdict_reasons
+from armbench.reports.files.junit import write_junit
+from armbench.reports.render.summary import verdict_reasons
 
 OUTAGE = LinkOutage("port lost", "connection reset by peer", 12.0, 12.01, 15.5,
                     reconnect_attempts=4, commands_unacknowledged=1)

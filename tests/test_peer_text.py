@@ -1,4 +1,5 @@
-"""A peer's text echoed shortened (:mod:`armbench.drivers.peer_text`): the first characters and the
+"""A peer's text echoed shortened (:mod:`armbench.drivers.model.peer_text`): the first characters
+and the
 whole length, never the megabytes (issue 38: a 10 MB joint name was echoed whole into a ROS 2
 status, an event and a log line; the same path end to end: ``tests/test_ros2_node.py``)."""
 
@@ -6,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from armbench.drivers.peer_text import MAX_ECHO_CHARS, peer_repr, peer_str
+from armbench.drivers.model.peer_text import MAX_ECHO_CHARS, peer_repr, peer_str
 
 
 def test_short_text_is_echoed_as_it_is() -> None:

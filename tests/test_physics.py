@@ -1,4 +1,5 @@
-"""The physics of the emulated mechanism (``fakes/physics.py``) against hand-computed cases, the
+"""The physics of the emulated mechanism (``fakes/twin/physics.py``) against hand-computed cases,
+the
 ideal profile against the cycle-by-cycle reference, and reproducibility of the physical arm."""
 
 from __future__ import annotations
@@ -16,13 +17,15 @@ from hypothesis import strategies as st
 from joint_reference import ReferenceJoint
 from test_joint_model import snapshot
 
-from armbench.drivers.kinematics import dh_parameters, tcp_position
-from armbench.drivers.protocol import Command
-from armbench.drivers.settings import DEFAULT_JOINTS, RobotSettings, SettingsError
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.joint import CYCLE_S, JointModel
-from armbench.fakes.physics import (
+from armbench.drivers.model.kinematics import dh_parameters, tcp_position
+from armbench.drivers.model.protocol import Command
+from armbench.drivers.model.settings import DEFAULT_JOINTS, RobotSettings, SettingsError
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.links.fake_transport import parse_fake_url
+from armbench.fakes.twin.joint import CYCLE_S, JointModel
+from armbench.fakes.twin.physics import (
     DEFAULT_JOINT_PHYSICS,
     JOINT_RANGES,
     ArmPhysics,
@@ -30,8 +33,6 @@ from armbench.fakes.physics import (
     JointPhysics,
     Mechanism,
 )
-from armbench.fakes.transport import parse_fake_url
-from armbench.fakes.vclock import run_virtual
 
 G = 9.80665
 ROBOT = RobotSettings()

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from armbench.reports import plots
-from armbench.reports.plots import LEGEND_RUNS
-from armbench.reports.plotting import COLOURS
+from armbench.reports.render import plots
+from armbench.reports.render.plots import LEGEND_RUNS
+from armbench.reports.render.plotting import COLOURS
 
 
 def _square_lap(k: int) -> np.ndarray:

@@ -40,7 +40,7 @@ def test_an_unrelated_project_runs_as_before(guest_env: Path, tmp_path: Path) ->
     plugins = subprocess.run([str(guest_env), "-c", "import importlib.metadata as m; print("
                               "[e.value for e in m.entry_points(group='pytest11')])"],
                              capture_output=True, text=True, check=True).stdout
-    assert "armbench.cli.pytest_plugin" in plugins  # installed, so pytest loads it
+    assert "armbench.cli.plugin.pytest_plugin" in plugins  # installed, so pytest loads it
     (tmp_path / "test_other.py").write_text(TRIVIAL, encoding="utf-8")
     done = _pytest(guest_env, tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import pytest
 
 from armbench.cli.main import COMMANDS
-from armbench.fakes.signals import stop_on_signals
+from armbench.fakes.links.signals import stop_on_signals
 
 #: Run in a fresh interpreter: import every module of armbench, then every command's --help.
 _PROBE = """

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.drivers.protocol import (
+from armbench.drivers.model.protocol import (
     COMMAND_LEN,
     MAX_TICKS,
     REPLY_LEN,
@@ -25,7 +25,7 @@ from armbench.drivers.protocol import (
     rad_to_ticks,
     ticks_to_rad,
 )
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 
 DEFAULT = RobotSettings()
 ticks = st.integers(0, MAX_TICKS)

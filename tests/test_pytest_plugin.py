@@ -18,14 +18,15 @@ pytest_plugins = ["pytester"]
 
 
 def plugin() -> list[str]:
-    """``-p armbench.cli.pytest_plugin`` unless the installed ``pytest11`` entry point loads it
+    """``-p armbench.cli.plugin.pytest_plugin`` unless the installed ``pytest11`` entry point loads
+    it
     already (registering the module twice under two names is an error); and labgrid's plugin
     (installed with the labgrid extra) kept out of the users' sessions, as a user without a lab
     would. The sessions run in processes of their own, as a user's do (in-process, pytester
     would drop what a session imported, and numpy cannot be imported twice in one process)."""
-    installed = any(ep.value == "armbench.cli.pytest_plugin"
+    installed = any(ep.value == "armbench.cli.plugin.pytest_plugin"
                     for ep in importlib.metadata.entry_points(group="pytest11"))
-    ours = [] if installed else ["-p", "armbench.cli.pytest_plugin"]
+    ours = [] if installed else ["-p", "armbench.cli.plugin.pytest_plugin"]
     return ["-p", "no:labgrid", *ours]
 
 USER_TESTS = '''
@@ -33,7 +34,7 @@ import asyncio
 
 import pytest
 
-from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.fakes.clock.vclock import VirtualTimeLoop
 
 
 async def test_joint1_reaches_its_target(arm, record_measurement, bench_record):
@@ -61,7 +62,7 @@ async def test_assertion_failure_is_a_done_trial(arm):
 
 
 async def test_driver_error_is_an_error_trial(arm):
-    from armbench.drivers.errors import PortLostError
+    from armbench.drivers.model.errors import PortLostError
 
     raise PortLostError(arm.port, "cable pulled (test)")
 
@@ -245,7 +246,7 @@ def test_unit_mismatch(record_measurement):
 
 
 def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
-    from armbench.cli.pytest_bench import BenchTrial
+    from armbench.cli.plugin.pytest_bench import BenchTrial
     from armbench.record import RecordError
 
     trial = BenchTrial(index=0, nodeid="t", test_name="t", limits=None, started_s=0.0)
@@ -260,7 +261,7 @@ def test_record_measurement_refuses_bad_limits(tmp_path: Path) -> None:
 TOY_TESTS = '''
 import asyncio
 
-from armbench.fakes.vclock import VirtualTimeLoop
+from armbench.fakes.clock.vclock import VirtualTimeLoop
 from toy_target import ToyTransport
 
 

@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record import (
     JOURNAL_FILE,
     RESULTS_FILE,

@@ -16,7 +16,7 @@ import pytest
 from tmpfs import mounted_tmpfs
 
 from armbench.cli.main import main
-from armbench.fakes.avr import FIRMWARE_SOURCE
+from armbench.fakes.avr.harness import FIRMWARE_SOURCE
 from armbench.record import RecordError
 from armbench.record.files import atomic_write_bytes
 

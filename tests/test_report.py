@@ -32,8 +32,8 @@ from armbench.reports import (
     render_index,
     render_report,
 )
-from armbench.reports.capture_summary import summarize_capture
-from armbench.reports.index import KEY_METRICS, key_metrics
+from armbench.reports.pages.index import KEY_METRICS, key_metrics
+from armbench.reports.render.capture_summary import summarize_capture
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 FIXTURES = ("passing", "failing", "regressed", "interrupted")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from armbench.reports.views import Figures, figures_collected_alone
+from armbench.reports.render.views import Figures, figures_collected_alone
 
 HERE = str(Path(__file__).parent)
 

@@ -18,13 +18,14 @@ from test_report import cells, parse
 from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.startup_contract import STARTUP
-from armbench.cli.reporting import write_reports
+from armbench.cli.commands.run_files import write_reports
 from armbench.record import Measurement, RunRecord, SuiteRecord, load_record
 from armbench.record.baseline import compare
-from armbench.reports import plots, plots_over_runs, render_index, render_report
-from armbench.reports.compare_page import render_compare
-from armbench.reports.format import format_value
-from armbench.reports.scorecard import HEADLINES, score_rows, true_name
+from armbench.reports import render_index, render_report
+from armbench.reports.pages.compare_page import render_compare
+from armbench.reports.render import plots, plots_over_runs
+from armbench.reports.render.format import format_value
+from armbench.reports.render.scorecard import HEADLINES, score_rows, true_name
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 RECORDS = Path(__file__).parent / "fixtures" / "records"

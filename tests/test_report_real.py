@@ -24,7 +24,7 @@ from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.repeatability_contract import REPEATABILITY
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli import main as cli
-from armbench.cli.reporting import write_reports
+from armbench.cli.commands.run_files import write_reports
 from armbench.record import RunRecord, load_record
 from armbench.reports import render_index
 

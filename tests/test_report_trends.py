@@ -1,7 +1,7 @@
 """The run index's trends (``armbench report --index RUNS_DIR``) over real records made by tiny
 runs: one series per unit under test and kind of target, true figures apart from believed ones,
 each point judged by its own run's limit. Checked on the index's data
-(:func:`armbench.reports.trends.trend_series`), then on the page and the plot.
+(:func:`armbench.reports.render.trends.trend_series`), then on the page and the plot.
 
 The runs are real: ``fake://`` (the emulator on virtual time, with ground truth) and
 ``socket://`` (the same emulator served on a real TCP socket: a target without truth, as a
@@ -22,13 +22,14 @@ from test_report import parse
 
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.bench.suites import SUITES, Suite, SuiteContext
-from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.kinematics import tcp_position
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
 from armbench.record import Measurement, RunRecord, Trial, load_record
 from armbench.record.suite_contract import Headline, forget, register
-from armbench.reports import plots_over_runs, render_index
-from armbench.reports.trends import TrendSeries, trend_series
+from armbench.reports import render_index
+from armbench.reports.render import plots_over_runs
+from armbench.reports.render.trends import TrendSeries, trend_series
 
 LABEL = "mean TCP error"
 
@@ -121,8 +122,8 @@ def _fake_run(runs: Path, name: str, config: Path, port: str = "fake://",
 
 
 async def _socket_run(runs: Path, config: Path, dut: str) -> RunRecord:
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.serve import TcpServer
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.links.serve import TcpServer
 
     server = TcpServer(ArmEmulator())
     host, port = await server.start()

@@ -7,12 +7,12 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-from armbench.bench.capture_run import LoggedReReferencingPower, logged_power
-from armbench.bench.power import EmulatorPower
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.runner.capture_run import LoggedReReferencingPower, logged_power
+from armbench.bench.runner.power import EmulatorPower
 from armbench.bench.suites import ReReferencing
-from armbench.capture.part import PartWriter
-from armbench.capture.read import iter_events
+from armbench.drivers.capture.part import PartWriter
+from armbench.drivers.capture.read import iter_events
 from armbench.record import load_record
 
 CONFIG = """spec_version = "armbench-limits/1"

@@ -1,6 +1,6 @@
 """``armbench ros2`` under clients that flood it with trajectories (issue 38): real rclpy and Fast
 DDS, the node as the command (a process of its own, ``fake://`` on virtual time) and the clients
-as processes (``armbench.bench.ros2_node.client flood``).
+as processes (``armbench.frontends.ros2_node.client flood``).
 
 Each client first sends a pose and, once done, the same pose again (the arm is there: before, this
 froze ``/joint_states`` for good and grew the node by ~28 MB/s), then its trajectories with
@@ -23,12 +23,12 @@ from typing import Any
 
 import pytest
 
-from armbench.bench.ros2_node import missing_ros2
+from armbench.frontends.ros2_node import missing_ros2
 
 pytestmark = pytest.mark.skipif(missing_ros2() is not None,
                                 reason=f"armbench[ros2] not installed: {missing_ros2()}")
 
-CLIENT = [sys.executable, "-m", "armbench.bench.ros2_node.client"]
+CLIENT = [sys.executable, "-m", "armbench.frontends.ros2_node.client"]
 #: Real seconds a client or the command may take at most on a loaded machine (a hang guard).
 GUARD_S = 120.0
 #: How far the node's resident memory may grow over the test (MB).

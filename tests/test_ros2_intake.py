@@ -1,4 +1,5 @@
-"""The node's intake of trajectories (:mod:`armbench.bench.ros2_node.intake`): every trajectory it
+"""The node's intake of trajectories (:mod:`armbench.frontends.ros2_node.intake`): every trajectory
+it
 hears of gets exactly one final status, and every status says whose it is.
 
 No ROS needed: the intake takes a message's fields and rclpy's ``MessageInfo`` as plain values, so
@@ -12,7 +13,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from armbench.bench.ros2_node.intake import MAX_POINTS, Intake, Source, Tag, source_of
+from armbench.frontends.ros2_node.intake import MAX_POINTS, Intake, Source, Tag, source_of
 
 NAMES = ["j1", "j2", "j3", "j4"]
 GID = bytes(range(16))

@@ -1,5 +1,5 @@
 """``armbench ros2`` with real rclpy and Fast DDS: the node in this process (or as the command), a
-separate process as the ROS client (``armbench.bench.ros2_node.client``).
+separate process as the ROS client (``armbench.frontends.ros2_node.client``).
 
 Each test has a ROS domain of its own (``ROS_DOMAIN_ID``) and discovery on this host only, so
 parallel runs do not hear each other. Waits are bounded by the client's own guard, not asserted
@@ -22,16 +22,16 @@ from typing import Any
 import pytest
 from netutil import free_port
 
-from armbench.bench.ros2_node import missing_ros2
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.frontends.ros2_node import missing_ros2
 
 pytestmark = pytest.mark.skipif(missing_ros2() is not None,
                                 reason=f"armbench[ros2] not installed: {missing_ros2()}")
 
 S = RobotSettings()
 NAMES = [j.name for j in S.joints]
-CLIENT = [sys.executable, "-m", "armbench.bench.ros2_node.client"]
+CLIENT = [sys.executable, "-m", "armbench.frontends.ros2_node.client"]
 #: Real seconds a client or a command may take at most on a loaded machine (a hang guard).
 GUARD_S = 90.0
 _DOMAINS = itertools.count()
@@ -61,7 +61,7 @@ def _with_node(*client_args: str, port: str = "fake://",
                ) -> tuple[Any, Any, dict[str, Any], list[Any]]:
     """The node on ``port`` (virtual time, ``/clock``) while one client runs (and ``during(node)``
     beside it): the node, its arm, the client's result and every state the arm received."""
-    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     async def main() -> tuple[Any, Any, dict[str, Any], list[Any]]:
         async with PublishingArm(port, S) as arm:
@@ -141,7 +141,7 @@ def test_a_new_trajectory_replaces_the_one_running() -> None:
 def test_a_trajectory_cut_short_by_the_shutdown_is_aborted_not_preempted() -> None:
     """Shutdown is not a newer trajectory: the one running ends ``aborted``, reason
     ``shutdown`` (it was reported ``preempted``), and the client still gets it."""
-    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     slow = {"names": NAMES, "points": [[2.0, 0.0, 0.0, 0.0]], "times_s": [200.0]}
 
@@ -181,7 +181,7 @@ def test_a_trajectory_of_too_many_points_is_refused_unread(
         caplog: pytest.LogCaptureFixture) -> None:
     from types import SimpleNamespace
 
-    from armbench.bench.ros2_node.node import MAX_POINTS, ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import MAX_POINTS, ArmNode, NodeOptions, PublishingArm
 
     point = SimpleNamespace(positions=[0.0] * 4, time_from_start=SimpleNamespace(sec=1, nanosec=0))
     msg = SimpleNamespace(joint_names=NAMES, points=[point] * (MAX_POINTS + 1),
@@ -206,7 +206,7 @@ def test_a_trajectory_of_too_many_points_is_refused_unread(
 def test_a_realtime_factor_holds_virtual_time_back() -> None:
     import time
 
-    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     async def main() -> float:
         async with PublishingArm("fake://", S) as arm:
@@ -230,7 +230,7 @@ def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str)
     """A reliable KEEP_ALL subscriber that takes nothing stops acknowledging once its own history
     is full; the node's /joint_states history is bounded, so the node serves on (every reply
     published or counted as dropped), its memory stays flat, and ``pace`` stops waiting for it."""
-    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     duration_s = 150.0  # ~60 000 replies: several times what the subscriber's history holds
 
@@ -264,7 +264,7 @@ def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str)
 def test_nodes_in_namespaces_of_their_own_do_not_hear_each_other() -> None:
     """Two arms on one ROS domain (or two bench trials measured at once): a trajectory sent to
     one namespace moves that arm only."""
-    from armbench.bench.ros2_node.node import ArmNode, NodeOptions, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, NodeOptions, PublishingArm
 
     target = [0.1, 0.0, 0.0, 0.0]
     t = {"names": NAMES, "points": [target], "times_s": [3.0]}

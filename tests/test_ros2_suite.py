@@ -21,9 +21,9 @@ import pytest
 from conftest import one_line_error
 from far_end import Emulator
 
-from armbench.bench.ros2_node import missing_ros2
 from armbench.bench.suites import registered_suites, suite_class, suite_names
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
+from armbench.frontends.ros2_node import missing_ros2
 from armbench.record.suite_contract import contract
 
 needs_ros2 = pytest.mark.skipif(missing_ros2() is not None,

@@ -11,10 +11,10 @@ from conftest import cli, one_line_error
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.ros2_node.trajectory import TrajectoryError, plan_trajectory
-from armbench.drivers.motion import joint_times_s
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.host.motion import joint_times_s
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings
+from armbench.frontends.ros2_node.trajectory import TrajectoryError, plan_trajectory
 
 S = RobotSettings()
 NAMES = [j.name for j in S.joints]

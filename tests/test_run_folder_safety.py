@@ -28,8 +28,8 @@ import pytest
 from tmpfs import mounted_tmpfs
 
 import armbench.cli.main
-from armbench.capture.jsonl import CaptureRecord, CaptureWriter
-from armbench.capture.read import capture_start_ns, iter_events, open_capture
+from armbench.drivers.capture.jsonl import CaptureRecord, CaptureWriter
+from armbench.drivers.capture.read import capture_start_ns, iter_events, open_capture
 from armbench.record import load_record
 
 ROOT = Path(__file__).resolve().parents[1]

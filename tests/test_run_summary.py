@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from armbench.bench.run_summary import MAX_LINES, append_summary, markdown_summary
 from armbench.record import load_record
+from armbench.reports.files.run_summary import MAX_LINES, append_summary, markdown_summary
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
 

@@ -23,14 +23,6 @@ import pytest
 
 import armbench.bench.suites
 import armbench.cli.main
-from armbench.bench.power import (
-    CommandPower,
-    EmulatorPower,
-    HarnessPower,
-    ManualPower,
-    PowerError,
-    port_power,
-)
 from armbench.bench.runner import (
     EXIT_FAIL,
     EXIT_INCOMPLETE,
@@ -44,6 +36,15 @@ from armbench.bench.runner import (
     run_bench,
     run_sync,
 )
+from armbench.bench.runner.power import (
+    CommandPower,
+    EmulatorPower,
+    HarnessPower,
+    ManualPower,
+    PowerError,
+    port_power,
+)
+from armbench.bench.runner.truth import EmulatorTruth, TrackerError, load_tracker
 from armbench.bench.suites import (
     SUITES,
     ReReferencing,
@@ -52,13 +53,12 @@ from armbench.bench.suites import (
     UnknownSuiteError,
     load_suite,
 )
-from armbench.bench.truth import EmulatorTruth, TrackerError, load_tracker
-from armbench.capture.read import open_capture
-from armbench.cli.reporting import write_reports
-from armbench.drivers.errors import ArmbenchError, PortLostError
-from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.cli.commands.run_files import write_reports
+from armbench.drivers.capture.read import open_capture
+from armbench.drivers.model.errors import ArmbenchError, PortLostError
+from armbench.drivers.model.kinematics import tcp_position
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
 from armbench.record import Measurement, Trial, load_record
 
 # --------------------------------------------------------------------------------------------
@@ -79,7 +79,7 @@ class TinySuite(Suite):
         return {"trials": 3, "duty": 90}
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
-        from armbench.drivers.settings import SettingsError
+        from armbench.drivers.model.settings import SettingsError
 
         if not isinstance(params["trials"], int) or params["trials"] < 1:
             raise SettingsError("suites.tiny.trials", params["trials"], "must be >= 1")
@@ -194,7 +194,7 @@ class Emulators(list[Any]):
     """An emulator factory that keeps every emulator it builds."""
 
     def __call__(self, robot: Any, settings: Any, faults: Any) -> Any:
-        from armbench.fakes.arm_emulator import ArmEmulator
+        from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
         emulator = ArmEmulator(robot, settings, faults)
         self.append(emulator)
@@ -345,8 +345,8 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
     """A port that is not fake:// runs in real time with one reconnecting connection, after the
     probe's connection found the arm there: here the emulator served on a TCP socket, as
     ``armbench emulate --tcp`` does for a remote robot."""
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.serve import TcpServer
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.links.serve import TcpServer
 
     server = TcpServer(ArmEmulator())
     host, port = await server.start()
@@ -907,7 +907,7 @@ def test_progress_printer_rewrites_its_line_on_a_terminal() -> None:
 
 
 def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
-    from armbench.fakes.vclock import VirtualTimeLoop
+    from armbench.fakes.clock.vclock import VirtualTimeLoop
 
     seen: list[type] = []
 
@@ -923,7 +923,8 @@ def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
 
 
 def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> None:
-    """``fake://`` trials measured by two worker processes (``armbench.bench.workers``): committed
+    """``fake://`` trials measured by two worker processes (``armbench.bench.runner.workers``):
+    committed
     in
     index order, each starting where the previous ended on the run clock, the capture one stream
     on that clock holding every trial's frames; the same figures and trial times as the same

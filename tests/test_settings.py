@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.emulator_settings import emulator_settings
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, SettingsError, load_settings
+from armbench.fakes.firmware.emulator_settings import emulator_settings
 
 
 def test_defaults_match_the_documented_assumptions() -> None:

@@ -31,9 +31,9 @@ from typing import TypeVar
 
 import pytest
 
-from armbench.drivers.arm import Arm
-from armbench.drivers.motion import square
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.host.motion import square
+from armbench.fakes.clock.vclock import run_virtual
 
 T = TypeVar("T")
 MB = 1024 * 1024

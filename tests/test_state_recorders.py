@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from armbench.drivers.arm import Arm
-from armbench.drivers.move_targets import wire_command
-from armbench.drivers.paths import LOOKAHEAD_S, stream_path
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.host.move_targets import wire_command
+from armbench.drivers.host.paths import LOOKAHEAD_S, stream_path
+from armbench.fakes.clock.vclock import run_virtual
 
 
 def test_an_ended_recorder_takes_out_itself_not_an_equal_one() -> None:

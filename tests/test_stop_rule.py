@@ -13,10 +13,10 @@ import pytest
 from armbench.bench.calibrate import calibrate_port
 from armbench.bench.calibrate.model import Approach, Observations
 from armbench.bench.calibrate.stop_rule import STOP_RULE_KEY, choose_stop_rule
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import emulator_settings
 
 
 def _robot(**emulator: object) -> RobotSettings:

@@ -18,9 +18,9 @@ import armbench.reports.sections as sections
 from armbench.bench.suites.accuracy_contract import ACCURACY, AccuracyNames
 from armbench.record import SuiteRecord, load_record
 from armbench.record.suite_contract import contracts, register
-from armbench.reports.format import format_value
-from armbench.reports.page import SECTIONS
-from armbench.reports.scorecard import HEADLINES, TRUTH_SUITES
+from armbench.reports.pages.page import SECTIONS
+from armbench.reports.render.format import format_value
+from armbench.reports.render.scorecard import HEADLINES, TRUTH_SUITES
 
 
 def test_every_contract_has_its_section_and_headlines() -> None:
@@ -141,7 +141,7 @@ class WobbleSuite(Suite):
 '''
 
 _WOBBLE_SECTION = '''
-from armbench.reports.views import SectionView
+from armbench.reports.render.views import SectionView
 from benchwobble.contract import WOBBLE
 
 

@@ -1,6 +1,7 @@
 """The bench suites end to end: accuracy, repeatability and start-up recovery.
 
-Each suite runs against the emulator over ``fake://`` on virtual time (``armbench.fakes.vclock``)
+Each suite runs against the emulator over ``fake://`` on virtual time
+(``armbench.fakes.clock.vclock``)
 with small
 parameters, through the same calls the runner makes (``params`` → ``plan`` → ``run_trial`` per
 trial → ``summarize``). Checks: every trial is measured, the figures are present and plausible,
@@ -27,7 +28,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from armbench.bench.power import EmulatorPower
+from armbench.bench.runner.power import EmulatorPower
+from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites._common import (
     StateRecorder,
     duty_for_speed_pct,
@@ -44,13 +46,12 @@ from armbench.bench.suites.startup_recovery import (
     eeprom_life_years,
     parse_condition,
 )
-from armbench.bench.truth import EmulatorTruth
-from armbench.drivers.arm import Arm
-from armbench.drivers.kinematics import ik
-from armbench.drivers.protocol import REPLY_LEN, TICKS_PER_RAD, encode_reply
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.fakes.eeprom import RATED_CYCLES
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.kinematics import ik
+from armbench.drivers.model.protocol import REPLY_LEN, TICKS_PER_RAD, encode_reply
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.eeprom import RATED_CYCLES
 from armbench.metrics import (
     distance_characteristics,
     error_summary,

@@ -11,7 +11,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.capture.tally import HEAD_LINES, TrafficCounter, TrafficTally, tally
+from armbench.drivers.capture.tally import HEAD_LINES, TrafficCounter, TrafficTally, tally
 
 block = st.lists(st.tuples(st.integers(min_value=0, max_value=40),  # time, ms: many ties
                            st.integers(min_value=0, max_value=1),   # 1 arm -> host

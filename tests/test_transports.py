@@ -21,8 +21,8 @@ from typing import TypeVar
 import pytest
 from netutil import free_port, listening
 
-from armbench.drivers.errors import PortLostError, TransportError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import PortLostError, TransportError
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,
@@ -98,7 +98,7 @@ def test_scheme_selection() -> None:
     assert transport_class("/dev/pts/3") is SerialTransport
     assert transport_class("socket://127.0.0.1:7000") is TcpTransport
     assert transport_class("rfc2217://localhost:2217") is Rfc2217Transport
-    assert TRANSPORTS["fake"] == "armbench.fakes.transport:FakeTransport"
+    assert TRANSPORTS["fake"] == "armbench.fakes.links.fake_transport:FakeTransport"
     t = open_transport("socket://127.0.0.1:7000", SerialSettings())
     assert isinstance(t, TcpTransport) and not t.is_open
     assert (t.host, t.tcp_port, t.bytes_in, t.bytes_out) == ("127.0.0.1", 7000, 0, 0)

@@ -22,13 +22,13 @@ from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from hidden_arms import draw_hidden, write_hidden
 
 from armbench.bench.calibrate import calibrate_port, load_capture
-from armbench.bench.twin_check import TwinCheck, replay_twin, sessions, twin_check
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import MoveTimeoutError
-from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.settings import RobotSettings, SettingsError, load_settings
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.vclock import run_virtual
+from armbench.bench.twin_check.check import TwinCheck, replay_twin, sessions, twin_check
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.errors import MoveTimeoutError
+from armbench.drivers.model.kinematics import tcp_position
+from armbench.drivers.model.settings import RobotSettings, SettingsError, load_settings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.metrics import error_summary, path_errors, square_yz
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -502,7 +502,7 @@ def test_replies_read_in_a_burst_are_left_out(ideal_capture: Path, tmp_path: Pat
 def test_text_output_is_for_people() -> None:
     """twin-check's text once printed the TCP divergence as a Python dict; every figure is now
     a line with its unit, the judged ones with their limit."""
-    from armbench.bench.twin_check import TwinCheck
+    from armbench.bench.twin_check.check import TwinCheck
     from armbench.cli.commands.twin_check import format_twin_check
     from armbench.record import Measurement
     from armbench.record.limits import Limit

@@ -1,4 +1,5 @@
-"""What a failing twin's divergence looks like (``armbench.bench.twin_diagnosis``), on synthetic
+"""What a failing twin's divergence looks like (``armbench.bench.twin_check.diagnosis``), on
+synthetic
 reply streams with one known effect each: a joint moving from rest to rest, lifting and lowering
 back by about as much (the way step loss shows on a lifting joint), at the arm's reply rate, the
 arm's stream with a count of noise; the twin's stream the same motion with the effect, or the
@@ -15,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.twin_diagnosis import KINDS, diagnose, diagnose_joints, failing_joints
+from armbench.bench.twin_check.diagnosis import KINDS, diagnose, diagnose_joints, failing_joints
 from armbench.record import Measurement
 from armbench.record.limits import Limit
 

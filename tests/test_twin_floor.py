@@ -13,7 +13,7 @@ import pytest
 from test_twin_check import IDEAL, _lap, _records, _write
 
 from armbench.bench.calibrate import load_capture
-from armbench.bench.twin_align import (
+from armbench.bench.twin_check.align import (
     MEDIAN_EFFICIENCY,
     ONSET_REPLIES,
     TICK_RAD,
@@ -22,10 +22,10 @@ from armbench.bench.twin_align import (
     timing_rms_s,
     timing_scatter_s,
 )
-from armbench.bench.twin_check import twin_check
-from armbench.drivers.motion import joint_speed_rad_s
-from armbench.drivers.protocol import Command
-from armbench.fakes.vclock import run_virtual
+from armbench.bench.twin_check.check import twin_check
+from armbench.drivers.host.motion import joint_speed_rad_s
+from armbench.drivers.model.protocol import Command
+from armbench.fakes.clock.vclock import run_virtual
 
 PERIOD_S = 0.005
 START_S = 0.2        # the joint leaves its pose here (the command is at 0.1 s)

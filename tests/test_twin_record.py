@@ -21,9 +21,9 @@ from test_report import cells, check_safe, parse
 from test_twin_check import _lap
 
 from armbench.bench.suites.twin_check_contract import TWIN_CHECK
-from armbench.bench.twin_record import SERIES_BUCKETS, file_sha256
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.vclock import run_virtual
+from armbench.bench.twin_check.twin_record import SERIES_BUCKETS, file_sha256
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
 from armbench.metrics.series import envelope_indices
 from armbench.record import load_record
 from armbench.record.suite_contract import SAMPLE

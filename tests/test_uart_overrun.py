@@ -27,16 +27,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armbench.cli.perf.driver_perf import reply_rate_bound
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import PortLostError
-from armbench.drivers.motion import joint_times_s
-from armbench.drivers.protocol import Command, Framer, Reply
-from armbench.drivers.server_notes import MAX_NOTE_BYTES, ServerNotes, note_line
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.emulator_settings import EmulatorSettings
-from armbench.fakes.serve import ClientStream, ReceiveBuffer, TcpServer, real_time_loop
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.host.motion import joint_times_s
+from armbench.drivers.model.errors import PortLostError
+from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.server_notes import MAX_NOTE_BYTES, ServerNotes, note_line
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import EmulatorSettings
+from armbench.fakes.links.serve import ClientStream, ReceiveBuffer, TcpServer, real_time_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOOD_S = 10.0
@@ -392,8 +392,8 @@ def test_a_flooding_pty_client_leaves_no_backlog(pty_emulator: Emulator) -> None
 def test_the_host_buffer_is_a_bounded_setting() -> None:
     from dataclasses import replace
 
-    from armbench.drivers.settings import SettingsError
-    from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
+    from armbench.drivers.model.settings import SettingsError
+    from armbench.fakes.firmware.emulator_settings import EmulatorSettings, emulator_settings
 
     assert EmulatorSettings().host_buffer_bytes == 4096
     assert EmulatorSettings().rx_buffer_bytes == 64  # RX_SIZE of firmware/master.c

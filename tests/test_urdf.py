@@ -14,9 +14,9 @@ import pytest
 import yourdfpy
 
 from armbench.cli.main import main
-from armbench.drivers.kinematics import fk
-from armbench.drivers.settings import Geometry, JointSettings, RobotSettings
-from armbench.drivers.urdf import robot_urdf
+from armbench.drivers.model.kinematics import fk
+from armbench.drivers.model.settings import Geometry, JointSettings, RobotSettings
+from armbench.drivers.model.urdf import robot_urdf
 
 OTHER = RobotSettings(
     geometry=Geometry(d1_m=0.42, d2_m=-0.012, a2_m=0.33, a3_m=0.29, d4_m=0.07),

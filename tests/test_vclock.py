@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import asyncio
 
-from armbench.fakes import vclock
-from armbench.fakes.vclock import VirtualTimeLoop, run_virtual
+from armbench.fakes.clock import vclock
+from armbench.fakes.clock.vclock import VirtualTimeLoop, run_virtual
 
 
 def test_an_hour_of_sleep_passes_at_once() -> None:

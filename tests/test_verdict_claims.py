@@ -14,9 +14,9 @@ import pytest
 from conftest import cli
 from far_end import emulator_maker
 
-from armbench.bench.verdict import EXIT_FAIL, EXIT_PASS, EXIT_UNTESTED, load_config
 from armbench.record import load_record
-from armbench.reports.scorecard import score_rows, suite_headlines
+from armbench.record.verdict import EXIT_FAIL, EXIT_PASS, EXIT_UNTESTED, load_config
+from armbench.reports.render.scorecard import score_rows, suite_headlines
 
 #: One coordinated lap: the accuracy suite's true and believed path figures, in seconds.
 ONE_LAP = """spec_version = "armbench-limits/1"

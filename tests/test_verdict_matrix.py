@@ -23,8 +23,8 @@ from far_end import ROOT, Emulator, emulator_maker
 from netutil import free_port
 from test_exit_classes import MID_RUN_LAPS, _lose_after_first_trial
 
-from armbench.bench.verdict import load_config
 from armbench.record import load_record
+from armbench.record.verdict import load_config
 
 DOC = ROOT / "docs" / "ci.md"
 

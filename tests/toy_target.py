@@ -12,10 +12,10 @@ from __future__ import annotations
 from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.capabilities import Capabilities, FreshArm, Given
-from armbench.fakes.transport import FakeTransport
+from armbench.fakes.links.fake_transport import FakeTransport
 
 #: The words of ``?caps=`` → the capability each declares.
 WORDS = {"virtual": "clock", "fresh": "fresh_per_trial", "parallel": "parallel",

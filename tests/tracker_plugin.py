@@ -1,4 +1,4 @@
-"""A ``--tracker`` plug-in (a ``PoseSource``, ``bench/truth.py``) for the tracker of
+"""A ``--tracker`` plug-in (a ``PoseSource``, ``bench/runner/truth.py``) for the tracker of
 ``foreign_arms/tracker_arm.py``: the newest line of its stream as the true TCP and joints.
 
 ``--tracker tracker_plugin:TrackerArmSource`` (with ``tests/`` on ``PYTHONPATH``); the stream's

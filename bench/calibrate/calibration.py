@@ -21,10 +21,10 @@ from armbench.bench.calibrate.output import (
 )
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
 from armbench.bench.calibrate.sensitivity import sensitivity
+from armbench.bench.runner.truth import aclose_source, aopen_source
 from armbench.bench.suites.base import PoseSource
-from armbench.bench.truth import aclose_source, aopen_source
-from armbench.drivers.arm import Arm
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["calibrate_capture", "calibrate_port", "finish"]
 
@@ -52,7 +52,7 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                          reply_timeout_s: float = 0.5) -> CalibrationResult:
     """Run the procedure on ``port`` and write the outputs. ``reply_timeout_s``: the longest
     silence of the arm tolerated (the driver's). ``tracker``: a reference instrument
-    (``--tracker``, ``bench/truth.py``) measuring the true joints and TCP at rest, opened and
+    (``--tracker``, ``bench/runner/truth.py``) measuring the true joints and TCP at rest, opened and
     closed around the procedure. ``page`` renders the calibration page (without it none is
     written). A joint that does not move ends the procedure: what was measured is fitted and
     written, then :class:`ArmDoesNotMoveError` is raised."""

@@ -2,7 +2,7 @@
 checked against the robot model, and what the traffic alone shows (reply period, latency, effective
 speed against duty and direction).
 
-The capture is read with :func:`armbench.capture.read.open_capture` (MCAP or JSON
+The capture is read with :func:`armbench.drivers.capture.read.open_capture` (MCAP or JSON
 Lines), so every capture format it reads works here. Problems are :class:`CaptureContentError`
 naming the file and the problem: a truncated capture, replies that this robot model cannot have
 produced, a capture without commands.
@@ -20,12 +20,12 @@ import numpy as np
 
 from armbench.bench.calibrate.model import CaptureContentError, Observations, SpeedRun
 from armbench.bench.calibrate.procedure import speed_of
-from armbench.capture.jsonl import CaptureError
-from armbench.capture.read import is_mcap, mcap_layout, open_capture
-from armbench.drivers.motion import joint_speed_rad_s
-from armbench.drivers.protocol import AngleDecoder, Command, Framer, Reply
-from armbench.drivers.settings import RobotSettings
-from armbench.drivers.state import JointState
+from armbench.drivers.capture.jsonl import CaptureError
+from armbench.drivers.capture.read import is_mcap, mcap_layout, open_capture
+from armbench.drivers.host.motion import joint_speed_rad_s
+from armbench.drivers.host.state import JointState
+from armbench.drivers.model.protocol import AngleDecoder, Command, Framer, Reply
+from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["CaptureData", "load_capture", "observations_from_capture"]
 

@@ -23,11 +23,11 @@ from scipy.optimize import least_squares
 from armbench.bench.calibrate.model import Fitted, Observations
 from armbench.bench.calibrate.stop_rule import choose_stop_rule
 from armbench.bench.calibrate.structure import fit_speed_models
-from armbench.drivers.kinematics import tcp_position
-from armbench.drivers.protocol import TICKS_PER_RAD
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.physics import ArmPhysics, Mechanism
+from armbench.drivers.model.kinematics import tcp_position
+from armbench.drivers.model.protocol import TICKS_PER_RAD
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.twin.physics import ArmPhysics, Mechanism
 
 __all__ = [
     "INSTRUMENT_SIGMA_M",

@@ -14,11 +14,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 
 if TYPE_CHECKING:
-    from armbench.bench.calibrate.sensitivity import Sensitivity
-    from armbench.drivers.settings import RobotSettings
+    from armbench.drivers.model.settings import RobotSettings
 
 __all__ = [
     "APPROACH_OFFSET_RAD",
@@ -204,6 +203,30 @@ class Fitted:
 
 
 #: What a calibration without a reference instrument cannot tell (the header and the page say it).
+@dataclass(frozen=True, slots=True)
+class SensitivityRow:
+    """One assumption: its name, its range as text and one cell per headline figure."""
+
+    name: str
+    range: str
+    cells: list[str]
+
+
+@dataclass(frozen=True, slots=True)
+class Sensitivity:
+    """The headline figures (keys) and one row per assumption; without rows, ``note`` says why
+    there is nothing to show."""
+
+    keys: list[str]
+    rows: list[SensitivityRow]
+    note: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready mapping."""
+        return {"keys": self.keys, "note": self.note,
+                "rows": [{"name": r.name, "range": r.range, "cells": r.cells} for r in self.rows]}
+
+
 NO_TRUTH: Final = ("the link-side figures (gear play, stick-slip, Hall position errors, "
                    "stiffness, DH lengths and joint offsets) are the prior's and cannot be "
                    "trusted beyond it; give a reference instrument with --tracker to identify "

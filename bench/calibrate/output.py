@@ -1,6 +1,7 @@
 """What a calibration writes: the settings file (every fitted value with its standard error as a
 comment beside it), the fit as JSON, and the calibration page (HTML in the report's style), which
-the caller renders (the command line passes :func:`armbench.reports.calibration_page.render_page`:
+the caller renders (the command line passes
+:func:`armbench.reports.pages.calibration_page.render_page`:
 the report is a layer above the bench, ``docs/architecture.md``).
 
 The settings file is a complete robot settings TOML: ``--settings robot.toml`` and
@@ -26,9 +27,9 @@ from armbench.bench.calibrate.model import (
     Observations,
     PageRenderer,
 )
-from armbench.bench.outputs import OutputError, is_run_file
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
+from armbench.bench.runner.outputs import OutputError, is_run_file
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
 from armbench.record.files import atomic_write_bytes
 
 __all__ = ["NO_TRUTH", "CalibrationResult", "PageRenderer", "apply_fit", "kinematic_residuals_mm",
@@ -42,8 +43,8 @@ def kinematic_residuals_mm(settings: RobotSettings,
                            observations: Observations) -> tuple[float, ...]:
     """The distance from the TCP the fitted ``settings`` put at each hold's true joint angles to
     the TCP the reference instrument measured (mm); none without the emulator's physics."""
-    from armbench.drivers.kinematics import tcp_position
-    from armbench.fakes.emulator_settings import actual_robot, emulator_settings
+    from armbench.drivers.model.kinematics import tcp_position
+    from armbench.fakes.firmware.emulator_settings import actual_robot, emulator_settings
 
     if emulator_settings(settings).physics is None:
         return ()

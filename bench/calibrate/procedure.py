@@ -37,13 +37,13 @@ from armbench.bench.calibrate.model import (
     Observations,
     SpeedRun,
 )
+from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites.base import PoseSource
-from armbench.bench.truth import EmulatorTruth
-from armbench.drivers.arm import Arm, JointState
-from armbench.drivers.errors import WaitTimeoutError
-from armbench.drivers.motion import joint_speed_rad_s
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.host.arm import Arm, JointState
+from armbench.drivers.host.motion import joint_speed_rad_s
+from armbench.drivers.model.errors import WaitTimeoutError
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["DEFAULT_BUDGET_S", "HOLD_POSES_RAD", "LADDER_DUTIES", "PHASES", "Procedure"]
 

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any, Final
+from typing import Final
 
-from armbench.bench.calibrate.model import Fitted, Observations
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.physics import ARM_RANGES, JOINT_RANGES
+from armbench.bench.calibrate.model import Fitted, Observations, Sensitivity, SensitivityRow
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
 
 __all__ = ["ASSUMPTIONS", "NOTHING_TO_VARY", "Sensitivity", "SensitivityRow", "sensitivity"]
 
@@ -31,30 +30,6 @@ NOTHING_TO_VARY: Final = (
     "no figure that rests on the assumed torques was identified (the stiffness, which needs a "
     "reference instrument; pull-out torques, loss shares and gear ratios, which need speed runs "
     "that show a step loss or a speed scale beyond the noise): there is nothing to vary")
-
-
-@dataclass(frozen=True, slots=True)
-class SensitivityRow:
-    """One assumption: its name, its range as text and one cell per headline figure."""
-
-    name: str
-    range: str
-    cells: list[str]
-
-
-@dataclass(frozen=True, slots=True)
-class Sensitivity:
-    """The headline figures (keys) and one row per assumption; without rows, ``note`` says why
-    there is nothing to show."""
-
-    keys: list[str]
-    rows: list[SensitivityRow]
-    note: str = ""
-
-    def to_json(self) -> dict[str, Any]:
-        """A JSON-ready mapping."""
-        return {"keys": self.keys, "note": self.note,
-                "rows": [{"name": r.name, "range": r.range, "cells": r.cells} for r in self.rows]}
 
 
 def _with(base: RobotSettings, name: str, value: float) -> RobotSettings:

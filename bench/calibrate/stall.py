@@ -3,7 +3,7 @@ synchronism stands wherever the torque a run needs exceeds the pull-out torque a
 moves at its full speed elsewhere.
 
 The pull-out torque at a rate ``r`` is ``P · g(r)`` with the shape ``g`` of the prior's
-``pullout_curve`` or the other one (``fakes/physics.py``): ``1 / (1 + r / corner)``
+``pullout_curve`` or the other one (``fakes/twin/physics.py``): ``1 / (1 + r / corner)``
 (hyperbolic) or ``1 − r / (2 corner)`` (linear: zero at twice the corner). A run stalls where
 its *factor* ``need / g(r)`` exceeds ``P``, so one number per run and curve carries the rate
 and the load; ``P`` lies between the largest factor of a run that moved and the smallest of one
@@ -19,7 +19,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from armbench.fakes.physics import PULLOUT_CURVES
+from armbench.fakes.twin.physics import PULLOUT_CURVES
 
 __all__ = ["PULLOUT_CURVES", "STALLED_RATIO", "curve_factor", "stall_interval", "stall_pred"]
 

@@ -26,12 +26,12 @@ from collections.abc import Sequence
 from typing import Final
 
 from armbench.bench.calibrate.model import APPROACH_OFFSET_RAD, Approach, Fitted, Observations
-from armbench.drivers.protocol import MAX_DUTY, MAX_TICKS, rad_to_ticks, ticks_to_rad
-from armbench.drivers.settings import JointSettings, RobotSettings
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.joint import JointModel
-from armbench.fakes.physics import JOINT_RANGES, JointPhysics
-from armbench.fakes.stepper import STOP_RULES, StopRule
+from armbench.drivers.model.protocol import MAX_DUTY, MAX_TICKS, rad_to_ticks, ticks_to_rad
+from armbench.drivers.model.settings import JointSettings, RobotSettings
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.twin.joint import JointModel
+from armbench.fakes.twin.physics import JOINT_RANGES, JointPhysics
+from armbench.fakes.twin.stepper import STOP_RULES, StopRule
 
 __all__ = ["MARGIN", "OUTSIDE", "STOP_RULE_KEY", "choose_stop_rule", "hall_errors_rad",
            "rest_offset_ticks"]

@@ -42,8 +42,8 @@ from scipy.optimize import minimize_scalar
 
 from armbench.bench.calibrate.model import Fitted, Observations, run_sigma, session_scatter
 from armbench.bench.calibrate.stall import STALLED_RATIO, curve_factor, stall_interval, stall_pred
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.physics import (
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.twin.physics import (
     JOINT_RANGES,
     PULLOUT_CURVES,
     ArmPhysics,
@@ -67,7 +67,7 @@ MISS_Z2: Final = 25.0
 #: held-out scores use the runs' own errors only (a model cannot excuse its misses).
 NEED_REL: Final = 0.01
 #: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
-#: accepts around the documented range (``fakes/physics.py``).
+#: accepts around the documented range (``fakes/twin/physics.py``).
 _P_GRID: Final = np.geomspace(0.03, 30.0, 481)
 #: Speed scales a fit may return: another gear set of the same arm (a quarter off the nominal
 #: ratio at most); beyond that a scale would stand in for any step loss.

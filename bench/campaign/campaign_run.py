@@ -34,9 +34,9 @@ from armbench.bench.runner import (
 )
 from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json_equal
 from armbench.bench.runner.trials import LoopClockWriter
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
-from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SettingsError
+from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
 from armbench.record.baseline import read_record
 
@@ -159,7 +159,7 @@ def run_campaign(options: CampaignOptions, *,
                  progress: IO[str] | None = sys.stderr) -> RunOutcome:
     """Plan and run a campaign on a virtual-time loop; Ctrl-C returns the record on disk with
     exit status 130."""
-    from armbench.fakes.vclock import run_virtual
+    from armbench.fakes.clock.vclock import run_virtual
 
     plan = prepare_campaign(options)
     try:

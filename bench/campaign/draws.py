@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError, read_toml_document
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, SettingsError, read_toml_document
 
 __all__ = ["Uncertain", "apply_arm", "draw_arm", "read_uncertainties"]
 
@@ -104,7 +104,7 @@ def apply_arm(settings: RobotSettings, arm: Mapping[str, float]) -> RobotSetting
 
 
 def _valid(settings: RobotSettings, arm: Mapping[str, float]) -> bool:
-    from armbench.fakes.emulator_settings import emulator_settings
+    from armbench.fakes.firmware.emulator_settings import emulator_settings
 
     try:
         emulator_settings(apply_arm(settings, arm), seed=0)

@@ -30,8 +30,8 @@ from armbench.bench.runner import (
 )
 from armbench.bench.runner.plan import json_equal
 from armbench.bench.runner.trials import TrialRunner, default_emulator
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, RunRecord, Trial, load_record
 from armbench.record.files import check_directory_writable
 
@@ -171,7 +171,7 @@ async def _merge(shards: Sequence[_Shard], plan: BenchPlan) -> RunRecord:
 def merge_shards(directories: Sequence[str | Path], out: str | Path) -> RunOutcome:
     """Join the shard records in ``directories`` into one record in ``out`` (see the module
     doc); ``out`` must not hold a record yet."""
-    from armbench.fakes.vclock import run_virtual
+    from armbench.fakes.clock.vclock import run_virtual
 
     if not directories:
         raise MergeError("no shard directories given")

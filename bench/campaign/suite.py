@@ -30,7 +30,7 @@ from armbench.bench.campaign.draws import Uncertain, apply_arm, draw_arm
 from armbench.bench.campaign.stats import CAMPAIGN, CAMPAIGN_KEY, campaign_measurements
 from armbench.bench.runner.options import derive_seed
 from armbench.bench.suites.base import Suite, SuiteContext
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 from armbench.record import Measurement, Trial
 
 __all__ = ["MAX_KEPT_SAMPLES", "CampaignSuite", "campaign_params"]

@@ -1,6 +1,6 @@
 """The run's traffic capture: every connection writes a part file, added to ``capture.mcap``
 once the trial it holds is in the record (:class:`CaptureParts`, through
-:class:`~armbench.bench.capture_run.RunCapture`); on ``--resume`` the parts a killed run left
+:class:`~armbench.bench.runner.capture_run.RunCapture`); on ``--resume`` the parts a killed run left
 behind are merged or dropped so ``capture.mcap`` stays one stream on the run clock
 (:meth:`CaptureParts.recover`)."""
 
@@ -12,9 +12,9 @@ import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from armbench.bench.capture_run import RunCapture
-from armbench.capture.part import part_span
-from armbench.drivers.settings import RobotSettings
+from armbench.bench.runner.capture_run import RunCapture
+from armbench.drivers.capture.part import part_span
+from armbench.drivers.model.settings import RobotSettings
 from armbench.record import RunRecord, Trial
 
 __all__ = ["CaptureParts", "job_part_tag"]

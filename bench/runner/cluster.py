@@ -17,7 +17,7 @@ import concurrent.futures
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.settings import SettingsError
 
 if TYPE_CHECKING:
     from distributed import Client

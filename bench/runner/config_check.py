@@ -21,8 +21,8 @@ from armbench.bench.runner.options import PlannedSuite
 from armbench.bench.suites import SuiteError, load_suite, registered_suites
 from armbench.bench.suites.base import Suite
 from armbench.bench.suites.twin_check_contract import TWIN_CHECK
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record.limits import LimitsConfig, matches
 from armbench.record.suite_contract import contracts
 
@@ -92,7 +92,7 @@ def known_metric_names(config: LimitsConfig, settings: RobotSettings,
                        run: Sequence[PlannedSuite] = ()) -> tuple[frozenset[str], list[str]]:
     """Every metric name a pattern of ``config`` may match (see the module doc), and the
     registered suites that could not be loaded (their names unknown), as ``name (why)``."""
-    from armbench.bench.campaign.stats import CAMPAIGN  # the campaign package imports the runner
+    from armbench.record.campaign_names import CAMPAIGN
 
     by_suite = {ps.suite.name: ps.suite.metric_names(ps.params) for ps in run}
     unloadable = []

@@ -10,7 +10,7 @@ trial by trial, keeping ``results.json`` current, then compares with the baselin
 Each planned suite: ``begin_suite``, then every trial the record does not have yet
 (``completed_trials``), each written to disk the moment it ends (``add_trial``), then
 ``summarize`` and ``end_suite``. The runner writes the record; ``junit.xml`` and ``report.html``
-are written by whoever asked for the run (``armbench.cli.reporting``).
+are written by whoever asked for the run (``armbench.cli.commands.run_files``).
 
 What the run can do is the port's target's (:mod:`armbench.drivers.transports.target`), never
 its scheme. On a target that starts a fresh arm per trial (``fake://``; default ``isolation =
@@ -60,7 +60,7 @@ from armbench.bench.runner.probe import probe_arm, probe_arms_sync
 from armbench.bench.runner.progress import ProgressPrinter
 from armbench.bench.runner.required import truth_source_of
 from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
-from armbench.bench.truth import aclose_source, aopen_source
+from armbench.bench.runner.truth import aclose_source, aopen_source
 from armbench.record import (
     RESULTS_FILE,
     RunRecord,
@@ -245,7 +245,7 @@ def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
              emulator_factory: EmulatorFactory | None = None,
              then: Callable[[RunOutcome], None] | None = None) -> RunOutcome:
     """Validate and run on a loop of the right kind: a virtual-time loop
-    (``armbench.fakes.vclock``) for a target on the virtual clock, ``asyncio.run`` otherwise.
+    (``armbench.fakes.clock.vclock``) for a target on the virtual clock, ``asyncio.run`` otherwise.
     Ctrl-C returns the outcome of the record on disk with exit status 130. ``then`` is called
     with the outcome while the run folder is still locked (the command writes the reports
     there).
@@ -273,7 +273,7 @@ def _run_plan(plan: BenchPlan, progress: IO[str] | None,
     main = execute(plan, progress=progress, emulator_factory=emulator_factory)
     try:
         if plan.target.virtual:
-            from armbench.fakes.vclock import run_virtual
+            from armbench.fakes.clock.vclock import run_virtual
 
             return run_virtual(main)
         return asyncio.run(main)

@@ -42,9 +42,8 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.probe import probe_arms_sync
-from armbench.bench.verdict import worst_exit_status
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import SettingsError
 from armbench.drivers.transports.target import target_of
 from armbench.record import RESULTS_FILE, load_record, new_run_id
 from armbench.record.files import make_directory
@@ -55,6 +54,7 @@ from armbench.record.fleet_index import (
     read_fleet_index,
     write_fleet_index,
 )
+from armbench.record.verdict import worst_exit_status
 
 __all__ = ["FLEET_FILE", "Arm", "FleetOutcome", "arm_name", "fleet_exit_status", "parse_arms",
            "run_fleet_sync"]
@@ -108,7 +108,7 @@ def parse_arms(ports: Sequence[str]) -> list[Arm]:
 
 
 def fleet_exit_status(statuses: Sequence[int]) -> int:
-    """The fleet's exit status: the worst arm's (:func:`armbench.bench.verdict.worst_exit_status`:
+    """The fleet's exit status: the worst arm's (:func:`armbench.record.verdict.worst_exit_status`:
     130, then 2, 4, 1, 3, 0)."""
     return worst_exit_status(statuses)
 
@@ -282,7 +282,7 @@ def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | No
     main = _run_all(plans, arms, progress, emulator_factory)
     try:
         if all(plan.target.virtual for plan in plans):
-            from armbench.fakes.vclock import run_virtual
+            from armbench.fakes.clock.vclock import run_virtual
 
             results = run_virtual(main)
         else:

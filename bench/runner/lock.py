@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 
 __all__ = ["LOCK_FILE", "RunFolderBusy", "RunFolderLock", "hold_run_folder"]
 

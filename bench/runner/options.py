@@ -13,7 +13,13 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
-from armbench.bench.verdict import (
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.transports.target import Target
+from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
+from armbench.record.dut import Dut
+from armbench.record.limits import LimitsConfig
+from armbench.record.verdict import (
     DEFAULT_CONFIG,
     EXIT_ERROR,
     EXIT_FAIL,
@@ -23,17 +29,11 @@ from armbench.bench.verdict import (
     EXIT_REGRESSION,
     exit_status,
 )
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings
-from armbench.drivers.transports.target import Target
-from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE, RunRecord, Verdict
-from armbench.record.dut import Dut
-from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:  # the emulator is imported only for fake:// runs
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.emulator_settings import EmulatorSettings
-    from armbench.fakes.faults import Fault
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.firmware.emulator_settings import EmulatorSettings
+    from armbench.fakes.firmware.faults import Fault
 
 __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",
@@ -113,7 +113,7 @@ class RunOptions:
     port: str | None = None
     """The arm's port; None: ``fake://`` (or the recorded port when resuming)."""
     config: str | Path | None = None
-    """Limits file (``bench.toml``); None: the packaged ``bench/default_bench.toml``."""
+    """Limits file (``bench.toml``); None: the packaged ``record/default_bench.toml``."""
     out: str | Path | None = None
     """Run directory; None: ``<runs_root>/<run id>``."""
     runs_root: str | Path = "runs"

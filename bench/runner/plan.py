@@ -10,7 +10,8 @@ settings file over the default, :func:`~armbench.drivers.transports.target.resol
 parameters (``Suite.params``) and plan, every limit and tolerance pattern and ``[suites.NAME]``
 table of the config (:mod:`~armbench.bench.runner.config_check`), the baseline (readable, same
 record schema, same limits spec, same suite versions), the tracker plug-in and the power switch.
-Any problem raises an :class:`~armbench.drivers.errors.ArmbenchError` naming the field: the CLI
+Any problem raises an :class:`~armbench.drivers.model.errors.ArmbenchError` naming the field: the
+CLI
 prints one line and exits 2.
 """
 
@@ -26,7 +27,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
-from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
 from armbench.bench.runner.config_check import check_config, closest
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
@@ -37,17 +37,18 @@ from armbench.bench.runner.options import (
     PlannedSuite,
     RunOptions,
 )
+from armbench.bench.runner.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
 from armbench.bench.runner.required import required_of
+from armbench.bench.runner.truth import load_tracker
 from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
-from armbench.bench.truth import load_tracker
-from armbench.capture.jsonl import capture_options
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.numbers import finite_float
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.capture.jsonl import capture_options
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.numbers import finite_float
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.drivers.transports.target import Target, given_by, target_of
-from armbench.drivers.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import (
     RESULTS_FILE,
     RecordError,
@@ -62,7 +63,7 @@ from armbench.record.files import check_directory_writable
 from armbench.record.limits import LimitsConfig, load_limits
 
 if TYPE_CHECKING:
-    from armbench.fakes.faults import Fault
+    from armbench.fakes.firmware.faults import Fault
 
 __all__ = ["prepare"]
 
@@ -205,7 +206,7 @@ def _resumed_inputs(resume: RunRecord, info: Mapping[str, Any], target: Target) 
         raise SettingsError("spec_version", config.spec_version,
                             f"differs from the run's {env.limits_spec_version!r}")
     seed = env.seed if env.seed is not None else 0
-    from armbench.fakes.faults import parse_faults
+    from armbench.fakes.firmware.faults import parse_faults
 
     faults = parse_faults(env.faults, "environment.faults") if env.faults else []
     refs = info.get("suites") or {}
@@ -454,7 +455,8 @@ def prepare(options: RunOptions) -> BenchPlan:
     """Validate ``options`` and everything they name, without touching the arm or creating the
     run directory.
 
-    Raises an :class:`~armbench.drivers.errors.ArmbenchError` (``SettingsError``, ``RecordError``,
+    Raises an :class:`~armbench.drivers.model.errors.ArmbenchError` (``SettingsError``,
+    ``RecordError``,
     ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
     whose message names the offending field or file.
     """

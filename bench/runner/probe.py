@@ -16,8 +16,13 @@ import asyncio
 from collections.abc import Sequence
 
 from armbench.bench.runner.options import BenchPlan
-from armbench.drivers.errors import ArmbenchError, PortLostError, ReplyTimeoutError, TransportError
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.errors import (
+    ArmbenchError,
+    PortLostError,
+    ReplyTimeoutError,
+    TransportError,
+)
+from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports.target import Target
 
 __all__ = ["NoArmError", "find_arm", "needs_probe", "probe_arm", "probe_arms_sync"]
@@ -51,7 +56,7 @@ async def find_arm(port: str, settings: RobotSettings, *, connect_timeout_s: flo
     """Open ``port`` as the driver does, wait for the first valid reply, close it; raises
     :class:`NoArmError` naming the port, ``not_done`` (what did not happen), why, and what to
     check."""
-    from armbench.drivers.arm import Arm
+    from armbench.drivers.host.arm import Arm
 
     arm = Arm.connect(port, settings, reply_timeout_s=reply_timeout_s,
                       connect_timeout_s=connect_timeout_s)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import difflib
 from collections.abc import Iterable, Sequence
 
-from armbench.drivers.settings import SettingsError
+from armbench.drivers.model.settings import SettingsError
 from armbench.record.limits import LimitsConfig
 
 __all__ = ["required_of", "truth_source_of"]

@@ -15,9 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
-from armbench.bench.capture_run import emulator_truth, fault_events, logged_power
-from armbench.bench.power import port_power
 from armbench.bench.runner.capture_parts import CaptureParts
+from armbench.bench.runner.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     BenchPlan,
@@ -26,11 +25,12 @@ from armbench.bench.runner.options import (
     RunAborted,
     derive_seed,
 )
+from armbench.bench.runner.power import port_power
 from armbench.bench.runner.progress import ProgressPrinter
+from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites import SuiteContext
-from armbench.bench.truth import EmulatorTruth
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports.capabilities import FreshArm
 from armbench.record import (
     RESULTS_FILE,
@@ -42,11 +42,11 @@ from armbench.record import (
 )
 
 if TYPE_CHECKING:
-    from armbench.capture.part import PartWriter
-    from armbench.drivers.arm import Arm
-    from armbench.fakes.arm_emulator import ArmEmulator
-    from armbench.fakes.emulator_settings import EmulatorSettings
-    from armbench.fakes.faults import Fault
+    from armbench.drivers.capture.part import PartWriter
+    from armbench.drivers.host.arm import Arm
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
+    from armbench.fakes.firmware.emulator_settings import EmulatorSettings
+    from armbench.fakes.firmware.faults import Fault
 
 __all__ = ["Connection", "LoopClockWriter", "Messages", "RunClock", "TrialAttempts",
            "TrialRunner", "default_emulator", "describe"]
@@ -68,7 +68,7 @@ def describe(exc: BaseException) -> str:
 def default_emulator(robot: RobotSettings, settings: EmulatorSettings,
                      faults: Sequence[Fault]) -> ArmEmulator:
     """The built-in emulator of a ``fake://`` connection."""
-    from armbench.fakes.arm_emulator import ArmEmulator
+    from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
     return ArmEmulator(robot, settings, faults)
 
@@ -150,8 +150,8 @@ class TrialAttempts:
         ``own`` part goes to :attr:`unmerged`, merged once that trial is in the record (a run
         stopped by Ctrl-C while it connects keeps no frame of a trial its record lacks); the
         run's connection's is merged now, as at its close."""
-        from armbench.capture.part import PartWriter
-        from armbench.drivers.arm import Arm, ReconnectPolicy
+        from armbench.drivers.capture.part import PartWriter
+        from armbench.drivers.host.arm import Arm, ReconnectPolicy
 
         plan = self.plan
         self._parts += 1
@@ -327,7 +327,7 @@ class TrialAttempts:
         (:mod:`~armbench.bench.runner.probe`), so a refusal now is an outage (a server that
         serves one client at a time still closing the probe's connection, a board that resets
         as its port opens), not a wrong port."""
-        from armbench.drivers.arm import ReconnectPolicy
+        from armbench.drivers.host.arm import ReconnectPolicy
 
         loop = asyncio.get_running_loop()
         give_up_s = loop.time() + self.plan.outage_timeout_s
@@ -424,7 +424,7 @@ class TrialRunner:
         writer = self.writer
         arm = self.attempts.last_arm
         if arm is None:
-            from armbench.drivers.arm import Arm
+            from armbench.drivers.host.arm import Arm
 
             arm = Arm(self.plan.port, self.plan.settings)  # never opened: summaries don't move
         ctx = self.attempts.context(ps, arm, None, derive_seed(self.plan.seed, ps.name,

@@ -20,7 +20,7 @@ import importlib
 import importlib.metadata
 from typing import TYPE_CHECKING, Any
 
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.record.suite_contract import BUILTIN_PACKAGE, contracts
 
 if TYPE_CHECKING:

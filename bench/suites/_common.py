@@ -24,24 +24,24 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.suites.base import SuiteContext
-from armbench.drivers.arm import DriverClosedError
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
-from armbench.drivers.motion import (
+from armbench.drivers.host.arm import DriverClosedError
+from armbench.drivers.host.motion import (
     MAX_PERIOD_CYCLES,
     MIN_PERIOD_CYCLES,
     duty_for_step_rate,
     step_rate,
 )
-from armbench.drivers.numbers import finite_float
-from armbench.drivers.protocol import MAX_DUTY, REPLY_LEN
-from armbench.drivers.settings import RobotSettings, SettingsError
-from armbench.drivers.tasks import cancel_and_wait
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
+from armbench.drivers.model.numbers import finite_float
+from armbench.drivers.model.protocol import MAX_DUTY, REPLY_LEN
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.drivers.model.tasks import cancel_and_wait
 from armbench.record import Better, Measurement, Trial
 from armbench.record.suite_contract import POS_DECIMALS, RAD_DECIMALS
 
 if TYPE_CHECKING:
-    from armbench.drivers.arm import Arm, JointState
+    from armbench.drivers.host.arm import Arm, JointState
 
 __all__ = [
     "MEASUREMENT_ERRORS",

@@ -43,9 +43,9 @@ from armbench.bench.suites._common import (
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
-from armbench.drivers.arm import Arm
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import (
     MM_PER_M,
     error_summary,

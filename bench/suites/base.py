@@ -19,12 +19,12 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 from armbench.record import Better, Measurement, Trial, judge
 from armbench.record.limits import LimitsConfig
 
 if TYPE_CHECKING:
-    from armbench.drivers.arm import Arm
+    from armbench.drivers.host.arm import Arm
 
 __all__ = ["PoseSource", "PowerSwitch", "Progress", "ReReferencing", "Suite", "SuiteContext"]
 
@@ -120,7 +120,7 @@ class Suite(abc.ABC):
                           configured: Mapping[str, Any]) -> dict[str, Any]:
         """Defaults overridden by the config's ``[suites.<name>]`` table, unknown keys refused,
         not validated: what the config check reads the metric names of a suite not run with."""
-        from armbench.drivers.settings import SettingsError
+        from armbench.drivers.model.settings import SettingsError
 
         params = self.default_params(settings)
         for key, value in configured.items():

@@ -32,8 +32,8 @@ from armbench.bench.suites._common import (
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.joints_contract import JOINTS
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import MetricsInputError
 from armbench.metrics.iso230 import axis_positioning
 from armbench.record import Measurement, Trial

@@ -57,7 +57,7 @@ from armbench.bench.suites.workspace import (
     DEFAULT_CUBE_SIDE_M,
     POSE_NAMES,
 )
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import (
     CUBE_PLANES,
     MM_PER_M,

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 from armbench.bench.suites.base import SuiteContext
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["CONDITIONS", "LIMIT_MARGIN_RAD", "Condition", "band", "parse_condition",
            "signed_range", "targets"]

@@ -75,16 +75,16 @@ from armbench.bench.suites.startup_watch import (
     rescue,
     stalled_joints,
 )
-from armbench.drivers.motion import coordinated_duties, joint_times_s
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings, SettingsError
+from armbench.drivers.host.motion import coordinated_duties, joint_times_s
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record import Measurement, Trial
 from armbench.record.suite_contract import SAMPLE
 
 S: Final = STARTUP
 
 if TYPE_CHECKING:
-    from armbench.drivers.arm import JointState
+    from armbench.drivers.host.arm import JointState
 
 __all__ = [
     "ATMEGA328P_EEPROM_CYCLES",

@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any, Final
 from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
 from armbench.bench.suites.base import ReReferencing, SuiteContext
 from armbench.bench.suites.startup_contract import STARTUP
-from armbench.drivers.arm import ReplyTimeoutError, WaitTimeoutError
+from armbench.drivers.host.arm import ReplyTimeoutError, WaitTimeoutError
 
 if TYPE_CHECKING:
-    from armbench.drivers.arm import JointState
+    from armbench.drivers.host.arm import JointState
 
 __all__ = ["MOTION_WINDOW_S", "STILL_RAD", "TRACE_PERIOD_S", "Recovery", "await_recovery",
            "motion_at", "rescue", "stalled_joints"]

@@ -18,7 +18,7 @@ __all__ = ["TWIN_CHECK", "TwinCheckNames"]
 @dataclass(frozen=True, slots=True)
 class TwinCheckNames:
     """``armbench twin-check --out``: how well the twin predicts an arm's capture (the record of
-    :mod:`armbench.bench.twin_record`; the report's twin-check section)."""
+    :mod:`armbench.bench.twin_check.twin_record`; the report's twin-check section)."""
 
     suite: str = "twin-check"
     #: place in the default run and in the report (lower first)

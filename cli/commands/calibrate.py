@@ -11,7 +11,7 @@ Every output is checked before the arm moves or the capture is read: an existing
 overwritten only with ``--force``, a file of a run's record never, an unwritable path is refused.
 ``--check HELD_OUT`` then twin-checks the fitted settings on a capture the fit did not use (read
 before the arm moves) and prints, per failing joint, what its divergence looks like and what to do
-(:mod:`armbench.bench.twin_diagnosis`).
+(:mod:`armbench.bench.twin_check.diagnosis`).
 Exit status: 0 done, 1 the held-out check failed (the outputs are written), 2 bad input or an arm
 that does not move (the partial outputs are written).
 """
@@ -27,15 +27,15 @@ from typing import Any
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
 from armbench.bench.calibrate.capture_data import CaptureData, load_capture
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
-from armbench.bench.outputs import check_out_dir, check_out_files
-from armbench.bench.truth import load_tracker
-from armbench.bench.twin_check import twin_check
-from armbench.capture.jsonl import open_capture_file
-from armbench.cli.bounds import REPLY_TIMEOUT_S, Bound, add_bounded
+from armbench.bench.runner.outputs import check_out_dir, check_out_files
+from armbench.bench.runner.truth import load_tracker
+from armbench.bench.twin_check.check import twin_check
+from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.cli.commands.twin_check import format_failures
-from armbench.drivers.settings import load_settings
-from armbench.reports.calibration_page import render_page
+from armbench.drivers.capture.jsonl import open_capture_file
+from armbench.drivers.model.settings import load_settings
+from armbench.reports.pages.calibration_page import render_page
 
 __all__ = ["register"]
 

@@ -23,10 +23,10 @@ from typing import Any
 from armbench.bench.campaign import CampaignOptions, run_campaign
 from armbench.bench.runner import EXIT_ERROR, EXIT_INTERRUPTED, RunOutcome
 from armbench.bench.runner.plan import MAX_TRIALS
-from armbench.bench.verdict import EXIT_PASS, exit_status
 from armbench.cli.commands.run import shard_arg
-from armbench.drivers.errors import ArmbenchError
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import RunRecord
+from armbench.record.verdict import EXIT_PASS, exit_status
 
 __all__ = ["register", "write_campaign_page"]
 
@@ -67,7 +67,7 @@ def register(sub: Any) -> None:
 
 def write_campaign_page(record: RunRecord, outcome: RunOutcome) -> None:
     """``campaign.html`` beside the record."""
-    from armbench.reports.campaign_page import CAMPAIGN_PAGE, render_campaign
+    from armbench.reports.pages.campaign_page import CAMPAIGN_PAGE, render_campaign
 
     path = render_campaign(record, outcome.out_dir / CAMPAIGN_PAGE)
     print(f"  {CAMPAIGN_PAGE:<13} {path}", file=sys.stdout)

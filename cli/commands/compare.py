@@ -19,13 +19,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.outputs import check_out_files
 from armbench.bench.runner.config_check import check_config
-from armbench.bench.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings
+from armbench.bench.runner.outputs import check_out_files
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings
 from armbench.record import RESULTS_FILE
 from armbench.record.baseline import compare, format_comparison, load_baseline, read_record
+from armbench.record.verdict import DEFAULT_CONFIG, EXIT_PASS, EXIT_REGRESSION, load_config
 
 __all__ = ["register"]
 
@@ -92,7 +92,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         print(format_comparison(comparison, run_id=current.run_id))
     if args.html is not None:
-        from armbench.reports.compare_page import render_compare
+        from armbench.reports.pages.compare_page import render_compare
 
         render_compare(baseline, current, comparison, args.html)
     return EXIT_REGRESSION if comparison.regressed else EXIT_PASS

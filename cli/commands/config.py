@@ -25,13 +25,13 @@ from typing import Any
 
 import tomli_w
 
-from armbench.bench.power import DEFAULT_COMMAND_TIMEOUT_S
 from armbench.bench.runner import RunOptions, prepare
-from armbench.bench.verdict import DEFAULT_CONFIG
-from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
+from armbench.bench.runner.power import DEFAULT_COMMAND_TIMEOUT_S
+from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.commands.run import add_dut_arguments
-from armbench.drivers.settings import read_toml
+from armbench.drivers.model.settings import read_toml
 from armbench.record.dut import Dut, dut_flags
+from armbench.record.verdict import DEFAULT_CONFIG
 
 __all__ = ["register", "render_config"]
 

@@ -9,23 +9,23 @@ import logging
 import sys
 from typing import Any
 
-from armbench.bench.live import (
+from armbench.cli.commands.bounds import DURATION_S, TIMEOUT_S, add_bounded
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.transports.target import given_by, resolve
+from armbench.fakes.avr.serve_firmware import serve_firmware
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.links.fake_transport import FakeTransport
+from armbench.fakes.links.pty_link import require_pty
+from armbench.fakes.links.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
+from armbench.fakes.links.signals import stop_on_signals
+from armbench.frontends.foxglove.live import (
     DEFAULT_ENDPOINT,
     check_bind,
     check_live_endpoint,
     follow_emulator,
     live_view,
 )
-from armbench.cli.bounds import DURATION_S, TIMEOUT_S, add_bounded
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.transports.target import given_by, resolve
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.avr_serve import serve_firmware
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.pty_link import require_pty
-from armbench.fakes.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
-from armbench.fakes.signals import stop_on_signals
-from armbench.fakes.transport import FakeTransport
 
 __all__ = ["register"]
 

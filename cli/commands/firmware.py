@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.outputs import OutputError, check_out_dir
-from armbench.fakes.avr import FIRMWARE_SOURCE, build
+from armbench.bench.runner.outputs import OutputError, check_out_dir
+from armbench.fakes.avr.harness import FIRMWARE_SOURCE, build
 
 __all__ = ["register"]
 

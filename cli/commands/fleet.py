@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 from armbench.bench.runner import RunOptions
 from armbench.bench.runner.fleet_run import FleetOutcome, run_fleet_sync
-from armbench.cli.reporting import step_summary, write_reports
+from armbench.cli.commands.run_files import step_summary, write_reports
 
 __all__ = ["print_summary", "run_fleet"]
 
@@ -30,7 +30,7 @@ def run_fleet(options: RunOptions, ports: Sequence[str], *, summary: str | None 
                           capture_max_bytes=arm_outcome.capture_max_bytes)
     page = outcome.out_dir / FLEET_PAGE
     try:
-        from armbench.reports.fleet_page import render_fleet
+        from armbench.reports.pages.fleet_page import render_fleet
 
         render_fleet(outcome.out_dir, page)
     except Exception as exc:  # the records and reports are on disk: say so, keep the status

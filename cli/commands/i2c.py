@@ -3,7 +3,8 @@
 On a Linux host wired to the arm's bus (``--bus N``, ``/dev/i2c-N`` through smbus2) or on the
 emulator's bus (``--port fake://``, the default, in-process on virtual time). Every address that
 acknowledges is listed; the addresses of the robot settings' joints 2–4 are then read at register
-0x04 (WHO_AM_I, ``0xA0 | joint number``; see ``fakes/i2c.py`` for the register layout). Joint 1 is
+0x04 (WHO_AM_I, ``0xA0 | joint number``; see ``fakes/firmware/i2c.py`` for the register layout).
+Joint 1 is
 the bus master and has no address.
 
 Exit status: 0 when every slave joint answers with its WHO_AM_I, 1 when one is missing or answers
@@ -26,11 +27,11 @@ from armbench.cli.commands.monitor import (
     fresh_transport,
     run_on_port,
 )
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings, load_settings
 from armbench.drivers.transports.capabilities import ArmInputs
 from armbench.drivers.transports.target import Target
-from armbench.fakes.i2c_messages import I2CMessage
+from armbench.fakes.firmware.i2c_messages import I2CMessage
 
 __all__ = ["REG_WHO_AM_I", "ScanResult", "register", "scan_bus"]
 

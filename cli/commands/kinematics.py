@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from armbench.cli.bounds import Bound, add_bounded
-from armbench.drivers.kinematics import (
+from armbench.cli.commands.bounds import Bound, add_bounded
+from armbench.drivers.model.kinematics import (
     IKSolution,
     KinematicsError,
     dh_to_protocol,
@@ -27,7 +27,7 @@ from armbench.drivers.kinematics import (
     ik,
     protocol_to_dh,
 )
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.model.settings import RobotSettings, load_settings
 
 __all__ = ["register"]
 

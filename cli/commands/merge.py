@@ -14,8 +14,8 @@ import sys
 from typing import Any
 
 from armbench.bench.campaign import CAMPAIGN_KEY, merge_shards
-from armbench.bench.verdict import exit_status
-from armbench.cli.reporting import write_reports
+from armbench.cli.commands.run_files import write_reports
+from armbench.record.verdict import exit_status
 
 __all__ = ["register"]
 

@@ -18,13 +18,18 @@ from collections import deque
 from collections.abc import AsyncIterator, Coroutine
 from typing import Any, TextIO, TypeVar
 
-from armbench.bench.live import DEFAULT_ENDPOINT, LiveView, check_live_endpoint, live_view
-from armbench.cli.bounds import DURATION_S, REPLY_TIMEOUT_S, Bound, add_bounded
-from armbench.drivers.arm import Arm, JointState, ReplyTimeoutError, StateStream
-from armbench.drivers.settings import RobotSettings
+from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, Bound, add_bounded
+from armbench.drivers.host.arm import Arm, JointState, ReplyTimeoutError, StateStream
+from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import Transport
 from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
 from armbench.drivers.transports.target import Target, given_by, target_of
+from armbench.frontends.foxglove.live import (
+    DEFAULT_ENDPOINT,
+    LiveView,
+    check_live_endpoint,
+    live_view,
+)
 
 __all__ = ["DEFAULT_FAKE_DURATION_S", "command_inputs", "fresh_transport", "monitor", "register",
            "run_on_port"]
@@ -44,7 +49,9 @@ def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
     """Run ``main`` on virtual time for a target on the virtual clock (``fake://``: the emulator
     in-process), else in real time."""
     if target_of(port).virtual:
-        from armbench.fakes.vclock import run_virtual  # the CLI may use fakes; the driver may not
+        from armbench.fakes.clock.vclock import (
+            run_virtual,  # the CLI may use fakes; the driver may not
+        )
 
         return run_virtual(main)
     return asyncio.run(main)
@@ -181,7 +188,8 @@ async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = Fals
                   foxglove: str | None = None, allow_remote: bool = False,
                   transport: Transport | None = None) -> int:
     """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation;
-    with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.bench.live`; a host other
+    with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.frontends.foxglove.live`; a
+    host other
     than loopback only with ``allow_remote``). ``transport``: one from :func:`fresh_transport`
     (its emulator closed at the end), else the driver opens ``port``."""
     try:

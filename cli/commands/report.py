@@ -15,8 +15,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.outputs import check_out_files
-from armbench.drivers.errors import ArmbenchError
+from armbench.bench.runner.outputs import check_out_files
+from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import REPORT_FILE, RESULTS_FILE, TOO_DEEP
 
 __all__ = ["register"]

@@ -14,14 +14,14 @@ import asyncio
 import signal
 from typing import Any
 
-from armbench.bench.ros2_node.names import namespace_problem, node_name_problem
-from armbench.cli.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
+from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
 from armbench.cli.commands.monitor import run_on_port
-from armbench.drivers.errors import InvalidTargetError
-from armbench.drivers.link import CONNECT_TIMEOUT_S
-from armbench.drivers.protocol import MAX_DUTY
-from armbench.drivers.settings import RobotSettings, load_settings
+from armbench.drivers.host.link import CONNECT_TIMEOUT_S
+from armbench.drivers.model.errors import InvalidTargetError
+from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.settings import RobotSettings, load_settings
 from armbench.drivers.transports.target import target_of
+from armbench.frontends.ros2_node.names import namespace_problem, node_name_problem
 
 __all__ = ["REALTIME_FACTOR", "register"]
 
@@ -80,7 +80,8 @@ def register(sub: Any) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    """The options a bound does not cover (:mod:`armbench.cli.bounds` checks the numbers)."""
+    """The options a bound does not cover (:mod:`armbench.cli.commands.bounds` checks the
+    numbers)."""
     if not 1 <= args.max_duty <= MAX_DUTY:
         raise InvalidTargetError(None, "--max-duty", args.max_duty, f"must be 1..{MAX_DUTY}")
     for flag, value, problem in (("--node-name", args.node_name, node_name_problem),
@@ -97,10 +98,10 @@ def _check(args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     _check(args)
-    from armbench.bench.ros2_node import require_rclpy
+    from armbench.frontends.ros2_node import require_rclpy
 
     require_rclpy()
-    from armbench.bench.ros2_node.node import NodeOptions
+    from armbench.frontends.ros2_node.node import NodeOptions
 
     settings = load_settings(args.settings)
     options = NodeOptions(node_name=args.node_name, namespace=args.namespace,
@@ -113,7 +114,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 async def _serve(args: argparse.Namespace, settings: RobotSettings, options: Any) -> int:
-    from armbench.bench.ros2_node.node import ArmNode, PublishingArm
+    from armbench.frontends.ros2_node.node import ArmNode, PublishingArm
 
     loop = asyncio.get_running_loop()
     task = asyncio.current_task()

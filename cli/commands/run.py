@@ -6,7 +6,7 @@
 [--capture-max-mb MB] [--scheduler tcp://HOST:PORT] [--shard I/N] [--dut NAME]
 [--meta KEY=VALUE ...]``
 
-Exit status (:mod:`armbench.bench.verdict`): 0 every measurement within its limits and no
+Exit status (:mod:`armbench.record.verdict`): 0 every measurement within its limits and no
 regression, 1 a limit failed, 2 bad input (reported before the arm moves), 3 regressed against
 the baseline (every limit held), 4 the run is incomplete (a lost arm, a trial in error), 5 a
 required suite or figure measured nothing (untested: ``--require``, ``--optional``), 130
@@ -24,12 +24,12 @@ from typing import Any
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
 from armbench.bench.runner.fleet_run import parse_arms
 from armbench.bench.suites import suite_names
-from armbench.bench.verdict import EXIT_STATUS_EPILOG
-from armbench.cli.bounds import CAPTURE_MAX_MB, add_bounded
-from armbench.cli.reporting import step_summary, write_reports
+from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
+from armbench.cli.commands.run_files import step_summary, write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.fleet_index import is_fleet
+from armbench.record.verdict import EXIT_STATUS_EPILOG
 
 __all__ = ["register"]
 
@@ -130,7 +130,7 @@ def shard_arg(text: str) -> tuple[int, int]:
 
 def _run(args: argparse.Namespace) -> int:
     if args.summary is not None:  # before anything moves: not a traceback after the whole run
-        from armbench.bench.run_summary import check_summary_file
+        from armbench.reports.files.run_summary import check_summary_file
 
         check_summary_file(args.summary)
     ports: list[str] = args.port or []

@@ -1,7 +1,7 @@
 """``armbench twin-check CAPTURE [--settings robot.toml] [--config bench.toml] [--json]
 [--out DIR]``: replay a capture's commands into the twin on virtual time and compare the reply
-streams (see :mod:`armbench.bench.twin_check`); with ``--out`` the check is also a run record
-with its ``report.html`` and ``junit.xml`` (see :mod:`armbench.bench.twin_record`).
+streams (see :mod:`armbench.bench.twin_check.check`); with ``--out`` the check is also a run record
+with its ``report.html`` and ``junit.xml`` (see :mod:`armbench.bench.twin_check.twin_record`).
 
 Exit status: 0 the twin is within the config's tolerance (``twin.*`` limits), 1 it is not, 2 bad
 input (a truncated or damaged capture, another robot model's, one without commands or traffic, an
@@ -19,10 +19,10 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate.capture_data import load_capture
-from armbench.bench.twin_check import DEFAULT_CONFIG, TwinCheck, twin_check
-from armbench.bench.twin_record import TwinInputs, check_out_dir, write_twin_record
-from armbench.cli.reporting import write_reports
-from armbench.drivers.settings import load_settings
+from armbench.bench.twin_check.check import DEFAULT_CONFIG, TwinCheck, twin_check
+from armbench.bench.twin_check.twin_record import TwinInputs, check_out_dir, write_twin_record
+from armbench.cli.commands.run_files import write_reports
+from armbench.drivers.model.settings import load_settings
 from armbench.record import Measurement
 from armbench.record.limits import load_limits
 

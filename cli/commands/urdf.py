@@ -1,9 +1,10 @@
 """``armbench urdf [--settings FILE] [--out FILE]``: the arm as a URDF for RViz and Foxglove.
 
 Built from the DH table and the robot settings (joint limits, link lengths) by
-:func:`armbench.drivers.urdf.robot_urdf`; the joint positions are the protocol angles the driver
+:func:`armbench.drivers.model.urdf.robot_urdf`; the joint positions are the protocol angles the
+driver
 reports on ``/joint_states``. Written to ``--out`` (replaced atomically; an unwritable path is
-refused before anything is built, :mod:`armbench.bench.outputs`) or printed.
+refused before anything is built, :mod:`armbench.bench.runner.outputs`) or printed.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from armbench.bench.outputs import check_out_files
-from armbench.drivers.settings import load_settings
-from armbench.drivers.urdf import robot_urdf
+from armbench.bench.runner.outputs import check_out_files
+from armbench.drivers.model.settings import load_settings
+from armbench.drivers.model.urdf import robot_urdf
 from armbench.record.files import atomic_write_bytes
 
 __all__ = ["register"]

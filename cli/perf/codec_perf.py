@@ -10,7 +10,7 @@ import math
 import random
 
 from armbench.cli.perf import Figure, PerfOptions, best_rate
-from armbench.drivers.protocol import Command, Framer, Reply
+from armbench.drivers.model.protocol import Command, Framer, Reply
 
 __all__ = ["reply_stream", "run"]
 

@@ -14,7 +14,7 @@
   (a subprocess, real time) over ~2 s. ``bound = min(baud / (bits per byte × 25 bytes),
   1 / loop period)``, the loop period being the emulated master's I²C traffic per loop (three
   4-byte reference writes and three 2-byte position reads at ``i2c_hz``, from
-  :func:`armbench.fakes.i2c.transaction_bits`) plus ``loop_overhead_s`` of
+  :func:`armbench.fakes.firmware.i2c.transaction_bits`) plus ``loop_overhead_s`` of
   :class:`EmulatorSettings`.
 * ``driver.host_timer_late_ms`` — the latest wake-up of a bare ``select()`` sleep at the loop
   period, over as long as the pty run, in this process: the scheduling delay the host imposes on
@@ -40,14 +40,14 @@ import time
 from collections.abc import Iterator
 
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.arm import CONNECT_TIMEOUT_S, Arm
-from armbench.drivers.protocol import REPLY_LEN, Command
-from armbench.drivers.settings import RobotSettings, SerialSettings
-from armbench.fakes.emulator_settings import EmulatorSettings, emulator_settings
-from armbench.fakes.i2c import transaction_bits
-from armbench.fakes.i2c_messages import I2CMessage
-from armbench.fakes.transport import FakeTransport
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.host.arm import CONNECT_TIMEOUT_S, Arm
+from armbench.drivers.model.protocol import REPLY_LEN, Command
+from armbench.drivers.model.settings import RobotSettings, SerialSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.emulator_settings import EmulatorSettings, emulator_settings
+from armbench.fakes.firmware.i2c import transaction_bits
+from armbench.fakes.firmware.i2c_messages import I2CMessage
+from armbench.fakes.links.fake_transport import FakeTransport
 
 __all__ = ["loop_period_s", "reply_rate_bound", "run", "serve_pty", "timer_lateness_s"]
 

@@ -16,12 +16,12 @@ import asyncio
 import time
 
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.protocol import Command
-from armbench.drivers.settings import RobotSettings, SerialSettings
-from armbench.fakes.arm_emulator import ArmEmulator
-from armbench.fakes.emulator_settings import emulator_settings
-from armbench.fakes.joint import CYCLE_S
-from armbench.fakes.vclock import run_virtual
+from armbench.drivers.model.protocol import Command
+from armbench.drivers.model.settings import RobotSettings, SerialSettings
+from armbench.fakes.clock.vclock import run_virtual
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
+from armbench.fakes.firmware.emulator_settings import emulator_settings
+from armbench.fakes.twin.joint import CYCLE_S
 
 __all__ = ["run"]
 

@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.protocol import Command
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.avr import HARNESS_NAME, FirmwareError, board_specs, build, find_images
+from armbench.drivers.model.protocol import Command
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.avr.harness import HARNESS_NAME, FirmwareError, board_specs, build, find_images
 
 __all__ = ["run"]
 

@@ -19,11 +19,11 @@ import tempfile
 from pathlib import Path
 
 from armbench.bench.runner.options import CAPTURE_FILE, DEFAULT_CONFIG
-from armbench.capture.read import open_capture
 from armbench.cli.perf import Figure, PerfOptions
 from armbench.cli.perf.driver_perf import reply_rate_bound, serve_pty
-from armbench.drivers.settings import RobotSettings
-from armbench.fakes.emulator_settings import emulator_settings
+from armbench.drivers.capture.read import open_capture
+from armbench.drivers.model.settings import RobotSettings
+from armbench.fakes.firmware.emulator_settings import emulator_settings
 
 __all__ = ["ARMS", "capture_reply_rate", "run"]
 

@@ -25,7 +25,7 @@ from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.repeatability_contract import REPEATABILITY
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.settings import RobotSettings
 from armbench.metrics import (
     error_summary,
     iso_cube_poses,

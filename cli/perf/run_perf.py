@@ -29,6 +29,7 @@ import importlib
 import json
 import multiprocessing
 import os
+import runpy
 import subprocess
 import sys
 import tempfile
@@ -44,19 +45,19 @@ __all__ = ["PHASES", "run"]
 #: Timed parts of the run's process: (phase, module, attribute path).
 PHASES = (
     ("imports", "importlib._bootstrap", "_find_and_load"),
-    ("waiting", "armbench.fakes.vclock", "_VirtualSelector.select"),
+    ("waiting", "armbench.fakes.clock.vclock", "_VirtualSelector.select"),
     ("record", "armbench.record.writer", "RecordWriter.write"),
     ("record", "armbench.record.writer", "RecordWriter.add_trial"),
     ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.merge"),
     ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.flush"),
     ("capture", "armbench.bench.runner.capture_parts", "CaptureParts.finish"),
     ("summaries", "armbench.bench.runner.trials", "TrialRunner.summarize"),
-    ("report", "armbench.cli.reporting", "write_reports"),
+    ("report", "armbench.cli.commands.run_files", "write_reports"),
 )
 
 #: What a worker imports to measure a trial.
 _WORKER_MODULES = ("armbench.bench.runner.parallel", "armbench.bench.suites",
-                   "armbench.drivers.arm", "armbench.fakes.arm_emulator")
+                   "armbench.drivers.host.arm", "armbench.fakes.firmware.arm_emulator")
 
 
 class _Clock:
@@ -143,10 +144,14 @@ def child(out_dir: str) -> None:
     clock.enter("setup")
     missing = _patch(clock)
     totals = _parallel_totals()
-    from armbench.cli.main import main
-
     clock.leave()
-    status = main(["run", "--out", out_dir, "-q"])
+    # the program as a user runs it (``python -m armbench run``), its exit status caught
+    sys.argv = ["armbench", "run", "--out", out_dir, "-q"]
+    try:
+        runpy.run_module("armbench", run_name="__main__", alter_sys=True)
+        status = 0
+    except SystemExit as exc:
+        status = exc.code if isinstance(exc.code, int) else 1
     clock.enter("end")
     worker_s, jobs = totals()
     seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
@@ -178,7 +183,7 @@ def _warm_worker() -> int:
 
 
 def _pool_start_s() -> float:
-    from armbench.bench.workers import worker_init
+    from armbench.bench.runner.workers import worker_init
 
     start = time.perf_counter()
     with concurrent.futures.ProcessPoolExecutor(

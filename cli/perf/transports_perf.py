@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from armbench.cli.perf import Figure, PerfOptions
-from armbench.drivers.protocol import Command, Reply
+from armbench.drivers.model.protocol import Command, Reply
 
 __all__ = ["PACKAGES", "RoundTripRate", "echo_pty", "measure_bare", "measure_package", "run"]
 

@@ -77,7 +77,7 @@ class ComPort:
     LINE_DATA_READY: Final = 0x01
 
 
-#: SET-PARITY value of each :class:`~armbench.drivers.settings.SerialSettings` parity letter.
+#: SET-PARITY value of each :class:`~armbench.drivers.model.settings.SerialSettings` parity letter.
 PARITY_CODES: Final[dict[str, int]] = {"N": 1, "O": 2, "E": 3, "M": 4, "S": 5}
 #: SET-STOPSIZE value of each stop-bit count.
 STOPSIZE_CODES: Final[dict[float, int]] = {1: 1, 2: 2, 1.5: 3}

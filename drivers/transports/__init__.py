@@ -8,7 +8,8 @@ port string                      transport
 ``socket://HOST:PORT``           :class:`~armbench.drivers.transports.tcp.TcpTransport` (raw TCP)
 ``rfc2217://HOST:PORT``          :class:`~armbench.drivers.transports.rfc2217.Rfc2217Transport`
                                  (telnet COM-PORT-OPTION, e.g. ser2net)
-``fake://...``                   ``armbench.fakes.transport:FakeTransport`` (the emulator,
+``fake://...``                   ``armbench.fakes.links.fake_transport:FakeTransport`` (the
+emulator,
                                  in-process; it lives with the emulator, registered by name)
 ===============================  ==============================================================
 
@@ -36,8 +37,8 @@ import importlib.metadata
 import re
 from typing import Final
 
-from armbench.drivers.errors import TransportError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import TransportError
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import READ_CHUNK, Transport
 
 __all__ = [
@@ -61,9 +62,9 @@ SERIAL_TRANSPORT = "armbench.drivers.transports.serial_port:SerialTransport"
 TRANSPORTS: dict[str, str] = {
     "socket": "armbench.drivers.transports.tcp:TcpTransport",
     "rfc2217": "armbench.drivers.transports.rfc2217:Rfc2217Transport",
-    "fake": "armbench.fakes.transport:FakeTransport",
+    "fake": "armbench.fakes.links.fake_transport:FakeTransport",
     "labgrid": "armbench.drivers.transports.labgrid:LabgridTransport",
-    "avr": "armbench.fakes.avr_transport:AvrTransport",
+    "avr": "armbench.fakes.avr.avr_transport:AvrTransport",
 }
 
 #: Entry-point group under which distributions register transports by scheme.

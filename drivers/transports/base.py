@@ -18,8 +18,8 @@ import abc
 from types import TracebackType
 from typing import Self
 
-from armbench.drivers.errors import ArmbenchError, PortLostError, TransportError
-from armbench.drivers.settings import RobotSettings, SerialSettings, load_settings
+from armbench.drivers.model.errors import ArmbenchError, PortLostError, TransportError
+from armbench.drivers.model.settings import RobotSettings, SerialSettings, load_settings
 from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 
 __all__ = ["READ_CHUNK", "Transport"]
@@ -34,9 +34,11 @@ class Transport(abc.ABC):
     Life cycle: construct (no I/O) → :meth:`open` → any number of :meth:`read`/:meth:`write` →
     :meth:`close`. Also an async context manager that opens and closes.
 
-    Errors: :class:`~armbench.drivers.errors.TransportError` (naming the port) when the port cannot
+    Errors: :class:`~armbench.drivers.model.errors.TransportError` (naming the port) when the port
+    cannot
     be
-    opened or configured or is used while not open; :class:`~armbench.drivers.errors.PortLostError`
+    opened or configured or is used while not open;
+    :class:`~armbench.drivers.model.errors.PortLostError`
     when
     the port or its peer goes away while open (EOF, reset, EIO on a pty whose other end closed,
     server killed). After a loss every read/write raises ``PortLostError`` again and
@@ -56,7 +58,8 @@ class Transport(abc.ABC):
     @classmethod
     def query(cls, port: str) -> Given:
         """The settings ``port``'s query carries (seed, settings and fault files, ...), checked:
-        a :class:`~armbench.drivers.errors.ArmbenchError` names a parameter this target does not
+        a :class:`~armbench.drivers.model.errors.ArmbenchError` names a parameter this target does
+        not
         know. None by default (the query, if any, is the transport's own business)."""
         return Given()
 

@@ -15,8 +15,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-from armbench.drivers.errors import ArmbenchError
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["ArmInputs", "Capabilities", "Clock", "FreshArm", "Given"]
 
@@ -98,7 +98,7 @@ class ArmInputs:
     seed: int | None
     """The seed given (flag, query or the settings file's ``[emulator] seed``), None if none."""
     faults: tuple[Any, ...] = ()
-    """The fault list (``armbench.fakes.faults.Fault``) for a target that takes faults."""
+    """The fault list (``armbench.fakes.firmware.faults.Fault``) for a target that takes faults."""
     given: Given = field(default_factory=Given)
     """The winning sources (the settings and fault files' paths as given)."""
 
@@ -112,7 +112,7 @@ class FreshArm:
     seed: int
     """Its seed (the runner derives one per trial from the run's)."""
     faults: Sequence[Any] = ()
-    """Faults to inject (``armbench.fakes.faults.Fault``)."""
+    """Faults to inject (``armbench.fakes.firmware.faults.Fault``)."""
     factory: Callable[..., Any] | None = None
     """The runner's emulator factory (``fake://``: tests pass one to watch the emulators); a
     simulator of its own may ignore it."""

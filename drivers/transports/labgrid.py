@@ -22,7 +22,7 @@ import time
 from typing import Any, ClassVar
 from urllib.parse import parse_qs
 
-from armbench.drivers.errors import (
+from armbench.drivers.model.errors import (
     CoordinatorUnreachableError,
     LabgridError,
     NoSerialResourceError,
@@ -31,8 +31,8 @@ from armbench.drivers.errors import (
     TransportError,
     shown_port,
 )
-from armbench.drivers.peer_text import peer_str
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.peer_text import peer_str
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.url_parts import PART_CHARS, split_port
 

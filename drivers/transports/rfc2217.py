@@ -3,9 +3,11 @@ COM-PORT-OPTION server such as ser2net (``accepter: telnet(rfc2217),tcp,PORT``).
 
 Opening connects over TCP, negotiates BINARY and SUPPRESS-GO-AHEAD both ways and our
 COM-PORT-OPTION, sets baud rate, data bits, parity and stop bits from
-:class:`~armbench.drivers.settings.SerialSettings`, and waits for the server to acknowledge each
+:class:`~armbench.drivers.model.settings.SerialSettings`, and waits for the server to acknowledge
+each
 setting.
-It fails with a :class:`~armbench.drivers.errors.TransportError` naming the port when the server
+It fails with a :class:`~armbench.drivers.model.errors.TransportError` naming the port when the
+server
 refuses
 COM-PORT-OPTION (a plain telnet server), does not answer within ``negotiation_timeout_s``, or
 acknowledges a different value than asked. Modem control (SET-CONTROL: DTR, RTS, flow control) is
@@ -25,9 +27,9 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from armbench.drivers.errors import PortLostError
-from armbench.drivers.log_limit import LogLimit
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import PortLostError
+from armbench.drivers.model.log_limit import LogLimit
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.telnet import (
     BINARY,
     COM_PORT_OPTION,

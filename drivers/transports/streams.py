@@ -10,8 +10,8 @@ from __future__ import annotations
 import abc
 import asyncio
 
-from armbench.drivers.errors import PortLostError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import PortLostError
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import READ_CHUNK, Transport
 
 __all__ = ["CLOSE_TIMEOUT_S", "StreamTransport", "close_writer"]

@@ -50,8 +50,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from typing import Any
 
-from armbench.drivers.errors import TransportError
-from armbench.drivers.settings import RobotSettings, SerialSettings
+from armbench.drivers.model.errors import TransportError
+from armbench.drivers.model.settings import RobotSettings, SerialSettings
 from armbench.drivers.transports import scheme_of, transport_class
 from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.capabilities import (

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import asyncio
 
-from armbench.drivers.errors import TransportError
-from armbench.drivers.settings import SerialSettings
+from armbench.drivers.model.errors import TransportError
+from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.streams import CLOSE_TIMEOUT_S, StreamTransport, close_writer
 from armbench.drivers.transports.url_parts import split_port
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from urllib.parse import SplitResult, urlsplit
 
-from armbench.drivers.errors import TransportError, shown_port
+from armbench.drivers.model.errors import TransportError, shown_port
 
 __all__ = ["PART_CHARS", "split_port"]
 

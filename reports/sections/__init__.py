@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from armbench.record import RunRecord, SuiteRecord
-    from armbench.reports.views import Figures, SectionView, SuiteView
+    from armbench.reports.render.views import Figures, SectionView, SuiteView
 
 __all__ = ["ENTRY_POINT_GROUP", "SectionBuilder", "registered_sections"]
 

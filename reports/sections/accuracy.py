@@ -23,10 +23,10 @@ from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.metrics import MetricsInputError, path_errors, square_yz
 from armbench.record import RunRecord, SuiteRecord, Trial
 from armbench.record.suite_contract import SAMPLE
-from armbench.reports import plots
-from armbench.reports.format import format_duration, format_value
-from armbench.reports.plotting import MAX_LINE_POINTS
-from armbench.reports.views import (
+from armbench.reports.render import plots
+from armbench.reports.render.format import format_duration, format_value
+from armbench.reports.render.plotting import MAX_LINE_POINTS
+from armbench.reports.render.views import (
     Figures,
     FigureView,
     FloatArray,

@@ -4,7 +4,7 @@ plugin, a lab's own suite): its parameters, its trials and its measurements as r
 from __future__ import annotations
 
 from armbench.record import RunRecord, SuiteRecord
-from armbench.reports.views import Figures, SectionView, SuiteView
+from armbench.reports.render.views import Figures, SectionView, SuiteView
 
 __all__ = ["build"]
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 from armbench.bench.suites.joints_contract import JOINTS
 from armbench.record import Measurement, RunRecord, SuiteRecord
-from armbench.reports import plots
-from armbench.reports.format import format_value
-from armbench.reports.views import Figures, SectionView, SuiteView
+from armbench.reports.render import plots
+from armbench.reports.render.format import format_value
+from armbench.reports.render.views import Figures, SectionView, SuiteView
 
 __all__ = ["SUITE", "JointRow", "build"]
 

@@ -20,9 +20,9 @@ from armbench.bench.suites.repeatability_contract import REPEATABILITY
 from armbench.metrics import cube_corners
 from armbench.record import Measurement, RunRecord, SuiteRecord
 from armbench.record.interim import Vec3, interim_pose_figures, pose_samples
-from armbench.reports import plots
-from armbench.reports.format import format_duration, format_number, format_value
-from armbench.reports.views import (
+from armbench.reports.render import plots
+from armbench.reports.render.format import format_duration, format_number, format_value
+from armbench.reports.render.views import (
     Figures,
     FigureView,
     FloatArray,

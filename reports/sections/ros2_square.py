@@ -18,10 +18,18 @@ from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.metrics import square_yz
 from armbench.record import Measurement, RunRecord, SuiteRecord
 from armbench.record.suite_contract import SAMPLE
-from armbench.reports import plots
-from armbench.reports.format import format_duration, format_value
-from armbench.reports.plotting import MAX_LINE_POINTS
-from armbench.reports.views import Figures, FigureView, SectionView, SuiteView, num, text, vec3
+from armbench.reports.render import plots
+from armbench.reports.render.format import format_duration, format_value
+from armbench.reports.render.plotting import MAX_LINE_POINTS
+from armbench.reports.render.views import (
+    Figures,
+    FigureView,
+    SectionView,
+    SuiteView,
+    num,
+    text,
+    vec3,
+)
 
 __all__ = ["SUITE", "LapRow", "Ros2SquareView", "StyleRow", "build"]
 

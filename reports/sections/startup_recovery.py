@@ -17,9 +17,9 @@ from typing import Any
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.record import Measurement, RunRecord, SuiteRecord, Trial
 from armbench.record.suite_contract import SAMPLE
-from armbench.reports import plots
-from armbench.reports.format import format_value
-from armbench.reports.views import Figures, FigureView, SectionView, SuiteView, num, text
+from armbench.reports.render import plots
+from armbench.reports.render.format import format_value
+from armbench.reports.render.views import Figures, FigureView, SectionView, SuiteView, num, text
 
 __all__ = ["SUITE", "FailureView", "StartupRow", "StartupView", "build"]
 

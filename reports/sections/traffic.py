@@ -10,11 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
-from armbench.capture.jsonl import CaptureError
-from armbench.reports import plots
-from armbench.reports.capture_summary import CaptureLine, summarize_capture
-from armbench.reports.format import format_duration
-from armbench.reports.views import Figures, FigureView
+from armbench.drivers.capture.jsonl import CaptureError
+from armbench.reports.render import plots
+from armbench.reports.render.capture_summary import CaptureLine, summarize_capture
+from armbench.reports.render.format import format_duration
+from armbench.reports.render.views import Figures, FigureView
 
 __all__ = ["TrafficView", "traffic_section"]
 

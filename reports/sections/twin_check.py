@@ -22,9 +22,9 @@ from matplotlib.figure import Figure
 from armbench.bench.suites.twin_check_contract import TWIN_CHECK
 from armbench.record import Measurement, RunRecord, SuiteRecord
 from armbench.record.suite_contract import SAMPLE
-from armbench.reports.format import format_value
-from armbench.reports.plotting import COLOURS, FloatArray, legend, new_figure, plot_style
-from armbench.reports.views import Figures, SectionView, SuiteView, num, text
+from armbench.reports.render.format import format_value
+from armbench.reports.render.plotting import COLOURS, FloatArray, legend, new_figure, plot_style
+from armbench.reports.render.views import Figures, SectionView, SuiteView, num, text
 
 __all__ = ["SUITE", "ArrivalRow", "JointRow", "TwinView", "build", "overlay_plot"]
 

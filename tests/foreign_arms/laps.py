@@ -10,10 +10,10 @@ import contextlib
 import json
 from pathlib import Path
 
-from armbench.capture.jsonl import CaptureWriter
-from armbench.drivers.arm import Arm
-from armbench.drivers.errors import MoveTimeoutError
-from armbench.drivers.settings import RobotSettings
+from armbench.drivers.capture.jsonl import CaptureWriter
+from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.errors import MoveTimeoutError
+from armbench.drivers.model.settings import RobotSettings
 from armbench.metrics import square_yz
 from foreign_arms.tracker_client import TrackerStream
 

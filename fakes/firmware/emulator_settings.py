@@ -1,0 +1,253 @@
+"""Settings of the firmware emulator: the ``[emulator]`` table of a robot settings file.
+
+Every choice the paper leaves open is a field here, with the default the real firmware most
+plausibly has (see ``docs/emulator.md``). ``profile`` picks the mechanism: ``physical`` (the
+default: the plausible arm of ``[emulator.physics]``, ``docs/robot-model.md``) or ``ideal``
+(rigid, play-free, exact: what tests of the firmware's exact behaviour use).
+"""
+
+from __future__ import annotations
+
+import numbers
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Final, Literal
+
+from armbench.drivers.model.numbers import finite_float, is_real
+from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.fakes.twin.joint import CYCLE_S, PhysicalEffects, StopRule
+from armbench.fakes.twin.physics import PROFILES, ArmPhysics, arm_physics
+from armbench.fakes.twin.stepper import STOP_RULES
+
+__all__ = ["CYCLE_S", "MAX_DEADBAND_COUNTS", "MAX_TIMES_S", "PROFILES", "ArmPhysics",
+           "EmulatorSettings", "PhysicalEffects", "actual_robot", "emulator_settings",
+           "with_emulator_overrides"]
+
+@dataclass(frozen=True, slots=True)
+class EmulatorSettings:
+    """How the emulated firmware behaves where the paper is silent."""
+
+    uart_receive: Literal["polling", "blocking"] = "polling"
+    """Polling: the master's loop runs continuously and replies every loop (what the ROS driver's
+    continuous stream needs); blocking: each loop waits for a whole command frame."""
+    i2c_hz: int = 100_000
+    """I²C bus clock: 100 kHz (Arduino Wire default) or 400 kHz."""
+    rx_buffer_bytes: int = 64
+    """The board's serial receive buffer (``RX_SIZE`` in ``firmware/master.c``, the Arduino core's
+    ``SERIAL_RX_BUFFER_SIZE``); bytes arriving when it is full are dropped."""
+    tx_buffer_bytes: int = 64
+    """The serial transmit buffer; a longer print blocks the loop until it drains."""
+    host_buffer_bytes: int = 4096
+    """What the host side of the line holds for it when a client of ``armbench emulate`` writes
+    faster than the baud rate: a USB-serial port's write FIFO in Linux is one page, and the
+    firmware-in-the-loop harness queues as much (``rx_queue`` in ``firmware/harness/harness.h``).
+    Bytes arriving when it is full are dropped and counted as overrun (``docs/emulator.md``)."""
+    loop_overhead_s: float = 100e-6
+    """CPU time of one master loop besides I²C and UART (parsing, formatting) at 16 MHz."""
+    reply_line_end: str = ""
+    """Bytes after each reply's '#': the paper shows none (``Serial.print``)."""
+    deadband_counts: int = 1
+    """A joint at rest starts when |target − counter| exceeds this many encoder counts."""
+    stop_rule: StopRule = "window"
+    """When a moving joint stops: ``window``, once |target − counter| ≤ ``deadband_counts``;
+    ``reach``, once its counter meets or passes the target (``docs/emulator.md``)."""
+    recovery_duty: int = 90
+    """Duty used when driving to the Hall sensor at start-up (§5.2)."""
+    eeprom_write_s_per_byte: float = 3.3e-3
+    """ATmega328P EEPROM write time per byte; the master's loop stalls while it writes."""
+    boot_s: float = 0.1
+    """From power-up to ``setup()``: the ATmega328P's 65 ms oscillator start-up delay (fuses of an
+    Arduino Pro Mini) plus the core's initialisation; a boot loader that waits for an upload on
+    every reset would add about 1 s (set it here)."""
+    eeprom_cells: int = 1024
+    seed: int = 0
+    fused_bus: bool = True
+    """Run a steady main loop's six I²C transactions (no new command, no bus fault, every
+    slave answering and holding the repeated reference) as their known outcome at their exact
+    bus times, instead of message by message through ``I2CBus.i2c_rdwr``: the same replies,
+    times, counters and EEPROM, at about half the cost per loop. False: every transaction goes
+    through the bus, as the master's code would on a real ``smbus2.SMBus``."""
+    effects: PhysicalEffects = field(default_factory=PhysicalEffects)
+    profile: Literal["physical", "ideal"] = "physical"
+    """``physical``: the mechanism of ``physics``; ``ideal``: none (rigid, play-free, exact)."""
+    physics: ArmPhysics | None = field(default_factory=ArmPhysics)
+    """The physical arm (``fakes/twin/physics.py``, ``[emulator.physics]``); None in the ideal
+    profile."""
+
+    @property
+    def i2c_bit_s(self) -> float:
+        """Seconds per bit on the I²C bus."""
+        return 1.0 / self.i2c_hz
+
+
+#: Upper bounds of the emulator's times (s), checked when the settings are read: a master loop
+#: or an EEPROM byte of a second, a boot of a minute are already far beyond any ATmega328P.
+MAX_TIMES_S: dict[str, float] = {"loop_overhead_s": 1.0, "eeprom_write_s_per_byte": 1.0,
+                                 "boot_s": 60.0}
+
+#: The widest firmware deadband the emulator takes (encoder counts): 4 mrad on joints 1–2 and
+#: 7 mrad on joint 4, over ten times the driver's default arrival tolerance (3e-4 rad) and four
+#: times the start-up suite's 1 mrad. A firmware that stops that far from its target holds no
+#: position the bench can judge; a larger value is a mistake (100 000 counts holds every joint
+#: still, and every move of a run then times out).
+MAX_DEADBAND_COUNTS: Final = 64
+
+#: The ``float`` fields: made plain floats, as the compiled boards read them.
+_FLOATS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("float", float))
+#: The ``int`` fields: a whole number of any int type is made a plain int.
+_INTS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("int", int))
+_TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
+                           "profile": str, "stop_rule": str}
+
+
+def actual_robot(robot: RobotSettings) -> RobotSettings:
+    """The robot model of the arm the emulator builds from ``robot`` with its default settings:
+    the actual DH lengths and joint offsets (the truth's), ``robot`` itself when ideal."""
+    physics = emulator_settings(robot).physics
+    return robot if physics is None else physics.actual_settings(robot)
+
+
+def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSettings:
+    """Validated emulator settings from the robot file's ``[emulator]`` table plus overrides."""
+    section = robot.sections.get("emulator", {})
+    if not isinstance(section, Mapping):
+        raise SettingsError("emulator", section, "is not a table")
+    table: dict[str, Any] = dict(section)
+    table.update(overrides)
+    effects_in = table.pop("effects", {})
+    if isinstance(effects_in, PhysicalEffects):
+        effects = effects_in
+    else:
+        if not isinstance(effects_in, Mapping):
+            raise SettingsError("emulator.effects", effects_in, "is not a table")
+        known_fx = {f.name for f in fields(PhysicalEffects)}
+        values: dict[str, Any] = {}
+        for k, v in effects_in.items():
+            if k not in known_fx:
+                raise SettingsError(f"emulator.effects.{k}", v, "is not a known setting")
+            _check_number(f"emulator.effects.{k}", v)
+            values[k] = _whole(f"emulator.effects.{k}", v) if k == "miss_above_duty" else float(v)
+        try:  # plain ints and floats: the compiled class takes no numpy integer, keeps no int
+            effects = PhysicalEffects(**values)
+        except ValueError as exc:
+            raise SettingsError("emulator.effects", dict(effects_in), str(exc)) from None
+    physics_in = table.pop("physics", {})
+    if isinstance(physics_in, ArmPhysics):
+        physics: ArmPhysics | None = physics_in
+    elif physics_in is None:
+        physics = None
+    else:
+        if not isinstance(physics_in, Mapping):
+            raise SettingsError("emulator.physics", physics_in, "is not a table")
+        physics = arm_physics(physics_in)
+    profile = table.get("profile", "physical")
+    if profile not in PROFILES:
+        raise SettingsError("emulator.profile", profile, f"must be one of {', '.join(PROFILES)}")
+    if profile == "ideal":
+        physics = None
+    known = {f.name for f in fields(EmulatorSettings)} - {"effects", "physics"}
+    for k, v in table.items():
+        if k not in known:
+            raise SettingsError(f"emulator.{k}", v, f"is not a known setting (known: "
+                                                    f"{', '.join(sorted(known))})")
+        if _TYPES.get(k) is str:
+            if not isinstance(v, str):
+                raise SettingsError(f"emulator.{k}", v, "is not a string")
+        elif _TYPES.get(k) is bool:
+            if not isinstance(v, bool):
+                raise SettingsError(f"emulator.{k}", v, "is not true or false")
+        else:
+            _check_number(f"emulator.{k}", v)
+            if k in _FLOATS:  # a plain float for the compiled boards (no numpy integer)
+                table[k] = float(v)
+            elif k in _INTS and isinstance(v, numbers.Integral):  # numpy's too: a plain int
+                table[k] = int(v)
+    s = replace(EmulatorSettings(), effects=effects, physics=physics, **table)
+    _validate(s)
+    return s
+
+
+def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
+                            payload_kg: str | float | None = None) -> RobotSettings:
+    """``robot`` with its ``[emulator]`` table's ``profile`` and ``physics.payload_kg`` replaced
+    (the ``fake://?profile=…&payload=…`` query); each value checked, errors naming it."""
+    if profile is None and payload_kg is None:
+        return robot
+    section = robot.sections.get("emulator", {})
+    if not isinstance(section, Mapping):
+        raise SettingsError("emulator", section, "is not a table")
+    table: dict[str, Any] = dict(section)
+    if profile is not None:
+        if profile not in PROFILES:
+            raise SettingsError("profile", profile, f"must be one of {', '.join(PROFILES)}")
+        table["profile"] = profile
+    if payload_kg is not None:
+        try:
+            kg = float(payload_kg)
+        except ValueError:
+            raise SettingsError("payload", payload_kg, "is not a number of kg") from None
+        if not 0.0 <= kg <= 3.0:
+            raise SettingsError("payload", payload_kg, "must be 0..3 kg (the paper's maximum)")
+        physics = table.get("physics", {})
+        if not isinstance(physics, Mapping):
+            raise SettingsError("emulator.physics", physics, "is not a table")
+        table["physics"] = {**physics, "payload_kg": kg}
+    out = replace(robot, sections={**robot.sections, "emulator": table})
+    emulator_settings(out)  # validates the result
+    return out
+
+
+def _check_number(path: str, v: object) -> None:
+    if not is_real(v):
+        raise SettingsError(path, v, "is not a finite number")
+    number = finite_float(v)
+    if number is None or abs(number) > 1e12:
+        raise SettingsError(path, v, "is not a finite number within ±1e12")
+
+
+def _whole(path: str, v: object) -> int:
+    """``v`` (a real number) as a plain int, if it is a whole number of any int type."""
+    if not isinstance(v, numbers.Integral):
+        raise SettingsError(path, v, "must be a whole number")
+    return int(v)
+
+
+def _validate(s: EmulatorSettings) -> None:
+    if s.uart_receive not in ("polling", "blocking"):
+        raise SettingsError("emulator.uart_receive", s.uart_receive,
+                            "must be 'polling' or 'blocking'")
+    if not 10_000 <= s.i2c_hz <= 3_400_000:
+        raise SettingsError("emulator.i2c_hz", s.i2c_hz, "is not an I²C clock (10 kHz..3.4 MHz)")
+    for name in ("rx_buffer_bytes", "tx_buffer_bytes", "host_buffer_bytes"):
+        v = getattr(s, name)
+        if not isinstance(v, int) or v < 1:
+            raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
+    for name, high_s in MAX_TIMES_S.items():
+        if not 0 <= getattr(s, name) <= high_s:
+            raise SettingsError(f"emulator.{name}", getattr(s, name), f"must be 0..{high_s:g} s")
+    if s.host_buffer_bytes > 1 << 20:
+        raise SettingsError("emulator.host_buffer_bytes", s.host_buffer_bytes,
+                            "must be at most 1048576 (what a client may queue is bounded)")
+    if s.reply_line_end not in ("", "\n", "\r\n"):
+        raise SettingsError("emulator.reply_line_end", s.reply_line_end,
+                            "must be '', '\\n' or '\\r\\n'")
+    if isinstance(s.deadband_counts, bool) or not isinstance(s.deadband_counts, int) or \
+            not 0 <= s.deadband_counts <= MAX_DEADBAND_COUNTS:
+        raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be a whole "
+                            f"number of encoder counts 0..{MAX_DEADBAND_COUNTS}")
+    if s.stop_rule not in STOP_RULES:
+        raise SettingsError("emulator.stop_rule", s.stop_rule,
+                            f"must be one of {', '.join(map(repr, STOP_RULES))}")
+    if not isinstance(s.recovery_duty, int) or not 1 <= s.recovery_duty <= 99:
+        raise SettingsError("emulator.recovery_duty", s.recovery_duty, "must be 1..99")
+    if not isinstance(s.seed, int) or not 0 <= s.seed < 2**32:
+        raise SettingsError("emulator.seed", s.seed, "must be a whole number 0..2**32-1")
+    if not isinstance(s.eeprom_cells, int) or not 5 <= s.eeprom_cells <= 65536:
+        raise SettingsError("emulator.eeprom_cells", s.eeprom_cells,
+                            "must be a whole number 5..65536 (the record takes 5 bytes)")
+    if 0 < s.effects.noise_rate_hz < 1e-3:
+        raise SettingsError("emulator.effects.noise_rate_hz", s.effects.noise_rate_hz,
+                            "must be 0 (off) or at least 0.001 Hz")
+    if not isinstance(s.effects.miss_above_duty, int):
+        raise SettingsError("emulator.effects.miss_above_duty", s.effects.miss_above_duty,
+                            "must be a whole number 0..99")

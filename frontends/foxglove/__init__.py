@@ -1,0 +1,1 @@
+"""Live view in Foxglove. Importing the package imports none of its modules."""
