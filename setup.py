@@ -13,8 +13,7 @@ plain-Python one or an editable install), never a second copy of the source
 (``docs/performance.md``).
 
 A regular (wheel) build compiles the modules named in ``cli/perf/hot_modules.py`` when mypyc (a
-build
-requirement) and a C compiler are at hand, as black's release wheels are built: each compiled
+build requirement) and a C compiler are at hand, as black's release wheels are built: each compiled
 module sits beside its source in the installed package and Python imports it first. mypyc names a
 module by its path, so it compiles a staged copy of the package laid out as it installs
 (``build/mypyc-stage/armbench/...``). An editable install never compiles (it runs the source being

@@ -1,6 +1,6 @@
 """Every number option of the command line has a range (:mod:`armbench.cli.commands.bounds`), and a
-value
-outside it is one line naming the option, the value and the range, exit 2, before anything runs.
+value outside it is one line naming the option, the value and the range, exit 2, before anything
+runs.
 
 Found by issue 38: ``armbench ros2 --pace-timeout 1e300`` and ``--realtime-factor 1e-300`` died
 of an ``OverflowError``, ``monitor --reply-timeout 1e-300`` hung, ``monitor --rate nan`` and

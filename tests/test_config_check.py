@@ -100,7 +100,7 @@ def test_the_packaged_configs_pass_the_check() -> None:
     """The packaged bench config (limits of ros2-square, which runs only when named, included)
     and twin-check's (a ``[suites."twin-check"]`` table, ``twin.*`` limits)."""
     check_config(load_config(None), RobotSettings())
-    check_config(load_limits(ROOT / "bench" / "twin_check.toml"), RobotSettings())
+    check_config(load_limits(ROOT / "bench" / "twin_check" / "twin_check.toml"), RobotSettings())
 
 
 def test_a_misspelt_limit_stops_the_run_before_anything_moves(

@@ -1,6 +1,5 @@
 """The differential fuzzer of the UART (``fakes/avr/fuzzer.py``, ``fakes/avr/fuzz_session.py``): a
-few
-sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
+few sessions on a fixed seed agree on both sides; the sessions kept in ``fuzz/corpus/differential``
 (minimised divergences, fixed or explained) replay without divergence; and the comparison does
 catch the firmware bugs it found (the old 16-bit position sum, the slave that waited for its
 EEPROM record and the position report of a counter beyond 16 bits, rebuilt here). A power cut

@@ -1,8 +1,7 @@
 """The emulated firmware as a whole: Algorithm 1/2 over I²C, UART timing, EEPROM, recovery, faults.
 
 Everything runs on virtual time (``armbench.fakes.clock.vclock``); each test drives the arm like a
-host
-would,
+host would,
 through ``host_write`` and the reply stream, and checks against ground truth.
 """
 

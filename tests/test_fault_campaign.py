@@ -531,8 +531,7 @@ def test_a_trial_measures_the_same_at_any_loop_time(tmp_path: Path) -> None:
     """The same trial run at loop times 0, 10.9 s and 987.6 s gives the same figures (it did not
     while the master's bus clock drifted with the absolute time: see ``NS_PER_CYCLE`` in
     ``fakes/firmware/boards.py``); a lap time may differ in its last bits, as a difference of two
-    absolute
-    loop times."""
+    absolute loop times."""
     config = tmp_path / "bench.toml"
     config.write_text(SMALL_ACCURACY)
     figures = []

@@ -1,6 +1,5 @@
 """The event-driven joint model (``fakes/twin/joint.py``) against the cycle-by-cycle reference and
-the
-paper: speed law (12), Hall homing, limits, and the physical effects."""
+the paper: speed law (12), Hall homing, limits, and the physical effects."""
 
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ def test_the_runner_writes_records_and_renders_nothing() -> None:
 
 def test_the_worker_processes_import_nothing_of_the_runner() -> None:
     """No cycle between the runner and its worker processes: ``bench.workers`` only runs jobs."""
-    mods = _modules_after("import armbench.bench.runner.workers")
+    mods = _modules_after("import armbench.bench.workers.worker_process")
     assert not any(m.startswith("armbench.bench.runner") for m in mods), sorted(mods)
 
 

@@ -1,6 +1,6 @@
 """A peer's text echoed shortened (:mod:`armbench.drivers.model.peer_text`): the first characters
-and the
-whole length, never the megabytes (issue 38: a 10 MB joint name was echoed whole into a ROS 2
+and the whole length, never the megabytes (issue 38: a 10 MB joint name was echoed whole into a ROS
+2
 status, an event and a log line; the same path end to end: ``tests/test_ros2_node.py``)."""
 
 from __future__ import annotations

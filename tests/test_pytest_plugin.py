@@ -19,8 +19,7 @@ pytest_plugins = ["pytester"]
 
 def plugin() -> list[str]:
     """``-p armbench.cli.plugin.pytest_plugin`` unless the installed ``pytest11`` entry point loads
-    it
-    already (registering the module twice under two names is an error); and labgrid's plugin
+    it already (registering the module twice under two names is an error); and labgrid's plugin
     (installed with the labgrid extra) kept out of the users' sessions, as a user without a lab
     would. The sessions run in processes of their own, as a user's do (in-process, pytester
     would drop what a session imported, and numpy cannot be imported twice in one process)."""

@@ -1,6 +1,5 @@
 """The node's intake of trajectories (:mod:`armbench.frontends.ros2_node.intake`): every trajectory
-it
-hears of gets exactly one final status, and every status says whose it is.
+it hears of gets exactly one final status, and every status says whose it is.
 
 No ROS needed: the intake takes a message's fields and rclpy's ``MessageInfo`` as plain values, so
 the messages here are ``SimpleNamespace`` objects with the fields of a ``JointTrajectory`` and the

@@ -337,7 +337,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
     tree = tmp_path / "site"
     package = tree / "armbench"  # laid out as setup.py installs it, less firmware/
     shutil.copytree(ROOT / "api", package, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("bench", "capture", "cli", "drivers", "fakes", "metrics", "record", "reports"):
+    for name in ("bench", "cli", "drivers", "fakes", "frontends", "metrics", "record", "reports"):
         shutil.copytree(ROOT / name, package / name, ignore=shutil.ignore_patterns("__pycache__"))
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--port", "avr://", "--out", str(out), cwd=tmp_path,
@@ -349,7 +349,7 @@ def test_avr_without_firmware_sources_is_refused_before_a_folder_exists(tmp_path
 
 def test_a_config_path_that_is_not_utf8_is_refused_naming_it(tmp_path: Path) -> None:
     config = os.fsdecode(os.fsencode(tmp_path) + b"/limits-\xff.toml")
-    shutil.copy(ROOT / "bench" / "default_bench.toml", config)
+    shutil.copy(ROOT / "record" / "default_bench.toml", config)
     out = tmp_path / "run"
     refused = _bench("run", "accuracy", "--config", config, "--out", str(out), cwd=tmp_path)
     _one_line_error(refused, "--config", "limits-\\xff.toml", "not valid UTF-8")

@@ -923,12 +923,10 @@ def test_run_sync_picks_the_virtual_loop_for_fake(tmp_path: Path) -> None:
 
 
 def test_parallel_trials_commit_in_order_on_one_run_clock(tmp_path: Path) -> None:
-    """``fake://`` trials measured by two worker processes (``armbench.bench.runner.workers``):
-    committed
-    in
-    index order, each starting where the previous ended on the run clock, the capture one stream
-    on that clock holding every trial's frames; the same figures and trial times as the same
-    trials measured in turn on one loop."""
+    """``fake://`` trials measured by two worker processes
+    (``armbench.bench.workers.worker_process``): committed in index order, each starting where the
+    previous ended on the run clock, the capture one stream on that clock holding every trial's
+    frames; the same figures and trial times as the same trials measured in turn on one loop."""
     config = write_config(tmp_path, trials=4)
     runs = {}
     for workers in (2, 1):

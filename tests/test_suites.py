@@ -1,8 +1,7 @@
 """The bench suites end to end: accuracy, repeatability and start-up recovery.
 
 Each suite runs against the emulator over ``fake://`` on virtual time
-(``armbench.fakes.clock.vclock``)
-with small
+(``armbench.fakes.clock.vclock``) with small
 parameters, through the same calls the runner makes (``params`` → ``plan`` → ``run_trial`` per
 trial → ``summarize``). Checks: every trial is measured, the figures are present and plausible,
 and each suite-level figure equals what the metric functions of ``armbench.metrics`` give on

@@ -1,6 +1,6 @@
 """What a failing twin's divergence looks like (``armbench.bench.twin_check.diagnosis``), on
-synthetic
-reply streams with one known effect each: a joint moving from rest to rest, lifting and lowering
+synthetic reply streams with one known effect each: a joint moving from rest to rest, lifting and
+lowering
 back by about as much (the way step loss shows on a lifting joint), at the arm's reply rate, the
 arm's stream with a count of noise; the twin's stream the same motion with the effect, or the
 arm's with it (play, step loss: the arm has what the twin lacks). The streams are made here,

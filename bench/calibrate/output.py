@@ -1,8 +1,8 @@
 """What a calibration writes: the settings file (every fitted value with its standard error as a
 comment beside it), the fit as JSON, and the calibration page (HTML in the report's style), which
 the caller renders (the command line passes
-:func:`armbench.reports.pages.calibration_page.render_page`:
-the report is a layer above the bench, ``docs/architecture.md``).
+:func:`armbench.reports.pages.calibration_page.render_page`: the report is a layer above the bench,
+``docs/architecture.md``).
 
 The settings file is a complete robot settings TOML: ``--settings robot.toml`` and
 ``fake://?settings=robot.toml`` load it. Fitted values enter it clamped to the documented range of

@@ -5,10 +5,10 @@ With ``isolation = "trial"`` each trial on the emulator is self-contained: a fre
 powered emulator seeded from (seed, suite, index, attempt), its own connection and capture part.
 Nothing of it depends on the absolute loop time (the emulator's clock is put on a nanosecond
 grid from its power-up, ``fakes/firmware/boards.py``), so a trial measured on a fresh virtual-time
-loop in
-another process gives the same figures as one measured in turn on the run's loop.
+loop in another process gives the same figures as one measured in turn on the run's loop.
 :class:`ParallelTrials` hands such trials to ``[bench] workers`` processes (default: one per CPU,
-at most two; the process machinery is ``armbench.bench.runner.workers``) and commits them in order:
+at most two; the process machinery is ``armbench.bench.workers.worker_process``) and commits them
+in order:
 ``started_s`` on the run clock, ``results.json``, and the capture part merged with its times
 moved onto the run clock.
 
@@ -43,7 +43,7 @@ from armbench.bench.runner.capture_parts import job_part_tag
 from armbench.bench.runner.cluster import DaskCluster
 from armbench.bench.runner.options import BenchPlan, PlannedSuite, RunAborted
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
-from armbench.bench.runner.workers import run_job, worker_init
+from armbench.bench.workers.worker_process import run_job, worker_init
 from armbench.record import Trial, path_inside
 
 __all__ = ["JobResult", "ParallelTrials", "TrialJob"]

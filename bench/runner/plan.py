@@ -11,8 +11,7 @@ parameters (``Suite.params``) and plan, every limit and tolerance pattern and ``
 table of the config (:mod:`~armbench.bench.runner.config_check`), the baseline (readable, same
 record schema, same limits spec, same suite versions), the tracker plug-in and the power switch.
 Any problem raises an :class:`~armbench.drivers.model.errors.ArmbenchError` naming the field: the
-CLI
-prints one line and exits 2.
+CLI prints one line and exits 2.
 """
 
 from __future__ import annotations

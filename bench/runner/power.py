@@ -62,9 +62,8 @@ class _EmulatorLike(Protocol):
 class EmulatorPower:
     """The power control of the ``fake://`` emulator.
 
-    ``source`` is the :class:`~armbench.fakes.firmware.arm_emulator.ArmEmulator` itself, or
-    anything with an
-    ``emulator``
+    ``source`` is the :class:`~armbench.fakes.firmware.arm_emulator.ArmEmulator` itself, or anything
+    with an ``emulator``
     attribute (an :class:`~armbench.drivers.host.arm.Arm` or a fake transport), resolved at each
     switch,
     so the
@@ -134,8 +133,7 @@ class HarnessPower:
     stalled arm re-referenced (:meth:`re_reference`).
 
     ``source`` is the :class:`~armbench.fakes.avr.harness.Harness`, an ``avr://`` transport or an
-    arm on
-    one, resolved at each switch (the arm's transport is a new one after a reconnection).
+    arm on one, resolved at each switch (the arm's transport is a new one after a reconnection).
     """
 
     def __init__(self, source: Any) -> None:

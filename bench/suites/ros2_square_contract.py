@@ -1,6 +1,5 @@
 """The ros2-square suite's contract: what :mod:`armbench.frontends.ros2_node.square_suite` records
-and
-its report section (``armbench.reports.sections.ros2_square``) reads, registered when imported
+and its report section (``armbench.reports.sections.ros2_square``) reads, registered when imported
 (found by :func:`armbench.record.suite_contract.contracts`). Plain data only.
 """
 

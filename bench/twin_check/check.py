@@ -21,8 +21,8 @@ link's timing scatter (the RMS of the replies' timing residuals, their tail too)
 speed and the angle's quantisation (:func:`armbench.bench.twin_check.align.floor_rad`), the
 uncertainty of each move's start as the arm's own replies tell it times the speed
 (:func:`armbench.bench.twin_check.align.onset_floor_rad`), and the arm's reaction scatter (the
-spread
-of the measured start shifts) by replay: the twin replayed with each command moved by ± its RMS,
+spread of the measured start shifts) by replay: the twin replayed with each command moved by ± its
+RMS,
 compared with itself as the arm is (:func:`replay_floor`). The verdict allows
 ``k × floor + abs`` (per joint in counts, for the arrivals in s, for the TCP in mm; ``k`` and
 ``abs`` in the config's ``[suites."twin-check"]``
@@ -34,8 +34,7 @@ against ``tcp_abs_mm``). The verdict is ``pass`` when every judged figure is wit
 ``fail`` (the figures judged in :mod:`armbench.bench.twin_check.figures`). Each failing joint gets a
 diagnosis: what its divergence looks like and what to do
 (:mod:`armbench.bench.twin_check.diagnosis`). :mod:`armbench.bench.twin_check.twin_record` writes a
-check as a run
-record.
+check as a run record.
 
 A capture of several sessions (a run's capture holds one emulator per trial, a foreign arm
 restarts at each connection) is cut where the replies jump further than the joints can move, or

@@ -4,8 +4,7 @@
 adds a float option and records its bound on the parser; ``armbench``'s main runs
 :func:`check_bounds` before the command, which refuses a value outside it in one line naming the
 option, the value and the range (:class:`~armbench.drivers.model.errors.InvalidTargetError`, exit
-2).
-So no option takes NaN, an infinity, or a value so large or so small that a sleep, a timer or a
+2). So no option takes NaN, an infinity, or a value so large or so small that a sleep, a timer or a
 conversion overflows (``--pace-timeout 1e300``, ``--realtime-factor 1e-300``), and the range of
 each is in one place. Every float option of every command is declared so, but the targets and
 coordinates, which the robot model checks (joint limits, reach); ``tests/test_cli_bounds.py``

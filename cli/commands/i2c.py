@@ -4,8 +4,7 @@ On a Linux host wired to the arm's bus (``--bus N``, ``/dev/i2c-N`` through smbu
 emulator's bus (``--port fake://``, the default, in-process on virtual time). Every address that
 acknowledges is listed; the addresses of the robot settings' joints 2–4 are then read at register
 0x04 (WHO_AM_I, ``0xA0 | joint number``; see ``fakes/firmware/i2c.py`` for the register layout).
-Joint 1 is
-the bus master and has no address.
+Joint 1 is the bus master and has no address.
 
 Exit status: 0 when every slave joint answers with its WHO_AM_I, 1 when one is missing or answers
 wrongly, 2 for an unusable bus or port.

@@ -189,8 +189,8 @@ async def monitor(port: str, settings: RobotSettings, *, json_lines: bool = Fals
                   transport: Transport | None = None) -> int:
     """Stream the arm's state to ``out`` until ``duration_s`` (loop seconds) or cancellation;
     with ``foxglove`` (``HOST:PORT``) to Foxglove too (:mod:`armbench.frontends.foxglove.live`; a
-    host other
-    than loopback only with ``allow_remote``). ``transport``: one from :func:`fresh_transport`
+    host other than loopback only with ``allow_remote``). ``transport``: one from
+    :func:`fresh_transport`
     (its emulator closed at the end), else the driver opens ``port``."""
     try:
         return await _monitor(port, settings, json_lines=json_lines, duration_s=duration_s,

@@ -183,7 +183,7 @@ def _warm_worker() -> int:
 
 
 def _pool_start_s() -> float:
-    from armbench.bench.runner.workers import worker_init
+    from armbench.bench.workers.worker_process import worker_init
 
     start = time.perf_counter()
     with concurrent.futures.ProcessPoolExecutor(

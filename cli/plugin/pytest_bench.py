@@ -1,8 +1,7 @@
 """The armbench pytest plugin's fixtures and hooks: bench tests in plain pytest, into a run record.
 
 Loaded by :mod:`armbench.cli.plugin.pytest_plugin` (the ``pytest11`` entry point) when
-pytest-asyncio is
-installed; the options, the fixtures and the record are described there.
+pytest-asyncio is installed; the options, the fixtures and the record are described there.
 """
 
 from __future__ import annotations
@@ -345,9 +344,8 @@ def record_measurement(bench_record: BenchTrial) -> Callable[..., Measurement]:
 
 @pytest_asyncio.fixture
 async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> AsyncIterator[Any]:
-    """A connected :class:`~armbench.drivers.host.arm.Arm` on ``--arm-port``, closed after the
-    test. On
-    a target that starts fresh arms (``fake://``) a new one per test, built from the session's
+    """A connected :class:`~armbench.drivers.host.arm.Arm` on ``--arm-port``, closed after the test.
+    On a target that starts fresh arms (``fake://``) a new one per test, built from the session's
     settings, seed and faults (``--arm-settings`` over the port's query over the settings file);
     its traffic capture goes to ``DIR/captures/`` with ``--arm-record``."""
     from armbench.drivers.host.arm import Arm

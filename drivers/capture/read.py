@@ -1,6 +1,6 @@
 """One reader for captures of either format: ``capture.mcap``
-(:mod:`armbench.drivers.capture.mcap_writer`)
-and the older JSON Lines ``capture.jsonl`` (:mod:`armbench.drivers.capture.jsonl`).
+(:mod:`armbench.drivers.capture.mcap_writer`) and the older JSON Lines ``capture.jsonl``
+(:mod:`armbench.drivers.capture.jsonl`).
 
 :func:`open_capture` yields the same :class:`~armbench.drivers.capture.jsonl.CaptureRecord` records
 for both, in time order; :func:`capture_lines` gives an MCAP capture as the JSON Lines text the

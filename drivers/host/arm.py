@@ -169,8 +169,8 @@ class Arm(ArmLink):
     """A connection to the arm. Make one with :meth:`connect` and use it as ``async with``.
 
     The connection, its counters and its life cycle are
-    :class:`~armbench.drivers.host.link.ArmLink`'s:
-    :attr:`frames_received` (valid replies), :attr:`frames_dropped` (framer error events after the
+    :class:`~armbench.drivers.host.link.ArmLink`'s: :attr:`frames_received` (valid replies),
+    :attr:`frames_dropped` (framer error events after the
     stream was in sync), :attr:`discarded_bytes` (bytes thrown away, CR/LF excluded),
     :attr:`commands_sent`, :attr:`resends`, :attr:`reconnects`.
     """
@@ -189,10 +189,8 @@ class Arm(ArmLink):
         ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
         longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
         receives every frame in and out (see :mod:`armbench.drivers.capture.jsonl`), times counted
-        from
-        the opening; or a :class:`~armbench.drivers.capture.jsonl.CaptureWriter` with a time origin
-        of the
-        caller's, which the connection uses and closes. ``reconnect``: True or a
+        from the opening; or a :class:`~armbench.drivers.capture.jsonl.CaptureWriter` with a time
+        origin of the caller's, which the connection uses and closes. ``reconnect``: True or a
         :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
         for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
         unopened transport to use instead of ``open_transport(port)`` (reconnections still use
@@ -384,8 +382,7 @@ class Arm(ArmLink):
         joint state; an unreachable target raises
         :class:`~armbench.drivers.model.kinematics.UnreachableError`, one outside the limits
         :class:`~armbench.drivers.model.kinematics.JointLimitError`, before anything is sent. Then
-        as
-        :meth:`move_joints`.
+        as :meth:`move_joints`.
         """
         sol = ik_best(xyz_m, self.settings, roll=roll_rad, branch=branch, near=self.state.q_rad)
         return await self.move_joints(sol.q_protocol, duty, wait=wait, coordinated=coordinated,
@@ -413,8 +410,7 @@ class Arm(ArmLink):
                           tolerance_rad: float | Sequence[float] | None = None,
                           timeout_s: float | None = None) -> PathRun:
         """Move the TCP along ``path`` (a :class:`~armbench.drivers.host.motion.Path` or a sequence
-        of
-        points,
+        of points,
         metres) at ``speed_m_s`` with tool roll ``roll_rad``.
 
         The path is cut into waypoints at most ``spacing_m`` apart (corners kept), solved by IK on

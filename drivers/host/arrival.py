@@ -117,9 +117,8 @@ class ArrivalTracker:
         newer command superseded this one, and what the link's waits raise. Time the port was
         lost does not count against the deadline: while the reader reconnects the move waits for
         it (the reconnect policy bounds that wait and raises
-        :class:`~armbench.drivers.model.errors.LinkLostError`), and afterwards the deadline is
-        later by
-        the outage's length."""
+        :class:`~armbench.drivers.model.errors.LinkLostError`), and afterwards the deadline is later
+        by the outage's length."""
         link = self._link
         cmd = self._cmd
         assert link._loop is not None and cmd is not None

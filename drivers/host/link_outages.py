@@ -10,8 +10,7 @@ good) and ends at the first valid reply after it. Two kinds:
   fails with :class:`~armbench.drivers.model.errors.LinkLostError`; without one the loss is final.
 - ``"reply silence"``: the port stayed open but no valid reply came for longer than the link's
   reply timeout. Waits raise :class:`~armbench.drivers.model.errors.ReplyTimeoutError` as before;
-  the
-  gap is recorded here once replies come back (or shown as ongoing).
+  the gap is recorded here once replies come back (or shown as ongoing).
 
 What was lost: ``commands_unacknowledged`` counts the commands written after the last reply
 before the loss (the far end may never have read them) and the writes refused while the link was

@@ -1,8 +1,7 @@
 """Motion planning on the host: speed law (12), coordinated duties, Cartesian paths, run records.
 
 Pure functions and small value types, no I/O and no clocks; :mod:`armbench.drivers.host.arm` uses
-them
-to turn a
+them to turn a
 move or a path into commands.
 
 Speed law (12) of the paper: a joint moving at PWM duty ``v`` (1..99) makes one motor step every

@@ -2,10 +2,9 @@
 
 The driver's reader hands every chunk it reads to one :class:`ReplyStream` with the loop time it
 read it at; the stream frames it (:class:`~armbench.drivers.model.protocol.Framer`), decodes the
-replies
-into :class:`~armbench.drivers.host.state.JointState` and keeps the counters. What to do with the
-result
-(wake waiters, write the capture, fill recorders) is the caller's, so the stream is tested with
+replies into :class:`~armbench.drivers.host.state.JointState` and keeps the counters. What to do
+with the result (wake waiters, write the capture, fill recorders) is the caller's, so the stream is
+tested with
 plain bytes, in the style of h11::
 
     stream = ReplyStream(settings.lower_rad, settings.upper_rad)

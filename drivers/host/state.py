@@ -33,8 +33,7 @@ class JointState(NamedTuple):
 
 class GroundTruth(Protocol):
     """What an emulator reports beside each reply (``armbench.fakes.firmware.boards.TruthSample``):
-    the real
-    joint
+    the real joint
     angles (``true_rad``) and the firmware's belief (``firmware_rad``) at ``t_s``."""
 
     @property

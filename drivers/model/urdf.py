@@ -1,8 +1,8 @@
 """The arm as a URDF from the DH table and the robot settings, for RViz and Foxglove's 3D panel.
 
 The kinematic tree is the standard-DH chain of :mod:`armbench.drivers.model.kinematics`: joint
-``j{i}``
-(revolute, axis ``±z`` by the joint's ``sign``, origin turned by its ``offset_rad``) turns frame
+``j{i}`` (revolute, axis ``±z`` by the joint's ``sign``, origin turned by its ``offset_rad``) turns
+frame
 ``link{i}_root`` in its parent (``base_link`` or ``link{i-1}``); DH frame ``i`` is the link
 ``link{i}``, fixed to the root by ``Tz(d_i)·Tx(a_i)·Rx(α_i)``. So a joint position is the
 protocol angle the driver reports (``JointState`` of ``/joint_states``) and the origin of

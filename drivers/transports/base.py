@@ -35,11 +35,9 @@ class Transport(abc.ABC):
     :meth:`close`. Also an async context manager that opens and closes.
 
     Errors: :class:`~armbench.drivers.model.errors.TransportError` (naming the port) when the port
-    cannot
-    be
+    cannot be
     opened or configured or is used while not open;
-    :class:`~armbench.drivers.model.errors.PortLostError`
-    when
+    :class:`~armbench.drivers.model.errors.PortLostError` when
     the port or its peer goes away while open (EOF, reset, EIO on a pty whose other end closed,
     server killed). After a loss every read/write raises ``PortLostError`` again and
     :meth:`close` still works.
@@ -59,8 +57,7 @@ class Transport(abc.ABC):
     def query(cls, port: str) -> Given:
         """The settings ``port``'s query carries (seed, settings and fault files, ...), checked:
         a :class:`~armbench.drivers.model.errors.ArmbenchError` names a parameter this target does
-        not
-        know. None by default (the query, if any, is the transport's own business)."""
+        not know. None by default (the query, if any, is the transport's own business)."""
         return Given()
 
     @classmethod

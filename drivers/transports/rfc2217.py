@@ -4,11 +4,9 @@ COM-PORT-OPTION server such as ser2net (``accepter: telnet(rfc2217),tcp,PORT``).
 Opening connects over TCP, negotiates BINARY and SUPPRESS-GO-AHEAD both ways and our
 COM-PORT-OPTION, sets baud rate, data bits, parity and stop bits from
 :class:`~armbench.drivers.model.settings.SerialSettings`, and waits for the server to acknowledge
-each
-setting.
+each setting.
 It fails with a :class:`~armbench.drivers.model.errors.TransportError` naming the port when the
-server
-refuses
+server refuses
 COM-PORT-OPTION (a plain telnet server), does not answer within ``negotiation_timeout_s``, or
 acknowledges a different value than asked. Modem control (SET-CONTROL: DTR, RTS, flow control) is
 never required: servers on ptys and cheap bridges refuse or ignore it, so it is not sent.

@@ -4,8 +4,8 @@ pyserial-asyncio-fast.
 pyserial-asyncio-fast was chosen over pyserial-asyncio 0.6 on measured figures (see
 ``docs/transports.md`` and ``cli/perf/transports_perf.py``). The port is opened with the baud rate,
 data bits, parity and stop bits of :class:`~armbench.drivers.model.settings.SerialSettings`;
-modem-control
-ioctls that a pty does not support are ignored by pyserial. A Linux pty keeps baud rate and stop
+modem-control ioctls that a pty does not support are ignored by pyserial. A Linux pty keeps baud
+rate and stop
 bits but forces 8 data bits without parity, and glibc then reports the second ``tcsetattr``
 pyserial makes as EINVAL: on a pty use 8N1/8N2 (any baud rate); real UARTs take every setting.
 """

@@ -9,9 +9,8 @@ starts a new set of boards in lockstep with the loop (:mod:`armbench.fakes.avr.l
 clock is the boards', as fast as simavr simulates them; ``transport.emulator`` gives ground
 truth from the harness's joint model. On any other loop,
 ``avr://?firmware=DIR&settings=robot.toml&eeprom=DIR&control=FIFO`` starts the harness of
-:mod:`armbench.fakes.avr.harness` (built on first use) in real time on a new pty, and talks to
-joint 1's
-UART there as to a serial port (``eeprom`` and ``control`` are for this real-time port only).
+:mod:`armbench.fakes.avr.harness` (built on first use) in real time on a new pty, and talks to joint
+1's UART there as to a serial port (``eeprom`` and ``control`` are for this real-time port only).
 ``firmware`` names a folder of ``joint1..4.elf/.hex`` or a path with ``{n}`` (default: the
 reference firmware of ``firmware/``); ``eeprom`` a folder keeping the boards' EEPROM across runs
 (default: none, a new arm); ``control`` a FIFO taking the harness's commands, so a bench can

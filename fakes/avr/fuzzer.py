@@ -7,8 +7,7 @@ writes with pauses or sent back to back faster than the line, power cuts. :func:
 session of the corpus. :class:`Campaign` runs them coverage-guided: a session that executes a new
 firmware branch edge or instruction (the harness's ``--coverage``) joins the corpus. Each
 divergence (``fakes/avr/fuzz_session.py``) is minimised (:func:`minimise`) and saved as a session
-file
-that ``fuzz/fuzz_differential.py --replay`` and the tests replay. Everything is drawn from one
+file that ``fuzz/fuzz_differential.py --replay`` and the tests replay. Everything is drawn from one
 ``random.Random(seed)``, so a campaign is replayable from its seed.
 """
 

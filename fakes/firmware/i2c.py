@@ -2,8 +2,8 @@
 
 The master calls ``bus.i2c_rdwr(*msgs)`` with messages of ``smbus2.i2c_msg``'s layout
 (:mod:`armbench.fakes.firmware.i2c_messages`) exactly as it would on a real ``smbus2.SMBus``: the
-call is
-synchronous, fills read buffers, and raises ``OSError`` with ``EREMOTEIO`` when a slave does not
+call is synchronous, fills read buffers, and raises ``OSError`` with ``EREMOTEIO`` when a slave does
+not
 acknowledge its address (what Linux i2c-dev reports) or ``EIO`` on a bus error. Time is the bus's
 ``clock``: each transaction advances it by what the bus speed implies (start, 9 bits per byte with
 the acknowledge, stop, repeated starts), so the master's loop takes as long as it would on the

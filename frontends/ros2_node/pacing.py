@@ -5,8 +5,8 @@ second) and ``--slow-subscriber pace`` (:class:`SubscriberPacer`: every half his
 reliable subscriber of ``/joint_states`` has acknowledged). Each waits on a thread of the loop's
 executor (:func:`hold`): on virtual time the clock does not jump while an executor job is under
 way (:class:`~armbench.fakes.clock.vclock.VirtualTimeLoop`), so virtual time stands still as it
-would in
-a blocking sleep, but the loop still runs its signal handlers (SIGTERM) and the hold ends as soon
+would in a blocking sleep, but the loop still runs its signal handlers (SIGTERM) and the hold ends
+as soon
 as its task is cancelled (a blocking ``time.sleep`` held a node at ``--realtime-factor 1e-5`` for
 ~240 s per reply, deaf to SIGTERM). Real seconds are ``time.perf_counter``: these holds are about
 real time.
