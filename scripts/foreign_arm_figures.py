@@ -1,4 +1,4 @@
-"""The foreign-arm figures of docs/measurements.md for one arm: calibrate it over TCP in real
+"""The foreign-arm figures of measurements/calibration.md for one arm: calibrate it over TCP in real
 time, run a held-out accuracy run, and twin-check that capture with the default twin and with
 the fitted one (RMS, floor and allowance in counts, j1..j4).
 

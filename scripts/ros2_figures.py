@@ -1,4 +1,4 @@
-"""Measure the ROS 2 node (``docs/ros2.md``): ``/joint_states`` received by a subscriber process as
+"""Measure the ROS 2 node (``docs/ros.md``): ``/joint_states`` received by a subscriber process as
 a fraction of the replies the arm sent in the same span, over ``fake://`` on virtual time (with
 ``/clock``) and over ``armbench emulate --pty`` in real time, and the latency from a reply read by
 the driver to the message in the subscriber (p50, p99; real time only, where stamps are wall-clock).

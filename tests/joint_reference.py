@@ -16,7 +16,7 @@ from armbench.fakes.twin.physics import end_stop_steps
 
 
 class ReferenceJoint:
-    """The Fig. 7 state machine run one control cycle at a time (see ``docs/emulator-joint.md``)."""
+    """The Fig. 7 state machine run one control cycle at a time (see ``docs/emulator.md``)."""
 
     def __init__(self, joint: JointSettings, *, deadband_counts: int = 1,
                  stop_rule: str = "window", motor_steps: int = 0, counter: int | None = None,

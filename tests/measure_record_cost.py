@@ -4,7 +4,7 @@ Runs ``armbench run accuracy`` on ``fake://`` with ``--workers 1`` (every write 
 and ``[suites.accuracy] laps = N`` in a child process that reports, as it exits, its
 ``/proc/self/io`` counters (``wchar``: bytes handed to ``write``) and its peak resident memory,
 also as it was when the reports (``junit.xml``, ``report.html``) began.
-Used for the figures in ``docs/reliability.md``::
+Used for the figures in ``measurements/reliability.md``::
 
     python3 tests/measure_record_cost.py 10 200
 """

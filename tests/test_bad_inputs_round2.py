@@ -1,11 +1,11 @@
-"""The second adversarial round on what the command line reads (the table "Second adversarial
-round — inputs" of ``docs/reliability.md`` names these tests): special files and oversized or
+"""The second adversarial round on what the command line reads (the table "Second adversarial round
+— inputs" of ``measurements/reliability.md`` names these tests): special files and oversized or
 deeply nested TOML, records holding integers Python will not convert, times and counts beyond what
 the record and the capture can store, a malformed scheduler address, a non-finite emulator seed,
-``campaign`` without ``--samples``. Each is one line on stderr naming the value, exit status 2,
-and no run folder created or file overwritten. The CLI runs in this process, except where the
-input could block or exhaust the process (a FIFO, ``/dev/zero``): there it runs as a child with a
-time and memory bound, so a regression fails instead of hanging the suite."""
+``campaign`` without ``--samples``. Each is one line on stderr naming the value, exit status 2, and
+no run folder created or file overwritten. The CLI runs in this process, except where the input
+could block or exhaust the process (a FIFO, ``/dev/zero``): there it runs as a child with a time and
+memory bound, so a regression fails instead of hanging the suite."""
 
 from __future__ import annotations
 

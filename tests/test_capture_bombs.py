@@ -1,5 +1,5 @@
-"""Captures that cost far more to read than they weigh (``docs/reliability.md``, third round):
-a zstd chunk of a few kB that expands to hundreds of MB, one that expands past the size it
+"""Captures that cost far more to read than they weigh (``measurements/reliability.md``, third
+round): a zstd chunk of a few kB that expands to hundreds of MB, one that expands past the size it
 claims, a metadata record of tens of MB, an attachment that expands without end. Each file is
 built here, small on disk (but for the metadata record, which is its own size); reading it is
 refused with an error naming the file, and the memory the reader allocates meanwhile

@@ -1,7 +1,7 @@
 """Bad captures and bad output paths given to ``armbench calibrate`` and ``armbench twin-check``:
 each is one line naming the file and what is wrong, exit status 2, no traceback, and no file of the
-user's lost or overwritten (``docs/reliability.md``, second adversarial round). Also the compiled
-build loading its own calibration output."""
+user's lost or overwritten (``measurements/reliability.md``, second adversarial round). Also the
+compiled build loading its own calibration output."""
 
 from __future__ import annotations
 

@@ -557,7 +557,7 @@ def test_ground_truth_beside_each_reply_includes_backlash() -> None:
         sample = arm.truth[-1]
         assert sample.firmware_rad[1] == pytest.approx(0.1, abs=2e-4)
         # the link sits half the gear play behind the motor's nominal angle (the play is centred
-        # on it: docs/emulator-joint.md), on the side it last came from
+        # on it: docs/robot-model.md), on the side it last came from
         assert sample.true_rad[1] - sample.firmware_rad[1] == pytest.approx(0.001, abs=2e-4)
         assert math.isfinite(sample.t_s)
 

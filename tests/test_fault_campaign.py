@@ -81,7 +81,7 @@ the float noise of the virtual clock (``test_kill_9_then_resume``).
 A bug found by this campaign and fixed: a trial's figures depended on the absolute virtual time
 it ran at (the master's bus clock drifted by float rounding; ``NS_PER_CYCLE`` in
 ``fakes/firmware/boards.py``), pinned by ``test_a_trial_measures_the_same_at_any_loop_time``; see
-``docs/reliability.md``.
+``measurements/reliability.md``.
 """
 
 from __future__ import annotations

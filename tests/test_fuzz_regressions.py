@@ -1,4 +1,5 @@
-"""Regression tests for the crashes the fuzzing campaign found (``fuzz/``, ``docs/fuzzing.md``).
+"""Regression tests for the crashes the fuzzing campaign found (``fuzz/``,
+``measurements/fuzzing.md``).
 
 Each test is the smallest reproduction of one finding through the public API, starting from the
 TOML text a user could write, and asserts the *correct* behaviour: a settings file is either

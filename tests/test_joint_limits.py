@@ -1,4 +1,4 @@
-"""Both limits of every joint are within the emulated arm's reach (``docs/emulator-joint.md``,
+"""Both limits of every joint are within the emulated arm's reach (``docs/emulator.md``,
 Hard limits): the end stops lie 1° beyond the configured limits, so the Hall sensor's error, which
 shifts what the firmware counts against the motor, never puts a stop inside a limit.
 

@@ -1,5 +1,5 @@
 """Log lines a peer causes once per event come at a bounded rate (``drivers/model/log_limit.py``,
-``docs/reliability.md``, third round): a few per interval, then one line with the count held
+``measurements/reliability.md``, third round): a few per interval, then one line with the count held
 back. Before, ``armbench emulate --tcp`` under a 50-client storm logged one WARNING per refused
 connection, 125 000 lines (11 MB) in 60 s.
 """

@@ -1,6 +1,6 @@
-"""Inputs of the adversarial round on the release build (``docs/reliability.md``, third round):
-each bad input is one line naming it, exit status 2, before any work, and nothing of the user's
-(or of the installed package) written. Real files, FIFOs and processes throughout.
+"""Inputs of the adversarial round on the release build (``measurements/reliability.md``, third
+round): each bad input is one line naming it, exit status 2, before any work, and nothing of the
+user's (or of the installed package) written. Real files, FIFOs and processes throughout.
 """
 
 from __future__ import annotations

@@ -153,6 +153,6 @@ def test_in_real_time_over_a_pty_the_suite_runs_the_same(tmp_path: Path) -> None
     suite = record["suites"][ROS2_SQUARE.suite]
     assert [t["status"] for t in suite["trials"]] == ["done"] * 2, suite["trials"]
     ros = _figures(record, ROS2_SQUARE.suite)
-    assert ros[ROS2_SQUARE.ratio] > 0  # both laps measured (the figure: docs/ros2.md)
+    assert ros[ROS2_SQUARE.ratio] > 0  # both laps measured (the figure: docs/ros.md)
     for style in ROS2_SQUARE.styles:
         assert ros[ROS2_SQUARE.metric(style, ROS2_SQUARE.laps)] == 1.0

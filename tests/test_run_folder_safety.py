@@ -1,5 +1,5 @@
-"""Run folders and ``--resume`` against adversarial use (``docs/reliability.md``, second round):
-one writer per folder (an OS lock a killed process releases), a resumed capture equal to the
+"""Run folders and ``--resume`` against adversarial use (``measurements/reliability.md``, second
+round): one writer per folder (an OS lock a killed process releases), a resumed capture equal to the
 uninterrupted one after ``kill -9`` or SIGTERM, an older ``capture.jsonl`` carried into the new
 capture, no code a folder names imported, and the bad inputs that used to leave a folder behind
 (a transport that cannot work, a path that is not UTF-8, an ``--out`` that cannot be written, a

@@ -1,7 +1,7 @@
 """Everything the command line reads is checked before anything moves or the run folder exists,
 and every bad file, path or port is one line on stderr with exit status 2 (issue 20; the table
-in ``docs/reliability.md`` names these tests). The CLI runs in this process (``cli.main``) except
-where a real pipe is the point."""
+in ``measurements/reliability.md`` names these tests). The CLI runs in this process
+(``cli.main``) except where a real pipe is the point."""
 
 from __future__ import annotations
 

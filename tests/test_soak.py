@@ -11,7 +11,7 @@ an hour): the frames go to the file, not to memory. No frame is dropped, no move
 ≤ warm-up + 5 MB; tracing makes it ~6× slower, too dear for the hour). The hour is marked
 ``slow`` (``pytest -m "not slow"`` leaves it out) but is part of the default run. Both print the
 memory at the start, after the warm-up and at the end, the CPU and wall time, and the capture's
-size (``-s``); figures in docs/reliability.md.
+size (``-s``); figures in measurements/reliability.md.
 """
 
 from __future__ import annotations

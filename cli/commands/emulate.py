@@ -64,7 +64,7 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    # flag > settings file > default, as everywhere (docs/targets.md): a --faults list replaces
+    # flag > settings file > default, as everywhere (docs/transports.md): a --faults list replaces
     # the file's [[faults]]
     inputs = FakeTransport.arm_inputs("fake://", resolve(given_by(
         {"settings": "--settings", "seed": "--seed", "faults": "--faults"},

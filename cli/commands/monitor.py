@@ -59,7 +59,7 @@ def run_on_port(port: str, main: Coroutine[Any, Any, T]) -> T:
 
 def command_inputs(port: str, settings_path: str | None) -> tuple[Target, ArmInputs]:
     """The port's target and a command's settings: ``--settings`` over the port's query over the
-    settings file over the defaults (``docs/targets.md``)."""
+    settings file over the defaults (``docs/transports.md``)."""
     target = target_of(port)
     return target, target.inputs(given_by({"settings": "--settings"}, settings=settings_path))
 

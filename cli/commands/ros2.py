@@ -4,7 +4,7 @@ square through ROS 2 against the driver's own run is the suite ``armbench run ro
 
 Needs the extra ``armbench[ros2]`` (rclpy and the message packages from pip); without it the
 command says so in one line (exit 2). Against ``fake://`` the emulator runs in-process on virtual
-time and the node publishes ``/clock``. See ``docs/ros2.md``.
+time and the node publishes ``/clock``. See ``docs/ros.md``.
 """
 
 from __future__ import annotations

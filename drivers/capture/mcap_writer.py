@@ -1,5 +1,5 @@
 """Traffic capture as MCAP with ROS 2 messages (``capture.mcap``): what Foxglove, PlotJuggler,
-RViz and ``ros2 bag`` open. Layout and figures: ``docs/capture.md``.
+RViz and ``ros2 bag`` open. Layout: ``docs/capture.md``; figures: ``measurements/capture.md``.
 
 Channels (CDR, ``ros2msg`` schemas of :mod:`armbench.drivers.model.ros2`):
 

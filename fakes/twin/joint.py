@@ -6,7 +6,7 @@ never loops per cycle or per step: between events (a stop, a reversal, the Hall 
 limit, a spurious encoder count, a new reference) the steps are computed arithmetically, so a move
 of 200 000 steps costs a handful of loop iterations (``iterations`` counts them).
 
-Conventions (``docs/emulator-joint.md`` has them in full, with the firmware's per-cycle state
+Conventions (``docs/emulator.md`` has them in full, with the firmware's per-cycle state
 machine): the state *at tick t* is the state when cycle t begins, so a reference set at tick t is
 seen by cycle t's action and a transition made by that action is stamped t + 1; a moving joint
 steps every 101 − v cycles (speed law (12)); ``counter = offset + floor(motor_steps × c)`` with

@@ -1,6 +1,6 @@
 """The stepper drive's vocabulary, shared by the joint model and its callers: the 80 µs control
 cycle, the PWM states of the paper's Fig. 7, speed law (12), a run of step pulses, and the
-drive train's simple imperfections (``docs/emulator-joint.md``)."""
+drive train's simple imperfections (``docs/robot-model.md``)."""
 
 from __future__ import annotations
 
@@ -89,7 +89,7 @@ class PhysicalEffects:
     this much after a reversal (hysteresis width). The encoder is on the motor, so only
     ``true_angle_rad`` sees it.
     ``noise_rate_hz``: spurious ±1 encoder counts per second of stepping at the commanded step
-    rate (see ``docs/emulator-joint.md`` for how it is drawn).
+    rate (see ``docs/robot-model.md`` for how it is drawn).
     """
 
     miss_probability: float = 0.0

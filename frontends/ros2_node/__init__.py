@@ -5,7 +5,7 @@ node (rclpy on a thread of its own beside the asyncio loop of the driver), :mod:
 client run as a separate process (the accuracy square sent as a trajectory, a ``/joint_states``
 listener), :mod:`.square` the comparison of the square through ROS with the driver's own
 coordinated run. rclpy and the message packages come from the extra ``armbench[ros2]``
-(``docs/ros2.md``); :func:`require_rclpy` says so when they are missing.
+(``docs/ros.md``); :func:`require_rclpy` says so when they are missing.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ def missing_ros2() -> str | None:
     for name in ROS2_MODULES:
         if importlib.util.find_spec(name) is None:
             return (f"the Python module {name!r} is not installed: "
-                    "pip install 'armbench[ros2]' (docs/ros2.md)")
+                    "pip install 'armbench[ros2]' (docs/ros.md)")
     return None
 
 
@@ -46,4 +46,4 @@ def require_rclpy() -> None:
         raise Ros2UnavailableError(
             f"rclpy is installed but does not load ({exc}); the ROS wheels set LD_LIBRARY_PATH "
             "by re-executing Python at start-up (ros_wheels_bootstrapper.pth): run Python "
-            "without -S / -I, or set LD_LIBRARY_PATH as docs/ros2.md says") from exc
+            "without -S / -I, or set LD_LIBRARY_PATH as docs/ros.md says") from exc

@@ -1,6 +1,6 @@
 """The ROS 2 node of ``armbench ros2``: the driver's arm on a ROS 2 graph (real rclpy, Fast DDS).
 
-Topics (under the node's namespace, ``/`` by default; ``docs/ros2.md``):
+Topics (under the node's namespace, ``/`` by default; ``docs/ros.md``):
 
 =================================  ==============================  ============================
 ``/joint_states``                  ``sensor_msgs/JointState``      every reply of the arm

@@ -18,7 +18,7 @@ its arrival (times from that command), errors against the closed square with the
 figures. Names: ``ros2.<style>.<figure>`` with the accuracy suite's figure names, and
 ``ros2.path_error_ratio`` = trajectory mean / coordinated mean. Each ROS lap has a node of its own
 in a namespace of its own, so trials measured at once do not hear each other; on virtual time the
-node publishes ``/clock``. See ``docs/suites.md`` and ``docs/ros2.md``.
+node publishes ``/clock``. See ``docs/suites.md`` and ``docs/ros.md``.
 """
 
 from __future__ import annotations
