@@ -3,8 +3,8 @@
 A suite's contract names what the suite records and the report reads: the suite's name, its
 metric names, its trial and suite parameters, the keys of its samples and events, and the
 headline figures the report leads with. Each contract is defined with its suite, in a light
-module of plain data (no numpy, no driver) that the suite and its report section both import and
-that calls :func:`register` when imported. This module holds what every contract shares
+module of plain data (no numpy, no driver) that the suite and its report section both import.
+This module holds what every contract shares
 (:class:`Headline`, :class:`SampleKeys`, the samples' rounding) and the registry: record readers
 (the record, the metrics, the report) find a contract by its suite's name with :func:`contract`,
 never by importing a suite.

@@ -81,8 +81,8 @@ def _order(name: str) -> tuple[int, str]:
 def _suites() -> dict[str, str]:
     """:data:`SUITES`, built on first use: suite name on the command line → ``"module:Class"``
     (imported lazily), in the default order: the entry points of :data:`ENTRY_POINT_GROUP` that
-    armbench declares without an extra. The same dict on every access (a test
-    may add to it)."""
+    armbench declares without an extra. The same dict on every access (a test may add to
+    it)."""
     if not _built:
         _built.append(True)
         own = {name: _target(ep) for name, ep in entry_points.registered(ENTRY_POINT_GROUP).items()
