@@ -3,30 +3,27 @@
 A suite's contract names what the suite records and the report reads: the suite's name, its
 metric names, its trial and suite parameters, the keys of its samples and events, and the
 headline figures the report leads with. Each contract is defined with its suite, in a light
-module of plain data (no numpy, no driver) that the suite and its report section both import and
-that calls :func:`register` when imported. This module holds what every contract shares
+module of plain data (no numpy, no driver) that the suite and its report section both import.
+This module holds what every contract shares
 (:class:`Headline`, :class:`SampleKeys`, the samples' rounding) and the registry: record readers
 (the record, the metrics, the report) find a contract by its suite's name with :func:`contract`,
 never by importing a suite.
 
-The registry is filled on first use by discovery, so adding a suite edits no list: every module
-of :data:`BUILTIN_PACKAGE` whose name ends in :data:`CONTRACT_SUFFIX`, then every entry point of
-the group :data:`ENTRY_POINT_GROUP` (another distribution's suites). Only those modules are
-imported, never the suites themselves.
+The registry is filled on first use from the entry points of the group :data:`ENTRY_POINT_GROUP`
+(``<suite> = "package.module:CONTRACT"``), armbench's own suites' as another distribution's
+(:mod:`armbench.drivers.model.entry_points`): only those light modules are imported, never the
+suites themselves.
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
-import pkgutil
 import warnings
 from dataclasses import dataclass
-from typing import Final, Protocol, TypeVar, runtime_checkable
+from typing import Final, Protocol, TypeGuard, TypeVar, runtime_checkable
+
+from armbench.drivers.model import entry_points
 
 __all__ = [
-    "BUILTIN_PACKAGE",
-    "CONTRACT_SUFFIX",
     "ENTRY_POINT_GROUP",
     "LIFE_WARN_YEARS",
     "POS_DECIMALS",
@@ -107,8 +104,8 @@ SAMPLE: Final = SampleKeys()
 class SuiteContract(Protocol):
     """What every suite's contract says: the suite's name, its place in the default run and in
     the report (``order``: lower first), whether it records true figures beside the encoders',
-    the suite class that runs it (``"module:Class"``, by name: this layer imports no suite;
-    ``None``: recorded by something else) and the headline figures the report leads with."""
+    and the headline figures the report leads with. What runs the suite is registered beside it
+    (the entry points of ``armbench.suites``), not named here: this layer imports no suite."""
 
     @property
     def suite(self) -> str: ...
@@ -120,18 +117,11 @@ class SuiteContract(Protocol):
     def has_true_figures(self) -> bool: ...
 
     @property
-    def implementation(self) -> str | None: ...
-
-    @property
     def headlines(self) -> tuple[Headline, ...]: ...
 
 
-#: The package whose modules named ``*<CONTRACT_SUFFIX>`` are the built-in suites' contracts.
-BUILTIN_PACKAGE: Final = "armbench.bench.suites"
-#: How a built-in contract module's name ends (``accuracy_contract``): only these are imported.
-CONTRACT_SUFFIX: Final = "_contract"
-#: Entry-point group under which other distributions register a suite's contract, as
-#: ``name = "package.module:CONTRACT"`` (the module is imported, the object registered).
+#: Entry-point group of every suite's contract, by the suite's name: ``<suite> =
+#: "package.module:CONTRACT"`` (the module is imported, the object registered).
 ENTRY_POINT_GROUP: Final = "armbench.suite_contracts"
 
 _CONTRACTS: dict[str, SuiteContract] = {}
@@ -144,36 +134,40 @@ class UnknownContractError(LookupError):
 
 
 def register(contract: _C) -> _C:
-    """Add a suite's contract to the registry (called by the module that defines it: no list to
-    edit elsewhere); a second contract of the same suite name is a bug."""
+    """Add a suite's contract to the registry (the discovery's, or a test's suite in this
+    process); a second contract of the same suite name is a bug."""
     if not isinstance(contract, SuiteContract):
         raise TypeError(f"{contract!r} is not a suite contract (suite, order, has_true_figures, "
-                        "implementation, headlines)")
+                        "headlines)")
     if contract.suite in _CONTRACTS:
         raise ValueError(f"two contracts of suite {contract.suite!r}")
     _CONTRACTS[contract.suite] = contract
     return contract
 
 
+def _is_contract(found: object) -> TypeGuard[SuiteContract]:
+    return isinstance(found, SuiteContract)
+
+
 def _discover() -> None:
-    """Import every contract module once: the built-ins, then the entry points. A contract that
-    cannot be loaded is left out with a warning (its suite is then shown as any unknown suite),
-    so one broken plug-in does not stop a record from being read."""
+    """Load every contract's entry point once. A contract that cannot be loaded, or that is
+    registered under another suite's name, is left out with a warning naming its entry point
+    (its suite is then shown as any unknown suite), so one broken plug-in does not stop a
+    record from being read."""
     if _discovery["done"]:
         return
     _discovery["done"] = True
-    package = importlib.import_module(BUILTIN_PACKAGE)
-    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda i: i.name):
-        if info.name.endswith(CONTRACT_SUFFIX):
-            importlib.import_module(f"{BUILTIN_PACKAGE}.{info.name}")
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+    for name, ep in entry_points.registered(ENTRY_POINT_GROUP).items():
         try:
-            found = ep.load()
-            if not any(c is found for c in _CONTRACTS.values()):
+            found = entry_points.load(ENTRY_POINT_GROUP, name, _is_contract, "a suite contract "
+                                      "(suite, order, has_true_figures, headlines)")
+            if found.suite != name:
+                raise entry_points.EntryPointError(ENTRY_POINT_GROUP, name, ep.value,
+                                                   f"its contract is of suite {found.suite!r}")
+            if _CONTRACTS.get(name) is not found:
                 register(found)
-        except Exception as exc:  # a plug-in's failure: reported, not fatal
-            warnings.warn(f"suite contract entry point {ep.name} = {ep.value}: {exc}",
-                          RuntimeWarning, stacklevel=2)
+        except (entry_points.EntryPointError, ValueError) as exc:  # reported, not fatal
+            warnings.warn(str(exc), RuntimeWarning, stacklevel=2)
 
 
 def forget(suite: str) -> None:

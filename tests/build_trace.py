@@ -61,7 +61,8 @@ async def _session(port: str) -> dict[str, Any]:
                 await asyncio.sleep(2.5)
             await arm.move_joints((0.6, -0.3, 0.4, -0.5), 99, coordinated=True, wait=False)
             await asyncio.sleep(0.4)
-            emulator: ArmEmulator = arm.emulator
+            emulator = arm.emulator
+            assert isinstance(emulator, ArmEmulator)
             emulator.power_off()  # mid-move: start-up recovery drives to the Hall sensors
             await asyncio.sleep(0.2)
             emulator.power_on()

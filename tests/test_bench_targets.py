@@ -18,7 +18,6 @@ from armbench.bench.runner import RunOptions, run_sync
 from armbench.bench.runner.plan import prepare
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
-from armbench.drivers.transports import TRANSPORTS
 from armbench.drivers.transports.capabilities import Capabilities, Given
 from armbench.drivers.transports.target import given_by, resolve, target_of
 
@@ -143,15 +142,7 @@ def test_the_pytest_plugin_resolves_the_same_way(robot_file: Path) -> None:
 
 
 @pytest.fixture
-def toy(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
-    """``toy://`` registered in the registry's table, as a distribution's entry point would."""
-    monkeypatch.setitem(TRANSPORTS, "toy", "toy_target:ToyTransport")
-    monkeypatch.setattr(ToyTransport, "fresh_arms", 0)
-    yield
-
-
-@pytest.fixture
-def toy_entry_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+def toy(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
     """``toy://`` registered as an entry point of ``armbench.transports`` by an installed
     distribution (its ``.dist-info`` on ``sys.path``, which spawned workers inherit)."""
     site = tmp_path / "site"
@@ -165,8 +156,7 @@ def toy_entry_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator
     yield
 
 
-def test_a_simulator_registered_by_entry_point_is_a_target(toy_entry_point: None) -> None:
-    assert "toy" not in TRANSPORTS
+def test_a_simulator_registered_by_entry_point_is_a_target(toy: None) -> None:
     target = target_of("toy://?caps=virtual,fresh,truth,power")
     assert target.transport_class is ToyTransport
     assert target.capabilities == Capabilities(clock="virtual", fresh_per_trial=True, truth=True,
@@ -220,7 +210,7 @@ def test_a_simulator_without_truth_gets_none(tmp_path: Path, toy: None) -> None:
 
 
 def test_a_simulator_declaring_parallel_runs_in_workers(tmp_path: Path,
-                                                       toy_entry_point: None) -> None:
+                                                       toy: None) -> None:
     outcome, progress, virtual = _run_toy(
         tmp_path, "toy://?caps=virtual,fresh,parallel,truth", "c", workers=2)
     assert outcome.exit_status == 0, outcome.error

@@ -115,6 +115,7 @@ from armbench.drivers.host.arm import (
 )
 from armbench.drivers.model.errors import PortLostError
 from armbench.fakes.clock.vclock import VirtualTimeLoop
+from armbench.fakes.firmware.arm_emulator import ArmEmulator
 from armbench.record import load_record
 
 T = TypeVar("T")
@@ -300,8 +301,15 @@ async def next_reply(arm: Arm, seq: int, attempts: int = 20) -> JointState:
     return await arm.wait_state(lambda s: s.seq > seq)
 
 
-def _counter(arm: Arm, name: str) -> int:
+def _emulator(arm: Arm) -> ArmEmulator:
+    """The ``fake://`` emulator behind ``arm``."""
     emulator = arm.emulator
+    assert isinstance(emulator, ArmEmulator), emulator
+    return emulator
+
+
+def _counter(arm: Arm, name: str) -> int:
+    emulator = _emulator(arm)
     if name == "i2c_errors":
         return int(emulator.stats().i2c_errors)
     if name == "reboots":
@@ -316,7 +324,7 @@ def test_driver_under_fault(case: DriverCase, tmp_path: Path) -> None:
     async def body() -> str:
         loop = asyncio.get_running_loop()
         async with Arm.connect(port, reply_timeout_s=0.5) as arm:
-            emulator = arm.emulator
+            emulator = _emulator(arm)
             t_emu = emulator.injector.t_start  # the emulator's time 0 (its power-up)
             await within(asyncio.sleep(t_emu + 0.15 - loop.time()))
             start = arm.state

@@ -83,7 +83,6 @@ class TrendContract:
     suite: str = "trend"
     order: int = 900
     has_true_figures: bool = True
-    implementation: str | None = None
 
     @property
     def headlines(self) -> tuple[Headline, ...]:

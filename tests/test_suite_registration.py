@@ -1,13 +1,15 @@
-"""A suite's report section and its contract are found by registration: adding a suite's
-section is adding its module to ``reports/sections/`` (or an entry point), adding its contract is
-a ``*_contract`` module beside the suites (or an entry point) that calls ``register``; no list
-elsewhere names them."""
+"""A suite is registered by entry points only, armbench's own as another distribution's: its
+class (``armbench.suites``), its contract (``armbench.suite_contracts``) and its report section
+(``armbench.report_sections``), each declared once in a ``pyproject.toml``; no list in code and
+no scan of a package names them."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import subprocess
 import sys
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -15,12 +17,15 @@ import pytest
 
 import armbench.record.suite_contract as suite_contract
 import armbench.reports.sections as sections
-from armbench.bench.suites.accuracy_contract import ACCURACY, AccuracyNames
+from armbench.bench.suites.accuracy_contract import AccuracyNames
 from armbench.record import SuiteRecord, load_record
 from armbench.record.suite_contract import contracts, register
 from armbench.reports.pages.page import SECTIONS
 from armbench.reports.render.format import format_value
 from armbench.reports.render.scorecard import HEADLINES, TRUTH_SUITES
+
+ROOT = Path(__file__).resolve().parents[1]
+GROUPS = ("armbench.suites", "armbench.suite_contracts", "armbench.report_sections")
 
 
 def test_every_contract_has_its_section_and_headlines() -> None:
@@ -31,29 +36,40 @@ def test_every_contract_has_its_section_and_headlines() -> None:
     assert {"accuracy", "repeatability", "joints", "ros2-square"} == TRUTH_SUITES
 
 
-def test_a_section_module_added_to_the_package_is_found(tmp_path: Path,
-                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    (tmp_path / "gripper.py").write_text(
-        'SUITE = "gripper"\n\n\ndef build(record, suite, view, figs):\n    return "built"\n',
-        encoding="utf-8")
-    (tmp_path / "notes.py").write_text('"""No SUITE: not a section."""\n', encoding="utf-8")
-    monkeypatch.setattr(sections, "__path__", [*sections.__path__, str(tmp_path)])
-    monkeypatch.delitem(sys.modules, "armbench.reports.sections.gripper", raising=False)
-    found = sections.registered_sections()
-    assert set(found) == {*SECTIONS, "gripper"}
-    assert found["gripper"](None, None, None, None) == "built"  # type: ignore[arg-type, comparison-overlap]
-    sys.modules.pop("armbench.reports.sections.gripper", None)
-    sys.modules.pop("armbench.reports.sections.notes", None)
+def test_the_builtin_suites_are_registered_once_as_entry_points() -> None:
+    """pyproject.toml declares every built-in suite's parts, and the installed metadata holds
+    exactly those: what the registries find is what the project file says (a checkout whose
+    entry points changed is installed again)."""
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"]
+    for group in GROUPS:
+        installed = {ep.name: ep.value for ep in importlib.metadata.entry_points(group=group)
+                     if ep.dist is not None and ep.dist.name == "armbench"}
+        assert installed == declared[group], group
+    suites, contracts_, sections_ = (set(declared[g]) for g in GROUPS)
+    assert suites | {"twin-check"} == contracts_ == sections_  # twin-check runs in no suite
+    assert {c.suite for c in contracts()} == contracts_
+    assert set(sections.registered_sections()) == sections_
 
 
-def test_two_sections_of_one_suite_are_refused(tmp_path: Path,
+def test_no_module_is_found_by_its_place_alone(tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
-    (tmp_path / "zz_accuracy_again.py").write_text(
-        f'SUITE = "{ACCURACY.suite}"\n\n\ndef build(*args):\n    return None\n', encoding="utf-8")
+    """A contract module beside the suites and a section module beside the sections, neither
+    registered, are not found: no package is scanned."""
+    import armbench.bench.suites as suites
+
+    (tmp_path / "zz_gripper_contract.py").write_text(
+        _WOBBLE_CONTRACT.replace('"wobble"', '"zz-gripper"'), encoding="utf-8")
+    (tmp_path / "zz_gripper.py").write_text(
+        'SUITE = "zz-gripper"\n\n\ndef build(record, suite, view, figs):\n    return None\n',
+        encoding="utf-8")
+    monkeypatch.setattr(suites, "__path__", [*suites.__path__, str(tmp_path)])
     monkeypatch.setattr(sections, "__path__", [*sections.__path__, str(tmp_path)])
-    with pytest.raises(ImportError, match="two report sections of suite 'accuracy'"):
-        sections.registered_sections()
-    sys.modules.pop("armbench.reports.sections.zz_accuracy_again", None)
+    suite_contract.forget("zz-gripper")
+    try:
+        assert "zz-gripper" not in {c.suite for c in contracts()}
+        assert "zz-gripper" not in sections.registered_sections()
+    finally:
+        suite_contract.forget("zz-gripper")
 
 
 def test_a_second_contract_of_one_suite_is_refused() -> None:
@@ -61,15 +77,19 @@ def test_a_second_contract_of_one_suite_is_refused() -> None:
         register(AccuracyNames())
 
 
-def test_the_suites_are_those_their_contracts_name() -> None:
-    """``armbench run``'s suites, in their default order, are the contracts that name a suite
-    class, and each class runs the suite of its contract's name."""
-    from armbench.bench.suites import SUITES, suite_class
+def test_the_default_run_is_armbenchs_own_suites_needing_no_extra() -> None:
+    """``armbench run``'s suites, in their contracts' order, are those armbench registers without
+    an extra, and each class runs the suite of its name; ros2-square (armbench[ros2]) is
+    registered but runs only when named."""
+    from armbench.bench.suites import SUITES, registered_suites, suite_class
 
     assert list(SUITES) == ["accuracy", "repeatability", "startup-recovery", "joints"]
     for name in SUITES:
         assert suite_class(name).name == name
-    assert "twin-check" not in SUITES  # recorded by armbench twin-check, run by no suite
+    assert registered_suites()["ros2-square"] == ("armbench.frontends.ros2_node.square_suite:"
+                                                  "Ros2SquareSuite")
+    assert suite_class("ros2-square").name == "ros2-square"
+    assert "twin-check" not in registered_suites()  # recorded by armbench twin-check
 
 
 # A suite from outside armbench: its module, its contract and its report section live in a
@@ -78,7 +98,7 @@ def test_the_suites_are_those_their_contracts_name() -> None:
 _WOBBLE_CONTRACT = '''
 from dataclasses import dataclass
 
-from armbench.record.suite_contract import Headline, register
+from armbench.record.suite_contract import Headline
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,7 +106,6 @@ class WobbleNames:
     suite: str = "wobble"
     order: int = 500
     has_true_figures: bool = False
-    implementation: str | None = "benchwobble.suite:WobbleSuite"
     trial_move: str = "wobble.move_s"
     mean_move: str = "wobble.move_mean_s"
     max_move: str = "wobble.move_max_s"
@@ -97,7 +116,7 @@ class WobbleNames:
                 Headline("slowest wobble move", self.max_move))
 
 
-WOBBLE = register(WobbleNames())
+WOBBLE = WobbleNames()
 '''
 
 _WOBBLE_SUITE = '''
@@ -151,6 +170,9 @@ def build(record, suite, view, figs):
 '''
 
 _WOBBLE_ENTRY_POINTS = '''
+[armbench.suites]
+wobble = benchwobble.suite:WobbleSuite
+
 [armbench.suite_contracts]
 wobble = benchwobble.contract:WOBBLE
 
@@ -227,26 +249,6 @@ def test_a_suite_registered_by_entry_points_runs_is_recorded_and_reported(
         assert format_value(figures[name], "s") in row, row
 
 
-def test_a_contract_module_beside_the_suites_is_discovered_and_no_other_module(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Built-in contracts are the modules of the suites' package named ``*_contract``: one added
-    there is registered; the suites themselves (any other module) are never imported."""
-    import armbench.bench.suites as suites
-
-    (tmp_path / "zz_gripper_contract.py").write_text(
-        _WOBBLE_CONTRACT.replace('"wobble"', '"zz-gripper"'), encoding="utf-8")
-    (tmp_path / "zz_gripper.py").write_text("raise RuntimeError('a suite module imported')\n",
-                                            encoding="utf-8")
-    monkeypatch.setattr(suites, "__path__", [*suites.__path__, str(tmp_path)])
-    suite_contract.forget("zz-gripper")
-    try:
-        assert suite_contract.contract("zz-gripper").order == 500
-        assert "armbench.bench.suites.zz_gripper" not in sys.modules
-    finally:
-        suite_contract.forget("zz-gripper")
-        sys.modules.pop("armbench.bench.suites.zz_gripper_contract", None)
-
-
 def test_an_unknown_suite_has_no_contract_and_a_reader_names_what_it_lacks() -> None:
     from armbench.record.interim import pose_samples
 
@@ -258,22 +260,61 @@ def test_an_unknown_suite_has_no_contract_and_a_reader_names_what_it_lacks() -> 
         pose_samples(accuracy)
 
 
-def test_a_broken_contract_entry_point_is_left_out_with_a_warning(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.fixture
+def broken_wobble(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """The wobble distribution on sys.path, each of its modules to be broken by the test."""
     root = _wobble_distribution(tmp_path / "site")
-    (root / "benchwobble" / "contract.py").write_text("raise ImportError('half installed')\n",
-                                                       encoding="utf-8")
     monkeypatch.syspath_prepend(str(root))
     suite_contract.forget("wobble")
-    try:
-        with pytest.warns(RuntimeWarning, match="wobble = benchwobble.contract:WOBBLE: "
-                                                "half installed"):
-            names = [c.suite for c in contracts()]
-        assert "wobble" not in names and "accuracy" in names
-    finally:
-        suite_contract.forget("wobble")
-        for name in [m for m in sys.modules if m.startswith("benchwobble")]:
-            del sys.modules[name]
+    yield root / "benchwobble"
+    suite_contract.forget("wobble")
+    for name in [m for m in sys.modules if m.startswith("benchwobble")]:
+        del sys.modules[name]
+
+
+_HALF = "raise ImportError('half installed')\n"
+
+
+def test_a_broken_contract_entry_point_is_left_out_with_a_warning(broken_wobble: Path) -> None:
+    (broken_wobble / "contract.py").write_text(_HALF, encoding="utf-8")
+    with pytest.warns(RuntimeWarning, match="entry point armbench.suite_contracts: wobble = "
+                                            "benchwobble.contract:WOBBLE: ImportError: half "
+                                            "installed"):
+        names = [c.suite for c in contracts()]
+    assert "wobble" not in names and "accuracy" in names
+
+
+def test_a_contract_registered_under_another_name_is_left_out(broken_wobble: Path) -> None:
+    contract = broken_wobble / "contract.py"
+    contract.write_text(contract.read_text().replace('suite: str = "wobble"',
+                                                     'suite: str = "wibble"'), encoding="utf-8")
+    with pytest.warns(RuntimeWarning, match="wobble = benchwobble.contract:WOBBLE: its contract "
+                                            "is of suite 'wibble'"):
+        names = [c.suite for c in contracts()]
+    assert "wobble" not in names and "wibble" not in names
+
+
+def test_a_broken_suite_entry_point_is_a_suite_error_naming_it(broken_wobble: Path) -> None:
+    from armbench.bench.suites import SuiteError, suite_class
+
+    (broken_wobble / "suite.py").write_text(_HALF, encoding="utf-8")
+    with pytest.raises(SuiteError, match=r"suite 'wobble': entry point armbench.suites: wobble = "
+                                         r"benchwobble.suite:WobbleSuite: ImportError: half "
+                                         r"installed"):
+        suite_class("wobble")
+    (broken_wobble / "suite.py").write_text("WobbleSuite = 3\n", encoding="utf-8")
+    sys.modules.pop("benchwobble.suite", None)
+    with pytest.raises(SuiteError, match="WobbleSuite: 3 is not a Suite subclass"):
+        suite_class("wobble")
+
+
+def test_a_broken_section_entry_point_is_left_out_with_a_warning(broken_wobble: Path) -> None:
+    (broken_wobble / "section.py").write_text(_HALF, encoding="utf-8")
+    with pytest.warns(RuntimeWarning, match="entry point armbench.report_sections: wobble = "
+                                            "benchwobble.section:build: ImportError: half "
+                                            "installed"):
+        found = sections.registered_sections()
+    assert "wobble" not in found and "accuracy" in found
 
 
 def test_an_unknown_suite_names_every_registered_one() -> None:

@@ -36,7 +36,6 @@ from armbench.drivers.telnet import (
 )
 from armbench.drivers.transports import (
     ENTRY_POINT_GROUP,
-    TRANSPORTS,
     Transport,
     known_transports,
     open_transport,
@@ -98,7 +97,7 @@ def test_scheme_selection() -> None:
     assert transport_class("/dev/pts/3") is SerialTransport
     assert transport_class("socket://127.0.0.1:7000") is TcpTransport
     assert transport_class("rfc2217://localhost:2217") is Rfc2217Transport
-    assert TRANSPORTS["fake"] == "armbench.fakes.links.fake_transport:FakeTransport"
+    assert known_transports()["fake"] == "armbench.fakes.links.fake_transport:FakeTransport"
     t = open_transport("socket://127.0.0.1:7000", SerialSettings())
     assert isinstance(t, TcpTransport) and not t.is_open
     assert (t.host, t.tcp_port, t.bytes_in, t.bytes_out) == ("127.0.0.1", 7000, 0, 0)
@@ -142,28 +141,24 @@ class EchoTransport(Transport):
         self._open = False
 
 
-def _registered(monkeypatch: pytest.MonkeyPatch, **schemes: str) -> None:
-    """Installed metadata as if another distribution declared ``schemes`` as entry points of
-    ``armbench.transports`` (mocked: installing a distribution into the test environment is not
-    an option here)."""
-    eps = [importlib.metadata.EntryPoint(name, value, ENTRY_POINT_GROUP)
-           for name, value in schemes.items()]
-    real = importlib.metadata.entry_points
-
-    def entry_points(**params: str) -> object:
-        if params.get("group") == ENTRY_POINT_GROUP:
-            return eps
-        return real(**params)
-
-    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+def _registered(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, **schemes: str) -> None:
+    """A distribution ``other-transports`` declaring ``schemes`` as entry points of
+    ``armbench.transports``, installed for this test (its ``.dist-info`` on ``sys.path``)."""
+    site = tmp_path / "site"
+    info = site / "other_transports-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: other-transports\n"
+                                   "Version: 1.0\n", encoding="utf-8")
+    (info / "entry_points.txt").write_text(
+        f"[{ENTRY_POINT_GROUP}]\n" + "".join(f"{k} = {v}\n" for k, v in schemes.items()),
+        encoding="utf-8")
+    monkeypatch.syspath_prepend(str(site))
 
 
 async def test_a_third_party_scheme_is_found_through_its_entry_point(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    _registered(monkeypatch, echo=f"{__name__}:EchoTransport",
-                socket="elsewhere.module:NotTcp")
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    _registered(tmp_path, monkeypatch, echo=f"{__name__}:EchoTransport")
     assert transport_class("echo://anything") is EchoTransport
-    assert transport_class("socket://127.0.0.1:7000") is TcpTransport  # built-ins win
     assert known_transports()["echo"] == f"{__name__}:EchoTransport"
     async with open_transport("ECHO://x") as t:
         await t.write(b"$00000,00000,00000,00000#")
@@ -173,23 +168,42 @@ async def test_a_third_party_scheme_is_found_through_its_entry_point(
         open_transport("bogus://somewhere")
 
 
-def test_a_broken_entry_point_is_a_transport_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    _registered(monkeypatch, gone="no_such_module_anywhere:Transport",
+def test_a_scheme_two_distributions_register_is_refused_naming_both(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """No silent pick between two claims of one scheme: opening it names both."""
+    _registered(tmp_path, monkeypatch, socket="elsewhere.module:NotTcp")
+    with pytest.raises(TransportError, match=r"entry point armbench.transports: socket: "
+                                             r"registered differently by several "
+                                             r"distributions: armbench.drivers.transports.tcp:"
+                                             r"TcpTransport \(armbench\), elsewhere.module:NotTcp "
+                                             r"\(other-transports\)"):
+        transport_class("socket://127.0.0.1:7000")
+    assert transport_class("rfc2217://h:1") is Rfc2217Transport  # the others are unaffected
+
+
+def test_a_broken_entry_point_is_a_transport_error(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    _registered(tmp_path, monkeypatch, gone="no_such_module_anywhere:Transport",
                 notone=f"{__name__}:within")
-    with pytest.raises(TransportError, match="no_such_module_anywhere") as info:
+    with pytest.raises(TransportError, match=r"entry point armbench.transports: gone = "
+                                             r"no_such_module_anywhere:Transport: "
+                                             r"ModuleNotFoundError") as info:
         open_transport("gone://x")
     assert info.value.port == "gone://x"
-    with pytest.raises(TransportError, match="is not a Transport class"):
+    with pytest.raises(TransportError, match=r"notone = test_transports:within: <function "
+                                             r"within at 0x[0-9a-f]+> is not a Transport class"):
         open_transport("notone://x")
 
 
-def test_the_builtin_schemes_are_registered_in_code_and_as_entry_points() -> None:
-    """The source tree's pyproject declares the same schemes the code table holds (the installed
-    metadata may be older: the code table is what a checkout runs with)."""
+def test_the_builtin_schemes_are_registered_once_as_entry_points() -> None:
+    """pyproject.toml declares the built-in schemes, the installed metadata holds exactly those
+    (a checkout whose entry points changed is installed again), and each loads its class."""
     project = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
     declared = project["project"]["entry-points"][ENTRY_POINT_GROUP]
-    assert declared == TRANSPORTS
-    for scheme in TRANSPORTS:
+    installed = {ep.name: ep.value for ep in importlib.metadata.entry_points(
+        group=ENTRY_POINT_GROUP) if ep.dist is not None and ep.dist.name == "armbench"}
+    assert declared == installed == known_transports()
+    for scheme in declared:
         assert transport_class(f"{scheme}://h:1").scheme == scheme
 
 

@@ -1,6 +1,6 @@
 """A toy third-party simulator target for ``tests/test_bench_targets.py``: the scheme ``toy://``,
-registered as another distribution would (an entry point of ``armbench.transports``, or the
-registry's table), declaring its capabilities in its query: ``toy://?caps=virtual,fresh,truth``.
+registered as another distribution would (an entry point of ``armbench.transports``), declaring
+its capabilities in its query: ``toy://?caps=virtual,fresh,truth``.
 
 Underneath it plays the built-in emulator (it has to speak the protocol), but nothing in armbench
 knows the scheme: whatever the bench gives it comes from what it declares. It counts the fresh

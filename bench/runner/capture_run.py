@@ -31,6 +31,7 @@ from armbench.drivers.capture.part import PartWriter
 from armbench.drivers.capture.read import capture_start_ns, iter_events, iter_messages
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.transports.base import EmulatedTarget, Emulator, emulated
 from armbench.record import LEGACY_CAPTURE_FILE, RunRecord, Trial
 
 __all__ = ["CLOSING_BYTES", "LoggedPower", "LoggedReReferencingPower", "RunCapture",
@@ -83,30 +84,35 @@ def logged_power(inner: PowerSwitch, part: PartWriter, suite: str,
     return LoggedPower(inner, part, suite, trial)
 
 
-def emulator_truth(source: Any) -> Any:
-    """A callable giving the newest ground truth (rad) of ``source``'s emulator (``source`` is a
-    transport whose ``emulator`` is read at each call: a simulator may make it when opened; or
-    the emulator itself), None before the first reply, for :class:`PartWriter`; None without a
-    source. The true angles (the links' angles and their deflection under gravity, computed when
-    read) are computed again only when the links moved: a resting arm costs a comparison."""
-    if source is None:
-        return None
-    last: list[Any] = [None, None, None]
+class _NewestTruth:
+    """The newest ground truth (rad) of a target's emulator, read at each call (a simulator may
+    make its emulator when opened); None before the first reply or without an emulator. The
+    true angles (the links' angles and their deflection under gravity, computed when read) are
+    computed again only when the links moved or the emulator changed: a resting arm costs a
+    comparison."""
 
-    def newest() -> tuple[float, ...] | None:
-        emulator = getattr(source, "emulator", None)
-        if emulator is None:
-            emulator = source
-        truth = getattr(emulator, "truth", None)
+    def __init__(self, source: EmulatedTarget) -> None:
+        self._source = source
+        self._links: tuple[float, ...] | None = None
+        self._emulator: Emulator | None = None
+        self._true: tuple[float, ...] = ()
+
+    def __call__(self) -> tuple[float, ...] | None:
+        emulator = emulated(self._source)
+        truth = () if emulator is None else emulator.truth
         if not truth:
             return None
         sample = truth[-1]
-        if sample.link_rad != last[0] or sample.mechanism is not last[1]:
-            last[:] = [sample.link_rad, sample.mechanism, tuple(sample.true_rad)]
-        value: tuple[float, ...] = last[2]
-        return value
+        if sample.link_rad != self._links or emulator is not self._emulator:
+            self._links, self._emulator = sample.link_rad, emulator
+            self._true = tuple(sample.true_rad)
+        return self._true
 
-    return newest
+
+def emulator_truth(source: EmulatedTarget | None) -> _NewestTruth | None:
+    """A callable giving the newest ground truth (rad) of ``source``'s emulator (``source`` is a
+    transport), for :class:`PartWriter`; None without a source."""
+    return None if source is None else _NewestTruth(source)
 
 
 def fault_events(emulator: Any, part: PartWriter | None) -> None:

@@ -27,9 +27,10 @@ import shlex
 import shutil
 import sys
 from collections.abc import Callable, Sequence
-from typing import IO, Any, Protocol
+from typing import IO, Any, Protocol, runtime_checkable
 
 from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.transports.base import EmulatedTarget
 
 __all__ = [
     "DEFAULT_COMMAND_TIMEOUT_S",
@@ -53,6 +54,7 @@ class PowerError(ArmbenchError, RuntimeError):
     input closed; no emulator behind the port."""
 
 
+@runtime_checkable
 class _EmulatorLike(Protocol):
     def power_off(self) -> None: ...
 
@@ -62,12 +64,10 @@ class _EmulatorLike(Protocol):
 class EmulatorPower:
     """The power control of the ``fake://`` emulator.
 
-    ``source`` is the :class:`~armbench.fakes.firmware.arm_emulator.ArmEmulator` itself, or anything
-    with an ``emulator``
-    attribute (an :class:`~armbench.drivers.host.arm.Arm` or a fake transport), resolved at each
-    switch,
-    so the
-    switch follows the arm to a new emulator after a reconnection.
+    ``source`` is the :class:`~armbench.fakes.firmware.arm_emulator.ArmEmulator` itself, or an
+    :class:`~armbench.drivers.transports.base.EmulatedTarget` (an
+    :class:`~armbench.drivers.host.arm.Arm` or a fake transport) whose emulator is read at each
+    switch, so the switch follows the arm to a new emulator after a reconnection.
     """
 
     def __init__(self, source: Any) -> None:
@@ -77,14 +77,12 @@ class EmulatorPower:
     def emulator(self) -> _EmulatorLike:
         """The emulator switched now; :class:`PowerError` if there is none."""
         src = self._source
-        if callable(getattr(src, "power_off", None)) and callable(getattr(src, "power_on", None)):
-            emulator: _EmulatorLike = src
-            return emulator
-        inner = getattr(src, "emulator", None)
-        if inner is None or not callable(getattr(inner, "power_off", None)):
+        if isinstance(src, _EmulatorLike):
+            return src
+        inner = src.emulator if isinstance(src, EmulatedTarget) else None
+        if not isinstance(inner, _EmulatorLike):
             raise PowerError(f"{src!r} has no emulator to switch (EmulatorPower is for fake://)")
-        found: _EmulatorLike = inner
-        return found
+        return inner
 
     async def power_off(self) -> None:
         """Cut the emulator's power now (loop time)."""
@@ -133,7 +131,8 @@ class HarnessPower:
     stalled arm re-referenced (:meth:`re_reference`).
 
     ``source`` is the :class:`~armbench.fakes.avr.harness.Harness`, an ``avr://`` transport or an
-    arm on one, resolved at each switch (the arm's transport is a new one after a reconnection).
+    arm on
+    one, resolved at each switch (the arm's transport is a new one after a reconnection).
     """
 
     def __init__(self, source: Any) -> None:
@@ -174,7 +173,7 @@ def port_power(source: Any) -> EmulatorPower | HarnessPower | None:
     own: the emulator's on ``fake://``, the firmware harness's on ``avr://``; None for hardware,
     whose power needs a relay command or the operator."""
     if (callable(getattr(source, "power_off", None))
-            or getattr(source, "emulator", None) is not None):
+            or (isinstance(source, EmulatedTarget) and source.emulator is not None)):
         return EmulatorPower(source)
     try:
         harness = _harness_of(source)

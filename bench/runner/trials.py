@@ -31,6 +31,7 @@ from armbench.bench.runner.truth import EmulatorTruth
 from armbench.bench.suites import SuiteContext
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.transports.base import Emulator, emulated
 from armbench.drivers.transports.capabilities import FreshArm
 from armbench.record import (
     RESULTS_FILE,
@@ -116,7 +117,7 @@ class Connection:
     (``transport.emulator``: ground truth, power), closed with the connection."""
 
     arm: Arm
-    emulator: ArmEmulator | None
+    emulator: Emulator | None
     part: Path
     writer: PartWriter | None = None
 
@@ -162,7 +163,7 @@ class TrialAttempts:
             robot = plan.settings if robot is None else robot
             transport = plan.target.fresh(plan.settings.serial, FreshArm(
                 robot, emulator_seed, plan.faults, self.emulator_factory))
-        emulator: ArmEmulator | None = getattr(transport, "emulator", None)
+        emulator = emulated(transport)
         capture: PartWriter | None = None
         # a lost port is reopened (not a fresh arm: a new transport would be a new arm) until
         # it has been silent for the outage timeout
@@ -179,12 +180,12 @@ class TrialAttempts:
                               move_timeout_scale=plan.move_timeout_scale)
             await arm.open()
             if emulator is None:  # a simulator may make its side channel when opened
-                emulator = getattr(transport, "emulator", None)
+                emulator = emulated(transport)
         except BaseException:
             if capture is not None:
                 capture.close()
             if emulator is None:
-                emulator = getattr(transport, "emulator", None)
+                emulator = emulated(transport)
             if emulator is not None:
                 with contextlib.suppress(Exception):
                     await emulator.close()
@@ -209,7 +210,7 @@ class TrialAttempts:
             if merge:
                 self.captures.merge(conn.part)
 
-    def context(self, ps: PlannedSuite, arm: Arm, emulator: ArmEmulator | None,
+    def context(self, ps: PlannedSuite, arm: Arm, emulator: Emulator | None,
                 rng_seed: int) -> SuiteContext:
         """What suite ``ps`` may use: the arm, the power switch and the measurement source (the
         target's own when it declares them, unless the plan names others)."""

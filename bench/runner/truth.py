@@ -22,6 +22,7 @@ from armbench.bench.suites.base import PoseSource
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.transports.base import EmulatedTarget, Emulator
 
 __all__ = ["EmulatorTruth", "TrackerError", "aclose_source", "aopen_source", "load_tracker"]
 
@@ -33,18 +34,25 @@ class TrackerError(ArmbenchError, ValueError):
 class EmulatorTruth:
     """Ground truth of the ``fake://`` emulator as a :class:`PoseSource`.
 
-    ``source`` is an :class:`~armbench.drivers.host.arm.Arm` or a fake transport (anything with an
-    ``emulator``
-    attribute, resolved at every call so a reconnection is followed), or the emulator itself.
-    :meth:`true_joints_rad` are the real joint angles now (``emulator.true_angles_rad()``); when
-    only a driver's ground-truth samples are available (``arm.ground_truth()``), the newest
-    sample's ``true_rad``. :meth:`true_position_m` is their forward kinematics (m, base frame)
-    with ``settings`` (the arm's own settings when None).
+    ``source`` is an :class:`~armbench.drivers.transports.base.EmulatedTarget` (an
+    :class:`~armbench.drivers.host.arm.Arm` or a fake transport, whose emulator is read at every
+    call so a reconnection is followed), or the emulator itself.
+    :meth:`true_joints_rad` are the real joint angles now (``emulator.true_angles_rad()``);
+    :meth:`true_position_m` is their forward kinematics (m, base frame) with ``settings`` (the
+    arm's own settings when None).
     """
 
-    def __init__(self, source: Any, settings: RobotSettings | None = None) -> None:
+    def __init__(self, source: EmulatedTarget | Emulator,
+                 settings: RobotSettings | None = None) -> None:
         self._source = source
         self._settings = settings
+        # which of the two ``source`` is, decided once: a protocol check costs microseconds
+        self._target: EmulatedTarget | None = None
+        self._own: Emulator | None = None
+        if isinstance(source, EmulatedTarget):
+            self._target = source
+        else:
+            self._own = source
 
     @property
     def settings(self) -> RobotSettings:
@@ -54,31 +62,22 @@ class EmulatorTruth:
         own = getattr(self._source, "settings", None)
         return own if isinstance(own, RobotSettings) else RobotSettings()
 
-    def _emulator(self) -> Any:
-        src = self._source
-        if callable(getattr(src, "true_angles_rad", None)):
-            return src
-        return getattr(src, "emulator", None)
+    def _emulator(self) -> Emulator | None:
+        return self._own if self._target is None else self._target.emulator
 
     def true_joints_rad(self) -> tuple[float, ...] | None:
         """The real joint angles now (rad, protocol convention), None without an emulator."""
         emulator = self._emulator()
-        if emulator is not None and callable(getattr(emulator, "true_angles_rad", None)):
-            return tuple(float(q) for q in emulator.true_angles_rad())
-        ground_truth = getattr(self._source, "ground_truth", None)
-        if callable(ground_truth):
-            sample = ground_truth()
-            if sample is not None:
-                return tuple(float(q) for q in sample.true_rad)
-        return None
+        if emulator is None:
+            return None
+        return tuple(float(q) for q in emulator.true_angles_rad())
 
     def true_position_m(self) -> tuple[float, float, float] | None:
         """The real TCP position now (m, base frame), None without an emulator: the emulator's
-        own (its actual kinematics) when it gives one."""
+        own (its actual kinematics) unless ``settings`` were given."""
         emulator = self._emulator()
-        own = getattr(emulator, "true_position_m", None)
-        if self._settings is None and callable(own):
-            x, y, z = own()
+        if emulator is not None and self._settings is None:
+            x, y, z = emulator.true_position_m()
             return float(x), float(y), float(z)
         q = self.true_joints_rad()
         if q is None:

@@ -37,6 +37,7 @@ from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import MAX_DUTY, REPLY_LEN
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.tasks import cancel_and_wait
+from armbench.drivers.transports.base import Emulator, GroundTruth
 from armbench.record import Better, Measurement, Trial
 from armbench.record.suite_contract import POS_DECIMALS, RAD_DECIMALS
 
@@ -278,7 +279,7 @@ class TruthProbe:
             return None
         gt = self._matched(state)
         if gt is not None:
-            side = getattr(gt, "motor_rad", None) if motor else None
+            side = gt.motor_rad if motor else None
             return tuple(float(v) for v in (side if side is not None else gt.true_rad))
         q = self._source.true_joints_rad()
         return None if q is None else tuple(float(v) for v in q)
@@ -294,12 +295,13 @@ class TruthProbe:
         p = self._source.true_position_m()
         return None if p is None else (float(p[0]), float(p[1]), float(p[2]))
 
-    def _matched(self, state: JointState | None) -> Any:
+    def _matched(self, state: JointState | None) -> GroundTruth | None:
         """The emulator's truth sample of ``state``'s reply: the newest one printed before the
         reply arrived whose firmware angles are the reply's (within a wire tick); else None."""
         if state is None:
             return None
-        history = getattr(emulator_of(self._arm), "truth", None)
+        emulator = emulator_of(self._arm)
+        history = () if emulator is None else emulator.truth
         if not history:
             return None
         for k, gt in enumerate(reversed(history)):
@@ -491,12 +493,10 @@ async def settled_state(arm: Arm, settle_s: float) -> JointState:
 # The emulator's side channels (fake://)
 
 
-def emulator_of(arm: Arm) -> Any | None:
-    """The emulator behind ``arm``'s port (``fake://``), else None (hardware, pty, TCP)."""
-    try:
-        return arm.emulator
-    except ArmbenchError:
-        return None
+def emulator_of(arm: Arm) -> Emulator | None:
+    """The emulator behind ``arm``'s port (``fake://``, ``avr://`` on virtual time), else None
+    (hardware, pty, TCP)."""
+    return arm.emulator
 
 
 def eeprom_counters(arm: Arm) -> tuple[tuple[int, ...], tuple[int, ...]] | None:

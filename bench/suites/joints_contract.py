@@ -1,7 +1,8 @@
 """The joints suite's contract: the names it records and the report reads (ISO 230-2).
 
 Plain data and string builders (no numpy, no driver): the suite and its report section both import
-it, and importing it registers the contract (:func:`armbench.record.suite_contract.register`).
+it; the record layer finds it by the suite's name, registered as an entry point of
+``armbench.suite_contracts`` (:func:`armbench.record.suite_contract.contract`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
-from armbench.record.suite_contract import Headline, register
+from armbench.record.suite_contract import Headline
 
 __all__ = ["JOINTS", "JointsNames"]
 
@@ -24,8 +25,6 @@ class JointsNames:
     order: int = 40
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
-    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
-    implementation: str | None = "armbench.bench.suites.joints:JointsSuite"
     prefix: str = "joints"
     # trial parameter and the sample key of the true angle
     joint: str = "joint"
@@ -72,4 +71,4 @@ class JointsNames:
         )
 
 
-JOINTS: Final = register(JointsNames())
+JOINTS: Final = JointsNames()

@@ -1,7 +1,8 @@
 """The repeatability suite's contract: the names it records and the report reads (ISO 9283).
 
 Plain data and string builders (no numpy, no driver): the suite and its report section both import
-it, and importing it registers the contract (:func:`armbench.record.suite_contract.register`).
+it; the record layer finds it by the suite's name, registered as an entry point of
+``armbench.suite_contracts`` (:func:`armbench.record.suite_contract.contract`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
-from armbench.record.suite_contract import Headline, register
+from armbench.record.suite_contract import Headline
 
 __all__ = ["REPEATABILITY", "RepeatabilityNames"]
 
@@ -24,8 +25,6 @@ class RepeatabilityNames:
     order: int = 20
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
-    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
-    implementation: str | None = "armbench.bench.suites.repeatability:RepeatabilitySuite"
     # trial parameters and their kinds
     kind: str = "kind"
     speed: str = "speed_pct"
@@ -136,4 +135,4 @@ class RepeatabilityNames:
         )
 
 
-REPEATABILITY: Final = register(RepeatabilityNames())
+REPEATABILITY: Final = RepeatabilityNames()

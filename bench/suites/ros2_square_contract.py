@@ -1,6 +1,7 @@
 """The ros2-square suite's contract: what :mod:`armbench.frontends.ros2_node.square_suite` records
-and its report section (``armbench.reports.sections.ros2_square``) reads, registered when imported
-(found by :func:`armbench.record.suite_contract.contracts`). Plain data only.
+and its report section (``armbench.reports.sections.ros2_square``) reads, registered as an entry
+point of ``armbench.suite_contracts`` (found by :func:`armbench.record.suite_contract.contracts`).
+Plain data only.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from dataclasses import dataclass
 from typing import Final
 
 from armbench.bench.suites.accuracy_contract import ACCURACY
-from armbench.record.suite_contract import Headline, register
+from armbench.record.suite_contract import Headline
 
 __all__ = ["ROS2_SQUARE", "Ros2SquareNames"]
 
@@ -26,9 +27,6 @@ class Ros2SquareNames:
     order: int = 50
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = True
-    #: None: the suite needs the extra ``armbench[ros2]``, so it is registered as an entry point
-    #: of ``armbench.suites`` (pyproject.toml), runs when named and is not in the default run
-    implementation: str | None = None
     prefix: str = "ros2"
     styles: tuple[str, ...] = ("coordinated", "trajectory")
     coordinated: str = "coordinated"
@@ -76,4 +74,4 @@ class Ros2SquareNames:
         )
 
 
-ROS2_SQUARE: Final = register(Ros2SquareNames())
+ROS2_SQUARE: Final = Ros2SquareNames()

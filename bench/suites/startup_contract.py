@@ -2,7 +2,8 @@
 EEPROM wear).
 
 Plain data and string builders (no numpy, no driver): the suite and its report section both import
-it, and importing it registers the contract (:func:`armbench.record.suite_contract.register`).
+it; the record layer finds it by the suite's name, registered as an entry point of
+``armbench.suite_contracts`` (:func:`armbench.record.suite_contract.contract`).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Final
 
-from armbench.record.suite_contract import LIFE_WARN_YEARS, Headline, register
+from armbench.record.suite_contract import LIFE_WARN_YEARS, Headline
 
 __all__ = ["STARTUP", "StartupNames"]
 
@@ -25,8 +26,6 @@ class StartupNames:
     order: int = 30
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
-    #: what runs the suite: ``module:Class``, imported only when the suite is loaded
-    implementation: str | None = "armbench.bench.suites.startup_recovery:StartupRecoverySuite"
     prefix: str = "startup"
     # trial parameters and their kinds
     kind: str = "kind"
@@ -186,4 +185,4 @@ class StartupNames:
         )
 
 
-STARTUP: Final = register(StartupNames())
+STARTUP: Final = StartupNames()

@@ -2,7 +2,8 @@
 reads (how well the twin predicts an arm's capture).
 
 Plain data and string builders (no numpy, no driver): the suite and its report section both import
-it, and importing it registers the contract (:func:`armbench.record.suite_contract.register`).
+it; the record layer finds it by the suite's name, registered as an entry point of
+``armbench.suite_contracts`` (:func:`armbench.record.suite_contract.contract`).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Final
 
-from armbench.record.suite_contract import Headline, register
+from armbench.record.suite_contract import Headline
 
 __all__ = ["TWIN_CHECK", "TwinCheckNames"]
 
@@ -25,8 +26,6 @@ class TwinCheckNames:
     order: int = 90
     #: whether the suite records true figures beside the encoders' (the scorecard says which)
     has_true_figures: bool = False
-    #: what runs the suite as ``module:Class`` (None: recorded by ``armbench twin-check``)
-    implementation: str | None = None
     prefix: str = "twin"
     # suite parameters: the inputs and how the series were kept
     capture: str = "capture"
@@ -123,4 +122,4 @@ class TwinCheckNames:
         )
 
 
-TWIN_CHECK: Final = register(TwinCheckNames())
+TWIN_CHECK: Final = TwinCheckNames()

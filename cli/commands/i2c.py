@@ -28,6 +28,7 @@ from armbench.cli.commands.monitor import (
 )
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import RobotSettings, load_settings
+from armbench.drivers.transports.base import emulated
 from armbench.drivers.transports.capabilities import ArmInputs
 from armbench.drivers.transports.target import Target
 from armbench.fakes.firmware.i2c_messages import I2CMessage
@@ -208,8 +209,7 @@ async def _scan_fake(target: Target, inputs: ArmInputs) -> ScanResult:
     transport = fresh if fresh is not None else target.connect(inputs.robot.serial)
     await transport.open()
     try:
-        emulator = getattr(transport, "emulator", None)
-        bus = getattr(emulator, "bus", None)
+        bus = getattr(emulated(transport), "bus", None)
         if bus is None:
             raise ArmbenchError(f"i2c scan: {port} has no emulated bus")
         async with asyncio.timeout(5.0):  # the arm is up (booted) once it replies

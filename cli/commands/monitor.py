@@ -22,6 +22,7 @@ from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, Bound, add
 from armbench.drivers.host.arm import Arm, JointState, ReplyTimeoutError, StateStream
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import Transport
+from armbench.drivers.transports.base import emulated
 from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
 from armbench.drivers.transports.target import Target, given_by, target_of
 from armbench.frontends.foxglove.live import (
@@ -76,7 +77,7 @@ def fresh_transport(target: Target, inputs: ArmInputs) -> Transport | None:
 
 async def close_emulator(transport: Transport | None) -> None:
     """Close the emulator of a transport from :func:`fresh_transport`, if it has one."""
-    emulator = getattr(transport, "emulator", None)
+    emulator = emulated(transport)
     if emulator is not None:
         await emulator.close()
 

@@ -29,6 +29,7 @@ from armbench.cli.plugin.pytest_plugin import (
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.transports.base import emulated
 from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
 from armbench.drivers.transports.target import Target, given_by, target_of
 from armbench.record import (
@@ -357,14 +358,14 @@ async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> Async
         inputs = session.inputs
         transport = session.target.fresh(session.settings.serial, FreshArm(
             session.settings, inputs.seed if inputs.seed is not None else 0, inputs.faults))
-    emulator = getattr(transport, "emulator", None)
+    emulator = emulated(transport)
     connection = Arm.connect(port, session.settings, capture=session.capture_path(bench_record),
                              transport=transport)
     try:
         async with connection as connected:
             yield connected
     finally:
-        emulator = getattr(transport, "emulator", emulator)
+        emulator = emulated(transport) or emulator
         if emulator is not None:
             await emulator.close()
 

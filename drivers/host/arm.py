@@ -24,7 +24,7 @@ import contextlib
 import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path as FsPath
-from typing import Any, Final, Literal
+from typing import Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -65,7 +65,7 @@ from armbench.drivers.host.paths import (
     stream_path,
 )
 from armbench.drivers.host.paths import MAX_WAYPOINT_JUMP_RAD as MAX_WAYPOINT_JUMP_RAD
-from armbench.drivers.host.state import GroundTruth, JointState
+from armbench.drivers.host.state import JointState
 from armbench.drivers.host.waiters import any_state
 from armbench.drivers.model.errors import (
     DriverClosedError,
@@ -82,6 +82,7 @@ from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import MAX_DUTY, Command
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import Transport
+from armbench.drivers.transports.base import Emulator, GroundTruth, emulated
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -204,18 +205,17 @@ class Arm(ArmLink):
                    move_timeout_scale=move_timeout_scale)
 
     @property
-    def emulator(self) -> Any:
-        """The emulator behind the transport (``fake://``), for its side channels; else None."""
-        return getattr(self._transport, "emulator", None)
+    def emulator(self) -> Emulator | None:
+        """The emulator behind the current transport (``fake://``, ``avr://`` on virtual time),
+        for its side channels; else None (:meth:`Transport.emulator`)."""
+        return emulated(self._transport)
 
     def ground_truth(self) -> GroundTruth | None:
-        """The emulator's newest ground-truth sample when the transport has an emulator
-        (``fake://``), else None. Real hardware has no ground truth."""
-        truth = getattr(self.emulator, "truth", None)
-        if not truth:
-            return None
-        sample: GroundTruth = truth[-1]
-        return sample
+        """The emulator's newest ground-truth sample when the transport has an emulator, else
+        None. Real hardware has no ground truth."""
+        emulator = self.emulator
+        truth = () if emulator is None else emulator.truth
+        return truth[-1] if truth else None
 
     @functools.cached_property
     def _default_tol(self) -> Vec4:

@@ -1,14 +1,13 @@
-"""What the driver reports: one reply of the arm as a joint state, and the emulator's ground truth
-beside it."""
+"""What the driver reports: one reply of the arm as a joint state."""
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol
+from typing import NamedTuple
 
 from armbench.drivers.model.kinematics import Vec4, tcp_position
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["GroundTruth", "JointState"]
+__all__ = ["JointState"]
 
 
 class JointState(NamedTuple):
@@ -29,18 +28,3 @@ class JointState(NamedTuple):
         """TCP position (m, base frame) by forward kinematics."""
         p = tcp_position(self.q_rad, settings)
         return float(p[0]), float(p[1]), float(p[2])
-
-
-class GroundTruth(Protocol):
-    """What an emulator reports beside each reply (``armbench.fakes.firmware.boards.TruthSample``):
-    the real joint
-    angles (``true_rad``) and the firmware's belief (``firmware_rad``) at ``t_s``."""
-
-    @property
-    def t_s(self) -> float: ...
-
-    @property
-    def true_rad(self) -> tuple[float, float, float, float]: ...
-
-    @property
-    def firmware_rad(self) -> tuple[float, float, float, float]: ...

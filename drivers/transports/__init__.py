@@ -13,9 +13,9 @@ emulator,
                                  in-process; it lives with the emulator, registered by name)
 ===============================  ==============================================================
 
-Transports are registered by scheme, as python-can registers its interfaces: :data:`TRANSPORTS`
-holds the built-in ones as ``"module:Class"`` strings, and other distributions add schemes as
-entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.transports``), e.g. in their
+Transports are registered by scheme, as python-can registers its interfaces: each scheme is an
+entry point of the group :data:`ENTRY_POINT_GROUP` (``armbench.transports``), armbench's own as
+any other distribution's (:mod:`armbench.drivers.model.entry_points`), e.g. in a
 ``pyproject.toml``::
 
     [project.entry-points."armbench.transports"]
@@ -23,7 +23,8 @@ entry points of the group :data:`ENTRY_POINT_GROUP` (``armbench.transports``), e
 
 A scheme is looked up when a port of it is opened, and only then is its module imported (so
 pyserial is not imported for a TCP port, and the driver never imports the emulator unless a
-``fake://`` port is opened). Built-in schemes win over entry points of the same name.
+``fake://`` port is opened). A device name has no scheme: it is the serial transport
+(:data:`SERIAL_TRANSPORT`), which is no entry point.
 
 The registered class also declares what the target behind its scheme can do (its clock, fresh
 arms, workers, ground truth, power): :func:`armbench.drivers.transports.target.target_of` reads
@@ -33,10 +34,10 @@ it, and the bench asks that target, never the scheme.
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 import re
-from typing import Final
+from typing import Final, TypeGuard
 
+from armbench.drivers.model import entry_points
 from armbench.drivers.model.errors import TransportError
 from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import READ_CHUNK, Transport
@@ -45,7 +46,6 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "READ_CHUNK",
     "SERIAL_TRANSPORT",
-    "TRANSPORTS",
     "Transport",
     "known_transports",
     "open_transport",
@@ -55,17 +55,6 @@ __all__ = [
 
 #: Transport of port strings without a ``scheme://`` prefix (device names).
 SERIAL_TRANSPORT = "armbench.drivers.transports.serial_port:SerialTransport"
-
-#: The built-in URL schemes → ``"module:Class"`` of their transports, imported lazily. The same
-#: are declared as entry points in ``pyproject.toml``; listed here too so that they work from a
-#: source tree whose installed metadata is older.
-TRANSPORTS: dict[str, str] = {
-    "socket": "armbench.drivers.transports.tcp:TcpTransport",
-    "rfc2217": "armbench.drivers.transports.rfc2217:Rfc2217Transport",
-    "fake": "armbench.fakes.links.fake_transport:FakeTransport",
-    "labgrid": "armbench.drivers.transports.labgrid:LabgridTransport",
-    "avr": "armbench.fakes.avr.avr_transport:AvrTransport",
-}
 
 #: Entry-point group under which distributions register transports by scheme.
 ENTRY_POINT_GROUP: Final = "armbench.transports"
@@ -80,43 +69,41 @@ def scheme_of(port: str) -> str | None:
     return m.group(1).lower() if m else None
 
 
-def _entry_points() -> dict[str, str]:
-    """Schemes registered as entry points of :data:`ENTRY_POINT_GROUP` → ``"module:Class"``."""
-    return {ep.name.lower(): f"{ep.module}:{ep.attr}"
-            for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-
-
 def known_transports() -> dict[str, str]:
-    """Every registered scheme → ``"module:Class"``: the entry points, and the built-ins over
-    them."""
-    return {**_entry_points(), **TRANSPORTS}
+    """Every registered scheme → ``"module:Class"`` (nothing imported)."""
+    return {scheme: f"{ep.module}:{ep.attr}" for scheme, ep
+            in entry_points.registered(ENTRY_POINT_GROUP, fold_case=True).items()}
+
+
+def _is_transport_class(found: object) -> TypeGuard[type[Transport]]:
+    return isinstance(found, type) and issubclass(found, Transport)
 
 
 def transport_class(port: str) -> type[Transport]:
     """The transport class serving ``port``; imports its module.
 
-    Raises :class:`TransportError` naming the port for an unknown scheme or a transport module
-    that cannot be imported.
+    Raises :class:`TransportError` naming the port for an unknown scheme, or for a transport
+    whose entry point cannot be loaded (naming the entry point).
     """
     scheme = scheme_of(port)
     if scheme is None:
-        target = SERIAL_TRANSPORT
-    else:
-        found = TRANSPORTS.get(scheme) or _entry_points().get(scheme)
-        if found is None:
-            known = ", ".join(f"{s}://" for s in sorted(known_transports()))
-            raise TransportError(port, f"unknown transport scheme {scheme}:// (known: {known}; "
-                                       "no scheme means a serial device)")
-        target = found
-    module_name, _, class_name = target.partition(":")
+        module_name, _, class_name = SERIAL_TRANSPORT.partition(":")
+        try:
+            serial: type[Transport] = getattr(importlib.import_module(module_name), class_name)
+        except ImportError as exc:
+            raise TransportError(port, f"transport {SERIAL_TRANSPORT} is not available: "
+                                       f"{exc}") from exc
+        return serial
+    known_schemes = known_transports()
+    if scheme not in known_schemes:
+        known = ", ".join(f"{s}://" for s in sorted(known_schemes))
+        raise TransportError(port, f"unknown transport scheme {scheme}:// (known: {known}; "
+                                   "no scheme means a serial device)")
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise TransportError(port, f"transport {target} is not available: {exc}") from exc
-    cls = getattr(module, class_name, None)
-    if not (isinstance(cls, type) and issubclass(cls, Transport)):
-        raise TransportError(port, f"transport {target} is not a Transport class")
-    return cls
+        return entry_points.load(ENTRY_POINT_GROUP, scheme, _is_transport_class,
+                                 "a Transport class", fold_case=True)
+    except entry_points.EntryPointError as exc:
+        raise TransportError(port, f"transport {scheme}:// is not available: {exc}") from exc
 
 
 def open_transport(port: str, serial: SerialSettings | None = None) -> Transport:

@@ -10,22 +10,87 @@ A transport class also declares what the target behind its scheme can do (the cl
 :meth:`Transport.capabilities`, :meth:`Transport.query`, :meth:`Transport.arm_inputs`,
 :meth:`Transport.fresh`, :meth:`Transport.check_settings`, :meth:`Transport.arm_name`), read
 through :class:`~armbench.drivers.transports.target.Target`. The defaults are real hardware's.
+
+A simulated arm (``fake://``, ``avr://`` on virtual time) has a side channel no wire carries: its
+ground truth. Its transport declares it by overriding :attr:`Transport.emulator` with its
+simulator's type, which must be an :class:`Emulator` (its :class:`GroundTruth` samples, its true
+angles and position, its close); :func:`emulated` reads it from a transport or an arm
+(:class:`EmulatedTarget`). The emulator never imports the host driver (``drivers/host``): the
+two meet here, below both.
 """
 
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from types import TracebackType
-from typing import Self
+from typing import Protocol, Self, runtime_checkable
 
 from armbench.drivers.model.errors import ArmbenchError, PortLostError, TransportError
 from armbench.drivers.model.settings import RobotSettings, SerialSettings, load_settings
 from armbench.drivers.transports.capabilities import ArmInputs, Capabilities, FreshArm, Given
 
-__all__ = ["READ_CHUNK", "Transport"]
+__all__ = ["READ_CHUNK", "EmulatedTarget", "Emulator", "GroundTruth", "Transport", "emulated"]
 
 READ_CHUNK = 65536
 """Most bytes one :meth:`Transport.read` returns."""
+
+_Vec4 = tuple[float, float, float, float]
+
+
+class GroundTruth(Protocol):
+    """What a simulated arm knows beside each reply it sends (the emulator's
+    ``armbench.fakes.twin.physics.TruthSample``): at ``t_s``, when the reply was printed, the
+    real joint angles (``true_rad``), the firmware's belief (``firmware_rad``), the links'
+    angles before their deflection under gravity (``link_rad``: ``true_rad`` is a function of
+    them for one emulator) and the motor shafts' angles where it models them (``motor_rad``).
+    Angles in rad, protocol convention."""
+
+    @property
+    def t_s(self) -> float: ...
+
+    @property
+    def true_rad(self) -> _Vec4: ...
+
+    @property
+    def firmware_rad(self) -> _Vec4: ...
+
+    @property
+    def link_rad(self) -> _Vec4: ...
+
+    @property
+    def motor_rad(self) -> _Vec4 | None: ...
+
+
+@runtime_checkable
+class Emulator(Protocol):
+    """A simulated arm's side channel, as the bench reads it: its ground truth beside each reply
+    (``truth``, newest last, bounded; empty before the first reply), its true joint angles
+    (rad) and tool position (m, base frame) now, and its end (``close``, idempotent; the
+    caller's when it asked for a fresh arm, :meth:`Transport.fresh`)."""
+
+    @property
+    def truth(self) -> Sequence[GroundTruth]: ...
+
+    def true_angles_rad(self) -> tuple[float, ...]: ...
+
+    def true_position_m(self) -> tuple[float, float, float]: ...
+
+    async def close(self) -> None: ...
+
+
+@runtime_checkable
+class EmulatedTarget(Protocol):
+    """Something with an arm behind it that may be simulated: a :class:`Transport`, or a driver's
+    arm (which reads its current transport's). ``emulator`` is None for hardware."""
+
+    @property
+    def emulator(self) -> Emulator | None: ...
+
+
+def emulated(target: EmulatedTarget | None) -> Emulator | None:
+    """The emulator behind ``target`` (a transport or an arm), None for hardware or no target."""
+    return None if target is None else target.emulator
 
 
 class Transport(abc.ABC):
@@ -81,8 +146,8 @@ class Transport(abc.ABC):
     @classmethod
     def fresh(cls, port: str, serial: SerialSettings, arm: FreshArm) -> Transport:
         """A transport, not yet opened, to a new arm built from ``arm``; only for targets that
-        declare ``fresh_per_trial``. After :meth:`open` its ``emulator`` attribute is the arm's
-        side channel (ground truth, power), closed by whoever asked for the arm."""
+        declare ``fresh_per_trial``. After :meth:`open` its :attr:`emulator` is the arm's side
+        channel (ground truth, power), closed by whoever asked for the arm."""
         raise TransportError(port, f"{cls.__name__} cannot start a fresh arm")
 
     @classmethod
@@ -106,6 +171,19 @@ class Transport(abc.ABC):
     @abc.abstractmethod
     def is_open(self) -> bool:
         """True between a successful :meth:`open` and :meth:`close` or the loss of the port."""
+
+    @property
+    def emulator(self) -> Emulator | None:
+        """The simulator behind the port, for its ground truth (:class:`Emulator`); None, the
+        default, for hardware. A simulated target's transport overrides it with its
+        simulator's type, which mypy then checks against :class:`Emulator`.
+
+        A property of the base rather than an ``isinstance`` check against a
+        ``runtime_checkable`` protocol: every transport answers, a transport of another
+        distribution included, at the cost of one attribute read (the capture asks at each
+        reply; a protocol check costs some microseconds and only sees that the name exists),
+        and its type is checked statically where it is declared."""
+        return None
 
     def preflight(self) -> None:
         """Check what can be checked before anything is opened or made (a library the transport

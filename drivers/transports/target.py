@@ -1,9 +1,9 @@
 """The bench target: what a port string names, parsed once, and what it can do.
 
-``target_of("fake://?seed=3")`` finds the transport class registered for the scheme (the
-built-in table and the entry points of ``armbench.transports``, see
-:mod:`armbench.drivers.transports`) and asks it for its :class:`Capabilities`. The runner, the
-pytest plugin, ``monitor``, ``i2c`` and the capture ask the :class:`Target`, never the scheme:
+``target_of("fake://?seed=3")`` finds the transport class registered for the scheme (an entry
+point of ``armbench.transports``, see :mod:`armbench.drivers.transports`) and asks it for its
+:class:`Capabilities`. The runner, the pytest plugin, ``monitor``, ``i2c`` and the capture ask
+the :class:`Target`, never the scheme:
 
 =====================  ======  =====  ========  =====  =====  ======  =======
 target                 clock   fresh  parallel  truth  power  faults  I²C bus

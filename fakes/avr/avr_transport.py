@@ -81,12 +81,17 @@ class AvrTransport(SerialTransport):
         self.harness: Harness | AvrBoards | None = None
         """The running harness, or on virtual time the boards (both switch the power and
         re-reference the arm); None before :meth:`open` and after :meth:`close`."""
-        self.emulator: AvrBoards | None = None
-        """On virtual time the boards, the side channels a runner reads as it reads
-        ``fake://``'s emulator (ground truth); None in real time."""
+        self._boards: AvrBoards | None = None
         self.last_stats: dict[str, Any] | None = None
         """The harness's figures when it was stopped (``docs/firmware.md``)."""
         self._lockstep: AvrVirtualTransport | None = None
+
+    @property
+    def emulator(self) -> AvrBoards | None:
+        """On virtual time the boards, the side channel a runner reads as it reads
+        ``fake://``'s emulator (:class:`~armbench.drivers.transports.base.Emulator`: ground
+        truth); None in real time (the harness's pty carries only the UART)."""
+        return self._boards
 
     @classmethod
     def fresh(cls, port: str, serial: SerialSettings, arm: Any) -> Transport:
@@ -117,7 +122,7 @@ class AvrTransport(SerialTransport):
         lockstep = AvrVirtualTransport(self.port, self.serial, robot=self._robot)
         await lockstep.open()
         self._lockstep = lockstep
-        self.emulator = self.harness = lockstep.emulator
+        self._boards = self.harness = lockstep.emulator
 
     def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
         """On virtual time, hand each chunk to ``receiver`` as it arrives (as ``fake://``);

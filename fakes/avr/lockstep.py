@@ -381,26 +381,33 @@ class AvrVirtualTransport(InProcessTransport[AvrBoards]):
         self._robot = robot
 
     @property
+    def emulator(self) -> AvrBoards | None:
+        """The boards (:class:`~armbench.drivers.transports.base.Emulator`: ground truth from the
+        harness's joint model): the ones given, else those :meth:`open` made (None before)."""
+        return self._peer
+
+    @property
     def harness(self) -> AvrBoards | None:
         """The boards, for :func:`armbench.bench.runner.power.port_power` (``HarnessPower``)."""
-        return self.emulator
+        return self._peer
 
     async def open(self) -> None:
         if self._open:
             return
-        if self.emulator is None:
+        boards = self._peer
+        if boards is None:
             robot, firmware, eeprom, control = parse_avr_url(self.port)
             if eeprom is not None or control is not None:
                 raise self._error("eeprom= and control= need the real-time pty "
                                   "(a run on virtual time starts fresh boards per trial)")
-            self.emulator = AvrBoards(self._robot if self._robot is not None else robot,
-                                      firmware)
+            boards = self._peer = AvrBoards(self._robot if self._robot is not None else robot,
+                                            firmware)
         try:
-            await self.emulator.start()
+            await boards.start()
         except FirmwareError as exc:
             raise self._error(str(exc)) from exc
-        self.emulator.on_lost = self._peer_lost
-        self._attach(self.emulator)
+        boards.on_lost = self._peer_lost
+        self._attach(boards)
 
 
 def fresh_boards(robot: RobotSettings, faults: Sequence[object] = (),

@@ -125,14 +125,21 @@ class FakeTransport(InProcessTransport[ArmEmulator]):
                  emulator: ArmEmulator | None = None) -> None:
         super().__init__(port, serial, emulator)
 
+    @property
+    def emulator(self) -> ArmEmulator | None:
+        """The emulator (:class:`~armbench.drivers.transports.base.Emulator`): the one given,
+        else the one :meth:`open` made (None before)."""
+        return self._peer
+
     async def open(self) -> None:
         if self._open:
             return
-        if self.emulator is None:  # the port on its own: its query over the settings file
+        emulator = self._peer
+        if emulator is None:  # the port on its own: its query over the settings file
             cls = type(self)
             inputs = cls.arm_inputs(self.port, resolve(cls.query(self.port)))
             overrides = {"seed": inputs.seed} if inputs.seed is not None else {}
-            self.emulator = ArmEmulator(inputs.robot, emulator_settings(inputs.robot, **overrides),
-                                        list(inputs.faults))
-        self._attach(self.emulator)
-        await self.emulator.start()
+            emulator = self._peer = ArmEmulator(
+                inputs.robot, emulator_settings(inputs.robot, **overrides), list(inputs.faults))
+        self._attach(emulator)
+        await emulator.start()

@@ -62,8 +62,9 @@ PeerT = TypeVar("PeerT", bound=InProcessPeer)
 
 
 class InProcessTransport(Transport, Generic[PeerT]):
-    """A transport whose other end is an :class:`InProcessPeer` on the same loop, exposed as
-    ``transport.emulator`` for its side channels (ground truth, power).
+    """A transport whose other end is an :class:`InProcessPeer` on the same loop (:attr:`peer`);
+    a subclass whose peer is an :class:`~armbench.drivers.transports.base.Emulator` declares it
+    as its ``emulator`` (ground truth, power).
 
     A subclass sets :attr:`scheme` and :attr:`declared`, and implements :meth:`open`: make the
     peer when none was given, then start it and :meth:`_attach` it, in the order its peer needs
@@ -85,14 +86,18 @@ class InProcessTransport(Transport, Generic[PeerT]):
     def __init__(self, port: str, serial: SerialSettings, peer: PeerT | None = None) -> None:
         super().__init__(port, serial)
         self._given = peer
-        self.emulator: PeerT | None = peer
-        """The peer: the one given, else the one :meth:`open` made (None before)."""
+        self._peer: PeerT | None = peer
         self._chunks: list[bytes] = []
         self._unread = 0
         self._receiver: Callable[[bytes], None] | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._open = False
         self._lost_reason: str | None = None
+
+    @property
+    def peer(self) -> PeerT | None:
+        """The peer: the one given, else the one :meth:`open` made (None before)."""
+        return self._peer
 
     @property
     def is_open(self) -> bool:
@@ -169,7 +174,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
         return data
 
     async def write(self, data: bytes) -> None:
-        peer = self.emulator
+        peer = self._peer
         if not self._open or peer is None:
             raise self._not_open()
         if self._lost_reason is not None:
@@ -187,7 +192,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
         self._receiver = None
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_exception(self._lost("transport closed"))
-        peer = self.emulator
+        peer = self._peer
         if peer is not None:
             peer.detach_host()
             if self._given is None:

@@ -58,7 +58,7 @@ __all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "rep
            "suite_sections"]
 
 _FIG_NUMBER = re.compile(r"^Fig\. \d+: ")
-#: The section of each suite the report knows, by the suite's name (registered by the modules of
+#: The section of each suite the report knows, by the suite's name (registered as entry points,
 #: :mod:`armbench.reports.sections`); any other suite gets
 #: :func:`armbench.reports.sections.generic.build`.
 SECTIONS: Mapping[str, SectionBuilder] = registered_sections()
