@@ -20,7 +20,7 @@ import armbench.cli.main
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
 #: What a wheel build reads from the checkout.
-BUILD_INPUTS = ("api", "bench", "capture", "cli", "drivers", "fakes", "metrics", "record",
+BUILD_INPUTS = ("api", "bench", "cli", "drivers", "fakes", "frontends", "metrics", "record",
                 "reports", "firmware", "pyproject.toml", "setup.py", "README.md")
 
 
