@@ -32,8 +32,9 @@ i2c_hz = {i2c_hz}
 [emulator.effects]
 miss_probability = 0.02
 miss_above_duty = 40
-backlash_rad = 0.002
-noise_rate_hz = 5.0
+
+[emulator.physics]
+noise_per_count = 4e-4
 {faults}"""
 FAULTS = """
 [[faults]]

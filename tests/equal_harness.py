@@ -143,7 +143,7 @@ def _physics(name: str, *args: Any) -> object:
         robot = _robot(args[0])
         return emulator_settings(robot), actual_robot(robot)
     if name == "joint_physics":
-        joint = ph.JointPhysics(**args[0])
+        joint = ph.ideal_joint(**args[0])
         load_nm, direction, gear_ratio, steps_per_s, steps_per_rev, fraction, normal, speed = (
             args[1])
         return (joint, joint.pullout_at_nm(steps_per_s),
@@ -151,8 +151,9 @@ def _physics(name: str, *args: Any) -> object:
                 joint.loss_fraction(load_nm, direction, gear_ratio, steps_per_s, steps_per_rev),
                 joint.jittered(fraction, normal), joint.stick_band_rad(speed))
     if name == "geometry_error":
-        error = ph.GeometryError(**args[0])
-        return error, ph.ArmPhysics(geometry_error=error).actual_settings(_robot())
+        error = dataclasses.replace(ph.ideal_geometry(), **args[0])
+        return error, dataclasses.replace(ph.DEFAULT_ARM, geometry_error=error).actual_settings(
+            _robot())
     if name == "mechanism":
         physics = ph.arm_physics(args[0])
         q = args[1]

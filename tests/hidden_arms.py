@@ -1,5 +1,5 @@
 """Hidden arms for the identification tests: physical parameters drawn at random within the ranges
-documented in ``docs/robot-model.md`` (``armbench.fakes.twin.physics``), served as
+documented in ``docs/robot-model.md`` (``armbench.drivers.model.twin_parameters``), served as
 ``fake://?settings=hidden.toml``, and the check of a calibration against them.
 
 Only what ``docs/calibration.md`` lists as identifiable is drawn; the rest (link masses, worm
@@ -10,21 +10,21 @@ The payload is drawn too and given to the calibration as known (a lab knows what
 
 from __future__ import annotations
 
-import math
 import random
 from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate.model import Fitted
 from armbench.bench.calibrate.output import toml_text
-from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
+from armbench.drivers.model.twin_parameters import GEOMETRY_ERRORS, TWIN
 
 __all__ = ["check_recovery", "draw_hidden", "truth_of_key", "write_hidden"]
 
 
-def _u(rng: random.Random, name: str, scale: float = 1.0) -> float:
-    low, high = JOINT_RANGES[name]
-    return rng.uniform(low, high) * scale
+def _u(rng: random.Random, name: str) -> float:
+    """A value of twin parameter ``name`` within its plausible range (settings unit)."""
+    p = TWIN[name]
+    return rng.uniform(p.low, p.high)
 
 
 def draw_hidden(seed: int) -> dict[str, Any]:
@@ -32,19 +32,12 @@ def draw_hidden(seed: int) -> dict[str, Any]:
     rng = random.Random(seed)
     joints: dict[str, dict[str, float]] = {}
     for j in range(1, 5):
-        t = {
-            "backlash_deg": math.degrees(_u(rng, "backlash_rad")),
-            "stick_deg": math.degrees(_u(rng, "stick_rad")),
-            "hall_error_deg": math.degrees(_u(rng, "hall_error_rad")),
-            "offset_error_deg": math.degrees(_u(rng, "offset_error_rad")),
-        }
+        drawn = ["backlash_rad", "stick_rad", "hall_error_rad", "offset_error_rad"]
         if j in (2, 3):
-            t["stiffness_nm_per_rad"] = _u(rng, "stiffness_nm_per_rad")
-            t["pullout_nm"] = _u(rng, "pullout_nm")
-        joints[f"j{j}"] = t
-    low, high = ARM_RANGES["geometry_error_m"]
-    geometry = {k: rng.uniform(low, high) for k in ("d1_m", "d2_m", "a2_m", "a3_m")}
-    payload = rng.uniform(*ARM_RANGES["payload_kg"])
+            drawn += ["stiffness_nm_per_rad", "pullout_nm"]
+        joints[f"j{j}"] = {TWIN[name].key: _u(rng, name) for name in drawn}
+    geometry = {p.key: rng.uniform(p.low, p.high) for p in GEOMETRY_ERRORS if p.fitted}
+    payload = _u(rng, "payload_kg")
     return {"seed": seed, "physics": {"payload_kg": payload, "geometry_error": geometry,
                                       **joints}}
 

@@ -29,12 +29,13 @@ from armbench.bench.calibrate import (
 )
 from armbench.bench.calibrate.fit import fit_play, instrument_offsets
 from armbench.bench.calibrate.model import Approach, Fitted
+from armbench.bench.calibrate.output import apply_fit
 from armbench.bench.calibrate.sensitivity import sensitivity
 from armbench.cli.main import main
 from armbench.drivers.host.arm import Arm
 from armbench.drivers.model.settings import RobotSettings, load_settings
 from armbench.fakes.clock.vclock import run_virtual
-from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS, ArmPhysics
+from armbench.fakes.twin.physics import DEFAULT_ARM, DEFAULT_JOINT_PHYSICS
 from armbench.reports.pages.calibration_page import render_page
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,19 +92,25 @@ def test_outputs_load_and_page(tmp_path: Path) -> None:
         "robot.html", "robot.json", "robot.observations.json", "robot.toml"]
     text = out.read_text()
     assert re.search(r"backlash_deg = [0-9.e-]+  # fitted: ± ", text)
-    assert "kept:" in text
+    assert "kept:" in text and "\n[uncertainty]\n" in text
     settings = load_settings(out)
     assert settings.sections["emulator"]["profile"] == "physical"
     fit = json.loads(out.with_suffix(".json").read_text())
     keys = {f["key"]: f for f in fit["fitted"]}
     assert keys["emulator.physics.j1.backlash_deg"]["identified"]
     assert keys["emulator.physics.j1.backlash_deg"]["sigma"] > 0
+    # each fitted value's standard error is data in the settings, as the fit has it
+    assert "emulator.physics.j1.backlash_deg" in settings.uncertainty
+    assert all(keys[k]["identified"] and keys[k]["sigma"] == sigma
+               for k, sigma in settings.uncertainty.items())
     assert not keys["emulator.physics.j4.offset_error_deg"]["identified"]
     assert fit["observations"]["robot_time_s"] <= 60
     page = out.with_suffix(".html").read_text()
     assert "Content-Security-Policy" in page and "<script" not in page.lower()
     assert "http://" not in page and "https://" not in page
     assert "Kept at the prior" in page and "<svg" in page
+    # what no calibration fits, from the declaration of the twin's parameters
+    assert re.search(r"Not fitted at all: .*mass_kg.*payload_kg", page)
 
     async def connect() -> tuple[float, ...]:
         async with Arm.connect(f"fake://?settings={out}") as arm:
@@ -151,6 +158,27 @@ def test_stalled_joint_stops_with_partial_output(tmp_path: Path) -> None:
     assert out2.exists()
 
 
+def test_the_settings_hold_each_fitted_sigma_as_data() -> None:
+    """``[uncertainty]`` holds the standard error of every identified number the settings file
+    gets as fitted: not a clamped value, a choice, a kept prior, or a timing (not a setting); a
+    table the base had is replaced by the fit's."""
+    base = RobotSettings.from_mapping({
+        "emulator": {"physics": {"j1": {"backlash_deg": 0.2}}},
+        "uncertainty": {"emulator.physics.j1.backlash_deg": 0.5}})
+    fitted = [Fitted("emulator.physics.j2.backlash_deg", 0.3, 0.02, "deg", True, "a"),
+              Fitted("emulator.physics.j3.backlash_deg", -0.01, 0.02, "deg", True, "clamped"),
+              Fitted("emulator.physics.j1.loss_law", math.nan, None, "", True, "b",
+                     choice="stall"),
+              Fitted("joints.j2.gear_ratio", 51.0, 0.1, "", True, "c"),
+              Fitted("timing.latency_s", 0.01, 0.001, "s", True, "d"),
+              Fitted("emulator.physics.j4.stick_deg", 0.03, None, "deg", False, "kept")]
+    settings = apply_fit(base, fitted)
+    assert settings.uncertainty == {"emulator.physics.j2.backlash_deg": 0.02,
+                                    "joints.j2.gear_ratio": 0.1}
+    physics = settings.sections["emulator"]["physics"]
+    assert physics["j3"]["backlash_deg"] == 0.0  # a width below 0 is written as 0, no sigma
+
+
 def test_play_fit_hand_computed() -> None:
     """The play estimator on exact samples: link − motor = d·(band·U − play/2); five U spanning
     4/6 of the band, where the unbiased range estimate (range·(n+1)/(n−1)) is the band itself."""
@@ -162,7 +190,7 @@ def test_play_fit_hand_computed() -> None:
             approaches.append(Approach(1, 0.0, d, 99, [0.0] * 4, [y, 0, 0, 0], [y, 0, 0, 0],
                                        [0.0] * 4, [0.0] * 4, k))
     obs = Observations("test", truth=True, motor_truth=True, approaches=approaches)
-    fitted = {f.key: f for f in fit_play(obs, RobotSettings(), ArmPhysics())}
+    fitted = {f.key: f for f in fit_play(obs, RobotSettings(), DEFAULT_ARM)}
     f = fitted["emulator.physics.j1.backlash_deg"]
     assert f.identified and f.value == pytest.approx(0.004 * 57.29577951308232, rel=1e-9)
     assert fitted["emulator.physics.j1.stick_deg"].value == pytest.approx(
@@ -184,7 +212,7 @@ def test_instrument_offsets_from_the_approaches() -> None:
             true = [q - d * half + o for q, o in zip(reported, offsets, strict=True)]
             obs.approaches += [Approach(j + 1, 0.0, d, 99, reported, true_rad=true, cycle=cycle)
                                for j in range(4)]
-    prior = ArmPhysics()
+    prior = DEFAULT_ARM
     seen = instrument_offsets(obs, prior)
     for j in range(4):
         value, sigma = seen[j]

@@ -24,10 +24,10 @@ from armbench.cli.main import main
 from armbench.drivers.host.arm import Arm
 from armbench.drivers.model.settings import RobotSettings, load_settings
 from armbench.fakes.clock.vclock import run_virtual
-from armbench.fakes.twin.physics import JointPhysics
+from armbench.fakes.twin.physics import ideal_joint
 from armbench.reports.pages.calibration_page import render_page
 
-PRIOR = JointPhysics(pullout_nm=1.5)
+PRIOR = ideal_joint(pullout_nm=1.5)
 DUTIES = np.array([99, 90, 95, 97, 93, 98, 96], dtype=np.float64)
 
 
@@ -72,7 +72,7 @@ def test_the_same_slowdown_at_every_duty_is_a_gear_ratio() -> None:
     laws = []
     covered = 0
     for seed in range(10):
-        fitted = _by_key(choose_joint(3, 28.0, JointPhysics(pullout_nm=0.5),
+        fitted = _by_key(choose_joint(3, 28.0, ideal_joint(pullout_nm=0.5),
                                       _table([28 / 30] * 6, duty, direction, factor, 1e-4,
                                              seed=seed)))
         covered += fitted["gear_ratio"].covers(30.0)

@@ -8,6 +8,7 @@ import dataclasses
 import html
 import io
 import json
+import math
 import random
 import re
 from pathlib import Path
@@ -26,7 +27,8 @@ from armbench.bench.campaign import (
 )
 from armbench.bench.campaign.draws import draw_arm
 from armbench.cli.main import main
-from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.drivers.model.settings import RobotSettings, SettingsError, load_settings
+from armbench.drivers.model.twin_parameters import GEOMETRY_ERRORS, JOINT_PARAMETERS
 from armbench.record import load_record
 from armbench.record.verdict import DEFAULT_CONFIG, EXIT_FAIL, EXIT_PASS
 from armbench.reports.pages.campaign_page import build_campaign_html
@@ -34,18 +36,34 @@ from armbench.reports.render.format import CSP, format_value
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
-# As armbench calibrate writes it: each fitted value with its standard error in a comment.
-FITTED = """# Robot settings fitted by armbench calibrate from fake://.
+def _play_only() -> str:
+    """The ``[emulator.physics]`` tables of an arm whose every effect is off (the declared ideal
+    values: no mass, stick-slip, friction, kinematic error or noise) but the gear play of joint
+    2: the drawn play alone moves the true path."""
+    joints = "".join(
+        f"\n[emulator.physics.j{j + 1}]\n" + "".join(
+            f"{p.key} = {p.ideal_value()!r}\n" for p in JOINT_PARAMETERS
+            if not p.choices and math.isfinite(float(p.ideal_value())) and p.key != "backlash_deg")
+        + f"backlash_deg = {0.06 if j == 1 else 0.0}\n" for j in range(4))
+    geometry = "".join(f"{p.key} = 0.0\n" for p in GEOMETRY_ERRORS)
+    return (f"[emulator.physics]\nnoise_per_count = 0.0\n\n[emulator.physics.geometry_error]\n"
+            f"{geometry}{joints}")
+
+
+# As armbench calibrate writes it: the standard errors in the [uncertainty] table (the comments
+# beside the values are for the reader).
+FITTED = f"""# Robot settings fitted by armbench calibrate from fake://.
 [joints.j2]
 offset_deg = 90.0  # fitted: ± 0.3 deg (1 σ); Hall approaches
 hall_deg = 0.0  # kept: not identified
 
 [emulator]
-profile = "ideal"  # the drawn play alone moves the true path (no stick-slip, sag or step loss)
+profile = "physical"
 
-[emulator.effects]
-backlash_rad = 0.001  # fitted: ± 0.002 rad (1 σ); reversal gaps
-noise_rate_hz = 0.0
+{_play_only()}
+[uncertainty]
+"joints.j2.offset_deg" = 0.3
+"emulator.physics.j2.backlash_deg" = 0.11
 """
 
 ACCURACY = """spec_version = "armbench-limits/1"
@@ -65,18 +83,46 @@ def fitted(tmp_path: Path) -> Path:
     return path
 
 
-def test_uncertainties_read_from_the_calibration_comments(fitted: Path) -> None:
+def test_uncertainties_read_from_the_settings_table(fitted: Path) -> None:
     got = read_uncertainties(fitted)
     assert [(u.key, u.value, u.sigma, u.unit) for u in got] == [
         ("joints.j2.offset_deg", 90.0, 0.3, "deg"),
-        ("emulator.effects.backlash_rad", 0.001, 0.002, "rad")]
+        ("emulator.physics.j2.backlash_deg", 0.06, 0.11, "deg")]
+    assert load_settings(fitted).uncertainty == {"joints.j2.offset_deg": 0.3,
+                                                 "emulator.physics.j2.backlash_deg": 0.11}
 
 
-def test_bad_sigma_is_named(tmp_path: Path) -> None:
+PLAY = "[emulator.physics.j2]\nbacklash_deg = 0.1\n"
+
+
+@pytest.mark.parametrize(("text", "sigma", "problem"), [
+    (PLAY, "-0.1", "is not a standard error"), (PLAY, '"wide"', "is not a number"),
+    (PLAY, "nan", "is not finite"),
+    ('[emulator.physics.j2]\nbacklash_deg = "x"\n', "0.1", "does not set to a number"),
+    ("", "0.1", "does not set to a number")])
+def test_a_bad_uncertainty_is_named(tmp_path: Path, text: str, sigma: str, problem: str) -> None:
+    """The settings loader refuses a standard error that is not a number >= 0, or one of a
+    setting the file does not give a number, naming the table's key."""
     path = tmp_path / "bad.toml"
-    path.write_text('[emulator.effects]\nbacklash_rad = "x"  # fitted: ± 0.1 rad (1 σ); a\n',
+    table = '[uncertainty]\n"emulator.physics.j2.backlash_deg" = '
+    path.write_text(f"{PLAY}{table}0.1\n", encoding="utf-8")
+    assert read_uncertainties(path)[0].sigma == 0.1
+    path.write_text(f"{text}{table}{sigma}\n", encoding="utf-8")
+    with pytest.raises(SettingsError, match=r'uncertainty\."emulator\.physics\.j2\.backlash_deg"'
+                       ) as info:
+        load_settings(path)
+    assert problem in str(info.value)
+
+
+def test_standard_errors_in_comments_only_are_refused_by_a_campaign(tmp_path: Path) -> None:
+    """A file an older ``armbench calibrate`` wrote, its standard errors in comments, still
+    loads as settings (a comment is a comment); a campaign, which would draw nothing from it,
+    says so and how to add the table."""
+    path = tmp_path / "old.toml"
+    path.write_text("[emulator.physics.j2]\nbacklash_deg = 0.2  # fitted: ± 0.03 deg (1 σ); a\n",
                     encoding="utf-8")
-    with pytest.raises(SettingsError, match=r"emulator\.effects\.backlash_rad"):
+    assert load_settings(path).uncertainty == {}
+    with pytest.raises(SettingsError, match=r"uncertainty.*comments.*\[uncertainty\] table"):
         read_uncertainties(path)
 
 
@@ -88,9 +134,9 @@ def test_draws_follow_the_law_within_valid_settings(fitted: Path) -> None:
     mean = sum(offsets) / len(offsets)
     sd = (sum((x - mean) ** 2 for x in offsets) / (len(offsets) - 1)) ** 0.5
     assert abs(mean - 90.0) < 0.04 and abs(sd - 0.3) < 0.04  # 3.8 and 2.7 standard errors
-    # a play cannot be negative: N(0.001, 0.002) restricted to >= 0, every draw valid
-    play = [a["emulator.effects.backlash_rad"] for a in arms]
-    assert min(play) >= 0.0 and max(play) > 0.005
+    # a play cannot be negative: N(0.06, 0.11) restricted to >= 0, every draw valid
+    play = [a["emulator.physics.j2.backlash_deg"] for a in arms]
+    assert min(play) >= 0.0 and max(play) > 0.3
     assert draw_arm(RobotSettings(), uncertain, random.Random(7)) == draw_arm(
         RobotSettings(), uncertain, random.Random(7))
 
@@ -121,12 +167,12 @@ def test_accuracy_campaign_draws_arms_and_reports_pass_probability(
     suite = outcome.record.suites["accuracy"]
     assert [t.index for t in suite.trials] == list(range(5))
     arms = [t.params["arm"] for t in suite.trials]
-    assert len({a["emulator.effects.backlash_rad"] for a in arms}) == 5
+    assert len({a["emulator.physics.j2.backlash_deg"] for a in arms}) == 5
     # the emulator played the drawn arm: its play shows in the true path
     true_mean = [next(m.value for m in t.measurements
                       if m.name == "accuracy.coordinated.true_mean_mm") for t in suite.trials]
     assert len(set(true_mean)) == 5
-    by_play = sorted(zip((a["emulator.effects.backlash_rad"] for a in arms), true_mean,
+    by_play = sorted(zip((a["emulator.physics.j2.backlash_deg"] for a in arms), true_mean,
                          strict=True))
     assert by_play[-1][1] > by_play[0][1]  # more play, larger true error
     figures = _figures(tmp_path / "c")

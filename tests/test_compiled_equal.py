@@ -29,7 +29,12 @@ from hypothesis import strategies as st
 from test_compiled import _env
 
 from armbench.drivers.model.protocol import MAX_TICKS, Command, Reply
-from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
+from armbench.drivers.model.twin_parameters import (
+    ARM_PARAMETERS,
+    GEOMETRY_ERRORS,
+    JOINT_PARAMETERS,
+    TwinParameter,
+)
 
 pytestmark = pytest.mark.slow  # two wheels are built (the tests of test_compiled.py share them)
 
@@ -156,8 +161,10 @@ def table(fields: dict[str, st.SearchStrategy[object]], *, odd: bool = True
                      st.fixed_dictionaries({"bogus": st.integers()}, optional=fields), ODD)
 
 
-_DEGREES = {"backlash_deg": "backlash_rad", "stick_deg": "stick_rad",
-            "offset_error_deg": "offset_error_rad", "hall_error_deg": "hall_error_rad"}
+#: The numbers of each table of ``[emulator.physics]``.
+_NUMBERS: dict[str, tuple[TwinParameter, ...]] = {
+    scope: tuple(p for p in params if not p.choices) for scope, params in (
+        ("joint", JOINT_PARAMETERS), ("arm", ARM_PARAMETERS), ("geometry", GEOMETRY_ERRORS))}
 
 
 def emulator_tables(*, odd: bool) -> tuple[st.SearchStrategy[object], st.SearchStrategy[object]]:
@@ -174,18 +181,15 @@ def emulator_tables(*, odd: bool) -> tuple[st.SearchStrategy[object], st.SearchS
     def whole(low: int, high: int) -> st.SearchStrategy[object]:
         return wholes(low, high, odd=odd)
 
-    joint = table({**{k: number(lo, hi) for k, (lo, hi) in JOINT_RANGES.items()
-                      if k not in _DEGREES.values()},
-                   **{k: number(math.degrees(JOINT_RANGES[r][0]),
-                                math.degrees(JOINT_RANGES[r][1])) for k, r in _DEGREES.items()}},
-                  odd=odd)
-    geometry = table({k: number(-0.01, 0.01) for k in ("d1_m", "d2_m", "a2_m", "a3_m", "d4_m")},
-                     odd=odd)
+    def numbers_of(scope: str) -> dict[str, st.SearchStrategy[object]]:
+        return {p.key: number(p.low, p.high) for p in _NUMBERS[scope]}
+
+    joint = table({**numbers_of("joint"), **{p.key: choice(*p.choices)
+                                             for p in JOINT_PARAMETERS if p.choices}}, odd=odd)
+    geometry = table(numbers_of("geometry"), odd=odd)
     physics = table({**{f"j{k}": joint for k in range(1, 5)}, "geometry_error": geometry,
-                     **{k: number(*ARM_RANGES[k]) for k in ("payload_kg", "noise_per_count")},
-                     "gravity_m_s2": number(0.0, 20.0)}, odd=odd)
-    effects = table({"miss_probability": number(0.0, 0.99), "miss_above_duty": whole(0, 99),
-                     "backlash_rad": number(0.0, 0.01), "noise_rate_hz": number(0.0, 50.0)},
+                     **numbers_of("arm")}, odd=odd)
+    effects = table({"miss_probability": number(0.0, 0.99), "miss_above_duty": whole(0, 99)},
                     odd=odd)
     flags = st.one_of(st.booleans(), st.booleans().map(np.bool_), *([ODD] if odd else []))
     return physics, st.one_of(physics.map(lambda p: {"physics": p}), table({
@@ -267,8 +271,8 @@ def test_physics_tables_build_the_same_arm(call: Call, physics: object) -> None:
 
 @EXAMPLES
 @given(fields=st.fixed_dictionaries({}, optional={
-    k: st.one_of(st.floats(lo, hi), st.floats(lo, hi).map(np.float64))
-    for k, (lo, hi) in JOINT_RANGES.items()}),
+    p.name: st.one_of(st.floats(lo, hi), st.floats(lo, hi).map(np.float64))
+    for p in _NUMBERS["joint"] for lo, hi in [(p.to_twin(p.low), p.to_twin(p.high))]}),
        args=st.tuples(reals(-20.0, 20.0), st.sampled_from([1, -1, 0]),
                       st.one_of(st.floats(10.0, 100.0), st.integers(10, 100)),
                       st.one_of(st.floats(0.0, 12_000.0), st.integers(0, 12_000)),
@@ -340,9 +344,7 @@ def test_framers_cut_a_stream_alike(call: Call, kind: str, chunks: list[bytes]) 
 @EXAMPLES
 @given(duty=st.one_of(counts(1, 99), ODD, st.integers(1, 99).map(np.int64)),
        effects=st.fixed_dictionaries({}, optional={
-           "miss_probability": reals(0.0, 0.99, ints=False), "miss_above_duty": counts(0, 99),
-           "backlash_rad": reals(0.0, 0.01, ints=False),
-           "noise_rate_hz": reals(0.0, 50.0, ints=False)}),
+           "miss_probability": reals(0.0, 0.99, ints=False), "miss_above_duty": counts(0, 99)}),
        run=st.tuples(st.integers(0, 10_000), st.integers(1, 101), st.sampled_from([1, -1]),
                      st.one_of(st.none(), st.integers(1, 50)), st.integers(0, 50),
                      st.integers(-100, 100), st.integers(-5, 5), st.integers(-5, 5),
@@ -380,8 +382,7 @@ def joint_actions(draw: st.DrawFn) -> list[list[object]]:
 @given(index=st.integers(0, 3), seed=counts(0, 1000), deadband=counts(0, 5),
        motor_steps=st.integers(-3000, 3000), noise=reals(0.0, 1e-3), physical=st.booleans(),
        effects=st.one_of(st.none(), st.fixed_dictionaries({}, optional={
-           "miss_probability": st.floats(0.0, 0.3), "miss_above_duty": st.integers(0, 99),
-           "backlash_rad": st.floats(0.0, 0.01), "noise_rate_hz": st.floats(0.0, 50.0)})),
+           "miss_probability": st.floats(0.0, 0.3), "miss_above_duty": st.integers(0, 99)})),
        actions=joint_actions())
 def test_joint_models_move_alike(call: Call, index: int, seed: object, deadband: object,
                                  motor_steps: object, noise: object, physical: bool,

@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 
 from armbench.drivers.model.protocol import Command, FrameError, Framer, Reply
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.model.twin_parameters import JOINT_PARAMETERS
 from armbench.fakes.clock.vclock import run_virtual
 from armbench.fakes.firmware.arm_emulator import ArmEmulator, ArmStats
 from armbench.fakes.firmware.eeprom import Eeprom, EepromRecord, record_write_times
@@ -561,7 +562,13 @@ def test_ground_truth_beside_each_reply_includes_backlash() -> None:
         assert sample.true_rad[1] - sample.firmware_rad[1] == pytest.approx(0.001, abs=2e-4)
         assert math.isfinite(sample.t_s)
 
-    emulate(body, effects={"backlash_rad": 0.002})
+    # a play of 0.002 rad on joint 2, every other effect of it off (the declared ideal values:
+    # no stick-slip, friction or Hall error), no weight beyond it to bend it, no encoder noise
+    ideal = {p.key: p.ideal_value() for p in JOINT_PARAMETERS
+             if isinstance(p.ideal_value(), float) and math.isfinite(float(p.ideal_value()))}
+    emulate(body, profile="physical", physics={
+        "noise_per_count": 0.0, "j2": {**ideal, "backlash_deg": math.degrees(0.002)},
+        "j3": {"mass_kg": 0.0}, "j4": {"mass_kg": 0.0}})
 
 
 def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
@@ -629,8 +636,9 @@ def _fused_trace(fused: bool, seed: int, **settings: Any) -> dict[str, Any]:
 @pytest.mark.parametrize(("seed", "settings"), [
     (1, {}), (2, {}), (3, {}), (4, {"i2c_hz": 400_000}),
     (21, {"uart_receive": "blocking"}),  # a seed whose power cuts leave no recovery stuck
-    (6, {"effects": {"miss_probability": 0.05, "miss_above_duty": 40, "backlash_rad": 0.003,
-                     "noise_rate_hz": 20.0}}),
+    # physical: a seed whose session keeps the arm moving (6 leaves it recovering from a cut)
+    (7, {"effects": {"miss_probability": 0.05, "miss_above_duty": 40}, "profile": "physical",
+         "physics": {"noise_per_count": 1e-3, "j2": {"backlash_deg": 0.17}}}),
     (8, {"profile": "physical", "physics": {"payload_kg": 2.0}}),
 ])
 def test_fused_bus_loops_are_the_bus_loops(seed: int, settings: dict[str, Any]) -> None:

@@ -98,7 +98,7 @@ _JOINT = ("gear_ratio", "lower_deg", "upper_deg", "offset_deg", "sign", "hall_de
 _EMULATOR = ("uart_receive", "i2c_hz", "rx_buffer_bytes", "tx_buffer_bytes", "loop_overhead_s",
              "reply_line_end", "deadband_counts", "recovery_duty", "eeprom_write_s_per_byte",
              "eeprom_cells", "seed")
-_EFFECTS = ("miss_probability", "miss_above_duty", "backlash_rad", "noise_rate_hz")
+_EFFECTS = ("miss_probability", "miss_above_duty")
 _FAULT = ("kind", "at_s", "after_frames", "duration_s", "joint", "probability", "count",
           "delay_s", "direction")
 

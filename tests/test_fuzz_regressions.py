@@ -128,8 +128,13 @@ def test_eeprom_cells_the_record_does_not_fit(value: str) -> None:
     rejected_or_runs(f"[emulator]\neeprom_cells = {value}", "emulator.eeprom_cells")
 
 
-def test_subnormal_noise_rate() -> None:
-    rejected_or_runs("[emulator.effects]\nnoise_rate_hz = 5e-324", "emulator.effects")
+@pytest.mark.parametrize("text", ["[emulator.effects]\nnoise_rate_hz = 5e-324",
+                                  "[emulator.physics]\nnoise_per_count = 5e-324"],
+                         ids=["merged key", "per count"])
+def test_subnormal_encoder_noise(text: str) -> None:
+    """A noise too small to give a step any chance of a spurious count draws none (the geometric
+    draw takes no chance of 0); the merged ``noise_rate_hz`` is refused, naming it."""
+    rejected_or_runs(text, text.split("]")[0][1:])
 
 
 def test_eeprom_cells_that_exhaust_memory() -> None:

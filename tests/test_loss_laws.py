@@ -13,7 +13,7 @@ from test_physics import J2, run_to
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.twin.joint import CYCLE_S, JointModel
-from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS, LOSS_LAWS, JointPhysics
+from armbench.fakes.twin.physics import DEFAULT_JOINT_PHYSICS, LOSS_LAWS, ideal_joint
 
 ROBOT = RobotSettings()
 
@@ -27,7 +27,7 @@ def test_default_law_is_the_torque_deficit() -> None:
 
 def test_duty_law_loses_its_share_above_the_duty_only() -> None:
     """20 % moving +, 5 % moving − above duty 90, whatever the load; nothing at 90."""
-    physics = replace(JointPhysics(), loss_law="duty", loss_above_duty=90.0, loss_plus=0.2,
+    physics = ideal_joint(loss_law="duty", loss_above_duty=90.0, loss_plus=0.2,
                       loss_minus=0.05)
     up = JointModel(J2, physics=physics, load=lambda q: 0.0, seed=1)
     run_to(up, 0, 0.3, duty=95)
@@ -44,7 +44,7 @@ def test_stall_law_stops_the_rotor_until_the_rate_falls() -> None:
     """Lifting 15 N·m at duty 99 needs more than the pull-out torque there: the rotor stalls and
     the counter does not move; at duty 81 (a tenth of the rate) it has the torque and arrives
     without a lost step (no proportional slip under this law)."""
-    physics = replace(JointPhysics(), loss_law="stall", pullout_nm=1.3)
+    physics = ideal_joint(loss_law="stall", pullout_nm=1.3)
     rate = 1.0 / (2 * CYCLE_S)
     assert physics.stalls(-15.0, +1, 50.0, rate, 1600)
     assert not physics.stalls(-15.0, -1, 50.0, rate, 1600)
@@ -77,7 +77,7 @@ def test_loss_settings_are_read_and_checked() -> None:
 def test_pullout_curves_halve_at_the_corner_and_differ_beyond() -> None:
     """Both shapes give the full pull-out torque at standstill and half at the corner; the
     hyperbolic one never reaches zero, the linear one does at twice the corner."""
-    hyp = JointPhysics(pullout_nm=1.0, corner_steps_per_s=4000.0)
+    hyp = ideal_joint(pullout_nm=1.0, corner_steps_per_s=4000.0)
     lin = replace(hyp, pullout_curve="linear")
     assert hyp.pullout_curve == "hyperbolic"  # the default: the default arm unchanged
     for p in (hyp, lin):
@@ -95,7 +95,7 @@ def test_linear_stall_rate_falls_with_the_load_and_lowering_stalls_only_beyond_i
     lifting 7 N·m keeps up to 3500/s, not above; lowering stalls only above the free rate, as
     an unloaded lift does. A worm of efficiency 0.35 must drive the load down, so lowering it
     stalls below the free rate; the hyperbolic curve never stalls unloaded."""
-    lin = JointPhysics(loss_law="stall", pullout_curve="linear", pullout_nm=14.0 / (50 * 0.5),
+    lin = ideal_joint(loss_law="stall", pullout_curve="linear", pullout_nm=14.0 / (50 * 0.5),
                        corner_steps_per_s=3500.0, efficiency=0.5, friction_nm=0.001,
                        inertia_kgm2=0.0)
     assert not lin.stalls(-7.0, +1, 50.0, 3400.0, 1600)
@@ -121,7 +121,7 @@ def test_a_stalled_joint_restarts_when_its_load_lightens_and_only_below_pull_in(
     load falls enough, without a new command. With ``pullin_share = 0.8`` it falls back into
     step only where its rate is below 0.8 of the rate it could keep: a load it could lift from
     rest at that rate does not restart it."""
-    physics = replace(JointPhysics(), loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
+    physics = ideal_joint(loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
                       corner_steps_per_s=8000.0, friction_nm=0.0, inertia_kgm2=0.0,
                       efficiency=0.5, pullin_share=0.8)
     rate = 1.0 / (2 * CYCLE_S)  # duty 99
@@ -148,7 +148,7 @@ def test_a_stalled_joint_restarts_when_its_load_lightens_and_only_below_pull_in(
 def test_a_stop_puts_a_humming_rotor_back_in_step() -> None:
     """A stalled joint that is stopped (duty 0) is at rest and in step again: the next command
     is judged against the pull-out rate, not the lower pull-in rate."""
-    physics = replace(JointPhysics(), loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
+    physics = ideal_joint(loss_law="stall", pullout_curve="linear", pullout_nm=1.3,
                       corner_steps_per_s=8000.0, friction_nm=0.0, inertia_kgm2=0.0,
                       efficiency=0.5, pullin_share=0.8)
     rate = 1.0 / (2 * CYCLE_S)

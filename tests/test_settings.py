@@ -109,11 +109,13 @@ def test_emulator_numbers_become_plain_python_numbers() -> None:
     np = pytest.importorskip("numpy")
     robot = RobotSettings(sections={"emulator": {
         "boot_s": np.int64(0), "loop_overhead_s": 0, "eeprom_write_s_per_byte": np.float64(0.003),
-        "effects": {"miss_probability": np.float64(0.1), "miss_above_duty": np.int64(40),
-                    "backlash_rad": 0, "noise_rate_hz": np.int64(2)}}})
+        "effects": {"miss_probability": np.float64(0.1), "miss_above_duty": np.int64(40)},
+        "physics": {"noise_per_count": np.float64(0.0), "j1": {"backlash_deg": 0}}}})
     s = emulator_settings(robot)
+    assert s.physics is not None
     for value in (s.boot_s, s.loop_overhead_s, s.eeprom_write_s_per_byte,
-                  s.effects.miss_probability, s.effects.backlash_rad, s.effects.noise_rate_hz):
+                  s.effects.miss_probability, s.physics.noise_per_count,
+                  s.physics.joints[0].backlash_rad):
         assert type(value) is float, value
     assert type(s.effects.miss_above_duty) is int and s.effects.miss_above_duty == 40
     robot = RobotSettings(sections={"emulator": {"effects": {"miss_above_duty": 40.0}}})

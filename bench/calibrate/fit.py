@@ -26,8 +26,9 @@ from armbench.bench.calibrate.structure import fit_speed_models
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.protocol import TICKS_PER_RAD
 from armbench.drivers.model.settings import RobotSettings
+from armbench.drivers.model.twin_parameters import GEOMETRY_ERRORS, TWIN
 from armbench.fakes.firmware.emulator_settings import emulator_settings
-from armbench.fakes.twin.physics import ArmPhysics, Mechanism
+from armbench.fakes.twin.physics import DEFAULT_ARM, ArmPhysics, Mechanism
 
 __all__ = [
     "INSTRUMENT_SIGMA_M",
@@ -54,17 +55,18 @@ INSTRUMENT_SIGMA_M: Final = 1e-5
 LOADED_NM: Final = 2.5
 #: Floor of an angle's standard error (rad): what float arithmetic of the truth can resolve.
 SIGMA_FLOOR_RAD: Final = 1e-7
-_KINEMATIC_KEYS: Final = ("d1_m", "d2_m", "a2_m", "a3_m")
+#: The DH length errors the true TCP shows (the tool offset's is kept: ``GEOMETRY_ERRORS``).
+_LENGTHS: Final = tuple(p for p in GEOMETRY_ERRORS if p.fitted)
+_KINEMATIC_KEYS: Final = tuple(p.name for p in _LENGTHS)
+_D4: Final = next(p for p in GEOMETRY_ERRORS if not p.fitted)
+_PLAY, _STICK, _HALL = TWIN["backlash_rad"], TWIN["stick_rad"], TWIN["hall_error_rad"]
+_OFFSET, _STIFFNESS = TWIN["offset_error_rad"], TWIN["stiffness_nm_per_rad"]
 
 
 def base_physics(base: RobotSettings) -> ArmPhysics:
     """The prior arm: the base settings' physics, the default arm's when they are ideal."""
     physics = emulator_settings(base).physics
-    return physics if physics is not None else ArmPhysics()
-
-
-def _jkey(j: int, name: str) -> str:
-    return f"emulator.physics.j{j + 1}.{name}"
+    return physics if physics is not None else DEFAULT_ARM
 
 
 def fit_timing(obs: Observations) -> list[Fitted]:
@@ -122,11 +124,12 @@ def fit_play(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[
             down = np.asarray([y for y, d in zip(ys, ds, strict=True) if d < 0])
             groups = (up, down, quant) if len(up) >= 2 and len(down) >= 2 else None
             reason = "fewer than 2 approaches from each side"
+        play_prior, stick_prior = _PLAY.from_twin(p.backlash_rad), _STICK.from_twin(p.stick_rad)
         if groups is None:
-            out.append(Fitted(_jkey(j, "backlash_deg"), math.degrees(p.backlash_rad), None, "deg",
-                              False, reason, math.degrees(p.backlash_rad)))
-            out.append(Fitted(_jkey(j, "stick_deg"), math.degrees(p.stick_rad), None, "deg",
-                              False, reason, math.degrees(p.stick_rad)))
+            out.append(Fitted(_PLAY.path(j), play_prior, None, _PLAY.unit, False, reason,
+                              play_prior))
+            out.append(Fitted(_STICK.path(j), stick_prior, None, _STICK.unit, False, reason,
+                              stick_prior))
             continue
         up, down, quant = groups
         if quant == 0.0:
@@ -136,12 +139,12 @@ def fit_play(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[
         play = band - diff
         sigma_play = math.sqrt(sigma_band ** 2 + var_diff)
         why = f"{len(up)} + {len(down)} approaches at the Hall position (reversal and scatter)"
-        out.append(Fitted(_jkey(j, "backlash_deg"), math.degrees(play),
-                          math.degrees(max(sigma_play, SIGMA_FLOOR_RAD)), "deg", True, why,
-                          math.degrees(p.backlash_rad)))
-        out.append(Fitted(_jkey(j, "stick_deg"), math.degrees(band),
-                          math.degrees(max(sigma_band, SIGMA_FLOOR_RAD)), "deg", True,
-                          why + ", at full duty", math.degrees(p.stick_rad)))
+        out.append(Fitted(_PLAY.path(j), _PLAY.from_twin(play),
+                          _PLAY.from_twin(max(sigma_play, SIGMA_FLOOR_RAD)), _PLAY.unit, True,
+                          why, play_prior))
+        out.append(Fitted(_STICK.path(j), _STICK.from_twin(band),
+                          _STICK.from_twin(max(sigma_band, SIGMA_FLOOR_RAD)), _STICK.unit, True,
+                          why + ", at full duty", stick_prior))
     return out
 
 
@@ -196,21 +199,21 @@ def fit_hall(obs: Observations, base: RobotSettings, prior: ArmPhysics) -> list[
     emulator's motor-side truth; a fixed quantisation of ~0.54 count remains)."""
     out: list[Fitted] = []
     for j, spec in enumerate(base.joints):
-        prior_deg = math.degrees(prior.joints[j].hall_error_rad)
+        prior_deg = _HALL.from_twin(prior.joints[j].hall_error_rad)
         values = [-(a.firmware_rad[j] - a.motor_rad[j]) for a in obs.approaches
                   if a.joint == j + 1 and a.cycle >= 1 and a.firmware_rad is not None
                   and a.motor_rad is not None]
         if len(values) < 2:
             reason = ("needs the motor-side truth of the emulator (a counter reset is invisible "
                       "in the traffic)" if not obs.motor_truth else "no Hall crossing measured")
-            out.append(Fitted(_jkey(j, "hall_error_deg"), prior_deg, None, "deg", False, reason,
+            out.append(Fitted(_HALL.path(j), prior_deg, None, _HALL.unit, False, reason,
                               prior_deg))
             continue
         a = np.asarray(values)
         se = float(a.std(ddof=1) / math.sqrt(len(a)))
         fixed = 0.54 / spec.counts_per_rad
-        out.append(Fitted(_jkey(j, "hall_error_deg"), math.degrees(float(a.mean())),
-                          math.degrees(math.hypot(se, fixed)), "deg", True,
+        out.append(Fitted(_HALL.path(j), _HALL.from_twin(float(a.mean())),
+                          _HALL.from_twin(math.hypot(se, fixed)), _HALL.unit, True,
                           f"counter against motor after {len(a)} Hall crossings", prior_deg))
     return out
 
@@ -225,10 +228,8 @@ def link_estimate(q_rad: Sequence[float], fitted: Sequence[Fitted], prior: ArmPh
     out = []
     for j, q in enumerate(q_rad):
         p = prior.joints[j]
-        hall = math.radians(values.get(_jkey(j, "hall_error_deg"),
-                                       math.degrees(p.hall_error_rad)))
-        half = math.radians(values.get(_jkey(j, "backlash_deg"),
-                                       math.degrees(p.backlash_rad))) / 2
+        hall = _HALL.to_twin(values.get(_HALL.path(j), _HALL.from_twin(p.hall_error_rad)))
+        half = _PLAY.to_twin(values.get(_PLAY.path(j), _PLAY.from_twin(p.backlash_rad))) / 2
         side = 1 if tau[j] > p.hold_nm else -1 if tau[j] < -p.hold_nm else 0
         out.append(q + hall + side * half)
     return out
@@ -244,7 +245,7 @@ def fit_stiffness(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     out: list[Fitted] = []
     for j in range(4):
         p = prior.joints[j]
-        key = _jkey(j, "stiffness_nm_per_rad")
+        key = _STIFFNESS.path(j)
         rows: list[tuple[float, float]] = []
         for h in obs.holds:
             if h.true_rad is None:
@@ -259,18 +260,18 @@ def fit_stiffness(obs: Observations, base: RobotSettings, prior: ArmPhysics,
             reason = ("no truth source: the deflection is on the link side" if not obs.truth
                       else f"only {len(rows)} holds with |gravity torque| ≥ {LOADED_NM} N·m "
                            "(joint 1 turns about the vertical; joint 4 carries no lever)")
-            out.append(Fitted(key, p.stiffness_nm_per_rad, None, "N·m/rad", False, reason,
+            out.append(Fitted(key, p.stiffness_nm_per_rad, None, _STIFFNESS.unit, False, reason,
                               p.stiffness_nm_per_rad))
             continue
         tau_a = np.asarray([r[0] for r in rows])
         y = np.asarray([r[1] for r in rows])
         side = np.sign(tau_a)
-        play_fit = next((f for f in play if f.key == _jkey(j, "backlash_deg") and f.identified),
-                        None)
+        play_fit = next((f for f in play if f.key == _PLAY.path(j) and f.identified), None)
         x = np.column_stack([np.ones_like(tau_a), tau_a])
         extra_var = 0.0
         if play_fit is not None and play_fit.sigma is not None:  # the approaches' play: better
-            half, sigma_half = math.radians(play_fit.value) / 2, math.radians(play_fit.sigma) / 2
+            half = _PLAY.to_twin(play_fit.value) / 2
+            sigma_half = _PLAY.to_twin(play_fit.sigma) / 2
             y = y - side * half
             b = np.linalg.lstsq(x, side, rcond=None)[0][-1]
             extra_var = float(b * sigma_half) ** 2
@@ -281,11 +282,11 @@ def fit_stiffness(obs: Observations, base: RobotSettings, prior: ArmPhysics,
         coef, cov = _linear_lsq(x, y)
         s, sigma_s = coef[-1], math.sqrt(cov[-1, -1] + extra_var)
         if s <= 0 or sigma_s >= 0.5 * s:
-            out.append(Fitted(key, p.stiffness_nm_per_rad, None, "N·m/rad", False,
+            out.append(Fitted(key, p.stiffness_nm_per_rad, None, _STIFFNESS.unit, False,
                               f"deflection not resolved (1/k = {s:.3g} ± {sigma_s:.2g} rad/N·m)",
                               p.stiffness_nm_per_rad))
             continue
-        out.append(Fitted(key, 1.0 / s, sigma_s / (s * s), "N·m/rad", True,
+        out.append(Fitted(key, 1.0 / s, sigma_s / (s * s), _STIFFNESS.unit, True,
                           f"deflection at {len(rows)} loaded holds against the model's gravity "
                           "torque (masses and payload of the prior)", p.stiffness_nm_per_rad))
     return out
@@ -331,8 +332,8 @@ def instrument_offsets(obs: Observations, prior: ArmPhysics,
             continue
         mean = 0.5 * sum(float(np.mean(x)) for x in sides)
         sigma = 0.5 * math.sqrt(sum(float(np.var(x, ddof=1)) / len(x) for x in sides))
-        hall_rad = math.radians(values.get(_jkey(j, "hall_error_deg"),
-                                           math.degrees(prior.joints[j].hall_error_rad)))
+        hall_rad = _HALL.to_twin(values.get(_HALL.path(j),
+                                            _HALL.from_twin(prior.joints[j].hall_error_rad)))
         out[j] = (mean - hall_rad, max(sigma, SIGMA_FLOOR_RAD))
     return out
 
@@ -348,14 +349,13 @@ def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     ge = prior.geometry_error
     theta0 = np.array([getattr(ge, k) for k in _KINEMATIC_KEYS]
                       + [prior.joints[i].offset_error_rad for i in range(3)], dtype=np.float64)
-    keys = ([f"emulator.physics.geometry_error.{k}" for k in _KINEMATIC_KEYS]
-            + [_jkey(i, "offset_error_deg") for i in range(3)])
+    keys = [p.path() for p in _LENGTHS] + [_OFFSET.path(i) for i in range(3)]
     scale = np.array([1.0] * 4 + [180.0 / math.pi] * 3)
-    units = ["m"] * 4 + ["deg"] * 3
-    j4_prior = math.degrees(prior.joints[3].offset_error_rad)
-    kept = [Fitted(_jkey(3, "offset_error_deg"), j4_prior, None, "deg", False,
+    units = [p.unit for p in _LENGTHS] + [_OFFSET.unit] * 3
+    j4_prior = _OFFSET.from_twin(prior.joints[3].offset_error_rad)
+    kept = [Fitted(_OFFSET.path(3), j4_prior, None, _OFFSET.unit, False,
                    "turns the tool about its own axis: does not move the TCP", j4_prior),
-            Fitted("emulator.physics.geometry_error.d4_m", ge.d4_m, None, "m", False,
+            Fitted(_D4.path(), ge.d4_m, None, _D4.unit, False,
                    "the tool offset and joint 3's offset turn the TCP about joint 3 alike "
                    "(only their combination is seen); joint 3's offset is fitted", ge.d4_m)]
     data = [(h.true_rad, h.tcp_true_m) for h in obs.holds
@@ -380,11 +380,11 @@ def fit_kinematics(obs: Observations, base: RobotSettings, prior: ArmPhysics,
     chi2 = float(result.fun @ result.fun) / dof
     cov = np.linalg.pinv(jac.T @ jac) * max(1.0, chi2)
     out = []
-    limits = [0.002] * 4 + [math.radians(0.5)] * 3
+    limits = [p.high for p in _LENGTHS] + [_OFFSET.to_twin(_OFFSET.high)] * 3
     seen = instrument_offsets(obs, prior, hall)
     if 3 in seen:
-        kept[0] = Fitted(_jkey(3, "offset_error_deg"), math.degrees(seen[3][0]),
-                         math.degrees(seen[3][1]), "deg", True,
+        kept[0] = Fitted(_OFFSET.path(3), _OFFSET.from_twin(seen[3][0]),
+                         _OFFSET.from_twin(seen[3][1]), _OFFSET.unit, True,
                          "the reference instrument's joint angle at the approaches", j4_prior)
     for i, key in enumerate(keys):
         sigma = math.sqrt(max(0.0, float(cov[i, i])))
@@ -408,12 +408,12 @@ def chosen_structures(fitted: Sequence[Fitted]) -> dict[int, tuple[str, bool] | 
     out: dict[int, tuple[str, bool] | None] = {}
     values = {f.key: f for f in fitted}
     for j in range(4):
-        law = values.get(_jkey(j, "loss_law"))
+        law = values.get(TWIN["loss_law"].path(j))
         gear = values.get(f"joints.j{j + 1}.gear_ratio")
         if law is None or not law.identified or law.choice is None:
             out[j] = None
         else:
-            curve = values.get(_jkey(j, "pullout_curve"))
+            curve = values.get(TWIN["pullout_curve"].path(j))
             choice = law.choice if curve is None or curve.choice is None else (
                 f"{law.choice}:{curve.choice}")
             out[j] = (choice, gear is not None and gear.identified)
@@ -425,10 +425,9 @@ def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
     stiffness and pull-out fits divide by are then those of the real arm's geometry."""
     values = {f.key: f.value for f in fitted if f.identified}
     ge = replace(prior.geometry_error, **{
-        k: values[f"emulator.physics.geometry_error.{k}"] for k in _KINEMATIC_KEYS
-        if f"emulator.physics.geometry_error.{k}" in values})
-    joints = tuple(replace(p, offset_error_rad=math.radians(values[_jkey(i, "offset_error_deg")]))
-                   if _jkey(i, "offset_error_deg") in values else p
+        p.name: values[p.path()] for p in _LENGTHS if p.path() in values})
+    joints = tuple(replace(p, offset_error_rad=_OFFSET.to_twin(values[_OFFSET.path(i)]))
+                   if _OFFSET.path(i) in values else p
                    for i, p in enumerate(prior.joints))
     return replace(prior, geometry_error=ge, joints=joints)
 

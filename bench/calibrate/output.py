@@ -1,12 +1,14 @@
-"""What a calibration writes: the settings file (every fitted value with its standard error as a
-comment beside it), the fit as JSON, and the calibration page (HTML in the report's style), which
-the caller renders (the command line passes
+"""What a calibration writes: the settings file (every fitted value with its standard error in the
+``[uncertainty]`` table, and as a comment beside it for the reader), the fit as JSON, and the
+calibration page (HTML in the report's style), which the caller renders (the command line passes
 :func:`armbench.reports.pages.calibration_page.render_page`: the report is a layer above the bench,
 ``docs/architecture.md``).
 
 The settings file is a complete robot settings TOML: ``--settings robot.toml`` and
-``fake://?settings=robot.toml`` load it. Fitted values enter it clamped to the documented range of
-their setting (a play estimated at −0.001° is written as 0); the JSON keeps the raw estimates.
+``fake://?settings=robot.toml`` load it. Fitted values enter it clamped to the band the settings
+loader accepts around the documented range of their setting
+(:meth:`~armbench.drivers.model.twin_parameters.TwinParameter.accepted`: a play estimated at
+−0.001° is written as 0); the JSON keeps the raw estimates.
 """
 
 from __future__ import annotations
@@ -28,12 +30,12 @@ from armbench.bench.calibrate.model import (
     PageRenderer,
 )
 from armbench.bench.runner.outputs import OutputError, is_run_file
-from armbench.drivers.model.settings import RobotSettings
-from armbench.fakes.twin.physics import ARM_RANGES, JOINT_RANGES
+from armbench.drivers.model.settings import UNCERTAINTY_TABLE, RobotSettings
+from armbench.drivers.model.twin_parameters import by_path
 from armbench.record.files import atomic_write_bytes
 
 __all__ = ["NO_TRUTH", "CalibrationResult", "PageRenderer", "apply_fit", "kinematic_residuals_mm",
-           "output_paths", "toml_text", "write_outputs", "written_value"]
+           "output_paths", "toml_text", "uncertainty_table", "write_outputs", "written_value"]
 
 _BARE_KEY: Final = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -54,23 +56,10 @@ def kinematic_residuals_mm(settings: RobotSettings,
                  if h.true_rad is not None and h.tcp_true_m is not None)
 
 
-def _range_of(key: str) -> tuple[float, float] | None:
-    """Documented range of a settings key, in the key's unit."""
-    name = key.rsplit(".", 1)[-1]
-    if ".geometry_error." in key:
-        return ARM_RANGES["geometry_error_m"]
-    attr = name.removesuffix("_deg") + "_rad" if name.endswith("_deg") else name
-    rng = JOINT_RANGES.get(attr)
-    if rng is None:
-        return None
-    if name.endswith("_deg"):
-        return math.degrees(rng[0]), math.degrees(rng[1])
-    return rng
-
-
 def apply_fit(base: RobotSettings, fitted: Sequence[Fitted]) -> RobotSettings:
-    """``base`` with every identified ``emulator.*`` and ``joints.*`` value set and the physical
-    profile. A value outside the documented range of its setting is written as fitted (its
+    """``base`` with every identified ``emulator.*`` and ``joints.*`` value set, the physical
+    profile, and the ``[uncertainty]`` table of those values (:func:`uncertain`: it replaces any
+    the base had). A value outside the documented range of its setting is written as fitted (its
     comment says so, :func:`written_value`) unless the settings file would refuse it."""
     data = base.to_mapping()
     emulator = data.setdefault("emulator", {})
@@ -83,23 +72,31 @@ def apply_fit(base: RobotSettings, fitted: Sequence[Fitted]) -> RobotSettings:
         for part in parts[:-1]:
             table = table.setdefault(part, {})
         table[parts[-1]] = f.choice if f.choice is not None else written_value(f)
+    data.pop(UNCERTAINTY_TABLE, None)
+    sigmas = uncertainty_table(fitted)
+    if sigmas:
+        data[UNCERTAINTY_TABLE] = sigmas
     return RobotSettings.from_mapping(data)
+
+
+def uncertainty_table(fitted: Sequence[Fitted]) -> dict[str, float]:
+    """The settings file's ``[uncertainty]`` table: the standard error of each identified number
+    written as fitted (not clamped, not a choice or a bound) of an ``emulator.*`` or ``joints.*``
+    setting, by its dotted key."""
+    return {f.key: f.sigma for f in fitted
+            if f.identified and f.sigma is not None and f.choice is None
+            and f.key.startswith(("emulator.", "joints.")) and written_value(f) == f.value}
 
 
 def written_value(f: Fitted) -> float:
     """The value the settings file gets for ``f``: the fitted one, within the band the settings
-    loader accepts around the documented range (ten times wider; five for angles and lengths).
-    Plays and bands below 0 become 0 (a width cannot be negative)."""
-    value = f.value
-    rng = _range_of(f.key)
-    if rng is None:
-        return value
-    low, high = rng
-    wide = 5.0 if f.key.endswith(("_deg", "_m")) else 10.0
-    if f.key.endswith(("backlash_deg", "stick_deg")):
-        return min(max(value, 0.0), high * wide)
-    band_low = low * wide if low < 0 else low / wide
-    return min(max(value, band_low), high * wide)
+    loader accepts around the documented range of its twin parameter (a play below 0 becomes 0:
+    a width cannot be negative); a setting of the robot model (a gear ratio) as fitted."""
+    p = by_path(f.key)
+    if p is None:
+        return f.value
+    low, high = p.accepted()
+    return min(max(f.value, low), high)
 
 
 def _toml_key(key: str) -> str:
@@ -188,8 +185,9 @@ def write_outputs(result: CalibrationResult, out: Path,
     out = Path(out)
     comments = {f.key: _sigma_text(f) for f in result.fitted}
     header = (f"Robot settings fitted by armbench calibrate from {result.observations.source}.\n"
-              "Each fitted value carries its standard error in the comment beside it; "
-              "values the data did not\ndetermine keep the prior and say why. "
+              "Each fitted value's standard error (1 σ) is in the [uncertainty] table at the "
+              "end, which\ncampaigns draw from, and in the comment beside it; values the data did "
+              "not determine keep\nthe prior and say why. "
               "See docs/calibration.md and the .html page beside this file.")
     if result.error:
         header += f"\nPARTIAL: {result.error}"

@@ -28,9 +28,10 @@ from typing import Final
 from armbench.bench.calibrate.model import APPROACH_OFFSET_RAD, Approach, Fitted, Observations
 from armbench.drivers.model.protocol import MAX_DUTY, MAX_TICKS, rad_to_ticks, ticks_to_rad
 from armbench.drivers.model.settings import JointSettings, RobotSettings
+from armbench.drivers.model.twin_parameters import TWIN
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.twin.joint import JointModel
-from armbench.fakes.twin.physics import JOINT_RANGES, JointPhysics
+from armbench.fakes.twin.physics import ideal_joint
 from armbench.fakes.twin.stepper import STOP_RULES, StopRule
 
 __all__ = ["MARGIN", "OUTSIDE", "STOP_RULE_KEY", "choose_stop_rule", "hall_errors_rad",
@@ -61,7 +62,7 @@ def rest_offset_ticks(joint: JointSettings, hall_error_rad: float, rule: StopRul
     q = ticks_to_rad(target_ticks, joint.lower_rad, joint.upper_rad)
     target_counts = round(q * joint.counts_per_rad)
     start = round((target_rad - direction * APPROACH_OFFSET_RAD) * joint.steps_per_rad)
-    physics = JointPhysics(hall_error_rad=hall_error_rad)
+    physics = ideal_joint(hall_error_rad=hall_error_rad)
     hall = JointModel(joint, physics=physics, motor_steps=start)
     c = joint.counts_per_step
     counter = hall.hall_count - math.floor(hall.hall_step * c) + math.floor(start * c)
@@ -77,7 +78,8 @@ def hall_errors_rad(joint: JointSettings, fitted: Fitted | None) -> list[float]:
     identified, else one per microstep position within the documented range."""
     if fitted is not None and fitted.identified:
         return [math.radians(fitted.value)]
-    low, high = JOINT_RANGES["hall_error_rad"]
+    hall = TWIN["hall_error_rad"]
+    low, high = hall.to_twin(hall.low), hall.to_twin(hall.high)
     spr = joint.steps_per_rad
     first = math.ceil((joint.hall_rad + low) * spr)
     last = math.floor((joint.hall_rad + high) * spr)
@@ -115,8 +117,7 @@ def choose_stop_rule(obs: Observations, base: RobotSettings,
         total = 0.0
         for j, rests in by_joint.items():
             joint = base.joints[j]
-            errors = hall_errors_rad(
-                joint, fitted_hall.get(f"emulator.physics.j{j + 1}.hall_error_deg"))
+            errors = hall_errors_rad(joint, fitted_hall.get(TWIN["hall_error_rad"].path(j)))
             memo: dict[tuple[float, float, int], int] = {}
             per_error = []
             for e in errors:

@@ -43,13 +43,8 @@ from scipy.optimize import minimize_scalar
 from armbench.bench.calibrate.model import Fitted, Observations, run_sigma, session_scatter
 from armbench.bench.calibrate.stall import STALLED_RATIO, curve_factor, stall_interval, stall_pred
 from armbench.drivers.model.settings import RobotSettings
-from armbench.fakes.twin.physics import (
-    JOINT_RANGES,
-    PULLOUT_CURVES,
-    ArmPhysics,
-    JointPhysics,
-    Mechanism,
-)
+from armbench.drivers.model.twin_parameters import TWIN
+from armbench.fakes.twin.physics import PULLOUT_CURVES, ArmPhysics, JointPhysics, Mechanism
 
 __all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "choose_joint", "fit_speed_models",
            "run_table", "session_scatter"]
@@ -66,9 +61,15 @@ MISS_Z2: Final = 25.0
 #: fit adds it to each lossy run's ratio error in its weights, and to the pull-out torque's; the
 #: held-out scores use the runs' own errors only (a model cannot excuse its misses).
 NEED_REL: Final = 0.01
+_PULLOUT, _ABOVE = TWIN["pullout_nm"], TWIN["loss_above_duty"]
+_PLUS, _MINUS = TWIN["loss_plus"], TWIN["loss_minus"]
 #: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
-#: accepts around the documented range (``fakes/twin/physics.py``).
-_P_GRID: Final = np.geomspace(0.03, 30.0, 481)
+#: accepts around the documented range.
+_P_GRID: Final = np.geomspace(*_PULLOUT.accepted(), 481)
+#: The parameters a speed model fits, each with the step of its numerical derivative (its unit).
+_STEPS: Final = ((_PULLOUT, 0.01), (_ABOVE, 0.5), (_PLUS, 1e-4), (_MINUS, 1e-4))
+#: The duty law losing nothing anywhere (the parameters' ideal values).
+_NO_DUTY_LOSS: Final = {p.name: float(p.ideal_value()) for p in (_ABOVE, _PLUS, _MINUS)}
 #: Speed scales a fit may return: another gear set of the same arm (a quarter off the nominal
 #: ratio at most); beyond that a scale would stand in for any step loss.
 SCALE_RANGE: Final = (0.75, 1.33)
@@ -235,11 +236,11 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
         s = _clip_scale(_wmean(d.ratio[below], w[below])) if scaled and below.any() else 1.0
         params = {"s": s, "loss_above_duty": thr}
         pred = np.full_like(d.ratio, s)
-        for key, sign in (("loss_plus", 1.0), ("loss_minus", -1.0)):
+        for share_of, sign in ((_PLUS, 1.0), (_MINUS, -1.0)):
             above = (~below) & (d.direction == sign)
             share = 1.0 - _wmean(d.ratio[above] / s, w[above]) if above.any() else 0.0
             share = min(0.9, max(0.0, share))
-            params[key] = share
+            params[share_of.name] = share
             pred[above] = s * (1.0 - share)
         if not below.any() and _same_both_ways(d, w):
             continue  # one share at every duty, both ways: a speed scale, not a duty threshold
@@ -247,8 +248,7 @@ def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
         if best is None or chi2 < best[0] - 1e-12:
             best = (chi2, Candidate(law, scaled, params, 3 + int(scaled)))
     if best is None:  # no threshold left: loss nowhere
-        return Candidate(law, scaled, {"s": 1.0, "loss_above_duty": 99.0, "loss_plus": 0.0,
-                                       "loss_minus": 0.0}, 3 + int(scaled))
+        return Candidate(law, scaled, {"s": 1.0, **_NO_DUTY_LOSS}, 3 + int(scaled))
     return best[1]
 
 
@@ -348,10 +348,6 @@ def _param_sigma(d: JointSpeeds, c: Candidate, key: str, step: float) -> float:
     return math.sqrt(2.0 / curv * max(1.0, chi2(v0) / dof))
 
 
-def _jkey(j: int, name: str) -> str:
-    return f"emulator.physics.j{j + 1}.{name}"
-
-
 def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
                      link_of: Callable[[Sequence[float]], list[float]],
                      fixed: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
@@ -368,14 +364,15 @@ def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
         p = prior.joints[j]
         d = run_table(obs, base, prior, j, link_of, scatter)
         structure = None if fixed is None else (fixed.get(j) or ("prior", False))
-        out.extend(replace(f, reason=f.reason + noise) if f.key.endswith("loss_law") else f
+        out.extend(replace(f, reason=f.reason + noise) if f.key == TWIN["loss_law"].path(j) else f
                    for f in choose_joint(j, spec.gear_ratio, p, d, structure))
     return out
 
 
 def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
-    return [Fitted(_jkey(j, "loss_law"), math.nan, None, "", False, reason, choice=p.loss_law),
-            Fitted(_jkey(j, "pullout_nm"), p.pullout_nm, None, "N·m", False, reason,
+    law, pullout = TWIN["loss_law"], TWIN["pullout_nm"]
+    return [Fitted(law.path(j), math.nan, None, law.unit, False, reason, choice=p.loss_law),
+            Fitted(pullout.path(j), p.pullout_nm, None, pullout.unit, False, reason,
                    p.pullout_nm),
             Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
 
@@ -421,25 +418,26 @@ def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
 def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, why: str,
           n: int) -> list[Fitted]:
     """The :class:`Fitted` values of the structure ``c`` fitted to all ``n`` runs ``d``."""
-    out = [Fitted(_jkey(j, "loss_law"), math.nan, None, "", True, why, choice=c.law)]
+    law, curve = TWIN["loss_law"], TWIN["pullout_curve"]
+    out = [Fitted(law.path(j), math.nan, None, law.unit, True, why, choice=c.law)]
     if c.curve:
         d = d.on_curve(c.curve)
-        out.append(Fitted(_jkey(j, "pullout_curve"), math.nan, None, "", True,
+        out.append(Fitted(curve.path(j), math.nan, None, curve.unit, True,
                           f"{c.curve}: the pull-out curve of the law chosen (corner "
                           f"{p.corner_steps_per_s:g} microsteps/s, the prior's)", choice=c.curve))
-    unit_ranges = {"pullout_nm": ("N·m", 0.01), "loss_above_duty": ("", 0.5),
-                   "loss_plus": ("", 1e-4), "loss_minus": ("", 1e-4)}
-    for key, (unit, step) in unit_ranges.items():
+    for param, step in _STEPS:
+        key = param.name
         if key not in c.params:
             continue
+        path, unit = param.path(j), param.unit
         value = c.params[key]
-        prior_value = float(getattr(p, key))
+        prior_value = float(getattr(p, param.name))
         if key == "loss_above_duty":
             duties = sorted({float(x) for x in d.duty})
             above = [x for x in duties if x > value]
             reason = (f"no loss at duty {value:g} and below" + (
                 f", loss from {above[0]:g} on" if above else ""))
-            out.append(Fitted(_jkey(j, key), value, None, unit, True, reason, prior_value))
+            out.append(Fitted(path, value, None, unit, True, reason, prior_value))
             continue
         if key == "pullout_nm" and c.law == "stall":
             value, sigma = _stall_interval(d)
@@ -448,22 +446,22 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
         if key == "pullout_nm":  # the masses' error is common to every run: it does not average
             sigma = math.hypot(sigma, NEED_REL * value)
         if key == "pullout_nm" and not (d.factor > value).any():
-            out.append(Fitted(_jkey(j, key), max(value, prior_value), None, unit, False,
+            out.append(Fitted(path, max(value, prior_value), None, unit, False,
                               "no run needed more than the pull-out torque: only a lower bound",
                               prior_value, float(d.factor.max())))
             continue
         ok = math.isfinite(sigma) and (sigma <= 0.5 * abs(value) if key == "pullout_nm"
                                        else sigma <= 0.05)
         if not ok:
-            out.append(Fitted(_jkey(j, key), prior_value, None, unit, False,
+            out.append(Fitted(path, prior_value, None, unit, False,
                               f"not identified: {value:.3g} ± {sigma:.2g} (the interval is wider "
                               "than the value)", prior_value))
             return _kept(j, gear, p, f"{c.name} was best but its {key} is not identified "
                                      f"({value:.3g} ± {sigma:.2g})")
-        low_r, high_r = JOINT_RANGES[key]
+        low_r, high_r = param.low, param.high
         note = ("" if low_r <= value <= high_r else
                 f"; OUTSIDE the documented range {low_r:g}..{high_r:g}")
-        out.append(Fitted(_jkey(j, key), value, sigma, unit, True, why + note, prior_value))
+        out.append(Fitted(path, value, sigma, unit, True, why + note, prior_value))
     if c.scaled:
         s = c.params["s"]
         sigma_s = _param_sigma(d, c, "s", 1e-5)

@@ -1,36 +1,38 @@
 """What a campaign draws: arm parameters from a calibration's uncertainties, and the conditions
 of a trial (for start-up recovery: the state of each power cut).
 
-``armbench calibrate`` writes a complete robot settings TOML in which every fitted value carries
-its standard error in the comment beside it (``backlash_deg = 0.21  # fitted: ± 0.03 deg (1 σ);
-...``). :func:`read_uncertainties` reads those back; :func:`draw_arm` draws one arm: each fitted
-value from a normal law around it with its sigma, the others as the file has them. A draw outside
+``armbench calibrate`` writes a complete robot settings TOML whose ``[uncertainty]`` table gives
+the standard error of every fitted value (``"emulator.physics.j1.backlash_deg" = 0.03``, in the
+unit of its key). :func:`read_uncertainties` reads it; :func:`draw_arm` draws one arm: each value
+with a standard error from a normal law around it, the others as the file has them. A draw outside
 the settings' valid range (a negative play) is drawn again, so each parameter follows its normal
 law restricted to the values the twin accepts.
 """
 
 from __future__ import annotations
 
-import math
 import random
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.settings import RobotSettings, SettingsError, read_toml_document
+from armbench.drivers.model.settings import (
+    UNCERTAINTY_TABLE,
+    RobotSettings,
+    SettingsError,
+    read_toml_document,
+)
+from armbench.drivers.model.twin_parameters import unit_of
 
 __all__ = ["Uncertain", "apply_arm", "draw_arm", "read_uncertainties"]
 
-#: ``key = value  # fitted: ± SIGMA UNIT (1 σ); ...``: the comment ``armbench calibrate`` writes.
-_FITTED: Final = re.compile(
-    r"^\s*(?P<key>[A-Za-z0-9_-]+|\"[^\"]+\")\s*=\s*[^#]*#\s*fitted:\s*±\s*"
-    r"(?P<sigma>[-+0-9.eE]+|inf|nan)\s*(?P<unit>[^(;]*?)\s*\(1\s*σ\)")
-_TABLE: Final = re.compile(r"^\s*\[(?P<name>[^\[\]]+)\]\s*(#.*)?$")
 #: Draws of one parameter before giving up on a law that is mostly outside its valid range.
 MAX_REDRAWS: Final = 100
+#: What the comment beside a fitted value began with when an older ``armbench calibrate`` kept
+#: the standard errors in comments only.
+_OLD_COMMENT: Final = "# fitted: ±"
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,45 +50,28 @@ class Uncertain:
         return {"key": self.key, "value": self.value, "sigma": self.sigma, "unit": self.unit}
 
 
-def _unquote(part: str) -> str:
-    part = part.strip()
-    return part[1:-1] if part.startswith('"') and part.endswith('"') else part
-
-
-def _lookup(data: Mapping[str, Any], key: str) -> object:
-    node: object = data
+def _lookup(data: Mapping[str, Any], key: str) -> float:
+    node: Any = data
     for part in key.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            return None
         node = node[part]
-    return node
+    return float(node)
 
 
 def read_uncertainties(path: str | Path) -> list[Uncertain]:
-    """The fitted settings of a calibration file with their sigmas (in file order); settings
-    without a ``fitted: ± sigma`` comment stay fixed. A sigma that is not a finite number >= 0,
-    or a fitted key that is not a number, is a :class:`SettingsError` naming it."""
+    """The settings of a calibration file with a standard error in its ``[uncertainty]`` table
+    (in the table's order; the settings loader checked each names a number of the file); the
+    others stay fixed. A file whose standard errors are comments only (written by an older
+    ``armbench calibrate``) is a :class:`SettingsError` that says how to get the table."""
     p = Path(path)
     text, data = read_toml_document(p, "--settings")
-    out: list[Uncertain] = []
-    table: list[str] = []
-    for line in text.splitlines():
-        header = _TABLE.match(line)
-        if header is not None:
-            table = [_unquote(x) for x in header["name"].split(".")]
-            continue
-        m = _FITTED.match(line)
-        if m is None:
-            continue
-        key = ".".join([*table, _unquote(m["key"])])
-        sigma = float(m["sigma"])
-        value = _lookup(data, key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SettingsError(key, value, f"in {p} has a sigma but is not a number")
-        if not (math.isfinite(sigma) and sigma >= 0):
-            raise SettingsError(key, sigma, f"in {p}: the sigma is not a finite number >= 0")
-        out.append(Uncertain(key, float(value), sigma, m["unit"].strip()))
-    return out
+    settings = RobotSettings.from_mapping(data)
+    if not settings.uncertainty and _OLD_COMMENT in text:
+        raise SettingsError(UNCERTAINTY_TABLE, str(p), "is missing: this file gives its standard "
+                            "errors in comments, which campaigns no longer read; calibrate "
+                            "again, or copy each ± into an [uncertainty] table "
+                            "(docs/campaigns.md)")
+    return [Uncertain(key, _lookup(data, key), sigma, unit_of(key))
+            for key, sigma in settings.uncertainty.items()]
 
 
 def apply_arm(settings: RobotSettings, arm: Mapping[str, float]) -> RobotSettings:

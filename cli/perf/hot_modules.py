@@ -10,6 +10,7 @@ HOT_MODULES = (
     "armbench.fakes.firmware.boards",
     "armbench.fakes.firmware.master_board",
     "armbench.fakes.firmware.i2c",
+    "armbench.fakes.twin.drive_train",
     "armbench.fakes.twin.joint",
     "armbench.fakes.twin.physics",
     "armbench.fakes.twin.stepper",

@@ -9,6 +9,7 @@ Angles are stored in radians and lengths in metres; the TOML file spells units i
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from collections.abc import Mapping
@@ -23,6 +24,7 @@ from armbench.drivers.model.user_files import MAX_TOML_BYTES, FileRefused, read_
 
 __all__ = [
     "DEFAULT_JOINTS",
+    "UNCERTAINTY_TABLE",
     "Geometry",
     "JointSettings",
     "RobotSettings",
@@ -144,12 +146,16 @@ class SerialSettings:
 @dataclass(frozen=True, slots=True)
 class RobotSettings:
     """The whole robot model. ``sections`` keeps the raw tables other packages validate
-    (``emulator``, ``faults``, ``bench``) so one TOML file can describe a whole set-up."""
+    (``emulator``, ``faults``, ``bench``) so one TOML file can describe a whole set-up;
+    ``uncertainty`` the standard error (1 σ) of settings the file holds, by dotted key, in the
+    unit of the key (the ``[uncertainty]`` table ``armbench calibrate`` writes, which campaigns
+    draw from)."""
 
     geometry: Geometry = field(default_factory=Geometry)
     joints: tuple[JointSettings, ...] = DEFAULT_JOINTS
     serial: SerialSettings = field(default_factory=SerialSettings)
     sections: Mapping[str, Any] = field(default_factory=dict)
+    uncertainty: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -183,6 +189,7 @@ class RobotSettings:
                        "parity": self.serial.parity, "stopbits": self.serial.stopbits},
             "joints": {j.name: _joint_to_mapping(j) for j in self.joints},
             **{k: _plain(v) for k, v in self.sections.items()},
+            **({UNCERTAINTY_TABLE: dict(self.uncertainty)} if self.uncertainty else {}),
         }
 
 
@@ -248,6 +255,8 @@ _JOINT_KEYS_DEG = {"lower_deg": "lower_rad", "upper_deg": "upper_rad", "offset_d
 _JOINT_KEYS_PLAIN = ("gear_ratio", "sign", "step_angle_deg", "microsteps",
                      "encoder_counts_per_motor_rev", "i2c_address")
 _EXTENSION_SECTIONS = ("emulator", "faults", "bench")
+#: The table of standard errors: ``"emulator.physics.j1.backlash_deg" = 0.003`` (one σ).
+UNCERTAINTY_TABLE = "uncertainty"
 
 
 def _joint_to_mapping(j: JointSettings) -> dict[str, Any]:
@@ -301,7 +310,7 @@ def _unknown(path: str, table: Mapping[str, Any], known: set[str]) -> None:
 
 
 def _from_mapping(data: Mapping[str, Any]) -> RobotSettings:
-    _unknown("", data, {"geometry", "serial", "joints", *_EXTENSION_SECTIONS})
+    _unknown("", data, {"geometry", "serial", "joints", UNCERTAINTY_TABLE, *_EXTENSION_SECTIONS})
     geo_in = _table("geometry", data.get("geometry", {}))
     _unknown("geometry", geo_in, set(Geometry.__slots__))
     geometry = Geometry(**{k: _number(f"geometry.{k}", v) for k, v in geo_in.items()})
@@ -329,7 +338,26 @@ def _from_mapping(data: Mapping[str, Any]) -> RobotSettings:
                 kwargs[k] = _number(path, v, integer=k not in ("gear_ratio", "step_angle_deg"))
         joints.append(replace(default, **kwargs))
     sections = {k: data[k] for k in _EXTENSION_SECTIONS if k in data}
-    return RobotSettings(geometry, tuple(joints), serial, sections)
+    return RobotSettings(geometry, tuple(joints), serial, sections, _uncertainty(data))
+
+
+def _uncertainty(data: Mapping[str, Any]) -> dict[str, float]:
+    """The ``[uncertainty]`` table of ``data``: each key the dotted path of a number the file
+    sets, each value a finite standard error >= 0."""
+    out: dict[str, float] = {}
+    for key, sigma in _table(UNCERTAINTY_TABLE, data.get(UNCERTAINTY_TABLE, {})).items():
+        path = f"{UNCERTAINTY_TABLE}.{json.dumps(key)}"
+        value = _number(path, sigma)
+        if value < 0:
+            raise SettingsError(path, sigma, "is not a standard error (a number >= 0)")
+        node: object = data
+        for part in str(key).split("."):
+            node = node.get(part) if isinstance(node, Mapping) else None
+        if isinstance(node, bool) or not isinstance(node, (int, float)):
+            raise SettingsError(path, sigma, f"is the standard error of {key}, which this file "
+                                             "does not set to a number")
+        out[str(key)] = float(value)
+    return out
 
 
 def _validate(s: RobotSettings) -> None:

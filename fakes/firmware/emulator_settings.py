@@ -15,8 +15,9 @@ from typing import Any, Final, Literal
 
 from armbench.drivers.model.numbers import finite_float, is_real
 from armbench.drivers.model.settings import RobotSettings, SettingsError
+from armbench.drivers.model.twin_parameters import TWIN
 from armbench.fakes.twin.joint import CYCLE_S, PhysicalEffects, StopRule
-from armbench.fakes.twin.physics import PROFILES, ArmPhysics, arm_physics
+from armbench.fakes.twin.physics import DEFAULT_ARM, PROFILES, ArmPhysics, arm_physics
 from armbench.fakes.twin.stepper import STOP_RULES
 
 __all__ = ["CYCLE_S", "MAX_DEADBAND_COUNTS", "MAX_TIMES_S", "PROFILES", "ArmPhysics",
@@ -70,7 +71,7 @@ class EmulatorSettings:
     effects: PhysicalEffects = field(default_factory=PhysicalEffects)
     profile: Literal["physical", "ideal"] = "physical"
     """``physical``: the mechanism of ``physics``; ``ideal``: none (rigid, play-free, exact)."""
-    physics: ArmPhysics | None = field(default_factory=ArmPhysics)
+    physics: ArmPhysics | None = DEFAULT_ARM
     """The physical arm (``fakes/twin/physics.py``, ``[emulator.physics]``); None in the ideal
     profile."""
 
@@ -96,6 +97,15 @@ MAX_DEADBAND_COUNTS: Final = 64
 _FLOATS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("float", float))
 #: The ``int`` fields: a whole number of any int type is made a plain int.
 _INTS = frozenset(f.name for f in fields(EmulatorSettings) if f.type in ("int", int))
+_PAYLOAD: Final = TWIN["payload_kg"]
+#: The ``[emulator.effects]`` keys merged into the arm's physics, and where each went: one
+#: vocabulary per effect (``docs/emulator.md``).
+_MERGED: Final = {
+    "backlash_rad": (f"is no longer read: the gear play is {TWIN['backlash_rad'].key} of each "
+                     "joint's [emulator.physics.jN] table (the physical play it was added to)"),
+    "noise_rate_hz": (f"is no longer read: encoder noise is {TWIN['noise_per_count'].path()} "
+                      "(spurious counts per encoder count)"),
+}
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
                            "profile": str, "stop_rule": str}
 
@@ -123,6 +133,8 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
         known_fx = {f.name for f in fields(PhysicalEffects)}
         values: dict[str, Any] = {}
         for k, v in effects_in.items():
+            if k in _MERGED:
+                raise SettingsError(f"emulator.effects.{k}", v, _MERGED[k])
             if k not in known_fx:
                 raise SettingsError(f"emulator.effects.{k}", v, "is not a known setting")
             _check_number(f"emulator.effects.{k}", v)
@@ -186,8 +198,10 @@ def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
             kg = float(payload_kg)
         except ValueError:
             raise SettingsError("payload", payload_kg, "is not a number of kg") from None
-        if not 0.0 <= kg <= 3.0:
-            raise SettingsError("payload", payload_kg, "must be 0..3 kg (the paper's maximum)")
+        low, high = _PAYLOAD.accepted()
+        if not low <= kg <= high:
+            raise SettingsError("payload", payload_kg,
+                                f"must be {low:g}..{high:g} kg (the paper's maximum)")
         physics = table.get("physics", {})
         if not isinstance(physics, Mapping):
             raise SettingsError("emulator.physics", physics, "is not a table")
@@ -245,9 +259,6 @@ def _validate(s: EmulatorSettings) -> None:
     if not isinstance(s.eeprom_cells, int) or not 5 <= s.eeprom_cells <= 65536:
         raise SettingsError("emulator.eeprom_cells", s.eeprom_cells,
                             "must be a whole number 5..65536 (the record takes 5 bytes)")
-    if 0 < s.effects.noise_rate_hz < 1e-3:
-        raise SettingsError("emulator.effects.noise_rate_hz", s.effects.noise_rate_hz,
-                            "must be 0 (off) or at least 0.001 Hz")
     if not isinstance(s.effects.miss_above_duty, int):
         raise SettingsError("emulator.effects.miss_above_duty", s.effects.miss_above_duty,
                             "must be a whole number 0..99")

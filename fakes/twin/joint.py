@@ -10,7 +10,9 @@ Conventions (``docs/emulator.md`` has them in full, with the firmware's per-cycl
 machine): the state *at tick t* is the state when cycle t begins, so a reference set at tick t is
 seen by cycle t's action and a transition made by that action is stamped t + 1; a moving joint
 steps every 101 − v cycles (speed law (12)); ``counter = offset + floor(motor_steps × c)`` with
-``c = counts_per_step`` exact, the Hall reset and spurious counts changing ``offset``.
+``c = counts_per_step`` exact, the Hall reset and spurious counts changing ``offset``. What the
+mechanism does to the pulses (lost steps, spurious counts, stick-slip) the joint's drive train
+answers (``fakes/twin/drive_train.py``); the link's play and its load are the model's state.
 """
 
 from __future__ import annotations
@@ -20,10 +22,9 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Final
 
-import numpy as np
-
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import JointSettings
+from armbench.fakes.twin.drive_train import DriveTrain
 from armbench.fakes.twin.physics import JointPhysics, end_stop_steps
 from armbench.fakes.twin.stepper import (
     CYCLE_S,
@@ -38,24 +39,18 @@ from armbench.fakes.twin.stepper import (
     Run,
     StopRule,
     Transition,
-    clone_bits,
     step_period_ticks,
 )
 
 __all__ = ["CYCLE_S", "JointModel", "Motion", "PhysicalEffects", "PwmState", "StopRule",
            "Transition", "step_period_ticks"]
 
-#: How often (s) a joint under ``loss_law = "stall"`` checks its rate against the pull-out (or,
-#: humming, the pull-in) rate at its load again, as the load changes under it.
-STALL_RECHECK_S: Final = 0.005
-
 #: What :meth:`JointModel.__copy__` copies (all but the ``Final`` ``_CONSTANTS``); with them the
 #: ``__slots__``, so an attribute not named here fails at once (tests/test_compiled.py).
-_FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_effects", "_deadband", "_reach",
-           "_miss_bits", "_noise_bits", "_half_play", "_now", "_state", "_n", "_dir", "_s",
-           "_offset", "_gap", "_target", "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run",
-           "_idle", "_physics", "_load", "_load_nm", "_preload", "_stick", "_stick_bits",
-           "_noise_p", "_lost_carry", "_glitched", "_humming", "transitions", "pulses",
+_FIELDS = ("_joint", "_num", "_den", "_steps_per_rad", "_drive", "_deadband", "_reach",
+           "_half_play", "_now", "_state", "_n", "_dir", "_s", "_offset", "_gap", "_target",
+           "_duty", "_homing_dir", "_homed_tick", "_stalled", "_run", "_idle", "_physics",
+           "_load", "_load_nm", "_preload", "_stick", "_glitched", "transitions", "pulses",
            "steps_taken", "steps_missed", "steps_blocked", "spurious_counts", "iterations")
 _CONSTANTS = ("hall_step", "hall_count", "lower_steps", "upper_steps")
 
@@ -73,7 +68,9 @@ class JointModel:
     ``seed`` (≥ 0) makes the physical effects reproducible. ``physics`` is the joint's drive train
     and link (``fakes/twin/physics.py``; None: ideal) and ``load`` the gravity torque on it (N·m,
     positive towards +q) as a function of its own link angle, read at each event (run planned,
-    stop). ``noise_per_count``: chance of a spurious ±1 count per encoder count.
+    stop). ``noise_per_count``: chance of a spurious ±1 count per encoder count. What the drive
+    train does to the pulses (losses, spurious counts, stick-slip) it answers
+    (``fakes/twin/drive_train.py``).
     """
 
     __slots__ = _FIELDS + _CONSTANTS
@@ -106,7 +103,8 @@ class JointModel:
             raise ValueError(f"seed {seed} is negative")
         if not 0.0 <= noise_per_count < 1.0:
             raise ValueError(f"noise_per_count {noise_per_count!r} is not in [0, 1)")
-        self._effects = effects if effects is not None else PhysicalEffects()
+        self._drive = DriveTrain(joint, physics, effects if effects is not None
+                                 else PhysicalEffects(), seed, noise_per_count)
         self._deadband = deadband_counts
         self._reach = stop_rule == "reach"
         self._physics = physics
@@ -114,19 +112,8 @@ class JointModel:
         self._load_nm = 0.0
         self._preload = 0  # side (±1) gravity holds the link on within the play; 0: play operator
         self._stick = 0.0  # link behind the play's flank after a stop (stick-slip), microsteps
-        self._lost_carry = 0.0  # lost pulses owed but not yet whole (error diffusion), pulses
         self._glitched = False  # the last run ended at a spurious count: the next one continues it
-        # chance of a spurious count per step that moves the shaft
-        self._noise_p = noise_per_count * self._num / self._den
-        # one PCG64 stream per effect, None while the effect is off
-        self._miss_bits = (np.random.PCG64([seed, 0])
-                           if self._effects.miss_probability
-                           or (physics is not None and physics.loss_jitter) else None)
-        self._noise_bits = (np.random.PCG64([seed, 1])
-                            if self._effects.noise_rate_hz or self._noise_p else None)
-        self._stick_bits = (np.random.PCG64([seed, 2])
-                            if physics is not None and physics.stick_rad else None)
-        backlash = self._effects.backlash_rad + (0.0 if physics is None else physics.backlash_rad)
+        backlash = 0.0 if physics is None else physics.backlash_rad
         self._half_play = backlash * joint.steps_per_rad / 2.0
 
         self._now = tick
@@ -141,7 +128,6 @@ class JointModel:
         self._homing_dir = 0
         self._homed_tick: int | None = None
         self._stalled = False
-        self._humming = False  # loss_law "stall": the rotor is out of step (restarts at pull-in)
         self._run: Run | None = None
         self._idle = False  # STOP with nothing to do: until an input, time passes and that is all
         self.transitions: list[Transition] = []
@@ -251,7 +237,7 @@ class JointModel:
         return out
 
     def __copy__(self) -> JointModel:
-        """A twin in the same state, sharing the mutable parts (run, bit generators, transitions):
+        """A twin in the same state, sharing the mutable parts (run, drive train, transitions):
         attribute by attribute, as a compiled build has no instance dictionary to copy."""
         twin = JointModel(self._joint, motor_steps=self._s)
         for name in _FIELDS:
@@ -259,14 +245,12 @@ class JointModel:
         return twin
 
     def __deepcopy__(self, memo: dict[int, object]) -> JointModel:
-        """An independent twin in the same state: its own run, bit generators and transitions
-        (the joint settings and effects, immutable, are shared)."""
+        """An independent twin in the same state: its own run, drive train (bit generators) and
+        transitions (the joint settings and physics, immutable, are shared)."""
         twin = copy.copy(self)
         twin.transitions = list(self.transitions)
         twin._run = None if self._run is None else replace(self._run)
-        twin._miss_bits = clone_bits(self._miss_bits)
-        twin._noise_bits = clone_bits(self._noise_bits)
-        twin._stick_bits = clone_bits(self._stick_bits)
+        twin._drive = self._drive.clone()
         return twin
 
     def next_event_tick(self) -> int | None:
@@ -434,7 +418,7 @@ class JointModel:
                 if self._duty == 0 or err == 0:
                     self._state = STOP
                     self._glitched = False
-                    self._humming = False  # at rest a stepper is in step again
+                    self._drive.humming = False  # at rest a stepper is in step again
                     if self._physics is not None:
                         self._settle()
                     self._now += 1
@@ -465,51 +449,24 @@ class JointModel:
         """The motor stops: the link comes to rest on the play's loaded side, and, carried by its
         momentum, up to a stick-slip band further on in the direction of travel (the band grows
         with the approach speed)."""
-        physics = self._physics
-        assert physics is not None
         self._update_load()
-        bits = self._stick_bits
-        if bits is not None and self._duty > 0:
-            band = physics.stick_band_rad(2.0 / (101 - self._duty)) * self._steps_per_rad
-            self._stick = -self._dir * band * float(np.random.Generator(bits).random())
-
-    def _misses(self, d: int, period: int, steps: int) -> int:
-        """Pulses lost making ``steps`` steps towards ``d`` every ``period`` cycles: the loss
-        law's share (``JointPhysics.loss_fraction``; a pulse's fraction carried to the next run,
-        scattered by ``loss_jitter``), or the static-friction draw per pulse if that loses more."""
-        fx = self._effects
-        p_fx = fx.miss_probability if self._duty > fx.miss_above_duty else 0.0
-        physics, joint, bits = self._physics, self._joint, self._miss_bits
-        p = 0.0 if physics is None else physics.loss_fraction(
-            self._load_nm, d, joint.gear_ratio, 1.0 / (period * CYCLE_S), joint.steps_per_motor_rev,
-            101 - period)
-        if p_fx > p and bits is not None:
-            return int(np.random.Generator(bits).negative_binomial(steps, 1.0 - p_fx))
-        if physics is None or p <= 0.0:
-            return 0
-        if physics.loss_jitter and bits is not None:
-            p = physics.jittered(p, float(np.random.Generator(bits).standard_normal()))
-        owed = steps * p / (1.0 - p) + self._lost_carry
-        misses = int(owed)
-        self._lost_carry = owed - misses
-        return misses
+        stick = self._drive.stick_steps(self._duty, self._dir)
+        if stick is not None:
+            self._stick = stick
 
     def _plan(self, d: int) -> Run:
-        """The run starting with the PWM_HIGH action due now, towards ``d``; draws the effects."""
+        """The run starting with the PWM_HIGH action due now, towards ``d``; the drive train draws
+        its effects."""
         period = 101 - self._duty
         if self._physics is not None and not (self._glitched and d == self._dir):
             self._update_load()
         self._glitched = False
         limit = self.upper_steps if d > 0 else self.lower_steps
-        physics = self._physics
+        drive = self._drive
         # loss_law "stall": the rotor stands, humming; load and rate are read again every
-        # STALL_RECHECK_S, moving or not (other joints' motion changes the load)
-        recheck = 0 if physics is None or physics.loss_law != "stall" else max(
-            1, round(STALL_RECHECK_S / (period * CYCLE_S)))
-        hum = recheck > 0 and physics is not None and physics.stalls(
-            self._load_nm, d, self._joint.gear_ratio, 1.0 / (period * CYCLE_S),
-            self._joint.steps_per_motor_rev, self._humming)
-        self._humming = hum
+        # STALL_RECHECK_S (drive_train.py), moving or not (other joints' motion changes the load)
+        recheck = drive.recheck_pulses(period)
+        hum = drive.hums(self._load_nm, d, period, recheck)
         if self._stalled or self._s == limit or hum:
             return Run(self._now, period, d, recheck if hum else None, 0, self._s, self._offset,
                        self._offset, 0, False)
@@ -521,20 +478,12 @@ class JointModel:
             steps = min(steps, hall)
         if not self._homing_dir:
             steps = min(steps, self._steps_to_deadband(d))
-        glitch = 0
-        if self._noise_bits is not None:
-            noise = np.random.Generator(self._noise_bits)
-            rate_p = min(1.0, self._effects.noise_rate_hz * period * CYCLE_S)
-            p_step = rate_p if not self._noise_p else 1.0 - (1.0 - rate_p) * (1.0 - self._noise_p)
-            first = int(noise.geometric(min(1.0, p_step)))
-            if first <= steps:
-                steps = first
-                glitch = 1 if noise.integers(2) else -1
+        steps, glitch = drive.first_spurious(steps)
         hall_at_end = hall == steps
         offset_end = self._offset + glitch
         if hall_at_end:
             offset_end = self.hall_count - self._encoder(self.hall_step)
-        misses = self._misses(d, period, steps)
+        misses = drive.lost_pulses(self._load_nm, d, self._duty, period, steps)
         return Run(self._now, period, d, steps + misses, steps, self._s, self._offset,
                     offset_end, glitch, hall_at_end)
 

@@ -25,13 +25,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any, Final, NamedTuple
 
 from armbench.drivers.model.kinematics import dh_parameters
 from armbench.drivers.model.settings import Geometry, JointSettings, RobotSettings, SettingsError
+from armbench.drivers.model.twin_parameters import (
+    ARM_PARAMETERS,
+    GEOMETRY_ERRORS,
+    JOINT_PARAMETERS,
+    PHYSICS_TABLE,
+    TWIN,
+    TwinParameter,
+)
 
 __all__ = [
+    "DEFAULT_ARM",
     "DEFAULT_JOINT_PHYSICS",
     "END_STOP_MARGIN_RAD",
     "LOSS_LAWS",
@@ -44,6 +53,8 @@ __all__ = [
     "TruthSample",
     "arm_physics",
     "end_stop_steps",
+    "ideal_geometry",
+    "ideal_joint",
 ]
 
 #: The emulator's profiles: ``physical`` (the default arm of ``docs/robot-model.md``) and
@@ -79,8 +90,11 @@ class TruthSample(NamedTuple):
 
 @dataclass(frozen=True, slots=True)
 class JointPhysics:
-    """The physical drive train and link of one joint (units in the names; ranges in
-    ``RANGES``; sources in ``docs/robot-model.md``).
+    """The physical drive train and link of one joint: one field per joint parameter of
+    :mod:`armbench.drivers.model.twin_parameters`, which gives each its unit, range, default and
+    source (twin units here: radians where the settings file has degrees). Built by
+    :func:`ideal_joint` (no effect but those given) or from the default arm
+    (:data:`DEFAULT_JOINT_PHYSICS`).
 
     ``mass_kg`` / ``com_fraction``: the link this joint carries (from its frame's origin to the
     next, as a fraction of that segment). ``stiffness_nm_per_rad``: torsional stiffness of gear and
@@ -114,28 +128,28 @@ class JointPhysics:
     lost (an arm that showed no loss wherever it was driven).
     """
 
-    mass_kg: float = 0.0
-    com_fraction: float = 0.5
-    stiffness_nm_per_rad: float = math.inf
-    backlash_rad: float = 0.0
-    hold_nm: float = 0.5
-    pullout_nm: float = math.inf
-    corner_steps_per_s: float = 8000.0
-    efficiency: float = 0.35
-    friction_nm: float = 0.0
-    inertia_kgm2: float = 0.0
-    spinup_s: float = 0.1
-    stick_rad: float = 0.0
-    stick_floor: float = 0.3
-    offset_error_rad: float = 0.0
-    hall_error_rad: float = 0.0
-    loss_jitter: float = 0.0
-    loss_law: str = "torque"
-    loss_above_duty: float = 99.0
-    loss_plus: float = 0.0
-    loss_minus: float = 0.0
-    pullout_curve: str = "hyperbolic"
-    pullin_share: float = 1.0
+    mass_kg: float
+    com_fraction: float
+    stiffness_nm_per_rad: float
+    backlash_rad: float
+    hold_nm: float
+    pullout_nm: float
+    corner_steps_per_s: float
+    efficiency: float
+    friction_nm: float
+    inertia_kgm2: float
+    spinup_s: float
+    stick_rad: float
+    stick_floor: float
+    offset_error_rad: float
+    hall_error_rad: float
+    loss_jitter: float
+    loss_law: str
+    loss_above_duty: float
+    loss_plus: float
+    loss_minus: float
+    pullout_curve: str
+    pullin_share: float
 
     def pullout_at_nm(self, steps_per_s: float) -> float:
         """Pull-out torque (N·m at the motor) at ``steps_per_s`` microsteps/s, on the curve
@@ -205,66 +219,50 @@ class JointPhysics:
 
 @dataclass(frozen=True, slots=True)
 class GeometryError:
-    """Actual minus nominal DH lengths (m)."""
+    """Actual minus nominal DH lengths (m): one field per parameter of
+    :data:`~armbench.drivers.model.twin_parameters.GEOMETRY_ERRORS`."""
 
-    d1_m: float = 0.0
-    d2_m: float = 0.0
-    a2_m: float = 0.0
-    a3_m: float = 0.0
-    d4_m: float = 0.0
+    d1_m: float
+    d2_m: float
+    a2_m: float
+    a3_m: float
+    d4_m: float
 
 
-def _deg(x: float) -> float:
-    return math.radians(x)
+def _twin_values(params: Sequence[TwinParameter], joint: int, *,
+                 ideal: bool) -> dict[str, Any]:
+    """The twin's field values (twin units) of ``params``: the default arm's at ``joint``
+    (0-based), or (``ideal``) those without any effect."""
+    out: dict[str, Any] = {}
+    for p in params:
+        value = p.ideal_value() if ideal else p.default_at(joint)
+        out[p.name] = value if isinstance(value, str) else p.to_twin(value)
+    return out
+
+
+def ideal_joint(**changes: Any) -> JointPhysics:
+    """A joint without any effect (no mass, play, friction or stick-slip; infinite stiffness and
+    pull-out torque: the declaration's ideal values) but ``changes`` (twin units)."""
+    return JointPhysics(**{**_twin_values(JOINT_PARAMETERS, 0, ideal=True), **changes})
+
+
+def ideal_geometry() -> GeometryError:
+    """An arm built exactly to its nominal DH lengths."""
+    return GeometryError(**_twin_values(GEOMETRY_ERRORS, 0, ideal=True))
 
 
 #: The default arm's joints (``docs/robot-model.md``: sources and assumptions).
-DEFAULT_JOINT_PHYSICS: Final = (
-    JointPhysics(mass_kg=0.0, stiffness_nm_per_rad=4000.0, backlash_rad=_deg(0.25),
-                 pullout_nm=1.9, friction_nm=0.05, inertia_kgm2=3.0e-4, stick_rad=_deg(0.03),
-                 offset_error_rad=_deg(0.05), hall_error_rad=_deg(0.02)),
-    JointPhysics(mass_kg=4.5, com_fraction=0.55, stiffness_nm_per_rad=6000.0,
-                 backlash_rad=_deg(0.25), pullout_nm=1.5, friction_nm=0.05, inertia_kgm2=4.8e-4,
-                 stick_rad=_deg(0.03), offset_error_rad=_deg(-0.15), hall_error_rad=_deg(-0.03)),
-    JointPhysics(mass_kg=3.0, com_fraction=0.5, stiffness_nm_per_rad=4000.0,
-                 backlash_rad=_deg(0.3), pullout_nm=1.2, friction_nm=0.04, inertia_kgm2=2.5e-4,
-                 stick_rad=_deg(0.03), offset_error_rad=_deg(0.2), hall_error_rad=_deg(0.025)),
-    JointPhysics(mass_kg=0.5, com_fraction=0.5, stiffness_nm_per_rad=1500.0,
-                 backlash_rad=_deg(0.4), pullout_nm=0.5, friction_nm=0.02, inertia_kgm2=1.0e-4,
-                 stick_rad=_deg(0.04), offset_error_rad=0.0, hall_error_rad=_deg(0.03)),
-)
+DEFAULT_JOINT_PHYSICS: Final = tuple(
+    JointPhysics(**_twin_values(JOINT_PARAMETERS, j, ideal=False)) for j in range(4))
 
-#: Plausible range (low, high) of every per-joint setting, in the units of its name: where hidden
-#: arms are drawn from and what a fit may return (``docs/robot-model.md``).
-JOINT_RANGES: Final[Mapping[str, tuple[float, float]]] = {
-    "mass_kg": (0.0, 8.0),
-    "com_fraction": (0.2, 0.8),
-    "stiffness_nm_per_rad": (300.0, 10000.0),
-    "backlash_rad": (0.0, _deg(1.0)),
-    "hold_nm": (0.1, 2.0),
-    "pullout_nm": (0.3, 3.0),
-    "corner_steps_per_s": (2000.0, 30000.0),
-    "efficiency": (0.2, 0.6),
-    "friction_nm": (0.0, 0.2),
-    "inertia_kgm2": (0.0, 2e-3),
-    "spinup_s": (0.02, 0.5),
-    "stick_rad": (0.0, _deg(0.1)),
-    "stick_floor": (0.0, 1.0),
-    "offset_error_rad": (_deg(-0.5), _deg(0.5)),
-    "hall_error_rad": (_deg(-0.1), _deg(0.1)),
-    "loss_jitter": (0.0, 0.05),
-    "loss_above_duty": (0.0, 99.0),
-    "loss_plus": (0.0, 0.9),
-    "loss_minus": (0.0, 0.9),
-    "pullin_share": (0.5, 1.0),
-}
+_HALL: Final = TWIN["hall_error_rad"]
 #: How far beyond each of its configured limits a joint's end stop lies (rad): 1°, twice the
 #: largest Hall sensor error a settings file may give (``hall_error_deg``, ±0.5°). The firmware
 #: counts angles from where its Hall sensor really is; an end stop on the limit itself lies that
 #: error inside the limit as the firmware counts, so the limit on that side cannot be reached
 #: (joint 1, Hall error 0.02°: a move to +2.4434 rad stopped at 2.4431 and timed out). A real
 #: arm's end stops, too, lie beyond its working range.
-END_STOP_MARGIN_RAD: Final = math.radians(1.0)
+END_STOP_MARGIN_RAD: Final = 2.0 * _HALL.to_twin(_HALL.accepted()[1])
 
 
 def end_stop_steps(joint: JointSettings) -> tuple[int, int]:
@@ -275,32 +273,26 @@ def end_stop_steps(joint: JointSettings) -> tuple[int, int]:
 
 
 #: The step-loss laws of ``JointPhysics.loss_law`` (``docs/robot-model.md``, Step loss).
-LOSS_LAWS: Final = ("torque", "stall", "duty", "none")
+LOSS_LAWS: Final = TWIN["loss_law"].choices
 #: The shapes of the pull-out curve (``JointPhysics.pullout_curve``, ``docs/robot-model.md``).
-PULLOUT_CURVES: Final = ("hyperbolic", "linear")
-#: Ranges of the arm-wide settings.
-ARM_RANGES: Final[Mapping[str, tuple[float, float]]] = {
-    "payload_kg": (0.0, 3.0),
-    "noise_per_count": (0.0, 1e-3),
-    "geometry_error_m": (-0.002, 0.002),
-}
+PULLOUT_CURVES: Final = TWIN["pullout_curve"].choices
 
 
 @dataclass(frozen=True, slots=True)
 class ArmPhysics:
-    """The whole physical arm: joints 1..4, the payload at the TCP, encoder noise, DH errors.
+    """The whole physical arm: joints 1..4, the payload at the TCP, encoder noise, DH errors
+    (one field per parameter of ``ARM_PARAMETERS`` besides the joints and the DH errors).
 
     ``payload_kg``: mass at the TCP (0..3 kg, the paper's maximum). ``noise_per_count``: chance
     that an encoder count comes with a spurious ±1 count (electrical noise on the quadrature lines
     while the motor steps). ``gravity_m_s2``: standard gravity.
     """
 
-    joints: tuple[JointPhysics, ...] = DEFAULT_JOINT_PHYSICS
-    payload_kg: float = 0.0
-    noise_per_count: float = 1e-6
-    gravity_m_s2: float = 9.80665
-    geometry_error: GeometryError = field(default_factory=lambda: GeometryError(
-        d1_m=0.0006, d2_m=-0.0003, a2_m=0.0008, a3_m=-0.0005))
+    joints: tuple[JointPhysics, ...]
+    payload_kg: float
+    noise_per_count: float
+    gravity_m_s2: float
+    geometry_error: GeometryError
 
     def actual_settings(self, nominal: RobotSettings) -> RobotSettings:
         """The real arm's robot model: nominal DH lengths and joint offsets plus their errors."""
@@ -312,65 +304,54 @@ class ArmPhysics:
         return replace(nominal, geometry=geometry, joints=joints)
 
 
-def arm_physics(table: Mapping[str, Any] | None, where: str = "emulator.physics") -> ArmPhysics:
+#: The default arm (``docs/robot-model.md``).
+DEFAULT_ARM: Final = ArmPhysics(
+    DEFAULT_JOINT_PHYSICS, geometry_error=GeometryError(**_twin_values(GEOMETRY_ERRORS, 0,
+                                                                       ideal=False)),
+    **_twin_values(ARM_PARAMETERS, 0, ideal=False))
+
+
+def arm_physics(table: Mapping[str, Any] | None, where: str = PHYSICS_TABLE) -> ArmPhysics:
     """Validated physics from an ``[emulator.physics]`` table: arm-wide keys, ``[…geometry_error]``
-    and per-joint tables ``[….j1]`` … ``[….j4]`` (angles in degrees: ``backlash_deg``,
-    ``stick_deg``, ``offset_error_deg``, ``hall_error_deg``); missing keys keep the defaults."""
+    and per-joint tables ``[….j1]`` … ``[….j4]`` (the keys of
+    :mod:`~armbench.drivers.model.twin_parameters`, angles in degrees); missing keys keep the
+    default arm's values."""
     table = dict(table or {})
-    default = ArmPhysics()
-    joints = list(default.joints)
-    for k in range(len(joints)):
+    joints = []
+    for k, base in enumerate(DEFAULT_JOINT_PHYSICS):
         name = f"j{k + 1}"
         jt = table.pop(name, {})
         if not isinstance(jt, Mapping):
             raise SettingsError(f"{where}.{name}", jt, "is not a table")
-        joints[k] = _joint_physics(joints[k], jt, f"{where}.{name}")
-    ge_table = table.pop("geometry_error", {})
-    if not isinstance(ge_table, Mapping):
-        raise SettingsError(f"{where}.geometry_error", ge_table, "is not a table")
-    ge: dict[str, float] = {}
-    known_ge = {f.name for f in fields(GeometryError)}
-    low, high = ARM_RANGES["geometry_error_m"]
-    for ge_key, v in ge_table.items():
-        if ge_key not in known_ge:
-            raise SettingsError(f"{where}.geometry_error.{ge_key}", v, "is not a known setting")
-        ge[str(ge_key)] = _in_range(f"{where}.geometry_error.{ge_key}", v, low * 5, high * 5)
-    geometry_error = replace(default.geometry_error, **ge)
-    arm: dict[str, Any] = {}
-    for key, v in table.items():
-        if key not in ("payload_kg", "noise_per_count", "gravity_m_s2"):
-            raise SettingsError(f"{where}.{key}", v, "is not a known setting (known: j1..j4, "
-                                "geometry_error, payload_kg, noise_per_count, gravity_m_s2)")
-        low, high = ARM_RANGES.get(key, (0.0, 20.0))
-        arm[key] = _in_range(f"{where}.{key}", v, low, high)
-    return replace(default, joints=tuple(joints), geometry_error=geometry_error, **arm)
+        joints.append(replace(base, **_read(JOINT_PARAMETERS, jt, f"{where}.{name}")))
+    ge = table.pop("geometry_error", {})
+    if not isinstance(ge, Mapping):
+        raise SettingsError(f"{where}.geometry_error", ge, "is not a table")
+    geometry_error = replace(DEFAULT_ARM.geometry_error,
+                             **_read(GEOMETRY_ERRORS, ge, f"{where}.geometry_error"))
+    arm = _read(ARM_PARAMETERS, table, where, ("j1..j4", "geometry_error"))
+    return replace(DEFAULT_ARM, joints=tuple(joints), geometry_error=geometry_error, **arm)
 
 
-_DEG_KEYS: Final = {"backlash_deg": "backlash_rad", "stick_deg": "stick_rad",
-                    "offset_error_deg": "offset_error_rad", "hall_error_deg": "hall_error_rad"}
-
-
-def _joint_physics(base: JointPhysics, table: Mapping[str, Any], where: str) -> JointPhysics:
-    known = {f.name for f in fields(JointPhysics)} - set(_DEG_KEYS.values()) | set(_DEG_KEYS)
+def _read(params: Sequence[TwinParameter], table: Mapping[str, Any], where: str,
+          tables: Sequence[str] = ()) -> dict[str, Any]:
+    """The twin's values (by field name, twin units) of a settings ``table`` of ``params``: each
+    key known, each number within the band :meth:`TwinParameter.accepted` gives, each choice one
+    of its parameter's; ``tables``: the sub-tables the message lists as known too."""
+    by_key = {p.key: p for p in params}
     out: dict[str, Any] = {}
     for k, v in table.items():
-        if k not in known:
-            raise SettingsError(f"{where}.{k}", v, f"is not a known setting (known: "
-                                                  f"{', '.join(sorted(known))})")
-        if k in ("loss_law", "pullout_curve"):
-            choices = LOSS_LAWS if k == "loss_law" else PULLOUT_CURVES
-            if v not in choices:
-                raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(choices)}")
-            out[k] = str(v)
-            continue
-        attr = _DEG_KEYS.get(k, k)
-        low, high = JOINT_RANGES[attr]
-        if attr in _DEG_KEYS.values():
-            out[attr] = math.radians(_in_range(f"{where}.{k}", v, math.degrees(low) * 5,
-                                               math.degrees(high) * 5))
+        p = by_key.get(k)
+        if p is None:
+            known = ", ".join([*tables, *sorted(by_key)])
+            raise SettingsError(f"{where}.{k}", v, f"is not a known setting (known: {known})")
+        if p.choices:
+            if v not in p.choices:
+                raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(p.choices)}")
+            out[p.name] = str(v)
         else:
-            out[attr] = _in_range(f"{where}.{k}", v, low / 10, high * 10)
-    return replace(base, **out)
+            out[p.name] = p.to_twin(_in_range(f"{where}.{k}", v, *p.accepted()))
+    return out
 
 
 def _in_range(path: str, v: object, low: float, high: float) -> float:

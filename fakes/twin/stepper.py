@@ -1,11 +1,10 @@
 """The stepper drive's vocabulary, shared by the joint model and its callers: the 80 µs control
 cycle, the PWM states of the paper's Fig. 7, speed law (12), a run of step pulses, and the
-drive train's simple imperfections (``docs/robot-model.md``)."""
+drive's static-friction effect (``docs/robot-model.md``)."""
 
 from __future__ import annotations
 
 import enum
-import math
 from dataclasses import dataclass
 from typing import Final, Literal, NamedTuple
 
@@ -80,32 +79,22 @@ def step_period_ticks(duty: object) -> int:
 
 @dataclass(frozen=True, slots=True)
 class PhysicalEffects:
-    """Physical imperfections of the drive train; all off by default.
+    """The static-friction effect of the drive (``[emulator.effects]``, in either profile); off by
+    default. The arm's play and encoder noise are its physics (``[emulator.physics]``).
 
     ``miss_probability``: chance (0 ≤ p < 1) that a step pulse is lost (the shaft does not move),
     applied only to pulses issued at a duty above ``miss_above_duty`` (the start duty: a stepper
     with high static friction keeps up below its pull-in rate and loses steps above it).
-    ``backlash_rad``: play of the gear at the joint, radians; the joint lags the motor by up to
-    this much after a reversal (hysteresis width). The encoder is on the motor, so only
-    ``true_angle_rad`` sees it.
-    ``noise_rate_hz``: spurious ±1 encoder counts per second of stepping at the commanded step
-    rate (see ``docs/robot-model.md`` for how it is drawn).
     """
 
     miss_probability: float = 0.0
     miss_above_duty: int = 0
-    backlash_rad: float = 0.0
-    noise_rate_hz: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.miss_probability < 1.0:
             raise ValueError(f"miss_probability {self.miss_probability!r} is not in [0, 1)")
         if not 0 <= self.miss_above_duty <= MAX_DUTY:
             raise ValueError(f"miss_above_duty {self.miss_above_duty!r} is not in 0..{MAX_DUTY}")
-        if not 0.0 <= self.backlash_rad < math.inf:
-            raise ValueError(f"backlash_rad {self.backlash_rad!r} is not a finite angle ≥ 0")
-        if not 0.0 <= self.noise_rate_hz < math.inf:
-            raise ValueError(f"noise_rate_hz {self.noise_rate_hz!r} is not a finite rate ≥ 0")
 
 
 @dataclass(slots=True)

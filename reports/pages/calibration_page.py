@@ -1,7 +1,8 @@
 """The calibration page (``armbench calibrate``'s ``.html`` beside the settings it wrote): what was
-measured and fitted, every parameter with its standard error, the sensitivity to the assumptions,
-and figures of the effective speeds and the approaches, in the report's style. A self-contained
-HTML document (no script, nothing fetched)."""
+measured and fitted, every parameter with its standard error (a kept one with its prior's, and the
+twin parameters no calibration fits: :mod:`~armbench.drivers.model.twin_parameters`), the
+sensitivity to the assumptions, and figures of the effective speeds and the approaches, in the
+report's style. A self-contained HTML document (no script, nothing fetched)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ import numpy as np
 from markupsafe import Markup
 from matplotlib.figure import Figure
 
-from armbench.bench.calibrate.model import NO_TRUTH, CalibrationResult
+from armbench.bench.calibrate.model import NO_TRUTH, CalibrationResult, Fitted
+from armbench.drivers.model.twin_parameters import TWIN_PARAMETERS, by_path
 from armbench.reports.render.format import jinja_environment
 from armbench.reports.render.plots import to_svg
 
@@ -54,6 +56,12 @@ def _figures(result: CalibrationResult) -> list[tuple[str, Markup]]:
     return out
 
 
+def _prior_sigma(f: Fitted) -> float | None:
+    """The prior standard error of a value kept at its prior (None: not a twin parameter)."""
+    p = by_path(f.key)
+    return None if p is None or p.choices else p.prior_sigma
+
+
 def render_page(result: CalibrationResult) -> str:
     """The calibration page: a self-contained HTML document (no script, nothing fetched)."""
     template = jinja_environment().get_template("calibration.html.j2")
@@ -61,6 +69,7 @@ def render_page(result: CalibrationResult) -> str:
         obs=result.observations, error=result.error, NO_TRUTH=NO_TRUTH,
         sensitivity=result.sensitivity,
         identified=[f for f in result.fitted if f.identified],
-        kept=[f for f in result.fitted if not f.identified],
+        kept=[(f, _prior_sigma(f)) for f in result.fitted if not f.identified],
+        never_fitted=sorted({p.key for p in TWIN_PARAMETERS if not p.fitted}),
         figures=_figures(result), kinematic_mm=result.kinematic_mm,
         speeds=sorted(result.observations.speeds, key=lambda s: (s.joint, s.direction, -s.duty)))
