@@ -5,7 +5,7 @@ slips past a stop.
 
 The joint model (``fakes/twin/joint.py``) runs the firmware's control loop step-exactly and asks
 this when it plans a run or stops; everything random about a joint is drawn here, one seeded PCG64
-stream per effect (``docs/emulator-joint.md``), so a run depends on the seed and the inputs alone.
+stream per effect (``docs/robot-model.md``), so a run depends on the seed and the inputs alone.
 """
 
 from __future__ import annotations
