@@ -56,18 +56,18 @@ uart_receive = "blocking"
 
 @pytest.mark.parametrize(("toml", "field", "words"), [
     ("[geometry]\nd5_m = 1", "geometry.d5_m", "not a known setting"),
-    ("[joints.j2]\nlower_deg = 80", "joints.j2.lower_deg", "must be below upper_deg"),
-    ("[joints.j2]\ngear_ratio = -3", "joints.j2.gear_ratio", "must be in 0.01..10000"),
+    ("[joints.j2]\nlower_deg = 80", "joints.j2.lower_deg", "must be < 70 deg (below upper_deg)"),
+    ("[joints.j2]\ngear_ratio = -3", "joints.j2.gear_ratio", "must be in [0.01, 10000]"),
     ("[joints.j4]\nsign = 2", "joints.j4.sign", "must be 1 or -1"),
     ("[joints.j5]\ngear_ratio = 3", "joints.j5", "not a known setting"),
     ("[joints.j3]\ni2c_address = 0x10", "joints.j3.i2c_address", "used by another joint"),
     ("[joints.j1]\ni2c_address = 0x20", "joints.j1.i2c_address", "master"),
-    ("[joints.j1]\nmicrosteps = 2.5", "joints.j1.microsteps", "not an integer"),
+    ("[joints.j1]\nmicrosteps = 2.5", "joints.j1.microsteps", "2.5 must be a whole number in [1, 256]"),
     ("[joints.j1]\nhall_deg = 170", "joints.j1.hall_deg", "within the joint limits"),
     ("[joints.j1]\nlower_deg = -190\nupper_deg = 190", "joints.j1.upper_deg", "360"),
-    ("[serial]\nbaudrate = 'fast'", "serial.baudrate", "not a number"),
+    ("[serial]\nbaudrate = 'fast'", "serial.baudrate", "'fast' must be a whole number > 0 baud"),
     ("[serial]\nparity = 'X'", "serial.parity", "N, E, O"),
-    ("[geometry]\na2_m = nan", "geometry.a2_m", "not finite"),
+    ("[geometry]\na2_m = nan", "geometry.a2_m", "nan must be in (0, 10] m"),
     ("geometry = 3", "geometry", "not a table"),
     ("[robot]\nx = 1", "robot", "not a known setting"),
 ])

@@ -11,7 +11,6 @@ law restricted to the values the twin accepts.
 
 from __future__ import annotations
 
-import math
 import random
 import re
 from collections.abc import Mapping, Sequence
@@ -19,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import RobotSettings, SettingsError, read_toml_document
 
@@ -83,8 +83,7 @@ def read_uncertainties(path: str | Path) -> list[Uncertain]:
         value = _lookup(data, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise SettingsError(key, value, f"in {p} has a sigma but is not a number")
-        if not (math.isfinite(sigma) and sigma >= 0):
-            raise SettingsError(key, sigma, f"in {p}: the sigma is not a finite number >= 0")
+        check(key, sigma, Bound(0.0, why=f"its sigma in {p}"))
         out.append(Uncertain(key, float(value), sigma, m["unit"].strip()))
     return out
 

@@ -25,7 +25,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Final, cast
 
 from armbench.bench.runner.config_check import check_config, closest
 from armbench.bench.runner.options import (
@@ -44,8 +44,8 @@ from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.drivers.capture.jsonl import capture_options
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.drivers.transports.target import Target, given_by, target_of
@@ -70,15 +70,21 @@ __all__ = ["prepare"]
 #: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
 MAX_TRIALS = 10_000
 
-#: Upper bounds of the ``[bench]`` times (s) and counts (and of ``--retries``, ``--workers``),
-#: checked before anything moves: the run clock stays far inside the capture's int32 seconds
-#: stamps (2**31 s) over :data:`MAX_TRIALS` trials of every suite, and no count asks the machine
-#: for the impossible. Documented in ``docs/runner.md``.
-BENCH_MAX: dict[str, float] = {
-    "retries": 100, "workers": 1024, "reply_timeout_s": 60.0, "connect_timeout_s": 600.0,
-    "outage_timeout_s": 600.0, "settle_s": 600.0, "power_timeout_s": 600.0,
-    "move_timeout_scale": 100.0,
+#: The ``[bench]`` times (s) and counts (and ``--retries``, ``--workers``), checked before
+#: anything moves: the run clock stays far inside the capture's int32 seconds stamps (2**31 s)
+#: over :data:`MAX_TRIALS` trials of every suite, and no count asks the machine for the
+#: impossible. Documented in ``docs/runner.md``.
+BENCH_BOUNDS: Final[Mapping[str, Bound]] = {
+    "retries": Bound(0, 100, whole=True), "workers": Bound(1, 1024, whole=True),
+    "reply_timeout_s": Bound(0.0, 60.0, "s", low_open=True),
+    "connect_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "outage_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "settle_s": Bound(0.0, 600.0, "s"),
+    "power_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "move_timeout_scale": Bound(0.0, 100.0, low_open=True),
 }
+#: ``--seed``: any whole number from 0.
+_SEED = Bound(0, math.inf, whole=True)
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "outage_timeout_s",
                "settle_s",
@@ -117,25 +123,6 @@ class _BenchKnobs:
     move_timeout_scale: float = 1.0
 
 
-def _number(where: str, value: object, *, low: float, strict: bool, high: float) -> float:
-    number = finite_float(value)
-    if number is None:
-        raise SettingsError(where, value, "is not a finite number")
-    if number < low or (strict and number == low):
-        raise SettingsError(where, value, f"must be {'>' if strict else '>='} {low:g}")
-    if number > high:
-        raise SettingsError(where, value, f"must be <= {high:g}")
-    return number
-
-
-def _integer(where: str, value: object, high: float | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise SettingsError(where, value, "must be a whole number >= 0")
-    if high is not None and value > high:
-        raise SettingsError(where, value, f"must be <= {high:g}")
-    return value
-
-
 def check_storable(where: str, value: object) -> None:
     """Refuse, naming its dotted path, the first value under ``value`` the record cannot store:
     a float that is not finite (TOML has ``inf`` and ``nan``, JSON has not)."""
@@ -150,11 +137,9 @@ def check_storable(where: str, value: object) -> None:
             stack.extend((f"{path}[{i}]", v) for i, v in enumerate(node))
 
 
-def _seconds(bench: Mapping[str, Any], key: str, default: float, *, strict: bool = True) -> float:
-    """``[bench] key``: a time in seconds, > 0 (>= 0 when not ``strict``) and at most its
-    :data:`BENCH_MAX` bound."""
-    return _number(f"bench.{key}", bench.get(key, default), low=0, strict=strict,
-                   high=BENCH_MAX[key])
+def _bench_number(bench: Mapping[str, Any], key: str, default: float) -> float:
+    """``[bench] key`` (else ``default``) within its :data:`BENCH_BOUNDS` bound."""
+    return check(f"bench.{key}", bench.get(key, default), BENCH_BOUNDS[key])
 
 
 def json_equal(a: object, b: object) -> bool:
@@ -237,7 +222,8 @@ def _new_inputs(options: RunOptions, target: Target) -> _Inputs:
     settings file over the default (:func:`~armbench.drivers.transports.target.resolve`)."""
     flags = given_by({"settings": "--settings", "seed": "--seed", "faults": "--faults"},
                      settings=None if options.settings is None else os.fspath(options.settings),
-                     seed=None if options.seed is None else _integer("--seed", options.seed),
+                     seed=None if options.seed is None else check_whole("--seed", options.seed,
+                                                                       _SEED),
                      faults=None if options.faults is None else os.fspath(options.faults))
     resolved = target.inputs(flags)
     settings_path = resolved.given.settings
@@ -261,16 +247,13 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
             raise SettingsError(f"bench.{key}", value, "is not a bench parameter ("
                                 + (f"closest: {', '.join(near)}; " if near else "")
                                 + f"known: {', '.join(sorted(_BENCH_KEYS))})")
-    retries = _integer("bench.retries", bench.get("retries", 0), BENCH_MAX["retries"])
+    retries = check_whole("bench.retries", bench.get("retries", 0), BENCH_BOUNDS["retries"])
     if options.retries is not None:
-        retries = _integer("--retries", options.retries, BENCH_MAX["retries"])
-    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
-                       BENCH_MAX["workers"])
+        retries = check_whole("--retries", options.retries, BENCH_BOUNDS["retries"])
+    workers = check_whole("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
+                          BENCH_BOUNDS["workers"])
     if options.workers is not None:
-        workers = _integer("--workers", options.workers, BENCH_MAX["workers"])
-    if workers < 1:
-        raise SettingsError("--workers" if options.workers is not None else "bench.workers",
-                            workers, "must be at least 1")
+        workers = check_whole("--workers", options.workers, BENCH_BOUNDS["workers"])
     fresh = target.capabilities.fresh_per_trial
     isolation = bench.get("isolation", "trial" if fresh else "run")
     if isolation not in ("trial", "run"):
@@ -292,15 +275,13 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
     return _BenchKnobs(
         retries=retries, workers=workers, isolation=isolation, capture=capture,
         capture_max_bytes=capture_max_bytes,
-        reply_timeout_s=_seconds(bench, "reply_timeout_s", 0.5),
-        connect_timeout_s=_seconds(bench, "connect_timeout_s", 3.0),
-        outage_timeout_s=_seconds(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
-        settle_s=_seconds(bench, "settle_s", 0.0, strict=False),
-        power_timeout_s=_seconds(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
+        reply_timeout_s=_bench_number(bench, "reply_timeout_s", 0.5),
+        connect_timeout_s=_bench_number(bench, "connect_timeout_s", 3.0),
+        outage_timeout_s=_bench_number(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
+        settle_s=_bench_number(bench, "settle_s", 0.0),
+        power_timeout_s=_bench_number(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
         tracker_params=tracker_params, scheduler=scheduler,
-        move_timeout_scale=_number("bench.move_timeout_scale",
-                                   bench.get("move_timeout_scale", 1.0), low=0, strict=True,
-                                   high=BENCH_MAX["move_timeout_scale"]))
+        move_timeout_scale=_bench_number(bench, "move_timeout_scale", 1.0))
 
 
 def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
@@ -527,9 +508,8 @@ def prepare(options: RunOptions) -> BenchPlan:
 def check_shard(shard: tuple[int, int]) -> tuple[int, int]:
     """``(I, N)`` with 1 <= I <= N, else a SettingsError naming ``--shard``."""
     i, n = shard
-    if not (isinstance(i, int) and isinstance(n, int) and 1 <= i <= n):
-        raise SettingsError("--shard", f"{i}/{n}", "must be I/N with 1 <= I <= N")
-    return i, n
+    count = check_whole("--shard", n, Bound(1, math.inf, whole=True, why="N of I/N"))
+    return check_whole("--shard", i, Bound(1, count, why="I of I/N, 1 <= I <= N")), count
 
 
 def _shard_of(info: Mapping[str, Any]) -> tuple[int, int] | None:

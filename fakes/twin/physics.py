@@ -28,6 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Final, NamedTuple
 
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.kinematics import dh_parameters
 from armbench.drivers.model.settings import Geometry, JointSettings, RobotSettings, SettingsError
 
@@ -334,7 +335,7 @@ def arm_physics(table: Mapping[str, Any] | None, where: str = "emulator.physics"
     for ge_key, v in ge_table.items():
         if ge_key not in known_ge:
             raise SettingsError(f"{where}.geometry_error.{ge_key}", v, "is not a known setting")
-        ge[str(ge_key)] = _in_range(f"{where}.geometry_error.{ge_key}", v, low * 5, high * 5)
+        ge[str(ge_key)] = check(f"{where}.geometry_error.{ge_key}", v, Bound(low * 5, high * 5))
     geometry_error = replace(default.geometry_error, **ge)
     arm: dict[str, Any] = {}
     for key, v in table.items():
@@ -342,7 +343,7 @@ def arm_physics(table: Mapping[str, Any] | None, where: str = "emulator.physics"
             raise SettingsError(f"{where}.{key}", v, "is not a known setting (known: j1..j4, "
                                 "geometry_error, payload_kg, noise_per_count, gravity_m_s2)")
         low, high = ARM_RANGES.get(key, (0.0, 20.0))
-        arm[key] = _in_range(f"{where}.{key}", v, low, high)
+        arm[key] = check(f"{where}.{key}", v, Bound(low, high))
     return replace(default, joints=tuple(joints), geometry_error=geometry_error, **arm)
 
 
@@ -366,21 +367,11 @@ def _joint_physics(base: JointPhysics, table: Mapping[str, Any], where: str) -> 
         attr = _DEG_KEYS.get(k, k)
         low, high = JOINT_RANGES[attr]
         if attr in _DEG_KEYS.values():
-            out[attr] = math.radians(_in_range(f"{where}.{k}", v, math.degrees(low) * 5,
-                                               math.degrees(high) * 5))
+            bound_deg = Bound(math.degrees(low) * 5, math.degrees(high) * 5, "deg")
+            out[attr] = math.radians(check(f"{where}.{k}", v, bound_deg))
         else:
-            out[attr] = _in_range(f"{where}.{k}", v, low / 10, high * 10)
+            out[attr] = check(f"{where}.{k}", v, Bound(low / 10, high * 10))
     return replace(base, **out)
-
-
-def _in_range(path: str, v: object, low: float, high: float) -> float:
-    """``v`` as a float within [low, high] (a generous band around the plausible range)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise SettingsError(path, v, "is not a finite number")
-    x = float(v)  # a plain float: a numpy scalar would compare to a numpy bool
-    if not low <= x <= high:
-        raise SettingsError(path, v, f"is outside {low:g}..{high:g}")
-    return x
 
 
 class Mechanism:
