@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Final, cast
 
+from armbench.bench.runner.arms import ArmRun, lay_out
 from armbench.bench.runner.config_check import check_config, closest
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
@@ -392,10 +393,8 @@ def _power_switch(options: RunOptions, target: Target,
     return None
 
 
-def _resume_target(options: RunOptions) -> Path:
-    """The directory of the run ``--resume`` continues; the options it forbids refused."""
-    assert options.resume is not None
-    resume_dir = Path(options.resume)
+def _resume_flags(options: RunOptions) -> None:
+    """Refuse the options a resumed run takes from its record."""
     for flag, given in (("SUITE", bool(options.suites)), ("--config", options.config),
                         ("--seed", options.seed is not None),
                         ("--settings", options.settings), ("--faults", options.faults),
@@ -404,64 +403,38 @@ def _resume_target(options: RunOptions) -> Path:
         if given:
             raise ArmbenchError(f"--resume: {flag} comes from the run being resumed and "
                                 "cannot be given again")
-    if options.out is not None and Path(options.out).resolve() != resume_dir.resolve():
-        raise ArmbenchError("--out: a resumed run continues in its own directory "
-                            f"({resume_dir}); leave --out out")
-    return resume_dir
 
 
-def _check_text_inputs(options: RunOptions) -> None:
-    """Every path and string the record stores must be text (UTF-8): a file name of other bytes
-    (``b'\\xff.toml'`` on POSIX) is refused naming it, before anything is read or made."""
-    given = (("--config", options.config), ("--settings", options.settings),
-             ("--faults", options.faults), ("--out", options.out),
-             ("--baseline", options.baseline), ("--resume", options.resume),
-             ("--port", options.port), ("--tracker", options.tracker), ("--dut", options.dut),
-             *(("--meta", meta) for meta in options.meta),
-             ("runs folder", options.runs_root),
-             *(("SUITE", suite) for suite in options.suites))
-    for flag, value in given:
-        if value is None:
-            continue
-        text = os.fspath(value)
-        try:
-            text.encode("utf-8")
-        except UnicodeEncodeError:
-            shown = os.fsencode(text).decode("utf-8", "backslashreplace")
-            raise ArmbenchError(f"{flag}: {shown} is not valid UTF-8 text (a file name of "
-                                "other bytes cannot be kept in the record); rename it") from None
-
-
-def prepare(options: RunOptions) -> BenchPlan:
-    """Validate ``options`` and everything they name, without touching the arm or creating the
-    run directory.
+def prepare(options: RunOptions, arm: ArmRun | None = None) -> BenchPlan:
+    """Validate ``options`` for ``arm`` (one of :func:`~armbench.bench.runner.arms.lay_out`'s;
+    None: the one arm ``options`` name) and everything they name, without touching the arm or
+    creating its run folder.
 
     Raises an :class:`~armbench.drivers.model.errors.ArmbenchError` (``SettingsError``,
-    ``RecordError``,
-    ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
-    whose message names the offending field or file.
+    ``RecordError``, ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``,
+    ``PowerError``) whose message names the offending field or file.
     """
-    _check_text_inputs(options)
+    if arm is None:
+        arm = lay_out(options).only()
     resume: RunRecord | None = None
     info: dict[str, Any] = {}
-    if options.resume is not None:
-        out_dir = _resume_target(options)
-        resume = read_record(path_inside(out_dir, RESULTS_FILE))
-        info = _load_runner_info(out_dir)
+    if arm.resume is not None:
+        _resume_flags(options)
+        resume = read_record(path_inside(arm.resume, RESULTS_FILE))
+        info = _load_runner_info(arm.resume)
     else:
-        out_dir = Path(options.out) if options.out is not None else Path(options.runs_root)
-        if options.out is not None and (out_dir / RESULTS_FILE).exists():
-            raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; resume "
+        if (arm.out / RESULTS_FILE).exists():
+            raise RecordError(str(arm.out / RESULTS_FILE), "already holds a run record; resume "
                                                            "it (--resume) or choose another --out")
-        check_directory_writable(out_dir, "--out" if options.out is not None else "run folder")
+        check_directory_writable(arm.out, "--out" if options.out is not None else "run folder")
     env = None if resume is None else resume.environment
-    target = _check_port(options.port or (env.port if env is not None and env.port else None)
+    target = _check_port(arm.port or (env.port if env is not None and env.port else None)
                          or "fake://")
     inputs = (_resumed_inputs(resume, info, target) if resume is not None
               else _new_inputs(options, target))
     knobs = _bench_knobs(inputs.config, options, target)
     dut = (resume.environment.dut if resume is not None
-           else inputs.config.dut.with_flags(dut_flags(options.dut, options.meta)))
+           else inputs.config.dut.with_flags(dut_flags(arm.dut, options.meta)))
     target.check_settings(inputs.settings)  # an emulator's [emulator] table, checked now
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
@@ -470,15 +443,13 @@ def prepare(options: RunOptions) -> BenchPlan:
     required = (list(resume.required) if resume is not None else
                 required_of([s.name for s in planned], inputs.config,
                             require=options.require, optional=options.optional))
-    baseline = (None if options.baseline is None
-                else _load_checked_baseline(options.baseline, inputs.config, planned))
+    baseline = (None if arm.baseline is None
+                else _load_checked_baseline(arm.baseline, inputs.config, planned))
     tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
                if options.tracker else None)
     power = _power_switch(options, target, knobs.power_timeout_s)
 
-    run_id = resume.run_id if resume is not None else new_run_id()
-    if resume is None and options.out is None:
-        out_dir = Path(options.runs_root) / run_id
+    run_id = resume.run_id if resume is not None else arm.run_id or new_run_id()
     settings_path = inputs.settings_path
     runner_info: dict[str, Any] = {
         "suites": {s.name: s.ref for s in planned},
@@ -493,7 +464,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     return BenchPlan(
         port=target.port, target=target, settings=inputs.settings, settings_path=settings_path,
         config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
-        out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
+        out_dir=arm.out, resume=resume, baseline=baseline, retries=knobs.retries,
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
         move_timeout_scale=knobs.move_timeout_scale,
         connect_timeout_s=knobs.connect_timeout_s, outage_timeout_s=knobs.outage_timeout_s,
