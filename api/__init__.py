@@ -1,8 +1,8 @@
 """armbench: a hardware-in-the-loop test bench for the Igus RoboLink 4-DoF arm and its firmware.
 
-The public API: :class:`Arm` and :func:`connect` (the asyncio driver), the typed errors and the
-version. The driver's names load on first use, so that importing the emulator
-(``armbench.fakes``) never imports the driver.
+The public API: :class:`Arm` and :func:`connect` (the asyncio driver) with its
+:class:`LinkOptions`, the typed errors and the version. The driver's names load on first use, so
+that importing the emulator (``armbench.fakes``) never imports the driver.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from armbench.drivers.model.errors import (
 )
 
 if TYPE_CHECKING:
-    from armbench.drivers.host.arm import Arm, PathRun, ReconnectPolicy
+    from armbench.drivers.host.arm import Arm, LinkOptions, PathRun, ReconnectPolicy
     from armbench.drivers.host.state import JointState
     from armbench.drivers.model.settings import RobotSettings
 
@@ -41,6 +41,7 @@ __all__ = [
     "InvalidTargetError",
     "JointRangeError",
     "JointState",
+    "LinkOptions",
     "MoveInterruptedError",
     "MoveTimeoutError",
     "PathRun",
@@ -57,6 +58,7 @@ __all__ = [
 
 _LAZY = {
     "Arm": "armbench.drivers.host.arm",
+    "LinkOptions": "armbench.drivers.host.arm",
     "PathRun": "armbench.drivers.host.arm",
     "ReconnectPolicy": "armbench.drivers.host.arm",
     "connect": "armbench.drivers.host.arm",

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict
 
-from armbench.drivers.model.numbers import finite_float, is_real
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.settings import SettingsError, read_toml
 from armbench.record.dut import Dut, parse_dut
 
@@ -52,6 +52,10 @@ _LIMIT_KEYS = {"low", "high", "unit"}
 _REGRESSION_KEYS = {"default_tolerance_pct", "metrics"}
 _TOLERANCE_KEYS = {"tolerance_pct", "tolerance_abs"}
 _NAME_RE = re.compile(r"[A-Za-z0-9_.*%-]+")
+#: A limit's ends are any finite numbers (low not above high); a tolerance is not negative.
+_FINITE = Bound()
+_TOLERANCE_PCT = Bound(0.0, unit="%")
+_TOLERANCE_ABS = Bound(0.0)
 
 
 
@@ -242,8 +246,9 @@ def parse_limits(data: Mapping[str, Any], *, path: str | None = None) -> LimitsC
 
     regression = _table("regression", data.get("regression", {}))
     _unknown("regression", regression, _REGRESSION_KEYS)
-    default_pct = _non_negative("regression.default_tolerance_pct",
-                                regression.get("default_tolerance_pct", DEFAULT_TOLERANCE_PCT))
+    default_pct = check("regression.default_tolerance_pct",
+                        regression.get("default_tolerance_pct", DEFAULT_TOLERANCE_PCT),
+                        _TOLERANCE_PCT)
     tolerances: dict[str, Tolerance] = {}
     for metric, table in _table("regression.metrics", regression.get("metrics", {})).items():
         where = f"regression.metrics.{_quote(metric)}"
@@ -252,8 +257,9 @@ def parse_limits(data: Mapping[str, Any], *, path: str | None = None) -> LimitsC
         _unknown(where, t, _TOLERANCE_KEYS)
         if not t:
             raise SettingsError(where, dict(t), "sets neither tolerance_pct nor tolerance_abs")
-        pct = _non_negative(f"{where}.tolerance_pct", t.get("tolerance_pct", default_pct))
-        slack = _non_negative(f"{where}.tolerance_abs", t.get("tolerance_abs", 0.0))
+        pct = check(f"{where}.tolerance_pct", t.get("tolerance_pct", default_pct),
+                    _TOLERANCE_PCT)
+        slack = check(f"{where}.tolerance_abs", t.get("tolerance_abs", 0.0), _TOLERANCE_ABS)
         tolerances[metric] = Tolerance(pct, slack)
 
     required = _names("required", data.get("required", []))
@@ -298,12 +304,11 @@ def _parse_limit(metric: str, table: object) -> Limit:
     unit = t["unit"]
     if not isinstance(unit, str):
         raise SettingsError(f"{where}.unit", unit, "is not a string")
-    low = None if "low" not in t else _number(f"{where}.low", t["low"])
-    high = None if "high" not in t else _number(f"{where}.high", t["high"])
+    high = None if "high" not in t else check(f"{where}.high", t["high"], _FINITE)
+    low = None if "low" not in t else check(
+        f"{where}.low", t["low"], _FINITE if high is None else Bound(high=high, why="high"))
     if low is None and high is None:
         raise SettingsError(where, dict(t), "sets neither low nor high")
-    if low is not None and high is not None and low > high:
-        raise SettingsError(f"{where}.low", low, f"is above high = {high:g}")
     return Limit(metric, unit, low, high)
 
 
@@ -330,19 +335,3 @@ def _unknown(where: str, table: Mapping[str, Any], known: set[str]) -> None:
             path = f"{where}.{key}" if where else key
             raise SettingsError(path, table[key],
                                 f"is not a known key (known: {', '.join(sorted(known))})")
-
-
-def _number(where: str, value: object) -> float:
-    if not is_real(value):
-        raise SettingsError(where, value, "is not a number")
-    number = finite_float(value)
-    if number is None:
-        raise SettingsError(where, value, "is not finite")
-    return number
-
-
-def _non_negative(where: str, value: object) -> float:
-    v = _number(where, value)
-    if v < 0:
-        raise SettingsError(where, v, "must be >= 0")
-    return v

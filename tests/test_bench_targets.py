@@ -87,7 +87,7 @@ def _faults(tmp_path: Path, name: str, kind: str) -> Path:
 
 
 def _plan(tmp_path: Path, port: str, **options: Any) -> Any:
-    return prepare(RunOptions(suites=["joints"], port=port, out=tmp_path / "run", **options))
+    return prepare(RunOptions(suites=["joints"], ports=[port], out=tmp_path / "run", **options))
 
 
 def test_the_settings_file_gives_what_no_flag_or_query_gives(tmp_path: Path,
@@ -180,7 +180,7 @@ def _run_toy(tmp_path: Path, port: str, name: str, **options: Any) -> tuple[Any,
     progress = io.StringIO()
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(vclock, "run_virtual", spy)
-        outcome = run_sync(RunOptions(suites=["joints"], port=port, config=config,
+        outcome = run_sync(RunOptions(suites=["joints"], ports=[port], config=config,
                                       out=tmp_path / name, **options), progress=progress)
     return outcome, progress.getvalue(), bool(used)
 

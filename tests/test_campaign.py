@@ -96,8 +96,9 @@ PLAY = "[emulator.physics.j2]\nbacklash_deg = 0.1\n"
 
 
 @pytest.mark.parametrize(("text", "sigma", "problem"), [
-    (PLAY, "-0.1", "is not a standard error"), (PLAY, '"wide"', "is not a number"),
-    (PLAY, "nan", "is not finite"),
+    (PLAY, "-0.1", "-0.1 must be in [0, 1e+12] (a standard error)"),
+    (PLAY, '"wide"', "must be a number in [0, 1e+12]"),
+    (PLAY, "nan", "nan must be in [0, 1e+12]"),
     ('[emulator.physics.j2]\nbacklash_deg = "x"\n', "0.1", "does not set to a number"),
     ("", "0.1", "does not set to a number")])
 def test_a_bad_uncertainty_is_named(tmp_path: Path, text: str, sigma: str, problem: str) -> None:

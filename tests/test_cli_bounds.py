@@ -17,8 +17,9 @@ from collections.abc import Iterator
 import pytest
 from conftest import cli, one_line_error
 
-from armbench.cli.commands.bounds import Bound, bounds_of
+from armbench.cli.commands.bounds import bounds_of
 from armbench.cli.main import build_parser
+from armbench.drivers.model.bounds import Bound
 
 #: Float options the robot model checks instead: (command, destination).
 TARGETS = {("fk", "q1"), ("fk", "q2"), ("fk", "q3"), ("fk", "q4"), ("ik", "x"), ("ik", "y"),

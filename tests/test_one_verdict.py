@@ -69,7 +69,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[str
     config = root / "bench.toml"
     config.write_text(CONFIG, encoding="utf-8")
     base = root / "base"
-    run_sync(RunOptions(suites=["accuracy"], port="fake://", config=config, out=base,
+    run_sync(RunOptions(suites=["accuracy"], ports=["fake://"], config=config, out=base,
                         workers=1, capture=False), progress=None)
     judged: dict[str, Path] = {}
     for name, port, settings in VARIANTS:
@@ -78,7 +78,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, dict[str
             settings_file = root / f"{name}.toml"
             settings_file.write_text(settings, encoding="utf-8")
         out = root / name
-        run_sync(RunOptions(suites=["accuracy"], port=port, config=config, out=out,
+        run_sync(RunOptions(suites=["accuracy"], ports=[port], config=config, out=out,
                             baseline=base / "results.json", settings=settings_file,
                             workers=1, capture=False), progress=None)
         judged[name] = out

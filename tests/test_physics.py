@@ -313,7 +313,7 @@ def test_fake_url_profile_and_payload() -> None:
     robot, _, _ = parse_fake_url("fake://?payload=2.5")
     physics = emulator_settings(robot).physics
     assert physics is not None and physics.payload_kg == 2.5
-    with pytest.raises(SettingsError, match=r"payload.*'4'"):
+    with pytest.raises(SettingsError, match=r"payload: 4.0 must be in \[0, 3\] kg"):
         parse_fake_url("fake://?payload=4")
     with pytest.raises(SettingsError, match=r"profile.*'exact'"):
         parse_fake_url("fake://?profile=exact")

@@ -245,9 +245,9 @@ def test_a_fifo_among_a_run_directorys_files_is_refused(tmp_path: Path, argv: tu
 # --- settings ------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("value", "problem"), [
-    ("1.5", "1.5 must be a whole number of encoder counts 0..64"),
-    ("100000", "100000 must be a whole number of encoder counts 0..64"),
-    ("-1", "-1 must be a whole number of encoder counts 0..64"),
+    ("1.5", "1.5 must be a whole number in [0, 64] encoder counts"),
+    ("100000", "100000 must be a whole number in [0, 64] encoder counts"),
+    ("-1", "-1 must be a whole number in [0, 64] encoder counts"),
 ])
 def test_a_deadband_is_a_bounded_whole_number(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                               value: str, problem: str) -> None:

@@ -37,7 +37,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     against it: the second regresses."""
     root = tmp_path_factory.mktemp("runs")
     ideal = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "ideal", seed=0,
-                                port="fake://?profile=ideal"), progress=io.StringIO())
+                                ports=["fake://?profile=ideal"]), progress=io.StringIO())
     write_reports(ideal.record, ideal.out_dir)
     worse = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "worse", seed=0,
                                 baseline=root / "ideal" / "results.json"),

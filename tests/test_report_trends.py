@@ -114,7 +114,7 @@ unit = "mm"
 
 def _fake_run(runs: Path, name: str, config: Path, port: str = "fake://",
               dut: str | None = None) -> RunRecord:
-    outcome = run_virtual(run_bench(RunOptions(suites=["trend"], port=port, config=config,
+    outcome = run_virtual(run_bench(RunOptions(suites=["trend"], ports=[port], config=config,
                                                out=runs / name, dut=dut, workers=1)))
     assert outcome.record.suites["trend"].status == "done", outcome.record.suites["trend"].error
     return load_record(runs / name / "results.json")
@@ -130,7 +130,7 @@ async def _socket_run(runs: Path, config: Path, dut: str) -> RunRecord:
     slow.write_text(config.read_text() + "\n[bench]\nreply_timeout_s = 5.0\n"
                     "connect_timeout_s = 30.0\nmove_timeout_scale = 10.0\n")
     try:
-        outcome = await run_bench(RunOptions(suites=["trend"], port=f"socket://{host}:{port}",
+        outcome = await run_bench(RunOptions(suites=["trend"], ports=[f"socket://{host}:{port}"],
                                              config=slow, out=runs / "socket", dut=dut))
     finally:
         await server.close()

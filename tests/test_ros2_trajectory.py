@@ -102,11 +102,11 @@ def test_without_the_extra_the_command_says_so_in_one_line() -> None:
 
 @pytest.mark.parametrize(("args", "expected"), [
     (["--duration", "-1"], "--duration"),
-    (["--domain-id", "999"], "--domain-id: 999 must be 0..232"),
+    (["--domain-id", "999"], "--domain-id: 999 must be a whole number in [0, 232]"),
     (["--max-duty", "0"], "--max-duty"),
     (["--realtime-factor", "nan"], "--realtime-factor"),
     (["--connect-timeout", "0"], "--connect-timeout"),
-    (["--history-depth", "1"], "--history-depth: 1 must be 2..1000000"),
+    (["--history-depth", "1"], "--history-depth: 1 must be a whole number in [2, 1e+06]"),
     (["--namespace", "arm 1"], "--namespace"),
     (["--pace-timeout", "inf"], "--pace-timeout"),
     (["--pace-timeout", "1e300"], "--pace-timeout: 1e+300 must be in (0, 86400] s"),

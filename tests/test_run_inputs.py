@@ -158,8 +158,8 @@ def test_an_empty_limits_file_is_a_warning_in_the_verdict(
 
 
 @pytest.mark.parametrize("table,key,bound", [
-    ("accuracy", "laps = 100000000", "<= 1000"),
-    ("repeatability", "cycles = 100000000", "<= 1000"),
+    ("accuracy", "laps = 100000000", "must be a whole number in [1, 1000]"),
+    ("repeatability", "cycles = 100000000", "must be a whole number in [1, 1000]"),
 ])
 def test_suite_parameters_beyond_their_bound_are_refused_at_once(
         tmp_path: Path, table: str, key: str, bound: str,

@@ -356,7 +356,7 @@ async def test_hardware_path_in_real_time_over_tcp(tmp_path: Path) -> None:
         config = write_config(tmp_path, trials=1,
                               extra="duty = 99\n\n[bench]\nreply_timeout_s = 5.0\n"
                               "connect_timeout_s = 30.0\nmove_timeout_scale = 10.0\n")
-        outcome = await run_bench(RunOptions(suites=["tiny"], port=f"socket://{host}:{port}",
+        outcome = await run_bench(RunOptions(suites=["tiny"], ports=[f"socket://{host}:{port}"],
                                              config=config, out=tmp_path / "r"))
     finally:
         await server.close()
@@ -407,14 +407,14 @@ def _bad_options(tmp_path: Path) -> dict[str, tuple[RunOptions, str]]:
         "baseline suite version": (RunOptions(suites=["tiny"], config=good, out=out,
                                               baseline=old_version), "suites.tiny.version"),
         "missing serial device": (RunOptions(suites=["tiny"], config=good, out=out,
-                                             port=str(tmp_path / "ttyNOPE0")),
+                                             ports=[str(tmp_path / "ttyNOPE0")]),
                                   "no such serial device"),
-        "port scheme": (RunOptions(suites=["tiny"], config=good, out=out, port="warp://x"),
+        "port scheme": (RunOptions(suites=["tiny"], config=good, out=out, ports=["warp://x"]),
                         "unknown transport scheme"),
         "faults file": (RunOptions(suites=["tiny"], config=good, out=out, faults=bad_faults),
                         "faults[0].kind"),
         "faults on hardware": (RunOptions(suites=["tiny"], config=good, out=out,
-                                          port="socket://127.0.0.1:9", faults=bad_faults),
+                                          ports=["socket://127.0.0.1:9"], faults=bad_faults),
                                "--faults"),
         "tracker": (RunOptions(suites=["tiny"], config=good, out=out, tracker="nope:Tracker"),
                     "--tracker"),

@@ -34,8 +34,8 @@ from armbench.bench.runner import (
 )
 from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json_equal
 from armbench.bench.runner.trials import LoopClockWriter
+from armbench.drivers.model.bounds import Bound, check_whole
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.settings import SettingsError
 from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.record import RESULTS_FILE, RecordError, Trial, load_record, path_inside
 from armbench.record.baseline import read_record
@@ -135,8 +135,7 @@ def prepare_campaign(options: CampaignOptions) -> BenchPlan:
     """Validate the options and plan the campaign (draws included), before anything runs."""
     if options.resume is not None:
         return _resumed(options)
-    if isinstance(options.samples, bool) or not 1 <= options.samples <= MAX_TRIALS:
-        raise SettingsError("--samples", options.samples, f"must be 1 to {MAX_TRIALS}")
+    check_whole("--samples", options.samples, Bound(1, MAX_TRIALS))
     plan = prepare(RunOptions(
         suites=[options.suite], config=options.config, out=options.out,
         runs_root=options.runs_root, seed=options.seed, settings=options.settings,

@@ -110,7 +110,8 @@ def _plan(shard: _Shard, out: Path) -> BenchPlan:
             settings=info.get("settings"), config=info.get("config"), out=out, seed=env.seed))
     refs = info.get("suites") or {}
     plan = prepare(RunOptions(
-        suites=[refs.get(n, n) for n in shard.record.planned_suites], port=env.port,
+        suites=[refs.get(n, n) for n in shard.record.planned_suites],
+        ports=[env.port] if env.port else [],
         config=info.get("config"), settings=info.get("settings"), faults=info.get("faults"),
         out=out, seed=env.seed))
     return dataclasses.replace(plan, shard=None)

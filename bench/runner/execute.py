@@ -1,11 +1,6 @@
-"""The runner behind ``armbench run``: :func:`execute` runs a prepared plan suite by suite,
-trial by trial, keeping ``results.json`` current, then compares with the baseline;
-:func:`run_sync` validates and runs on a loop of the right kind.
-
-::
-
-    outcome = run_sync(RunOptions(suites=["accuracy"], port="fake://", out="runs/x"))
-    outcome.exit_status    # 0 pass, 1 limit, 2 bad input, 3 regression, 4 incomplete, 130
+"""One arm's run: :func:`execute` runs a prepared plan suite by suite, trial by trial, keeping
+``results.json`` current, then compares with the baseline. Every arm of ``armbench run`` (one,
+or a fleet) is run by it, on the loop :mod:`~armbench.bench.runner.fleet_run` chooses.
 
 Each planned suite: ``begin_suite``, then every trial the record does not have yet
 (``completed_trials``), each written to disk the moment it ends (``add_trial``), then
@@ -28,21 +23,16 @@ Semantics of errors, retries, cancellation and resume: ``docs/runner.md``.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import dataclasses
 import json
 import logging
 import os
-import sys
-from collections.abc import Callable
-from pathlib import Path
 from typing import IO
 
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
     EXIT_ERROR,
     EXIT_FAIL,
-    EXIT_INTERRUPTED,
     EXIT_PASS,
     EXIT_REGRESSION,
     RUNNER_FILE,
@@ -50,13 +40,10 @@ from armbench.bench.runner.options import (
     EmulatorFactory,
     PlannedSuite,
     RunAborted,
-    RunOptions,
     RunOutcome,
     exit_status,
 )
 from armbench.bench.runner.parallel import ParallelTrials
-from armbench.bench.runner.plan import prepare
-from armbench.bench.runner.probe import probe_arm, probe_arms_sync
 from armbench.bench.runner.progress import ProgressPrinter
 from armbench.bench.runner.required import truth_source_of
 from armbench.bench.runner.trials import LoopClockWriter, TrialRunner, default_emulator
@@ -67,13 +54,12 @@ from armbench.record import (
     Trial,
     atomic_write_bytes,
     capture_environment,
-    load_record,
 )
 from armbench.record.baseline import BaselineError, compare
 from armbench.record.ci_run import ci_run
 from armbench.record.files import make_directory
 
-__all__ = ["execute", "run_bench", "run_sync"]
+__all__ = ["execute"]
 
 log = logging.getLogger("armbench.runner")
 
@@ -230,56 +216,3 @@ def _close_capture(runner: TrialRunner, writer: LoopClockWriter) -> None:
     except OSError as exc:
         log.warning("capture %s could not be completed: %s", runner.captures.capture,
                     exc.strerror or exc)
-
-
-async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
-                    emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
-    """Validate ``options`` and find the arm (raising before any motion or folder), then run
-    them on the running loop."""
-    plan = prepare(options)
-    await probe_arm(plan)
-    return await execute(plan, progress=progress, emulator_factory=emulator_factory)
-
-
-def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
-             emulator_factory: EmulatorFactory | None = None,
-             then: Callable[[RunOutcome], None] | None = None) -> RunOutcome:
-    """Validate and run on a loop of the right kind: a virtual-time loop
-    (``armbench.fakes.clock.vclock``) for a target on the virtual clock, ``asyncio.run`` otherwise.
-    Ctrl-C returns the outcome of the record on disk with exit status 130. ``then`` is called
-    with the outcome while the run folder is still locked (the command writes the reports
-    there).
-
-    A folder to resume is locked before its record is read (a run still writing it is
-    refused before anything of it is read or written); a new run's folder once it is made, after
-    the arm answered at the port (:mod:`~armbench.bench.runner.probe`).
-    """
-    with contextlib.ExitStack() as held:
-        if options.resume is not None and (Path(options.resume) / RESULTS_FILE).is_file():
-            held.enter_context(hold_run_folder(options.resume))
-        plan = prepare(options)
-        probe_arms_sync([plan])
-        if plan.resume is None:
-            make_directory(plan.out_dir, "--out" if options.out is not None else "run folder")
-        held.enter_context(hold_run_folder(plan.out_dir))
-        outcome = _run_plan(plan, progress, emulator_factory)
-        if then is not None:
-            then(outcome)
-        return outcome
-
-
-def _run_plan(plan: BenchPlan, progress: IO[str] | None,
-              emulator_factory: EmulatorFactory | None) -> RunOutcome:
-    main = execute(plan, progress=progress, emulator_factory=emulator_factory)
-    try:
-        if plan.target.virtual:
-            from armbench.fakes.clock.vclock import run_virtual
-
-            return run_virtual(main)
-        return asyncio.run(main)
-    except (KeyboardInterrupt, asyncio.CancelledError):
-        if not (plan.out_dir / RESULTS_FILE).exists():
-            raise KeyboardInterrupt from None
-        record = load_record(plan.out_dir / RESULTS_FILE)
-        return RunOutcome(plan.out_dir, record, EXIT_INTERRUPTED, interrupted=True,
-                          error="interrupted", warnings=tuple(plan.warnings))

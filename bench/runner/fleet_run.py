@@ -1,34 +1,41 @@
-"""Several arms in one run: ``armbench run --port P1 --port P2 ...`` runs the suites on every arm
-at once, one :func:`~armbench.bench.runner.execute.execute` per arm on one event loop.
+"""The one run path behind ``armbench run``: every arm of a run (one, or a fleet of several at
+once: ``--port P1 --port P2 ...``) is laid out (:func:`~armbench.bench.runner.arms.lay_out`),
+prepared (:func:`~armbench.bench.runner.plan.prepare`) and probed, then run by
+:func:`~armbench.bench.runner.execute.execute` on one event loop. A run of one arm is a fleet
+of one: the same steps, its folder laid out as a run of its own.
 
-Each arm is a run of its own in ``RUN_DIR/<arm>/`` (its record, capture and reports, exactly as a
-single-port run lays them out; its name is its unit under test's, so ``--dut`` is refused);
-``RUN_DIR/fleet.json`` lists the arms, their ports, verdicts and exit statuses (what the fleet
-page reads). An arm is named by ``--port NAME=PORT``, else by its
-port: the place of a ``labgrid://PLACE``, the port with everything but letters, digits, ``.``,
-``_`` and ``-`` turned into ``-`` otherwise (``/dev/ttyUSB0`` → ``dev-ttyUSB0``).
+::
+
+    result = run_arms_sync(RunOptions(suites=["accuracy"], ports=["a=fake://", "b=fake://?seed=5"],
+                                      out="runs/x"))
+    result.exit_status, result.failed    # the worst arm's status; the arms that did not pass
+    outcome = run_sync(RunOptions(suites=["accuracy"], out="runs/y"))   # a run of one arm
+    outcome.exit_status    # 0 pass, 1 limit, 2 bad input, 3 regression, 4 incomplete, 130
 
 Every arm's plan is prepared (checked), and every arm that is already there must answer at its
-port (:mod:`~armbench.bench.runner.probe`), before any arm moves or the fleet's folder is made:
-a port where no arm answers refuses the fleet as bad input. Once begun, one arm failing (a lost
-port, a limit, a bug) does not stop the others; the fleet's exit status is the worst of the
-arms' (:func:`fleet_exit_status`) and :attr:`FleetOutcome.failed` names the arms that did not pass.
-The loop is the virtual-time one when every arm is ``fake://``, a real one otherwise (a
-``fake://`` arm beside real ones then runs on real time).
+port (:mod:`~armbench.bench.runner.probe`), before any arm moves or the run's folder is made: a
+port where no arm answers refuses the run as bad input. Once begun, one arm failing (a lost
+port, a limit, a bug) does not stop the others; the exit status is the worst of the arms'
+(:func:`fleet_exit_status`). A fleet's folder holds ``fleet.json`` (the arms, their ports,
+verdicts and exit statuses: what the fleet page reads) and a folder per arm, its progress lines
+start with the arm's name. The one arm of a run that is not a fleet has its folder for itself,
+and what ended it early is the run's: its exception is raised, and Ctrl-C before it wrote a
+record is ``KeyboardInterrupt``. The loop is the virtual-time one when every arm's target is on
+the virtual clock (``fake://``), a real one otherwise (a ``fake://`` arm beside real ones then
+runs on real time).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
-import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, cast
 
+from armbench.bench.runner.arms import Arm, ArmRun, RunLayout, arm_name, lay_out, parse_arms
 from armbench.bench.runner.execute import execute
 from armbench.bench.runner.lock import hold_run_folder
 from armbench.bench.runner.options import (
@@ -41,135 +48,105 @@ from armbench.bench.runner.options import (
     RunOutcome,
 )
 from armbench.bench.runner.plan import prepare
-from armbench.bench.runner.probe import probe_arms_sync
+from armbench.bench.runner.probe import probe_arms, probe_arms_sync
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
-from armbench.drivers.transports.target import target_of
-from armbench.record import RESULTS_FILE, load_record, new_run_id
+from armbench.record import RESULTS_FILE, load_record
 from armbench.record.files import make_directory
-from armbench.record.fleet_index import (
-    FLEET_FILE,
-    FleetArm,
-    FleetIndex,
-    read_fleet_index,
-    write_fleet_index,
-)
+from armbench.record.fleet_index import FLEET_FILE, FleetArm, FleetIndex, write_fleet_index
 from armbench.record.verdict import worst_exit_status
 
-__all__ = ["FLEET_FILE", "Arm", "FleetOutcome", "arm_name", "fleet_exit_status", "parse_arms",
-           "run_fleet_sync"]
-
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
-
-
-@dataclass(frozen=True, slots=True)
-class Arm:
-    """One arm of the fleet: its name (its folder in the run directory) and its port."""
-
-    name: str
-    port: str
-
-
-def arm_name(port: str) -> str:
-    """The name of the arm on ``port``: what its target makes of it (a labgrid place's name, the
-    address after the scheme), sanitised."""
-    text = target_of(port).name()
-    name = re.sub(r"[^A-Za-z0-9._]+", "-", text).strip("-.")
-    return name[:64] or "arm"
-
-
-def parse_arms(ports: Sequence[str]) -> list[Arm]:
-    """The arms of ``--port`` values, each ``PORT`` or ``NAME=PORT``; a name or a port given
-    twice is refused."""
-    arms: list[Arm] = []
-    for given in ports:
-        head, sep, tail = given.partition("=")
-        if sep and "://" not in head and "/" not in head and "?" not in head:
-            if not _NAME.fullmatch(head):
-                raise ArmbenchError(f"--port {given!r}: the arm name {head!r} must be letters, "
-                                    "digits, '.', '_' or '-' (at most 64)")
-            if not tail:
-                raise ArmbenchError(f"--port {given!r}: no port after the arm name {head!r}")
-            arms.append(Arm(head, tail))
-        else:
-            arms.append(Arm(arm_name(given), given))
-    names: dict[str, str] = {}
-    ports_seen: dict[str, str] = {}
-    for arm in arms:
-        if arm.name in names:
-            raise ArmbenchError(f"--port: the arms on {names[arm.name]!r} and {arm.port!r} are "
-                                f"both named {arm.name!r}; name them with --port NAME=PORT")
-        if arm.port in ports_seen:
-            raise ArmbenchError(f"--port: {arm.port!r} is given twice (arms "
-                                f"{ports_seen[arm.port]!r} and {arm.name!r})")
-        names[arm.name] = arm.port
-        ports_seen[arm.port] = arm.name
-    return arms
+__all__ = ["FLEET_FILE", "Arm", "RunResult", "arm_name", "fleet_exit_status", "parse_arms",
+           "run_arms", "run_arms_sync", "run_bench", "run_sync"]
 
 
 def fleet_exit_status(statuses: Sequence[int]) -> int:
-    """The fleet's exit status: the worst arm's (:func:`armbench.record.verdict.worst_exit_status`:
+    """The run's exit status: the worst arm's (:func:`armbench.record.verdict.worst_exit_status`:
     130, then 2, 4, 1, 3, 0)."""
     return worst_exit_status(statuses)
 
 
 @dataclass(slots=True)
-class FleetOutcome:
-    """What a fleet run left: its directory, each arm's outcome (in ``--port`` order; None for
-    an arm that has no record: it failed before its run began) and the fleet's exit status."""
+class RunResult:
+    """What a run left: its folder, each arm's outcome (in ``--port`` order; None for an arm
+    that has no record: it failed before its run began), the errors that ended arms early and
+    the run's exit status."""
 
     out_dir: Path
-    arms: list[Arm]
+    arms: tuple[ArmRun, ...]
     outcomes: list[RunOutcome | None]
     errors: list[str | None]
     exit_status: int
+    fleet: bool
+    """Whether the folder is a fleet's; False: the one arm's run folder."""
+
+    @property
+    def names(self) -> list[str]:
+        """Each arm's name (a fleet's; the one arm of a run is ``arm``)."""
+        return [a.name or "arm" for a in self.arms]
 
     @property
     def failed(self) -> list[str]:
         """Names of the arms that did not pass."""
-        return [a.name for a, s in zip(self.arms, self.statuses, strict=True) if s != EXIT_PASS]
+        return [n for n, s in zip(self.names, self.statuses, strict=True) if s != EXIT_PASS]
 
     @property
     def statuses(self) -> list[int]:
         """Each arm's exit status."""
         return [EXIT_ERROR if o is None else o.exit_status for o in self.outcomes]
 
-
-def _arm_options(options: RunOptions, arm: Arm, out_dir: Path) -> RunOptions:
-    """The options of one arm: its port, its folder, its own baseline in the baseline fleet, its
-    name as its unit's name (``--dut``: one arm's)."""
-    return dataclasses.replace(options, port=arm.port, out=out_dir / arm.name,
-                               baseline=_own_baseline(options, arm), resume=None, dut=arm.name)
-
-
-def _own_baseline(options: RunOptions, arm: Arm) -> Path | None:
-    """The arm's record in the baseline fleet run (``--baseline DIR``)."""
-    if options.baseline is None:
-        return None
-    own = Path(options.baseline) / arm.name / RESULTS_FILE
-    if not own.is_file():
-        raise ArmbenchError(f"--baseline {options.baseline}: a fleet's baseline is an earlier "
-                            f"fleet run holding the same arms; {own} does not exist")
-    return own
+    def only(self) -> RunOutcome:
+        """The outcome of a run of one arm."""
+        if self.fleet or self.outcomes[0] is None:
+            raise ArmbenchError(f"{self.out_dir}: a run of {len(self.arms)} arms has no one "
+                                "outcome")
+        return self.outcomes[0]
 
 
-def _resumed_options(options: RunOptions, arm: Arm, out_dir: Path) -> RunOptions:
-    """The options of one arm of a fleet being resumed: its own record continued."""
-    folder = out_dir / arm.name
-    if not (folder / RESULTS_FILE).exists():
-        raise ArmbenchError(f"--resume {out_dir}: arm {arm.name!r} has no record "
-                            f"({folder / RESULTS_FILE}); start a new fleet run")
-    return dataclasses.replace(options, port=arm.port, resume=folder, out=None,
-                               baseline=_own_baseline(options, arm))
+@dataclass(slots=True)
+class _Planned:
+    """A run laid out, every arm's plan prepared."""
+
+    layout: RunLayout
+    plans: list[BenchPlan]
 
 
-def _write_index(out_dir: Path, fleet_id: str, arms: Sequence[Arm],
-                 outcomes: Sequence[RunOutcome | None], errors: Sequence[str | None],
-                 status: int | None) -> None:
-    write_fleet_index(out_dir, FleetIndex(fleet_id, tuple(
-        FleetArm(a.name, a.port, None if o is None else o.verdict,
-                 None if o is None else o.exit_status, e)
-        for a, o, e in zip(arms, outcomes, errors, strict=True)), status))
+@dataclass(slots=True)
+class _ArmEnd:
+    """How one arm's run ended: its outcome (None: no record), the error that ended it early and
+    the exception, if one did."""
+
+    outcome: RunOutcome | None
+    error: str | None
+    exception: BaseException | None = None
+
+
+def _plan(options: RunOptions) -> _Planned:
+    layout = lay_out(options)
+    plans = [prepare(options, arm) for arm in layout.arms]
+    if layout.fleet and plans[0].resume is None and plans[0].dut.serial is not None:
+        raise SettingsError("dut.serial", plans[0].dut.serial,
+                            f"is one arm's serial number, not each of {len(plans)} arms'")
+    return _Planned(layout, plans)
+
+
+def _begin(planned: _Planned) -> None:
+    """Make the run's folder (when new) and, for a fleet, its index before any arm starts."""
+    layout = planned.layout
+    if planned.plans[0].resume is None:
+        make_directory(layout.out_dir, layout.out_flag)
+    if layout.fleet:
+        _write_index(planned, [_ArmEnd(None, None)] * len(planned.plans), None)
+
+
+def _write_index(planned: _Planned, ends: Sequence[_ArmEnd], status: int | None) -> None:
+    layout = planned.layout
+    assert layout.fleet_id is not None
+    write_fleet_index(layout.out_dir, FleetIndex(layout.fleet_id, tuple(
+        FleetArm(arm.name or "", arm.port or plan.port,
+                 None if e.outcome is None else e.outcome.verdict,
+                 None if e.outcome is None else e.outcome.exit_status, e.error)
+        for arm, plan, e in zip(layout.arms, planned.plans, ends, strict=True)), status))
 
 
 class _Prefixed:
@@ -210,92 +187,104 @@ def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
 
 
 async def _run_arm(plan: BenchPlan, progress: IO[str] | None,
-                   emulator_factory: EmulatorFactory | None) -> tuple[RunOutcome | None,
-                                                                      str | None]:
+                   emulator_factory: EmulatorFactory | None) -> _ArmEnd:
     """One arm's run; an exception that escapes it ends this arm only."""
     try:
         outcome = await execute(plan, progress=progress, emulator_factory=emulator_factory)
     except Exception as exc:  # the other arms go on: this one is in error
         error = f"{type(exc).__name__}: {exc}"
-        return _from_disk(plan, EXIT_ERROR, error), error
-    return outcome, outcome.error
+        return _ArmEnd(_from_disk(plan, EXIT_ERROR, error), error, exc)
+    return _ArmEnd(outcome, outcome.error)
 
 
-async def _run_all(plans: Sequence[BenchPlan], arms: Sequence[Arm], progress: IO[str] | None,
-                   emulator_factory: EmulatorFactory | None
-                   ) -> list[tuple[RunOutcome | None, str | None]]:
+async def _run_all(planned: _Planned, progress: IO[str] | None,
+                   emulator_factory: EmulatorFactory | None) -> list[_ArmEnd]:
+    layout = planned.layout
     return list(await asyncio.gather(*(
-        _run_arm(plan, None if progress is None else cast(IO[str], _Prefixed(progress,
-                                                                             arm.name)),
-                 emulator_factory)
-        for plan, arm in zip(plans, arms, strict=True))))
+        _run_arm(plan, cast(IO[str], _Prefixed(progress, arm.name or ""))
+                 if layout.fleet and progress is not None else progress, emulator_factory)
+        for plan, arm in zip(planned.plans, layout.arms, strict=True))))
 
 
-def run_fleet_sync(options: RunOptions, ports: Sequence[str], *,
-                   progress: IO[str] | None = sys.stderr,
-                   emulator_factory: EmulatorFactory | None = None) -> FleetOutcome:
-    """Check every arm's plan, then run them all at once on one loop (see the module
-    docstring); with ``options.resume`` (a fleet's run directory, no ``ports``) continue every
-    arm of that fleet. Ctrl-C returns each arm's record on disk with exit status 130. The
-    fleet's folder is locked while the fleet writes it (each arm's folder too, by the runner):
-    a second writer is refused before it reads or writes anything."""
-    with contextlib.ExitStack() as held:
-        if options.resume is not None and (Path(options.resume) / FLEET_FILE).is_file():
-            held.enter_context(hold_run_folder(options.resume))
-        return _run_fleet(options, ports, progress, emulator_factory, held)
-
-
-def _run_fleet(options: RunOptions, ports: Sequence[str], progress: IO[str] | None,
-               emulator_factory: EmulatorFactory | None,
-               held: contextlib.ExitStack) -> FleetOutcome:
-    if options.resume is not None:
-        out_dir = Path(options.resume)
-        if ports:
-            raise ArmbenchError("--resume: a fleet continues on the ports it began with; "
-                                "leave --port out")
-        index = read_fleet_index(out_dir)
-        fleet_id = index.fleet_id
-        arms = [Arm(a.name, a.port) for a in index.arms]
-        plans = [prepare(_resumed_options(options, arm, out_dir)) for arm in arms]
-    else:
-        if options.dut is not None:
-            raise ArmbenchError("--dut names one unit; a fleet's arms are named by --port "
-                                "NAME=PORT, each name its unit's")
-        arms = parse_arms(ports)
-        fleet_id = new_run_id()
-        out_dir = (Path(options.out) if options.out is not None
-                   else Path(options.runs_root) / fleet_id)
-        if (out_dir / FLEET_FILE).exists():
-            raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; resume it "
-                                "(--resume) or choose another --out")
-        plans = [prepare(_arm_options(options, arm, out_dir)) for arm in arms]
-        if len(plans) > 1 and plans[0].dut.serial is not None:
-            raise SettingsError("dut.serial", plans[0].dut.serial,
-                                f"is one arm's serial number, not each of {len(plans)} arms'")
-    for plan, arm in zip(plans, arms, strict=True):
-        if plan.resume is None:
-            plan.run_id = f"{fleet_id}-{arm.name}"
-    probe_arms_sync(plans)  # every arm answers before the fleet's folder is made
-    make_directory(out_dir, "--out" if options.out is not None else "run folder")
-    held.enter_context(hold_run_folder(out_dir))
-    _write_index(out_dir, fleet_id, arms, [None] * len(arms), [None] * len(arms), None)
-    main = _run_all(plans, arms, progress, emulator_factory)
-    try:
-        if all(plan.target.virtual for plan in plans):
-            from armbench.fakes.clock.vclock import run_virtual
-
-            results = run_virtual(main)
-        else:
-            results = asyncio.run(main)
-    except (KeyboardInterrupt, asyncio.CancelledError):
-        results = [(_from_disk(plan, EXIT_INTERRUPTED, "interrupted"), "interrupted")
-                   for plan in plans]
-    outcomes = [o for o, _ in results]
-    errors = [e for _, e in results]
-    statuses = [EXIT_ERROR if o is None else o.exit_status for o in outcomes]
-    if any(e == "interrupted" for e in errors):
+def _finish(planned: _Planned, ends: Sequence[_ArmEnd]) -> RunResult:
+    """The run's result, in the fleet's index too; the one arm of a run that is not a fleet
+    raises what ended it (its exception, or Ctrl-C before its record was written)."""
+    layout = planned.layout
+    if not layout.fleet:
+        (end,) = ends
+        if end.exception is not None:
+            raise end.exception
+        if end.outcome is None:  # Ctrl-C before anything was written
+            raise KeyboardInterrupt
+    statuses = [EXIT_ERROR if e.outcome is None else e.outcome.exit_status for e in ends]
+    if any(e.error == "interrupted" for e in ends):
         statuses.append(EXIT_INTERRUPTED)
     status = fleet_exit_status(statuses)
-    _write_index(out_dir, fleet_id, arms, outcomes, errors, status)
-    return FleetOutcome(out_dir, arms, outcomes, errors, status)
+    if layout.fleet:
+        _write_index(planned, ends, status)
+    return RunResult(layout.out_dir, layout.arms, [e.outcome for e in ends],
+                     [e.error for e in ends], status, layout.fleet)
 
+
+def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
+                  emulator_factory: EmulatorFactory | None = None,
+                  then: Callable[[RunOutcome], None] | None = None) -> RunResult:
+    """Check every arm, find every arm that is already there, then run them all at once on a
+    loop of the right kind (see the module docstring). Ctrl-C returns each arm's record on disk
+    with exit status 130. ``then`` is called with each arm's outcome while the run's folder is
+    still locked (the command writes the reports there).
+
+    A folder to resume is locked before anything of it is read (a run still writing it is
+    refused); a new run's folder once it is made, after the arms answered at their ports. Each
+    arm's folder is locked by the runner too (:mod:`~armbench.bench.runner.lock`).
+    """
+    with contextlib.ExitStack() as held:
+        if options.resume is not None and any(
+                (Path(options.resume) / name).is_file() for name in (RESULTS_FILE, FLEET_FILE)):
+            held.enter_context(hold_run_folder(options.resume))
+        planned = _plan(options)
+        probe_arms_sync(planned.plans)  # every arm answers before the run's folder is made
+        _begin(planned)
+        held.enter_context(hold_run_folder(planned.layout.out_dir))
+        main = _run_all(planned, progress, emulator_factory)
+        try:
+            if all(plan.target.virtual for plan in planned.plans):
+                from armbench.fakes.clock.vclock import run_virtual
+
+                ends = run_virtual(main)
+            else:
+                ends = asyncio.run(main)
+        except (KeyboardInterrupt, asyncio.CancelledError):
+            ends = [_ArmEnd(_from_disk(plan, EXIT_INTERRUPTED, "interrupted"), "interrupted")
+                    for plan in planned.plans]
+        result = _finish(planned, ends)
+        if then is not None:
+            for outcome in result.outcomes:
+                if outcome is not None:
+                    then(outcome)
+        return result
+
+
+async def run_arms(options: RunOptions, *, progress: IO[str] | None = None,
+                   emulator_factory: EmulatorFactory | None = None) -> RunResult:
+    """:func:`run_arms_sync` on the running loop (its kind is the caller's); cancelling it
+    propagates :class:`asyncio.CancelledError`, each record keeping its finished trials."""
+    planned = _plan(options)
+    await probe_arms(planned.plans)
+    _begin(planned)
+    with hold_run_folder(planned.layout.out_dir):
+        return _finish(planned, await _run_all(planned, progress, emulator_factory))
+
+
+def run_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
+             emulator_factory: EmulatorFactory | None = None,
+             then: Callable[[RunOutcome], None] | None = None) -> RunOutcome:
+    """A run of one arm (:func:`run_arms_sync`): its outcome."""
+    return run_arms_sync(options, progress=progress, emulator_factory=emulator_factory,
+                         then=then).only()
+
+
+async def run_bench(options: RunOptions, *, progress: IO[str] | None = None,
+                    emulator_factory: EmulatorFactory | None = None) -> RunOutcome:
+    """A run of one arm on the running loop (:func:`run_arms`): its outcome."""
+    return (await run_arms(options, progress=progress, emulator_factory=emulator_factory)).only()

@@ -110,8 +110,10 @@ class RunOptions:
 
     suites: Sequence[str] = ()
     """Suite names or ``module:Class`` references; empty: every registered suite."""
-    port: str | None = None
-    """The arm's port; None: ``fake://`` (or the recorded port when resuming)."""
+    ports: Sequence[str] = ()
+    """The arms, each ``PORT`` or ``NAME=PORT`` (``--port``): one is a run of one arm, several a
+    fleet (:mod:`~armbench.bench.runner.arms`); none: one arm on ``fake://``, or when resuming
+    the arms of the run resumed (one arm's port may be given again)."""
     config: str | Path | None = None
     """Limits file (``bench.toml``); None: the packaged ``record/default_bench.toml``."""
     out: str | Path | None = None

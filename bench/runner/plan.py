@@ -24,8 +24,9 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, Final, cast
 
+from armbench.bench.runner.arms import ArmRun, lay_out
 from armbench.bench.runner.config_check import check_config, closest
 from armbench.bench.runner.options import (
     DEFAULT_CONFIG,
@@ -43,8 +44,8 @@ from armbench.bench.suites import ENTRY_POINT_GROUP as SUITES_ENTRY_POINT_GROUP
 from armbench.bench.suites import SuiteError, load_suite, registered_suites, suite_names
 from armbench.bench.suites.base import PowerSwitch
 from armbench.drivers.capture.jsonl import capture_options
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.user_files import MAX_JSON_BYTES, FileRefused, read_regular_file
 from armbench.drivers.transports.target import Target, given_by, target_of
@@ -69,15 +70,21 @@ __all__ = ["prepare"]
 #: The most trials a suite may plan: a bound on a run's length (and on the plan held in memory).
 MAX_TRIALS = 10_000
 
-#: Upper bounds of the ``[bench]`` times (s) and counts (and of ``--retries``, ``--workers``),
-#: checked before anything moves: the run clock stays far inside the capture's int32 seconds
-#: stamps (2**31 s) over :data:`MAX_TRIALS` trials of every suite, and no count asks the machine
-#: for the impossible. Documented in ``docs/runner.md``.
-BENCH_MAX: dict[str, float] = {
-    "retries": 100, "workers": 1024, "reply_timeout_s": 60.0, "connect_timeout_s": 600.0,
-    "outage_timeout_s": 600.0, "settle_s": 600.0, "power_timeout_s": 600.0,
-    "move_timeout_scale": 100.0,
+#: The ``[bench]`` times (s) and counts (and ``--retries``, ``--workers``), checked before
+#: anything moves: the run clock stays far inside the capture's int32 seconds stamps (2**31 s)
+#: over :data:`MAX_TRIALS` trials of every suite, and no count asks the machine for the
+#: impossible. Documented in ``docs/runner.md``.
+BENCH_BOUNDS: Final[Mapping[str, Bound]] = {
+    "retries": Bound(0, 100, whole=True), "workers": Bound(1, 1024, whole=True),
+    "reply_timeout_s": Bound(0.0, 60.0, "s", low_open=True),
+    "connect_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "outage_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "settle_s": Bound(0.0, 600.0, "s"),
+    "power_timeout_s": Bound(0.0, 600.0, "s", low_open=True),
+    "move_timeout_scale": Bound(0.0, 100.0, low_open=True),
 }
+#: ``--seed``: any whole number from 0.
+_SEED = Bound(0, math.inf, whole=True)
 
 _BENCH_KEYS = {"retries", "isolation", "reply_timeout_s", "connect_timeout_s", "outage_timeout_s",
                "settle_s",
@@ -116,25 +123,6 @@ class _BenchKnobs:
     move_timeout_scale: float = 1.0
 
 
-def _number(where: str, value: object, *, low: float, strict: bool, high: float) -> float:
-    number = finite_float(value)
-    if number is None:
-        raise SettingsError(where, value, "is not a finite number")
-    if number < low or (strict and number == low):
-        raise SettingsError(where, value, f"must be {'>' if strict else '>='} {low:g}")
-    if number > high:
-        raise SettingsError(where, value, f"must be <= {high:g}")
-    return number
-
-
-def _integer(where: str, value: object, high: float | None = None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise SettingsError(where, value, "must be a whole number >= 0")
-    if high is not None and value > high:
-        raise SettingsError(where, value, f"must be <= {high:g}")
-    return value
-
-
 def check_storable(where: str, value: object) -> None:
     """Refuse, naming its dotted path, the first value under ``value`` the record cannot store:
     a float that is not finite (TOML has ``inf`` and ``nan``, JSON has not)."""
@@ -149,11 +137,9 @@ def check_storable(where: str, value: object) -> None:
             stack.extend((f"{path}[{i}]", v) for i, v in enumerate(node))
 
 
-def _seconds(bench: Mapping[str, Any], key: str, default: float, *, strict: bool = True) -> float:
-    """``[bench] key``: a time in seconds, > 0 (>= 0 when not ``strict``) and at most its
-    :data:`BENCH_MAX` bound."""
-    return _number(f"bench.{key}", bench.get(key, default), low=0, strict=strict,
-                   high=BENCH_MAX[key])
+def _bench_number(bench: Mapping[str, Any], key: str, default: float) -> float:
+    """``[bench] key`` (else ``default``) within its :data:`BENCH_BOUNDS` bound."""
+    return check(f"bench.{key}", bench.get(key, default), BENCH_BOUNDS[key])
 
 
 def json_equal(a: object, b: object) -> bool:
@@ -236,7 +222,8 @@ def _new_inputs(options: RunOptions, target: Target) -> _Inputs:
     settings file over the default (:func:`~armbench.drivers.transports.target.resolve`)."""
     flags = given_by({"settings": "--settings", "seed": "--seed", "faults": "--faults"},
                      settings=None if options.settings is None else os.fspath(options.settings),
-                     seed=None if options.seed is None else _integer("--seed", options.seed),
+                     seed=None if options.seed is None else check_whole("--seed", options.seed,
+                                                                       _SEED),
                      faults=None if options.faults is None else os.fspath(options.faults))
     resolved = target.inputs(flags)
     settings_path = resolved.given.settings
@@ -260,16 +247,13 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
             raise SettingsError(f"bench.{key}", value, "is not a bench parameter ("
                                 + (f"closest: {', '.join(near)}; " if near else "")
                                 + f"known: {', '.join(sorted(_BENCH_KEYS))})")
-    retries = _integer("bench.retries", bench.get("retries", 0), BENCH_MAX["retries"])
+    retries = check_whole("bench.retries", bench.get("retries", 0), BENCH_BOUNDS["retries"])
     if options.retries is not None:
-        retries = _integer("--retries", options.retries, BENCH_MAX["retries"])
-    workers = _integer("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
-                       BENCH_MAX["workers"])
+        retries = check_whole("--retries", options.retries, BENCH_BOUNDS["retries"])
+    workers = check_whole("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
+                          BENCH_BOUNDS["workers"])
     if options.workers is not None:
-        workers = _integer("--workers", options.workers, BENCH_MAX["workers"])
-    if workers < 1:
-        raise SettingsError("--workers" if options.workers is not None else "bench.workers",
-                            workers, "must be at least 1")
+        workers = check_whole("--workers", options.workers, BENCH_BOUNDS["workers"])
     fresh = target.capabilities.fresh_per_trial
     isolation = bench.get("isolation", "trial" if fresh else "run")
     if isolation not in ("trial", "run"):
@@ -291,15 +275,13 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
     return _BenchKnobs(
         retries=retries, workers=workers, isolation=isolation, capture=capture,
         capture_max_bytes=capture_max_bytes,
-        reply_timeout_s=_seconds(bench, "reply_timeout_s", 0.5),
-        connect_timeout_s=_seconds(bench, "connect_timeout_s", 3.0),
-        outage_timeout_s=_seconds(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
-        settle_s=_seconds(bench, "settle_s", 0.0, strict=False),
-        power_timeout_s=_seconds(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
+        reply_timeout_s=_bench_number(bench, "reply_timeout_s", 0.5),
+        connect_timeout_s=_bench_number(bench, "connect_timeout_s", 3.0),
+        outage_timeout_s=_bench_number(bench, "outage_timeout_s", DEFAULT_OUTAGE_TIMEOUT_S),
+        settle_s=_bench_number(bench, "settle_s", 0.0),
+        power_timeout_s=_bench_number(bench, "power_timeout_s", DEFAULT_COMMAND_TIMEOUT_S),
         tracker_params=tracker_params, scheduler=scheduler,
-        move_timeout_scale=_number("bench.move_timeout_scale",
-                                   bench.get("move_timeout_scale", 1.0), low=0, strict=True,
-                                   high=BENCH_MAX["move_timeout_scale"]))
+        move_timeout_scale=_bench_number(bench, "move_timeout_scale", 1.0))
 
 
 def _plan_suites(suite_refs: Sequence[str], inputs: _Inputs,
@@ -410,10 +392,8 @@ def _power_switch(options: RunOptions, target: Target,
     return None
 
 
-def _resume_target(options: RunOptions) -> Path:
-    """The directory of the run ``--resume`` continues; the options it forbids refused."""
-    assert options.resume is not None
-    resume_dir = Path(options.resume)
+def _resume_flags(options: RunOptions) -> None:
+    """Refuse the options a resumed run takes from its record."""
     for flag, given in (("SUITE", bool(options.suites)), ("--config", options.config),
                         ("--seed", options.seed is not None),
                         ("--settings", options.settings), ("--faults", options.faults),
@@ -422,64 +402,38 @@ def _resume_target(options: RunOptions) -> Path:
         if given:
             raise ArmbenchError(f"--resume: {flag} comes from the run being resumed and "
                                 "cannot be given again")
-    if options.out is not None and Path(options.out).resolve() != resume_dir.resolve():
-        raise ArmbenchError("--out: a resumed run continues in its own directory "
-                            f"({resume_dir}); leave --out out")
-    return resume_dir
 
 
-def _check_text_inputs(options: RunOptions) -> None:
-    """Every path and string the record stores must be text (UTF-8): a file name of other bytes
-    (``b'\\xff.toml'`` on POSIX) is refused naming it, before anything is read or made."""
-    given = (("--config", options.config), ("--settings", options.settings),
-             ("--faults", options.faults), ("--out", options.out),
-             ("--baseline", options.baseline), ("--resume", options.resume),
-             ("--port", options.port), ("--tracker", options.tracker), ("--dut", options.dut),
-             *(("--meta", meta) for meta in options.meta),
-             ("runs folder", options.runs_root),
-             *(("SUITE", suite) for suite in options.suites))
-    for flag, value in given:
-        if value is None:
-            continue
-        text = os.fspath(value)
-        try:
-            text.encode("utf-8")
-        except UnicodeEncodeError:
-            shown = os.fsencode(text).decode("utf-8", "backslashreplace")
-            raise ArmbenchError(f"{flag}: {shown} is not valid UTF-8 text (a file name of "
-                                "other bytes cannot be kept in the record); rename it") from None
-
-
-def prepare(options: RunOptions) -> BenchPlan:
-    """Validate ``options`` and everything they name, without touching the arm or creating the
-    run directory.
+def prepare(options: RunOptions, arm: ArmRun | None = None) -> BenchPlan:
+    """Validate ``options`` for ``arm`` (one of :func:`~armbench.bench.runner.arms.lay_out`'s;
+    None: the one arm ``options`` name) and everything they name, without touching the arm or
+    creating its run folder.
 
     Raises an :class:`~armbench.drivers.model.errors.ArmbenchError` (``SettingsError``,
-    ``RecordError``,
-    ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``, ``PowerError``)
-    whose message names the offending field or file.
+    ``RecordError``, ``BaselineError``, ``TransportError``, ``SuiteError``, ``TrackerError``,
+    ``PowerError``) whose message names the offending field or file.
     """
-    _check_text_inputs(options)
+    if arm is None:
+        arm = lay_out(options).only()
     resume: RunRecord | None = None
     info: dict[str, Any] = {}
-    if options.resume is not None:
-        out_dir = _resume_target(options)
-        resume = read_record(path_inside(out_dir, RESULTS_FILE))
-        info = _load_runner_info(out_dir)
+    if arm.resume is not None:
+        _resume_flags(options)
+        resume = read_record(path_inside(arm.resume, RESULTS_FILE))
+        info = _load_runner_info(arm.resume)
     else:
-        out_dir = Path(options.out) if options.out is not None else Path(options.runs_root)
-        if options.out is not None and (out_dir / RESULTS_FILE).exists():
-            raise RecordError(str(out_dir / RESULTS_FILE), "already holds a run record; resume "
+        if (arm.out / RESULTS_FILE).exists():
+            raise RecordError(str(arm.out / RESULTS_FILE), "already holds a run record; resume "
                                                            "it (--resume) or choose another --out")
-        check_directory_writable(out_dir, "--out" if options.out is not None else "run folder")
+        check_directory_writable(arm.out, "--out" if options.out is not None else "run folder")
     env = None if resume is None else resume.environment
-    target = _check_port(options.port or (env.port if env is not None and env.port else None)
+    target = _check_port(arm.port or (env.port if env is not None and env.port else None)
                          or "fake://")
     inputs = (_resumed_inputs(resume, info, target) if resume is not None
               else _new_inputs(options, target))
     knobs = _bench_knobs(inputs.config, options, target)
     dut = (resume.environment.dut if resume is not None
-           else inputs.config.dut.with_flags(dut_flags(options.dut, options.meta)))
+           else inputs.config.dut.with_flags(dut_flags(arm.dut, options.meta)))
     target.check_settings(inputs.settings)  # an emulator's [emulator] table, checked now
     check_storable("", inputs.settings.to_mapping())  # the record keeps the settings file
     planned = _plan_suites(inputs.suite_refs, inputs, resume)
@@ -488,15 +442,13 @@ def prepare(options: RunOptions) -> BenchPlan:
     required = (list(resume.required) if resume is not None else
                 required_of([s.name for s in planned], inputs.config,
                             require=options.require, optional=options.optional))
-    baseline = (None if options.baseline is None
-                else _load_checked_baseline(options.baseline, inputs.config, planned))
+    baseline = (None if arm.baseline is None
+                else _load_checked_baseline(arm.baseline, inputs.config, planned))
     tracker = (load_tracker(options.tracker, inputs.settings, knobs.tracker_params)
                if options.tracker else None)
     power = _power_switch(options, target, knobs.power_timeout_s)
 
-    run_id = resume.run_id if resume is not None else new_run_id()
-    if resume is None and options.out is None:
-        out_dir = Path(options.runs_root) / run_id
+    run_id = resume.run_id if resume is not None else arm.run_id or new_run_id()
     settings_path = inputs.settings_path
     runner_info: dict[str, Any] = {
         "suites": {s.name: s.ref for s in planned},
@@ -511,7 +463,7 @@ def prepare(options: RunOptions) -> BenchPlan:
     return BenchPlan(
         port=target.port, target=target, settings=inputs.settings, settings_path=settings_path,
         config=inputs.config, seed=inputs.seed, faults=inputs.faults, suites=planned,
-        out_dir=out_dir, resume=resume, baseline=baseline, retries=knobs.retries,
+        out_dir=arm.out, resume=resume, baseline=baseline, retries=knobs.retries,
         isolation=knobs.isolation, reply_timeout_s=knobs.reply_timeout_s,
         move_timeout_scale=knobs.move_timeout_scale,
         connect_timeout_s=knobs.connect_timeout_s, outage_timeout_s=knobs.outage_timeout_s,
@@ -526,9 +478,8 @@ def prepare(options: RunOptions) -> BenchPlan:
 def check_shard(shard: tuple[int, int]) -> tuple[int, int]:
     """``(I, N)`` with 1 <= I <= N, else a SettingsError naming ``--shard``."""
     i, n = shard
-    if not (isinstance(i, int) and isinstance(n, int) and 1 <= i <= n):
-        raise SettingsError("--shard", f"{i}/{n}", "must be I/N with 1 <= I <= N")
-    return i, n
+    count = check_whole("--shard", n, Bound(1, math.inf, whole=True, why="N of I/N"))
+    return check_whole("--shard", i, Bound(1, count, why="I of I/N, 1 <= I <= N")), count
 
 
 def _shard_of(info: Mapping[str, Any]) -> tuple[int, int] | None:

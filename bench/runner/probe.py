@@ -25,7 +25,7 @@ from armbench.drivers.model.errors import (
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports.target import Target
 
-__all__ = ["NoArmError", "find_arm", "needs_probe", "probe_arm", "probe_arms_sync"]
+__all__ = ["NoArmError", "find_arm", "needs_probe", "probe_arm", "probe_arms", "probe_arms_sync"]
 
 
 class NoArmError(TransportError):
@@ -81,17 +81,17 @@ async def probe_arm(plan: BenchPlan) -> None:
                    not_done=f"the run did not begin ({where})")
 
 
-def probe_arms_sync(plans: Sequence[BenchPlan]) -> None:
-    """:func:`probe_arm` for every plan that needs it, at once, on a loop of its own; the first
-    port (in the plans' order) where no arm answers raises."""
-    wanted = [plan for plan in plans if needs_probe(plan.target)]
-    if not wanted:
-        return
-
-    async def every() -> list[BaseException | None]:
-        return list(await asyncio.gather(*(probe_arm(plan) for plan in wanted),
-                                         return_exceptions=True))
-
-    for failure in asyncio.run(every()):
+async def probe_arms(plans: Sequence[BenchPlan]) -> None:
+    """:func:`probe_arm` for every plan that needs it, at once; the first port (in the plans'
+    order) where no arm answers raises."""
+    failures = await asyncio.gather(*(probe_arm(plan) for plan in plans),
+                                    return_exceptions=True)
+    for failure in failures:
         if isinstance(failure, BaseException):
             raise failure
+
+
+def probe_arms_sync(plans: Sequence[BenchPlan]) -> None:
+    """:func:`probe_arms` on a loop of its own (none is made when no plan needs one)."""
+    if any(needs_probe(plan.target) for plan in plans):
+        asyncio.run(probe_arms(plans))

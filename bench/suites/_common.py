@@ -31,9 +31,9 @@ from armbench.drivers.host.motion import (
     duty_for_step_rate,
     step_rate,
 )
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import MAX_DUTY, REPLY_LEN
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.tasks import cancel_and_wait
@@ -55,8 +55,6 @@ __all__ = [
     "TruthProbe",
     "check_bool",
     "check_branch",
-    "check_int",
-    "check_number",
     "check_reachable",
     "check_vec3",
     "duty_for_speed_pct",
@@ -146,31 +144,8 @@ assert (MIN_PERIOD_CYCLES, MAX_PERIOD_CYCLES) == (2, 100)  # the mapping above r
 #: The most laps or cycles a suite parameter may ask for: a bound on a run's length, checked
 #: before anything moves (200 laps of the accuracy suite take about 45 min of robot time).
 MAX_REPEATS = 1000
-
-
-def check_number(where: str, value: object, *, low: float | None = None,
-                 high: float | None = None, low_open: bool = False) -> float:
-    """A finite real number (booleans refused) within the bounds; returns it as a float."""
-    v = finite_float(value)
-    if v is None:
-        raise SettingsError(where, value, "is not a finite number")
-    if low is not None and (v <= low if low_open else v < low):
-        raise SettingsError(where, value, f"must be {'>' if low_open else '>='} {low:g}")
-    if high is not None and v > high:
-        raise SettingsError(where, value, f"must be <= {high:g}")
-    return v
-
-
-def check_int(where: str, value: object, *, low: int | None = None,
-              high: int | None = None) -> int:
-    """A whole number (booleans refused) within the bounds."""
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise SettingsError(where, value, "is not a whole number")
-    if low is not None and value < low:
-        raise SettingsError(where, value, f"must be >= {low}")
-    if high is not None and value > high:
-        raise SettingsError(where, value, f"must be <= {high}")
-    return value
+#: A coordinate of a point (``check_vec3``): any finite number of metres.
+_COORDINATE_M = Bound(unit="m")
 
 
 def check_bool(where: str, value: object) -> bool:
@@ -184,7 +159,7 @@ def check_vec3(where: str, value: object) -> Vec3:
     """Three finite numbers (m)."""
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != 3:
         raise SettingsError(where, value, "is not a list of 3 numbers")
-    x, y, z = (check_number(where, v) for v in value)
+    x, y, z = (check(where, v, _COORDINATE_M) for v in value)
     return x, y, z
 
 

@@ -32,8 +32,6 @@ from armbench.bench.suites._common import (
     Measurements,
     StateRecorder,
     check_branch,
-    check_int,
-    check_number,
     check_reachable,
     check_vec3,
     guarded_trial,
@@ -44,6 +42,7 @@ from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.host.arm import Arm
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import (
@@ -71,16 +70,15 @@ def check_square(where: str, settings: RobotSettings, params: Mapping[str, Any],
     approach duty, speed, spacing, laps, sampling, settling, branch, roll, styles), each checked
     under ``where``, and the whole square reachable on the branch."""
     centre = check_vec3(f"{where}.{ACCURACY.centre}", params[ACCURACY.centre])
-    side = check_number(f"{where}.{ACCURACY.side}", params[ACCURACY.side], low=0.0,
-                        low_open=True, high=0.5)
-    check_int(f"{where}.approach_duty", params["approach_duty"], low=1, high=MAX_DUTY)
-    check_number(f"{where}.speed_m_s", params["speed_m_s"], low=0.0, low_open=True, high=1.0)
-    check_number(f"{where}.spacing_m", params["spacing_m"], low=0.0005, high=0.05)
-    check_int(f"{where}.laps", params["laps"], low=1, high=MAX_REPEATS)
-    check_number(f"{where}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
-    check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
+    side = check(f"{where}.{ACCURACY.side}", params[ACCURACY.side], Bound(0.0, 0.5, low_open=True))
+    check_whole(f"{where}.approach_duty", params["approach_duty"], Bound(1, MAX_DUTY))
+    check(f"{where}.speed_m_s", params["speed_m_s"], Bound(0.0, 1.0, "m/s", low_open=True))
+    check(f"{where}.spacing_m", params["spacing_m"], Bound(0.0005, 0.05, "m"))
+    check_whole(f"{where}.laps", params["laps"], Bound(1, MAX_REPEATS))
+    check(f"{where}.sample_period_s", params["sample_period_s"], Bound(0.0, 1.0, "s"))
+    check(f"{where}.settle_s", params["settle_s"], Bound(0.0, 60.0, "s"))
     branch = check_branch(f"{where}.branch", params["branch"])
-    roll = check_number(f"{where}.roll_rad", params["roll_rad"])
+    roll = check(f"{where}.roll_rad", params["roll_rad"], Bound(unit="rad"))
     styles = params["styles"]
     if (isinstance(styles, (str, bytes)) or not isinstance(styles, Sequence) or not styles
             or any(s not in styles_known for s in styles) or len(set(styles)) != len(styles)):
@@ -287,8 +285,8 @@ class AccuracySuite(Suite):
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
         """Types and ranges of every parameter, and the whole square reachable on ``branch``."""
         where = f"suites.{self.name}"
-        check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
-        check_number(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], low=0.0)
+        check_whole(f"{where}.duty", params["duty"], Bound(1, MAX_DUTY))
+        check(f"{where}.{ACCURACY.paper_mean}", params[ACCURACY.paper_mean], Bound(0.0))
         check_square(where, settings, params, STYLES)
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:

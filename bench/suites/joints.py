@@ -24,14 +24,13 @@ from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
     TruthProbe,
-    check_int,
-    check_number,
     guarded_trial,
     loop_time,
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.joints_contract import JOINTS
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import MetricsInputError
@@ -98,27 +97,26 @@ class JointsSuite(Suite):
             raise SettingsError(f"{where}.targets_frac", fracs,
                                 f"must list 2 to {MAX_REPEATS} fractions")
         for f in fracs:
-            check_number(f"{where}.targets_frac", f, low=0.0, high=1.0)
+            check(f"{where}.targets_frac", f, Bound(0.0, 1.0))
         if len(set(fracs)) != len(fracs):
             raise SettingsError(f"{where}.targets_frac", fracs, "has repeated targets")
-        check_int(f"{where}.cycles", params["cycles"], low=2, high=MAX_REPEATS)
-        over = check_number(f"{where}.overtravel_rad", params["overtravel_rad"], low=0.0,
-                            low_open=True, high=0.5)
-        check_int(f"{where}.duty", params["duty"], low=1, high=MAX_DUTY)
-        check_number(f"{where}.settle_s", params["settle_s"], low=0.0, high=60.0)
+        check_whole(f"{where}.cycles", params["cycles"], Bound(2, MAX_REPEATS))
+        over = check(f"{where}.overtravel_rad", params["overtravel_rad"],
+                     Bound(0.0, 0.5, "rad", low_open=True))
+        check_whole(f"{where}.duty", params["duty"], Bound(1, MAX_DUTY))
+        check(f"{where}.settle_s", params["settle_s"], Bound(0.0, 60.0, "s"))
         home = params["home_rad"]
         if not isinstance(home, list) or len(home) != 4:
             raise SettingsError(f"{where}.home_rad", home, "is not a list of 4 angles")
         for q, spec in zip(home, settings.joints, strict=True):
-            v = check_number(f"{where}.home_rad", q)
-            if not spec.lower_rad <= v <= spec.upper_rad:
-                raise SettingsError(f"{where}.home_rad", home, f"{spec.name} outside its limits")
+            check(f"{where}.home_rad", q, Bound(spec.lower_rad, spec.upper_rad, "rad",
+                                                why=f"{spec.name}'s limits"))
         for j in joints:
             spec = settings.joints[j - 1]
             targets = joint_targets(settings, j, fracs)
-            if min(targets) - over < spec.lower_rad or max(targets) + over > spec.upper_rad:
-                raise SettingsError(f"{where}.overtravel_rad", over,
-                                    f"takes joint {j} beyond its limits")
+            room = min(min(targets) - spec.lower_rad, spec.upper_rad - max(targets))
+            check(f"{where}.overtravel_rad", over, Bound(
+                high=room, unit="rad", why=f"the room joint {j}'s targets leave to its limits"))
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
         """The figures of each joint of ``joints``, reported and true."""

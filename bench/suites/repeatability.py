@@ -39,8 +39,6 @@ from armbench.bench.suites._common import (
     Measurements,
     StateRecorder,
     check_branch,
-    check_int,
-    check_number,
     check_reachable,
     check_vec3,
     duty_for_speed_pct,
@@ -57,6 +55,7 @@ from armbench.bench.suites.workspace import (
     DEFAULT_CUBE_SIDE_M,
     POSE_NAMES,
 )
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.metrics import (
     CUBE_PLANES,
@@ -213,37 +212,36 @@ class RepeatabilitySuite(Suite):
         reachable on ``branch`` within the joint limits."""
         w = f"suites.{self.name}"
         centre = check_vec3(f"{w}.{R.cube_centre}", params[R.cube_centre])
-        side = check_number(f"{w}.{R.cube_side}", params[R.cube_side], low=0.0, low_open=True,
-                            high=0.5)
+        side = check(f"{w}.{R.cube_side}", params[R.cube_side], Bound(0.0, 0.5, low_open=True))
         plane = params[R.plane]
         if plane not in CUBE_PLANES:
             raise SettingsError(f"{w}.plane", plane, f"is not one of {', '.join(CUBE_PLANES)}")
-        check_int(f"{w}.cycles", params["cycles"], low=1, high=MAX_REPEATS)
+        check_whole(f"{w}.cycles", params["cycles"], Bound(1, MAX_REPEATS))
         speeds = params[R.speeds]
         if isinstance(speeds, (str, bytes)) or not isinstance(speeds, Sequence) or not speeds:
             raise SettingsError(f"{w}.speeds_pct", speeds, "is not a list of percentages")
         for v in speeds:
-            check_number(f"{w}.speeds_pct", v, low=0.0, low_open=True, high=100.0)
+            check(f"{w}.speeds_pct", v, Bound(0.0, 100.0, low_open=True))
         if len({speed_label(float(v)) for v in speeds}) != len(speeds):
             raise SettingsError(f"{w}.speeds_pct", speeds, "lists a speed twice")
-        check_number(f"{w}.settle_s", params["settle_s"], low=0.0, high=60.0)
+        check(f"{w}.settle_s", params["settle_s"], Bound(0.0, 60.0, "s"))
         approach = check_vec3(f"{w}.approach_offset_m", params["approach_offset_m"])
-        check_int(f"{w}.vap_cycles", params["vap_cycles"], low=0, high=MAX_REPEATS)
+        check_whole(f"{w}.vap_cycles", params["vap_cycles"], Bound(0, MAX_REPEATS))
         vap_poses = params["vap_poses"]
         if (isinstance(vap_poses, (str, bytes)) or not isinstance(vap_poses, Sequence)
                 or any(p not in POSE_NAMES for p in vap_poses)
                 or len(set(vap_poses)) != len(vap_poses)):
             raise SettingsError(f"{w}.vap_poses", vap_poses,
                                 f"must list some of {', '.join(POSE_NAMES)}, each once")
-        vap_offset = check_number(f"{w}.vap_offset_m", params["vap_offset_m"], low=0.0,
-                                  low_open=True, high=0.1)
-        check_int(f"{w}.path_cycles", params["path_cycles"], low=0, high=MAX_REPEATS)
-        check_number(f"{w}.path_speed_m_s", params["path_speed_m_s"], low=0.0, low_open=True,
-                     high=1.0)
-        check_number(f"{w}.path_spacing_m", params["path_spacing_m"], low=0.0005, high=0.05)
-        check_number(f"{w}.sample_period_s", params["sample_period_s"], low=0.0, high=1.0)
+        vap_offset = check(f"{w}.vap_offset_m", params["vap_offset_m"],
+                           Bound(0.0, 0.1, "m", low_open=True))
+        check_whole(f"{w}.path_cycles", params["path_cycles"], Bound(0, MAX_REPEATS))
+        check(f"{w}.path_speed_m_s", params["path_speed_m_s"],
+              Bound(0.0, 1.0, "m/s", low_open=True))
+        check(f"{w}.path_spacing_m", params["path_spacing_m"], Bound(0.0005, 0.05, "m"))
+        check(f"{w}.sample_period_s", params["sample_period_s"], Bound(0.0, 1.0, "s"))
         branch = check_branch(f"{w}.branch", params["branch"])
-        roll = check_number(f"{w}.roll_rad", params["roll_rad"])
+        roll = check(f"{w}.roll_rad", params["roll_rad"], Bound(unit="rad"))
         poses = iso_cube_poses(centre, side, str(plane))
         points = [*poses, *(poses + np.asarray(approach))]
         for name in vap_poses:

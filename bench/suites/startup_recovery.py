@@ -44,8 +44,6 @@ from armbench.bench.suites._common import (
     TrialSkipped,
     TruthProbe,
     check_bool,
-    check_int,
-    check_number,
     eeprom_counters,
     guarded_trial,
     loop_time,
@@ -76,12 +74,15 @@ from armbench.bench.suites.startup_watch import (
     stalled_joints,
 )
 from armbench.drivers.host.motion import coordinated_duties, joint_times_s
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.record import Measurement, Trial
 from armbench.record.suite_contract import SAMPLE
 
 S: Final = STARTUP
+#: The least room a band may leave a joint between its limit and the cut (rad).
+MIN_ROOM_RAD: Final = 0.02
 
 if TYPE_CHECKING:
     from armbench.drivers.host.arm import JointState
@@ -132,7 +133,7 @@ class StartupRecoverySuite(Suite):
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
         """Types and ranges; every condition known; bands within the joints' room."""
         w = f"suites.{self.name}"
-        check_int(f"{w}.trials", params["trials"], low=0, high=MAX_REPEATS)
+        check_whole(f"{w}.trials", params["trials"], Bound(0, MAX_REPEATS))
         conditions = params["conditions"]
         if (isinstance(conditions, (str, bytes)) or not isinstance(conditions, Sequence)
                 or not conditions):
@@ -151,36 +152,33 @@ class StartupRecoverySuite(Suite):
                     or len(set(group)) != len(group)):
                 raise SettingsError(f"{w}.joint_sets", group, "is not a list of distinct joints")
             for j in group:
-                joints.add(check_int(f"{w}.joint_sets", j, low=1, high=len(settings.joints)))
-        check_int(f"{w}.duty", params["duty"], low=1, high=MAX_DUTY)
+                joints.add(check_whole(f"{w}.joint_sets", j, Bound(1, len(settings.joints))))
+        check_whole(f"{w}.duty", params["duty"], Bound(1, MAX_DUTY))
         for key, low, high in (("near_band_rad", 0.0, 3.0), ("far_band_rad", 0.0, 3.0),
                                ("cut_fraction", 0.0, 1.0), ("stopped_dwell_s", 0.0, 60.0)):
             pair = params[key]
             if isinstance(pair, (str, bytes)) or not isinstance(pair, Sequence) or len(pair) != 2:
                 raise SettingsError(f"{w}.{key}", pair, "is not a pair [low, high]")
-            a = check_number(f"{w}.{key}", pair[0], low=low, high=high)
-            b = check_number(f"{w}.{key}", pair[1], low=low, high=high)
-            if not a < b:
-                raise SettingsError(f"{w}.{key}", pair, "needs low < high")
-        check_number(f"{w}.off_s", params["off_s"], low=0.0, high=60.0)
-        check_number(f"{w}.recovery_timeout_s", params["recovery_timeout_s"], low=0.0,
-                     low_open=True, high=3600.0)
-        check_number(f"{w}.tolerance_rad", params["tolerance_rad"], low=0.0, low_open=True)
-        check_number(f"{w}.tolerance_mm", params["tolerance_mm"], low=0.0, low_open=True)
-        check_number(f"{w}.still_s", params["still_s"], low=0.0, high=10.0)
+            a = check(f"{w}.{key}", pair[0], Bound(low, high))
+            check(f"{w}.{key}", pair[1], Bound(a, high, low_open=True, why="the pair's high: "
+                                                                          "above its low"))
+        check(f"{w}.off_s", params["off_s"], Bound(0.0, 60.0, "s"))
+        check(f"{w}.recovery_timeout_s", params["recovery_timeout_s"],
+              Bound(0.0, 3600.0, "s", low_open=True))
+        check(f"{w}.tolerance_rad", params["tolerance_rad"], Bound(0.0, low_open=True, unit="rad"))
+        check(f"{w}.tolerance_mm", params["tolerance_mm"], Bound(0.0, low_open=True, unit="mm"))
+        check(f"{w}.still_s", params["still_s"], Bound(0.0, 10.0, "s"))
         check_bool(f"{w}.rescue", params["rescue"])
-        check_number(f"{w}.wear_duration_s", params["wear_duration_s"], low=0.0,
-                     high=MAX_WEAR_S)
-        check_number(f"{w}.use_hours_per_year", params["use_hours_per_year"], low=0.0,
-                     low_open=True, high=8784.0)
+        check(f"{w}.wear_duration_s", params["wear_duration_s"], Bound(0.0, MAX_WEAR_S, "s"))
+        check(f"{w}.use_hours_per_year", params["use_hours_per_year"],
+              Bound(0.0, 8784.0, "h", low_open=True))
         for zone in ("near", "far"):
             for j in sorted(joints):
                 for side in (1, -1):
                     a, b = signed_range(settings, int(j) - 1, *band(params, zone), side)
-                    if abs(b - a) < 0.02:
-                        raise SettingsError(f"{w}.{zone}_band_rad", params[f"{zone}_band_rad"],
-                                            f"leaves joint {j} less than 0.02 rad of room on "
-                                            f"its {'+' if side > 0 else '-'} side")
+                    check(f"{w}.{zone}_band_rad", abs(b - a), Bound(
+                        MIN_ROOM_RAD, unit="rad", why=f"the room it leaves joint {j} on its "
+                                                      f"{'+' if side > 0 else '-'} side"))
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
         """The figures of a cut and over all cuts, the rate of each of ``conditions``, and the

@@ -4,7 +4,6 @@ TCP, each against its limit and against what the capture's floor allows (``k × 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from typing import Any
@@ -13,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.suites.twin_check_contract import TWIN_CHECK
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.settings import SettingsError
 from armbench.record import Measurement, judge
 from armbench.record.limits import LimitsConfig
@@ -21,6 +21,10 @@ __all__ = ["Allowance", "arrival_measurements", "joint_measurements", "tcp_measu
            "verdict_of"]
 
 FloatArray = npt.NDArray[np.float64]
+
+
+#: Each factor and slack of an :class:`Allowance`: any finite number, not negative.
+_TOLERANCE = Bound(0.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,10 +49,7 @@ class Allowance:
             where = f'suites."twin-check".{key}'
             if key not in known:
                 raise SettingsError(where, value, "is not a known setting")
-            if isinstance(value, bool) or not isinstance(value, int | float) or not (
-                    math.isfinite(value) and value >= 0):
-                raise SettingsError(where, value, "is not a number >= 0")
-            out[key] = float(value)
+            out[key] = check(where, value, _TOLERANCE)
         return cls(**out)
 
 

@@ -1,10 +1,12 @@
-"""The bounds of the command line's number options: declared with the option, checked after parsing.
+"""The command line's number options and their bounds: declared with the option, checked after
+parsing by the robot model's one bounds checker (:mod:`armbench.drivers.model.bounds`).
 
 ``add_bounded(parser, "--pace-timeout", Bound(0, 3600, "s", low_open=True), default=5.0, ...)``
-adds a float option and records its bound on the parser; ``armbench``'s main runs
-:func:`check_bounds` before the command, which refuses a value outside it in one line naming the
-option, the value and the range (:class:`~armbench.drivers.model.errors.InvalidTargetError`, exit
-2). So no option takes NaN, an infinity, or a value so large or so small that a sleep, a timer or a
+adds a number option (a float, or an int for a ``whole`` bound) and records its bound on the
+parser; ``armbench``'s main runs :func:`check_bounds` before the command, which refuses a value
+outside it in one line naming the option, the value and the range
+(:class:`~armbench.drivers.model.errors.InvalidTargetError`, exit 2).
+So no option takes NaN, an infinity, or a value so large or so small that a sleep, a timer or a
 conversion overflows (``--pace-timeout 1e300``, ``--realtime-factor 1e-300``), and the range of
 each is in one place. Every float option of every command is declared so, but the targets and
 coordinates, which the robot model checks (joint limits, reach); ``tests/test_cli_bounds.py``
@@ -14,35 +16,14 @@ keeps it so.
 from __future__ import annotations
 
 import argparse
-import math
-from dataclasses import dataclass
 from typing import Any
 
-from armbench.drivers.model.errors import InvalidTargetError
+from armbench.drivers.model.bounds import Bound, check, option_refused
 
-__all__ = ["CAPTURE_MAX_MB", "DURATION_S", "REPLY_TIMEOUT_S", "TIMEOUT_S", "Bound", "add_bounded",
+__all__ = ["CAPTURE_MAX_MB", "DURATION_S", "REPLY_TIMEOUT_S", "TIMEOUT_S", "add_bounded",
            "bounds_of", "check_bounds"]
 
 _DEST = "_number_bounds"
-
-
-@dataclass(frozen=True)
-class Bound:
-    """Valid values ``low..high`` (``low`` excluded with ``low_open``) in ``unit``."""
-
-    low: float
-    high: float
-    unit: str = ""
-    low_open: bool = False
-
-    def __str__(self) -> str:
-        interval = f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
-        return f"{interval} {self.unit}".rstrip()
-
-    def holds(self, value: float) -> bool:
-        """Whether ``value`` is inside (NaN never is)."""
-        above = value > self.low if self.low_open else value >= self.low
-        return math.isfinite(value) and above and value <= self.high
 
 
 #: How long a command runs (``--duration``): any finite time, a few decades at most.
@@ -58,9 +39,10 @@ REPLY_TIMEOUT_S = Bound(0.01, 3600.0, "s")
 
 def add_bounded(parser: argparse.ArgumentParser, flag: str, bound: Bound,
                 **kwargs: Any) -> argparse.Action:
-    """``parser.add_argument(flag, type=float, **kwargs)``, its values to be within ``bound``
-    (checked by :func:`check_bounds`; a default of None is "not given" and not checked)."""
-    action = parser.add_argument(flag, type=float, **kwargs)
+    """``parser.add_argument(flag, type=float, **kwargs)`` (``type=int`` for a ``whole``
+    bound), its values to be within ``bound`` (checked by :func:`check_bounds`; a default of None
+    is "not given" and not checked)."""
+    action = parser.add_argument(flag, type=int if bound.whole else float, **kwargs)
     known = dict(bounds_of(parser))
     known[action.dest] = (flag, bound)
     parser.set_defaults(**{_DEST: known})
@@ -80,5 +62,4 @@ def check_bounds(args: argparse.Namespace) -> None:
     for dest, (flag, bound) in known.items():
         value = getattr(args, dest, None)
         for v in value if isinstance(value, list) else [] if value is None else [value]:
-            if not bound.holds(v):
-                raise InvalidTargetError(None, flag, v, f"must be in {bound}")
+            check(flag, v, bound, option_refused)

@@ -30,10 +30,11 @@ from armbench.bench.calibrate.output import CalibrationResult, output_paths
 from armbench.bench.runner.outputs import check_out_dir, check_out_files
 from armbench.bench.runner.truth import load_tracker
 from armbench.bench.twin_check.check import twin_check
-from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, Bound, add_bounded
+from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.cli.commands.twin_check import format_failures
 from armbench.drivers.capture.jsonl import open_capture_file
+from armbench.drivers.model.bounds import Bound
 from armbench.drivers.model.settings import load_settings
 from armbench.reports.pages.calibration_page import render_page
 

@@ -183,8 +183,8 @@ def _dut_table(dut: Dut, options: RunOptions, source: str) -> list[str]:
 
 
 def _show(args: argparse.Namespace) -> int:
-    options = RunOptions(suites=list(args.suites), port=args.port, config=args.config,
-                         settings=args.settings, workers=args.workers,
+    options = RunOptions(suites=list(args.suites), ports=[] if args.port is None else [args.port],
+                         config=args.config, settings=args.settings, workers=args.workers,
                          scheduler=args.scheduler, retries=args.retries, capture=args.capture,
                          capture_max_mb=args.capture_max_mb, dut=args.dut,
                          meta=tuple(args.meta))

@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from armbench.cli.commands.bounds import Bound, add_bounded
+from armbench.cli.commands.bounds import add_bounded
+from armbench.drivers.model.bounds import Bound
 from armbench.drivers.model.kinematics import (
     IKSolution,
     KinematicsError,

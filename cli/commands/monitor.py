@@ -18,8 +18,9 @@ from collections import deque
 from collections.abc import AsyncIterator, Coroutine
 from typing import Any, TextIO, TypeVar
 
-from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, Bound, add_bounded
+from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, add_bounded
 from armbench.drivers.host.arm import Arm, JointState, ReplyTimeoutError, StateStream
+from armbench.drivers.model.bounds import Bound
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import Transport
 from armbench.drivers.transports.base import emulated

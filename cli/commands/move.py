@@ -16,10 +16,11 @@ import re
 import sys
 from typing import Any
 
-from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
+from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, TIMEOUT_S, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.host.arm import Arm, InvalidTargetError, JointState
 from armbench.drivers.host.link import CONNECT_TIMEOUT_S
+from armbench.drivers.model.bounds import Bound
 from armbench.drivers.model.kinematics import BRANCHES
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import load_settings

@@ -14,9 +14,10 @@ import asyncio
 import signal
 from typing import Any
 
-from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
+from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, add_bounded
 from armbench.cli.commands.monitor import run_on_port
 from armbench.drivers.host.link import CONNECT_TIMEOUT_S
+from armbench.drivers.model.bounds import Bound
 from armbench.drivers.model.errors import InvalidTargetError
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings, load_settings
@@ -55,16 +56,17 @@ def register(sub: Any) -> None:
     p.add_argument("--namespace", default="", metavar="NS",
                    help="the node's namespace: its topics resolve under it (default: /, so "
                         "/joint_states); one per arm when several share a graph")
-    p.add_argument("--domain-id", type=int, default=None, metavar="N",
-                   help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
-    p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
-                   help="refuse trajectory segments that need a duty above V (default 99)")
+    add_bounded(p, "--domain-id", Bound(0, 232, whole=True), default=None, metavar="N",
+                help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
+    add_bounded(p, "--max-duty", Bound(1, MAX_DUTY, whole=True), default=MAX_DUTY, metavar="V",
+                help="refuse trajectory segments that need a duty above V (default 99)")
     add_bounded(p, "--realtime-factor", REALTIME_FACTOR, default=None, metavar="X",
                 help=f"fake://: at most X simulated seconds per real second, X in "
                      f"{REALTIME_FACTOR} (default: as fast as the emulator runs)")
-    p.add_argument("--history-depth", type=int, default=10_000, metavar="N",
-                   help="/joint_states messages kept for a subscriber that has not acknowledged "
-                        "them (default 10000); beyond it the oldest go first")
+    add_bounded(p, "--history-depth", Bound(2, 1_000_000, whole=True), default=10_000,
+                metavar="N", help="/joint_states messages kept for a subscriber that has not "
+                                  "acknowledged them (default 10000); beyond it the oldest go "
+                                  "first")
     p.add_argument("--slow-subscriber", choices=("pace", "drop"), default="pace",
                    help="fake://: when a subscriber of /joint_states falls behind, hold the "
                         "virtual clock until it has caught up (pace, default) or run on and let "
@@ -82,18 +84,11 @@ def register(sub: Any) -> None:
 def _check(args: argparse.Namespace) -> None:
     """The options a bound does not cover (:mod:`armbench.cli.commands.bounds` checks the
     numbers)."""
-    if not 1 <= args.max_duty <= MAX_DUTY:
-        raise InvalidTargetError(None, "--max-duty", args.max_duty, f"must be 1..{MAX_DUTY}")
     for flag, value, problem in (("--node-name", args.node_name, node_name_problem),
                                  ("--namespace", args.namespace, namespace_problem)):
         why = problem(value)
         if why is not None:
             raise InvalidTargetError(None, flag, value, why)
-    if not 2 <= args.history_depth <= 1_000_000:
-        raise InvalidTargetError(None, "--history-depth", args.history_depth,
-                                 "must be 2..1000000")
-    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
-        raise InvalidTargetError(None, "--domain-id", args.domain_id, "must be 0..232")
 
 
 def _run(args: argparse.Namespace) -> int:

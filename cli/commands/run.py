@@ -21,14 +21,13 @@ import argparse
 import sys
 from typing import Any
 
-from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_sync
-from armbench.bench.runner.fleet_run import parse_arms
+from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_arms_sync
 from armbench.bench.suites import suite_names
 from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
+from armbench.cli.commands.fleet import fleet_summary
 from armbench.cli.commands.run_files import step_summary, write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
-from armbench.record.fleet_index import is_fleet
 from armbench.record.verdict import EXIT_STATUS_EPILOG
 
 __all__ = ["register"]
@@ -133,11 +132,8 @@ def _run(args: argparse.Namespace) -> int:
         from armbench.reports.files.run_summary import check_summary_file
 
         check_summary_file(args.summary)
-    ports: list[str] = args.port or []
     options = RunOptions(
-        suites=list(args.suites),
-        port=parse_arms(ports)[0].port if len(ports) == 1 else None,  # NAME= of one arm: unused
-        config=args.config, out=args.out,
+        suites=list(args.suites), ports=list(args.port or ()), config=args.config, out=args.out,
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
@@ -146,17 +142,18 @@ def _run(args: argparse.Namespace) -> int:
         scheduler=args.scheduler, shard=args.shard, require=list(args.require),
         optional=list(args.optional), dut=args.dut,
         meta=tuple(args.meta))
-    if len(ports) > 1 or (args.resume is not None and is_fleet(args.resume)):
-        from armbench.cli.commands.fleet import run_fleet
-
-        return run_fleet(options, ports, summary=args.summary)
-    # the record is on disk: now its reports, while the run folder is still locked
-    outcome = run_sync(options, progress=sys.stderr, then=lambda done: write_reports(
+    # each record is on disk: now its reports, while the run folder is still locked
+    result = run_arms_sync(options, progress=sys.stderr, then=lambda done: write_reports(
         done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
-    _summary(outcome)
+    if result.fleet:
+        fleet_summary(result)
+    else:
+        _summary(result.only())
     if args.summary is not None:
-        step_summary(args.summary, outcome)
-    return outcome.exit_status
+        for outcome in result.outcomes:
+            if outcome is not None:
+                step_summary(args.summary, outcome)
+    return result.exit_status
 
 
 def _summary(outcome: RunOutcome) -> None:

@@ -30,6 +30,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any, Final, Literal, NamedTuple
 
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import Command
@@ -322,6 +323,12 @@ def _shifted(line: bytes, offset_s: float) -> bytes:
     return json.dumps(obj).encode() + b"\n"
 
 
+#: The capture's size bound: a byte at least, in bytes (``[bench] capture_max_bytes``) or in
+#: megabytes (``--capture-max-mb``).
+_CAPTURE_BYTES = Bound(1, math.inf, "bytes", whole=True)
+_CAPTURE_MB = Bound(1e-6, math.inf, "MB")
+
+
 def capture_options(bench: Mapping[str, object], enabled: bool | None = None,
                     max_mb: float | None = None) -> tuple[bool, int | None]:
     """Whether a run captures its traffic and the capture's size bound (bytes, None: unbounded),
@@ -332,17 +339,12 @@ def capture_options(bench: Mapping[str, object], enabled: bool | None = None,
     if not isinstance(capture, bool):
         raise SettingsError("bench.capture", capture, "must be true or false")
     max_bytes = bench.get("capture_max_bytes")
-    if max_bytes is not None and (isinstance(max_bytes, bool) or not isinstance(max_bytes, int)
-                                  or max_bytes <= 0):
-        raise SettingsError("bench.capture_max_bytes", max_bytes,
-                            "must be a whole number of bytes > 0")
+    if max_bytes is not None:
+        max_bytes = check_whole("bench.capture_max_bytes", max_bytes, _CAPTURE_BYTES)
     if enabled is not None:
         capture = enabled
     if max_mb is not None:
-        mb = finite_float(max_mb)
-        if mb is None or mb <= 0 or mb * 1e6 < 1:
-            raise SettingsError("--capture-max-mb", max_mb, "must be a finite number of MB > 0")
-        max_bytes = int(mb * 1e6)
+        max_bytes = int(check("--capture-max-mb", max_mb, _CAPTURE_MB) * 1e6)
     return capture, max_bytes
 
 

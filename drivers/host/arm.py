@@ -24,12 +24,11 @@ import contextlib
 import functools
 from collections.abc import Callable, Sequence
 from pathlib import Path as FsPath
-from typing import Final, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
 
-from armbench.drivers.capture.jsonl import CaptureWriter
 from armbench.drivers.capture.read import replay_capture
 from armbench.drivers.host.arrival import (
     HOLD_ON,
@@ -42,6 +41,7 @@ from armbench.drivers.host.link import (
     HOLD_TIMEOUT_S,
     RESEND_AFTER_S,
     ArmLink,
+    LinkOptions,
     ReconnectPolicy,
 )
 from armbench.drivers.host.motion import Path, coordinated_duties, joint_times_s
@@ -67,6 +67,7 @@ from armbench.drivers.host.paths import (
 from armbench.drivers.host.paths import MAX_WAYPOINT_JUMP_RAD as MAX_WAYPOINT_JUMP_RAD
 from armbench.drivers.host.state import JointState
 from armbench.drivers.host.waiters import any_state
+from armbench.drivers.model.bounds import Bound, check, option_refused
 from armbench.drivers.model.errors import (
     DriverClosedError,
     DriverError,
@@ -78,10 +79,8 @@ from armbench.drivers.model.errors import (
     WaitTimeoutError,
 )
 from armbench.drivers.model.kinematics import Vec4, ik_best
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import MAX_DUTY, Command
 from armbench.drivers.model.settings import RobotSettings
-from armbench.drivers.transports import Transport
 from armbench.drivers.transports.base import Emulator, GroundTruth, emulated
 
 __all__ = [
@@ -99,6 +98,7 @@ __all__ = [
     "InvalidTargetError",
     "JointRangeError",
     "JointState",
+    "LinkOptions",
     "MoveInterruptedError",
     "MoveTimeoutError",
     "PathRun",
@@ -112,6 +112,11 @@ __all__ = [
 
 #: After ``stop()`` the state returned is the first one this long after the hold has arrived.
 HOLD_SETTLE_S: Final = 0.02
+#: A move's timeout, a path's speed and look-ahead, a replay's speed factor.
+_POSITIVE_S: Final = Bound(0.0, unit="s", low_open=True)
+_SPEED_M_S: Final = Bound(0.0, unit="m/s", low_open=True)
+_LOOKAHEAD_S: Final = Bound(0.0, unit="s")
+_REPLAY_SPEED: Final = Bound(0.0, low_open=True)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -177,32 +182,17 @@ class Arm(ArmLink):
     """
 
     @classmethod
-    def connect(cls, port: str, settings: RobotSettings | None = None, *,
-                reply_timeout_s: float = 0.5,
-                capture: str | FsPath | CaptureWriter | None = None,
-                reconnect: bool | ReconnectPolicy = False,
-                connect_timeout_s: float = CONNECT_TIMEOUT_S,
-                resend_after_s: float = RESEND_AFTER_S,
-                transport: Transport | None = None,
-                move_timeout_scale: float = 1.0) -> Arm:
+    def connect(cls, port: str, settings: RobotSettings | None = None,
+                options: LinkOptions | None = None, **given: Any) -> Arm:
         """A connection to the arm on ``port``, opened by ``async with`` (or ``await``).
 
-        ``settings``: the robot model (defaults: :class:`RobotSettings`). ``reply_timeout_s``:
-        longest silence tolerated while waiting for replies. ``capture``: a JSON Lines file that
-        receives every frame in and out (see :mod:`armbench.drivers.capture.jsonl`), times counted
-        from the opening; or a :class:`~armbench.drivers.capture.jsonl.CaptureWriter` with a time
-        origin of the caller's, which the connection uses and closes. ``reconnect``: True or a
-        :class:`ReconnectPolicy` to reopen a lost port with back-off. ``connect_timeout_s``: wait
-        for the first valid reply. ``resend_after_s``: resend policy of moves. ``transport``: an
-        unopened transport to use instead of ``open_transport(port)`` (reconnections still use
-        ``open_transport``). ``move_timeout_scale``: factor on every default move and path
-        timeout, for an arm that moves slower than law (12) says (a heavy payload, an emulator
-        on a starved machine).
+        ``settings``: the robot model (defaults: :class:`RobotSettings`). ``options``: how the
+        connection behaves (:class:`~armbench.drivers.host.link.LinkOptions`: the reply and
+        connect timeouts, the capture, the reconnection, the resend policy, a transport of the
+        caller's, the factor on move timeouts), or any of its fields by keyword
+        (``Arm.connect(port, reply_timeout_s=2.0, reconnect=True)``).
         """
-        return cls(port, settings, reply_timeout_s=reply_timeout_s, capture=capture,
-                   reconnect=reconnect, connect_timeout_s=connect_timeout_s,
-                   resend_after_s=resend_after_s, transport=transport,
-                   move_timeout_scale=move_timeout_scale)
+        return cls(port, settings, options, **given)
 
     @property
     def emulator(self) -> Emulator | None:
@@ -336,8 +326,8 @@ class Arm(ArmLink):
         else:
             duties = check_duties(duty)
         tol = self._tolerances(tolerance_rad)
-        if timeout_s is not None and not ((f := finite_float(timeout_s)) is not None and f > 0):
-            raise InvalidTargetError(None, "timeout_s", timeout_s, "must be a number > 0")
+        if timeout_s is not None:
+            check("timeout_s", timeout_s, _POSITIVE_S, option_refused)
         cmd = wire_command(target, duties, self.settings)
         goal = self._goal(cmd)
         if timeout_s is None:
@@ -422,10 +412,8 @@ class Arm(ArmLink):
         its duty (at corners sharper than 10° the arm arrives first). Returns a
         :class:`PathRun` with every state received and every command sent.
         """
-        if not ((f := finite_float(speed_m_s)) is not None and f > 0):
-            raise InvalidTargetError(None, "speed_m_s", speed_m_s, "must be a number > 0")
-        if not (isinstance(lookahead_s, (int, float)) and lookahead_s >= 0):
-            raise InvalidTargetError(None, "lookahead_s", lookahead_s, "must be a number >= 0")
+        check("speed_m_s", speed_m_s, _SPEED_M_S, option_refused)
+        check("lookahead_s", lookahead_s, _LOOKAHEAD_S, option_refused)
         max_duty = check_duty(max_duty)
         approach_duty = check_duty(approach_duty)
         tol = self._tolerances(tolerance_rad)
@@ -446,8 +434,7 @@ class Arm(ArmLink):
         at its recorded time after the capture started, counted from this connection's opening
         (a recording made right after connecting is then reproduced to the loop, e.g. into a
         fresh ``fake://`` emulator on virtual time)."""
-        if not speed > 0:
-            raise InvalidTargetError(None, "speed", speed, "must be > 0")
+        check("speed", speed, _REPLAY_SPEED, option_refused)
         if align not in ("first", "connect"):
             raise InvalidTargetError(None, "align", align, "is not 'first' or 'connect'")
         assert self._loop is not None

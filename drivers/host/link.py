@@ -17,11 +17,18 @@ import contextlib
 import logging
 import math
 from collections.abc import Callable, Generator, Iterator
+from dataclasses import replace
 from pathlib import Path as FsPath
 from types import TracebackType
 from typing import Any, Final, Self
 
 from armbench.drivers.capture.jsonl import CaptureWriter, frame_text
+from armbench.drivers.host.link_options import (
+    CONNECT_TIMEOUT_S,
+    DEFAULT_LINK_OPTIONS,
+    RESEND_AFTER_S,
+    LinkOptions,
+)
 from armbench.drivers.host.link_outages import LinkOutage, OutageLog, ReconnectPolicy
 from armbench.drivers.host.replies import ReplyStream
 from armbench.drivers.host.state import JointState
@@ -29,33 +36,25 @@ from armbench.drivers.host.waiters import Waiters, any_state, never
 from armbench.drivers.model.errors import (
     DriverClosedError,
     DriverError,
-    InvalidTargetError,
     LinkLostError,
     PortLostError,
     ReplyTimeoutError,
     TransportError,
 )
 from armbench.drivers.model.log_limit import LogLimit
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import COMMAND_LEN, Command, FrameError, Reply
 from armbench.drivers.model.server_notes import ServerNotes
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.model.tasks import cancel_and_wait
 from armbench.drivers.transports import Transport, open_transport
 
-__all__ = ["CONNECT_TIMEOUT_S", "HOLD_TIMEOUT_S", "RESEND_AFTER_S", "ArmLink", "LinkOutage",
-           "ReconnectPolicy"]
+__all__ = ["CONNECT_TIMEOUT_S", "HOLD_TIMEOUT_S", "RESEND_AFTER_S", "ArmLink", "LinkOptions",
+           "LinkOutage", "ReconnectPolicy"]
 
 log = logging.getLogger("armbench.driver")
 
-#: While waiting for arrival, the command is sent again when the distance to go has not shrunk
-#: for this long (a command lost or corrupted on the line, an emulator restarted).
-RESEND_AFTER_S: Final = 0.3
 #: How long a hold sent on cancellation or failure may take before the driver gives up on it.
 HOLD_TIMEOUT_S: Final = 0.5
-#: How long ``connect`` waits for the first valid reply (an Arduino resets when the port opens
-#: and its boot loader takes up to ~2 s before the firmware replies).
-CONNECT_TIMEOUT_S: Final = 3.0
 #: Event-loop passes a silence check gives the reader before it calls the arm silent: one to
 #: select the readable port, one for the transport's read, one for the reader task.
 _DRAIN_PASSES: Final = 3
@@ -77,29 +76,26 @@ class ArmLink:
     :attr:`commands_sent`, :attr:`resends`, :attr:`reconnects`.
     """
 
-    def __init__(self, port: str, settings: RobotSettings | None = None, *,
-                 reply_timeout_s: float = 0.5,
-                 capture: str | FsPath | CaptureWriter | None = None,
-                 reconnect: bool | ReconnectPolicy = False,
-                 connect_timeout_s: float = CONNECT_TIMEOUT_S,
-                 resend_after_s: float = RESEND_AFTER_S,
-                 transport: Transport | None = None,
-                 move_timeout_scale: float = 1.0) -> None:
+    def __init__(self, port: str, settings: RobotSettings | None = None,
+                 options: LinkOptions | None = None, **given: Any) -> None:
+        """A connection to ``port`` (not opened yet) with ``settings`` (the robot model; default
+        :class:`RobotSettings`) and ``options`` (:class:`LinkOptions`), or any of its fields
+        by keyword (``reply_timeout_s=2.0``), over ``options`` when both are given."""
+        opts = options if options is not None else DEFAULT_LINK_OPTIONS
+        if given:
+            opts = replace(opts, **given)
         self.port = port
         """The port string (``/dev/ttyUSB0``, ``socket://h:p``, ``fake://``, ...)."""
         self.settings = settings if settings is not None else RobotSettings()
         """The robot model: limits, drive trains, geometry, line settings."""
-        for name, v in (("reply_timeout_s", reply_timeout_s),
-                        ("connect_timeout_s", connect_timeout_s),
-                        ("resend_after_s", resend_after_s),
-                        ("move_timeout_scale", move_timeout_scale)):
-            if not ((f := finite_float(v)) is not None and f > 0):
-                raise InvalidTargetError(None, name, v, "must be a number > 0")
-        self.reply_timeout_s = float(reply_timeout_s)
-        self.connect_timeout_s = float(connect_timeout_s)
-        self.resend_after_s = float(resend_after_s)
-        self.move_timeout_scale = float(move_timeout_scale)
+        self.options = opts
+        """How this connection behaves (its timeouts, capture, reconnection)."""
+        self.reply_timeout_s = opts.reply_timeout_s
+        self.connect_timeout_s = opts.connect_timeout_s
+        self.resend_after_s = opts.resend_after_s
+        self.move_timeout_scale = opts.move_timeout_scale
         """Factor on every default move and path timeout (an arm slower than law (12))."""
+        capture, reconnect, transport = opts.capture, opts.reconnect, opts.transport
         self._capture = capture if isinstance(capture, CaptureWriter) else None
         self.capture_path = (capture.path if isinstance(capture, CaptureWriter)
                              else FsPath(capture) if capture is not None else None)

@@ -26,8 +26,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from typing import Any, Final, Literal
 
-from armbench.drivers.model.errors import InvalidTargetError
-from armbench.drivers.model.numbers import finite_float
+from armbench.drivers.model.bounds import Bound, check, check_whole, option_refused
 
 __all__ = ["OUTAGES_KEPT", "LinkOutage", "OutageKind", "OutageLog", "ReconnectPolicy"]
 
@@ -35,6 +34,13 @@ __all__ = ["OUTAGES_KEPT", "LinkOutage", "OutageKind", "OutageLog", "ReconnectPo
 OUTAGES_KEPT: Final = 1000
 
 OutageKind = Literal["port lost", "reply silence"]
+
+
+#: The bounds of a :class:`ReconnectPolicy`'s numbers.
+_DELAY_S: Final = Bound(0.0, math.inf, "s")
+_FACTOR: Final = Bound(1.0, math.inf)
+_ATTEMPTS: Final = Bound(1, math.inf, whole=True, why="or None: no limit")
+_GIVE_UP_S: Final = Bound(0.0, math.inf, "s", low_open=True, why="or None: no limit")
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,18 +59,12 @@ class ReconnectPolicy:
 
     def __post_init__(self) -> None:
         for name in ("initial_delay_s", "max_delay_s"):
-            v = getattr(self, name)
-            if not ((f := finite_float(v)) is not None and f >= 0):
-                raise InvalidTargetError(None, f"reconnect.{name}", v, "must be a number >= 0")
-        if not self.factor >= 1:
-            raise InvalidTargetError(None, "reconnect.factor", self.factor, "must be >= 1")
-        if self.max_attempts is not None and self.max_attempts < 1:
-            raise InvalidTargetError(None, "reconnect.max_attempts", self.max_attempts,
-                                     "must be >= 1 or None")
-        g = self.give_up_after_s
-        if g is not None and not ((f := finite_float(g)) is not None and f > 0):
-            raise InvalidTargetError(None, "reconnect.give_up_after_s", g,
-                                     "must be a number > 0 or None")
+            check(f"reconnect.{name}", getattr(self, name), _DELAY_S, option_refused)
+        check("reconnect.factor", self.factor, _FACTOR, option_refused)
+        if self.max_attempts is not None:
+            check_whole("reconnect.max_attempts", self.max_attempts, _ATTEMPTS, option_refused)
+        if self.give_up_after_s is not None:
+            check("reconnect.give_up_after_s", self.give_up_after_s, _GIVE_UP_S, option_refused)
 
     def delays(self) -> Iterator[float]:
         """The waits before each attempt."""

@@ -8,6 +8,7 @@ command's wire ticks (``check_command``). Errors name the joint and the offendin
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from typing import Final
@@ -15,9 +16,9 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from armbench.drivers.model.bounds import Bound, check, check_whole, option_refused
 from armbench.drivers.model.errors import InvalidTargetError, JointRangeError
 from armbench.drivers.model.kinematics import Vec4
-from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.protocol import (
     JOINTS,
     MAX_DUTY,
@@ -55,6 +56,9 @@ TICK_RAD: Final = 1.0 / TICKS_PER_RAD
 LIMIT_SLACK_RAD: Final = 0.5 * TICK_RAD
 #: Default arrival tolerance per joint (rad): a few protocol ticks (1e-4 rad) and encoder counts.
 DEFAULT_TOLERANCE_RAD: Final = 3e-4
+#: A duty on the wire (00 is a hold, not a speed) and an arrival tolerance.
+_DUTY: Final = Bound(1, MAX_DUTY, whole=True, why="00 holds: use stop()")
+_TOLERANCE_RAD: Final = Bound(0.0, math.inf, "rad", low_open=True)
 
 
 def check_limits(q_rad: Sequence[float], settings: RobotSettings) -> None:
@@ -96,12 +100,8 @@ def check_command(command: Command, settings: RobotSettings) -> None:
 
 def check_duty(duty: object, joint: int | None = None) -> int:
     """A duty 1..99 as an int; raises :class:`InvalidTargetError` otherwise (00 is a hold)."""
-    if isinstance(duty, bool) or not isinstance(duty, (int, np.integer)):
-        raise InvalidTargetError(joint, "duty", duty, "is not a whole number 1..99")
-    d = int(duty)
-    if not 1 <= d <= MAX_DUTY:
-        raise InvalidTargetError(joint, "duty", d, "is outside 1..99 (00 holds: use stop())")
-    return d
+    return check_whole("duty", duty, _DUTY, option_refused if joint is None
+                       else functools.partial(InvalidTargetError, joint))
 
 
 def check_duties(duty: int | Sequence[int]) -> Duties:
@@ -129,13 +129,16 @@ def tolerances(tolerance_rad: float | Sequence[float] | None, default: Vec4) -> 
     """One tolerance for all joints or one per joint (rad, finite, > 0); ``default`` for None."""
     if tolerance_rad is None:
         return default
+    scalar = isinstance(tolerance_rad, (int, float))
     values = ([tolerance_rad] * JOINTS if isinstance(tolerance_rad, (int, float))
               else list(tolerance_rad))
-    if len(values) != JOINTS or not all(
-            (f := finite_float(v)) is not None and f > 0 for v in values):
+    if len(values) != JOINTS:
         raise InvalidTargetError(None, "tolerance_rad", tolerance_rad,
                                  "must be one or 4 finite numbers > 0")
-    return (float(values[0]), float(values[1]), float(values[2]), float(values[3]))
+    t = [check("tolerance_rad", v, _TOLERANCE_RAD,
+               option_refused if scalar else functools.partial(InvalidTargetError, i))
+         for i, v in enumerate(values, 1)]
+    return (t[0], t[1], t[2], t[3])
 
 
 def wire_command(target: Sequence[float], duties: Sequence[int],

@@ -30,6 +30,7 @@ __all__ = [
     "PortLostError",
     "ProtocolError",
     "ReplyTimeoutError",
+    "SettingsError",
     "TransportError",
     "WaitTimeoutError",
     "format_q_rad",
@@ -63,6 +64,17 @@ class LastReply(Protocol):
 
 class ArmbenchError(Exception):
     """Base of every error armbench raises on purpose (bad input, lost port, timeout, ...)."""
+
+
+class SettingsError(ArmbenchError, ValueError):
+    """A settings value (or an option) is invalid; ``field`` is its dotted path in the TOML file
+    (or the option's flag)."""
+
+    def __init__(self, field: str, value: object, reason: str) -> None:
+        super().__init__(f"{field}: {value!r} {reason}")
+        self.field = field
+        self.value = value
+        self.reason = reason
 
 
 class TransportError(ArmbenchError, OSError):

@@ -16,10 +16,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from fractions import Fraction
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
-from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.numbers import finite_float
+from armbench.drivers.model.bounds import Bound, check, check_whole
+from armbench.drivers.model.errors import SettingsError
 from armbench.drivers.model.user_files import MAX_TOML_BYTES, FileRefused, read_regular_file
 
 __all__ = [
@@ -39,16 +39,6 @@ JOINT_COUNT = 4
 #: The most tables and arrays a user's TOML file may nest: the formats nest four at most, and a
 #: file nested hundreds deep would exhaust Python's recursion when copied.
 MAX_TOML_DEPTH = 32
-
-
-class SettingsError(ArmbenchError, ValueError):
-    """A settings value is invalid; ``field`` is its dotted path in the TOML file."""
-
-    def __init__(self, field: str, value: object, reason: str) -> None:
-        super().__init__(f"{field}: {value!r} {reason}")
-        self.field = field
-        self.value = value
-        self.reason = reason
 
 
 @dataclass(frozen=True, slots=True)
@@ -279,19 +269,39 @@ def _plain(value: Any) -> Any:
 
 #: No setting of the robot needs a magnitude beyond this; larger ones (TOML integers are unbounded)
 #: are refused before any arithmetic can overflow.
-_MAGNITUDE_LIMIT = 1e12
+_MAGNITUDE = Bound(-1e12, 1e12)
+#: The DH lengths (m): within a few metres of the base, a2 and a3 (the arm's links) longer than 0.
+_LENGTH_M = Bound(-10.0, 10.0, "m", why="a plausible length in metres")
+_LINK_M = Bound(0.0, 10.0, "m", low_open=True, why="a plausible link length in metres")
+#: The drive train and sensors of a joint.
+_GEAR_RATIO = Bound(0.01, 10_000.0)
+_STEP_ANGLE_DEG = Bound(0.01, 90.0, "deg")
+_MICROSTEPS = Bound(1, 256, whole=True)
+_ENCODER_COUNTS = Bound(1, 10_000_000, whole=True)
+_I2C_ADDRESS = Bound(0x08, 0x77, whole=True, why="a 7-bit slave address, 0x08..0x77")
+_BAUDRATE = Bound(0, math.inf, "baud", low_open=True, whole=True)
+_WHOLE = Bound(-1e12, 1e12, whole=True)
+#: The bound each number of the file is read with (the rest of a joint's checks, which relate
+#: its values, are :func:`_validate`'s).
+_GEOMETRY_BOUNDS = {"d1_m": _LENGTH_M, "d2_m": _LENGTH_M, "a2_m": _LINK_M, "a3_m": _LINK_M,
+                    "d4_m": _LENGTH_M}
+_SERIAL_BOUNDS = {"baudrate": _BAUDRATE, "bytesize": _WHOLE, "stopbits": _MAGNITUDE}
+_JOINT_BOUNDS = {"gear_ratio": _GEAR_RATIO, "step_angle_deg": _STEP_ANGLE_DEG,
+                 "microsteps": _MICROSTEPS, "encoder_counts_per_motor_rev": _ENCODER_COUNTS,
+                 "sign": _WHOLE, "i2c_address": _WHOLE}
 
 
-def _number(path: str, value: object, *, integer: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SettingsError(path, value, "is not a number")
-    if integer and not isinstance(value, int):
-        raise SettingsError(path, value, "is not an integer")
-    if isinstance(value, float) and finite_float(value) is None:
-        raise SettingsError(path, value, "is not finite")
-    if abs(value) > _MAGNITUDE_LIMIT:
-        raise SettingsError(path, value, f"is beyond ±{_MAGNITUDE_LIMIT:g}")
-    return value
+#: A standard error of the ``[uncertainty]`` table.
+_STANDARD_ERROR: Final = Bound(0.0, 1e12, why="a standard error")
+
+
+def _number(path: str, value: object, bound: Bound = _MAGNITUDE) -> float:
+    """``value`` once it is a number within ``bound`` (whole, if the bound is); an int stays an
+    int (the file's 40, not 40.0)."""
+    if bound.whole:
+        return check_whole(path, value, bound)
+    number = check(path, value, bound)
+    return value if isinstance(value, int) else number
 
 
 def _table(path: str, value: object) -> Mapping[str, Any]:
@@ -313,13 +323,14 @@ def _from_mapping(data: Mapping[str, Any]) -> RobotSettings:
     _unknown("", data, {"geometry", "serial", "joints", UNCERTAINTY_TABLE, *_EXTENSION_SECTIONS})
     geo_in = _table("geometry", data.get("geometry", {}))
     _unknown("geometry", geo_in, set(Geometry.__slots__))
-    geometry = Geometry(**{k: _number(f"geometry.{k}", v) for k, v in geo_in.items()})
+    geometry = Geometry(**{k: _number(f"geometry.{k}", v, _GEOMETRY_BOUNDS[k])
+                           for k, v in geo_in.items()})
 
     ser_in = _table("serial", data.get("serial", {}))
     _unknown("serial", ser_in, set(SerialSettings.__slots__))
     ser_kwargs: dict[str, Any] = {}
     for k, v in ser_in.items():
-        ser_kwargs[k] = v if k == "parity" else _number(f"serial.{k}", v, integer=k != "stopbits")
+        ser_kwargs[k] = v if k == "parity" else _number(f"serial.{k}", v, _SERIAL_BOUNDS[k])
     serial = SerialSettings(**ser_kwargs)
 
     joints_in = _table("joints", data.get("joints", {}))
@@ -335,7 +346,7 @@ def _from_mapping(data: Mapping[str, Any]) -> RobotSettings:
             if k in _JOINT_KEYS_DEG:
                 kwargs[_JOINT_KEYS_DEG[k]] = math.radians(_number(path, v))
             else:
-                kwargs[k] = _number(path, v, integer=k not in ("gear_ratio", "step_angle_deg"))
+                kwargs[k] = _number(path, v, _JOINT_BOUNDS[k])
         joints.append(replace(default, **kwargs))
     sections = {k: data[k] for k in _EXTENSION_SECTIONS if k in data}
     return RobotSettings(geometry, tuple(joints), serial, sections, _uncertainty(data))
@@ -347,9 +358,7 @@ def _uncertainty(data: Mapping[str, Any]) -> dict[str, float]:
     out: dict[str, float] = {}
     for key, sigma in _table(UNCERTAINTY_TABLE, data.get(UNCERTAINTY_TABLE, {})).items():
         path = f"{UNCERTAINTY_TABLE}.{json.dumps(key)}"
-        value = _number(path, sigma)
-        if value < 0:
-            raise SettingsError(path, sigma, "is not a standard error (a number >= 0)")
+        value = _number(path, sigma, _STANDARD_ERROR)
         node: object = data
         for part in str(key).split("."):
             node = node.get(part) if isinstance(node, Mapping) else None
@@ -360,60 +369,52 @@ def _uncertainty(data: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
+def _check_range(p: str, j: JointSettings) -> None:
+    """A joint's limits and Hall position (deg in the messages, as in the file): lower below
+    upper, less than a turn apart, the Hall sensor between them."""
+    lower_deg, upper_deg = math.degrees(j.lower_rad), math.degrees(j.upper_rad)
+    check(f"{p}.lower_deg", lower_deg, Bound(high=upper_deg, high_open=True, unit="deg",
+                                             why="below upper_deg"))
+    check(f"{p}.upper_deg", upper_deg, Bound(
+        high=lower_deg + 360.0, high_open=True, unit="deg",
+        why="a range of 360° or more from lower_deg: the protocol cannot tell such angles apart"))
+    check(f"{p}.hall_deg", math.degrees(j.hall_rad),
+          Bound(lower_deg, upper_deg, "deg", why="within the joint limits"))
+
+
 def _validate(s: RobotSettings) -> None:
     g = s.geometry
     for name in ("d1_m", "d2_m", "a2_m", "a3_m", "d4_m"):
-        v = _number(f"geometry.{name}", getattr(g, name))
-        if name in ("a2_m", "a3_m") and v <= 0:
-            raise SettingsError(f"geometry.{name}", v, "must be > 0")
-        if abs(v) > 10:
-            raise SettingsError(f"geometry.{name}", v, "is not a plausible length in metres")
+        check(f"geometry.{name}", getattr(g, name),
+              _LINK_M if name in ("a2_m", "a3_m") else _LENGTH_M)
     if len(s.joints) != JOINT_COUNT:
         raise SettingsError("joints", len(s.joints), f"joints given; the arm has {JOINT_COUNT}")
     addresses: set[int] = set()
     for i, j in enumerate(s.joints):
         p = f"joints.{j.name}"
-        _number(f"{p}.gear_ratio", j.gear_ratio)
-        _number(f"{p}.step_angle_deg", j.step_angle_deg)
-        if not 0.01 <= j.gear_ratio <= 10_000:
-            raise SettingsError(f"{p}.gear_ratio", j.gear_ratio, "must be in 0.01..10000")
+        check(f"{p}.gear_ratio", j.gear_ratio, _GEAR_RATIO)
         if j.sign not in (1, -1):
             raise SettingsError(f"{p}.sign", j.sign, "must be 1 or -1")
-        if not j.lower_rad < j.upper_rad:
-            raise SettingsError(f"{p}.lower_deg", math.degrees(j.lower_rad),
-                                f"must be below upper_deg {math.degrees(j.upper_rad):g}")
-        if j.upper_rad - j.lower_rad >= 2 * math.pi:
-            raise SettingsError(f"{p}.upper_deg", math.degrees(j.upper_rad),
-                                "gives a range of 360° or more; the protocol cannot tell such "
-                                "angles apart")
-        if not j.lower_rad <= j.hall_rad <= j.upper_rad:
-            raise SettingsError(f"{p}.hall_deg", math.degrees(j.hall_rad),
-                                "must lie within the joint limits")
-        if not 0.01 <= j.step_angle_deg <= 90:
-            raise SettingsError(f"{p}.step_angle_deg", j.step_angle_deg, "must be in 0.01..90")
-        full_steps = 360.0 / j.step_angle_deg
-        if abs(full_steps - round(full_steps)) > 1e-9:
+        _check_range(p, j)
+        step_angle_deg = check(f"{p}.step_angle_deg", j.step_angle_deg, _STEP_ANGLE_DEG)
+        full_steps = 360.0 / step_angle_deg
+        if not math.isclose(full_steps, round(full_steps), rel_tol=0.0, abs_tol=1e-9):
             raise SettingsError(f"{p}.step_angle_deg", j.step_angle_deg,
                                 "must divide 360° into a whole number of steps")
-        if not 1 <= j.microsteps <= 256:
-            raise SettingsError(f"{p}.microsteps", j.microsteps, "must be 1..256")
-        if not 1 <= j.encoder_counts_per_motor_rev <= 10_000_000:
-            raise SettingsError(f"{p}.encoder_counts_per_motor_rev",
-                                j.encoder_counts_per_motor_rev, "must be 1..10000000")
+        check_whole(f"{p}.microsteps", j.microsteps, _MICROSTEPS)
+        check_whole(f"{p}.encoder_counts_per_motor_rev", j.encoder_counts_per_motor_rev,
+                    _ENCODER_COUNTS)
         if i == 0:
             if j.i2c_address is not None:
                 raise SettingsError(f"{p}.i2c_address", j.i2c_address,
                                     "is set, but joint 1 is the I²C master and has no address")
             continue
-        if j.i2c_address is None or not 0x08 <= j.i2c_address <= 0x77:
-            raise SettingsError(f"{p}.i2c_address", j.i2c_address,
-                                "must be a 7-bit slave address in 0x08..0x77")
-        if j.i2c_address in addresses:
+        address = check_whole(f"{p}.i2c_address", j.i2c_address, _I2C_ADDRESS)
+        if address in addresses:
             raise SettingsError(f"{p}.i2c_address", j.i2c_address, "is used by another joint")
-        addresses.add(j.i2c_address)
+        addresses.add(address)
     ser = s.serial
-    if ser.baudrate <= 0:
-        raise SettingsError("serial.baudrate", ser.baudrate, "must be > 0")
+    check_whole("serial.baudrate", ser.baudrate, _BAUDRATE)
     if ser.bytesize not in (5, 6, 7, 8):
         raise SettingsError("serial.bytesize", ser.bytesize, "must be 5, 6, 7 or 8")
     if ser.parity not in ("N", "E", "O", "M", "S"):

@@ -8,19 +8,18 @@ default: the plausible arm of ``[emulator.physics]``, ``docs/robot-model.md``) o
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Final, Literal
 
-from armbench.drivers.model.numbers import finite_float, is_real
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.twin_parameters import TWIN
 from armbench.fakes.twin.joint import CYCLE_S, PhysicalEffects, StopRule
 from armbench.fakes.twin.physics import DEFAULT_ARM, PROFILES, ArmPhysics, arm_physics
 from armbench.fakes.twin.stepper import STOP_RULES
 
-__all__ = ["CYCLE_S", "MAX_DEADBAND_COUNTS", "MAX_TIMES_S", "PROFILES", "ArmPhysics",
+__all__ = ["BOUNDS", "CYCLE_S", "MAX_DEADBAND_COUNTS", "MAX_TIMES_S", "PROFILES", "ArmPhysics",
            "EmulatorSettings", "PhysicalEffects", "actual_robot", "emulator_settings",
            "with_emulator_overrides"]
 
@@ -106,6 +105,24 @@ _MERGED: Final = {
     "noise_rate_hz": (f"is no longer read: encoder noise is {TWIN['noise_per_count'].path()} "
                       "(spurious counts per encoder count)"),
 }
+#: Every number of the ``[emulator]`` table and its bound, checked when the settings are read.
+BOUNDS: Final[Mapping[str, Bound]] = {
+    "i2c_hz": Bound(10_000, 3_400_000, "Hz", whole=True, why="an I²C clock"),
+    "rx_buffer_bytes": Bound(1, 1e12, "bytes", whole=True),
+    "tx_buffer_bytes": Bound(1, 1e12, "bytes", whole=True),
+    "host_buffer_bytes": Bound(1, 1 << 20, "bytes", whole=True,
+                               why="what a client may queue is bounded"),
+    **{name: Bound(0.0, high_s, "s") for name, high_s in MAX_TIMES_S.items()},
+    "deadband_counts": Bound(0, MAX_DEADBAND_COUNTS, "encoder counts", whole=True),
+    "recovery_duty": Bound(1, 99, whole=True),
+    "seed": Bound(0, 2**32 - 1, whole=True),
+    "eeprom_cells": Bound(5, 65536, whole=True, why="the record takes 5 bytes"),
+}
+#: A number of ``[emulator.effects]`` (``PhysicalEffects`` checks their ranges).
+_EFFECT = Bound(-1e12, 1e12)
+_MISS_ABOVE_DUTY = Bound(0, 99, whole=True)
+_PAYLOAD_KG = Bound(*_PAYLOAD.accepted(), "kg", why="the paper's maximum")
+
 _TYPES: dict[str, type] = {"uart_receive": str, "reply_line_end": str, "fused_bus": bool,
                            "profile": str, "stop_rule": str}
 
@@ -137,8 +154,9 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
                 raise SettingsError(f"emulator.effects.{k}", v, _MERGED[k])
             if k not in known_fx:
                 raise SettingsError(f"emulator.effects.{k}", v, "is not a known setting")
-            _check_number(f"emulator.effects.{k}", v)
-            values[k] = _whole(f"emulator.effects.{k}", v) if k == "miss_above_duty" else float(v)
+            where = f"emulator.effects.{k}"
+            values[k] = (check_whole(where, v, _MISS_ABOVE_DUTY) if k == "miss_above_duty"
+                         else check(where, v, _EFFECT))
         try:  # plain ints and floats: the compiled class takes no numpy integer, keeps no int
             effects = PhysicalEffects(**values)
         except ValueError as exc:
@@ -168,12 +186,10 @@ def emulator_settings(robot: RobotSettings, **overrides: Any) -> EmulatorSetting
         elif _TYPES.get(k) is bool:
             if not isinstance(v, bool):
                 raise SettingsError(f"emulator.{k}", v, "is not true or false")
-        else:
-            _check_number(f"emulator.{k}", v)
-            if k in _FLOATS:  # a plain float for the compiled boards (no numpy integer)
-                table[k] = float(v)
-            elif k in _INTS and isinstance(v, numbers.Integral):  # numpy's too: a plain int
-                table[k] = int(v)
+        else:  # a plain int or float for the compiled boards (no numpy number)
+            bound = BOUNDS[k]
+            table[k] = (check_whole(f"emulator.{k}", v, bound) if bound.whole
+                        else check(f"emulator.{k}", v, bound))
     s = replace(EmulatorSettings(), effects=effects, physics=physics, **table)
     _validate(s)
     return s
@@ -198,10 +214,7 @@ def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
             kg = float(payload_kg)
         except ValueError:
             raise SettingsError("payload", payload_kg, "is not a number of kg") from None
-        low, high = _PAYLOAD.accepted()
-        if not low <= kg <= high:
-            raise SettingsError("payload", payload_kg,
-                                f"must be {low:g}..{high:g} kg (the paper's maximum)")
+        check("payload", kg, _PAYLOAD_KG)
         physics = table.get("physics", {})
         if not isinstance(physics, Mapping):
             raise SettingsError("emulator.physics", physics, "is not a table")
@@ -211,54 +224,16 @@ def with_emulator_overrides(robot: RobotSettings, *, profile: str | None = None,
     return out
 
 
-def _check_number(path: str, v: object) -> None:
-    if not is_real(v):
-        raise SettingsError(path, v, "is not a finite number")
-    number = finite_float(v)
-    if number is None or abs(number) > 1e12:
-        raise SettingsError(path, v, "is not a finite number within ±1e12")
-
-
-def _whole(path: str, v: object) -> int:
-    """``v`` (a real number) as a plain int, if it is a whole number of any int type."""
-    if not isinstance(v, numbers.Integral):
-        raise SettingsError(path, v, "must be a whole number")
-    return int(v)
-
-
 def _validate(s: EmulatorSettings) -> None:
     if s.uart_receive not in ("polling", "blocking"):
         raise SettingsError("emulator.uart_receive", s.uart_receive,
                             "must be 'polling' or 'blocking'")
-    if not 10_000 <= s.i2c_hz <= 3_400_000:
-        raise SettingsError("emulator.i2c_hz", s.i2c_hz, "is not an I²C clock (10 kHz..3.4 MHz)")
-    for name in ("rx_buffer_bytes", "tx_buffer_bytes", "host_buffer_bytes"):
-        v = getattr(s, name)
-        if not isinstance(v, int) or v < 1:
-            raise SettingsError(f"emulator.{name}", v, "must be a whole number >= 1")
-    for name, high_s in MAX_TIMES_S.items():
-        if not 0 <= getattr(s, name) <= high_s:
-            raise SettingsError(f"emulator.{name}", getattr(s, name), f"must be 0..{high_s:g} s")
-    if s.host_buffer_bytes > 1 << 20:
-        raise SettingsError("emulator.host_buffer_bytes", s.host_buffer_bytes,
-                            "must be at most 1048576 (what a client may queue is bounded)")
+    for name, bound in BOUNDS.items():
+        check(f"emulator.{name}", getattr(s, name), bound)
     if s.reply_line_end not in ("", "\n", "\r\n"):
         raise SettingsError("emulator.reply_line_end", s.reply_line_end,
                             "must be '', '\\n' or '\\r\\n'")
-    if isinstance(s.deadband_counts, bool) or not isinstance(s.deadband_counts, int) or \
-            not 0 <= s.deadband_counts <= MAX_DEADBAND_COUNTS:
-        raise SettingsError("emulator.deadband_counts", s.deadband_counts, "must be a whole "
-                            f"number of encoder counts 0..{MAX_DEADBAND_COUNTS}")
     if s.stop_rule not in STOP_RULES:
         raise SettingsError("emulator.stop_rule", s.stop_rule,
                             f"must be one of {', '.join(map(repr, STOP_RULES))}")
-    if not isinstance(s.recovery_duty, int) or not 1 <= s.recovery_duty <= 99:
-        raise SettingsError("emulator.recovery_duty", s.recovery_duty, "must be 1..99")
-    if not isinstance(s.seed, int) or not 0 <= s.seed < 2**32:
-        raise SettingsError("emulator.seed", s.seed, "must be a whole number 0..2**32-1")
-    if not isinstance(s.eeprom_cells, int) or not 5 <= s.eeprom_cells <= 65536:
-        raise SettingsError("emulator.eeprom_cells", s.eeprom_cells,
-                            "must be a whole number 5..65536 (the record takes 5 bytes)")
-    if not isinstance(s.effects.miss_above_duty, int):
-        raise SettingsError("emulator.effects.miss_above_duty", s.effects.miss_above_duty,
-                            "must be a whole number 0..99")
+    check_whole("emulator.effects.miss_above_duty", s.effects.miss_above_duty, _MISS_ABOVE_DUTY)

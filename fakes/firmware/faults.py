@@ -35,6 +35,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Literal, Protocol, get_args
 
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.settings import RobotSettings, SettingsError, read_toml
 
 __all__ = ["FAULT_KINDS", "Fault", "FaultInjector", "faults_from_settings", "load_faults",
@@ -71,6 +72,14 @@ class Fault:
         return f"{self.kind}{who} {when}{extra}"
 
 
+#: The bounds of a fault's numbers: its times, frame count, probability, repeats and joint.
+_SECONDS = Bound(0.0, 1e6, "s")
+_FRAMES = Bound(1, 1e9, "frames", whole=True)
+_PROBABILITY = Bound(0.0, 1.0)
+_COUNT = Bound(1, 1024, whole=True)
+_JOINT = Bound(1, 4, whole=True)
+
+
 def parse_faults(items: Iterable[Mapping[str, Any]], where: str = "faults") -> list[Fault]:
     """Validated faults from TOML-shaped tables; errors name the entry and field."""
     out: list[Fault] = []
@@ -93,17 +102,14 @@ def parse_faults(items: Iterable[Mapping[str, Any]], where: str = "faults") -> l
             raise SettingsError(path, dict(item), "needs exactly one of at_s or after_frames")
         for name in ("at_s", "duration_s", "delay_s"):
             v = getattr(fault, name)
-            if v is not None and not _real(v, 0.0, 1e6):
-                raise SettingsError(f"{path}.{name}", v, "must be a number of seconds 0..1e6")
-        if fault.after_frames is not None and not _whole(fault.after_frames, 1, 10**9):
-            raise SettingsError(f"{path}.after_frames", fault.after_frames,
-                                "must be a whole number of frames 1..1e9")
-        if not _real(fault.probability, 0.0, 1.0):
-            raise SettingsError(f"{path}.probability", fault.probability, "must be in [0, 1]")
-        if not _whole(fault.count, 1, 1024):
-            raise SettingsError(f"{path}.count", fault.count, "must be a whole number 1..1024")
-        if fault.joint is not None and not _whole(fault.joint, 1, 4):
-            raise SettingsError(f"{path}.joint", fault.joint, "must be 1..4")
+            if v is not None:
+                check(f"{path}.{name}", v, _SECONDS)
+        if fault.after_frames is not None:
+            check_whole(f"{path}.after_frames", fault.after_frames, _FRAMES)
+        check(f"{path}.probability", fault.probability, _PROBABILITY)
+        check_whole(f"{path}.count", fault.count, _COUNT)
+        if fault.joint is not None:
+            check_whole(f"{path}.joint", fault.joint, _JOINT)
         if fault.kind in ("i2c_nak", "i2c_bus_error") and fault.joint == 1:
             raise SettingsError(f"{path}.joint", 1, "is the I²C master; slaves are 2..4")
         if fault.kind in ("slave_reset", "stall") and fault.joint is None:
@@ -113,17 +119,6 @@ def parse_faults(items: Iterable[Mapping[str, Any]], where: str = "faults") -> l
                                 "must be 'to_host' or 'to_robot'")
         out.append(fault)
     return out
-
-
-def _real(value: object, low: float, high: float) -> bool:
-    """A number (not a bool, not NaN) within [low, high]."""
-    return (not isinstance(value, bool) and isinstance(value, (int, float))
-            and low <= value <= high)
-
-
-def _whole(value: object, low: int, high: int) -> bool:
-    """An integer (not a bool) within [low, high]."""
-    return not isinstance(value, bool) and isinstance(value, int) and low <= value <= high
 
 
 def load_faults(path: str | Path) -> list[Fault]:

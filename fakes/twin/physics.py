@@ -28,6 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Final, NamedTuple
 
+from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.kinematics import dh_parameters
 from armbench.drivers.model.settings import Geometry, JointSettings, RobotSettings, SettingsError
 from armbench.drivers.model.twin_parameters import (
@@ -350,18 +351,8 @@ def _read(params: Sequence[TwinParameter], table: Mapping[str, Any], where: str,
                 raise SettingsError(f"{where}.{k}", v, f"is not one of {', '.join(p.choices)}")
             out[p.name] = str(v)
         else:
-            out[p.name] = p.to_twin(_in_range(f"{where}.{k}", v, *p.accepted()))
+            out[p.name] = p.to_twin(check(f"{where}.{k}", v, Bound(*p.accepted())))
     return out
-
-
-def _in_range(path: str, v: object, low: float, high: float) -> float:
-    """``v`` as a float within [low, high] (a generous band around the plausible range)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise SettingsError(path, v, "is not a finite number")
-    x = float(v)  # a plain float: a numpy scalar would compare to a numpy bool
-    if not low <= x <= high:
-        raise SettingsError(path, v, f"is outside {low:g}..{high:g}")
-    return x
 
 
 class Mechanism:

@@ -36,8 +36,6 @@ from armbench.bench.suites._common import (
     Measurements,
     StateRecorder,
     TrialAborted,
-    check_int,
-    check_number,
     guarded_trial,
     loop_time,
 )
@@ -53,6 +51,7 @@ from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.bench.suites.workspace import DEFAULT_SQUARE_CENTRE_M, DEFAULT_SQUARE_SIDE_M
 from armbench.drivers.host.paths import PathRun
+from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.clock.vclock import VirtualTimeLoop
@@ -110,9 +109,8 @@ class Ros2SquareSuite(Suite):
         ``domain_id`` (-1: ``ROS_DOMAIN_ID`` of the environment) and the client's time guard."""
         require_rclpy()
         where = f"suites.{self.name}"
-        check_int(f"{where}.domain_id", params["domain_id"], low=-1, high=232)
-        check_number(f"{where}.client_timeout_s", params["client_timeout_s"], low=1.0,
-                     high=3600.0)
+        check_whole(f"{where}.domain_id", params["domain_id"], Bound(-1, 232))
+        check(f"{where}.client_timeout_s", params["client_timeout_s"], Bound(1.0, 3600.0, "s"))
         check_square(where, settings, params, STYLES)
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
