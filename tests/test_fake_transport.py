@@ -1,7 +1,6 @@
 """The in-process transport base (``fakes/links/in_process.py``) through ``fake://``: the real
 emulator on virtual time, read as the driver reads it. Reads, the receiver, the bounded buffer and
-close
-are the base's, so they hold for ``avr://`` on virtual time and any third in-process target
+close are the base's, so they hold for ``avr://`` on virtual time and any third in-process target
 (``tests/test_avr_virtual_time.py`` covers the boards' side)."""
 
 from __future__ import annotations

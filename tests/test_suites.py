@@ -4,8 +4,7 @@ Each suite runs against the emulator over ``fake://`` on virtual time
 (``armbench.fakes.clock.vclock``) with small
 parameters, through the same calls the runner makes (``params`` → ``plan`` → ``run_trial`` per
 trial → ``summarize``). Checks: every trial is measured, the figures are present and plausible,
-and each suite-level figure equals what the metric functions of ``armbench.metrics`` give on
-the
+and each suite-level figure equals what the metric functions of ``armbench.metrics`` give on the
 trial samples stored in the record. One accuracy run goes over a real pty to
 ``armbench emulate --pty`` in real time.
 """

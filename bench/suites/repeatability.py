@@ -2,8 +2,7 @@
 
 Test cube (``cube_centre_m``, ``cube_side_m``) in the reachable workspace; P1 at its centre and
 P2..P5 on the diagonal plane ``plane`` at 10 % of the diagonal from its corners
-(:func:`armbench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the
-rated
+(:func:`armbench.metrics.iso_cube_poses`). At each speed of ``speeds_pct`` (percent of the rated
 joint speed; law (12) maps it to a duty, see
 :func:`armbench.bench.suites._common.duty_for_speed_pct`):
 

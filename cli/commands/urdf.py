@@ -3,8 +3,7 @@
 Built from the DH table and the robot settings (joint limits, link lengths) by
 :func:`armbench.drivers.model.urdf.robot_urdf`; the joint positions are the protocol angles the
 driver reports on ``/joint_states``. Written to ``--out`` (replaced atomically; an unwritable path
-is
-refused before anything is built, :mod:`armbench.bench.runner.outputs`) or printed.
+is refused before anything is built, :mod:`armbench.bench.runner.outputs`) or printed.
 """
 
 from __future__ import annotations

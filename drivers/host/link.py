@@ -3,8 +3,7 @@ reconnection, sending and waiting.
 
 One reader task per connection (or the transport's push callback, ``fake://``) hands each chunk to
 the sans-I/O :class:`~armbench.drivers.host.replies.ReplyStream`; the newest reply is ``state`` and
-is
-offered to the :class:`~armbench.drivers.host.waiters.Waiters`. Every wait reads time from the
+is offered to the :class:`~armbench.drivers.host.waiters.Waiters`. Every wait reads time from the
 running
 loop and waits with asyncio only, so the same code runs in real time on hardware and on virtual
 time against ``fake://``. The policies are documented in ``docs/driver.md``.
@@ -164,8 +163,7 @@ class ArmLink:
         """Open the transport, start the reader and wait for the first valid reply.
 
         Raises :class:`~armbench.drivers.model.errors.TransportError` if the port cannot be opened
-        and
-        :class:`ReplyTimeoutError` if no valid reply arrives within ``connect_timeout_s``;
+        and :class:`ReplyTimeoutError` if no valid reply arrives within ``connect_timeout_s``;
         either way everything opened is closed again.
         """
         if self._opened:

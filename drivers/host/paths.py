@@ -2,8 +2,7 @@
 the arm one waypoint ahead of its arrival.
 
 :meth:`~armbench.drivers.host.arm.Arm.follow_path` checks the options, plans with :func:`plan_path`
-and
-:func:`path_commands` (no I/O), moves to the start and hands over to :func:`stream_path`, which
+and :func:`path_commands` (no I/O), moves to the start and hands over to :func:`stream_path`, which
 sends each waypoint and waits with the shared
 :class:`~armbench.drivers.host.arrival.ArrivalTracker`. What it did comes back as a
 :class:`PathRun`.

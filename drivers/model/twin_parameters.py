@@ -10,8 +10,7 @@ is never fitted, and ``docs/robot-model.md``'s table is generated from it
 uses it (a field of ``JointPhysics``, ``ArmPhysics`` or ``GeometryError`` of the same name).
 
 Values are in the settings file's unit (``unit``: degrees for angles); the twin's attribute
-carries its own unit in its ``name`` (``backlash_rad``), and :meth:`TwinParameter.to_twin`
-converts.
+carries its own unit in its ``name`` (``backlash_rad``), and :meth:`TwinParameter.to_twin` converts.
 """
 
 from __future__ import annotations

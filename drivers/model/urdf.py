@@ -2,8 +2,7 @@
 
 The kinematic tree is the standard-DH chain of :mod:`armbench.drivers.model.kinematics`: joint
 ``j{i}`` (revolute, axis ``±z`` by the joint's ``sign``, origin turned by its ``offset_rad``) turns
-frame
-``link{i}_root`` in its parent (``base_link`` or ``link{i-1}``); DH frame ``i`` is the link
+frame ``link{i}_root`` in its parent (``base_link`` or ``link{i-1}``); DH frame ``i`` is the link
 ``link{i}``, fixed to the root by ``Tz(d_i)·Tx(a_i)·Rx(α_i)``. So a joint position is the
 protocol angle the driver reports (``JointState`` of ``/joint_states``) and the origin of
 ``link4`` is the TCP. Joint limits are the settings' (protocol convention); the velocity and

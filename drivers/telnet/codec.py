@@ -2,8 +2,7 @@
 
 Bytes in, events out; bytes to send queued for the caller. No sockets, no clocks, no tasks: the
 asyncio RFC 2217 client (:mod:`armbench.drivers.transports.rfc2217`) and the tests drive the same
-object,
-in the style of h11::
+object, in the style of h11::
 
     codec = TelnetCodec()
     codec.enable_local(COM_PORT_OPTION)       # queue IAC WILL COM-PORT-OPTION

@@ -12,8 +12,7 @@ acknowledges a different value than asked. Modem control (SET-CONTROL: DTR, RTS,
 never required: servers on ptys and cheap bridges refuse or ignore it, so it is not sent.
 
 All the protocol work is done by the sans-I/O :class:`~armbench.drivers.telnet.TelnetCodec`; this
-module
-only moves bytes. One background task reads the socket, feeds the codec, answers the server's
+module only moves bytes. One background task reads the socket, feeds the codec, answers the server's
 negotiation and buffers payload for :meth:`Rfc2217Transport.read` (at most ``max_buffer_bytes``;
 beyond that it stops reading and TCP pushes back). FLOWCONTROL-SUSPEND from the server makes
 :meth:`~Rfc2217Transport.write` wait for FLOWCONTROL-RESUME.

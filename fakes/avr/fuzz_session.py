@@ -7,8 +7,7 @@ every command the master took (time, command), its replies, when its receive buf
 and (firmware) the flash addresses it executed. :func:`divergences` compares two outcomes: the
 commands taken must be the same, in the same order; the replies must agree within the
 differential check's tolerances (``fakes/avr/differential.py``). What is compared, and what is
-excused,
-is in ``docs/fuzzing.md``.
+excused, is in ``docs/fuzzing.md``.
 
 A session's text form is the harness's script (``<seconds> @hex <bytes>``, ``<seconds> @power
 off|on``) after a ``# until <seconds>`` line, so a saved session is also a harness script.

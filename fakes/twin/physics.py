@@ -1,8 +1,7 @@
 """The mechanism under the firmware: gravity, compliance, gear play, step loss, kinematic error.
 
 The joint boards (``fakes/twin/joint.py``) run the firmware step-exactly; this module describes the
-arm
-they drive, as a physical object (``docs/robot-model.md`` gives every default and its source):
+arm they drive, as a physical object (``docs/robot-model.md`` gives every default and its source):
 
 * link masses and centres of mass plus a payload at the TCP give each joint's gravity torque at the
   current pose (:meth:`Mechanism.gravity_nm`, through the DH chain of

@@ -10,8 +10,7 @@ Hidden behaviour (``--gear-j3 38 --interval-ms 5 5 --drop 0`` is the plain arm):
 * ``--gear-j3``: joint 3's worm gear has another ratio than the nominal 38 (a 39.5 gear is
   3.9 % slower at every duty: a speed scale on one joint, nothing else changes);
 * ``--interval-ms LO HI``: the replies come every LO..HI ms (uniform, drawn per reply, seeded by
-  ``--seed``) instead of at a steady rate, as from a firmware whose loop time varies with its
-  work;
+  ``--seed``) instead of at a steady rate, as from a firmware whose loop time varies with its work;
 * ``--drop``: the share of replies that are never sent (a reply lost on a busy bus).
 
   python3 jitter_arm.py --tcp 127.0.0.1:5555 [--gear-j3 39.5] [--interval-ms 5 20] [--drop 0.02]
