@@ -9,8 +9,8 @@ port string                      transport
 ``rfc2217://HOST:PORT``          :class:`~armbench.drivers.transports.rfc2217.Rfc2217Transport`
                                  (telnet COM-PORT-OPTION, e.g. ser2net)
 ``fake://...``                   ``armbench.fakes.links.fake_transport:FakeTransport`` (the
-emulator,
-                                 in-process; it lives with the emulator, registered by name)
+                                 emulator, in-process; it lives with the emulator, found by its
+                                 entry point)
 ===============================  ==============================================================
 
 Transports are registered by scheme, as python-can registers its interfaces: each scheme is an

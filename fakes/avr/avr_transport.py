@@ -1,7 +1,7 @@
 """``avr://`` — the firmware in the loop: four simulated ATmega328P (simavr), on the run's virtual
 time or on a pty in real time.
 
-It lives with the emulators and is registered by name (the scheme ``avr``, see
+It lives with the emulators and is registered as the entry point of its scheme (``avr``, see
 :mod:`armbench.drivers.transports`), as ``fake://`` is: the driver never imports it.
 
 Opened on a :class:`~armbench.fakes.clock.vclock.VirtualTimeLoop` (a bench run, as ``fake://``), it

@@ -1,10 +1,10 @@
 """``fake://`` — the firmware emulator in this process, on the running event loop.
 
-It lives with the emulator and is registered by name (the scheme ``fake``, see
-:mod:`armbench.drivers.transports`): the driver reaches it through the registry and never imports
-it. Its target declares every capability (:mod:`armbench.drivers.transports.target`): the virtual
-clock, a fresh emulator per trial, worker processes, ground truth, its own power switch, faults
-and the I²C bus.
+It lives with the emulator and is registered as the entry point of its scheme (``fake``, see
+:mod:`armbench.drivers.transports`): the driver reaches it through that entry point and never
+imports it. Its target declares every capability (:mod:`armbench.drivers.transports.target`):
+the virtual clock, a fresh emulator per trial, worker processes, ground truth, its own power
+switch, faults and the I²C bus.
 
 ``fake://?seed=3&faults=faults.toml&settings=robot.toml&profile=ideal&payload=1.5``: the emulator
 is built from the robot settings file (defaults without one), its ``[emulator]`` table
