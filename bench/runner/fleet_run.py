@@ -175,6 +175,10 @@ class _Prefixed:
     def isatty() -> bool:
         return False
 
+    def __getattr__(self, name: str) -> object:
+        """How much to show (``verbosity``, ``interval_s``): the wrapped stream's to say."""
+        return getattr(self.stream, name)
+
 
 def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
     """The outcome of an arm whose run ended on an exception: its record as on disk."""

@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import IO, Any, cast
 
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_arms_sync
+from armbench.bench.runner.progress import PER_SUITE, PER_TRIAL, ProgressStream
 from armbench.bench.suites import suite_names
 from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.commands.fleet import fleet_summary
@@ -30,7 +31,7 @@ from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.verdict import EXIT_STATUS_EPILOG
 
-__all__ = ["register"]
+__all__ = ["progress_stream", "register"]
 
 
 def register(sub: Any) -> None:
@@ -142,13 +143,15 @@ def _run(args: argparse.Namespace) -> int:
         scheduler=args.scheduler, shard=args.shard, require=list(args.require),
         optional=list(args.optional), dut=args.dut,
         meta=tuple(args.meta))
+    level = args.verbose - args.quiet
     # each record is on disk: now its reports, while the run folder is still locked
-    result = run_arms_sync(options, progress=sys.stderr, then=lambda done: write_reports(
-        done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
+    result = run_arms_sync(options, progress=progress_stream(level), then=lambda done:
+                           write_reports(done.record, done.out_dir,
+                                         capture_max_bytes=done.capture_max_bytes))
     if result.fleet:
         fleet_summary(result)
     else:
-        _summary(result.only())
+        _summary(result.only(), verdict_only=level < 0)
     if args.summary is not None:
         for outcome in result.outcomes:
             if outcome is not None:
@@ -156,7 +159,16 @@ def _run(args: argparse.Namespace) -> int:
     return result.exit_status
 
 
-def _summary(outcome: RunOutcome) -> None:
+def progress_stream(level: int) -> IO[str] | None:
+    """The run's progress on stderr as the verbosity ``level`` (``-v`` minus ``-q``) asks: a
+    line per suite (0), a line per trial and every message (1 and more), nothing (below 0: the
+    verdict only)."""
+    if level < 0:
+        return None
+    return cast(IO[str], ProgressStream(sys.stderr, PER_TRIAL if level > 0 else PER_SUITE))
+
+
+def _summary(outcome: RunOutcome, *, verdict_only: bool = False) -> None:
     record = outcome.record
     out = sys.stdout
     notes = ([outcome.error] if outcome.error else []) + [
@@ -165,6 +177,9 @@ def _summary(outcome: RunOutcome) -> None:
         notes.append(f"warning: {disturbed}")
     print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
+    if verdict_only:
+        out.flush()
+        return
     for line in [*uncovered_lines(record), truth_line(record)]:
         print(f"  {line}", file=out)
     for suite in record.suites.values():
