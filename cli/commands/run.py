@@ -18,7 +18,9 @@ job's step summary (``docs/ci.md``).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from pathlib import Path
 from typing import IO, Any, cast
 
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_arms_sync
@@ -31,7 +33,10 @@ from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.verdict import EXIT_STATUS_EPILOG
 
-__all__ = ["progress_stream", "register"]
+__all__ = ["LATEST_LINK", "link_latest", "progress_stream", "register"]
+
+#: The link beside the default run folders to the newest one (``runs/latest``).
+LATEST_LINK = "latest"
 
 
 def register(sub: Any) -> None:
@@ -53,7 +58,12 @@ def register(sub: Any) -> None:
     p.add_argument("--config", metavar="FILE",
                    help="limits and suite parameters (default: the packaged default_bench.toml)")
     add_dut_arguments(p)
-    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
+    p.add_argument("--out", metavar="DIR",
+                   help="run directory (default runs/<run id>/, and runs/latest links to it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the run --out holds (its record, reports, capture and suite "
+                        "folders; nothing else in DIR is touched); without it such a DIR is "
+                        "refused")
     p.add_argument("--baseline", metavar="FILE",
                    help="results.json of an earlier run: fail on regressions against it (with "
                         "several --port: the folder of an earlier fleet run, each arm against "
@@ -135,6 +145,7 @@ def _run(args: argparse.Namespace) -> int:
         check_summary_file(args.summary)
     options = RunOptions(
         suites=list(args.suites), ports=list(args.port or ()), config=args.config, out=args.out,
+        overwrite=args.overwrite,
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
@@ -148,6 +159,8 @@ def _run(args: argparse.Namespace) -> int:
     result = run_arms_sync(options, progress=progress_stream(level), then=lambda done:
                            write_reports(done.record, done.out_dir,
                                          capture_max_bytes=done.capture_max_bytes))
+    if args.out is None and args.resume is None:
+        link_latest(result.out_dir)
     if result.fleet:
         fleet_summary(result)
     else:
@@ -157,6 +170,27 @@ def _run(args: argparse.Namespace) -> int:
             if outcome is not None:
                 step_summary(args.summary, outcome)
     return result.exit_status
+
+
+def link_latest(out_dir: Path) -> None:
+    """Point ``latest`` beside the new run folder ``out_dir`` (``runs/latest``) at it. A
+    ``latest`` that is not such a link (a file or folder of the user's, a link elsewhere) is
+    left as it is, with a warning; so is one the system cannot make (no symlinks)."""
+    latest = out_dir.parent / LATEST_LINK
+    if os.path.lexists(latest) and not (latest.is_symlink()
+                                        and Path(os.readlink(latest)).parent == Path()):
+        print(f"armbench run: warning: {latest} is not a link to a run: not updated",
+              file=sys.stderr)
+        return
+    temporary = out_dir.parent / f".{LATEST_LINK}.{os.getpid()}.tmp"
+    try:
+        temporary.unlink(missing_ok=True)
+        os.symlink(out_dir.name, temporary, target_is_directory=True)
+        os.replace(temporary, latest)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        print(f"armbench run: warning: {latest} not updated: {exc.strerror or exc}",
+              file=sys.stderr)
 
 
 def progress_stream(level: int) -> IO[str] | None:
