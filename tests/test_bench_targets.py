@@ -39,7 +39,7 @@ JOINTS_CONFIG = ('spec_version = "armbench-limits/1"\n[suites.joints]\njoints = 
     ("/dev/ttyUSB0", Capabilities()),
     ("socket://localhost:4001", Capabilities()),
     ("rfc2217://localhost:4001", Capabilities()),
-    ("labgrid://bench-3", Capabilities()),
+    ("labgrid://bench-3", Capabilities(power=True)),  # the place's power resource, if any
 ])
 def test_each_built_in_target_declares_what_it_can_do(port: str, expected: Capabilities) -> None:
     assert target_of(port).capabilities == expected

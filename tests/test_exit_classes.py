@@ -250,10 +250,10 @@ def _lose_after_first_trial(rig: Rig, args: list[str]) -> tuple[int, str]:
     """``armbench run`` in a process; once its first trial is done (its progress line), the
     link is taken away. The exit status and the run's output."""
     assert rig.lose is not None
-    proc = subprocess.Popen([sys.executable, "-m", "armbench", *args], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "-v", *args], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert proc.stdout is not None
-    lines: list[str] = []
+    lines: list[str] = []  # a line per trial (-v)
     deadline = time.monotonic() + RUN_DEADLINE_S
     try:
         while not any(f"trial 1/{MID_RUN_LAPS} done" in line for line in lines):

@@ -88,17 +88,31 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
             proc.wait()
 
 
+def start_coordinator(folder: Path, procs: list[subprocess.Popen[bytes]]) -> str:
+    """A labgrid coordinator on a free loopback port, added to ``procs``: its address."""
+    port = free_port()
+    coordinator = f"127.0.0.1:{port}"
+    procs.append(subprocess.Popen([_tool("labgrid-coordinator"), "--listen", coordinator],
+                                  cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    _wait(lambda: listening(port), "the coordinator listens")
+    return coordinator
+
+
+def start_exporter(folder: Path, coordinator: str, procs: list[subprocess.Popen[bytes]]) -> Lab:
+    """A labgrid exporter of ``folder/exporter.yaml`` as ``bench-pc``, added to ``procs``."""
+    procs.append(subprocess.Popen([_tool("labgrid-exporter"), "--coordinator", coordinator,
+                                   "--name", "bench-pc", "--hostname", "127.0.0.1",
+                                   str(folder / "exporter.yaml")], cwd=folder,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    return Lab(coordinator, folder)
+
+
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
     folder = tmp_path_factory.mktemp("lab")
     procs: list[subprocess.Popen[bytes]] = []
     try:
-        port = free_port()
-        coordinator = f"127.0.0.1:{port}"
-        procs.append(subprocess.Popen([_tool("labgrid-coordinator"), "--listen", coordinator],
-                                      cwd=folder, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.DEVNULL))
-        _wait(lambda: listening(port), "the coordinator listens")
+        coordinator = start_coordinator(folder, procs)
         config = []
         for name in ARMS:
             emulator = subprocess.Popen([sys.executable, "-m", "armbench", "emulate", "--pty"],
@@ -110,11 +124,7 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Lab]:
             assert device.startswith("/dev/pts/"), device
             config.append(f"{name}:\n  RawSerialPort:\n    port: {device}\n    speed: 115200\n")
         (folder / "exporter.yaml").write_text("".join(config), encoding="utf-8")
-        procs.append(subprocess.Popen([_tool("labgrid-exporter"), "--coordinator", coordinator,
-                                       "--name", "bench-pc", "--hostname", "127.0.0.1",
-                                       str(folder / "exporter.yaml")], cwd=folder,
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        the_lab = Lab(coordinator, folder)
+        the_lab = start_exporter(folder, coordinator, procs)
         _wait(lambda: all(f"bench-pc/{name}/NetworkSerialPort" in the_lab.client(
             "resources").stdout for name in ARMS), "the exporter publishes both serial ports")
         for name in ARMS:

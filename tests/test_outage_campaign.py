@@ -98,7 +98,7 @@ def _run_with_outage(tmp: Path, far: FarEnd, *, down_s: float | None,
     config = tmp / "two-laps.toml"
     config.write_text(TWO_LAPS.format(timeout_s=timeout_s))
     out = tmp / "run"
-    proc = subprocess.Popen([sys.executable, "-m", "armbench", "run", "accuracy", "--config",
+    proc = subprocess.Popen([sys.executable, "-m", "armbench", "-v", "run", "accuracy", "--config",
                              str(config), "--port", far.port, "--out", str(out), "--seed", "3"],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)

@@ -50,8 +50,9 @@ def _bench(*args: str, cwd: Path = ROOT, env: dict[str, str] | None = None
 
 
 def _start(*args: str) -> subprocess.Popen[str]:
-    """A run in a process group of its own (its worker processes with it)."""
-    return subprocess.Popen([sys.executable, "-m", "armbench", *args], cwd=ROOT, text=True,
+    """A run in a process group of its own (its worker processes with it), showing a line per
+    trial (``-v``: what the test waits for)."""
+    return subprocess.Popen([sys.executable, "-m", "armbench", "-v", *args], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(),
                             start_new_session=True)
 

@@ -193,14 +193,16 @@ def lay_out(options: RunOptions) -> RunLayout:
     """The arms ``options`` name and where each writes (see the module docstring); a name, a
     port or a folder that cannot be is refused (:class:`ArmbenchError`), nothing is made."""
     _check_text_inputs(options)
+    if options.overwrite and (options.out is None or options.resume is not None):
+        raise ArmbenchError("--overwrite replaces the run in --out: give --out (and no --resume)")
     if options.resume is not None:
         return _resumed(options, Path(options.resume))
     run_id = new_run_id()
     out_dir = Path(options.out) if options.out is not None else Path(options.runs_root) / run_id
     flag = "--out" if options.out is not None else "run folder"
-    if (out_dir / FLEET_FILE).exists():
-        raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; resume it (--resume) "
-                            "or choose another --out")
+    if (out_dir / FLEET_FILE).exists() and not options.overwrite:
+        raise ArmbenchError(f"--out {out_dir}: already holds a fleet run; resume it (--resume), "
+                            "replace it (--overwrite) or choose another --out")
     if len(options.ports) <= 1:  # one arm, the run folder its own: it needs no name
         port = _split(options.ports[0])[1] if options.ports else "fake://"
         baseline = None if options.baseline is None else Path(options.baseline)

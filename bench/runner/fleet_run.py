@@ -47,6 +47,7 @@ from armbench.bench.runner.options import (
     RunOptions,
     RunOutcome,
 )
+from armbench.bench.runner.overwrite import remove_earlier_run
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.probe import probe_arms, probe_arms_sync
 from armbench.drivers.model.errors import ArmbenchError
@@ -130,11 +131,15 @@ def _plan(options: RunOptions) -> _Planned:
     return _Planned(layout, plans)
 
 
-def _begin(planned: _Planned) -> None:
-    """Make the run's folder (when new) and, for a fleet, its index before any arm starts."""
+def _begin(planned: _Planned, held: contextlib.ExitStack, *, overwrite: bool) -> None:
+    """Make the run's folder (when new) and lock it (held by ``held``), remove the run it
+    holds (``overwrite``) and, for a fleet, write its index before any arm starts."""
     layout = planned.layout
     if planned.plans[0].resume is None:
         make_directory(layout.out_dir, layout.out_flag)
+    held.enter_context(hold_run_folder(layout.out_dir))
+    if overwrite:
+        remove_earlier_run(layout.out_dir)
     if layout.fleet:
         _write_index(planned, [_ArmEnd(None, None)] * len(planned.plans), None)
 
@@ -174,6 +179,10 @@ class _Prefixed:
     @staticmethod
     def isatty() -> bool:
         return False
+
+    def __getattr__(self, name: str) -> object:
+        """How much to show (``verbosity``, ``interval_s``): the wrapped stream's to say."""
+        return getattr(self.stream, name)
 
 
 def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
@@ -244,8 +253,7 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
             held.enter_context(hold_run_folder(options.resume))
         planned = _plan(options)
         probe_arms_sync(planned.plans)  # every arm answers before the run's folder is made
-        _begin(planned)
-        held.enter_context(hold_run_folder(planned.layout.out_dir))
+        _begin(planned, held, overwrite=options.overwrite)
         main = _run_all(planned, progress, emulator_factory)
         try:
             if all(plan.target.virtual for plan in planned.plans):
@@ -271,8 +279,8 @@ async def run_arms(options: RunOptions, *, progress: IO[str] | None = None,
     propagates :class:`asyncio.CancelledError`, each record keeping its finished trials."""
     planned = _plan(options)
     await probe_arms(planned.plans)
-    _begin(planned)
-    with hold_run_folder(planned.layout.out_dir):
+    with contextlib.ExitStack() as held:
+        _begin(planned, held, overwrite=options.overwrite)
         return _finish(planned, await _run_all(planned, progress, emulator_factory))
 
 

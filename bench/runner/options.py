@@ -118,6 +118,9 @@ class RunOptions:
     """Limits file (``bench.toml``); None: the packaged ``record/default_bench.toml``."""
     out: str | Path | None = None
     """Run directory; None: ``<runs_root>/<run id>``."""
+    overwrite: bool = False
+    """Replace the run ``out`` holds (:mod:`~armbench.bench.runner.overwrite`); else a folder
+    that holds one is refused."""
     runs_root: str | Path = "runs"
     baseline: str | Path | None = None
     resume: str | Path | None = None

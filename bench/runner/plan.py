@@ -37,6 +37,7 @@ from armbench.bench.runner.options import (
     PlannedSuite,
     RunOptions,
 )
+from armbench.bench.runner.overwrite import check_overwrite
 from armbench.bench.runner.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
 from armbench.bench.runner.required import required_of
 from armbench.bench.runner.truth import load_tracker
@@ -422,9 +423,12 @@ def prepare(options: RunOptions, arm: ArmRun | None = None) -> BenchPlan:
         resume = read_record(path_inside(arm.resume, RESULTS_FILE))
         info = _load_runner_info(arm.resume)
     else:
-        if (arm.out / RESULTS_FILE).exists():
+        if options.overwrite:
+            check_overwrite(arm.out)
+        elif (arm.out / RESULTS_FILE).exists():
             raise RecordError(str(arm.out / RESULTS_FILE), "already holds a run record; resume "
-                                                           "it (--resume) or choose another --out")
+                                                           "it (--resume), replace it "
+                                                           "(--overwrite) or choose another --out")
         check_directory_writable(arm.out, "--out" if options.out is not None else "run folder")
     env = None if resume is None else resume.environment
     target = _check_port(arm.port or (env.port if env is not None and env.port else None)

@@ -8,7 +8,8 @@ Four implementations of :class:`~armbench.bench.suites.base.PowerSwitch`:
   ``power on``), in real time;
 - :class:`CommandPower` — hardware with a relay: runs a configured command for "off" and one for
   "on" (``--power-command "relay off" "relay on"``), each with a timeout; a non-zero exit status,
-  a timeout or a missing program raise :class:`PowerError`;
+  a timeout or a missing program raise :class:`PowerError`. A ``labgrid://`` place with a power
+  resource names its own commands (labgrid's client switching it, :func:`place_power`);
 - :class:`ManualPower` — hardware without a relay: prints a prompt for the operator and waits
   for Enter (``--power-manual``).
 
@@ -40,11 +41,15 @@ __all__ = [
     "ManualPower",
     "PowerError",
     "parse_command",
+    "place_power",
     "port_power",
 ]
 
 #: How long a power command may run before it is killed and the switch fails (s).
 DEFAULT_COMMAND_TIMEOUT_S = 10.0
+#: How long a place's power command may run (s): labgrid's client starts a Python and a gRPC
+#: session for each switch.
+PLACE_POWER_TIMEOUT_S = 60.0
 #: How much of a failing command's output the error message quotes (characters).
 _OUTPUT_TAIL = 400
 
@@ -168,10 +173,11 @@ class HarnessPower:
         return "HarnessPower()"
 
 
-def port_power(source: Any) -> EmulatorPower | HarnessPower | None:
+def port_power(source: Any) -> EmulatorPower | HarnessPower | CommandPower | None:
     """The power switch the port behind ``source`` (an arm, a transport, an emulator) has of its
-    own: the emulator's on ``fake://``, the firmware harness's on ``avr://``; None for hardware,
-    whose power needs a relay command or the operator."""
+    own: the emulator's on ``fake://``, the firmware harness's on ``avr://``, the place's power
+    resource on ``labgrid://`` (the commands its transport names, :func:`place_power`); None
+    for other hardware, whose power needs a relay command or the operator."""
     if (callable(getattr(source, "power_off", None))
             or (isinstance(source, EmulatedTarget) and source.emulator is not None)):
         return EmulatorPower(source)
@@ -179,7 +185,23 @@ def port_power(source: Any) -> EmulatorPower | HarnessPower | None:
         harness = _harness_of(source)
     except ArmbenchError:
         return None
-    return None if harness is None else HarnessPower(source)
+    return HarnessPower(source) if harness is not None else place_power(source)
+
+
+def place_power(source: Any) -> CommandPower | None:
+    """The power switch of a lab's place behind ``source`` (an arm or its transport): a
+    transport that can switch its arm's power names the commands (``power_commands()``:
+    ``labgrid://`` with a power resource); None where none does."""
+    holders = [source]
+    with contextlib.suppress(AttributeError, ArmbenchError):  # no transport, or a closed arm
+        holders.append(source.transport)
+    for holder in holders:
+        commands = getattr(holder, "power_commands", None)
+        found = commands() if callable(commands) else None
+        if found is not None:
+            off, on = found
+            return CommandPower(off, on, timeout_s=PLACE_POWER_TIMEOUT_S)
+    return None
 
 
 def parse_command(command: str | Sequence[str], what: str) -> list[str]:

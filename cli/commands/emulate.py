@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import logging
 import sys
+from collections.abc import Callable
 from typing import Any
 
 from armbench.cli.commands.bounds import DURATION_S, TIMEOUT_S, add_bounded
@@ -17,6 +18,7 @@ from armbench.fakes.firmware.arm_emulator import ArmEmulator
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.links.fake_transport import FakeTransport
 from armbench.fakes.links.pty_link import require_pty
+from armbench.fakes.links.relay import RelayServer
 from armbench.fakes.links.serve import PtyServer, TcpServer, parse_host_port, real_time_loop
 from armbench.fakes.links.signals import stop_on_signals
 from armbench.frontends.foxglove.live import (
@@ -57,6 +59,10 @@ def register(sub: Any) -> None:
                 help="stop after S seconds (default: until Ctrl-C)")
     add_bounded(p, "--idle-timeout", TIMEOUT_S, default=300.0, metavar="S",
                 help="with --tcp: disconnect a client silent for S seconds (default 300)")
+    p.add_argument("--relay", metavar="HOST:PORT",
+                   help="serve an HTTP power relay switching the emulated arm's power line "
+                        "(labgrid simplerest: /relay/0/0 off, /relay/0/1 on; Tasmota: "
+                        "/cm?cmnd=Power%%20Off); loopback unless --allow-remote")
     p.add_argument("--foxglove", nargs="?", const=DEFAULT_ENDPOINT, metavar="HOST:PORT",
                    help="serve the joint stream (reported and true) to Foxglove over WebSocket "
                         f"(default {DEFAULT_ENDPOINT}: loopback unless a host is given)")
@@ -84,7 +90,14 @@ def _run(args: argparse.Namespace) -> int:
         warning = check_bind("--tcp", host_port[0], args.allow_remote, "move the arm")
         if warning is not None:
             print(f"armbench emulate: {warning}", file=sys.stderr, flush=True)
+    relay = parse_host_port(args.relay) if args.relay else None
+    if relay is not None:
+        warning = check_bind("--relay", relay[0], args.allow_remote, "switch the arm's power")
+        if warning is not None:
+            print(f"armbench emulate: {warning}", file=sys.stderr, flush=True)
     if args.firmware is not None:
+        if relay is not None:
+            raise ArmbenchError("--relay: only with the Python emulator (not --firmware)")
         if args.faults or args.seed is not None:
             raise ArmbenchError("--firmware: --faults and --seed apply to the Python emulator")
         asyncio.run(serve_firmware(robot, args.firmware, args, host_port))
@@ -94,12 +107,23 @@ def _run(args: argparse.Namespace) -> int:
             live_view(args.foxglove, robot, name="emulate", announce=sys.stdout,
                       allow_remote=args.allow_remote) as live:
         follow_emulator(live, arm)
-        runner.run(_serve(arm, args, host_port))
+        runner.run(_serve(arm, args, host_port, relay))
     return 0
 
 
+def _switch(arm: ArmEmulator) -> Callable[[bool], None]:
+    def switch(on: bool) -> None:
+        if on and not arm.powered:
+            arm.power_on()
+        elif not on and arm.powered:
+            arm.power_off()
+        log.info("relay: power %s", "on" if on else "off")
+
+    return switch
+
+
 async def _serve(arm: ArmEmulator, args: argparse.Namespace,
-                 host_port: tuple[str, int] | None) -> None:
+                 host_port: tuple[str, int] | None, relay: tuple[str, int] | None) -> None:
     stop = asyncio.Event()
     server: PtyServer | TcpServer
     if host_port is None:
@@ -115,12 +139,24 @@ async def _serve(arm: ArmEmulator, args: argparse.Namespace,
             raise ArmbenchError(f"--tcp: cannot serve on {args.tcp}: "
                                 f"{exc.strerror or exc}") from None
         print(f"armbench emulate: serving the arm on socket://{host}:{port}", flush=True)
+    relay_server = None
     try:
+        if relay is not None:  # after the arm's line: scripts read that one first
+            relay_server = RelayServer(lambda: arm.powered, _switch(arm), *relay)
+            try:
+                where = await relay_server.start()
+            except OSError as exc:
+                raise ArmbenchError(f"--relay: cannot serve on {args.relay}: "
+                                    f"{exc.strerror or exc}") from None
+            print(f"armbench emulate: power relay on http://{where[0]}:{where[1]}/relay/0 "
+                  "(0 off, 1 on)", flush=True)
         with stop_on_signals(stop), contextlib.suppress(TimeoutError):
             async with asyncio.timeout(args.duration):
                 await stop.wait()
     finally:
         await server.close()
+        if relay_server is not None:
+            await relay_server.close()
         stats = arm.stats()
         overrun = (server.receive.overrun_bytes if isinstance(server, PtyServer)
                    else server.overrun_bytes)

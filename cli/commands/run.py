@@ -18,10 +18,13 @@ job's step summary (``docs/ci.md``).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
-from typing import Any
+from pathlib import Path
+from typing import IO, Any, cast
 
 from armbench.bench.runner import JUNIT_FILE, RunOptions, RunOutcome, run_arms_sync
+from armbench.bench.runner.progress import PER_SUITE, PER_TRIAL, ProgressStream
 from armbench.bench.suites import suite_names
 from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.commands.fleet import fleet_summary
@@ -30,7 +33,10 @@ from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.verdict import EXIT_STATUS_EPILOG
 
-__all__ = ["register"]
+__all__ = ["LATEST_LINK", "link_latest", "progress_stream", "register"]
+
+#: The link beside the default run folders to the newest one (``runs/latest``).
+LATEST_LINK = "latest"
 
 
 def register(sub: Any) -> None:
@@ -52,7 +58,12 @@ def register(sub: Any) -> None:
     p.add_argument("--config", metavar="FILE",
                    help="limits and suite parameters (default: the packaged default_bench.toml)")
     add_dut_arguments(p)
-    p.add_argument("--out", metavar="DIR", help="run directory (default runs/<run id>/)")
+    p.add_argument("--out", metavar="DIR",
+                   help="run directory (default runs/<run id>/, and runs/latest links to it)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the run --out holds (its record, reports, capture and suite "
+                        "folders; nothing else in DIR is touched); without it such a DIR is "
+                        "refused")
     p.add_argument("--baseline", metavar="FILE",
                    help="results.json of an earlier run: fail on regressions against it (with "
                         "several --port: the folder of an earlier fleet run, each arm against "
@@ -134,6 +145,7 @@ def _run(args: argparse.Namespace) -> int:
         check_summary_file(args.summary)
     options = RunOptions(
         suites=list(args.suites), ports=list(args.port or ()), config=args.config, out=args.out,
+        overwrite=args.overwrite,
         baseline=args.baseline, resume=args.resume, seed=args.seed, settings=args.settings,
         faults=args.faults, tracker=args.tracker,
         power_command=tuple(args.power_command) if args.power_command else None,
@@ -142,13 +154,17 @@ def _run(args: argparse.Namespace) -> int:
         scheduler=args.scheduler, shard=args.shard, require=list(args.require),
         optional=list(args.optional), dut=args.dut,
         meta=tuple(args.meta))
+    level = args.verbose - args.quiet
     # each record is on disk: now its reports, while the run folder is still locked
-    result = run_arms_sync(options, progress=sys.stderr, then=lambda done: write_reports(
-        done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes))
+    result = run_arms_sync(options, progress=progress_stream(level), then=lambda done:
+                           write_reports(done.record, done.out_dir,
+                                         capture_max_bytes=done.capture_max_bytes))
+    if args.out is None and args.resume is None:
+        link_latest(result.out_dir)
     if result.fleet:
         fleet_summary(result)
     else:
-        _summary(result.only())
+        _summary(result.only(), verdict_only=level < 0)
     if args.summary is not None:
         for outcome in result.outcomes:
             if outcome is not None:
@@ -156,7 +172,37 @@ def _run(args: argparse.Namespace) -> int:
     return result.exit_status
 
 
-def _summary(outcome: RunOutcome) -> None:
+def link_latest(out_dir: Path) -> None:
+    """Point ``latest`` beside the new run folder ``out_dir`` (``runs/latest``) at it. A
+    ``latest`` that is not such a link (a file or folder of the user's, a link elsewhere) is
+    left as it is, with a warning; so is one the system cannot make (no symlinks)."""
+    latest = out_dir.parent / LATEST_LINK
+    if os.path.lexists(latest) and not (latest.is_symlink()
+                                        and Path(os.readlink(latest)).parent == Path()):
+        print(f"armbench run: warning: {latest} is not a link to a run: not updated",
+              file=sys.stderr)
+        return
+    temporary = out_dir.parent / f".{LATEST_LINK}.{os.getpid()}.tmp"
+    try:
+        temporary.unlink(missing_ok=True)
+        os.symlink(out_dir.name, temporary, target_is_directory=True)
+        os.replace(temporary, latest)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        print(f"armbench run: warning: {latest} not updated: {exc.strerror or exc}",
+              file=sys.stderr)
+
+
+def progress_stream(level: int) -> IO[str] | None:
+    """The run's progress on stderr as the verbosity ``level`` (``-v`` minus ``-q``) asks: a
+    line per suite (0), a line per trial and every message (1 and more), nothing (below 0: the
+    verdict only)."""
+    if level < 0:
+        return None
+    return cast(IO[str], ProgressStream(sys.stderr, PER_TRIAL if level > 0 else PER_SUITE))
+
+
+def _summary(outcome: RunOutcome, *, verdict_only: bool = False) -> None:
     record = outcome.record
     out = sys.stdout
     notes = ([outcome.error] if outcome.error else []) + [
@@ -165,6 +211,9 @@ def _summary(outcome: RunOutcome) -> None:
         notes.append(f"warning: {disturbed}")
     print(f"run {record.run_id}: verdict {record.verdict} (exit {outcome.exit_status})"
           + (f" ({'; '.join(notes)})" if notes else ""), file=out)
+    if verdict_only:
+        out.flush()
+        return
     for line in [*uncovered_lines(record), truth_line(record)]:
         print(f"  {line}", file=out)
     for suite in record.suites.values():

@@ -1,4 +1,5 @@
-"""The armbench pytest plugin's fixtures and hooks: bench tests in plain pytest, into a run record.
+"""The armbench pytest plugin's record: bench tests in plain pytest, into a run record (the
+``arm`` fixture is :mod:`armbench.cli.plugin.pytest_arm`'s).
 
 Loaded by :mod:`armbench.cli.plugin.pytest_plugin` (the ``pytest11`` entry point) when
 pytest-asyncio is installed; the options, the fixtures and the record are described there.
@@ -6,18 +7,15 @@ pytest-asyncio is installed; the options, the fixtures and the record are descri
 
 from __future__ import annotations
 
-import asyncio
-import inspect
 import os
 import re
 import shutil
-from collections.abc import AsyncIterator, Callable, Generator, Mapping, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 import pytest
-import pytest_asyncio
 
 from armbench.cli.plugin.pytest_plugin import (
     CONFIG_OPTION,
@@ -29,8 +27,7 @@ from armbench.cli.plugin.pytest_plugin import (
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.numbers import finite_float
 from armbench.drivers.model.settings import RobotSettings
-from armbench.drivers.transports.base import emulated
-from armbench.drivers.transports.capabilities import ArmInputs, FreshArm
+from armbench.drivers.transports.capabilities import ArmInputs
 from armbench.drivers.transports.target import Target, given_by, target_of
 from armbench.record import (
     RESULTS_FILE,
@@ -54,10 +51,10 @@ __all__ = [
     "SUITE_NAME",
     "BenchSession",
     "BenchTrial",
-    "arm",
     "arm_port",
     "arm_settings",
     "bench_record",
+    "bench_session",
     "record_measurement",
 ]
 
@@ -100,6 +97,10 @@ class BenchSession:
         self.out_dir = out_dir
         self.writer: RecordWriter | None = None
         self._next_index = 0
+        self.arms_opened = 0
+        """Connections the ``arm`` fixture opened (one per test, module or session)."""
+        self.arm_tests = 0
+        """Tests that used the ``arm`` fixture."""
         if out_dir is None:
             return
         results = out_dir / RESULTS_FILE
@@ -142,12 +143,13 @@ class BenchSession:
         if self.writer is not None:
             self.writer.add_trial(SUITE_NAME, trial)
 
-    def capture_path(self, trial: BenchTrial) -> Path | None:
-        """Where the ``arm`` fixture of ``trial`` writes its traffic capture (with a record)."""
+    def capture_path(self, name: str) -> Path | None:
+        """Where an arm writes its traffic capture with a record: ``captures/<name>.jsonl``
+        (a test's arm ``NNNN-<test>``, a shared one ``session`` or ``module-<module>``)."""
         if self.writer is None:
             return None
-        name = _UNSAFE.sub("_", trial.test_name).strip("_")[:80] or "test"
-        path = self.writer.artifact_path(Path("captures") / f"{trial.index:04d}-{name}.jsonl")
+        name = _UNSAFE.sub("_", name).strip("_")[:80] or "test"
+        path = self.writer.artifact_path(Path("captures") / f"{name}.jsonl")
         path.parent.mkdir(parents=True, exist_ok=True)
         return path
 
@@ -198,8 +200,20 @@ def summarize(trials: Sequence[Trial], limits: LimitsConfig | None) -> list[Meas
     return out
 
 
-def _session(config: pytest.Config) -> BenchSession:
+@overload
+def bench_session(config: pytest.Config) -> BenchSession: ...
+
+
+@overload
+def bench_session(config: pytest.Config, *, create: bool) -> BenchSession | None: ...
+
+
+def bench_session(config: pytest.Config, *, create: bool = True) -> BenchSession | None:
+    """The session's bench: made on first use from the options (a bad one is a usage error);
+    None before that when not ``create``."""
     session = config.stash.get(_SESSION_KEY, None)
+    if session is None and not create:
+        return None
     if session is None:
         port = str(config.getoption(PORT_OPTION))
         settings_path = config.getoption(SETTINGS_OPTION)
@@ -314,13 +328,13 @@ def _limit(name: str, unit: str, spec: LimitSpec) -> Limit | None:
 @pytest.fixture(scope="session")
 def arm_port(pytestconfig: pytest.Config) -> str:
     """The ``--arm-port`` of the session (default ``fake://``)."""
-    return _session(pytestconfig).port
+    return bench_session(pytestconfig).port
 
 
 @pytest.fixture(scope="session")
 def arm_settings(pytestconfig: pytest.Config) -> RobotSettings:
     """The robot settings of the session (``--arm-settings``, else the defaults)."""
-    return _session(pytestconfig).settings
+    return bench_session(pytestconfig).settings
 
 
 @pytest.fixture
@@ -330,7 +344,7 @@ def bench_record(request: pytest.FixtureRequest) -> BenchTrial:
     existing: BenchTrial | None = node.stash.get(_TRIAL_KEY, None)
     if existing is not None:
         return existing
-    trial = _session(request.config).new_trial(node.nodeid, node.name)
+    trial = bench_session(request.config).new_trial(node.nodeid, node.name)
     trial.params["test"] = node.nodeid
     node.stash[_TRIAL_KEY] = trial
     return trial
@@ -343,91 +357,15 @@ def record_measurement(bench_record: BenchTrial) -> Callable[..., Measurement]:
     return bench_record.measure
 
 
-@pytest_asyncio.fixture
-async def arm(request: pytest.FixtureRequest, bench_record: BenchTrial) -> AsyncIterator[Any]:
-    """A connected :class:`~armbench.drivers.host.arm.Arm` on ``--arm-port``, closed after the test.
-    On a target that starts fresh arms (``fake://``) a new one per test, built from the session's
-    settings, seed and faults (``--arm-settings`` over the port's query over the settings file);
-    its traffic capture goes to ``DIR/captures/`` with ``--arm-record``."""
-    from armbench.drivers.host.arm import Arm
-
-    session = _session(request.config)
-    port = session.port
-    transport = None
-    if session.target.capabilities.fresh_per_trial:
-        inputs = session.inputs
-        transport = session.target.fresh(session.settings.serial, FreshArm(
-            session.settings, inputs.seed if inputs.seed is not None else 0, inputs.faults))
-    emulator = emulated(transport)
-    connection = Arm.connect(port, session.settings, capture=session.capture_path(bench_record),
-                             transport=transport)
-    try:
-        async with connection as connected:
-            yield connected
-    finally:
-        emulator = emulated(transport) or emulator
-        if emulator is not None:
-            await emulator.close()
-
-
-
 # --------------------------------------------------------------------------------------------
 # Hooks
 # --------------------------------------------------------------------------------------------
 
 
 def configure(config: pytest.Config) -> None:
-    """Set up for a session; called by the entry point once this module is registered (its
-    ``pytest_configure`` hook would run too late to register the loop factories)."""
-    if config.pluginmanager.has_plugin("asyncio") and hasattr(
-            config.hook, "pytest_asyncio_loop_factories"):
-        config.pluginmanager.register(_VirtualLoops(), "armbench-virtual-loops")
+    """Set up for a session; called by the entry point once this module is registered."""
     if config.getoption(RECORD_OPTION, None):
-        _session(config)  # fail now on a bad option or a directory that holds a record
-
-
-class _VirtualLoops:
-    """Runs tests that use the ``arm`` fixture on a virtual-time loop when the port's target runs
-    on the virtual clock, as ``fake://`` does (pytest-asyncio ≥ 1.4). Every other async test gets
-    the default loop, exactly as without this plugin. ``trylast``: a project's own implementation
-    of the hook wins."""
-
-    @pytest.hookimpl(trylast=True)
-    def pytest_asyncio_loop_factories(self, config: pytest.Config,
-                                      item: pytest.Item) -> Mapping[str, Callable[[], Any]]:
-        names = getattr(item, "fixturenames", ())
-        if "arm" in names and _virtual(str(config.getoption(PORT_OPTION))):
-            from armbench.fakes.clock.vclock import virtual_loop_factory
-
-            return {"virtual_time": virtual_loop_factory}
-        return {"asyncio": asyncio.new_event_loop}
-
-
-def _virtual(port: str) -> bool:
-    """Whether ``port``'s target runs on the virtual clock (False for a port that names no
-    target: the ``arm`` fixture reports it)."""
-    try:
-        return target_of(port).virtual
-    except ArmbenchError:
-        return False
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_pycollect_makeitem(collector: pytest.Collector, name: str, obj: object) -> None:
-    """Mark an ``async def`` test that takes the ``arm`` fixture ``asyncio``, so that bench tests
-    run whatever the project's ``asyncio_mode`` (strict by default: unmarked async tests would
-    fail as "not natively supported"). Runs before pytest-asyncio turns the function into a
-    test item; anything else is left as it is."""
-    if not (inspect.iscoroutinefunction(obj) and isinstance(collector, pytest.Class | pytest.Module)
-            and collector.funcnamefilter(name)):
-        return
-    try:
-        takes_arm = "arm" in inspect.signature(obj).parameters
-    except (TypeError, ValueError):
-        return
-    marks = getattr(obj, "pytestmark", [])
-    if takes_arm and not any(getattr(m, "name", None) == "asyncio" for m in marks):
-        pytest.mark.asyncio(obj)
+        bench_session(config)  # fail now on a bad option or a directory that holds a record
 
 
 @pytest.hookimpl(wrapper=True)
@@ -454,7 +392,7 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]
 
 
 def _finish_trial(item: pytest.Item, trial: BenchTrial, teardown: pytest.TestReport) -> None:
-    session = _session(item.config)
+    session = bench_session(item.config)
     main = item.stash.get(_CALL_KEY, None)
     exc = item.stash.get(_EXC_KEY, None)
     if main is None or main.skipped or hasattr(main, "wasxfail"):

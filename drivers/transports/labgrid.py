@@ -17,6 +17,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import os
+import sys
 import threading
 import time
 from typing import Any, ClassVar
@@ -34,10 +35,11 @@ from armbench.drivers.model.errors import (
 from armbench.drivers.model.peer_text import peer_str
 from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import Transport
+from armbench.drivers.transports.capabilities import Capabilities
 from armbench.drivers.transports.url_parts import PART_CHARS, split_port
 
-__all__ = ["COORDINATOR_ENV", "DEFAULT_COORDINATOR_PORT", "LabgridClient", "LabgridPlace",
-           "LabgridTransport", "parse_labgrid_url"]
+__all__ = ["COORDINATOR_ENV", "DEFAULT_COORDINATOR_PORT", "POWER_RESOURCES", "LabgridClient",
+           "LabgridPlace", "LabgridTransport", "parse_labgrid_url"]
 
 #: Where labgrid's tools read the coordinator's address from.
 COORDINATOR_ENV = "LG_COORDINATOR"
@@ -51,6 +53,11 @@ COORDINATOR_RETRY_S = 0.5
 LABGRID_FORM = "labgrid://PLACE[?coordinator=HOST:PORT]"
 #: The resource class of a serial port an exporter serves over the network.
 SERIAL_RESOURCE = "NetworkSerialPort"
+#: The resource classes that switch a place's power, as ``labgrid-client power`` drives them:
+#: a network PDU or relay (``NetworkPowerPort``: simplerest, Tasmota's HTTP and many more
+#: models), PDUDaemon, a USB hub port (uhubctl), SiS-PM, Tasmota over MQTT, YKUSH.
+POWER_RESOURCES = ("NetworkPowerPort", "PDUDaemonPort", "NetworkUSBPowerPort",
+                   "NetworkSiSPMPowerPort", "TasmotaPowerPort", "NetworkYKUSHPowerPort")
 
 
 def parse_labgrid_url(port: str) -> tuple[str, str]:
@@ -174,6 +181,9 @@ class LabgridPlace:
         self.place = place
         self.client = client
         self.acquired = False
+        self.power: str | None = None
+        """The name of the place's power resource (the first of :data:`POWER_RESOURCES`
+        available), once acquired; None when it has none."""
 
     def acquire(self) -> tuple[str, str, int]:
         """Acquire the place; ``(protocol, host, tcp_port)`` of its serial port. On any error
@@ -212,6 +222,8 @@ class LabgridPlace:
 
     def _serial_port(self, session: Any, place: Any) -> tuple[str, str, int]:
         resources = session.get_target_resources(place)
+        self.power = next((name for (name, cls), r in sorted(resources.items())
+                           if cls in POWER_RESOURCES and r.avail), None)
         serial = [r for (_, cls), r in sorted(resources.items()) if cls == SERIAL_RESOURCE]
         available = [r for r in serial if r.avail]
         if not available:
@@ -246,12 +258,19 @@ class LabgridTransport(Transport):
         place, _ = parse_labgrid_url(port)
         return place
 
+    @classmethod
+    def capabilities(cls, port: str) -> Capabilities:
+        """Hardware's, with a power switch of its own where the place has a power resource
+        (:meth:`power_commands`; the bench finds none on a place without one)."""
+        return Capabilities(power=True)
+
     def __init__(self, port: str, serial: SerialSettings) -> None:
         super().__init__(port, serial)
         self.place_name, self.coordinator = parse_labgrid_url(port)
         self.inner: Transport | None = None
         """The transport to the place's serial port, once open."""
         self._place: LabgridPlace | None = None
+        self._power: str | None = None
 
     @property
     def is_open(self) -> bool:
@@ -283,6 +302,7 @@ class LabgridTransport(Transport):
             raise
         from armbench.drivers.transports import transport_class
 
+        self._power = place.power
         scheme = "rfc2217" if protocol == "rfc2217" else "socket"
         inner = transport_class(f"{scheme}://{host}:{tcp_port}")(
             f"{scheme}://{host}:{tcp_port}", self.serial)
@@ -292,6 +312,17 @@ class LabgridTransport(Transport):
         except BaseException:
             await self.close()
             raise
+
+    def power_commands(self) -> tuple[list[str], list[str]] | None:
+        """The commands that cut and restore the arm's power through the place's own power
+        resource, as labgrid's client does it (``labgrid-client -p PLACE power off|on -n
+        NAME``, run by this Python: the place is acquired by this user on this host, which the
+        client checks); None when the place, as last acquired, has no power resource."""
+        if self._power is None:
+            return None
+        base = [sys.executable, "-m", "labgrid.remote.client", "-x", self.coordinator,
+                "-p", self.place_name, "power"]
+        return [*base, "off", "-n", self._power], [*base, "on", "-n", self._power]
 
     def _open_inner(self) -> Transport:
         if self.inner is None:

@@ -13,8 +13,10 @@ target                 clock   fresh  parallel  truth  power  faults  I²C bus
 serial device          real    no     no        no     no     no      no
 ``socket://``          real    no     no        no     no     no      no
 ``rfc2217://``         real    no     no        no     no     no      no
-``labgrid://``         real    no     no        no     no     no      no
+``labgrid://``         real    no     no        no     place  no      no
 =====================  ======  =====  ========  =====  =====  ======  =======
+
+``place``: the place's power resource, where it has one (``LabgridTransport.power_commands``).
 
 A transport class declares its target's capabilities by overriding the class methods of
 :class:`~armbench.drivers.transports.base.Transport`:
