@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
+import time
 from typing import Any
 
 from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, Bound, add_bounded
@@ -77,6 +78,49 @@ def register(sub: Any) -> None:
     add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
                 help="hold the arm and report it silent after S s without a reply")
     p.set_defaults(func=_run)
+    actions = p.add_subparsers(dest="ros2_action", metavar="{build-msgs,env}",
+                               help="without one: serve the arm")
+    b: argparse.ArgumentParser = actions.add_parser(
+        "build-msgs",
+        description="Build the message support of control_msgs (FollowJointTrajectory) and "
+                    "tf2_msgs (TFMessage) into the user cache, once per environment (about a "
+                    "minute; needs cmake and a C/C++ compiler); an installed control_msgs or "
+                    "tf2_msgs is used instead. Prints where it is and the time taken.")
+    b.set_defaults(func=_build_msgs)
+    e: argparse.ArgumentParser = actions.add_parser(
+        "env",
+        description="Print the shell lines that let any Python of this environment import the "
+                    "built control_msgs and tf2_msgs: eval \"$(armbench ros2 env)\". Builds "
+                    "them first if needed.")
+    e.set_defaults(func=_env)
+
+
+def _build_msgs(args: argparse.Namespace) -> int:
+    import json
+    import sys
+
+    from armbench.frontends.ros2_node import require_rclpy
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages
+
+    require_rclpy()
+    t0 = time.perf_counter()
+    support = ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
+    print(json.dumps({"prefix": None if support.prefix is None else str(support.prefix),
+                      "installed": list(support.installed), "built_s": support.built_s,
+                      "elapsed_s": round(time.perf_counter() - t0, 3)}))
+    return 0
+
+
+def _env(args: argparse.Namespace) -> int:
+    import sys
+
+    from armbench.frontends.ros2_node import require_rclpy
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages, env_lines
+
+    require_rclpy()
+    support = ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
+    sys.stdout.write(env_lines(support))
+    return 0
 
 
 def _check(args: argparse.Namespace) -> None:
