@@ -47,11 +47,13 @@ styles = ["coordinated"]
 
 
 @pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+def ros_domain(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest) -> Iterator[int]:
     """A ROS domain for this test alone (0..232 are valid), discovery on localhost only."""
     domain = 1 + (os.getpid() * 41 + 7 + next(_DOMAINS)) % 200
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if missing_ros2() is None:  # the node builds nothing: the session's message support
+        monkeypatch.setenv("XDG_CACHE_HOME", str(request.getfixturevalue("ros2_msgs")["xdg"]))
     yield domain
 
 
