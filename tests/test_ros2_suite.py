@@ -140,7 +140,7 @@ def test_on_virtual_time_the_square_through_ros_matches_the_drivers_own(tmp_path
     assert lap["samples"][0]["t_s"] >= 0.0
     assert lap["samples"][-1]["t_s"] <= ros[ROS2_SQUARE.metric(ROS2_SQUARE.trajectory,
                                                                ROS2_SQUARE.lap_time)] * 1.5
-    assert "ROS 2: the square through a JointTrajectory" in record["_report"]
+    assert "ROS 2: the square through FollowJointTrajectory" in record["_report"]
     assert "path error ratio (ROS 2 / driver)" in record["_report"]  # the scorecard's headline
 
 

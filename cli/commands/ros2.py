@@ -1,5 +1,7 @@
-"""``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/robot_description``,
-trajectories on ``/armbench/joint_trajectory``, ``/clock`` on emulated targets). The accuracy
+"""``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/tf``, ``/robot_description``,
+the ``FollowJointTrajectory`` action at ``/<controller>/follow_joint_trajectory``, its alias
+``/armbench/joint_trajectory``, ``/clock`` on emulated targets); ``armbench ros2 build-msgs`` and
+``armbench ros2 env``: the message support of control_msgs and tf2_msgs, built once. The accuracy
 square through ROS 2 against the driver's own run is the suite ``armbench run ros2-square``.
 
 Needs the extra ``armbench[ros2]`` (rclpy and the message packages from pip); without it the
@@ -35,11 +37,14 @@ def register(sub: Any) -> None:
     """Add the ``ros2`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
         "ros2",
-        description="Serve the arm on PORT as a ROS 2 node: /joint_states at the arm's reply "
-                    "rate, /robot_description (URDF, transient local), trajectories received on "
-                    "/armbench/joint_trajectory executed with the driver's coordinated streaming, "
-                    "/armbench/trajectory_status, /armbench/commanded, /armbench/events, and "
-                    "/clock from the virtual clock on fake://. Stops the arm on exit.",
+        description="Serve the arm on PORT as a ROS 2 node: /joint_states (with velocities) "
+                    "and /tf at the arm's reply rate, /tf_static and /robot_description (URDF, "
+                    "transient local), the control_msgs FollowJointTrajectory action at "
+                    "/CONTROLLER/follow_joint_trajectory executed with the driver's coordinated "
+                    "streaming (and its alias /armbench/joint_trajectory with "
+                    "/armbench/trajectory_status), /joint_states_goal, /armbench/events, and "
+                    "/clock from the virtual clock on fake://. Stops the arm on exit. The first "
+                    "start builds the message support (about a minute; see build-msgs).",
         epilog="Exit status: 0 after --duration or SIGTERM (the arm stopped), 130 after Ctrl-C "
                "(SIGINT; the arm stopped too), 1 when the port is lost, 2 for bad options or a "
                "missing ros2 extra.")
@@ -56,6 +61,10 @@ def register(sub: Any) -> None:
     p.add_argument("--namespace", default="", metavar="NS",
                    help="the node's namespace: its topics resolve under it (default: /, so "
                         "/joint_states); one per arm when several share a graph")
+    p.add_argument("--controller", default="arm_controller", metavar="NAME",
+                   help="the FollowJointTrajectory action's namespace: "
+                        "/NAME/follow_joint_trajectory (default arm_controller, the name "
+                        "MoveIt's simple controller manager and ros2_control use)")
     p.add_argument("--domain-id", type=int, default=None, metavar="N",
                    help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     p.add_argument("--max-duty", type=int, default=MAX_DUTY, metavar="V",
@@ -129,7 +138,8 @@ def _check(args: argparse.Namespace) -> None:
     if not 1 <= args.max_duty <= MAX_DUTY:
         raise InvalidTargetError(None, "--max-duty", args.max_duty, f"must be 1..{MAX_DUTY}")
     for flag, value, problem in (("--node-name", args.node_name, node_name_problem),
-                                 ("--namespace", args.namespace, namespace_problem)):
+                                 ("--namespace", args.namespace, namespace_problem),
+                                 ("--controller", args.controller, node_name_problem)):
         why = problem(value)
         if why is not None:
             raise InvalidTargetError(None, flag, value, why)
@@ -153,7 +163,7 @@ def _run(args: argparse.Namespace) -> int:
                           max_duty=args.max_duty, domain_id=args.domain_id,
                           realtime_factor=args.realtime_factor,
                           history_depth=args.history_depth, slow_subscriber=args.slow_subscriber,
-                          pace_timeout_s=args.pace_timeout)
+                          pace_timeout_s=args.pace_timeout, controller=args.controller)
     return run_on_port(args.port, _serve(args, settings, options))
 
 

@@ -110,11 +110,13 @@ class Accepted:
     """A goal accepted: its plan, the time of each point from the start (``times_s[0]`` = 0, the
     arm's position), the per-joint tolerances in force (rad, arm order; None: not checked),
     ``goal_time_s`` (how late the arm may arrive) and ``start_delay_s`` (a stamp in the
-    future)."""
+    future); ``start_rad`` / ``end_rad``: the first and last commands' targets as written
+    (the wire's resolution: what the arm is judged against)."""
 
     plan: TrajectoryPlan
     times_s: tuple[float, ...]
     start_rad: Vec4
+    end_rad: Vec4
     path_rad: tuple[float | None, ...]
     goal_rad: tuple[float | None, ...]
     goal_time_s: float
@@ -147,7 +149,7 @@ class Accepted:
 
     def goal_violation(self, names: Sequence[str], q_rad: Sequence[float]) -> str | None:
         """Which joint is out of its goal tolerance (and by how much), or None."""
-        return _violation("goal", names, self.plan.targets_rad[-1], q_rad, self.goal_rad, None)
+        return _violation("goal", names, self.end_rad, q_rad, self.goal_rad, None)
 
 
 def _violation(kind: str, names: Sequence[str], want: Sequence[float], have: Sequence[float],
@@ -214,6 +216,6 @@ def check_goal(goal: Goal, settings: RobotSettings, start_rad: Sequence[float], 
         raise GoalRefused(INVALID_GOAL, str(exc)) from None
     if slack == 0:  # the driver's own slack for a move of this length
         slack = (MOVE_TIMEOUT_MARGIN - 1.0) * plan.planned_s + MOVE_TIMEOUT_SLACK_S
-    start = plan.commands[0].angles_rad(settings.lower_rad, settings.upper_rad)
-    return Accepted(plan, (0.0, *goal.times_s), (start[0], start[1], start[2], start[3]), path,
-                    at_goal, slack, delay)
+    start, end = (c.angles_rad(settings.lower_rad, settings.upper_rad)
+                  for c in (plan.commands[0], plan.commands[-1]))
+    return Accepted(plan, (0.0, *goal.times_s), start, end, path, at_goal, slack, delay)

@@ -103,7 +103,9 @@ async def execute(arm: Arm, accepted: Accepted, lookahead_s: float,
                        f"not at the goal {accepted.end_s + accepted.goal_time_s:.4g} s after the "
                        f"start (the trajectory's time plus goal_time_tolerance): {exc}; the arm "
                        "is held")
-    q = run.states[-1].q_rad if run.states else arm.state.q_rad
+    # judged on the reply the streaming took for the arrival (the last one of the run)
+    arrival = [st for st in run.states if st.t_s <= run.t_end_s]
+    q = arrival[-1].q_rad if arrival else arm.state.q_rad
     off = accepted.goal_violation(names, q)
     if off is not None:
         return Outcome(GOAL_TOLERANCE_VIOLATED, off, run)
