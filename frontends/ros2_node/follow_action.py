@@ -29,7 +29,7 @@ import itertools
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final, Protocol
 
 from armbench.drivers.host.arm import Arm, JointState, PathRun
 from armbench.drivers.host.paths import stream_path
@@ -45,10 +45,7 @@ from armbench.frontends.ros2_node.follow import (
 )
 from armbench.frontends.ros2_node.jobs import OneJob
 
-if TYPE_CHECKING:
-    from armbench.frontends.ros2_node.node import ArmNode
-
-__all__ = ["ACTION", "DEFAULT_CONTROLLER", "FollowServer", "Outcome", "execute"]
+__all__ = ["ACTION", "DEFAULT_CONTROLLER", "FollowServer", "NodeSide", "Outcome", "execute"]
 
 log = logging.getLogger("armbench.ros2")
 
@@ -60,6 +57,32 @@ ACTION: Final = "follow_joint_trajectory"
 #: What the execution reports on each reply: the time from the start (s), the desired
 #: positions and velocities, the state, and the index of the point aimed at.
 Feedback = Callable[[float, Sequence[float], Sequence[float], JointState, int], None]
+
+
+class Options(Protocol):
+    """The node's options the execution reads."""
+
+    @property
+    def max_duty(self) -> int: ...
+
+    @property
+    def lookahead_s(self) -> float: ...
+
+
+class NodeSide(Protocol):
+    """What the action server and the topic's alias use of the node
+    (:class:`armbench.frontends.ros2_node.node.ArmNode`)."""
+
+    node: Any
+    arm: Arm
+    last_run: PathRun | None
+
+    @property
+    def options(self) -> Options: ...
+
+    def stamp_s(self, loop_t_s: float) -> float: ...
+
+    def feedback_publisher(self, handle: Any) -> Callable[..., None]: ...
 
 
 @dataclass(frozen=True)
@@ -156,7 +179,7 @@ async def _next_reply(arm: Arm, states: list[JointState]) -> None:
 class FollowServer:
     """The action server on ``node`` (see the module doc)."""
 
-    def __init__(self, node: ArmNode, controller: str, jobs: OneJob) -> None:
+    def __init__(self, node: NodeSide, controller: str, jobs: OneJob) -> None:
         from control_msgs.action import FollowJointTrajectory
         from rclpy.action import ActionServer, CancelResponse
         from rclpy.callback_groups import ReentrantCallbackGroup

@@ -14,26 +14,34 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 from armbench.drivers.model.errors import DriverError, PortLostError
 from armbench.frontends.ros2_node.follow import SUCCESSFUL, Goal, GoalRefused, check_goal
-from armbench.frontends.ros2_node.follow_action import Outcome, execute
-from armbench.frontends.ros2_node.intake import MAX_POINTS, Request, Tag
+from armbench.frontends.ros2_node.follow_action import NodeSide, Outcome, execute
+from armbench.frontends.ros2_node.intake import MAX_POINTS, Intake, Request, Tag
 from armbench.frontends.ros2_node.jobs import OneJob
-
-if TYPE_CHECKING:
-    from armbench.frontends.ros2_node.node import ArmNode
 
 __all__ = ["TopicTrajectories"]
 
 log = logging.getLogger("armbench.ros2")
 
 
+class TopicSide(NodeSide, Protocol):
+    """What the alias uses of the node besides the action's part: the intake, the statuses and
+    the events."""
+
+    intake: Intake
+
+    def status(self, tag: Tag, state: str, **fields: Any) -> None: ...
+
+    def event(self, kind: str, **fields: Any) -> None: ...
+
+
 class TopicTrajectories:
     """Takes the topic's trajectories from the node's intake, one at a time, newest first."""
 
-    def __init__(self, node: ArmNode, jobs: OneJob) -> None:
+    def __init__(self, node: TopicSide, jobs: OneJob) -> None:
         self.node = node
         self.jobs = jobs
         self.accepted = 0
