@@ -155,7 +155,13 @@ def _run(args: argparse.Namespace) -> int:
     from armbench.frontends.ros2_node import require_rclpy
 
     require_rclpy()
+    import sys
+
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages
     from armbench.frontends.ros2_node.node import NodeOptions
+
+    # before the arm is opened: a first build takes about a minute
+    ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
 
     settings = load_settings(args.settings)
     options = NodeOptions(node_name=args.node_name, namespace=args.namespace,

@@ -5,10 +5,11 @@ The server lives at ``/<controller>/follow_joint_trajectory`` (``arm_controller`
 name MoveIt's simple controller manager and ros2_control use). Every goal is accepted and then
 checked whole on the loop (:func:`~.follow.check_goal`) before anything moves: a goal refused is
 aborted with ``INVALID_JOINTS``, ``INVALID_GOAL`` or ``OLD_HEADER_TIMESTAMP`` and the trajectory
-running goes on. A valid goal replaces the one running (that one: aborted, "replaced by ...", as
-ros2_control's controller does) and is executed by :func:`execute`: the driver's coordinated
-streaming (:func:`armbench.drivers.host.paths.stream_path`) with, beside it, every reply judged
-against where the trajectory says the joints are then (``PATH_TOLERANCE_VIOLATED``: the stream is
+running goes on. A valid goal replaces the one running (that one: aborted with ``INVALID_GOAL``,
+"replaced by ...", the code ros2_control's controller gives it) and is executed by
+:func:`execute`: the driver's coordinated streaming
+(:func:`armbench.drivers.host.paths.stream_path`) with, beside it, every reply judged against
+where the trajectory says the joints are then (``PATH_TOLERANCE_VIOLATED``: the stream is
 cancelled and the arm held) and sent as feedback (desired, actual, error, the point aimed at). The
 result comes when the arm has arrived within the goal tolerance (``SUCCESSFUL``), or, when it has
 not within the trajectory's time plus ``goal_time_tolerance``, ``GOAL_TOLERANCE_VIOLATED`` (held).
@@ -36,6 +37,7 @@ from armbench.drivers.host.paths import stream_path
 from armbench.drivers.model.errors import DriverError, MoveTimeoutError, PortLostError
 from armbench.frontends.ros2_node.follow import (
     GOAL_TOLERANCE_VIOLATED,
+    INVALID_GOAL,
     PATH_TOLERANCE_VIOLATED,
     SUCCESSFUL,
     Accepted,
@@ -279,6 +281,8 @@ class FollowServer:
         task = self.jobs.start(execute(arm, accepted, node.options.lookahead_s,
                                        node.feedback_publisher(handle)))
         self._running[key], self._numbers[key] = task, number
+        if handle.is_cancel_requested:  # came while the one before was being replaced
+            self._cancel_on_loop(key)
         try:
             await asyncio.wait({task})
         finally:
@@ -287,7 +291,11 @@ class FollowServer:
         if task.cancelled():
             state, text = self.jobs.reason(task)
             held = f"{text}; the arm holds at {[round(q, 4) for q in arm.state.q_rad]} rad"
-            return state, SUCCESSFUL if state == "canceled" else PATH_TOLERANCE_VIOLATED, held
+            # as ros2_control's controller: a goal replaced ends with INVALID_GOAL; one the node
+            # gave up (shutdown, a silent arm) did not follow its path to the end
+            code = {"canceled": SUCCESSFUL, "preempted": INVALID_GOAL}.get(
+                state, PATH_TOLERANCE_VIOLATED)
+            return state, code, held
         try:
             outcome: Outcome = task.result()
         except (DriverError, PortLostError) as exc:

