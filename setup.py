@@ -40,8 +40,10 @@ PACKAGES = ["armbench", "armbench.firmware",
             *(f"armbench.{name}" for name in find_namespace_packages(
                 where=str(ROOT), include=[*SUBPACKAGES, *(f"{n}.*" for n in SUBPACKAGES)],
                 exclude=["*.__pycache__"]))]
-#: Data installed with the code: configs, templates, and the firmware's C sources and Makefile.
-PACKAGE_DATA = {"": ["*.toml", "*.j2", "*.html", "*.css", "py.typed"],
+#: Data installed with the code: configs, templates, the ROS message definitions the ROS 2 front
+#: end builds (with their licences), and the firmware's C sources and Makefile.
+PACKAGE_DATA = {"": ["*.toml", "*.j2", "*.html", "*.css", "py.typed", "*.msg", "*.action", "*.srv",
+                     "LICENSE"],
                 "armbench.firmware": ["Makefile", "*.c", "*.h", "harness/*.c", "harness/*.h"]}
 HOT_MODULES: tuple[str, ...] = runpy.run_path(str(ROOT / "cli" / "perf" / "hot_modules.py"))[
     "HOT_MODULES"]

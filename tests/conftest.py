@@ -140,6 +140,24 @@ def pure_tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
                   tmp_path_factory.mktemp("pure"))
 
 
+@pytest.fixture(scope="session")
+def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """The ROS message support (control_msgs, tf2_msgs) built once per test session into a cache
+    its workers share (``xdg``: the ``XDG_CACHE_HOME`` to give the node and the clients), and
+    active in this process; ``built_s``: the build's seconds in the process that built it
+    (None in the others). Skips where the extra is not installed."""
+    from armbench.frontends.ros2_node import missing_ros2
+
+    why = missing_ros2()
+    if why is not None:
+        pytest.skip(f"armbench[ros2] not installed: {why}")
+    from armbench.frontends.ros2_node.msgs_build import CACHE_FOLDER, ensure_messages
+
+    xdg = session_dir(tmp_path_factory) / "xdg-cache"
+    support = ensure_messages(root=xdg / "armbench" / CACHE_FOLDER)
+    return {"xdg": str(xdg), "built_s": support.built_s, "prefix": support.prefix}
+
+
 def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     """``armbench ARGS`` in this process: exit status, stdout, stderr."""
     status = armbench.cli.main.main(list(args))

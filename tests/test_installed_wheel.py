@@ -94,3 +94,20 @@ def test_the_firmware_builds_and_serves_from_the_install(installed: Path, tmp_pa
                       "--duration", "2", cwd=tmp_path, timeout_s=180)
     assert serve.returncode == 0, serve.stdout[-2000:] + serve.stderr[-2000:]
     assert "serving the firmware in the loop on socket://127.0.0.1:" in serve.stdout
+
+
+@pytest.mark.slow
+def test_the_ros_message_definitions_ship_in_the_wheel(installed: Path, tmp_path: Path) -> None:
+    """What the ROS 2 front end builds (control_msgs, tf2_msgs) is package data of the wheel
+    (built without ROS): every definition file it names, and the upstream licences."""
+    probe = ("import json\n"
+             "from armbench.frontends.ros2_node.msgs_build import INTERFACES, PACKAGES\n"
+             "files = [INTERFACES / p.name / f for p in PACKAGES for f in p.files]\n"
+             "files += [INTERFACES / p.name / 'LICENSE' for p in PACKAGES]\n"
+             "print(json.dumps({'root': str(INTERFACES), 'missing': [str(f) for f in files\n"
+             "                  if not f.is_file()], 'count': len(files)}))\n")
+    done = subprocess.run([str(installed / "python"), "-c", probe], cwd=tmp_path,
+                          capture_output=True, text=True, check=True)
+    found = json.loads(done.stdout)
+    assert Path(found["root"]).is_relative_to(installed.parent), found  # the wheel's, installed
+    assert found["missing"] == [] and found["count"] == 6, found

@@ -36,11 +36,13 @@ RSS_GROWTH_MB = 50.0
 
 
 @pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+def ros_domain(monkeypatch: pytest.MonkeyPatch,
+               ros2_msgs: dict[str, object]) -> Iterator[int]:
     """A ROS domain for this test alone, discovery on localhost only."""
     domain = 201 + os.getpid() % 30
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(ros2_msgs["xdg"]))  # the session's messages
     yield domain
 
 

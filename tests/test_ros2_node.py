@@ -38,11 +38,13 @@ _DOMAINS = itertools.count()
 
 
 @pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch) -> Iterator[int]:
+def ros_domain(monkeypatch: pytest.MonkeyPatch,
+               ros2_msgs: dict[str, object]) -> Iterator[int]:
     """A ROS domain for this test alone (0..232 are valid), discovery on localhost only."""
     domain = 1 + (os.getpid() * 37 + next(_DOMAINS)) % 200
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(ros2_msgs["xdg"]))  # the session's messages
     yield domain
 
 

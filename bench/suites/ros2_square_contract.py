@@ -18,8 +18,8 @@ __all__ = ["ROS2_SQUARE", "Ros2SquareNames"]
 
 @dataclass(frozen=True, slots=True)
 class Ros2SquareNames:
-    """The ros2-square suite: the accuracy square through ROS 2 (a ``JointTrajectory`` from a
-    separate rclpy process) against the driver's own coordinated run, figures named as the
+    """The ros2-square suite: the accuracy square through ROS 2 (a ``FollowJointTrajectory`` goal
+    from a separate rclpy process) against the driver's own coordinated run, figures named as the
     accuracy suite's."""
 
     suite: str = "ros2-square"

@@ -1,5 +1,7 @@
-"""``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/robot_description``,
-trajectories on ``/armbench/joint_trajectory``, ``/clock`` on emulated targets). The accuracy
+"""``armbench ros2``: the arm as a ROS 2 node (``/joint_states``, ``/tf``, ``/robot_description``,
+the ``FollowJointTrajectory`` action at ``/<controller>/follow_joint_trajectory``, its alias
+``/armbench/joint_trajectory``, ``/clock`` on emulated targets); ``armbench ros2 build-msgs`` and
+``armbench ros2 env``: the message support of control_msgs and tf2_msgs, built once. The accuracy
 square through ROS 2 against the driver's own run is the suite ``armbench run ros2-square``.
 
 Needs the extra ``armbench[ros2]`` (rclpy and the message packages from pip); without it the
@@ -12,6 +14,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import signal
+import time
 from typing import Any
 
 from armbench.cli.commands.bounds import DURATION_S, REPLY_TIMEOUT_S, TIMEOUT_S, add_bounded
@@ -35,11 +38,14 @@ def register(sub: Any) -> None:
     """Add the ``ros2`` subcommand."""
     p: argparse.ArgumentParser = sub.add_parser(
         "ros2",
-        description="Serve the arm on PORT as a ROS 2 node: /joint_states at the arm's reply "
-                    "rate, /robot_description (URDF, transient local), trajectories received on "
-                    "/armbench/joint_trajectory executed with the driver's coordinated streaming, "
-                    "/armbench/trajectory_status, /armbench/commanded, /armbench/events, and "
-                    "/clock from the virtual clock on fake://. Stops the arm on exit.",
+        description="Serve the arm on PORT as a ROS 2 node: /joint_states (with velocities) "
+                    "and /tf at the arm's reply rate, /tf_static and /robot_description (URDF, "
+                    "transient local), the control_msgs FollowJointTrajectory action at "
+                    "/CONTROLLER/follow_joint_trajectory executed with the driver's coordinated "
+                    "streaming (and its alias /armbench/joint_trajectory with "
+                    "/armbench/trajectory_status), /joint_states_goal, /armbench/events, and "
+                    "/clock from the virtual clock on fake://. Stops the arm on exit. The first "
+                    "start builds the message support (about a minute; see build-msgs).",
         epilog="Exit status: 0 after --duration or SIGTERM (the arm stopped), 130 after Ctrl-C "
                "(SIGINT; the arm stopped too), 1 when the port is lost, 2 for bad options or a "
                "missing ros2 extra.")
@@ -56,6 +62,10 @@ def register(sub: Any) -> None:
     p.add_argument("--namespace", default="", metavar="NS",
                    help="the node's namespace: its topics resolve under it (default: /, so "
                         "/joint_states); one per arm when several share a graph")
+    p.add_argument("--controller", default="arm_controller", metavar="NAME",
+                   help="the FollowJointTrajectory action's namespace: "
+                        "/NAME/follow_joint_trajectory (default arm_controller, the name "
+                        "MoveIt's simple controller manager and ros2_control use)")
     add_bounded(p, "--domain-id", Bound(0, 232, whole=True), default=None, metavar="N",
                 help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     add_bounded(p, "--max-duty", Bound(1, MAX_DUTY, whole=True), default=MAX_DUTY, metavar="V",
@@ -79,13 +89,57 @@ def register(sub: Any) -> None:
     add_bounded(p, "--reply-timeout", REPLY_TIMEOUT_S, default=0.5, metavar="S",
                 help="hold the arm and report it silent after S s without a reply")
     p.set_defaults(func=_run)
+    actions = p.add_subparsers(dest="ros2_action", metavar="{build-msgs,env}",
+                               help="without one: serve the arm")
+    b: argparse.ArgumentParser = actions.add_parser(
+        "build-msgs",
+        description="Build the message support of control_msgs (FollowJointTrajectory) and "
+                    "tf2_msgs (TFMessage) into the user cache, once per environment (about a "
+                    "minute; needs cmake and a C/C++ compiler); an installed control_msgs or "
+                    "tf2_msgs is used instead. Prints where it is and the time taken.")
+    b.set_defaults(func=_build_msgs)
+    e: argparse.ArgumentParser = actions.add_parser(
+        "env",
+        description="Print the shell lines that let any Python of this environment import the "
+                    "built control_msgs and tf2_msgs: eval \"$(armbench ros2 env)\". Builds "
+                    "them first if needed.")
+    e.set_defaults(func=_env)
+
+
+def _build_msgs(args: argparse.Namespace) -> int:
+    import json
+    import sys
+
+    from armbench.frontends.ros2_node import require_rclpy
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages
+
+    require_rclpy()
+    t0 = time.perf_counter()
+    support = ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
+    print(json.dumps({"prefix": None if support.prefix is None else str(support.prefix),
+                      "installed": list(support.installed), "built_s": support.built_s,
+                      "elapsed_s": round(time.perf_counter() - t0, 3)}))
+    return 0
+
+
+def _env(args: argparse.Namespace) -> int:
+    import sys
+
+    from armbench.frontends.ros2_node import require_rclpy
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages, env_lines
+
+    require_rclpy()
+    support = ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
+    sys.stdout.write(env_lines(support))
+    return 0
 
 
 def _check(args: argparse.Namespace) -> None:
     """The options a bound does not cover (:mod:`armbench.cli.commands.bounds` checks the
     numbers)."""
     for flag, value, problem in (("--node-name", args.node_name, node_name_problem),
-                                 ("--namespace", args.namespace, namespace_problem)):
+                                 ("--namespace", args.namespace, namespace_problem),
+                                 ("--controller", args.controller, node_name_problem)):
         why = problem(value)
         if why is not None:
             raise InvalidTargetError(None, flag, value, why)
@@ -96,7 +150,13 @@ def _run(args: argparse.Namespace) -> int:
     from armbench.frontends.ros2_node import require_rclpy
 
     require_rclpy()
+    import sys
+
+    from armbench.frontends.ros2_node.msgs_build import ensure_messages
     from armbench.frontends.ros2_node.node import NodeOptions
+
+    # before the arm is opened: a first build takes about a minute
+    ensure_messages(progress=lambda m: print(m, file=sys.stderr, flush=True))
 
     settings = load_settings(args.settings)
     options = NodeOptions(node_name=args.node_name, namespace=args.namespace,
@@ -104,7 +164,7 @@ def _run(args: argparse.Namespace) -> int:
                           max_duty=args.max_duty, domain_id=args.domain_id,
                           realtime_factor=args.realtime_factor,
                           history_depth=args.history_depth, slow_subscriber=args.slow_subscriber,
-                          pace_timeout_s=args.pace_timeout)
+                          pace_timeout_s=args.pace_timeout, controller=args.controller)
     return run_on_port(args.port, _serve(args, settings, options))
 
 

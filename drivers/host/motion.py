@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.protocol import MAX_DUTY
+from armbench.drivers.model.protocol import CYCLE_S, MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings
 
 __all__ = [
@@ -54,8 +54,6 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 
-#: The firmware's control cycle (its timer interrupt), seconds; one step takes ``101 − duty``.
-CYCLE_S: Final = 80e-6
 #: Shortest step period in cycles (duty 99).
 MIN_PERIOD_CYCLES: Final = 101 - MAX_DUTY
 #: Longest step period in cycles (duty 1).

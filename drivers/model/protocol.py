@@ -33,6 +33,7 @@ from armbench.drivers.model.errors import FrameValueError, ProtocolError
 
 __all__ = [
     "COMMAND_LEN",
+    "CYCLE_S",
     "JOINTS",
     "MAX_DUTY",
     "MAX_TICKS",
@@ -53,6 +54,9 @@ __all__ = [
 TICKS_PER_RAD: Final = 10_000
 MAX_TICKS: Final = 62_832
 MAX_DUTY: Final = 99
+#: The firmware's control cycle (its timer interrupt), seconds: a joint at duty ``v`` makes one
+#: motor step every ``101 − v`` cycles (speed law (12), :mod:`armbench.drivers.host.motion`).
+CYCLE_S: Final = 80e-6
 JOINTS: Final = 4
 REPLY_LEN: Final = 25
 COMMAND_LEN: Final = 37

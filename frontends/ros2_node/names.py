@@ -13,13 +13,17 @@ from typing import Final
 __all__ = ["MAX_NAMESPACE", "MAX_NODE_NAME", "TOPICS", "namespace_problem", "node_name_problem"]
 
 #: Every topic of the node by its role: relative names, so they resolve under the node's
-#: namespace (``/`` by default: ``/joint_states``); ``/clock`` is the graph's, absolute.
+#: namespace (``/`` by default: ``/joint_states``); ``/clock`` is the graph's, absolute. The
+#: arm's state and commands have the names of the MCAP capture's channels
+#: (:mod:`armbench.drivers.capture.mcap_writer`).
 TOPICS: Final = {
     "joint_states": "joint_states",
+    "tf": "tf",
+    "tf_static": "tf_static",
     "robot_description": "robot_description",
+    "commanded": "joint_states_goal",
     "trajectory": "armbench/joint_trajectory",
     "status": "armbench/trajectory_status",
-    "commanded": "armbench/commanded",
     "events": "armbench/events",
     "clock": "/clock",
 }

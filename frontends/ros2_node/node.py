@@ -39,25 +39,32 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
 import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
 from armbench.drivers.host.arm import Arm, JointState, PathRun, ReplyTimeoutError
-from armbench.drivers.host.paths import LOOKAHEAD_S, stream_path
-from armbench.drivers.model.errors import ArmbenchError, DriverError, PortLostError
+from armbench.drivers.host.paths import LOOKAHEAD_S
+from armbench.drivers.model.errors import DriverError, PortLostError
 from armbench.drivers.model.protocol import MAX_DUTY, Command
-from armbench.drivers.model.urdf import robot_urdf
 from armbench.frontends.ros2_node import require_rclpy
-from armbench.frontends.ros2_node.intake import MAX_POINTS, Intake, Request, Tag
+from armbench.frontends.ros2_node.follow_action import DEFAULT_CONTROLLER, FollowServer
+from armbench.frontends.ros2_node.intake import MAX_POINTS, Intake, Tag
+from armbench.frontends.ros2_node.jobs import OneJob
+from armbench.frontends.ros2_node.msgs_build import ensure_messages
 from armbench.frontends.ros2_node.names import TOPICS, namespace_problem, node_name_problem
 from armbench.frontends.ros2_node.pacing import RealtimePacer, SubscriberPacer
-from armbench.frontends.ros2_node.trajectory import TrajectoryPlan, plan_trajectory
+from armbench.frontends.ros2_node.state_topics import (
+    StateMessages,
+    fill_feedback,
+    node_urdf,
+    time_msg,
+)
+from armbench.frontends.ros2_node.topic import TopicTrajectories
 
 __all__ = ["FINAL", "JOINT_STATES_DEPTH", "MAX_POINTS", "PACE_TIMEOUT_S", "SLOW_SUBSCRIBER",
            "STATUS_DEPTH", "TOPICS", "ArmNode", "NodeOptions", "PublishingArm"]
@@ -76,6 +83,8 @@ STATUS_DEPTH: Final = 1000
 STATUS_FLUSH_S: Final = 1.0
 #: The final states of a trajectory's status: each trajectory gets exactly one of them.
 FINAL: Final = ("done", "preempted", "aborted", "rejected", "stopped")
+#: Threads of the node's executor: goals executing (each waits on one), and the rest.
+EXECUTOR_THREADS: Final = 4
 #: What the node does on virtual time when a reliable subscriber of ``/joint_states`` falls behind:
 #: ``pace`` (hold the virtual clock until it has acknowledged, as a simulator in lock-step does)
 #: or ``drop`` (run on, the subscriber loses the oldest beyond the history's depth).
@@ -86,7 +95,7 @@ PACE_TIMEOUT_S: Final = 5.0
 
 
 class PublishingArm(Arm):
-    """The driver, telling the node each command it writes (``/armbench/commanded``)."""
+    """The driver, telling the node each command it writes (``/joint_states_goal``)."""
 
     on_command: Callable[[float, Command], None] | None = None
 
@@ -107,7 +116,8 @@ class NodeOptions:
     (None: as fast as the emulator runs); ``history_depth``: the ``/joint_states`` history
     (:data:`JOINT_STATES_DEPTH`); ``slow_subscriber``: on virtual time, ``pace`` or ``drop``
     (:data:`SLOW_SUBSCRIBER`; real time always drops: the arm does not wait);
-    ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`."""
+    ``pace_timeout_s``: :data:`PACE_TIMEOUT_S`; ``controller``: the action's namespace
+    (``/<controller>/follow_joint_trajectory``)."""
 
     node_name: str = "armbench"
     namespace: str = ""
@@ -119,10 +129,12 @@ class NodeOptions:
     history_depth: int = JOINT_STATES_DEPTH
     slow_subscriber: str = "pace"
     pace_timeout_s: float = PACE_TIMEOUT_S
+    controller: str = DEFAULT_CONTROLLER
 
     def __post_init__(self) -> None:
         for name, value, problem in (("node_name", self.node_name, node_name_problem),
-                                     ("namespace", self.namespace, namespace_problem)):
+                                     ("namespace", self.namespace, namespace_problem),
+                                     ("controller", self.controller, node_name_problem)):
             why = problem(value)
             if why is not None:
                 raise ValueError(f"{name} {value!r} {why}")
@@ -142,15 +154,12 @@ class NodeOptions:
         return self.clock and self.slow_subscriber == "pace"
 
 
-def _time_msg(msg: Any, t_s: float) -> None:
-    ns = max(0, round(t_s * 1e9))
-    msg.sec, msg.nanosec = divmod(ns, 1_000_000_000)
-
-
 class ArmNode:
     """The node over an open arm; :meth:`run` until cancelled or the link is lost (then returns
-    1). ``/armbench/commanded`` needs a :class:`PublishingArm` (over another arm, such as a bench
-    run's connection, the topic stays silent: the run's capture has the commands)."""
+    1). ``/joint_states_goal`` needs a :class:`PublishingArm` (over another arm, such as a bench
+    run's connection, the topic stays silent: the run's capture has the commands). Builds the
+    message support of control_msgs and tf2_msgs first if this environment has none
+    (:mod:`.msgs_build`: about a minute, once)."""
 
     def __init__(self, arm: Arm, options: NodeOptions = NodeOptions()) -> None:
         self.arm = arm
@@ -158,17 +167,15 @@ class ArmNode:
         self.names = [j.name for j in arm.settings.joints]
         self.published = 0
         """``/joint_states`` messages published."""
-        self.accepted = 0
-        """Trajectories accepted so far."""
         self.last_run: PathRun | None = None
         """The path run of the last trajectory executed to its end."""
         self._loop = asyncio.get_running_loop()
         self._wall_offset_s = 0.0 if options.clock else time.time() - self._loop.time()
         self._wake = asyncio.Event()
-        self.intake = Intake(self._status, self._wake_threadsafe)
+        self.intake = Intake(self.status, self._wake_threadsafe)
         """Where the trajectories arrive (:class:`~.intake.Intake`)."""
-        self._job: asyncio.Task[None] | None = None
-        self._cancel_as: tuple[str, str] | None = None
+        self.jobs = OneJob()
+        """The trajectory running (from the action or the topic)."""
         self.finals: dict[str, int] = {}
         """Final statuses published, by state (``done``, ``preempted``, ...)."""
         self.refused: dict[str, int] = {}
@@ -178,18 +185,23 @@ class ArmNode:
         self._realtime = (RealtimePacer(options.realtime_factor)
                           if options.realtime_factor is not None else None)
         require_rclpy()  # imported here: without the extra this module still imports
+        ensure_messages(progress=log.warning)
         import rclpy
+        from control_msgs.action import FollowJointTrajectory
+        from geometry_msgs.msg import TransformStamped
         from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.executors import MultiThreadedExecutor
         from rclpy.impl.implementation_singleton import rclpy_implementation
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         from rclpy.signals import SignalHandlerOptions
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState as JointStateMsg
         from std_msgs.msg import String
-        from trajectory_msgs.msg import JointTrajectory
+        from tf2_msgs.msg import TFMessage
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
         self._msg_js, self._msg_string = JointStateMsg, String
+        self._msg_feedback, self._msg_point = FollowJointTrajectory.Feedback, JointTrajectoryPoint
         self._rcl_error: type[Exception] = rclpy_implementation.RCLError
         self.context = Context()
         rclpy.init(context=self.context, domain_id=options.domain_id,
@@ -208,6 +220,9 @@ class ArmNode:
             reliability=ReliabilityPolicy.RELIABLE))
         self._pub_urdf = n.create_publisher(String, TOPICS["robot_description"], latched)
         self._pub_cmd = n.create_publisher(JointStateMsg, TOPICS["commanded"], 50)
+        self._pub_tf = n.create_publisher(TFMessage, TOPICS["tf"], QoSProfile(
+            depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        self._pub_tf_static = n.create_publisher(TFMessage, TOPICS["tf_static"], latched)
         self._pub_events = n.create_publisher(String, TOPICS["events"], 50)
         # transient local: a client whose reader this writer has not matched yet when a status
         # is published (discovery is not symmetric in time) still gets it when it matches
@@ -223,11 +238,15 @@ class ArmNode:
         n.create_subscription(JointTrajectory, TOPICS["trajectory"], self.intake.receive,
                               QoSProfile(depth=1, history=HistoryPolicy.KEEP_ALL,
                                          reliability=ReliabilityPolicy.RELIABLE))
-        self._executor = SingleThreadedExecutor(context=self.context)
+        self.topic = TopicTrajectories(self, self.jobs)
+        """The trajectories of the topic (:mod:`.topic`)."""
+        self.action = FollowServer(self, options.controller, self.jobs)
+        """The ``FollowJointTrajectory`` server (:mod:`.follow_action`)."""
+        # threads: an action goal's execute callback waits for its result on one of them
+        self._executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS, context=self.context)
         self._executor.add_node(n)
         self._thread = threading.Thread(target=self._spin, name="rclpy-executor", daemon=True)
-        self._js = JointStateMsg()
-        self._js.name = list(self.names)
+        self._states = StateMessages(arm.settings, JointStateMsg, TFMessage, TransformStamped)
         self._clock = Clock()
         self._subscribers = SubscriberPacer(self._pub_js, max(1, options.history_depth // 2),
                                             options.pace_timeout_s, options.history_depth,
@@ -252,6 +271,11 @@ class ArmNode:
     def stamp_s(self, loop_t_s: float) -> float:
         """ROS time (s) of loop time ``loop_t_s``: virtual seconds, or wall-clock seconds."""
         return loop_t_s + self._wall_offset_s
+
+    @property
+    def accepted(self) -> int:
+        """Trajectories of the topic accepted so far."""
+        return self.topic.accepted
 
     @property
     def dropped(self) -> int:
@@ -293,23 +317,35 @@ class ArmNode:
         return True
 
     def publish_state(self, state: JointState) -> None:
-        """``/clock`` (virtual time) and ``/joint_states`` for one reply."""
+        """``/clock`` (virtual time), ``/joint_states`` and ``/tf`` for one reply."""
         t = self.stamp_s(state.t_s)
         if self._pub_clock is not None:
-            _time_msg(self._clock.clock, t)
+            time_msg(self._clock.clock, t)
             self._publish(self._pub_clock, self._clock, "clock")
-        js = self._js
-        _time_msg(js.header.stamp, t)
-        js.position = list(state.q_rad)
-        if self._publish(self._pub_js, js, "joint_states"):
+        self._states.fill(state, t)
+        if self._publish(self._pub_js, self._states.joint_state, "joint_states"):
             self.published += 1
+        self._publish(self._pub_tf, self._states.tf, "tf")
+
+    def feedback_publisher(self, handle: Any) -> Callable[..., None]:
+        """What an action goal's execution calls on each reply: its feedback, published."""
+        names = self.names
+
+        def publish(t_s: float, desired: Sequence[float], speed: Sequence[float],
+                    state: JointState, index: int) -> None:
+            msg = self._msg_feedback()
+            fill_feedback(msg, self._msg_point, names, self.stamp_s(state.t_s), desired, speed,
+                          state, self._states.velocity(state), index, t_s)
+            handle.publish_feedback(msg)
+
+        return publish
 
     def event(self, kind: str, **fields: Any) -> None:
         """Publish an event on ``/armbench/events`` (JSON: ``t_s``, ``kind`` and ``fields``)."""
         text = json.dumps({"t_s": self.stamp_s(self._loop.time()), "kind": kind, **fields})
         self._publish(self._pub_events, self._msg_string(data=text), "events")
 
-    def _status(self, tag: Tag, state: str, **fields: Any) -> None:
+    def status(self, tag: Tag, state: str, **fields: Any) -> None:
         """Publish a status of the trajectory ``tag`` (from the loop or the executor thread)."""
         text = json.dumps({"id": tag.id, "state": state,
                            "stamp": None if tag.stamp is None else list(tag.stamp),
@@ -322,9 +358,10 @@ class ArmNode:
 
     def _on_command(self, t_s: float, command: Command) -> None:
         msg = self._msg_js()
-        _time_msg(msg.header.stamp, self.stamp_s(t_s))
+        time_msg(msg.header.stamp, self.stamp_s(t_s))
         msg.name = list(self.names)
         msg.position = list(command.angles_rad(self.arm._lower, self.arm._upper))
+        msg.effort = [float(d) for d in command.duties]  # as the capture's: the PWM duty in %
         self._publish(self._pub_cmd, msg, "commanded")
 
     # --- the loop ---------------------------------------------------------------------------
@@ -333,12 +370,14 @@ class ArmNode:
         """Serve until ``duration_s`` (loop seconds) passes or the task is cancelled: 0; or until
         the port is lost: 1. The arm is stopped on the way out either way."""
         self._thread.start()
-        self._publish(self._pub_urdf, self._msg_string(data=robot_urdf(self.arm.settings)),
+        self._publish(self._pub_urdf, self._msg_string(data=node_urdf(self.arm.settings)),
                       "robot_description")
+        self._publish(self._pub_tf_static, self._states.tf_static(self.stamp_s(self._loop.time())),
+                      "tf_static")
         self.event("started", port=self.arm.port, joints=self.names)
         log.info("ROS 2 node %r serving %s", self.options.node_name, self.arm.port)
         states = asyncio.ensure_future(self._publish_states())
-        jobs = asyncio.ensure_future(self._take_trajectories())
+        jobs = asyncio.ensure_future(self.topic.serve(self._wake))
         status = 0
         try:
             done, _ = await asyncio.wait({states, jobs}, timeout=duration_s,
@@ -351,15 +390,15 @@ class ArmNode:
             status = 1
         finally:
             why = "shutdown" if status == 0 else "the link was lost"
-            self._cancel_as = ("aborted", why)
-            for running in (states, jobs, self._job):
-                if running is not None:
-                    running.cancel()
-            await asyncio.gather(states, jobs, *([self._job] if self._job else []),
+            self.jobs.cancel("aborted", why)
+            for running in (states, jobs):
+                running.cancel()
+            await asyncio.gather(states, jobs, *([self.jobs.task] if self.jobs.task else []),
                                  return_exceptions=True)
+            await self.action.drain()  # every goal answered before the executor goes
             waiting = self.intake.close()  # from now on the intake answers what comes itself
             if waiting is not None:
-                self._status(waiting.tag, "aborted", reason=why)
+                self.status(waiting.tag, "aborted", reason=why)
             if status == 0:
                 await self._stop_on_exit()
             self.close()
@@ -389,6 +428,7 @@ class ArmNode:
         from rclpy.duration import Duration
 
         self._executor.shutdown(timeout_sec=2.0)
+        self.action.destroy()
         # the last statuses (the shutdown's aborts) reach a client before the writer goes
         self._pub_status.wait_for_all_acked(Duration(nanoseconds=round(STATUS_FLUSH_S * 1e9)))
         self.node.destroy_node()
@@ -427,93 +467,6 @@ class ArmNode:
     async def _on_silence(self, exc: ReplyTimeoutError) -> None:
         log.error("%s: %s: abandoning the trajectory and holding the arm", self.arm.port, exc)
         self.event("link_silent", reason=str(exc), action="holding the arm")
-        if self._job is not None and not self._job.done():
-            self._cancel_as = ("aborted", f"the arm fell silent: {exc}")
-            self._job.cancel()
+        self.jobs.cancel("aborted", f"the arm fell silent: {exc}")
         with contextlib.suppress(DriverError, PortLostError):
             await self.arm.stop(wait=False)
-
-    async def _take_trajectories(self) -> None:
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
-            req = self.intake.take()
-            if req is None:
-                continue
-            try:
-                await self._start(req)
-            except asyncio.CancelledError:  # before its own status: the shutdown's
-                self._status(req.tag, "aborted", reason="shutdown")
-                raise
-
-    async def _start(self, req: Request) -> None:
-        """Take ``req`` up: a final status for it here, or ``accepted`` and its execution (which
-        gives the final one). Cancelled, it has given none."""
-        job = req.tag.id
-        running = self._job
-        if running is not None and not running.done():
-            self._cancel_as = ("preempted", f"replaced by trajectory {job}")
-            running.cancel()
-            await asyncio.wait({running})
-            self._cancel_as = None  # used, or not needed: the job had just ended
-        if req.too_many:
-            reason = f"trajectory: {req.too_many} points, more than the {MAX_POINTS} accepted"
-            self._reject(req.tag, reason)
-            return
-        if not req.positions:
-            try:
-                state = await self.arm.stop()
-            except (DriverError, PortLostError) as exc:  # the state task says so and holds
-                self._status(req.tag, "aborted", reason=str(exc))
-                return
-            log.info("trajectory %d: empty: stopped the arm", job)
-            self._status(req.tag, "stopped", q_rad=list(state.q_rad))
-            return
-        try:
-            plan = plan_trajectory(req.names, req.positions, req.times_s, self.arm.settings,
-                                   self.arm.state.q_rad, max_duty=self.options.max_duty)
-        except ArmbenchError as exc:  # TrajectoryError, or the arm itself outside its limits
-            self._reject(req.tag, str(exc))
-            return
-        log.info("trajectory %d accepted: %d points, %.3f s planned", job, plan.points,
-                 plan.planned_s)
-        self._status(req.tag, "accepted", points=plan.points, planned_s=plan.planned_s)
-        self.accepted += 1
-        self._job = asyncio.ensure_future(self._execute(req.tag, plan))
-        self._job.add_done_callback(functools.partial(self._cancelled, req.tag))
-
-    def _reject(self, tag: Tag, reason: str) -> None:
-        """Log, event and status of a trajectory refused: ``reason`` echoes the peer's values
-        shortened (:mod:`armbench.drivers.model.peer_text`)."""
-        log.error("trajectory %d rejected, nothing moved: %s", tag.id, reason)
-        self.event("trajectory_rejected", id=tag.id, reason=reason)  # before the status:
-        self._status(tag, "rejected", reason=reason)  # a client may stop then
-
-    def _cancelled(self, tag: Tag, job: asyncio.Future[None]) -> None:
-        """The final status of a job cancelled: under way, or before it ever ran (a task
-        cancelled before its first step never runs its coroutine's handlers)."""
-        if not job.cancelled():
-            return
-        (state, reason), self._cancel_as = self._cancel_as or ("aborted", "cancelled"), None
-        if state == "aborted":
-            log.error("trajectory %d aborted: %s", tag.id, reason)
-        self._status(tag, state, reason=reason)
-
-    async def _execute(self, tag: Tag, plan: TrajectoryPlan) -> None:
-        """Stream ``plan``; its final status (``done`` or ``aborted``; when cancelled,
-        :meth:`_cancelled` gives it)."""
-        arm = self.arm
-        try:
-            seq = arm.state.seq  # start on a reply, as the driver's own paths do
-            await arm.wait_state(lambda s: s.seq > seq)
-            run = await stream_path(arm, plan.tcp_m, plan.commands, plan.planned_s,
-                                    arm.default_tolerance_rad(), self.options.lookahead_s, None)
-        except (DriverError, PortLostError) as exc:
-            log.error("trajectory %d aborted: %s", tag.id, exc)
-            self._status(tag, "aborted", reason=str(exc))
-            return
-        self.last_run = run
-        self._status(tag, "done", duration_s=max(0.0, run.duration_s),  # at the goal: 0
-                     waypoints=len(run.waypoints),
-                     states=len(run.states), q_rad=list(run.states[-1].q_rad)
-                     if run.states else list(arm.state.q_rad))

@@ -38,7 +38,7 @@ N = ROS2_SQUARE
 #: How each style is called on the page.
 STYLE_TITLES: Mapping[str, str] = {
     N.coordinated: "the driver's own coordinated run",
-    N.trajectory: "through ROS 2 (JointTrajectory from a separate process)",
+    N.trajectory: "through ROS 2 (FollowJointTrajectory from a separate process)",
 }
 #: Points drawn per lap at most.
 LAP_POINTS = 2000
@@ -145,5 +145,5 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
                           ratio=format_value(_value(ms, N.ratio), ""),
                           true_ratio=format_value(_value(ms, N.true_ratio), ""))
     return SectionView(key=SUITE, template="ros2_square",
-                       title="ROS 2: the square through a JointTrajectory", suite=view,
+                       title="ROS 2: the square through FollowJointTrajectory", suite=view,
                        figures=_figures(suite, figs), body=body)
