@@ -55,13 +55,18 @@ log = logging.getLogger("armbench.runner")
 class JobResult:
     """What a worker sends back: the trial on the worker's clock (``started_s`` from its loop's
     0), its capture parts (times on the same clock: files in the run directory, or their bytes
-    from a Dask worker), its progress messages and the seconds the job took in the worker."""
+    from a Dask worker), its progress messages, and what the job cost the worker: its wall
+    seconds, its CPU seconds and when it began (the worker's ``time.perf_counter()``, one clock
+    for every process of a machine on Linux and Windows: what ``armbench perf`` lines the jobs
+    up with the run's own process by)."""
 
     trial: Trial
     parts: tuple[Path, ...]
     messages: tuple[str, ...]
     shipped: tuple[bytes, ...] = ()
     worker_s: float = 0.0
+    worker_cpu_s: float = 0.0
+    worker_start_s: float = 0.0
 
 
 class _JobClock:
@@ -108,7 +113,7 @@ class TrialJob:
 
     async def measure(self) -> JobResult:
         """Measure the attempt on the running loop (a worker's fresh virtual-time loop)."""
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         if not self.ship:
             result = await self._measure(self.plan.out_dir)
         else:
@@ -117,7 +122,8 @@ class TrialJob:
                 result = dataclasses.replace(
                     result, parts=(), shipped=tuple(p.read_bytes() for p in result.parts
                                                     if p.exists()))
-        return dataclasses.replace(result, worker_s=time.perf_counter() - t0)
+        return dataclasses.replace(result, worker_s=time.perf_counter() - t0,
+                                   worker_cpu_s=time.process_time() - cpu0, worker_start_s=t0)
 
     async def _measure(self, out_dir: Path) -> JobResult:
         messages = _Messages()
