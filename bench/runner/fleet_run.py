@@ -47,8 +47,10 @@ from armbench.bench.runner.options import (
     RunOptions,
     RunOutcome,
 )
+from armbench.bench.runner.parallel import prestart_workers
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.probe import probe_arms, probe_arms_sync
+from armbench.bench.workers.worker_process import discard_prestarted
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
 from armbench.record import RESULTS_FILE, load_record
@@ -239,6 +241,8 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     arm's folder is locked by the runner too (:mod:`~armbench.bench.runner.lock`).
     """
     with contextlib.ExitStack() as held:
+        prestart_workers(options)  # they start while the run is planned
+        held.callback(discard_prestarted)
         if options.resume is not None and any(
                 (Path(options.resume) / name).is_file() for name in (RESULTS_FILE, FLEET_FILE)):
             held.enter_context(hold_run_folder(options.resume))

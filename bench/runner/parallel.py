@@ -29,8 +29,6 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import logging
-import multiprocessing
-import os
 import pickle
 import tempfile
 import time
@@ -39,14 +37,30 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import Any
 
+from armbench.bench.runner.arms import parse_arms
 from armbench.bench.runner.capture_parts import job_part_tag
 from armbench.bench.runner.cluster import DaskCluster
-from armbench.bench.runner.options import BenchPlan, PlannedSuite, RunAborted
+from armbench.bench.runner.options import (
+    BenchPlan,
+    PlannedSuite,
+    RunAborted,
+    RunOptions,
+    default_workers,
+)
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
-from armbench.bench.workers.worker_process import run_job, worker_init
+from armbench.bench.suites import registered_suites, suite_names
+from armbench.bench.workers.worker_process import new_pool, prestart, run_job, take_pool
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.transports.target import target_of
 from armbench.record import Trial, path_inside
 
-__all__ = ["JobResult", "ParallelTrials", "TrialJob"]
+__all__ = ["TRIAL_MODULES", "JobResult", "ParallelTrials", "TrialJob", "prestart_workers"]
+
+#: What every trial job imports in its worker, besides its suite's module: imported by each
+#: worker as it starts (``worker_process.worker_init``), not by its first job.
+TRIAL_MODULES: tuple[str, ...] = (
+    "armbench.bench.runner.parallel", "armbench.drivers.host.arm",
+    "armbench.drivers.capture.part", "armbench.fakes.firmware.arm_emulator")
 
 log = logging.getLogger("armbench.runner")
 
@@ -135,10 +149,33 @@ class TrialJob:
         return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
 
 
-def _new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
-    return concurrent.futures.ProcessPoolExecutor(
-        workers, mp_context=multiprocessing.get_context("spawn"),
-        initializer=worker_init, initargs=(os.getpid(),))
+def _worker_modules(suite_refs: Sequence[str]) -> tuple[str, ...]:
+    """:data:`TRIAL_MODULES` and the modules of the suites ``suite_refs`` names (names or
+    ``module:Class``)."""
+    registered = registered_suites()
+    targets = [registered.get(ref, ref) for ref in suite_refs]
+    return TRIAL_MODULES + tuple(dict.fromkeys(
+        target.partition(":")[0] for target in targets if ":" in target))
+
+
+def prestart_workers(options: RunOptions) -> None:
+    """Start the worker processes of a run that will measure in them, as it begins: while its
+    process plans the run, they start and import what a trial needs (a second of the run's
+    wall time before its first trial). Taken by the run's :class:`ParallelTrials` when its plan
+    asks for as many workers (``[bench] workers`` of a config may ask for others: a new pool
+    then), let go at the run's end otherwise (``worker_process.discard_prestarted``). Only a
+    new run of one arm on a target that measures in workers (``fake://``), with no Dask
+    scheduler named."""
+    workers = options.workers if options.workers is not None else default_workers()
+    if workers < 2 or options.scheduler is not None or options.resume is not None:
+        return
+    try:
+        arms = parse_arms(options.ports or ["fake://"])
+        if len(arms) != 1 or not target_of(arms[0].port).capabilities.parallel:
+            return
+    except ArmbenchError:
+        return  # the plan says what is wrong with it
+    prestart(workers, _worker_modules(list(options.suites) or suite_names()))
 
 
 class ParallelTrials:
@@ -218,7 +255,8 @@ class ParallelTrials:
                                                                    run_job, job)
                 return on_cluster
             if self.pool is None:
-                self.pool = _new_pool(runner.plan.workers)
+                self.pool = take_pool(runner.plan.workers,
+                                      _worker_modules([s.ref for s in runner.plan.suites]))
             pool = self.pool
             try:
                 result: JobResult = await loop.run_in_executor(pool, run_job, job)
@@ -231,7 +269,7 @@ class ParallelTrials:
         async def alone(job: TrialJob) -> JobResult:
             """In a process of its own: a dying worker breaks the whole pool, failing the
             trials beside it too; measured alone, only the trial that kills its process fails."""
-            pool = _new_pool(1)
+            pool = new_pool(1, _worker_modules([ps.ref]))
             try:
                 result: JobResult = await loop.run_in_executor(pool, run_job, job)
             finally:

@@ -1,0 +1,92 @@
+"""The worker processes of a run started as it begins (``bench/workers/worker_process.py``:
+``prestart`` / ``take_pool``), real spawned processes."""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from armbench.bench.runner import RunOptions
+from armbench.bench.runner.parallel import TRIAL_MODULES, prestart_workers
+from armbench.bench.workers import worker_process
+
+
+def loaded(names: tuple[str, ...]) -> tuple[int, list[bool]]:
+    """In a worker: its pid, and which of ``names`` it has imported before its first job."""
+    return os.getpid(), [name in sys.modules for name in names]
+
+
+@pytest.fixture(autouse=True)
+def no_pool_left() -> Iterator[None]:
+    yield
+    worker_process.discard_prestarted()
+
+
+def test_a_prestarted_pool_is_taken_with_its_modules_already_imported() -> None:
+    worker_process.prestart(1, ("armbench.drivers.model.protocol",))
+    waiting = worker_process._prestarted
+    assert waiting is not None
+    pool = worker_process.take_pool(1)
+    try:
+        assert pool is waiting[2] and worker_process._prestarted is None
+        pid, found = pool.submit(loaded, ("armbench.drivers.model.protocol", "armbench.reports"),
+                                 ).result(timeout=120)
+        assert pid != os.getpid() and found == [True, False]
+    finally:
+        pool.shutdown()
+
+
+def test_a_pool_of_another_size_is_not_taken_but_let_go() -> None:
+    worker_process.prestart(1)
+    waiting = worker_process._prestarted
+    assert waiting is not None
+    pool = worker_process.take_pool(2)
+    try:
+        assert pool is not waiting[2] and worker_process._prestarted is None
+        with pytest.raises(RuntimeError):  # shut down: it takes no job
+            waiting[2].submit(loaded, ())
+    finally:
+        pool.shutdown()
+
+
+@pytest.mark.parametrize(("options", "started"), [
+    (RunOptions(workers=2), True),
+    (RunOptions(workers=2, ports=["fake://?seed=4"], suites=["accuracy"]), True),
+    (RunOptions(workers=1), False),
+    (RunOptions(workers=2, scheduler="tcp://127.0.0.1:1"), False),
+    (RunOptions(workers=2, ports=["a=fake://", "b=fake://"]), False),
+    (RunOptions(workers=2, ports=["socket://127.0.0.1:1"]), False),
+    (RunOptions(workers=2, resume="somewhere"), False),
+])
+def test_a_run_starts_its_workers_only_where_it_will_measure_in_them(
+        options: RunOptions, started: bool) -> None:
+    prestart_workers(options)
+    waiting = worker_process._prestarted
+    assert (waiting is not None) is started
+    if waiting is not None:
+        assert waiting[0] == 2 and waiting[1][:len(TRIAL_MODULES)] == TRIAL_MODULES
+        assert "armbench.bench.suites.accuracy" in waiting[1]
+
+
+def test_the_pool_of_a_run_is_the_one_started_as_it_began(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A default-sized run of a suite on fake:// measures in the pool started before its plan;
+    none is left waiting after it."""
+    from armbench.bench.runner import run_sync
+
+    made: list[object] = []
+    new_pool = worker_process.new_pool
+
+    def counted(workers: int, preload: tuple[str, ...] = ()) -> object:
+        made.append(workers)
+        return new_pool(workers, preload)
+
+    monkeypatch.setattr(worker_process, "new_pool", counted)
+    outcome = run_sync(RunOptions(suites=["joints"], out=tmp_path / "run", workers=2),
+                       progress=None)
+    assert outcome.exit_status == 0
+    assert made == [2] and worker_process._prestarted is None
