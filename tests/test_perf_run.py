@@ -120,3 +120,18 @@ def test_a_job_reports_its_cpu_and_when_it_began_in_its_worker(tmp_path: Path) -
     assert result.trial.status == "done" and result.trial.duration_s > 1.0
     assert before <= result.worker_start_s <= result.worker_start_s + result.worker_s <= after
     assert result.worker_cpu_s > 0.0
+
+
+def test_the_cpu_spent_with_no_trial_running_is_what_falls_between_the_spans() -> None:
+    trace = perf_run._CpuTrace(period_s=3600.0)
+    trace.stop()
+    # (wall, cpu) every second, 0.5 s of CPU each second but 0.1 s within 2..5
+    trace.samples.clear()
+    cpu = 0.0
+    for t in range(10):
+        trace.samples.append((float(t), cpu))
+        cpu += 0.1 if 2 <= t < 5 else 0.5
+    # the trials ran 1.5..5.5 and 5.2..6.8 (overlapping): the seconds from 1 to 7 are theirs
+    # (their middles covered), 0-1, 7-8 and 8-9 (0.5 s of CPU each) are not
+    assert perf_run._CpuTrace.cpu_outside(trace, [(5.2, 6.8), (1.5, 5.5)]) == pytest.approx(1.5)
+    assert perf_run._CpuTrace.cpu_outside(trace, []) == pytest.approx(0.5 * 6 + 0.1 * 3)

@@ -32,9 +32,12 @@ pool of two spawned workers takes to answer a first job that imports what a tria
 
 from __future__ import annotations
 
+import bisect
+import collections
 import concurrent.futures
 import functools
 import importlib
+import itertools
 import json
 import multiprocessing
 import os
@@ -42,6 +45,7 @@ import runpy
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -149,6 +153,46 @@ def _trial_jobs() -> list[dict[str, float]]:
     return jobs
 
 
+class _CpuTrace:
+    """The process's CPU seconds read every ``period_s`` by a thread of its own (bounded):
+    how much of it was spent while no trial ran."""
+
+    def __init__(self, period_s: float = 0.05, limit: int = 200_000) -> None:
+        self.samples: collections.deque[tuple[float, float]] = collections.deque(maxlen=limit)
+        self._stop = threading.Event()
+        self._period_s = period_s
+        self._thread = threading.Thread(target=self._run, name="cpu-trace", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self.samples.append((time.perf_counter(), time.process_time()))
+            if self._stop.wait(self._period_s):
+                return
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.samples.append((time.perf_counter(), time.process_time()))
+
+    def cpu_outside(self, spans: list[tuple[float, float]]) -> float:
+        """CPU seconds between two samples whose middle none of ``spans`` covers."""
+        merged: list[list[float]] = []
+        for start, stop in sorted(spans):
+            if merged and start <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], stop)
+            else:
+                merged.append([start, stop])
+        starts = [m[0] for m in merged]
+        total = 0.0
+        for (t0, c0), (t1, c1) in itertools.pairwise(self.samples):
+            middle = 0.5 * (t0 + t1)
+            k = bisect.bisect_right(starts, middle) - 1
+            if k < 0 or middle > merged[k][1]:
+                total += c1 - c0
+        return total
+
+
 def covered_s(spans: list[tuple[float, float]], begin: float, end: float) -> float:
     """Seconds of [``begin``, ``end``] that at least one of ``spans`` covers."""
     total, reach = 0.0, begin
@@ -163,6 +207,7 @@ def covered_s(spans: list[tuple[float, float]], begin: float, end: float) -> flo
 def child(out_dir: str) -> None:
     """The timed run (in a fresh process): prints its phases as one JSON line on stdout."""
     begin = time.perf_counter()
+    trace = _CpuTrace()
     clock = _Clock()
     clock.enter("setup")
     missing = _patch(clock)
@@ -179,12 +224,15 @@ def child(out_dir: str) -> None:
     end = time.perf_counter()
     seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
     cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
-    trials_s = covered_s([(j["start_s"], j["start_s"] + j["worker_s"]) for j in jobs], begin, end)
+    trace.stop()
+    spans = [(j["start_s"], j["start_s"] + j["worker_s"]) for j in jobs]
+    trials_s = covered_s(spans, begin, end)
     print(json.dumps({"status": status, "phases": seconds, "cpu": cpu, "missing": missing,
                       "worker_s": sum(j["worker_s"] for j in jobs), "jobs": len(jobs),
                       "worker_cpu_s": sum(j["cpu_s"] for j in jobs),
                       "robot_s": sum(j["robot_s"] for j in jobs),
-                      "process_s": end - begin, "trials_s": trials_s}))
+                      "process_s": end - begin, "trials_s": trials_s,
+                      "serial_cpu_s": trace.cpu_outside(spans)}))
 
 
 def _run_wall(args: list[str], out: Path) -> tuple[float, float, str]:
@@ -245,7 +293,8 @@ def _serial(phases: dict[str, Any], timed_wall: float) -> Figure:
     return Figure("run.serial_s", serial, "s",
                   note=f"of {timed_wall:.2f} s wall in the timed run's own process, trials in "
                        f"the workers for the other {phases['trials_s']:.2f} s; the process's "
-                       f"CPU: {own_cpu:.2f} s in all")
+                       f"CPU: {phases['serial_cpu_s']:.2f} s of its {own_cpu:.2f} s with no "
+                       "trial in a worker")
 
 
 def _per_bare_emulator(phases: dict[str, Any], wall_factor: float,
