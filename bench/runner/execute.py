@@ -27,6 +27,7 @@ import dataclasses
 import json
 import logging
 import os
+from collections.abc import Callable
 from typing import IO
 
 from armbench.bench.runner.lock import hold_run_folder
@@ -119,8 +120,10 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
 
 async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                   emulator_factory: EmulatorFactory | None = None,
-                  writer_class: type[LoopClockWriter] = LoopClockWriter) -> RunOutcome:
-    """Run a prepared plan (see the module docstring); returns the outcome.
+                  writer_class: type[LoopClockWriter] = LoopClockWriter,
+                  meanwhile: Callable[[], None] | None = None) -> RunOutcome:
+    """Run a prepared plan (see the module docstring); returns the outcome. ``meanwhile`` runs
+    in a thread once the first trial is in the record (:meth:`TrialRunner.committed`).
 
     Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
     the record as it is on disk (every finished trial) and propagates
@@ -131,12 +134,13 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         make_directory(plan.out_dir, "run folder")
     with hold_run_folder(plan.out_dir):
         return await _execute(plan, progress=progress, emulator_factory=emulator_factory,
-                              writer_class=writer_class)
+                              writer_class=writer_class, meanwhile=meanwhile)
 
 
 async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
                    emulator_factory: EmulatorFactory | None,
-                   writer_class: type[LoopClockWriter]) -> RunOutcome:
+                   writer_class: type[LoopClockWriter],
+                   meanwhile: Callable[[], None] | None) -> RunOutcome:
     if plan.resume is not None:
         resumed = writer_class.resume(plan.out_dir)
         assert isinstance(resumed, LoopClockWriter)
@@ -155,7 +159,8 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
     for ps in plan.suites:
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     runner = TrialRunner(plan, writer, printer,
-                         emulator_factory if emulator_factory is not None else default_emulator)
+                         emulator_factory if emulator_factory is not None else default_emulator,
+                         meanwhile=meanwhile)
     parallel = ParallelTrials(runner)
     if plan.resume is not None:
         runner.captures.recover(writer.record, writer.out_dir)

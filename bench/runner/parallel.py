@@ -344,6 +344,7 @@ class ParallelTrials:
             part.write_bytes(data)
             parts.append(part)
         runner.writer.add_trial(ps.name, trial)
+        runner.committed()
         runner.captures.trial(ps.name, trial)
         self.worker_s += result.worker_s
         self.jobs += 1
