@@ -37,11 +37,11 @@ def test_meanwhile_runs_once_in_a_thread_of_its_own_once_a_trial_is_recorded(
 
 def test_the_run_command_loads_the_report_while_the_trials_go_on(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from armbench.cli.commands import run
+    from armbench.cli.commands import run, run_files
     from armbench.cli.main import main
 
     threads: list[str] = []
-    preload = run.preload_reports
+    preload = run_files.preload_reports
 
     def watched() -> None:
         threads.append(threading.current_thread().name)
