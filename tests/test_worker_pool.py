@@ -90,3 +90,40 @@ def test_the_pool_of_a_run_is_the_one_started_as_it_began(tmp_path: Path,
                        progress=None)
     assert outcome.exit_status == 0
     assert made == [2] and worker_process._prestarted is None
+
+
+def test_the_next_suites_trials_are_measured_while_the_last_one_ends(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The workers do not wait for a suite's last trial and its summary: the next suite's
+    first trials are in them by then, committed after the summary, in order."""
+    import time
+
+    from armbench.bench.runner import parallel, run_sync, trials
+    from armbench.record import load_record
+
+    starts: dict[str, list[float]] = {}
+    commit = parallel.ParallelTrials._commit
+
+    def keep(self: parallel.ParallelTrials, ps: object, index: int, attempt: int,
+             result: parallel.JobResult, wall_s: float) -> object:
+        starts.setdefault(getattr(ps, "name"), []).append(result.worker_start_s)
+        return commit(self, ps, index, attempt, result, wall_s)  # type: ignore[arg-type]
+
+    summarized: dict[str, float] = {}
+    summarize = trials.TrialRunner.summarize
+
+    async def timed(self: trials.TrialRunner, ps: object) -> None:
+        await summarize(self, ps)  # type: ignore[arg-type]
+        summarized[getattr(ps, "name")] = time.perf_counter()
+
+    monkeypatch.setattr(parallel.ParallelTrials, "_commit", keep)
+    monkeypatch.setattr(trials.TrialRunner, "summarize", timed)
+    out = tmp_path / "run"
+    outcome = run_sync(RunOptions(suites=["accuracy", "joints"], out=out, workers=2),
+                       progress=None)
+    assert outcome.exit_status == 0
+    assert min(starts["joints"]) < summarized["accuracy"]
+    record = load_record(out / "results.json")
+    joints = record.suites["joints"]
+    assert [t.index for t in joints.trials] == list(range(len(joints.trials)))
+    assert joints.trials[0].started_s >= record.suites["accuracy"].ended_s

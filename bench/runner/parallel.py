@@ -32,7 +32,7 @@ import logging
 import pickle
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import Any
@@ -192,6 +192,10 @@ class ParallelTrials:
         """Seconds the committed jobs took inside the workers (with the wall time of the run:
         the overhead of sending trials out)."""
         self.jobs = 0
+        self._in_flight: asyncio.Semaphore | None = None
+        self._started: tuple[str, tuple[int, ...],
+                             list[asyncio.Future[list[JobResult]]]] | None = None
+        """The trials :meth:`start` sent (suite, indices, tasks), for :meth:`run`."""
 
     def usable(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
         """Whether the trials of ``ps`` go to worker processes: a target that declares
@@ -236,18 +240,81 @@ class ParallelTrials:
                 raise RunAborted(f"cannot reach the Dask scheduler {address}: {exc}") from exc
         return self.cluster
 
-    async def run(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
-        """Measure ``todo`` in worker processes, commit them in order; the trial that stopped
-        the suite, or None."""
+    async def _slots(self) -> asyncio.Semaphore:
+        """The jobs in flight at once, every suite's: the pool's queue stays short (two per
+        thread of a Dask cluster: the next trial is there when one ends)."""
+        if self._in_flight is None:
+            if self.runner.plan.scheduler is not None:
+                cluster = await self._connect()
+                self._in_flight = asyncio.Semaphore(2 * cluster.threads())
+            else:
+                self._in_flight = asyncio.Semaphore(self.runner.plan.workers)
+        return self._in_flight
+
+    async def start(self, ps: PlannedSuite, todo: Sequence[int]) -> None:
+        """Send the trials ``todo`` of ``ps`` to the workers now, behind the jobs already
+        waiting for a worker, for :meth:`run` to commit later: the next suite's, while this
+        one's last trial and its summary finish (the workers would wait for them otherwise)."""
+        self._drop_started()
+        self._started = (ps.name, tuple(todo), await self._measure_all(ps, todo))
+
+    def _drop_started(self) -> None:
+        started, self._started = self._started, None
+        if started is not None:
+            for task in started[2]:
+                task.cancel()
+
+    async def run(self, ps: PlannedSuite, todo: Sequence[int], *,
+                  following: Callable[[], Awaitable[None]] | None = None) -> Trial | None:
+        """Measure ``todo`` in worker processes (those :meth:`start` sent already, or now),
+        commit them in order; the trial that stopped the suite, or None. ``following`` is
+        awaited once every trial is sent and the last one is awaited (it starts the next
+        suite's)."""
+        runner = self.runner
+        started = self._started
+        if started is not None and started[:2] == (ps.name, tuple(todo)):
+            self._started = None
+            tasks = started[2]
+        else:
+            tasks = await self._measure_all(ps, todo)
+        last_commit = wall0 = time.perf_counter()
+        jobs0, worker_s0 = self.jobs, self.worker_s
+        try:
+            for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
+                if following is not None and k == len(todo) - 1:
+                    await following()
+                await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
+                results = await task
+                if k and runner.plan.settle_s > 0:
+                    runner.writer.advance(runner.plan.settle_s)
+                for attempt, result in enumerate(results):
+                    # wall time per commit: what the progress estimate needs (throughput)
+                    now = time.perf_counter()
+                    trial = self._commit(ps, index, attempt, result, now - last_commit)
+                    last_commit = now
+                if trial.status == "error":
+                    return trial
+            runner.progress.message(
+                f"[{ps.name}] {self.jobs - jobs0} job(s) took {self.worker_s - worker_s0:.2f} s "
+                f"in the workers, {time.perf_counter() - wall0:.2f} s of wall time")
+            return None
+        finally:
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            runner.captures.flush()  # the committed trials' parts: on disk, deleted
+            if not runner.captures.failed:  # else committed ones may be among them: resume
+                for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.part"):
+                    with contextlib.suppress(OSError):  # parts of trials never committed
+                        path.unlink()
+
+    async def _measure_all(self, ps: PlannedSuite,
+                           todo: Sequence[int]) -> list[asyncio.Future[list[JobResult]]]:
+        """A task per trial of ``todo``: its attempts measured in the workers, as slots free."""
         runner = self.runner
         loop = asyncio.get_running_loop()
         attempts = runner.plan.retries + 1
-        if runner.plan.scheduler is not None:
-            cluster = await self._connect()
-            # two per worker thread: the next trial is there when one ends, the queue stays short
-            in_flight = asyncio.Semaphore(2 * cluster.threads())
-        else:
-            in_flight = asyncio.Semaphore(runner.plan.workers)  # the pool's queue stays short
+        in_flight = await self._slots()
 
         async def shared(job: TrialJob) -> JobResult:
             if self.cluster is not None:
@@ -297,35 +364,7 @@ class ParallelTrials:
                     break
             return results
 
-        tasks = [asyncio.ensure_future(measure(index)) for index in todo]
-        last_commit = wall0 = time.perf_counter()
-        jobs0, worker_s0 = self.jobs, self.worker_s
-        try:
-            for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
-                await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
-                results = await task
-                if k and runner.plan.settle_s > 0:
-                    runner.writer.advance(runner.plan.settle_s)
-                for attempt, result in enumerate(results):
-                    # wall time per commit: what the progress estimate needs (throughput)
-                    now = time.perf_counter()
-                    trial = self._commit(ps, index, attempt, result, now - last_commit)
-                    last_commit = now
-                if trial.status == "error":
-                    return trial
-            runner.progress.message(
-                f"[{ps.name}] {self.jobs - jobs0} job(s) took {self.worker_s - worker_s0:.2f} s "
-                f"in the workers, {time.perf_counter() - wall0:.2f} s of wall time")
-            return None
-        finally:
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            runner.captures.flush()  # the committed trials' parts: on disk, deleted
-            if not runner.captures.failed:  # else committed ones may be among them: resume
-                for path in runner.writer.out_dir.glob(f".capture.part*-job-{ps.name}-*.part"):
-                    with contextlib.suppress(OSError):  # parts of trials never committed
-                        path.unlink()
+        return [asyncio.ensure_future(measure(index)) for index in todo]
 
     def _commit(self, ps: PlannedSuite, index: int, attempt: int, result: JobResult,
                 wall_s: float) -> Trial:
@@ -358,6 +397,8 @@ class ParallelTrials:
     def close(self) -> None:
         """Let the worker processes go (a busy one finishes its trial alone); the next parallel
         suite starts new ones."""
+        self._drop_started()
+        self._in_flight = None
         pool, self.pool = self.pool, None
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
