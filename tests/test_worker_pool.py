@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from armbench.bench.runner import RunOptions
+from armbench.bench.runner.options import PlannedSuite
 from armbench.bench.runner.parallel import TRIAL_MODULES, prestart_workers
 from armbench.bench.workers import worker_process
 
@@ -104,17 +105,17 @@ def test_the_next_suites_trials_are_measured_while_the_last_one_ends(
     starts: dict[str, list[float]] = {}
     commit = parallel.ParallelTrials._commit
 
-    def keep(self: parallel.ParallelTrials, ps: object, index: int, attempt: int,
+    def keep(self: parallel.ParallelTrials, ps: PlannedSuite, index: int, attempt: int,
              result: parallel.JobResult, wall_s: float) -> object:
-        starts.setdefault(getattr(ps, "name"), []).append(result.worker_start_s)
-        return commit(self, ps, index, attempt, result, wall_s)  # type: ignore[arg-type]
+        starts.setdefault(ps.name, []).append(result.worker_start_s)
+        return commit(self, ps, index, attempt, result, wall_s)
 
     summarized: dict[str, float] = {}
     summarize = trials.TrialRunner.summarize
 
-    async def timed(self: trials.TrialRunner, ps: object) -> None:
-        await summarize(self, ps)  # type: ignore[arg-type]
-        summarized[getattr(ps, "name")] = time.perf_counter()
+    async def timed(self: trials.TrialRunner, ps: PlannedSuite) -> None:
+        await summarize(self, ps)
+        summarized[ps.name] = time.perf_counter()
 
     monkeypatch.setattr(parallel.ParallelTrials, "_commit", keep)
     monkeypatch.setattr(trials.TrialRunner, "summarize", timed)
@@ -126,4 +127,5 @@ def test_the_next_suites_trials_are_measured_while_the_last_one_ends(
     record = load_record(out / "results.json")
     joints = record.suites["joints"]
     assert [t.index for t in joints.trials] == list(range(len(joints.trials)))
-    assert joints.trials[0].started_s >= record.suites["accuracy"].ended_s
+    accuracy_end = record.suites["accuracy"].ended_s
+    assert accuracy_end is not None and joints.trials[0].started_s >= accuracy_end
