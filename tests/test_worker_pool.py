@@ -5,15 +5,21 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
+from test_runner import TinySuite, write_config
 
 from armbench.bench.runner import RunOptions
 from armbench.bench.runner.options import PlannedSuite
 from armbench.bench.runner.parallel import TRIAL_MODULES, prestart_workers
+from armbench.bench.suites import SuiteContext
 from armbench.bench.workers import worker_process
+from armbench.drivers.model.errors import PortLostError
+from armbench.record import Measurement, Trial
 
 
 def loaded(names: tuple[str, ...]) -> tuple[int, list[bool]]:
@@ -129,3 +135,67 @@ def test_the_next_suites_trials_are_measured_while_the_last_one_ends(
     assert [t.index for t in joints.trials] == list(range(len(joints.trials)))
     accuracy_end = record.suites["accuracy"].ended_s
     assert accuracy_end is not None and joints.trials[0].started_s >= accuracy_end
+
+
+class FlakySuite(TinySuite):
+    """``flaky``: the last trial's first attempt waits until the next suite's trials have been
+    sent, then loses the port; the files named by ``ARMBENCH_TEST_FLAKY`` (``<dir>``: ``tried``,
+    ``next-sent``) carry that between the test and the worker processes."""
+
+    name = "flaky"
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        folder = os.environ.get("ARMBENCH_TEST_FLAKY")
+        if folder and index == int(ctx.params["trials"]) - 1:
+            tried, sent = Path(folder) / "tried", Path(folder) / "next-sent"
+            if not tried.exists():
+                tried.touch()
+                deadline = time.monotonic() + 60.0
+                while not sent.exists() and time.monotonic() < deadline:
+                    time.sleep(0.01)  # a worker of its own: blocking it blocks nothing else
+                raise PortLostError(ctx.arm.port, "cable pulled (test)")
+        return await super().run_trial(ctx, index, trial_params)
+
+    def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
+        return []  # the run's tiny suite has the suite-level names
+
+
+def test_a_trial_measured_again_does_not_wait_behind_the_next_suite(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The next suite's trials are sent while a suite's last one runs: if that one ends in
+    error and is measured again, the attempt keeps its worker slot instead of queueing behind
+    them (whose results would wait in memory for it)."""
+    from armbench.bench.runner import parallel, run_sync
+    from armbench.bench.suites import SUITES
+
+    monkeypatch.setitem(SUITES, "tiny", "test_runner:TinySuite")
+    monkeypatch.setitem(SUITES, "flaky", f"{__name__}:FlakySuite")
+    monkeypatch.setenv("ARMBENCH_TEST_FLAKY", str(tmp_path))
+    spans: dict[tuple[str, int, int], tuple[float, float]] = {}
+    commit = parallel.ParallelTrials._commit
+
+    def keep(self: parallel.ParallelTrials, ps: PlannedSuite, index: int, attempt: int,
+             result: parallel.JobResult, wall_s: float) -> object:
+        spans[ps.name, index, attempt] = (result.worker_start_s,
+                                          result.worker_start_s + result.worker_s)
+        return commit(self, ps, index, attempt, result, wall_s)
+
+    start = parallel.ParallelTrials.start
+
+    async def sent(self: parallel.ParallelTrials, ps: PlannedSuite,
+                   todo: Sequence[int]) -> None:
+        await start(self, ps, todo)
+        (tmp_path / "next-sent").touch()
+
+    monkeypatch.setattr(parallel.ParallelTrials, "_commit", keep)
+    monkeypatch.setattr(parallel.ParallelTrials, "start", sent)
+    outcome = run_sync(RunOptions(suites=["flaky", "tiny"], config=write_config(tmp_path, trials=4),
+                                  out=tmp_path / "run", workers=2, retries=1), progress=None)
+    assert outcome.exit_status == 0
+    retried = spans["flaky", 2, 1]
+    assert ("flaky", 2, 0) in spans
+    # the other worker measures the next suite meanwhile: one of its trials may end first;
+    # queued behind them the attempt would start once three had (two workers, four trials)
+    ended_before = [key for key, (_, end) in spans.items() if key[0] == "tiny" and end < retried[0]]
+    assert len(ended_before) <= 1, ended_before

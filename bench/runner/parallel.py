@@ -344,11 +344,13 @@ class ParallelTrials:
             return result
 
         async def measure(index: int) -> list[JobResult]:
-            """Every attempt of trial ``index`` (until one is done)."""
+            """Every attempt of trial ``index`` (until one is done), in one slot: a trial
+            measured again does not wait behind the trials sent after it (the next suite's
+            among them), which would wait in memory for it to be committed."""
             results = []
-            for attempt in range(attempts):
-                job = self._job(ps, index, attempt)
-                async with in_flight:
+            async with in_flight:
+                for attempt in range(attempts):
+                    job = self._job(ps, index, attempt)
                     try:
                         try:
                             result = await shared(job)
@@ -359,9 +361,9 @@ class ParallelTrials:
                         result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
                                                  status="error",
                                                  error=f"worker: {describe(exc)}"), (), ())
-                results.append(result)
-                if result.trial.status == "done":
-                    break
+                    results.append(result)
+                    if result.trial.status == "done":
+                        break
             return results
 
         return [asyncio.ensure_future(measure(index)) for index in todo]
