@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import tempfile
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from pathlib import Path, PurePath
-from typing import Any, BinaryIO, cast
+from typing import IO, Any, BinaryIO, cast
 
 from armbench.drivers.capture.jsonl import capture_end_s
 from armbench.record.comparison import Comparison
@@ -22,6 +24,9 @@ from armbench.record.measurement import Measurement, SuiteRecord, Trial, _unique
 from armbench.record.run_record import RunRecord, load_record
 
 __all__ = ["RecordWriter", "continued_clock_s"]
+
+#: The depth a trial has in ``results.json`` (``suites.NAME.trials[i]``), until a write says.
+_TRIAL_LEVEL = 4
 
 
 def continued_clock_s(out_dir: Path, record: RunRecord) -> float:
@@ -77,6 +82,14 @@ class RecordWriter:
         self._written: dict[int, tuple[Trial, int]] = {}
         """The trials :meth:`write` put in ``results.json``, by their samples' identity, with
         the level they were encoded at."""
+        self._ahead: IO[bytes] | None = None
+        """Where :meth:`add_trial` leaves each trial's text as :meth:`write` will put it in
+        ``results.json``: a nameless temporary file beside the record (gone with the writer,
+        or its process), emptied by each write."""
+        self._encoded: dict[int, tuple[Trial, int, int, int]] = {}
+        """The trials in :attr:`_ahead`, by identity: the trial, its level, offset and
+        length."""
+        self._trial_level = _TRIAL_LEVEL
         # temporary files of a writer killed mid-write (the run folder's lock keeps any other
         # writer out): a fresh run into the folder of one that died before its first record
         # removes them as a resume does
@@ -122,7 +135,9 @@ class RecordWriter:
         def trial_json(trial: Trial) -> Placeholder:
             return Placeholder(trial)
 
-        def text_of(trial: Trial, level: int, old: BinaryIO | None) -> bytes:
+        def text_of(trial: Trial, level: int, old: BinaryIO | None,
+                    ahead: IO[bytes] | None) -> bytes:
+            self._trial_level = level
             samples = trial.samples
             seen = written.get(id(samples))
             if (old is not None and seen is not None and seen[0] is trial and seen[1] == level
@@ -132,21 +147,30 @@ class RecordWriter:
                 data = old.read(samples.length)
                 if len(data) == samples.length:
                     return data
+            cached = encoded.get(id(trial))
+            if ahead is not None and cached is not None and cached[0] is trial \
+                    and cached[1] == level:
+                ahead.seek(cached[2])
+                data = ahead.read(cached[3])
+                if len(data) == cached[3]:
+                    return data
             text = _to_json_text(trial.to_json(), f"suites.{suite_of[id(trial)]}"
                                  f".trials[index {trial.index}]", level=level)
             return text.encode("utf-8")
 
         def stream(fh: BinaryIO) -> None:
             offset = 0
-            old = None
+            old = ahead = None
             if written:
                 with contextlib.suppress(OSError):
                     old = self.path.open("rb")
+            if encoded:
+                ahead = self._ahead
             try:
                 for piece in iter_encode(self.record.to_json(trial_json)):
                     if isinstance(piece, Placeholder):
                         trial = cast(Trial, piece.item)
-                        data = text_of(trial, piece.level, old)
+                        data = text_of(trial, piece.level, old, ahead)
                         placed.append((trial, offset, len(data), piece.level))
                     else:
                         data = piece.encode("utf-8")
@@ -157,6 +181,7 @@ class RecordWriter:
                 if old is not None:
                     old.close()
 
+        encoded, self._encoded = self._encoded, {}
         self._written = {}
         try:
             atomic_write(self.path, stream)
@@ -182,7 +207,16 @@ class RecordWriter:
                 self._written[id(kept.samples)] = (kept, level)
         with contextlib.suppress(FileNotFoundError):
             self.journal.unlink()
+        if self._ahead is not None:
+            with contextlib.suppress(OSError):
+                self._ahead.seek(0)
+                self._ahead.truncate()
         return self.path
+
+    @property
+    def ahead_trials(self) -> int:
+        """Trials encoded as they were added and not yet in ``results.json``."""
+        return len(self._encoded)
 
     # -- suites --------------------------------------------------------------------------
 
@@ -249,10 +283,36 @@ class RecordWriter:
         if any(old.index == trial.index and old.status == "done" for old in suite.trials):
             raise RecordError(where, "is already measured")
         offset, length = append_line(self.journal, line)
+        text = self._encode_ahead(trial, where)
         if trial.samples and not isinstance(trial.samples, StoredSamples):
             trial = replace(trial, samples=StoredSamples(self.journal, offset, length,
                                                          len(trial.samples), entry=True))
         suite.place(trial)
+        if text is not None:
+            self._keep_ahead(trial, text)
+
+    def _encode_ahead(self, trial: Trial, where: str) -> bytes | None:
+        """The text :meth:`write` will put in ``results.json`` for ``trial``, encoded now,
+        while its samples are in memory and the run goes on, instead of at the suite's end
+        (where a suite of 150 trials made the run wait for all of them); None if it cannot be
+        (:meth:`write` says why)."""
+        try:
+            return _to_json_text(trial.to_json(), where, level=self._trial_level).encode("utf-8")
+        except RecordError:
+            return None
+
+    def _keep_ahead(self, trial: Trial, text: bytes) -> None:
+        """Keep ``text`` (``trial``'s) in :attr:`_ahead`; a write that fails leaves it out
+        (it is encoded again when needed)."""
+        try:
+            if self._ahead is None:
+                # kept open while the writer is: a nameless file no crash leaves behind
+                self._ahead = tempfile.TemporaryFile(dir=self.out_dir)  # noqa: SIM115
+            offset = self._ahead.seek(0, os.SEEK_END)
+            self._ahead.write(text)
+        except OSError:
+            return
+        self._encoded[id(trial)] = (trial, self._trial_level, offset, len(text))
 
     def end_suite(self, name: str, measurements: Iterable[Measurement] = (), *,
                   error: str | None = None, ended_s: float | None = None,

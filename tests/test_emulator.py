@@ -666,8 +666,8 @@ def test_perf_workloads_and_figures() -> None:
     from armbench.cli.perf import PerfOptions
     from armbench.cli.perf import emulator_perf as perf_emulator
 
-    _, fast_loops = run_virtual(perf_emulator._emulate(5.0, moving=True))
-    _, slow_loops = run_virtual(perf_emulator._emulate(5.0, moving=True,
+    _, fast_loops = run_virtual(perf_emulator.emulate(5.0, moving=True))
+    _, slow_loops = run_virtual(perf_emulator.emulate(5.0, moving=True,
                                                        baudrate=perf_emulator.SLOW_BAUD))
     assert fast_loops == pytest.approx(5.0 / loop_period_s(), rel=0.02)
     slow_period_s = 25 * 10 / perf_emulator.SLOW_BAUD  # each print waits for the line

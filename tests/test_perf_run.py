@@ -6,6 +6,7 @@ import asyncio
 import importlib
 import time
 import types
+from pathlib import Path
 
 import pytest
 
@@ -70,3 +71,67 @@ def test_every_timed_part_names_code_that_exists() -> None:
         for part in path.split("."):
             owner = getattr(owner, part)
         assert callable(owner), (module_name, path)
+
+
+def test_the_trials_cover_only_the_seconds_of_their_spans_within_the_run() -> None:
+    spans = [(1.0, 3.0), (2.0, 4.0), (6.0, 7.0), (-5.0, 0.5), (9.5, 20.0)]
+    # 0..10: 1-4 (3 s, the overlap counted once), 6-7 (1 s), 0-0.5 and 9.5-10 clipped
+    assert perf_run.covered_s(spans, 0.0, 10.0) == pytest.approx(5.0)
+    assert perf_run.covered_s([], 0.0, 10.0) == 0.0
+
+
+def test_each_committed_job_is_kept_with_its_cost_and_robot_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from armbench.bench.runner import parallel
+    from armbench.record import Trial
+
+    committed: list[int] = []
+    monkeypatch.setattr(parallel.ParallelTrials, "_commit",
+                        lambda self, ps, index, attempt, result, wall_s: committed.append(index))
+    jobs = perf_run._trial_jobs()
+    result = parallel.JobResult(Trial(4, 0.0, 12.5), (), (), worker_s=0.5, worker_cpu_s=0.25,
+                                worker_start_s=7.0)
+    parallel.ParallelTrials._commit(None, None, 4, 0, result, 0.1)  # type: ignore[arg-type]
+    assert committed == [4]
+    assert jobs == [{"worker_s": 0.5, "cpu_s": 0.25, "start_s": 7.0, "robot_s": 12.5}]
+
+
+def test_a_job_reports_its_cpu_and_when_it_began_in_its_worker(tmp_path: Path) -> None:
+    """A trial job run as a worker runs it: its CPU seconds and its start on the machine's
+    ``perf_counter`` come back with it (what ``run.serial_s`` and
+    ``run.trials_per_bare_emulator`` are computed from)."""
+    import dataclasses
+
+    from armbench.bench.runner.arms import lay_out
+    from armbench.bench.runner.options import RunOptions
+    from armbench.bench.runner.parallel import TrialJob
+    from armbench.bench.runner.plan import prepare
+    from armbench.bench.workers.worker_process import run_job
+
+    options = RunOptions(suites=["accuracy"], out=tmp_path / "run")
+    plan = prepare(options, lay_out(options).arms[0])
+    (ps,) = plan.suites
+    plan.out_dir.mkdir(parents=True)
+    job = TrialJob(dataclasses.replace(plan, suites=[]), dataclasses.replace(ps, trials=[]), 0, 0,
+                   ps.trials[0])
+    before = time.perf_counter()
+    result = run_job(job)
+    after = time.perf_counter()
+    assert result.trial.status == "done" and result.trial.duration_s > 1.0
+    assert before <= result.worker_start_s <= result.worker_start_s + result.worker_s <= after
+    assert result.worker_cpu_s > 0.0
+
+
+def test_the_cpu_spent_with_no_trial_running_is_what_falls_between_the_spans() -> None:
+    trace = perf_run._CpuTrace(period_s=3600.0)
+    trace.stop()
+    # (wall, cpu) every second, 0.5 s of CPU each second but 0.1 s within 2..5
+    trace.samples.clear()
+    cpu = 0.0
+    for t in range(10):
+        trace.samples.append((float(t), cpu))
+        cpu += 0.1 if 2 <= t < 5 else 0.5
+    # the trials ran 1.5..5.5 and 5.2..6.8 (overlapping): the seconds from 1 to 7 are theirs
+    # (their middles covered), 0-1, 7-8 and 8-9 (0.5 s of CPU each) are not
+    assert perf_run._CpuTrace.cpu_outside(trace, [(5.2, 6.8), (1.5, 5.5)]) == pytest.approx(1.5)
+    assert perf_run._CpuTrace.cpu_outside(trace, []) == pytest.approx(0.5 * 6 + 0.1 * 3)

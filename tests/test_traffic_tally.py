@@ -8,6 +8,7 @@ import dataclasses
 from collections import Counter
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -77,3 +78,25 @@ def test_excerpt_lines_are_numbered_in_the_readers_order(
     assert [x.line for x in got.head] == list(range(1, min(HEAD_LINES, len(rows)) + 1))
     for line in (*got.head, *got.first_errors):
         assert line_of[int(line.frame[6:11])] == line.line, line
+
+
+def test_the_excerpt_reads_only_the_blocks_at_the_runs_start(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A long run: the excerpt's line numbers need the blocks its first records are in, not a
+    pass over every block for each of its lines (what closing a default run's capture spent
+    most of its time on)."""
+    from armbench.drivers.capture import tally as tally_module
+
+    blocks = [[(40 * k + t, t % 2, False) for t in range(40)] for k in range(50)]
+    counter = _counted([[(t, d, e) for t, d, e in b] for b in blocks])
+    reads: list[int] = []
+    records = tally_module._StoredBlock.records
+
+    def counted(self: tally_module._StoredBlock) -> tuple[object, object]:
+        reads.append(self.count)
+        return records(self)
+
+    monkeypatch.setattr(tally_module._StoredBlock, "records", counted)
+    got = counter.tally()
+    assert [x.line for x in got.head] == list(range(1, HEAD_LINES + 1))
+    assert len(reads) <= len(blocks) + 2  # the counts' pass, and the first block for the lines

@@ -27,6 +27,7 @@ import dataclasses
 import json
 import logging
 import os
+from collections.abc import Awaitable, Callable
 from typing import IO
 
 from armbench.bench.runner.lock import hold_run_folder
@@ -77,9 +78,35 @@ def _new_record(plan: BenchPlan) -> RunRecord:
     return record
 
 
-async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedSuite) -> None:
-    """Every trial of ``ps`` the record lacks (in worker processes when it can), then its
-    summary; a trial that stays in error ends the suite."""
+def _todo(runner: TrialRunner, ps: PlannedSuite) -> list[int]:
+    """The trials of ``ps`` to measure: its shard's, less those the record has done."""
+    done = {t.index for t in runner.writer.completed_trials(ps.name)}
+    return [i for i in runner.plan.shard_trials(ps) if i not in done]
+
+
+def _start_next(runner: TrialRunner, parallel: ParallelTrials,
+                following: PlannedSuite | None) -> Callable[[], Awaitable[None]] | None:
+    """What sends the trials of the suite ``following`` to the workers while the one before it
+    ends (its last trial, its summary): nothing when there is none or it is measured in
+    turn."""
+    if following is None:
+        return None
+
+    async def start() -> None:
+        if runner.writer.suite_done(following.name):
+            return
+        todo = _todo(runner, following)
+        if parallel.usable(following, todo):
+            await parallel.start(following, todo)
+
+    return start
+
+
+async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedSuite,
+                     following: PlannedSuite | None = None) -> None:
+    """Every trial of ``ps`` the record lacks (in worker processes when it can; those of the
+    ``following`` suite sent to them as the last of these runs), then its summary; a trial that
+    stays in error ends the suite."""
     writer = runner.writer
     name = ps.name
     if writer.suite_done(name):
@@ -90,13 +117,14 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
     n = len(ps.trials)
     done = {t.index for t in writer.completed_trials(name)}
     shard = runner.plan.shard
-    todo = [i for i in runner.plan.shard_trials(ps) if i not in done]
+    todo = _todo(runner, ps)
     runner.progress.message(f"[{name}] {n} trial(s)" + (
         f", {len(done)} already measured" if done else "") + (
         f", shard {shard[0]}/{shard[1]}: {len(todo)} to measure" if shard else ""))
     stopped: Trial | None = None
     if parallel.usable(ps, todo):
-        stopped = await parallel.run(ps, todo)
+        stopped = await parallel.run(ps, todo,
+                                     following=_start_next(runner, parallel, following))
     else:
         for k, index in enumerate(todo):
             if k and runner.plan.settle_s > 0:
@@ -119,8 +147,10 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
 
 async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                   emulator_factory: EmulatorFactory | None = None,
-                  writer_class: type[LoopClockWriter] = LoopClockWriter) -> RunOutcome:
-    """Run a prepared plan (see the module docstring); returns the outcome.
+                  writer_class: type[LoopClockWriter] = LoopClockWriter,
+                  meanwhile: Callable[[], None] | None = None) -> RunOutcome:
+    """Run a prepared plan (see the module docstring); returns the outcome. ``meanwhile`` runs
+    in a thread once the first trial is in the record (:meth:`TrialRunner.committed`).
 
     Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
     the record as it is on disk (every finished trial) and propagates
@@ -131,12 +161,13 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         make_directory(plan.out_dir, "run folder")
     with hold_run_folder(plan.out_dir):
         return await _execute(plan, progress=progress, emulator_factory=emulator_factory,
-                              writer_class=writer_class)
+                              writer_class=writer_class, meanwhile=meanwhile)
 
 
 async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
                    emulator_factory: EmulatorFactory | None,
-                   writer_class: type[LoopClockWriter]) -> RunOutcome:
+                   writer_class: type[LoopClockWriter],
+                   meanwhile: Callable[[], None] | None) -> RunOutcome:
     if plan.resume is not None:
         resumed = writer_class.resume(plan.out_dir)
         assert isinstance(resumed, LoopClockWriter)
@@ -155,7 +186,8 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
     for ps in plan.suites:
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     runner = TrialRunner(plan, writer, printer,
-                         emulator_factory if emulator_factory is not None else default_emulator)
+                         emulator_factory if emulator_factory is not None else default_emulator,
+                         meanwhile=meanwhile)
     parallel = ParallelTrials(runner)
     if plan.resume is not None:
         runner.captures.recover(writer.record, writer.out_dir)
@@ -169,8 +201,9 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
         if plan.tracker is not None:
             await aopen_source(plan.tracker)
         try:
-            for ps in plan.suites:
-                await _run_suite(runner, parallel, ps)
+            for k, ps in enumerate(plan.suites):
+                await _run_suite(runner, parallel, ps, plan.suites[k + 1]
+                                 if k + 1 < len(plan.suites) else None)
         finally:
             try:
                 parallel.close()

@@ -30,6 +30,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,8 +49,10 @@ from armbench.bench.runner.options import (
     RunOutcome,
 )
 from armbench.bench.runner.overwrite import remove_earlier_run
+from armbench.bench.runner.parallel import prestart_workers
 from armbench.bench.runner.plan import prepare
 from armbench.bench.runner.probe import probe_arms, probe_arms_sync
+from armbench.bench.workers.worker_process import discard_prestarted
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
 from armbench.record import RESULTS_FILE, load_record
@@ -196,22 +199,41 @@ def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
 
 
 async def _run_arm(plan: BenchPlan, progress: IO[str] | None,
-                   emulator_factory: EmulatorFactory | None) -> _ArmEnd:
+                   emulator_factory: EmulatorFactory | None,
+                   meanwhile: Callable[[], None] | None) -> _ArmEnd:
     """One arm's run; an exception that escapes it ends this arm only."""
     try:
-        outcome = await execute(plan, progress=progress, emulator_factory=emulator_factory)
+        outcome = await execute(plan, progress=progress, emulator_factory=emulator_factory,
+                                meanwhile=meanwhile)
     except Exception as exc:  # the other arms go on: this one is in error
         error = f"{type(exc).__name__}: {exc}"
         return _ArmEnd(_from_disk(plan, EXIT_ERROR, error), error, exc)
     return _ArmEnd(outcome, outcome.error)
 
 
+def _once(fn: Callable[[], None]) -> Callable[[], None]:
+    """``fn``, run by the first of the threads that call it (every arm's runner starts one)."""
+    lock = threading.Lock()
+    started: list[bool] = []
+
+    def run() -> None:
+        with lock:
+            if started:
+                return
+            started.append(True)
+        fn()
+
+    return run
+
+
 async def _run_all(planned: _Planned, progress: IO[str] | None,
-                   emulator_factory: EmulatorFactory | None) -> list[_ArmEnd]:
+                   emulator_factory: EmulatorFactory | None,
+                   meanwhile: Callable[[], None] | None = None) -> list[_ArmEnd]:
     layout = planned.layout
+    once = None if meanwhile is None else _once(meanwhile)  # the first arm's trial starts it
     return list(await asyncio.gather(*(
         _run_arm(plan, cast(IO[str], _Prefixed(progress, arm.name or ""))
-                 if layout.fleet and progress is not None else progress, emulator_factory)
+                 if layout.fleet and progress is not None else progress, emulator_factory, once)
         for plan, arm in zip(planned.plans, layout.arms, strict=True))))
 
 
@@ -237,7 +259,8 @@ def _finish(planned: _Planned, ends: Sequence[_ArmEnd]) -> RunResult:
 
 def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
                   emulator_factory: EmulatorFactory | None = None,
-                  then: Callable[[RunOutcome], None] | None = None) -> RunResult:
+                  then: Callable[[RunOutcome], None] | None = None,
+                  meanwhile: Callable[[], None] | None = None) -> RunResult:
     """Check every arm, find every arm that is already there, then run them all at once on a
     loop of the right kind (see the module docstring). Ctrl-C returns each arm's record on disk
     with exit status 130. ``then`` is called with each arm's outcome while the run's folder is
@@ -246,15 +269,20 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     A folder to resume is locked before anything of it is read (a run still writing it is
     refused); a new run's folder once it is made, after the arms answered at their ports. Each
     arm's folder is locked by the runner too (:mod:`~armbench.bench.runner.lock`).
+
+    With ``meanwhile``, a thread runs it once the first trial is in a record: work ``then`` will
+    need (the command imports the report's modules while the trials go on).
     """
     with contextlib.ExitStack() as held:
+        prestart_workers(options)  # they start while the run is planned
+        held.callback(discard_prestarted)
         if options.resume is not None and any(
                 (Path(options.resume) / name).is_file() for name in (RESULTS_FILE, FLEET_FILE)):
             held.enter_context(hold_run_folder(options.resume))
         planned = _plan(options)
         probe_arms_sync(planned.plans)  # every arm answers before the run's folder is made
         _begin(planned, held, overwrite=options.overwrite)
-        main = _run_all(planned, progress, emulator_factory)
+        main = _run_all(planned, progress, emulator_factory, meanwhile)
         try:
             if all(plan.target.virtual for plan in planned.plans):
                 from armbench.fakes.clock.vclock import run_virtual

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +41,7 @@ __all__ = [
     "EXIT_INCOMPLETE", "EXIT_INTERRUPTED", "EXIT_PASS", "EXIT_REGRESSION", "JUNIT_FILE",
     "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
     "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
-    "derive_seed", "exit_status", "shard_assignment",
+    "default_workers", "derive_seed", "exit_status", "shard_assignment",
 ]
 
 #: Files of a run directory besides ``results.json`` (``REPORT_FILE`` and ``CAPTURE_FILE``: the
@@ -89,6 +90,12 @@ def shard_assignment(suites: Sequence[Sequence[Mapping[str, Any]]], n: int) -> l
                 dealer += 1
         out.append(shards)
     return out
+
+
+def default_workers() -> int:
+    """Worker processes of a run whose ``[bench] workers`` and ``--workers`` say nothing: one
+    per CPU, at most two."""
+    return min(2, os.cpu_count() or 1)
 
 
 def derive_seed(seed: int, *labels: object) -> int:

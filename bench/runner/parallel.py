@@ -29,24 +29,38 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import logging
-import multiprocessing
-import os
 import pickle
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import Any
 
+from armbench.bench.runner.arms import parse_arms
 from armbench.bench.runner.capture_parts import job_part_tag
 from armbench.bench.runner.cluster import DaskCluster
-from armbench.bench.runner.options import BenchPlan, PlannedSuite, RunAborted
+from armbench.bench.runner.options import (
+    BenchPlan,
+    PlannedSuite,
+    RunAborted,
+    RunOptions,
+    default_workers,
+)
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
-from armbench.bench.workers.worker_process import run_job, worker_init
+from armbench.bench.suites import registered_suites, suite_names
+from armbench.bench.workers.worker_process import new_pool, prestart, run_job, take_pool
+from armbench.drivers.model.errors import ArmbenchError
+from armbench.drivers.transports.target import target_of
 from armbench.record import Trial, path_inside
 
-__all__ = ["JobResult", "ParallelTrials", "TrialJob"]
+__all__ = ["TRIAL_MODULES", "JobResult", "ParallelTrials", "TrialJob", "prestart_workers"]
+
+#: What every trial job imports in its worker, besides its suite's module: imported by each
+#: worker as it starts (``worker_process.worker_init``), not by its first job.
+TRIAL_MODULES: tuple[str, ...] = (
+    "armbench.bench.runner.parallel", "armbench.drivers.host.arm",
+    "armbench.drivers.capture.part", "armbench.fakes.firmware.arm_emulator")
 
 log = logging.getLogger("armbench.runner")
 
@@ -55,13 +69,18 @@ log = logging.getLogger("armbench.runner")
 class JobResult:
     """What a worker sends back: the trial on the worker's clock (``started_s`` from its loop's
     0), its capture parts (times on the same clock: files in the run directory, or their bytes
-    from a Dask worker), its progress messages and the seconds the job took in the worker."""
+    from a Dask worker), its progress messages, and what the job cost the worker: its wall
+    seconds, its CPU seconds and when it began (the worker's ``time.perf_counter()``, one clock
+    for every process of a machine on Linux and Windows: what ``armbench perf`` lines the jobs
+    up with the run's own process by)."""
 
     trial: Trial
     parts: tuple[Path, ...]
     messages: tuple[str, ...]
     shipped: tuple[bytes, ...] = ()
     worker_s: float = 0.0
+    worker_cpu_s: float = 0.0
+    worker_start_s: float = 0.0
 
 
 class _JobClock:
@@ -108,7 +127,7 @@ class TrialJob:
 
     async def measure(self) -> JobResult:
         """Measure the attempt on the running loop (a worker's fresh virtual-time loop)."""
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         if not self.ship:
             result = await self._measure(self.plan.out_dir)
         else:
@@ -117,7 +136,8 @@ class TrialJob:
                 result = dataclasses.replace(
                     result, parts=(), shipped=tuple(p.read_bytes() for p in result.parts
                                                     if p.exists()))
-        return dataclasses.replace(result, worker_s=time.perf_counter() - t0)
+        return dataclasses.replace(result, worker_s=time.perf_counter() - t0,
+                                   worker_cpu_s=time.process_time() - cpu0, worker_start_s=t0)
 
     async def _measure(self, out_dir: Path) -> JobResult:
         messages = _Messages()
@@ -129,10 +149,33 @@ class TrialJob:
         return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
 
 
-def _new_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
-    return concurrent.futures.ProcessPoolExecutor(
-        workers, mp_context=multiprocessing.get_context("spawn"),
-        initializer=worker_init, initargs=(os.getpid(),))
+def _worker_modules(suite_refs: Sequence[str]) -> tuple[str, ...]:
+    """:data:`TRIAL_MODULES` and the modules of the suites ``suite_refs`` names (names or
+    ``module:Class``)."""
+    registered = registered_suites()
+    targets = [registered.get(ref, ref) for ref in suite_refs]
+    return TRIAL_MODULES + tuple(dict.fromkeys(
+        target.partition(":")[0] for target in targets if ":" in target))
+
+
+def prestart_workers(options: RunOptions) -> None:
+    """Start the worker processes of a run that will measure in them, as it begins: while its
+    process plans the run, they start and import what a trial needs (a second of the run's
+    wall time before its first trial). Taken by the run's :class:`ParallelTrials` when its plan
+    asks for as many workers (``[bench] workers`` of a config may ask for others: a new pool
+    then), let go at the run's end otherwise (``worker_process.discard_prestarted``). Only a
+    new run of one arm on a target that measures in workers (``fake://``), with no Dask
+    scheduler named."""
+    workers = options.workers if options.workers is not None else default_workers()
+    if workers < 2 or options.scheduler is not None or options.resume is not None:
+        return
+    try:
+        arms = parse_arms(options.ports or ["fake://"])
+        if len(arms) != 1 or not target_of(arms[0].port).capabilities.parallel:
+            return
+    except ArmbenchError:
+        return  # the plan says what is wrong with it
+    prestart(workers, _worker_modules(list(options.suites) or suite_names()))
 
 
 class ParallelTrials:
@@ -149,6 +192,10 @@ class ParallelTrials:
         """Seconds the committed jobs took inside the workers (with the wall time of the run:
         the overhead of sending trials out)."""
         self.jobs = 0
+        self._in_flight: asyncio.Semaphore | None = None
+        self._started: tuple[str, tuple[int, ...],
+                             list[asyncio.Future[list[JobResult]]]] | None = None
+        """The trials :meth:`start` sent (suite, indices, tasks), for :meth:`run`."""
 
     def usable(self, ps: PlannedSuite, todo: Sequence[int]) -> bool:
         """Whether the trials of ``ps`` go to worker processes: a target that declares
@@ -193,71 +240,49 @@ class ParallelTrials:
                 raise RunAborted(f"cannot reach the Dask scheduler {address}: {exc}") from exc
         return self.cluster
 
-    async def run(self, ps: PlannedSuite, todo: Sequence[int]) -> Trial | None:
-        """Measure ``todo`` in worker processes, commit them in order; the trial that stopped
-        the suite, or None."""
+    async def _slots(self) -> asyncio.Semaphore:
+        """The jobs in flight at once, every suite's: the pool's queue stays short (two per
+        thread of a Dask cluster: the next trial is there when one ends)."""
+        if self._in_flight is None:
+            if self.runner.plan.scheduler is not None:
+                cluster = await self._connect()
+                self._in_flight = asyncio.Semaphore(2 * cluster.threads())
+            else:
+                self._in_flight = asyncio.Semaphore(self.runner.plan.workers)
+        return self._in_flight
+
+    async def start(self, ps: PlannedSuite, todo: Sequence[int]) -> None:
+        """Send the trials ``todo`` of ``ps`` to the workers now, behind the jobs already
+        waiting for a worker, for :meth:`run` to commit later: the next suite's, while this
+        one's last trial and its summary finish (the workers would wait for them otherwise)."""
+        self._drop_started()
+        self._started = (ps.name, tuple(todo), await self._measure_all(ps, todo))
+
+    def _drop_started(self) -> None:
+        started, self._started = self._started, None
+        if started is not None:
+            for task in started[2]:
+                task.cancel()
+
+    async def run(self, ps: PlannedSuite, todo: Sequence[int], *,
+                  following: Callable[[], Awaitable[None]] | None = None) -> Trial | None:
+        """Measure ``todo`` in worker processes (those :meth:`start` sent already, or now),
+        commit them in order; the trial that stopped the suite, or None. ``following`` is
+        awaited once every trial is sent and the last one is awaited (it starts the next
+        suite's)."""
         runner = self.runner
-        loop = asyncio.get_running_loop()
-        attempts = runner.plan.retries + 1
-        if runner.plan.scheduler is not None:
-            cluster = await self._connect()
-            # two per worker thread: the next trial is there when one ends, the queue stays short
-            in_flight = asyncio.Semaphore(2 * cluster.threads())
+        started = self._started
+        if started is not None and started[:2] == (ps.name, tuple(todo)):
+            self._started = None
+            tasks = started[2]
         else:
-            in_flight = asyncio.Semaphore(runner.plan.workers)  # the pool's queue stays short
-
-        async def shared(job: TrialJob) -> JobResult:
-            if self.cluster is not None:
-                on_cluster: JobResult = await loop.run_in_executor(self.cluster.executor,
-                                                                   run_job, job)
-                return on_cluster
-            if self.pool is None:
-                self.pool = _new_pool(runner.plan.workers)
-            pool = self.pool
-            try:
-                result: JobResult = await loop.run_in_executor(pool, run_job, job)
-            except concurrent.futures.BrokenExecutor:
-                if self.pool is pool:
-                    self.close()
-                raise
-            return result
-
-        async def alone(job: TrialJob) -> JobResult:
-            """In a process of its own: a dying worker breaks the whole pool, failing the
-            trials beside it too; measured alone, only the trial that kills its process fails."""
-            pool = _new_pool(1)
-            try:
-                result: JobResult = await loop.run_in_executor(pool, run_job, job)
-            finally:
-                pool.shutdown(wait=False)
-            return result
-
-        async def measure(index: int) -> list[JobResult]:
-            """Every attempt of trial ``index`` (until one is done)."""
-            results = []
-            for attempt in range(attempts):
-                job = self._job(ps, index, attempt)
-                async with in_flight:
-                    try:
-                        try:
-                            result = await shared(job)
-                        except concurrent.futures.BrokenExecutor:
-                            result = await alone(job)
-                    except Exception as exc:  # the worker failed (killed, KilledWorker on Dask)
-                        log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
-                        result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
-                                                 status="error",
-                                                 error=f"worker: {describe(exc)}"), (), ())
-                results.append(result)
-                if result.trial.status == "done":
-                    break
-            return results
-
-        tasks = [asyncio.ensure_future(measure(index)) for index in todo]
+            tasks = await self._measure_all(ps, todo)
         last_commit = wall0 = time.perf_counter()
         jobs0, worker_s0 = self.jobs, self.worker_s
         try:
             for k, (index, task) in enumerate(zip(todo, tasks, strict=True)):
+                if following is not None and k == len(todo) - 1:
+                    await following()
                 await asyncio.sleep(0)  # a cancellation asked for meanwhile stops here, as in turn
                 results = await task
                 if k and runner.plan.settle_s > 0:
@@ -283,6 +308,66 @@ class ParallelTrials:
                     with contextlib.suppress(OSError):  # parts of trials never committed
                         path.unlink()
 
+    async def _measure_all(self, ps: PlannedSuite,
+                           todo: Sequence[int]) -> list[asyncio.Future[list[JobResult]]]:
+        """A task per trial of ``todo``: its attempts measured in the workers, as slots free."""
+        runner = self.runner
+        loop = asyncio.get_running_loop()
+        attempts = runner.plan.retries + 1
+        in_flight = await self._slots()
+
+        async def shared(job: TrialJob) -> JobResult:
+            if self.cluster is not None:
+                on_cluster: JobResult = await loop.run_in_executor(self.cluster.executor,
+                                                                   run_job, job)
+                return on_cluster
+            if self.pool is None:
+                self.pool = take_pool(runner.plan.workers,
+                                      _worker_modules([s.ref for s in runner.plan.suites]))
+            pool = self.pool
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            except concurrent.futures.BrokenExecutor:
+                if self.pool is pool:
+                    self.close()
+                raise
+            return result
+
+        async def alone(job: TrialJob) -> JobResult:
+            """In a process of its own: a dying worker breaks the whole pool, failing the
+            trials beside it too; measured alone, only the trial that kills its process fails."""
+            pool = new_pool(1, _worker_modules([ps.ref]))
+            try:
+                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+            finally:
+                pool.shutdown(wait=False)
+            return result
+
+        async def measure(index: int) -> list[JobResult]:
+            """Every attempt of trial ``index`` (until one is done), in one slot: a trial
+            measured again does not wait behind the trials sent after it (the next suite's
+            among them), which would wait in memory for it to be committed."""
+            results = []
+            async with in_flight:
+                for attempt in range(attempts):
+                    job = self._job(ps, index, attempt)
+                    try:
+                        try:
+                            result = await shared(job)
+                        except concurrent.futures.BrokenExecutor:
+                            result = await alone(job)
+                    except Exception as exc:  # the worker failed (killed, KilledWorker on Dask)
+                        log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
+                        result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
+                                                 status="error",
+                                                 error=f"worker: {describe(exc)}"), (), ())
+                    results.append(result)
+                    if result.trial.status == "done":
+                        break
+            return results
+
+        return [asyncio.ensure_future(measure(index)) for index in todo]
+
     def _commit(self, ps: PlannedSuite, index: int, attempt: int, result: JobResult,
                 wall_s: float) -> Trial:
         """One attempt measured by a worker, into the record as :meth:`TrialRunner.run_trial`
@@ -300,6 +385,7 @@ class ParallelTrials:
             part.write_bytes(data)
             parts.append(part)
         runner.writer.add_trial(ps.name, trial)
+        runner.committed()
         runner.captures.trial(ps.name, trial)
         self.worker_s += result.worker_s
         self.jobs += 1
@@ -313,6 +399,8 @@ class ParallelTrials:
     def close(self) -> None:
         """Let the worker processes go (a busy one finishes its trial alone); the next parallel
         suite starts new ones."""
+        self._drop_started()
+        self._in_flight = None
         pool, self.pool = self.pool, None
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)

@@ -36,6 +36,7 @@ from armbench.bench.runner.options import (
     Isolation,
     PlannedSuite,
     RunOptions,
+    default_workers,
 )
 from armbench.bench.runner.overwrite import check_overwrite
 from armbench.bench.runner.power import DEFAULT_COMMAND_TIMEOUT_S, CommandPower, ManualPower
@@ -251,7 +252,7 @@ def _bench_knobs(config: LimitsConfig, options: RunOptions, target: Target) -> _
     retries = check_whole("bench.retries", bench.get("retries", 0), BENCH_BOUNDS["retries"])
     if options.retries is not None:
         retries = check_whole("--retries", options.retries, BENCH_BOUNDS["retries"])
-    workers = check_whole("bench.workers", bench.get("workers", min(2, os.cpu_count() or 1)),
+    workers = check_whole("bench.workers", bench.get("workers", default_workers()),
                           BENCH_BOUNDS["workers"])
     if options.workers is not None:
         workers = check_whole("--workers", options.workers, BENCH_BOUNDS["workers"])

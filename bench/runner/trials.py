@@ -10,8 +10,9 @@ import contextlib
 import dataclasses
 import logging
 import random
+import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -356,7 +357,8 @@ class TrialRunner:
     record the moment it ends, then each suite's summary."""
 
     def __init__(self, plan: BenchPlan, writer: LoopClockWriter, progress: ProgressPrinter,
-                 emulator_factory: EmulatorFactory) -> None:
+                 emulator_factory: EmulatorFactory, *,
+                 meanwhile: Callable[[], None] | None = None) -> None:
         self.plan = plan
         self.writer = writer
         self.progress = progress
@@ -364,6 +366,15 @@ class TrialRunner:
         if plan.capture:
             self.attempts.captures.open_run(plan.settings, writer.record)
         self._wall0: dict[str, float] = {}
+        self._meanwhile = meanwhile
+
+    def committed(self) -> None:
+        """A trial is in the record: the first time, the run is under way, and ``meanwhile``
+        (what the caller will need once the run ends: the report's modules) starts in a thread
+        of its own, so it is done while the trials go on instead of after them."""
+        meanwhile, self._meanwhile = self._meanwhile, None
+        if meanwhile is not None:
+            threading.Thread(target=meanwhile, name="armbench-meanwhile", daemon=True).start()
 
     def begin_wall(self, name: str) -> None:
         """Start the wall clock of suite ``name`` (begun in the record), counting the wall time
@@ -395,6 +406,7 @@ class TrialRunner:
             wall0 = time.perf_counter()
             trial = await self.attempts.attempt(ps, index, attempt)
             self.writer.add_trial(ps.name, trial)
+            self.committed()
             self.captures.trial(ps.name, trial)
             for part in self.attempts.unmerged:  # after the record: see CaptureParts.recover
                 self.captures.merge(part)

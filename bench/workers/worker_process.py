@@ -3,22 +3,32 @@
 A worker measures one job at a time on a fresh virtual-time loop (:func:`run_job`); what a job
 is (one attempt of one trial) is the runner's business: a worker only needs something with an
 async ``measure()``, so it imports nothing of the runner. :func:`worker_init` makes a worker a
-good child: Ctrl-C is the parent's, and it dies with its parent.
+good child: Ctrl-C is the parent's, and it dies with its parent; it imports the modules a job
+will need as it starts.
+
+A spawned worker takes about a second to start (an interpreter, numpy, the emulator) before it
+can measure anything. :func:`prestart` starts the pool of a run at once, so the workers start
+while the run's process is still planning; :func:`take_pool` hands it to the runner when it has
+the number of workers asked for, and :func:`discard_prestarted` lets an unused one go.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import ctypes
+import importlib
+import multiprocessing
 import os
 import signal
 import sys
 import threading
 import time
-from collections.abc import Coroutine
+from collections.abc import Coroutine, Sequence
 from typing import Any, Protocol, TypeVar
 
-__all__ = ["Job", "run_job", "worker_init"]
+__all__ = ["Job", "discard_prestarted", "new_pool", "prestart", "run_job", "take_pool",
+           "worker_init"]
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
@@ -32,11 +42,12 @@ class Job(Protocol[T_co]):
         """The coroutine that does the work on the worker's loop."""
 
 
-def worker_init(parent: int) -> None:
+def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     """Worker initializer. Ctrl-C is the parent's to handle (it stops submitting and keeps the
     record): a worker finishes the trial at hand. A worker whose parent dies (``kill -9``) exits
     at once instead of living on as an orphan holding the parent's output pipes: the kernel's
-    parent-death signal on Linux, and a watch on ``parent`` (the run's pid) everywhere."""
+    parent-death signal on Linux, and a watch on ``parent`` (the run's pid) everywhere. The
+    modules ``preload`` names are imported last (what a job will need)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
@@ -52,6 +63,54 @@ def worker_init(parent: int) -> None:
                 os._exit(1)
 
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    for name in preload:
+        importlib.import_module(name)
+
+
+def _started() -> None:
+    """A job that does nothing: submitting one per worker makes the pool start them all."""
+
+
+def new_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.ProcessPoolExecutor:
+    """A pool of ``workers`` spawned worker processes (:func:`worker_init`), each importing
+    ``preload`` as it starts; started now, not at the first job."""
+    pool = concurrent.futures.ProcessPoolExecutor(
+        workers, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
+        initargs=(os.getpid(), tuple(preload)))
+    for _ in range(workers):  # a spawning pool starts a process per job submitted
+        pool.submit(_started)
+    return pool
+
+
+_prestarted: tuple[int, tuple[str, ...], concurrent.futures.ProcessPoolExecutor] | None = None
+
+
+def prestart(workers: int, preload: Sequence[str] = ()) -> None:
+    """Start a pool of ``workers`` now, kept for :func:`take_pool` (one at a time: an unused one
+    started before is let go)."""
+    global _prestarted
+    discard_prestarted()
+    _prestarted = (workers, tuple(preload), new_pool(workers, preload))
+
+
+def take_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.ProcessPoolExecutor:
+    """The pool :func:`prestart` started if it has ``workers`` workers, else a new one importing
+    ``preload`` (and the other one let go)."""
+    global _prestarted
+    if _prestarted is not None and _prestarted[0] == workers:
+        pool = _prestarted[2]
+        _prestarted = None
+        return pool
+    discard_prestarted()
+    return new_pool(workers, preload)
+
+
+def discard_prestarted() -> None:
+    """Let the pool :func:`prestart` started go, if no run took it."""
+    global _prestarted
+    if _prestarted is not None:
+        _prestarted[2].shutdown(wait=False, cancel_futures=True)
+        _prestarted = None
 
 
 def run_job(job: Job[T_co]) -> T_co:

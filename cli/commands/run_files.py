@@ -15,7 +15,7 @@ from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE,
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import RunRecord, atomic_write_bytes, path_inside
 
-__all__ = ["step_summary", "text_summary", "write_reports"]
+__all__ = ["preload_reports", "step_summary", "text_summary", "write_reports"]
 
 log = logging.getLogger("armbench.runner")
 
@@ -28,6 +28,19 @@ def write_reports(record: RunRecord, out_dir: Path, *,
     to the run's ``capture.mcap`` (zstd) when the capture's size bound leaves room for it."""
     _write_pages(record, out_dir)
     _attach_report(out_dir, capture_max_bytes)
+
+
+def preload_reports() -> None:
+    """Import what :func:`write_reports` will (the report's pages, matplotlib, Jinja2): the run
+    command does it in a thread while the trials go on, so the report is not waiting for its
+    imports once they end. Without the report package (a minimal install) nothing is done."""
+    try:
+        import armbench.reports.files.junit
+        import armbench.reports.pages.page  # noqa: F401
+    except ImportError:
+        return
+    except Exception:  # the report itself says what is wrong, when it is written
+        log.debug("the report's modules could not be loaded in advance", exc_info=True)
 
 
 def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:

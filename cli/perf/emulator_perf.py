@@ -23,14 +23,14 @@ from armbench.fakes.firmware.arm_emulator import ArmEmulator
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.twin.joint import CYCLE_S
 
-__all__ = ["run"]
+__all__ = ["emulate", "run"]
 
 POSES = ([1.2, 0.9, -1.2, 1.5], [-1.2, -0.6, 0.8, -0.4])
 #: A low baud rate where each reply takes ~26 ms on the line: the master's prints block.
 SLOW_BAUD = 9600
 
 
-async def _emulate(sim_s: float, moving: bool, baudrate: int = 115200,
+async def emulate(sim_s: float, moving: bool, baudrate: int = 115200,
                    fused_bus: bool = True, cpu: list[float] | None = None) -> tuple[float, int]:
     """Wall seconds and main loops for ``sim_s`` simulated seconds (the CPU seconds of this
     thread appended to ``cpu`` when given)."""
@@ -94,16 +94,16 @@ def run(options: PerfOptions) -> list[Figure]:
     best_slow = best_unfused = 0.0
     for _ in range(repeats):  # interleaved, best of each: a busy machine only ever slows a run
         cpu: list[float] = []
-        wall, loops = run_virtual(_emulate(sim_s, moving=True, cpu=cpu))
+        wall, loops = run_virtual(emulate(sim_s, moving=True, cpu=cpu))
         best_factor = max(best_factor, sim_s / wall)
         best_cpu_factor = max(best_cpu_factor, sim_s / cpu[0])
-        unfused_wall, _ = run_virtual(_emulate(sim_s, moving=True, fused_bus=False))
+        unfused_wall, _ = run_virtual(emulate(sim_s, moving=True, fused_bus=False))
         best_unfused = max(best_unfused, sim_s / unfused_wall)
-        slow_wall, _ = run_virtual(_emulate(sim_s, moving=True, baudrate=SLOW_BAUD))
+        slow_wall, _ = run_virtual(emulate(sim_s, moving=True, baudrate=SLOW_BAUD))
         best_slow = max(best_slow, sim_s / slow_wall)
         best_loop = min(best_loop, wall / loops)
         best_sleep = min(best_sleep, run_virtual(_bare_sleep_s(20_000, 2.4e-3)))
-        idle_wall, _ = run_virtual(_emulate(sim_s, moving=False))
+        idle_wall, _ = run_virtual(emulate(sim_s, moving=False))
         best_idle = max(best_idle, sim_s / idle_wall)
         best_cycle = max(best_cycle, cycle_s / _cycle_loop_s(cycle_s))
     return [

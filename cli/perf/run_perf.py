@@ -16,16 +16,28 @@ the others: an import inside the report counts as an import):
 * ``other``: the rest of the process after its first line ran (planning, committing trials,
   progress), and ``start``: the wall time before that (interpreter start-up).
 
+``run.serial_s`` is the timed run's wall time outside the trials: the seconds of its process
+(interpreter start-up included) during which no worker was measuring a trial (each job's span in
+its worker, lined up by ``time.perf_counter``, one clock for the machine's processes): what the
+run's own work adds to the trials' time. Work of the run's process while a worker measures
+(committing a trial, merging its capture) overlaps the trials and is not in it.
+
 ``run.trials_in_workers_s`` is the seconds the trials took inside the workers (sum over both),
-``run.pool_start_s`` how long a fresh pool of two spawned workers takes to answer a first job
-that imports what a trial needs, and ``run.process_start_s`` a bare ``python -c pass``.
+``run.trials_per_bare_emulator`` the trials' CPU seconds in the workers over the CPU seconds the
+bare emulator (``emulator.cpu_realtime_factor``'s workload, measured here too) needs for the
+same robot time (their wall seconds' ratio in the note), ``run.pool_start_s`` how long a fresh
+pool of two spawned workers takes to answer a first job that imports what a trial needs, and
+``run.process_start_s`` a bare ``python -c pass``.
 """
 
 from __future__ import annotations
 
+import bisect
+import collections
 import concurrent.futures
 import functools
 import importlib
+import itertools
 import json
 import multiprocessing
 import os
@@ -33,6 +45,7 @@ import runpy
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -123,27 +136,82 @@ def _patch(clock: _Clock) -> list[str]:
     return missing
 
 
-def _parallel_totals() -> Callable[[], tuple[float, int]]:
-    """The seconds and jobs of every ``ParallelTrials`` the run makes, read at the end."""
+def _trial_jobs() -> list[dict[str, float]]:
+    """Every trial job the run commits (its seconds, CPU seconds, start in its worker and robot
+    seconds), filled in as the run goes."""
     from armbench.bench.runner import parallel
 
-    made: list[Any] = []
-    init = parallel.ParallelTrials.__init__
+    jobs: list[dict[str, float]] = []
+    commit = parallel.ParallelTrials._commit
 
-    def keep(self: Any, *args: Any, **kwargs: Any) -> None:
-        init(self, *args, **kwargs)
-        made.append(self)
+    def keep(self: Any, ps: Any, index: int, attempt: int, result: Any, wall_s: float) -> Any:
+        jobs.append({"worker_s": result.worker_s, "cpu_s": result.worker_cpu_s,
+                     "start_s": result.worker_start_s, "robot_s": result.trial.duration_s})
+        return commit(self, ps, index, attempt, result, wall_s)
 
-    parallel.ParallelTrials.__init__ = keep  # type: ignore[method-assign]
-    return lambda: (sum(p.worker_s for p in made), sum(p.jobs for p in made))
+    parallel.ParallelTrials._commit = keep  # type: ignore[method-assign]
+    return jobs
+
+
+class _CpuTrace:
+    """The process's CPU seconds read every ``period_s`` by a thread of its own (bounded):
+    how much of it was spent while no trial ran."""
+
+    def __init__(self, period_s: float = 0.05, limit: int = 200_000) -> None:
+        self.samples: collections.deque[tuple[float, float]] = collections.deque(maxlen=limit)
+        self._stop = threading.Event()
+        self._period_s = period_s
+        self._thread = threading.Thread(target=self._run, name="cpu-trace", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self.samples.append((time.perf_counter(), time.process_time()))
+            if self._stop.wait(self._period_s):
+                return
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.samples.append((time.perf_counter(), time.process_time()))
+
+    def cpu_outside(self, spans: list[tuple[float, float]]) -> float:
+        """CPU seconds between two samples whose middle none of ``spans`` covers."""
+        merged: list[list[float]] = []
+        for start, stop in sorted(spans):
+            if merged and start <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], stop)
+            else:
+                merged.append([start, stop])
+        starts = [m[0] for m in merged]
+        total = 0.0
+        for (t0, c0), (t1, c1) in itertools.pairwise(self.samples):
+            middle = 0.5 * (t0 + t1)
+            k = bisect.bisect_right(starts, middle) - 1
+            if k < 0 or middle > merged[k][1]:
+                total += c1 - c0
+        return total
+
+
+def covered_s(spans: list[tuple[float, float]], begin: float, end: float) -> float:
+    """Seconds of [``begin``, ``end``] that at least one of ``spans`` covers."""
+    total, reach = 0.0, begin
+    for start, stop in sorted(spans):
+        start, stop = max(start, reach), min(stop, end)
+        if stop > start:
+            total += stop - start
+            reach = stop
+    return total
 
 
 def child(out_dir: str) -> None:
     """The timed run (in a fresh process): prints its phases as one JSON line on stdout."""
+    begin = time.perf_counter()
+    trace = _CpuTrace()
     clock = _Clock()
     clock.enter("setup")
     missing = _patch(clock)
-    totals = _parallel_totals()
+    jobs = _trial_jobs()
     clock.leave()
     # the program as a user runs it (``python -m armbench run``), its exit status caught
     sys.argv = ["armbench", "run", "--out", out_dir, "-q"]
@@ -153,11 +221,18 @@ def child(out_dir: str) -> None:
     except SystemExit as exc:
         status = exc.code if isinstance(exc.code, int) else 1
     clock.enter("end")
-    worker_s, jobs = totals()
+    end = time.perf_counter()
     seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
     cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
+    trace.stop()
+    spans = [(j["start_s"], j["start_s"] + j["worker_s"]) for j in jobs]
+    trials_s = covered_s(spans, begin, end)
     print(json.dumps({"status": status, "phases": seconds, "cpu": cpu, "missing": missing,
-                      "worker_s": worker_s, "jobs": jobs}))
+                      "worker_s": sum(j["worker_s"] for j in jobs), "jobs": len(jobs),
+                      "worker_cpu_s": sum(j["cpu_s"] for j in jobs),
+                      "robot_s": sum(j["robot_s"] for j in jobs),
+                      "process_s": end - begin, "trials_s": trials_s,
+                      "serial_cpu_s": trace.cpu_outside(spans)}))
 
 
 def _run_wall(args: list[str], out: Path) -> tuple[float, float, str]:
@@ -196,6 +271,45 @@ def _pool_start_s() -> float:
     return elapsed
 
 
+def _bare_emulator(options: PerfOptions) -> tuple[float, float]:
+    """The bare emulator's simulated seconds per wall second and per CPU second (best of the
+    repeats): the workload of ``emulator.realtime_factor``."""
+    from armbench.cli.perf.emulator_perf import emulate
+    from armbench.fakes.clock.vclock import run_virtual
+
+    sim_s = 10.0 if options.quick else 20.0
+    best_wall = best_cpu = 0.0
+    for _ in range(2 if options.quick else 3):
+        cpu: list[float] = []
+        wall, _ = run_virtual(emulate(sim_s, moving=True, cpu=cpu))
+        best_wall, best_cpu = max(best_wall, sim_s / wall), max(best_cpu, sim_s / cpu[0])
+    return best_wall, best_cpu
+
+
+def _serial(phases: dict[str, Any], timed_wall: float) -> Figure:
+    """``run.serial_s``: the timed run's wall seconds with no trial in a worker."""
+    serial = max(0.0, timed_wall - phases["trials_s"])
+    own_cpu = sum(phases["cpu"].values())
+    return Figure("run.serial_s", serial, "s",
+                  note=f"of {timed_wall:.2f} s wall in the timed run's own process, trials in "
+                       f"the workers for the other {phases['trials_s']:.2f} s; the process's "
+                       f"CPU: {phases['serial_cpu_s']:.2f} s of its {own_cpu:.2f} s with no "
+                       "trial in a worker")
+
+
+def _per_bare_emulator(phases: dict[str, Any], wall_factor: float,
+                       cpu_factor: float) -> Figure:
+    """``run.trials_per_bare_emulator``: the trials' CPU over the bare emulator's for their
+    robot time."""
+    robot_s = phases["robot_s"]
+    bare_cpu_s, bare_wall_s = robot_s / cpu_factor, robot_s / wall_factor
+    return Figure("run.trials_per_bare_emulator", phases["worker_cpu_s"] / bare_cpu_s, "x",
+                  note=f"{phases['worker_cpu_s']:.2f} s CPU in the workers for {robot_s:.0f} s "
+                       f"of robot time; the bare emulator {bare_cpu_s:.2f} s ({cpu_factor:.0f} "
+                       f"sim s/CPU s); wall: {phases['worker_s']:.2f} s against "
+                       f"{bare_wall_s:.2f} s, {phases['worker_s'] / bare_wall_s:.2f}x")
+
+
 def run(options: PerfOptions) -> list[Figure]:
     """Measure the ``run.*`` figures (a few default runs: tens of seconds each)."""
     repeats = 1 if options.quick else max(1, min(options.repeats, 3))
@@ -215,13 +329,16 @@ def run(options: PerfOptions) -> list[Figure]:
         phases = json.loads(lines[-1])
     start = min(_run_wall(["-c", "pass"], Path(tempfile.gettempdir()) / "x")[0]
                 for _ in range(3))
+    bare_wall_factor, bare_cpu_factor = _bare_emulator(options)
     pool = min(_pool_start_s() for _ in range(2 if options.quick else 3))
     figures = [
         Figure("run.default_wall_s", best_wall, "s",
                note="armbench run --out DIR: every suite on fake://, two workers; best of "
                     f"{repeats}"),
+        _serial(phases, timed_wall),
         Figure("run.trials_in_workers_s", phases["worker_s"], "s",
                note=f"{phases['jobs']} trial jobs, seconds inside the workers (both added up)"),
+        _per_bare_emulator(phases, bare_wall_factor, bare_cpu_factor),
         Figure("run.pool_start_s", pool, "s",
                note="two spawned workers: first answer to a job importing what a trial needs"),
         Figure("run.process_start_s", start, "s", note="python -c pass"),

@@ -246,6 +246,8 @@ class TrafficCounter:
         self._reasons: Counter[str] = Counter()
         self._latest_head_ns = 2**63 - 1
         """A block starting after this (ns) and without errors holds no record of the excerpt."""
+        self._read: tuple[_StoredBlock, npt.NDArray[np.int64], KindArray] | None = None
+        """The block :meth:`_line_number` read last, its records."""
         self.events: list[str] = []
 
     def add(self, t_ns: npt.NDArray[np.int64], flags: npt.NDArray[np.uint8],
@@ -296,6 +298,7 @@ class TrafficCounter:
             totals += np.bincount(kinds, minlength=4)[:4]
             per_bin += _bin_counts(b, t_ns / 1e9, kinds, None)
         head, first_errors = self._excerpt(self._line_number)
+        self._read = None
         return _assemble(b, totals, per_bin, 0, self._reasons, head, first_errors,
                          list(self.events))
 
@@ -307,16 +310,24 @@ class TrafficCounter:
     def _line_number(self, t_ns: int, out_later: int, index: int) -> int:
         """The line (from 1) of the record added as ``index`` in the readers' order: one more
         than the records before it (earlier, or as early and arm → host first, or as early,
-        same direction and added before)."""
+        same direction and added before). A block wholly before ``t_ns`` counts whole and one
+        wholly after it not at all, unread: the excerpt's records are the run's first, so
+        only the blocks at its start are read."""
         before, offset = 0, 0
-        for times, kinds in self._records():
-            later = 1 - (kinds & 1)
-            same = times == t_ns
-            before += int(np.count_nonzero(times < t_ns))
-            before += int(np.count_nonzero(same & (later < out_later)))
-            first = max(0, min(len(times), index - offset))
-            before += int(np.count_nonzero(same[:first] & (later[:first] == out_later)))
-            offset += len(times)
+        for block in self._blocks:
+            if block.t_max < t_ns:
+                before += block.count
+            elif block.t_min <= t_ns:
+                if self._read is None or self._read[0] is not block:  # the lines share blocks
+                    self._read = (block, *block.records())
+                _, times, kinds = self._read
+                later = 1 - (kinds & 1)
+                same = times == t_ns
+                before += int(np.count_nonzero(times < t_ns))
+                before += int(np.count_nonzero(same & (later < out_later)))
+                first = max(0, min(len(times), index - offset))
+                before += int(np.count_nonzero(same[:first] & (later[:first] == out_later)))
+            offset += block.count
         return before + 1
 
     def _excerpt(self, line: Callable[[int, int, int], int]) -> tuple[list[TrafficLine],

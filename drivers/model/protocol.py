@@ -286,6 +286,22 @@ def _command(f: tuple[bytes, ...]) -> Command:
                    (int(f[1]), int(f[3]), int(f[5]), int(f[7])))
 
 
+def _one_reply(data: bytes) -> Reply | None:
+    """The reply the :data:`REPLY_LEN` bytes ``data`` are, or None: what ``_REPLY_RE`` matches
+    (``$``, four fields of five ASCII digits up to :data:`MAX_TICKS` between commas, ``#``),
+    read by slices instead of the regular expression (a third of the time, a reply being
+    decoded hundreds of times a second)."""
+    if data[0] != 36 or data[6] != 44 or data[12] != 44 or data[18] != 44 or data[24] != 35:
+        return None  # '$', ',', ',', ',', '#'
+    a, b, c, d = data[1:6], data[7:12], data[13:18], data[19:24]
+    if not (a.isdigit() and b.isdigit() and c.isdigit() and d.isdigit()):
+        return None
+    t1, t2, t3, t4 = int(a), int(b), int(c), int(d)
+    if t1 > MAX_TICKS or t2 > MAX_TICKS or t3 > MAX_TICKS or t4 > MAX_TICKS:
+        return None
+    return _new(Reply, (t1, t2, t3, t4))
+
+
 def _gap_reason(gap: bytes) -> str:
     return "frame cut short by a new '$'" if b"$" in gap else "bytes outside a frame"
 
@@ -303,7 +319,8 @@ class Framer:
     so a stream without ``#`` cannot grow memory. CR/LF between frames are accepted silently.
     """
 
-    __slots__ = ("_buf", "_fast", "_len", "_one", "discarded_bytes", "errors", "frames", "kind")
+    __slots__ = ("_buf", "_fast", "_len", "_replies", "discarded_bytes", "errors", "frames",
+                 "kind")
 
     def __init__(self, kind: FrameKind = "reply") -> None:
         if kind not in ("reply", "command"):
@@ -311,7 +328,7 @@ class Framer:
         self.kind: FrameKind = kind
         self._len = REPLY_LEN if kind == "reply" else COMMAND_LEN
         self._fast = (_REPLY_RE if kind == "reply" else _COMMAND_RE).findall
-        self._one = _REPLY_RE.fullmatch if kind == "reply" else None
+        self._replies = kind == "reply"
         self._buf = b""
         self.frames = 0
         """Valid frames decoded."""
@@ -329,12 +346,11 @@ class Framer:
         """The reply ``data`` is, if it is exactly one valid reply and nothing is buffered (how
         a fake:// or a quiet line delivers them): counted as :meth:`feed` would. Otherwise None,
         and nothing is consumed: :meth:`feed` the chunk."""
-        if self._one is not None and not self._buf and len(data) == REPLY_LEN:
-            m = self._one(data)
-            if m is not None:
-                a, b, c, d = m.groups()
+        if self._replies and not self._buf and len(data) == REPLY_LEN:
+            reply = _one_reply(data)
+            if reply is not None:
                 self.frames += 1
-                return _new(Reply, (int(a), int(b), int(c), int(d)))
+            return reply
         return None
 
     def feed(self, data: bytes) -> list[Event]:
