@@ -50,9 +50,10 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.overwrite import remove_earlier_run
 from armbench.bench.runner.parallel import prestart_workers
-from armbench.bench.runner.plan import prepare
+from armbench.bench.runner.plan import BENCH_BOUNDS, prepare
 from armbench.bench.runner.probe import probe_arms, probe_arms_sync
 from armbench.bench.workers.worker_process import discard_prestarted
+from armbench.drivers.model.bounds import check_whole
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
 from armbench.record import RESULTS_FILE, load_record
@@ -257,6 +258,18 @@ def _finish(planned: _Planned, ends: Sequence[_ArmEnd]) -> RunResult:
                      [e.error for e in ends], status, layout.fleet)
 
 
+def _workers_in_bound(options: RunOptions) -> bool:
+    """Whether ``--workers`` is absent or within its bound: a count beyond it (``--workers
+    1000000``) must be refused by the plan, not started as processes first."""
+    if options.workers is None:
+        return True
+    try:
+        check_whole("--workers", options.workers, BENCH_BOUNDS["workers"])
+    except ArmbenchError:
+        return False
+    return True
+
+
 def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
                   emulator_factory: EmulatorFactory | None = None,
                   then: Callable[[RunOutcome], None] | None = None,
@@ -274,7 +287,8 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     need (the command imports the report's modules while the trials go on).
     """
     with contextlib.ExitStack() as held:
-        prestart_workers(options)  # they start while the run is planned
+        if _workers_in_bound(options):  # else the plan refuses them, before any process starts
+            prestart_workers(options)  # they start while the run is planned
         held.callback(discard_prestarted)
         if options.resume is not None and any(
                 (Path(options.resume) / name).is_file() for name in (RESULTS_FILE, FLEET_FILE)):
