@@ -125,7 +125,8 @@ class CaptureParts:
         record and the capture's next complete chunk. They are merged in the order of their
         trials on the run clock (not the order the files were written: workers end out of
         turn), each after its trials' start and end events unless the capture carried over
-        holds them, as the uninterrupted run writes them. Any other part holds a trial the
+        holds them, as the uninterrupted run writes them; an error trial without a part (it
+        failed before any traffic) gets its start and end alone. Any other part holds a trial the
         record lacks, which is measured again, and is dropped, so ``capture.mcap`` stays one
         stream on the run clock, in time order."""
         attempts = sorted(((name, t) for name, s in record.suites.items()
@@ -134,7 +135,7 @@ class CaptureParts:
         tries: dict[tuple[str, int], list[Trial]] = {}
         for name, t in attempts:
             tries.setdefault((name, t.index), []).append(t)
-        units: list[tuple[float, int, Path, float, list[tuple[str, Trial]]]] = []
+        units: list[tuple[float, int, Path | None, float, list[tuple[str, Trial]]]] = []
         jobs: dict[tuple[str, int], list[tuple[int, Path]]] = {}
         for part in sorted(out_dir.glob(".capture.part*.part")):
             job = _JOB_PART.fullmatch(part.name)
@@ -162,15 +163,19 @@ class CaptureParts:
                                   [(name, trial)]))
                 else:
                     _drop(part)
-        units.sort(key=lambda u: (u[0], u[1], u[2].name))
+        held_ids = {id(t) for unit in units for _, t in unit[4]}
+        units.extend((t.started_s, -1, None, 0.0, [(name, t)]) for name, t in attempts
+                     if t.status == "error" and id(t) not in held_ids)  # failed before traffic
+        units.sort(key=lambda u: (u[0], u[1], "" if u[2] is None else u[2].name))
         written: set[int] = set()
-        for _, _, part, offset_s, held in units:
+        for _, _, unit_part, offset_s, held in units:
             for name, trial in held:
                 if id(trial) not in written and (self.run is None
                                                  or not self.run.has_trial_events(name, trial)):
                     self.trial(name, trial)
                 written.add(id(trial))
-            self.merge(part, offset_s)
+            if unit_part is not None:
+                self.merge(unit_part, offset_s)
 
 
 def _drop(part: Path) -> None:
