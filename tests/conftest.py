@@ -28,9 +28,12 @@ BUILD_INPUTS = ("api", "bench", "cli", "drivers", "fakes", "frontends", "metrics
 _NEEDS_PTY = re.compile(r"(?<![a-z])pty(?![a-z])", re.IGNORECASE)
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Tests sharing a module's fixture run in one worker; where the system has no
-    pseudo-terminals (Windows), the tests that need one skip."""
+    pseudo-terminals (Windows), the tests that need one skip. First of the hook's
+    implementations: pytest-xdist's reads the groups into the test ids in its own (a
+    plugin registered after this file, so called before it unless told)."""
     group_by_module_fixtures(items)
     if hasattr(os, "openpty"):
         return
