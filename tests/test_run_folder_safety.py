@@ -180,8 +180,11 @@ def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
     """A fleet's folder is locked as a run's is: with its lock held by another process,
     ``run --resume FLEET`` is refused naming that process, and the fleet's files are unchanged."""
     fleet = tmp_path / "fleet"
+    one_lap = tmp_path / "one-lap.toml"  # what is refused does not depend on the laps
+    one_lap.write_text((ROOT / "record" / "default_bench.toml").read_text(encoding="utf-8")
+                       + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     done = _bench("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
-                  "--out", str(fleet), "--workers", "1")
+                  "--out", str(fleet), "--workers", "1", "--config", str(one_lap))
     assert done.returncode == 0, done.stderr
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys\n"
