@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import functools
+import io
 import json
 import os
 import shutil
@@ -92,11 +93,14 @@ class Capture:
 
     @functools.cached_property
     def twin(self) -> dict[str, Any]:
-        """``armbench twin-check --json`` of the capture: replays it, so only where a test
-        asks (the whole run's, checked once, serves every test of the module's worker)."""
-        check = _bench("twin-check", "--json", str(self.run / "capture.mcap"))
-        assert check.returncode in (0, 1), check.stderr
-        result: dict[str, Any] = json.loads(check.stdout)
+        """``armbench twin-check --json`` of the capture, in this process (the capture is the
+        case here, not the command's process): it replays the capture, so only where a test
+        asks (the whole run's, checked once, serves every test of the module)."""
+        out, capture = io.StringIO(), str(self.run / "capture.mcap")
+        with contextlib.redirect_stdout(out):
+            status = armbench.cli.main.main(["twin-check", "--json", capture])
+        assert status in (0, 1), out.getvalue()
+        result: dict[str, Any] = json.loads(out.getvalue())
         return result
 
 
