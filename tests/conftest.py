@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from build_flavour import concerns_the_build_flavour
 
 import armbench.cli.main
 
@@ -28,10 +29,17 @@ BUILD_INPUTS = ("api", "bench", "cli", "drivers", "fakes", "frontends", "metrics
 _NEEDS_PTY = re.compile(r"(?<![a-z])pty(?![a-z])", re.IGNORECASE)
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Tests sharing a module's fixture run in one worker; where the system has no
-    pseudo-terminals (Windows), the tests that need one skip."""
+    pseudo-terminals (Windows), the tests that need one skip. First of the hook's
+    implementations: pytest-xdist's reads the groups into the test ids in its own (a
+    plugin registered after this file, so called before it unless told). The tests of a module
+    that imports a hot module are marked ``build_flavour`` (``build_flavour.py``)."""
     group_by_module_fixtures(items)
+    for item in items:
+        if concerns_the_build_flavour(item.path):
+            item.add_marker(pytest.mark.build_flavour)
     if hasattr(os, "openpty"):
         return
     skip = pytest.mark.skip(reason="needs a pseudo-terminal: this system has none")

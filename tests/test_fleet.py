@@ -108,14 +108,15 @@ def test_arm_names_and_ports() -> None:
 @pytest.fixture(scope="module")
 def fake_fleets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Fleet ``a`` (two emulated arms) and fleet ``b`` of the same arms against ``a`` as
-    baseline, arm ``heavy`` carrying a 0.4 kg payload this time."""
+    baseline, arm ``heavy`` carrying a 0.4 kg payload this time; one lap per accuracy style
+    (what a fleet does with its arms' runs does not depend on their length)."""
     root = tmp_path_factory.mktemp("fleets")
     strict = root / "strict.toml"  # accuracy regresses when 1 % worse than its baseline
     text = DEFAULT_CONFIG.read_text(encoding="utf-8")
     loose = "tolerance_pct = 20.0\ntolerance_abs = 0.2"
     assert loose in text
-    strict.write_text(text.replace(loose, "tolerance_pct = 1.0\ntolerance_abs = 0.0"),
-                      encoding="utf-8")
+    strict.write_text(text.replace(loose, "tolerance_pct = 1.0\ntolerance_abs = 0.0")
+                      + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     status, out = _cli("accuracy", "--port", "light=fake://", "--port", "heavy=fake://?seed=5",
                        "--out", str(root / "a"), "--config", str(strict))
     assert status == 0, out
@@ -145,7 +146,7 @@ def test_each_arm_gets_a_run_folder_of_its_own(fake_fleets: Path) -> None:
     assert _headline(light, 4) != _headline(heavy, 4)
     # the same arm alone gives the same record: a fleet does not change what an arm measures
     status, _ = _cli("accuracy", "--port", "solo=fake://?seed=5", "--out",
-                     str(fake_fleets / "alone"))
+                     str(fake_fleets / "alone"), "--config", str(fake_fleets / "strict.toml"))
     alone = load_record(fake_fleets / "alone" / "results.json")
     assert status == 0 and alone.environment.port == "fake://?seed=5"
     assert [_headline(alone, k) for k in range(5)] == [_headline(heavy, k) for k in range(5)]

@@ -46,11 +46,14 @@ def freed_and_thawed() -> None:
 
 
 def test_a_freeze_of_the_caller_is_kept() -> None:
+    """The block neither thaws the caller's freeze (the count would drop to 0) nor freezes
+    more. The count may drop by a few meanwhile: a frozen object that another thread of the
+    worker frees (pytest-xdist's channel) leaves the permanent generation."""
     gc.freeze()
     try:
         frozen = gc.get_freeze_count()
         with figures_collected_alone():
             pass
-        assert gc.get_freeze_count() == frozen
+        assert 0 < gc.get_freeze_count() <= frozen
     finally:
         gc.unfreeze()

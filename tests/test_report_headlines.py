@@ -16,6 +16,7 @@ from chromium import CHROMIUM, Chromium
 from test_report import cells, parse
 
 from armbench.bench.runner import RunOptions, run_sync
+from armbench.bench.runner.options import DEFAULT_CONFIG
 from armbench.bench.suites.accuracy_contract import ACCURACY
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.cli.commands.run_files import write_reports
@@ -34,13 +35,18 @@ RECORDS = Path(__file__).parent / "fixtures" / "records"
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An accuracy run on the ideal emulator (the baseline) and one on the default emulator
-    against it: the second regresses."""
+    against it: the second regresses. The default limits, one lap per style (the figures a
+    scorecard shows do not depend on how many laps they pool)."""
     root = tmp_path_factory.mktemp("runs")
+    config = root / "one-lap.toml"
+    config.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
+                      + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     ideal = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "ideal", seed=0,
-                                ports=["fake://?profile=ideal"]), progress=io.StringIO())
+                                ports=["fake://?profile=ideal"], config=config),
+                     progress=io.StringIO())
     write_reports(ideal.record, ideal.out_dir)
     worse = run_sync(RunOptions(suites=[ACCURACY.suite], out=root / "worse", seed=0,
-                                baseline=root / "ideal" / "results.json"),
+                                baseline=root / "ideal" / "results.json", config=config),
                      progress=io.StringIO())
     write_reports(worse.record, worse.out_dir)
     return root

@@ -39,6 +39,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
+from numpy.lib.stride_tricks import sliding_window_view
 
 from armbench.drivers.host.motion import joint_speed_rad_s
 from armbench.drivers.model.protocol import TICKS_PER_RAD, Command
@@ -441,31 +442,32 @@ def _stale_at_start(t: FloatArray, q: FloatArray, command_times: Sequence[float]
     while the joint had left it by the late limit at its stamp, as the next
     :data:`ONSET_REPLIES` replies traced back at their own speed (medians: one of them may be
     late too) say: a reply composed before the joint left, read after (the line through two
-    neighbours does not see it: a command lies between them)."""
+    neighbours does not see it: a command lies between them). Vectorised over the replies and
+    joints (the candidates narrowed first): a capture holds some 10⁵ replies."""
+    n = ONSET_REPLIES
     out = np.zeros(max(0, len(t) - 2), dtype=bool)
+    m = len(t) - n - 1                      # replies i = 1 .. m, each with n replies after it
+    if m <= 0:
+        return out
+    i = np.arange(1, m + 1)
     ct = np.asarray(sorted(command_times)) + SAME_INSTANT_S   # a reply at a command's instant
-    n = ONSET_REPLIES                                           # is before it
-    for i in range(1, len(t) - n):
-        nxt = slice(i + 1, i + 1 + n)
-        if np.searchsorted(ct, t[i]) != np.searchsorted(ct, t[i + n]):
-            continue
-        dt = np.diff(t[nxt])
-        if np.any(dt <= 0):
-            continue
-        for j in range(q.shape[1]):
-            if abs(q[i, j] - q[i - 1, j]) > REST_TICKS * TICK_RAD:
-                continue
-            way = q[nxt, j] - q[i, j]
-            if abs(way[-1]) < STEADY_TICKS * TICK_RAD or np.any(way * way[-1] < 0):
-                continue
-            speed = float(np.median(np.abs(np.diff(q[nxt, j])) / dt))
-            if speed <= 0:
-                continue
-            left = float(np.median(t[nxt] - np.abs(way) / speed))
-            limit = max(LATE_SIGMAS * scatter_s * speed, LATE_TICKS * TICK_RAD)
-            if (t[i] - left) * speed > limit:
-                out[i - 1] = True
-                break
+    t_next = sliding_window_view(t[2:], n)[:m]                 # is before it; (m, n)
+    dt = np.diff(t_next, axis=1)
+    ok = (np.searchsorted(ct, t[i]) == np.searchsorted(ct, t[i + n])) & np.all(dt > 0, axis=1)
+    way_last = q[i + n] - q[i]                                 # (m, joints)
+    ok = (ok[:, None] & (np.abs(q[i] - q[i - 1]) <= REST_TICKS * TICK_RAD)
+          & (np.abs(way_last) >= STEADY_TICKS * TICK_RAD))
+    r, j = np.nonzero(ok)
+    q_next = sliding_window_view(q[2:], n, axis=0)[:m][r, j]  # (candidates, n)
+    way = q_next - q[i[r], j][:, None]
+    one_way = ~np.any(way * way_last[r, j][:, None] < 0, axis=1)
+    r, way = r[one_way], way[one_way]
+    speed = np.median(np.abs(np.diff(q_next[one_way], axis=1)) / dt[r], axis=1)
+    moving = speed > 0
+    r, way, speed = r[moving], way[moving], speed[moving]
+    left = np.median(t_next[r] - np.abs(way) / speed[:, None], axis=1)
+    limit = np.maximum(LATE_SIGMAS * scatter_s * speed, LATE_TICKS * TICK_RAD)
+    out[r[(t[i[r]] - left) * speed > limit]] = True
     return out
 
 
