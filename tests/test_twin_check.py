@@ -119,8 +119,13 @@ def test_a_wrong_gear_ratio_is_diagnosed_as_such(default_capture: Path) -> None:
     lines = format_twin_check(result, "cap.jsonl").splitlines()
     at = next(i for i, line in enumerate(lines) if line.startswith("  j3: RMS"))
     assert lines[at + 1].startswith("      diagnosis: gear/scale: grows with the joint's travel")
-    assert lines[at + 2].startswith("      next: calibrate the gear ratio: re-run armbench "
-                                    "calibrate with a longer --budget-s")
+    # then its worst part, where it grows and what that resembles, and what to do
+    assert lines[at + 2].startswith("      worst part: ")
+    where = [line for line in lines[at + 3:] if line.startswith("      where: grows at ")]
+    assert where and len(where) <= 3, lines
+    after = next(line for line in lines[at + 2:] if line.startswith("      next: "))
+    assert after.startswith("      next: calibrate the gear ratio: re-run armbench "
+                            "calibrate with a longer --budget-s")
 
 
 def test_a_missing_step_loss_is_diagnosed_as_such(default_capture: Path) -> None:
