@@ -296,7 +296,8 @@ def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The foreign stall arm's own model (``test_twin_check._stall_twin``: a pull-out rate
     falling linearly with the lifted torque; joint 2 cannot lift the ladder's start pose at any
-    duty) as a hidden arm over a port without truth (virtual time): within 90 s of robot time
+    duty) as a hidden arm over a port without truth (virtual time): within 120 s of robot time
+    (the issue's budget; of it, the two held-out blocks of the suites' motions take their share)
     the procedure records joint 3's stalls at full duty and where it moved slower, leaves joint
     2's ladder and brings the arm back, and the fit chooses the stall law for joint 3. On a
     held-out lap, where joint 3 stalls lifting the forearm at a corner, the calibrated twin
@@ -306,9 +307,9 @@ def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
     monkeypatch.setattr(Arm, "ground_truth", lambda self: None)  # a port: no truth
     out = tmp_path / "robot.toml"
     result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out,
-                                        budget_s=90))
+                                        budget_s=120))
     obs = result.observations
-    assert obs.robot_time_s <= 90.0, obs.robot_time_s
+    assert obs.robot_time_s <= 120.0, obs.robot_time_s
     assert "ladder j2" in obs.phases_skipped  # (the budget may end joint 3's slower duties)
     j3_stalls = [s for s in obs.stalls if s["joint"] == 3 and s["phase"] == "ladder"]
     assert {s["duty"] for s in j3_stalls} == {99}, j3_stalls

@@ -22,7 +22,7 @@ from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
 from armbench.bench.calibrate.stop_rule import choose_stop_rule
-from armbench.bench.calibrate.structure import fit_speed_models
+from armbench.bench.calibrate.structure import SpeedOption, fit_speed_models
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.protocol import TICKS_PER_RAD
 from armbench.drivers.model.settings import RobotSettings
@@ -433,9 +433,11 @@ def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
 
 
 def fit_all(obs: Observations, base: RobotSettings,
-            structures: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
+            structures: Mapping[int, tuple[str, bool] | None] | None = None,
+            options: dict[int, list[SpeedOption]] | None = None) -> list[Fitted]:
     """Every fit, in the order of the settings file (the kinematics first: the torque models of
-    the others use it). ``structures``: each joint's speed model taken as chosen (see
+    the others use it). ``structures``: each joint's speed model taken as chosen; ``options``
+    receives each joint's candidate speed models for the held-out blocks (see
     :func:`~armbench.bench.calibrate.structure.fit_speed_models`)."""
     prior = base_physics(base)
     hall = fit_hall(obs, base, prior)
@@ -445,6 +447,7 @@ def fit_all(obs: Observations, base: RobotSettings,
     before = [*play, *hall]
     mech = Mechanism(model, base, lambda: [0.0] * 4)
     speeds = fit_speed_models(obs, base, model,
-                              lambda q: link_estimate(q, before, model, mech), structures)
+                              lambda q: link_estimate(q, before, model, mech), structures,
+                              options)
     return [*fit_timing(obs), choose_stop_rule(obs, base, hall), *play, *hall,
             *fit_stiffness(obs, base, model, play, before), *speeds, *kinematics]

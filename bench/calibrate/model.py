@@ -28,6 +28,7 @@ __all__ = [
     "CalibrationResult",
     "CaptureContentError",
     "Fitted",
+    "HeldOut",
     "Hold",
     "Observations",
     "PageRenderer",
@@ -127,6 +128,18 @@ class SpeedRun:
 
 
 @dataclass(slots=True)
+class HeldOut:
+    """A held-out block of the session (``bench/calibrate/held_out_moves.py``): its name
+    (``suite``: after the approaches, ``end``: at the end of the session), its window on the
+    session capture's clock (s) and how many edges of the square it streamed."""
+
+    name: str
+    start_s: float
+    end_s: float
+    edges: int = 0
+
+
+@dataclass(slots=True)
 class Observations:
     """Everything one calibration measured, in the order it was measured."""
 
@@ -139,6 +152,9 @@ class Observations:
     holds: list[Hold] = field(default_factory=list)
     speeds: list[SpeedRun] = field(default_factory=list)
     stalls: list[dict[str, Any]] = field(default_factory=list)
+    held_out: list[HeldOut] = field(default_factory=list)
+    #: The session's capture (every frame in and out), where the held-out blocks are.
+    capture: str | None = None
     phases_done: list[str] = field(default_factory=list)
     phases_skipped: dict[str, str] = field(default_factory=dict)
     robot_time_s: float = 0.0
@@ -155,6 +171,7 @@ class Observations:
         d["approaches"] = [Approach(**a) for a in d.get("approaches", [])]
         d["holds"] = [Hold(**h) for h in d.get("holds", [])]
         d["speeds"] = [SpeedRun(**s) for s in d.get("speeds", [])]
+        d["held_out"] = [HeldOut(**b) for b in d.get("held_out", [])]
         return cls(**d)
 
     def save(self, path: Path) -> None:
@@ -244,6 +261,9 @@ class CalibrationResult:
     sensitivity: Sensitivity | None = None
     #: How far the fitted arm's TCP is from the reference instrument's at each hold (mm).
     kinematic_mm: tuple[float, ...] = ()
+    #: Per joint, what the held-out blocks kept of its speed model and why (JSON-ready:
+    #: ``joint``, ``kept``, ``why``, every option's RMS per block, the blocks' floors).
+    held_out: tuple[dict[str, Any], ...] = ()
 
 
 #: Renders the calibration page of a result (HTML text).
