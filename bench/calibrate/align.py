@@ -441,31 +441,33 @@ def _stale_at_start(t: FloatArray, q: FloatArray, command_times: Sequence[float]
     while the joint had left it by the late limit at its stamp, as the next
     :data:`ONSET_REPLIES` replies traced back at their own speed (medians: one of them may be
     late too) say: a reply composed before the joint left, read after (the line through two
-    neighbours does not see it: a command lies between them)."""
+    neighbours does not see it: a command lies between them). Every reply at once: the next
+    replies of each as a window."""
+    n = ONSET_REPLIES
     out = np.zeros(max(0, len(t) - 2), dtype=bool)
+    if len(t) < n + 2:
+        return out
     ct = np.asarray(sorted(command_times)) + SAME_INSTANT_S   # a reply at a command's instant
-    n = ONSET_REPLIES                                           # is before it
-    for i in range(1, len(t) - n):
-        nxt = slice(i + 1, i + 1 + n)
-        if np.searchsorted(ct, t[i]) != np.searchsorted(ct, t[i + n]):
-            continue
-        dt = np.diff(t[nxt])
-        if np.any(dt <= 0):
-            continue
-        for j in range(q.shape[1]):
-            if abs(q[i, j] - q[i - 1, j]) > REST_TICKS * TICK_RAD:
-                continue
-            way = q[nxt, j] - q[i, j]
-            if abs(way[-1]) < STEADY_TICKS * TICK_RAD or np.any(way * way[-1] < 0):
-                continue
-            speed = float(np.median(np.abs(np.diff(q[nxt, j])) / dt))
-            if speed <= 0:
-                continue
-            left = float(np.median(t[nxt] - np.abs(way) / speed))
-            limit = max(LATE_SIGMAS * scatter_s * speed, LATE_TICKS * TICK_RAD)
-            if (t[i] - left) * speed > limit:
-                out[i - 1] = True
-                break
+    i = np.arange(1, len(t) - n)                                # is before it
+    same = np.searchsorted(ct, t[i]) == np.searchsorted(ct, t[i + n])
+    t_next = np.lib.stride_tricks.sliding_window_view(t, n)[i + 1]
+    dt = np.diff(t_next, axis=1)
+    usable = same & np.all(dt > 0, axis=1)
+    dt = np.where(dt > 0, dt, np.inf)
+    for j in range(q.shape[1]):
+        qj = q[:, j]
+        q_next = np.lib.stride_tricks.sliding_window_view(qj, n)[i + 1]
+        way = q_next - qj[i][:, None]
+        last = way[:, -1]
+        ok = (usable & (np.abs(qj[i] - qj[i - 1]) <= REST_TICKS * TICK_RAD)
+              & (np.abs(last) >= STEADY_TICKS * TICK_RAD) & ~np.any(way * last[:, None] < 0,
+                                                                    axis=1))
+        speed = np.median(np.abs(np.diff(q_next, axis=1)) / dt, axis=1)
+        ok &= speed > 0
+        fast = np.where(speed > 0, speed, np.inf)
+        left = np.median(t_next - np.abs(way) / fast[:, None], axis=1)
+        limit = np.maximum(LATE_SIGMAS * scatter_s * speed, LATE_TICKS * TICK_RAD)
+        out[i - 1] |= ok & ((t[i] - left) * speed > limit)
     return out
 
 

@@ -36,7 +36,8 @@ from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.calibrate.replay import BURST_S, TIME_SLACK_S
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["SEEN_LATE", "Divergence", "diverge", "read_aligned", "read_late", "timed"]
+__all__ = ["SEEN_LATE", "ArmSide", "Divergence", "arm_side", "diverge", "read_aligned",
+           "read_late", "timed"]
 
 FloatArray = npt.NDArray[np.float64]
 Vec4 = tuple[float, float, float, float]
@@ -160,17 +161,41 @@ class Divergence:
         return np.asarray(np.sqrt(np.mean(f2, axis=0)), dtype=np.float64)
 
 
-def diverge(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
-            settings: RobotSettings) -> Divergence:
-    """Compare the capture's replies with the twin's (see the module doc)."""
-    twin_track = Track.of(twin)
+@dataclass(frozen=True, slots=True)
+class ArmSide:
+    """What the arm's capture alone says, the same against every twin: the capture with its
+    timed replies only, those replies as a track, which of them the host read late, the
+    link's timing scatter and spread, and how many replies were left out."""
+
+    data: CaptureData
+    whole: Track
+    late: npt.NDArray[np.bool_]
+    scatter_s: float
+    spread_s: float
+    untimed: int
+
+
+def arm_side(data: CaptureData) -> ArmSide:
+    """The :class:`ArmSide` of a capture."""
     times = [c[0] for c in data.commands]
     kept = timed(data.replies, times[0] - TIME_SLACK_S if times else -math.inf)
     scatter = timing_scatter_s(Track.of(kept), times)
     late = read_late(Track.of(kept), times, scatter)
     untimed = len(data.replies) - len(kept) + int(late.sum())
-    data = CaptureData(data.path, data.commands, kept, data.bad_in_frames)
-    whole = Track.of(data.replies)
+    whole = Track.of(kept)
+    spread = timing_rms_s(Track(whole.t_s[~late], whole.q_rad[~late]), times)
+    return ArmSide(CaptureData(data.path, data.commands, kept, data.bad_in_frames), whole, late,
+                   scatter, scatter if spread is None else max(scatter, spread), untimed)
+
+
+def diverge(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
+            settings: RobotSettings, arm: ArmSide | None = None) -> Divergence:
+    """Compare the capture's replies with the twin's (see the module doc); ``arm``: the
+    capture's :class:`ArmSide` where it was found before (several twins on one capture)."""
+    side = arm_side(data) if arm is None else arm
+    data, whole, late, scatter = side.data, side.whole, side.late, side.scatter_s
+    twin_track = Track.of(twin)
+    times = [c[0] for c in data.commands]
     # the starts are timed on the replies read on time, the twin's alike (its own stale
     # replies, after its firmware's pauses, are left out by the same rule)
     twin_late = read_late(twin_track, times, scatter)
@@ -180,17 +205,16 @@ def diverge(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
     start = times[0] if times else -math.inf
     rows = [(t, q) for (t, q), x in zip(data.replies, late, strict=True)
             if t >= start and len(twin_track.t_s) and t >= twin_track.t_s[0] and not x]
-    arm = Track.of(rows)
-    if times and len(arm.t_s):
-        q_twin, speed, blind = read_aligned(arm.t_s, times, twin_track, measured.per_joint_s)
+    compared = Track.of(rows)
+    if times and len(compared.t_s):
+        q_twin, speed, blind = read_aligned(compared.t_s, times, twin_track,
+                                            measured.per_joint_s)
     else:
-        q_twin, speed, blind = (np.zeros((len(arm.t_s), 4)), np.zeros((len(arm.t_s), 4)),
-                                np.zeros(len(arm.t_s), dtype=bool))
+        n = len(compared.t_s)
+        q_twin, speed, blind = np.zeros((n, 4)), np.zeros((n, 4)), np.zeros(n, dtype=bool)
     reaction = measured.scatter_s()
-    spread = timing_rms_s(Track(whole.t_s[~late], whole.q_rad[~late]), times)
     counts = np.asarray([j.counts_per_rad for j in settings.joints])
     return Divergence(
-        data, whole, late, twin_track, measured, arm.t_s[~blind], arm.q_rad[~blind],
-        q_twin[~blind], speed[~blind], counts, scatter,
-        scatter if spread is None else max(scatter, spread),
-        scatter if reaction is None else max(scatter, reaction), untimed)
+        data, whole, late, twin_track, measured, compared.t_s[~blind], compared.q_rad[~blind],
+        q_twin[~blind], speed[~blind], counts, scatter, side.spread_s,
+        scatter if reaction is None else max(scatter, reaction), side.untimed)
