@@ -18,9 +18,10 @@ from armbench.bench.calibrate.capture_data import (
     load_capture,
     observations_from_capture,
 )
+from armbench.bench.calibrate.divergence import arm_side
 from armbench.bench.calibrate.fit import chosen_structures, fit_all
 from armbench.bench.calibrate.held_out import Block, blocks_of, choose
-from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations
+from armbench.bench.calibrate.model import ArmDoesNotMoveError, Observations, ReferencePose
 from armbench.bench.calibrate.output import (
     CalibrationResult,
     PageRenderer,
@@ -29,15 +30,18 @@ from armbench.bench.calibrate.output import (
     write_outputs,
 )
 from armbench.bench.calibrate.procedure import DEFAULT_BUDGET_S, Procedure
+from armbench.bench.calibrate.reference import Plate
 from armbench.bench.calibrate.sensitivity import sensitivity
 from armbench.bench.calibrate.structure import SpeedOption
+from armbench.bench.calibrate.touch_off import Operator, touch_off
 from armbench.bench.runner.truth import aclose_source, aopen_source
 from armbench.bench.suites.base import PoseSource
 from armbench.drivers.capture.jsonl import CaptureWriter
 from armbench.drivers.host.arm import Arm
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["CAPTURE_MAX_BYTES", "END_SHARE", "calibrate_capture", "calibrate_port", "finish"]
+__all__ = ["CAPTURE_MAX_BYTES", "END_SHARE", "calibrate_capture", "calibrate_port",
+           "calibrate_reference", "finish"]
 
 #: Bound of the session's capture (bytes): a 15-minute session at 200 replies a second takes
 #: about 11 MB.
@@ -81,16 +85,21 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                          progress: Callable[[str], None] = lambda message: None,
                          tracker: PoseSource | None = None,
                          page: PageRenderer | None = None,
-                         reply_timeout_s: float = 0.5) -> CalibrationResult:
+                         reply_timeout_s: float = 0.5,
+                         references: Sequence[ReferencePose] = (),
+                         touch: tuple[Plate, Operator] | None = None) -> CalibrationResult:
     """Run the procedure on ``port`` and write the outputs. ``reply_timeout_s``: the longest
     silence of the arm tolerated (the driver's). ``tracker``: a reference instrument
     (``--tracker``, ``bench/runner/truth.py``) measuring the true joints and TCP at rest, opened and
-    closed around the procedure. ``page`` renders the calibration page (without it none is
-    written). The session's traffic is captured beside ``out`` (``.capture.jsonl``): its
-    held-out blocks judge the fit. A joint that does not move ends the procedure: what was
-    measured is fitted and written, then :class:`ArmDoesNotMoveError` is raised."""
+    closed around the procedure. ``references``: tool positions a lab measured (``--reference``);
+    ``touch``: a plate and its operator, who touches its points after the procedure
+    (``--touch-off``, not counted in the budget: the operator sets the pace). ``page`` renders
+    the calibration page (without it none is written). The session's traffic is captured beside
+    ``out`` (``.capture.jsonl``): its held-out blocks judge the fit. A joint that does not move
+    ends the procedure: what was measured is fitted and written, then
+    :class:`ArmDoesNotMoveError` is raised."""
     out = Path(out)
-    obs = Observations(source=port)
+    obs = Observations(source=port, references=list(references))
     raw = out.with_suffix(".observations.json")
     failure: ArmDoesNotMoveError | None = None
     if tracker is not None:
@@ -114,6 +123,9 @@ async def calibrate_port(port: str, base: RobotSettings, out: Path, *,
                 failure = exc
                 obs.error = str(exc)
             obs.save(raw)
+            if touch is not None and failure is None:
+                obs.references += await touch_off(arm, touch[0], touch[1], progress)
+                obs.save(raw)
     finally:
         capture.close()
         if not answered:  # a wrong port leaves nothing behind
@@ -143,13 +155,25 @@ def _split(data: CaptureData) -> tuple[CaptureData, list[Block]]:
                          data.bad_in_frames)
     end = CaptureData(data.path, data.commands[k:],
                       [r for r in data.replies if r[0] >= t - 0.1], 0)
-    return fitted, [Block("end", end)]
+    return fitted, [Block("end", end, arm_side(end))]
 
 
 def calibrate_capture(capture: str | Path, base: RobotSettings, out: Path, *,
-                      page: PageRenderer | None = None) -> CalibrationResult:
-    """Fit what the traffic of an existing capture shows, its end held out, and write the
-    outputs (the page when ``page`` renders it)."""
+                      page: PageRenderer | None = None,
+                      references: Sequence[ReferencePose] = ()) -> CalibrationResult:
+    """Fit what the traffic of an existing capture shows, its end held out, and the tool
+    positions a lab measured (``references``), and write the outputs (the page when ``page``
+    renders it)."""
     fitted, blocks = _split(load_capture(capture, base))
     obs = observations_from_capture(fitted, base)
+    obs.references = list(references)
     return finish(obs, base, Path(out), page=page, blocks=blocks)
+
+
+def calibrate_reference(source: str, references: Sequence[ReferencePose], base: RobotSettings,
+                        out: Path, *, page: PageRenderer | None = None) -> CalibrationResult:
+    """Fit the geometry (DH lengths, offsets, play) of tool positions a lab measured alone
+    (``--reference`` without a port or a capture; ``source`` names the file) and write the
+    outputs; everything else keeps the prior."""
+    obs = Observations(source=source, references=list(references))
+    return finish(obs, base, Path(out), page=page)

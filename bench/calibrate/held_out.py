@@ -33,7 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.calibrate.capture_data import CaptureData
-from armbench.bench.calibrate.divergence import diverge
+from armbench.bench.calibrate.divergence import ArmSide, arm_side, diverge
 from armbench.bench.calibrate.model import Fitted, HeldOut
 from armbench.bench.calibrate.output import apply_fit
 from armbench.bench.calibrate.replay import replay_twin
@@ -57,10 +57,12 @@ _SHARED_KEYS: Final = (STOP_RULE_KEY, *(TWIN["hall_error_rad"].path(j) for j in 
 
 @dataclass(frozen=True, slots=True)
 class Block:
-    """A held-out block: its name and its stretch of the session's capture."""
+    """A held-out block: its name, its stretch of the session's capture and what the capture
+    alone says (the same against every twin)."""
 
     name: str
     data: CaptureData
+    arm: ArmSide
 
 
 def blocks_of(capture: CaptureData, windows: Sequence[HeldOut]) -> list[Block]:
@@ -71,7 +73,8 @@ def blocks_of(capture: CaptureData, windows: Sequence[HeldOut]) -> list[Block]:
         commands = [c for c in capture.commands if w.start_s <= c[0] <= w.end_s]
         replies = [r for r in capture.replies if w.start_s - LEAD_S <= r[0] <= w.end_s]
         if commands and len(replies) > 2:
-            out.append(Block(w.name, CaptureData(capture.path, commands, replies, 0)))
+            data = CaptureData(capture.path, commands, replies, 0)
+            out.append(Block(w.name, data, arm_side(data)))
     return out
 
 
@@ -110,7 +113,8 @@ def score(settings: RobotSettings, blocks: Sequence[Block], hall_counters: bool)
     runs: a worker thread)."""
     out = []
     for block in blocks:
-        d = diverge(block.data, _replay(block.data, settings, hall_counters), settings)
+        d = diverge(block.data, _replay(block.data, settings, hall_counters), settings,
+                    block.arm)
         times = np.asarray(d.times)
         window = np.searchsorted(times, d.t_s, side="right").astype(np.int64)
         out.append(Replayed(d.t_s, d.diff_rad * d.counts_per_rad, window,

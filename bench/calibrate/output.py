@@ -28,6 +28,7 @@ from armbench.bench.calibrate.model import (
     Fitted,
     Observations,
     PageRenderer,
+    no_truth,
 )
 from armbench.bench.runner.outputs import OutputError, is_run_file
 from armbench.drivers.model.settings import UNCERTAINTY_TABLE, RobotSettings
@@ -194,7 +195,7 @@ def write_outputs(result: CalibrationResult, out: Path,
     if result.error:
         header += f"\nPARTIAL: {result.error}"
     if not result.observations.truth:
-        header += f"\nNO REFERENCE INSTRUMENT: {NO_TRUTH}"
+        header += f"\nNO REFERENCE INSTRUMENT: {no_truth(result.observations)}"
     for choice in result.held_out:
         header += f"\nspeed model of j{choice['joint']}: {choice['why']}"
     for f in result.fitted:
