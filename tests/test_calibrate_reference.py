@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -183,24 +184,24 @@ def _plate(rng: np.random.Generator) -> tuple[Plate, list[tuple[float, float, fl
 
 
 class ScriptedOperator:
-    """The operator, scripted: it sees where the tool really is (the emulator's truth stands for
-    a person's eyes) and jogs the joints through the nominal model's Jacobian, each time 60 %
-    of the way it predicts (so each joint comes from one side and the play stays taken up, as a
-    careful operator approaches a point), the single tick that gets nearest once that is less
-    than one, until the tool is within the plate's ``touch_m`` of where the point really is (as
-    near as a tick's jogs get it: where in that it stops is the touch's error); after 80 jogs
-    it leaves the point out."""
+    """The operator, scripted: it sees where the tool really is (``eyes``: the emulator's truth
+    or a tracker stands for a person's eyes) and jogs the joints through the nominal model's
+    Jacobian, each time 60 % of the way it predicts (so each joint comes from one side and the
+    play stays taken up, as a careful operator approaches a point), the single tick that gets
+    nearest once that is less than one, until the tool is within the plate's ``touch_m`` of
+    where the point really is (as near as a tick's jogs get it: where in that it stops is the
+    touch's error); after 80 jogs it leaves the point out."""
 
-    def __init__(self, truth: EmulatorTruth, real: list[tuple[float, float, float]],
-                 plate: Plate) -> None:
-        self.truth, self.real, self.plate = truth, real, plate
+    def __init__(self, eyes: Callable[[], Sequence[float]],
+                 real: list[tuple[float, float, float]], plate: Plate) -> None:
+        self.eyes, self.real, self.plate = eyes, real, plate
 
     async def touch(self, point: PlatePoint, jog: Jog) -> bool:
         target = np.asarray(self.real[self.plate.points.index(point)])
         within = self.plate.touch_m
         settings = jog.arm.settings
         for _ in range(80):
-            error = target - np.asarray(self.truth.true_position_m())
+            error = target - np.asarray(self.eyes())
             if np.linalg.norm(error) <= within:
                 return True
             q = np.asarray(jog.q_rad)
@@ -234,7 +235,9 @@ def test_touch_off_gives_the_geometry(tmp_path: Path) -> None:
 
         async def touch(self, point: PlatePoint, jog: Jog) -> bool:
             if not operators:
-                operators.append(ScriptedOperator(EmulatorTruth(jog.arm), real, plate))
+                eyes = EmulatorTruth(jog.arm).true_position_m
+                operators.append(ScriptedOperator(lambda: eyes() or (0.0, 0.0, 0.0), real,
+                                                  plate))
             return await operators[0].touch(point, jog)
 
     result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(),

@@ -225,19 +225,29 @@ def _sigma_m(pose: ReferencePose, base: RobotSettings) -> float:
     return math.sqrt(pose.sigma_m ** 2 + var)
 
 
-def _sides(poses: Sequence[ReferencePose], taus: Sequence[Sequence[float]], prior: ArmPhysics,
-           j: int) -> set[int]:
-    """The flanks of joint ``j``'s play the poses put its link on: gravity's where the prior's
-    torque holds it there, else the side its path left it on (with the prior's play)."""
+#: Plays (a share of the documented range's top) a fit starts from and the poses are tested
+#: at: a small jog back crosses a small play, not a wide one.
+PLAY_STARTS: Final = (0.25, 0.5, 1.0)
+
+
+def _play_shows(poses: Sequence[ReferencePose], taus: Sequence[Sequence[float]],
+                prior: ArmPhysics, j: int) -> bool:
+    """Whether the poses tell joint ``j``'s play from its offset: where the link sits moves with
+    the play differently at some poses than at others (gravity's flank, the side a path left
+    it on, or inside the play after a short jog back), at the prior's play or at one of
+    :data:`PLAY_STARTS` of the range's top."""
     p = prior.joints[j]
-    out = set()
-    for pose, tau in zip(poses, taus, strict=True):
-        if abs(tau[j]) > p.hold_nm:
-            out.add(1 if tau[j] > 0 else -1)
-        else:
-            gap = _gap(pose, j, max(p.backlash_rad, 1e-4))
-            out.add(-1 if gap > 0 else 1)
-    return out
+    top = _PLAY.to_twin(_PLAY.high)
+    for play in (max(p.backlash_rad, 1e-4), *(f * top for f in PLAY_STARTS)):
+        slopes = []
+        for pose, tau in zip(poses, taus, strict=True):
+            if abs(tau[j]) > p.hold_nm:
+                slopes.append(0.5 if tau[j] > 0 else -0.5)
+            else:
+                slopes.append((_gap(pose, j, play + 1e-6) - _gap(pose, j, play)) / 1e-6)
+        if max(slopes) - min(slopes) > 0.25:
+            return True
+    return False
 
 
 def fit_reference(poses: Sequence[ReferencePose], base: RobotSettings, prior: ArmPhysics,
@@ -256,7 +266,7 @@ def fit_reference(poses: Sequence[ReferencePose], base: RobotSettings, prior: Ar
         links.append((np.asarray(pose.q_rad, dtype=np.float64), tau))
     known = dict(known_play or {})
     for j in range(3):
-        if j not in known and len(_sides(poses, [t for _, t in links], prior, j)) < 2:
+        if j not in known and not _play_shows(poses, [t for _, t in links], prior, j):
             known[j] = prior.joints[j].backlash_rad
     free = [i for i in range(10) if i < 7 or (i - 7) not in known]
     sigmas = np.asarray([_sigma_m(p, base) for p in poses])
@@ -292,9 +302,18 @@ def fit_reference(poses: Sequence[ReferencePose], base: RobotSettings, prior: Ar
         return r
 
     low = np.asarray([-np.inf if i < 7 else 0.0 for i in free])
-    start = np.maximum(full[free], low)
-    result = least_squares(residuals, start, bounds=(low, np.full(len(free), np.inf)),
-                           x_scale=np.full(len(free), 1e-3), method="trf")
+    result = None
+    top = _PLAY.to_twin(_PLAY.high)
+    for share in (None, *PLAY_STARTS):  # the plays from the prior's and across the range:
+        start = full[free].copy()       # a play the poses cross only when wide is found so
+        if share is not None:
+            start[[k for k, i in enumerate(free) if i >= 7]] = share * top
+        tried = least_squares(residuals, np.maximum(start, low),
+                              bounds=(low, np.full(len(free), np.inf)),
+                              x_scale=np.full(len(free), 1e-3), method="trf")
+        if result is None or tried.cost < result.cost:
+            result = tried
+    assert result is not None
     dof = max(1, result.fun.size - len(free))
     chi2 = float(result.fun @ result.fun) / dof
     cov_free = np.linalg.pinv(result.jac.T @ result.jac) * max(1.0, chi2)
@@ -312,11 +331,15 @@ def fit_reference(poses: Sequence[ReferencePose], base: RobotSettings, prior: Ar
         k = free.index(i)
         sigma = p.from_twin(math.sqrt(max(0.0, float(cov_free[k, k]))))
         value = p.from_twin(float(result.x[k]))
+        assumed = 7 + i - 4 if 4 <= i < 7 and (7 + i - 4) not in free else None
         if len(poses) < 4 or not sigma <= 0.5 * (p.high - p.low):
             out.append(Fitted(key, prior_value, None, p.unit, False,
                               f"not resolved by {len(poses)} {what} (σ {sigma:.2g} {p.unit})",
                               prior_value))
             continue
+        note = "" if assumed is None else (
+            f"; its play not seen: fitted with the play at {_PLAY.from_twin(full[assumed]):.4g} "
+            "deg (an error of that play moves this offset by half of it)")
         out.append(Fitted(key, value, sigma, p.unit, True,
-                          f"{len(poses)} {what} (χ²/dof {chi2:.3g})", prior_value))
+                          f"{len(poses)} {what} (χ²/dof {chi2:.3g}){note}", prior_value))
     return out

@@ -1,7 +1,9 @@
 """The touch-off procedure of ``armbench calibrate --port PORT --touch-off plate.toml``: for each
 known point of a plate the arm brings its tool :data:`LIFT_M` above the point (through the
-nominal model), the operator jogs it onto the point, and the driver records the joint readings
-and every reading the jogs left on the way (the path the play operator replays in the fit,
+nominal model), every joint arriving from a side of its own beyond the widest play (so the
+play starts taken up on a known flank, each joint from both over the points), the operator
+jogs it onto the point, and the driver records the joint readings and every reading the jogs
+left on the way (the path the play operator replays in the fit,
 ``bench/calibrate/reference.py``).
 
 The operator is anything with ``touch(point, jog)`` (:class:`Operator`): a person at a terminal
@@ -19,7 +21,7 @@ from typing import Final, Protocol
 
 import numpy as np
 
-from armbench.bench.calibrate.model import ReferencePose
+from armbench.bench.calibrate.model import APPROACH_OFFSET_RAD, ReferencePose
 from armbench.bench.calibrate.reference import Plate, PlatePoint
 from armbench.drivers.host.arm import Arm
 from armbench.drivers.model.kinematics import ik_best, tcp_position
@@ -78,12 +80,16 @@ async def touch_off(arm: Arm, plate: Plate, operator: Operator,
     """Touch each point of ``plate`` (see the module doc): one reference pose per point the
     operator touched, with the plate's and the touch's standard error."""
     out = []
-    for point in plate.points:
-        before = np.asarray(arm.state.q_rad)
+    for k, point in enumerate(plate.points):
         above = np.asarray(point.xyz_m) + np.asarray([0.0, 0.0, LIFT_M])
-        await arm.move_to(above, duty=APPROACH_DUTY)
+        target = ik_best(above, arm.settings, near=arm.state.q_rad).q_protocol
+        # each joint from its side: the bits of the point's index, so both over the points
+        approach = [1 if (k >> j) & 1 else -1 for j in range(4)]
+        await arm.move_joints([min(max(v - a * APPROACH_OFFSET_RAD, s.lower_rad), s.upper_rad)
+                               for v, a, s in zip(target, approach, arm.settings.joints,
+                                                  strict=True)], APPROACH_DUTY)
+        await arm.move_joints(target, APPROACH_DUTY)
         await asyncio.sleep(SETTLE_S)
-        approach = [1 if d >= 0 else -1 for d in np.asarray(arm.state.q_rad) - before]
         progress(f"touch-off: point {point.name} at {tuple(round(v * 1e3, 2) for v in point.xyz_m)}"
                  " mm")
         jog = Jog(arm)
