@@ -52,14 +52,16 @@ pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Each arm: its script, its hidden behaviour, the calibration's budget (s). The threshold arm
-#: at the issue's 120 s (timed); the others shorter, where the check still means something.
+#: at the issue's 120 s (timed); the others at 90 s (at 60 s the held-out blocks hold two
+#: corners and no streamed edge: most joints keep the prior, which the check allows but which
+#: shows little).
 ARMS: dict[str, tuple[str, tuple[str, ...], float]] = {
     "stall": ("stall", (), 90.0),
-    "jitter": ("jitter", (), 60.0),
+    "jitter": ("jitter", (), 90.0),
     "tracker": ("tracker", ("--play-deg", "0.5,0.5,1.0,0.5", "--offset-deg", "0.3,-0.4,0.4,0",
-                            "--a2-error-mm", "4", "--a3-error-mm", "-4"), 60.0),
+                            "--a2-error-mm", "4", "--a3-error-mm", "-4"), 90.0),
     "threshold": ("threshold", (), 120.0),
-    "shared": ("shared", ("--physics",), 60.0),
+    "shared": ("shared", ("--physics",), 90.0),
     "drift": ("threshold", ("--drift-per-min", "1.5"), 90.0),
 }
 #: A loaded machine may starve the arm's process for seconds: not the arm's doing.
@@ -108,8 +110,11 @@ def calibrated(request: pytest.FixtureRequest,
         held = _armbench("run", "accuracy", "--port", arm.url, "--config",
                          str(folder / "patient.toml"), "--workers", "1", "--out",
                          str(folder / "held"))
-        assert held.returncode in (0, 1), held.stdout[-2000:] + held.stderr[-2000:]
-    capture = folder / "held" / "capture.mcap"
+        capture = folder / "held" / "capture.mcap"
+        # 4: the run ended in error (the stall arm stalls lifting at a corner at full duty and
+        # the move times out, as it is built to): its capture holds what the arm did
+        assert held.returncode in (0, 1, 4) and capture.exists(), (held.stdout[-2000:]
+                                                                   + held.stderr[-2000:])
     fitted = load_settings(folder / "fit" / "robot.toml")
     result = Calibrated(name, folder / "fit", wall_s,
                         twin_check(load_capture(capture, RobotSettings()), RobotSettings()),

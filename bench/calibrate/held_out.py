@@ -17,7 +17,12 @@ are not: a move's error is carried through it): the difference summed per comman
 standard error :data:`SIGMAS` times. Per joint, a candidate is out when it is worse than the
 prior on any block beyond the noise; of the others and the prior, the lowest mean square over
 the blocks is taken, unless one with fewer parameters (the prior has none) is within the noise
-of it: ties keep the simpler model or the prior. Then what the fit changes on every joint at
+of it: ties keep the simpler model or the prior. A candidate that explains one block (its RMS
+within twin-check's allowance of the floor, or three quarters of the prior's mean square taken
+away) and not another, or that is ahead of the arm along the motion on one block and behind it
+on another (each beyond that block's floor), says the arm's behaviour moved during the session
+(its drives warming up): a constant fitted to the session predicts neither, and the prior is
+kept. Then what the fit changes on every joint at
 once (the stop rule, the Hall positions) is judged the same way, the speed models as chosen:
 kept only if no joint gets worse with it beyond the noise. Without a held-out block (a budget too
 small for one) every speed model keeps the prior, and says so.
@@ -51,6 +56,8 @@ FloatArray = npt.NDArray[np.float64]
 
 #: A block's replies start this long before its first command (s): the pose it starts from.
 LEAD_S: Final = 0.1
+#: A joint moves where the twin's speed exceeds this (rad/s: a few ticks a reply interval).
+MOVING_RAD_S: Final = 0.05
 #: The settings keys every joint's reported angle depends on besides its speed model.
 _SHARED_KEYS: Final = (STOP_RULE_KEY, *(TWIN["hall_error_rad"].path(j) for j in range(4)))
 
@@ -81,19 +88,28 @@ def blocks_of(capture: CaptureData, windows: Sequence[HeldOut]) -> list[Block]:
 @dataclass(frozen=True, slots=True)
 class Replayed:
     """A twin on one held-out block: at each compared reply (its time, s) arm minus twin
-    (``(n, 4)``, counts) and the command in force (its index), and per joint the floor
-    (counts)."""
+    (``(n, 4)``, counts), the command in force (its index) and the way the twin's joint moves
+    there (``(n, 4)``: ±1, 0 at rest), and per joint the floor (counts)."""
 
     t_s: FloatArray
     diff_counts: FloatArray
     window: npt.NDArray[np.int64]
     floor: FloatArray
+    way: FloatArray
 
     @property
     def rms(self) -> FloatArray:
         """Per joint, the RMS divergence (counts)."""
         d = self.diff_counts
         return np.sqrt(np.mean(d * d, axis=0)) if len(d) else np.zeros(4)
+
+    def lead(self, j: int) -> float:
+        """How far the twin's joint ``j`` is ahead of the arm's along its motion, on average
+        where it moves (counts; negative: behind)."""
+        moving = self.way[:, j] != 0
+        if not moving.any():
+            return 0.0
+        return float(np.mean(-self.diff_counts[moving, j] * self.way[moving, j]))
 
 
 #: A twin on every held-out block.
@@ -117,8 +133,9 @@ def score(settings: RobotSettings, blocks: Sequence[Block], hall_counters: bool)
                     block.arm)
         times = np.asarray(d.times)
         window = np.searchsorted(times, d.t_s, side="right").astype(np.int64)
+        way = np.sign(d.speed_rad_s) * (np.abs(d.speed_rad_s) > MOVING_RAD_S)
         out.append(Replayed(d.t_s, d.diff_rad * d.counts_per_rad, window,
-                            d.floor_rad() * d.counts_per_rad))
+                            d.floor_rad() * d.counts_per_rad, way))
     return out
 
 
@@ -178,6 +195,33 @@ class JointChoice:
                 "floor_counts": self.floor}
 
 
+#: A twin explains a block where its RMS is within twin-check's allowance of the block's floor
+#: (3 × floor + 2 counts) or it takes away this much of the prior's mean square.
+EXPLAINS: Final = 0.75
+
+
+def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str | None:
+    """Whether the arm's joint ``j`` behaved otherwise on one block than on another, as a twin
+    fitted to the session shows it: it explains one block and not another (:data:`EXPLAINS`),
+    or it is ahead of the arm along the motion on one and behind on another, each by more than
+    that block's floor (a twin off by a constant share is off the same way on both). What it
+    shows, or None."""
+    explained = [r.rms[j] <= 3.0 * r.floor[j] + 2.0 or r.rms[j] ** 2 <= (1 - EXPLAINS) * p.rms[j]
+                 ** 2 for r, p in zip(score, prior, strict=True)]
+    if any(explained) and not all(explained):
+        a, b = explained.index(True), explained.index(False)
+        return (f"explains the {blocks[a]} block (RMS {score[a].rms[j]:.3g} counts against the "
+                f"prior's {prior[a].rms[j]:.3g}) and not the {blocks[b]} block "
+                f"({score[b].rms[j]:.3g} against {prior[b].rms[j]:.3g})")
+    leads = [(r.lead(j), float(r.floor[j])) for r in score]
+    ahead = [lead for lead, floor in leads if lead > floor]
+    behind = [lead for lead, floor in leads if lead < -floor]
+    if not ahead or not behind:
+        return None
+    return ("is ahead of the arm along the motion on a block by "
+            f"{max(ahead):.3g} counts and behind on another by {-min(behind):.3g}")
+
+
 def decide(j: int, names: Sequence[str], sizes: Sequence[int], scores: Sequence[Scores],
            blocks: Sequence[str]) -> JointChoice:
     """Joint ``j``'s (0-based) choice among the options ``names`` (the prior first, then each
@@ -196,7 +240,12 @@ def decide(j: int, names: Sequence[str], sizes: Sequence[int], scores: Sequence[
     floors = " / ".join(f"{r.floor[j]:.3g}" for r in prior)
     shown = (f"held out ({where}: {sum(len(r.t_s) for r in prior)} replies): RMS counts "
              f"{table}; floor {floors}")
-    if chosen == 0:
+    moved = _moved(scores[chosen], prior, j, blocks) if chosen else None
+    if moved is not None:
+        why = (f"the prior kept: the arm's behaviour moved during the session ({names[chosen]} "
+               f"{moved}: a constant fitted to the session predicts neither); {shown}")
+        chosen = 0
+    elif chosen == 0:
         why = ("the prior kept: no candidate predicts the held-out blocks better beyond the "
                f"noise; {shown}") if len(scores) > 1 else f"the prior kept; {shown}"
     else:
