@@ -19,6 +19,7 @@ from armbench.bench.calibrate.held_out import Replayed, decide
 from armbench.bench.calibrate.held_out_moves import BLOCK_SHARE
 from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.clock.vclock import run_virtual
+from armbench.reports.pages.calibration_page import render_page
 
 FloatArray = npt.NDArray[np.float64]
 REPLY_S = 0.005
@@ -116,10 +117,11 @@ def test_the_suites_motions_are_held_out_within_the_budget(tmp_path: Path) -> No
     """On the emulator with a budget of 120 s: a block of the suites' motions after the
     approaches and one at the end, each within its share of the budget (a quarter beyond, for
     stalls held and sent again), their windows in the session's capture, which holds their
-    commands; the robot time within the budget; the settings file says per joint what was kept
-    and why."""
+    commands; the robot time within the budget; the settings file and the page say per joint
+    what was kept and why."""
     out = tmp_path / "robot.toml"
-    result = run_virtual(calibrate_port("fake://", RobotSettings(), out, budget_s=120.0))
+    result = run_virtual(calibrate_port("fake://", RobotSettings(), out, budget_s=120.0,
+                                        page=render_page))
     obs = result.observations
     assert obs.robot_time_s <= 120.0
     assert [b.name for b in obs.held_out] == ["suite", "end"]
@@ -136,3 +138,5 @@ def test_the_suites_motions_are_held_out_within_the_budget(tmp_path: Path) -> No
     for j in range(1, 5):
         assert f"# speed model of j{j}: " in text
     assert "held out (suite / end: " in text
+    page = out.with_suffix(".html").read_text()
+    assert "Speed models judged on the held-out blocks" in page and "<td>j4</td>" in page
