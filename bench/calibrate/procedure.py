@@ -60,10 +60,13 @@ from armbench.drivers.model.errors import WaitTimeoutError
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["DEFAULT_BUDGET_S", "HOLD_POSES_RAD", "PHASES", "Procedure"]
+__all__ = ["DEFAULT_BUDGET_S", "FIT_SHARE", "HOLD_POSES_RAD", "PHASES", "Procedure"]
 
 #: Robot time a calibration may take by default (s): the issue's bound of 15 minutes.
 DEFAULT_BUDGET_S: Final = 900.0
+#: Share of the budget the phases leave for what follows the session within it: the fit and the
+#: replays of the held-out blocks (seconds of CPU, more on a loaded machine).
+FIT_SHARE: Final = 0.03
 PHASES: Final = ("timing", "approaches", "suite", "holds", "ladder", "end")
 APPROACH_CYCLES: Final = 10
 SETTLE_S: Final = 0.25
@@ -144,7 +147,8 @@ class Procedure:
         return self._loop.time() - self._t0
 
     def _fits(self, estimate_s: float) -> bool:
-        return self.elapsed_s() + estimate_s + self._reserve_s <= self.budget_s
+        return (self.elapsed_s() + estimate_s + self._reserve_s
+                <= (1.0 - FIT_SHARE) * self.budget_s)
 
     def _move_estimate_s(self, start: Sequence[float], target: Sequence[float],
                          duty: int) -> float:
