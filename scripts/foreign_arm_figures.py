@@ -3,9 +3,11 @@ time, run a held-out accuracy run, and twin-check that capture with the default 
 the fitted one (RMS, floor and allowance in counts, j1..j4).
 
     python scripts/foreign_arm_figures.py NAME OUT [ARM ARGS...] [--skip-calibration]
+        [--budget-s S]
 
 NAME is an arm of ``tests/foreign_arms/serve.py`` (``stall``, ``jitter``, ``tracker``,
-``shared``); ARM ARGS go to it (``--physics`` for the shared arm). Logs and JSON land in OUT.
+``shared``, ``threshold``); ARM ARGS go to it (``--physics`` for the shared arm); the
+calibration's budget is 90 s unless ``--budget-s`` says otherwise. Logs and JSON land in OUT.
 """
 
 from __future__ import annotations
@@ -41,6 +43,11 @@ def _run(cmd: list[str], log: Path) -> int:
 
 def main(argv: list[str]) -> int:
     skip = "--skip-calibration" in argv
+    budget = "90"
+    if "--budget-s" in argv:
+        k = argv.index("--budget-s")
+        budget = argv[k + 1]
+        argv = argv[:k] + argv[k + 2:]
     name, out, *arm_args = [a for a in argv if a != "--skip-calibration"]
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -51,10 +58,15 @@ def main(argv: list[str]) -> int:
             os.environ["ARMBENCH_TRACKER"] = f"{arm.tracker[0]}:{arm.tracker[1]}"
             os.environ["PYTHONPATH"] = str(TESTS)
         if not skip:
-            _run(["calibrate", "--port", arm.url, "--budget-s", "90", "--out",
-                  str(folder / "fit"), "--force", *extra], folder / "calibrate.log")
-        _run(["run", "accuracy", "--port", arm.url, "--out", str(folder / "held"), "--workers",
-              "1"], folder / "accuracy.log")
+            _run(["calibrate", "--port", arm.url, "--budget-s", budget, "--reply-timeout", "5",
+                  "--out", str(folder / "fit"), "--force", *extra], folder / "calibrate.log")
+        # a loaded machine may starve the arm's process for seconds: not the arm's doing
+        patient = folder / "patient.toml"
+        patient.write_text('spec_version = "armbench-limits/1"\n\n[bench]\n'
+                           "reply_timeout_s = 5.0\nconnect_timeout_s = 30.0\n"
+                           "move_timeout_scale = 10.0\n", encoding="utf-8")
+        _run(["run", "accuracy", "--port", arm.url, "--config", str(patient), "--out",
+              str(folder / "held"), "--workers", "1"], folder / "accuracy.log")
     capture = folder / "held" / "capture.mcap"
     for label, settings in (("default", []), ("fitted", ["--settings",
                                                          str(folder / "fit" / "robot.toml")])):

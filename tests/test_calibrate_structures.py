@@ -15,10 +15,10 @@ import tomli_w
 from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from test_twin_check import _lap, _stall_twin
 
-from armbench.bench.calibrate import calibrate_port
+from armbench.bench.calibrate import calibrate_port, fit_all
 from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.stall import curve_factor
-from armbench.bench.calibrate.structure import JointSpeeds, choose_joint
+from armbench.bench.calibrate.structure import JointSpeeds, SpeedOption, choose_joint
 from armbench.bench.twin_check.check import twin_check
 from armbench.cli.main import main
 from armbench.drivers.host.arm import Arm
@@ -271,8 +271,10 @@ def test_foreign_arm_over_tcp_never_worse(tmp_path: Path) -> None:
 def test_a_stalling_arm_is_recovered_and_its_law_found(tmp_path: Path) -> None:
     """Joint 2 loses synchronism (stall law, pull-out 2.0 N·m): lifting from the ladder's start
     at duty 99 stalls; the procedure holds it and goes on slower, records the stalls, and the
-    fit chooses the stall law with the pull-out torque bracketed; on a held-out lap the twin
-    is no worse than the default on any joint."""
+    ladder's runs choose the stall law with the pull-out torque bracketed. The held-out blocks
+    judge it: a move whose need falls inside the bracket stalls or not by a hair, and where the
+    twin and the arm differ there the prior is kept (the reason gives both blocks' RMS); either
+    way, on a held-out lap the twin is no worse than the default on any joint."""
     hidden = tmp_path / "hidden.toml"
     hidden.write_text('[emulator.physics.j2]\nloss_law = "stall"\npullout_nm = 2.0\n')
     out = tmp_path / "robot.toml"
@@ -281,9 +283,13 @@ def test_a_stalling_arm_is_recovered_and_its_law_found(tmp_path: Path) -> None:
     obs = result.observations
     assert any(s["joint"] == 2 and s["phase"] == "ladder" for s in obs.stalls)
     assert any(s.joint == 2 and s.ratio == 0.0 for s in obs.speeds)
-    fitted = {f.key: f for f in result.fitted}
-    assert fitted["emulator.physics.j2.loss_law"].choice == "stall"
-    assert fitted["emulator.physics.j2.pullout_nm"].covers(2.0)
+    options: dict[int, list[SpeedOption]] = {}
+    fit_all(obs, RobotSettings(), options=options)
+    assert options[1][0].name.startswith("stall"), options[1]
+    pull = {f.key: f for f in options[1][0].fitted}["emulator.physics.j2.pullout_nm"]
+    assert pull.covers(2.0), pull
+    law = {f.key: f for f in result.fitted}["emulator.physics.j2.loss_law"]
+    assert law.choice == "stall" or "held out (suite / end" in law.reason, law
     capture = tmp_path / "held_out.jsonl"
     run_virtual(_lap(f"fake://?settings={hidden}", capture))
     calibrated = _rms(capture, load_settings(out))
@@ -296,7 +302,8 @@ def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The foreign stall arm's own model (``test_twin_check._stall_twin``: a pull-out rate
     falling linearly with the lifted torque; joint 2 cannot lift the ladder's start pose at any
-    duty) as a hidden arm over a port without truth (virtual time): within 90 s of robot time
+    duty) as a hidden arm over a port without truth (virtual time): within 120 s of robot time
+    (the issue's budget; of it, the two held-out blocks of the suites' motions take their share)
     the procedure records joint 3's stalls at full duty and where it moved slower, leaves joint
     2's ladder and brings the arm back, and the fit chooses the stall law for joint 3. On a
     held-out lap, where joint 3 stalls lifting the forearm at a corner, the calibrated twin
@@ -306,9 +313,9 @@ def test_a_stall_arm_over_a_port_is_calibrated_within_its_budget(
     monkeypatch.setattr(Arm, "ground_truth", lambda self: None)  # a port: no truth
     out = tmp_path / "robot.toml"
     result = run_virtual(calibrate_port(f"fake://?settings={hidden}", RobotSettings(), out,
-                                        budget_s=90))
+                                        budget_s=120))
     obs = result.observations
-    assert obs.robot_time_s <= 90.0, obs.robot_time_s
+    assert obs.robot_time_s <= 120.0, obs.robot_time_s
     assert "ladder j2" in obs.phases_skipped  # (the budget may end joint 3's slower duties)
     j3_stalls = [s for s in obs.stalls if s["joint"] == 3 and s["phase"] == "ladder"]
     assert {s["duty"] for s in j3_stalls} == {99}, j3_stalls

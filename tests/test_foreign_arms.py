@@ -35,12 +35,13 @@ async def _timed_move(url: str, q: tuple[float, float, float, float], duty: int)
         return time.monotonic() - t0
 
 
-@pytest.mark.parametrize("name", ["stall", "tracker", "jitter", "shared"])
+@pytest.mark.parametrize("name", ["stall", "tracker", "jitter", "threshold", "shared"])
 def test_plain_arms_follow_law_12(name: str) -> None:
     """Every plain arm (hidden behaviour off) moves joint 3 by 0.6 rad at duty 99 in law (12)'s
     time: not faster than it allows (a little slack for the reply interval), not much slower."""
     plain = {"stall": ["--no-stall"], "jitter": ["--gear-j3", "38", "--interval-ms", "5", "5",
-                                                  "--drop", "0"], "tracker": [], "shared": []}
+                                                  "--drop", "0"], "tracker": [],
+             "threshold": ["--loss", "0,0,0,0"], "shared": []}
     if name == "shared" and shared_arm_script() is None:
         pytest.skip(SHARED_MISSING)
     gear = 36.0 if name == "shared" else 38.0
@@ -70,6 +71,25 @@ def test_jitter_arm_j3_is_slower_and_its_replies_ragged() -> None:
     # how many replies came over the span they cover (a starved arm sends fewer, not more)
     mean_gap_s = (times[-1] - times[0]) / (len(times) - 1)
     assert mean_gap_s >= 0.008, (mean_gap_s, len(times))
+
+
+def test_threshold_arm_loses_steps_from_its_duty_on() -> None:
+    """The threshold arm's joint 2 loses a quarter of its pulses at duty 97 and above, whatever
+    the way and the load: 0.4 rad at duty 99 takes 4/3 of law (12)'s time, at duty 96 no longer
+    than law (12) allows (a starved host or arm only makes a move look longer: the fast move's
+    bound is from below, the slow move's from above with a wide margin)."""
+    async def go(url: str) -> tuple[float, float]:
+        async with Arm.connect(url, SETTINGS) as a:
+            t0 = time.monotonic()
+            await a.move_joints((0.0, 0.4, 0.0, 0.0), 99, timeout_s=30.0)
+            lossy = time.monotonic() - t0
+            t0 = time.monotonic()
+            await a.move_joints((0.0, 0.0, 0.0, 0.0), 96, timeout_s=30.0)
+            return lossy, time.monotonic() - t0
+    with foreign_arm("threshold") as arm:
+        lossy, plain = asyncio.run(go(arm.url))
+    assert lossy >= 0.95 * _move_s(1, 0.4, 99, 50.0) / 0.75, lossy
+    assert 0.95 * _move_s(1, 0.4, 96, 50.0) <= plain <= _move_s(1, 0.4, 96, 50.0) + 2.0, plain
 
 
 def test_stall_arm_stalls_lifting_fast_and_not_slow() -> None:

@@ -1,5 +1,5 @@
 """Replies read late at a move's start (``align._stale_at_start``, a part of
-:func:`~armbench.bench.twin_check.align.late_stamps`): the vectorised rule against a naive
+:func:`~armbench.bench.calibrate.align.late_stamps`): the vectorised rule against a naive
 reference, one Python iteration per reply and joint as the rule is written, on streams of a
 joint at rest that starts to move with some replies read late; and its cost on a capture's
 length, which a twin check pays ten times per replay (``twin_check``: three rounds each)."""
@@ -14,7 +14,7 @@ import numpy.typing as npt
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.twin_check.align import (
+from armbench.bench.calibrate.align import (
     LATE_SIGMAS,
     LATE_TICKS,
     ONSET_REPLIES,

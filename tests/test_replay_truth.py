@@ -12,9 +12,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-import armbench.bench.twin_check.replay as replay
+import armbench.bench.calibrate.replay as replay
 from armbench.bench.calibrate import load_capture
-from armbench.bench.twin_check.replay import TwinTruth, replay_sessions, sessions
+from armbench.bench.calibrate.replay import TwinTruth, replay_sessions, sessions
 from armbench.drivers.host.arm import Arm
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.settings import RobotSettings

@@ -119,8 +119,13 @@ def test_a_wrong_gear_ratio_is_diagnosed_as_such(default_capture: Path) -> None:
     lines = format_twin_check(result, "cap.jsonl").splitlines()
     at = next(i for i, line in enumerate(lines) if line.startswith("  j3: RMS"))
     assert lines[at + 1].startswith("      diagnosis: gear/scale: grows with the joint's travel")
-    assert lines[at + 2].startswith("      next: calibrate the gear ratio: re-run armbench "
-                                    "calibrate with a longer --budget-s")
+    # then its worst part, where it grows and what that resembles, and what to do
+    assert lines[at + 2].startswith("      worst part: ")
+    where = [line for line in lines[at + 3:] if line.startswith("      where: grows at ")]
+    assert where and len(where) <= 3, lines
+    after = next(line for line in lines[at + 2:] if line.startswith("      next: "))
+    assert after.startswith("      next: calibrate the gear ratio: re-run armbench "
+                            "calibrate with a longer --budget-s")
 
 
 def test_a_missing_step_loss_is_diagnosed_as_such(default_capture: Path) -> None:
@@ -332,6 +337,21 @@ def _shared_physics_twin() -> RobotSettings | None:
     return settings
 
 
+def _threshold_twin(shares: tuple[float, float] = (0.25, 0.15), law: str = "duty"
+                    ) -> RobotSettings:
+    """The twin of threshold_arm.py (defaults): joints 2 and 3 lose ``shares`` of their pulses
+    at duty 97 and above, either way, whatever the load; no masses, play or offsets."""
+    def joint(share: float) -> dict[str, Any]:
+        return {"mass_kg": 0.0, "backlash_deg": 0.0, "stick_deg": 0.0, "hall_error_deg": 0.0,
+                "offset_error_deg": 0.0, "loss_law": law, "loss_above_duty": 96,
+                "loss_plus": share, "loss_minus": share}
+    physics = {"payload_kg": 0.0, "noise_per_count": 0.0,
+               "geometry_error": {"d1_m": 0.0, "d2_m": 0.0, "a2_m": 0.0, "a3_m": 0.0},
+               "j1": joint(0.0), "j2": joint(shares[0]), "j3": joint(shares[1]),
+               "j4": joint(0.0)}
+    return _twin(physics=physics)
+
+
 def _stall_twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
                 curve: str = "linear") -> RobotSettings:
     """The twin of stall_arm.py (defaults): its link masses and lengths, no play, no offsets;
@@ -358,8 +378,9 @@ def _stall_twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
 def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     """On a real-time capture of every foreign arm (the full lap: single-joint moves, the
     accuracy square's corners and its streamed path): the model of the arm's hidden truth
-    passes, known-wrong models fail (a gear ratio 4 % off, a missing or wrong step-loss law,
-    play 4 times too large or link lengths off, judged on the tracker's TCP). No false pass, no
+    passes, known-wrong models fail (a gear ratio 4 % off, a missing or wrong step-loss law, a
+    duty loss a fifth too small, play 4 times too large or link lengths off, judged on the
+    tracker's TCP), on the whole capture and on every part of it. No false pass, no
     false fail. Figures for docs/calibration.md (printed with -s)."""
     cases: list[tuple[str, tuple[str, ...], list[tuple[str, RobotSettings, str]], bool]] = [
         ("jitter", (), [("right", _twin((50, 50, JITTER_GEAR, 28)), "pass"),
@@ -372,6 +393,10 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
                        ("hyperbolic pull-out curve", _stall_twin(curve="hyperbolic"), "fail"),
                        ("no loss law", _twin(), "fail"),
                        ("torque-share loss law", RobotSettings(), "fail")], False),
+        ("threshold", (), [("right (duty law from 97)", _threshold_twin(), "pass"),
+                           ("j2 losing 20 % for 25 %", _threshold_twin((0.20, 0.15)), "fail"),
+                           ("no loss law", _twin(), "fail"),
+                           ("torque-share loss law", RobotSettings(), "fail")], False),
         ("tracker", TRACKER_ARGS, [
             ("right", _tracker_twin(0.5, TRACKER_OFFSETS, 4, -4), "pass"),
             ("play x4", _tracker_twin(2.0, TRACKER_OFFSETS, 4, -4), "fail"),

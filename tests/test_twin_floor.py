@@ -13,7 +13,7 @@ import pytest
 from test_twin_check import IDEAL, _lap, _records, _write
 
 from armbench.bench.calibrate import load_capture
-from armbench.bench.twin_check.align import (
+from armbench.bench.calibrate.align import (
     MEDIAN_EFFICIENCY,
     ONSET_REPLIES,
     TICK_RAD,

@@ -18,8 +18,8 @@ from typing import Final
 
 import numpy as np
 
+from armbench.bench.calibrate.ladder import speed_of
 from armbench.bench.calibrate.model import CaptureContentError, Observations, SpeedRun
-from armbench.bench.calibrate.procedure import speed_of
 from armbench.drivers.capture.jsonl import CaptureError
 from armbench.drivers.capture.read import is_mcap, mcap_layout, open_capture
 from armbench.drivers.host.motion import joint_speed_rad_s

@@ -21,8 +21,9 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 
 from armbench.bench.calibrate.model import Fitted, Observations
+from armbench.bench.calibrate.reference import fit_reference
 from armbench.bench.calibrate.stop_rule import choose_stop_rule
-from armbench.bench.calibrate.structure import fit_speed_models
+from armbench.bench.calibrate.structure import SpeedOption, fit_speed_models
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.protocol import TICKS_PER_RAD
 from armbench.drivers.model.settings import RobotSettings
@@ -43,6 +44,7 @@ __all__ = [
     "fit_timing",
     "link_estimate",
     "with_kinematics",
+    "with_references",
 ]
 
 FloatArray = npt.NDArray[np.float64]
@@ -432,19 +434,45 @@ def with_kinematics(prior: ArmPhysics, fitted: Sequence[Fitted]) -> ArmPhysics:
     return replace(prior, geometry_error=ge, joints=joints)
 
 
+def with_references(obs: Observations, base: RobotSettings, prior: ArmPhysics,
+                    kinematics: list[Fitted], play: list[Fitted]
+                    ) -> tuple[list[Fitted], list[Fitted]]:
+    """The kinematic and play fits with what the reference poses (``--reference``,
+    ``--touch-off``) identify put in place of what the instrument's truth did not: each value
+    the reference fit identified replaces one the truth left at the prior
+    (:func:`~armbench.bench.calibrate.reference.fit_reference`)."""
+    if not obs.references:
+        return kinematics, play
+    what = ("touched plate points" if any(r.history_rad for r in obs.references)
+            else "reference poses")
+    measured = {f.key: f for f in play if f.identified}
+    known = {j: _PLAY.to_twin(measured[_PLAY.path(j)].value) for j in range(3)
+             if _PLAY.path(j) in measured}
+    found = {f.key: f for f in fit_reference(obs.references, base, prior, what, known)
+             if f.identified}
+
+    def merged(fits: list[Fitted]) -> list[Fitted]:
+        return [found.get(f.key, f) if not f.identified else f for f in fits]
+    return merged(kinematics), merged(play)
+
+
 def fit_all(obs: Observations, base: RobotSettings,
-            structures: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
+            structures: Mapping[int, tuple[str, bool] | None] | None = None,
+            options: dict[int, list[SpeedOption]] | None = None) -> list[Fitted]:
     """Every fit, in the order of the settings file (the kinematics first: the torque models of
-    the others use it). ``structures``: each joint's speed model taken as chosen (see
+    the others use it). ``structures``: each joint's speed model taken as chosen; ``options``
+    receives each joint's candidate speed models for the held-out blocks (see
     :func:`~armbench.bench.calibrate.structure.fit_speed_models`)."""
     prior = base_physics(base)
     hall = fit_hall(obs, base, prior)
     kinematics = fit_kinematics(obs, base, prior, hall)
-    model = with_kinematics(prior, kinematics)
     play = fit_play(obs, base, prior)
+    kinematics, play = with_references(obs, base, prior, kinematics, play)
+    model = with_kinematics(prior, kinematics)
     before = [*play, *hall]
     mech = Mechanism(model, base, lambda: [0.0] * 4)
     speeds = fit_speed_models(obs, base, model,
-                              lambda q: link_estimate(q, before, model, mech), structures)
+                              lambda q: link_estimate(q, before, model, mech), structures,
+                              options)
     return [*fit_timing(obs), choose_stop_rule(obs, base, hall), *play, *hall,
             *fit_stiffness(obs, base, model, play, before), *speeds, *kinematics]

@@ -28,10 +28,13 @@ __all__ = [
     "CalibrationResult",
     "CaptureContentError",
     "Fitted",
+    "HeldOut",
     "Hold",
     "Observations",
     "PageRenderer",
+    "ReferencePose",
     "SpeedRun",
+    "no_truth",
     "run_sigma",
     "session_scatter",
 ]
@@ -127,6 +130,34 @@ class SpeedRun:
 
 
 @dataclass(slots=True)
+class ReferencePose:
+    """A pose where a lab measured the tool position (``bench/calibrate/reference.py``): the
+    joint angles (rad, protocol convention: the reported ones), the tool position measured (m,
+    base frame) and its standard error per coordinate (m), the direction each joint last moved
+    in to get there (±1) and, from a touch-off, its reported angles after each move since the
+    move that brought it there (the path the play operator replays), and where it came from."""
+
+    q_rad: list[float]
+    xyz_m: list[float]
+    sigma_m: float
+    approach: list[int]
+    history_rad: list[list[float]] | None = None
+    source: str = ""
+
+
+@dataclass(slots=True)
+class HeldOut:
+    """A held-out block of the session (``bench/calibrate/held_out_moves.py``): its name
+    (``suite``: after the approaches, ``end``: at the end of the session), its window on the
+    session capture's clock (s) and how many edges of the square it streamed."""
+
+    name: str
+    start_s: float
+    end_s: float
+    edges: int = 0
+
+
+@dataclass(slots=True)
 class Observations:
     """Everything one calibration measured, in the order it was measured."""
 
@@ -139,6 +170,11 @@ class Observations:
     holds: list[Hold] = field(default_factory=list)
     speeds: list[SpeedRun] = field(default_factory=list)
     stalls: list[dict[str, Any]] = field(default_factory=list)
+    held_out: list[HeldOut] = field(default_factory=list)
+    #: Tool positions a lab measured (``--reference``) or touched (``--touch-off``).
+    references: list[ReferencePose] = field(default_factory=list)
+    #: The session's capture (every frame in and out), where the held-out blocks are.
+    capture: str | None = None
     phases_done: list[str] = field(default_factory=list)
     phases_skipped: dict[str, str] = field(default_factory=dict)
     robot_time_s: float = 0.0
@@ -155,6 +191,8 @@ class Observations:
         d["approaches"] = [Approach(**a) for a in d.get("approaches", [])]
         d["holds"] = [Hold(**h) for h in d.get("holds", [])]
         d["speeds"] = [SpeedRun(**s) for s in d.get("speeds", [])]
+        d["held_out"] = [HeldOut(**b) for b in d.get("held_out", [])]
+        d["references"] = [ReferencePose(**r) for r in d.get("references", [])]
         return cls(**d)
 
     def save(self, path: Path) -> None:
@@ -230,7 +268,20 @@ class Sensitivity:
 NO_TRUTH: Final = ("the link-side figures (gear play, stick-slip, Hall position errors, "
                    "stiffness, DH lengths and joint offsets) are the prior's and cannot be "
                    "trusted beyond it; give a reference instrument with --tracker to identify "
-                   "them")
+                   "them, or measured tool positions with --reference or --touch-off for the "
+                   "DH lengths, joint offsets and play")
+
+
+def no_truth(obs: Observations) -> str:
+    """What a calibration without a reference instrument leaves at the prior: all of the link
+    side (:data:`NO_TRUTH`), or, with reference poses, all but what they fit."""
+    if not obs.references:
+        return NO_TRUTH
+    return (f"the DH lengths, the joint offsets and the play of joints 1 to 3 are fitted from "
+            f"{len(obs.references)} measured tool positions; the rest of the link side "
+            "(stick-slip, Hall position errors, stiffness, joint 4's play and offset) is the "
+            "prior's and cannot be trusted beyond it (a reference instrument, --tracker, "
+            "identifies it)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -244,6 +295,9 @@ class CalibrationResult:
     sensitivity: Sensitivity | None = None
     #: How far the fitted arm's TCP is from the reference instrument's at each hold (mm).
     kinematic_mm: tuple[float, ...] = ()
+    #: Per joint, what the held-out blocks kept of its speed model and why (JSON-ready:
+    #: ``joint``, ``kept``, ``why``, every option's RMS per block, the blocks' floors).
+    held_out: tuple[dict[str, Any], ...] = ()
 
 
 #: Renders the calibration page of a result (HTML text).

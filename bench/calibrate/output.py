@@ -28,6 +28,7 @@ from armbench.bench.calibrate.model import (
     Fitted,
     Observations,
     PageRenderer,
+    no_truth,
 )
 from armbench.bench.runner.outputs import OutputError, is_run_file
 from armbench.drivers.model.settings import UNCERTAINTY_TABLE, RobotSettings
@@ -164,9 +165,11 @@ def _sigma_text(f: Fitted) -> str:
 def output_paths(out: Path, *, observations: bool) -> list[Path]:
     """Every file a calibration to ``out`` writes: the settings (``out``), the fit (``.json``),
     the page (``.html``) and, when measuring on a port (``observations``), the observations saved
-    as they are measured (``.observations.json``)."""
+    as they are measured (``.observations.json``) and the session's capture, where its held-out
+    blocks are (``.capture.jsonl``)."""
     paths = [out, out.with_suffix(".json"), out.with_suffix(".html")]
-    return [*paths, out.with_suffix(".observations.json")] if observations else paths
+    return [*paths, out.with_suffix(".observations.json"),
+            out.with_suffix(".capture.jsonl")] if observations else paths
 
 
 def _write(path: Path, text: str) -> None:
@@ -192,7 +195,9 @@ def write_outputs(result: CalibrationResult, out: Path,
     if result.error:
         header += f"\nPARTIAL: {result.error}"
     if not result.observations.truth:
-        header += f"\nNO REFERENCE INSTRUMENT: {NO_TRUTH}"
+        header += f"\nNO REFERENCE INSTRUMENT: {no_truth(result.observations)}"
+    for choice in result.held_out:
+        header += f"\nspeed model of j{choice['joint']}: {choice['why']}"
     for f in result.fitted:
         if not f.written and not f.key.startswith("timing."):
             shown = f.choice if f.choice is not None else f"{f.value:.6g} {f.unit}"
@@ -206,6 +211,7 @@ def write_outputs(result: CalibrationResult, out: Path,
         "source": result.observations.source, "error": result.error,
         "fitted": [f.to_json() for f in result.fitted],
         "sensitivity": None if result.sensitivity is None else result.sensitivity.to_json(),
+        "held_out": list(result.held_out),
         "observations": result.observations.to_json()}, indent=1) + "\n")
     written = {"settings": settings_path, "fit": fit_path}
     if page is not None:

@@ -9,10 +9,14 @@ Phases, the most informative first (each skipped when what is left of the budget
    (all joints at once): with a truth source the reversal of the link against the motor is the gear
    play, its scatter the stick-slip band; the counter against the motor after a Hall crossing is
    the Hall position's error.
-3. ``holds`` (truth only) — rest at poses of different gravity load, every joint approached from
+3. ``suite`` — a held-out block: the accuracy suite's motions (its square's corners at full duty,
+   its edges streamed), recorded and never fitted; made again as ``end``, the last phase
+   (``bench/calibrate/held_out_moves.py``): the fitted structures replace the prior only where
+   they predict both better (``bench/calibrate/held_out.py``).
+4. ``holds`` (truth only) — rest at poses of different gravity load, every joint approached from
    below: deflection against the model's gravity torque (stiffness) and the true TCP against the
    true joints (DH lengths and joint offsets).
-4. ``ladder`` — per joint, moves at a ladder of duties up and down a gravity-loaded range: the
+5. ``ladder`` — per joint, moves at a ladder of duties up and down a gravity-loaded range: the
    effective speed against law (12), i.e. the step loss and where it starts.
 
 Everything reads time from the running loop and waits with asyncio (virtual time against
@@ -29,6 +33,17 @@ from typing import Any, Final
 
 import numpy as np
 
+from armbench.bench.calibrate.held_out_moves import (
+    BLOCK_SHARE,
+    SuiteBlock,
+    plan_block,
+    run_block,
+)
+from armbench.bench.calibrate.ladder import (
+    LADDER_RANGES,
+    ladder_order,
+    speed_of,
+)
 from armbench.bench.calibrate.model import (
     APPROACH_OFFSET_RAD,
     Approach,
@@ -45,11 +60,14 @@ from armbench.drivers.model.errors import WaitTimeoutError
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["DEFAULT_BUDGET_S", "HOLD_POSES_RAD", "LADDER_DUTIES", "PHASES", "Procedure"]
+__all__ = ["DEFAULT_BUDGET_S", "FIT_SHARE", "HOLD_POSES_RAD", "PHASES", "Procedure"]
 
 #: Robot time a calibration may take by default (s): the issue's bound of 15 minutes.
 DEFAULT_BUDGET_S: Final = 900.0
-PHASES: Final = ("timing", "approaches", "holds", "ladder")
+#: Share of the budget the phases leave for what follows the session within it: the fit and the
+#: replays of the held-out blocks (seconds of CPU, more on a loaded machine).
+FIT_SHARE: Final = 0.03
+PHASES: Final = ("timing", "approaches", "suite", "holds", "ladder", "end")
 APPROACH_CYCLES: Final = 10
 SETTLE_S: Final = 0.25
 IDLE_S: Final = 1.0
@@ -62,28 +80,6 @@ HOLD_POSES_RAD: Final = (
     (-0.4, 0.3, 0.9, 1.5), (1.2, 1.0, -0.4, 0.0), (-1.2, -0.7, 0.8, 0.8), (0.0, 0.7, -1.2, 1.8),
     (2.0, 0.2, 0.5, -0.3), (-2.0, -0.2, -0.6, 0.6), (0.6, 1.1, -0.2, 1.2), (-0.6, -0.5, 0.95, 0.4),
 )
-#: Duties of the speed ladder, the most informative first: full duty (where steps are lost), the
-#: lowest (a speed scale without loss: a gear ratio off the nominal), full duty again (the
-#: repeated runs measure the session's scatter, the link's jitter included), then between.
-LADDER_DUTIES: Final = (99, 90, 99, 95, 97, 93, 98, 96)
-#: Per joint: the start pose of its ladder and the range its moves span (protocol rad): joints 2
-#: and 3 tilted so that moving towards the vertical lifts the arm, joint 3 from its forearm
-#: horizontal (q2 + q3 ≈ 1.6: the largest gravity torque it can meet, so a joint that loses no
-#: step here loses none elsewhere at these duties); 1 and 4 carry no gravity load and get the two
-#: top duties only. The joints go one after the other, in this order, each through all its
-#: duties: the arm travels to each joint's pose once (a drive too weak for the arm's weight
-#: lifts joint 2 slowly, and every trip back from a tilted pose costs that), and joint 2, the
-#: heaviest lift, comes last: a drive that cannot lift it at any duty leaves the arm there, and
-#: the others are measured first.
-LADDER_RANGES: Final = {
-    1: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
-    4: ((0.0, 0.0, 0.0, 0.0), 0.3, -0.3),
-    3: ((0.0, 0.6, 1.0, 0.0), 1.0, 0.7),
-    2: ((0.0, 0.9, 0.0, 0.0), 0.9, 0.6),
-}
-UNLOADED_DUTIES: Final = (99, 95)
-#: Duties of the ladder joints 3 and 2 go through alternately before each takes the rest.
-FIRST_DUTIES: Final = 3
 #: Duties a move is sent again at, in turn, after a joint stalled (a stepper out of synchronism
 #: stands until its rate falls below the pull-in rate): each about half the rate of the one
 #: before (law (12)), so the duty that moves it is within a factor of two of the fastest that
@@ -104,10 +100,6 @@ STALL_WATCH_MAX_S: Final = 1.0
 ESCAPE_STEP_RAD: Final = 0.15
 #: Standard error of a stalled run's ratio (of 0): it moved at most a few counts.
 STALL_SIGMA: Final = 0.01
-#: Share of a move at each end left out of the speed fit (start-up and arrival).
-RATE_MARGIN: Final = 0.2
-
-
 class Procedure:
     """Run the phases against ``arm`` within ``budget_s`` of robot time, filling ``obs`` and
     calling ``save`` after every unit of work. Raises :class:`ArmDoesNotMoveError` when a joint
@@ -116,7 +108,8 @@ class Procedure:
     def __init__(self, arm: Arm, settings: RobotSettings, obs: Observations, *,
                  budget_s: float = DEFAULT_BUDGET_S, save: Callable[[], None] = lambda: None,
                  progress: Callable[[str], None] = lambda message: None,
-                 tracker: PoseSource | None = None) -> None:
+                 tracker: PoseSource | None = None,
+                 capture_origin_s: float | None = None) -> None:
         self.arm = arm
         self.settings = settings
         self.obs = obs
@@ -135,6 +128,15 @@ class Procedure:
         sample = arm.ground_truth()
         obs.motor_truth = getattr(sample, "motor_rad", None) is not None
         self._phase = "timing"
+        #: Loop time of the session capture's clock origin (None: no capture, no held-out
+        #: block); the robot time kept for the end block while the phases before it run.
+        self._origin_s = capture_origin_s
+        self._reserve_s = 0.0
+        self._block: SuiteBlock | None = None
+        #: The most a move held and sent again took beyond its plan (s), since the held-out
+        #: block began; what the first block's took, the end block's parts fit only with.
+        self._stall_s = 0.0
+        self._block_stall_s = 0.0
         #: The duty, loop time and angles of the latest attempt of a move (a stalled move is
         #: sent again slower: the run that arrived is that one).
         self._last_attempt: tuple[int, float, list[float]] = (0, 0.0, [0.0] * 4)
@@ -145,7 +147,8 @@ class Procedure:
         return self._loop.time() - self._t0
 
     def _fits(self, estimate_s: float) -> bool:
-        return self.elapsed_s() + estimate_s <= self.budget_s
+        return (self.elapsed_s() + estimate_s + self._reserve_s
+                <= (1.0 - FIT_SHARE) * self.budget_s)
 
     def _move_estimate_s(self, start: Sequence[float], target: Sequence[float],
                          duty: int) -> float:
@@ -163,17 +166,24 @@ class Procedure:
     # --- the phases ----------------------------------------------------------------------------
     async def run(self) -> Observations:
         """Every phase that fits the budget, in order."""
+        block_s = self._plan_blocks()
         phases: list[tuple[str, Callable[[], Any], float]] = [
             ("timing", self.timing, IDLE_S + 1.0),
             ("approaches", self.approaches, 6.0),
         ]
+        if self._block is not None:
+            phases.append(("suite", self.suite, block_s))
         if self._truth is not None:
             phases.append(("holds", self.holds, 8.0))
         else:
             self.obs.phases_skipped["holds"] = "no truth source (deflection and kinematics " \
                                                "need one)"
         phases.append(("ladder", self.ladder, 4.0))
+        if self._block is not None:
+            phases.append(("end", self.end, 0.0))
         for name, phase, minimum_s in phases:
+            if name == "end":
+                self._reserve_s = 0.0  # the time kept for it
             if not self._fits(minimum_s):
                 self.obs.phases_skipped[name] = (f"budget: {self.budget_s - self.elapsed_s():.1f} "
                                                  f"s left, at least {minimum_s:.0f} s needed")
@@ -184,6 +194,52 @@ class Procedure:
             self.obs.phases_done.append(name)
             self._stamp()
         return self.obs
+
+    def _plan_blocks(self) -> float:
+        """The held-out block that fits its share of the budget (None without a capture or
+        when not even the square's corners fit: said in ``phases_skipped``), its robot time
+        kept for the end block from the start; returns that time."""
+        if self._origin_s is None:
+            self.obs.phases_skipped["suite"] = "no capture of the session: no held-out block"
+            return 0.0
+        self._block = plan_block(BLOCK_SHARE * self.budget_s, self.arm, self._move_estimate_s)
+        if self._block is None:
+            self.obs.phases_skipped["suite"] = self.obs.phases_skipped["end"] = (
+                f"budget: the approach to the square and two of its corners do not fit a "
+                f"held-out block's share ({BLOCK_SHARE:.0%} of {self.budget_s:g} s)")
+            return 0.0
+        self._reserve_s = self._block.estimate_s
+        return self._block.estimate_s
+
+    async def _block_phase(self, name: str) -> None:
+        """Make the held-out block ``name``: each part while it fits the budget and the block's
+        share of it (a quarter beyond, for what the plan did not foresee: stalls held and sent
+        again slower)."""
+        assert self._block is not None and self._origin_s is not None
+        began = self.elapsed_s()
+        cap_s = 1.25 * BLOCK_SHARE * self.budget_s
+        self._stall_s = 0.0
+
+        def fits(estimate_s: float) -> bool:
+            need_s = estimate_s + self._block_stall_s
+            return self._fits(need_s) and self.elapsed_s() - began + need_s <= cap_s
+
+        window, failure = await run_block(self.arm, self._block, name, self._origin_s,
+                                          self._move, fits)
+        self.obs.held_out.append(window)
+        if failure is not None:
+            self.obs.phases_skipped[name] = f"the block ended early: {failure}"
+
+    async def suite(self) -> None:
+        """A held-out block of the suites' motions; the end block gets as long as it took."""
+        began = self.elapsed_s()
+        await self._block_phase("suite")
+        self._reserve_s = 1.1 * (self.elapsed_s() - began)
+        self._block_stall_s = self._stall_s
+
+    async def end(self) -> None:
+        """The held-out block again, at the end of the session."""
+        await self._block_phase("end")
 
     def _stamp(self) -> None:
         self.obs.robot_time_s = round(self.elapsed_s(), 6)
@@ -368,10 +424,15 @@ class Procedure:
         lower of :data:`RECOVERY_DUTIES`; the stall is recorded. Returns whether the move stalled
         at ``duty``. Raises :class:`ArmDoesNotMoveError` when no duty moves it."""
         stalled_at_duty = False
+        began_s = self.elapsed_s()
+        planned_s = self._move_estimate_s(self.arm.state.q_rad, target, duty)
         # the first retry is at the same duty: a command lost on the link looks like a stall
         for attempt, d in enumerate((duty, duty, *(x for x in RECOVERY_DUTIES if x < duty))):
             stuck = await self._move_once(target, d)
             if stuck is None:
+                if attempt:  # held and sent again: what that cost beyond the plan
+                    self._stall_s = max(self._stall_s,
+                                        self.elapsed_s() - began_s - planned_s)
                 return stalled_at_duty
             if attempt == 0:
                 continue
@@ -449,23 +510,6 @@ class Procedure:
         return state, truth
 
 
-def ladder_order() -> list[tuple[int, int]]:
-    """The ladder's ``(joint, duty)`` runs in order: joints 1 and 4 (no gravity load, at the zero
-    pose) at full duty; joints 3 and 2 alternating at the first :data:`FIRST_DUTIES` of
-    :data:`LADDER_DUTIES` (a budget that runs out leaves both with full duty, the lowest and the
-    repeat); joints 1 and 4 at their other duty; then 3 and 2 each through the rest. The arm
-    goes back to the zero pose between joint 3's and joint 2's poses once: a drive too weak for
-    the arm's own weight lifts joint 2 only slowly (and one that cannot has been brought back
-    there by then)."""
-    top, *slower = UNLOADED_DUTIES
-    out: list[tuple[int, int]] = [(1, top), (4, top)]
-    first, rest = LADDER_DUTIES[:FIRST_DUTIES], LADDER_DUTIES[FIRST_DUTIES:]
-    out += [(j, int(d)) for d in first for j in (3, 2)]
-    out += [(j, d) for d in slower for j in (1, 4)]
-    out += [(j, int(d)) for j in (3, 2) for d in rest]
-    return out
-
-
 def _ticks_changed(before: int) -> Callable[[JointState], bool]:
     """A predicate: joint 1's wire value is no longer ``before``."""
     return lambda state: state.ticks[0] != before
@@ -483,29 +527,3 @@ def truth_of(arm: Arm) -> dict[str, list[float]]:
         if value is not None:
             out[name] = [float(v) for v in value]
     return out
-
-
-def speed_of(states: Sequence[JointState], j: int, start: float,
-             target: float) -> tuple[float, int, float] | None:
-    """Slope (rad/s, unsigned) of joint ``j`` over the middle of a move from ``start`` to
-    ``target``, fitted to the replies, the number of replies and the slope's standard error
-    from their scatter about the line; None with fewer than 5 replies there."""
-    span = target - start
-    if span == 0:
-        return None
-    t, q = [], []
-    for s in states:
-        f = (s.q_rad[j] - start) / span
-        if RATE_MARGIN <= f <= 1.0 - RATE_MARGIN:
-            t.append(s.t_s)
-            q.append(s.q_rad[j])
-    if len(t) < 5:
-        return None
-    ta = np.asarray(t) - t[0]
-    qa = np.asarray(q)
-    slope, icept = (float(c) for c in np.polyfit(ta, qa, 1))
-    resid = qa - (slope * ta + icept)
-    sxx = float(((ta - ta.mean()) ** 2).sum())
-    sigma = math.sqrt(float(resid @ resid) / (len(t) - 2) / sxx) if sxx > 0 else math.inf
-    return abs(slope), len(t), sigma
-

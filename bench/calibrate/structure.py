@@ -3,7 +3,8 @@ step-loss law of ``docs/robot-model.md``) and whether its speed is scaled (a gea
 the nominal one).
 
 Every speed run of the ladder (or of a capture) gives the ratio ``r`` of its effective speed to
-law (12), with a standard error from the scatter of its own replies about the fitted slope (the
+law (12) (the candidates' fits and predictions: ``bench/calibrate/speed_laws.py``), with a
+standard error from the scatter of its own replies about the fitted slope (the
 link's and the host's timing jitter included) and the rounding of one pulse in its steps: the
 arm's own noise in this session. Each candidate structure predicts ``r`` for a run:
 
@@ -38,16 +39,30 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize_scalar
 
-from armbench.bench.calibrate.model import Fitted, Observations, run_sigma, session_scatter
-from armbench.bench.calibrate.stall import STALLED_RATIO, curve_factor, stall_interval, stall_pred
+from armbench.bench.calibrate.model import Fitted, Observations, session_scatter
+from armbench.bench.calibrate.speed_laws import (
+    NEED_REL,
+    STEPS,
+    Candidate,
+    JointSpeeds,
+    at_bound,
+    fit_law,
+    param_sigma,
+    predict,
+    prior_prediction,
+    run_table,
+    stall_bracket,
+    subset,
+)
+from armbench.bench.calibrate.stall import STALLED_RATIO
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.model.twin_parameters import TWIN
-from armbench.fakes.twin.physics import PULLOUT_CURVES, ArmPhysics, JointPhysics, Mechanism
+from armbench.fakes.twin.physics import ArmPhysics, JointPhysics
 
-__all__ = ["MARGIN", "PARSIMONY", "Candidate", "JointSpeeds", "choose_joint", "fit_speed_models",
-           "run_table", "session_scatter"]
+__all__ = ["MARGIN", "MAX_OPTIONS", "PARSIMONY", "Candidate", "JointSpeeds", "SpeedOption",
+           "choose_joint", "fit_speed_models", "kept_speed", "run_table", "session_scatter",
+           "speed_keys"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -57,245 +72,6 @@ MARGIN: Final = 4.0
 PARSIMONY: Final = 2.0
 #: Largest share of the held-out χ² one run can take (a miss by five standard errors or more).
 MISS_Z2: Final = 25.0
-#: Relative standard error of a run's needed torque (masses and angles of the prior): the torque
-#: fit adds it to each lossy run's ratio error in its weights, and to the pull-out torque's; the
-#: held-out scores use the runs' own errors only (a model cannot excuse its misses).
-NEED_REL: Final = 0.01
-_PULLOUT, _ABOVE = TWIN["pullout_nm"], TWIN["loss_above_duty"]
-_PLUS, _MINUS = TWIN["loss_plus"], TWIN["loss_minus"]
-#: Pull-out torques the profile fits search (N·m, log-spaced): the band the settings file
-#: accepts around the documented range.
-_P_GRID: Final = np.geomspace(*_PULLOUT.accepted(), 481)
-#: The parameters a speed model fits, each with the step of its numerical derivative (its unit).
-_STEPS: Final = ((_PULLOUT, 0.01), (_ABOVE, 0.5), (_PLUS, 1e-4), (_MINUS, 1e-4))
-#: The duty law losing nothing anywhere (the parameters' ideal values).
-_NO_DUTY_LOSS: Final = {p.name: float(p.ideal_value()) for p in (_ABOVE, _PLUS, _MINUS)}
-#: Speed scales a fit may return: another gear set of the same arm (a quarter off the nominal
-#: ratio at most); beyond that a scale would stand in for any step loss.
-SCALE_RANGE: Final = (0.75, 1.33)
-
-
-@dataclass(frozen=True, slots=True)
-class JointSpeeds:
-    """One joint's speed runs as the fits need them: the ratio, its standard error, duty,
-    direction and the torque factor ``f`` (N·m) of each run on the prior's pull-out curve
-    ``curve``; ``factors``: the factor on every curve (None: the prior's only)."""
-
-    ratio: FloatArray
-    sigma: FloatArray
-    duty: FloatArray
-    direction: FloatArray
-    factor: FloatArray
-    factors: Mapping[str, FloatArray] | None = None
-    curve: str = "hyperbolic"
-
-    @property
-    def curves(self) -> list[str]:
-        """The pull-out curves the runs have factors on, the prior's first."""
-        return [self.curve] + [c for c in (self.factors or {}) if c != self.curve]
-
-    def on_curve(self, curve: str) -> JointSpeeds:
-        """The runs with the factors of the pull-out curve ``curve``."""
-        if curve == self.curve or not curve:
-            return self
-        return replace(self, factor=(self.factors or {})[curve], curve=curve)
-
-
-def run_table(obs: Observations, base: RobotSettings, prior: ArmPhysics, j: int,
-              link_of: Callable[[Sequence[float]], list[float]],
-              scatter: float = 1.0) -> JointSpeeds:
-    """Joint ``j``'s (0-based) runs; ``link_of`` estimates the link angles at a run's start;
-    each run's standard error is multiplied by the session's ``scatter``."""
-    spec = base.joints[j]
-    p = prior.joints[j]
-    mech = Mechanism(prior, base, lambda: [0.0] * 4)
-    rows = []
-    for run in obs.speeds:
-        if run.joint != j + 1 or run.law_rad_s <= 0:
-            continue
-        rate = run.law_rad_s * spec.steps_per_rad
-        tau = mech.gravity_nm(link_of(run.start_rad))[j]
-        need = p.required_nm(tau, run.direction, spec.gear_ratio, rate, spec.steps_per_motor_rev)
-        rows.append((run.ratio, scatter * run_sigma(run), run.duty, run.direction, need,
-                     rate))
-    a = np.asarray(rows, dtype=np.float64).reshape(-1, 6)
-    factors = {c: curve_factor(a[:, 4], a[:, 5], p.corner_steps_per_s, c)
-               for c in PULLOUT_CURVES}
-    return JointSpeeds(a[:, 0], a[:, 1], a[:, 2], a[:, 3], factors[p.pullout_curve], factors,
-                       p.pullout_curve)
-
-
-@dataclass(frozen=True, slots=True)
-class Candidate:
-    """A fitted structure: its name, whether ``s`` is fitted, the parameters and the
-    predictions of the runs it was fitted on."""
-
-    law: str
-    scaled: bool
-    params: dict[str, float]
-    n_params: int
-    curve: str = ""
-
-    @property
-    def name(self) -> str:
-        """``law`` (``stall:linear``: with its pull-out curve) with ``+scale`` when the speed
-        scale is fitted."""
-        return self.law + (f":{self.curve}" if self.curve else "") + (
-            "+scale" if self.scaled else "")
-
-
-def _wmean(x: FloatArray, w: FloatArray) -> float:
-    return float((x * w).sum() / w.sum()) if len(x) and w.sum() > 0 else math.nan
-
-
-def _clip_scale(s: float) -> float:
-    return min(SCALE_RANGE[1], max(SCALE_RANGE[0], s))
-
-
-def _torque_pred(p_nm: float | FloatArray, factor: FloatArray) -> FloatArray:
-    out: FloatArray = np.clip(p_nm / factor, 0.1, 1.0)
-    return out
-
-
-_stall_pred = stall_pred
-
-
-def _model_error(shape: FloatArray) -> FloatArray:
-    """The ratio error a 1 % error of the needed torque makes: ``NEED_REL · r`` on a run that
-    loses steps, but never more than its loss (a run barely losing is as near to losing none:
-    the error cannot excuse a model that makes every run lose a hair)."""
-    out: FloatArray = np.minimum(NEED_REL * shape, 1.0 - shape) * (shape < 1.0)
-    return out
-
-
-def _sigma_total(d: JointSpeeds, shape: FloatArray) -> FloatArray:
-    """Each run's ratio error plus the needed torque's relative error where it loses steps."""
-    out: FloatArray = np.sqrt(d.sigma ** 2 + _model_error(shape) ** 2)
-    return out
-
-
-def _profile(d: JointSpeeds, pred: Callable[[float | FloatArray, FloatArray], FloatArray],
-             scaled: bool) -> tuple[float, float]:
-    """Best ``P`` (and ``s``) of a one-parameter shape ``s · pred(P, f)``: a grid over log P,
-    ``s`` in closed form at each."""
-    def at(p_nm: float) -> tuple[float, float]:
-        g = pred(p_nm, d.factor)
-        w = 1.0 / _sigma_total(d, g) ** 2
-        s = (_clip_scale(float((d.ratio * g * w).sum() / (g * g * w).sum()))
-             if scaled and (g > 0).any() else 1.0)
-        return float((((d.ratio - s * g) ** 2) * w).sum()), s
-
-    # the whole grid at once (rows: P, columns: runs)
-    g = pred(_P_GRID[:, None], d.factor[None, :])
-    w = 1.0 / (d.sigma[None, :] ** 2 + _model_error(g) ** 2)
-    if scaled:
-        den = (g * g * w).sum(axis=1)
-        s_all = np.clip((d.ratio * g * w).sum(axis=1) / np.where(den > 0, den, 1.0),
-                        *SCALE_RANGE)
-        s_all = np.where(den > 0, s_all, 1.0)
-    else:
-        s_all = np.ones(len(_P_GRID))
-    chi2_all = (((d.ratio[None, :] - s_all[:, None] * g) ** 2) * w).sum(axis=1)
-    k = int(np.argmin(chi2_all))  # the first of equal minima: the lowest P
-    best = (float(chi2_all[k]), float(_P_GRID[k]), float(k))
-    if 0 < k < len(_P_GRID) - 1 and pred is _torque_pred:  # between grid points: refine
-        lo, hi = math.log(float(_P_GRID[k - 1])), math.log(float(_P_GRID[k + 1]))
-        r = minimize_scalar(lambda x: at(math.exp(x))[0], bounds=(lo, hi), method="bounded",
-                            options={"xatol": 1e-7})
-        if float(r.fun) < best[0]:
-            return math.exp(float(r.x)), at(math.exp(float(r.x)))[1]
-    return best[1], at(best[1])[1]
-
-
-def _fit(d: JointSpeeds, law: str, scaled: bool) -> Candidate:
-    """Fit ``law`` (with or without the scale) to the runs of ``d``."""
-    if law == "none":
-        s = _clip_scale(_wmean(d.ratio, 1.0 / d.sigma ** 2)) if scaled else 1.0
-        return Candidate(law, scaled, {"s": s}, int(scaled))
-    if law == "torque":
-        p_nm, s = _profile(d, _torque_pred, scaled)
-        return Candidate(law, scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled))
-    if law.startswith("stall"):  # the middle of the interval between the runs that moved and
-        curve = _curve_of(law, d)   # stalled, on the law's pull-out curve
-        d = d.on_curve(curve)
-        p_nm, sigma = _stall_interval(d)
-        moved = d.ratio >= STALLED_RATIO
-        s = 1.0
-        if math.isinf(sigma):
-            p_nm, s = _profile(d, _stall_pred, scaled)
-        elif scaled and moved.any():
-            s = _clip_scale(_wmean(d.ratio[moved], 1.0 / d.sigma[moved] ** 2))
-        return Candidate("stall", scaled, {"s": s, "pullout_nm": p_nm}, 1 + int(scaled),
-                         curve)
-    # duty: the threshold that fits best, the shares above it per direction
-    best: tuple[float, Candidate] | None = None
-    duties = {float(x) for x in d.duty}
-    for thr in sorted(duties | {99.0, min(duties) - 1.0}):
-        below = d.duty <= thr
-        w = 1.0 / d.sigma ** 2
-        s = _clip_scale(_wmean(d.ratio[below], w[below])) if scaled and below.any() else 1.0
-        params = {"s": s, "loss_above_duty": thr}
-        pred = np.full_like(d.ratio, s)
-        for share_of, sign in ((_PLUS, 1.0), (_MINUS, -1.0)):
-            above = (~below) & (d.direction == sign)
-            share = 1.0 - _wmean(d.ratio[above] / s, w[above]) if above.any() else 0.0
-            share = min(0.9, max(0.0, share))
-            params[share_of.name] = share
-            pred[above] = s * (1.0 - share)
-        if not below.any() and _same_both_ways(d, w):
-            continue  # one share at every duty, both ways: a speed scale, not a duty threshold
-        chi2 = float((((d.ratio - pred) ** 2) * w).sum())
-        if best is None or chi2 < best[0] - 1e-12:
-            best = (chi2, Candidate(law, scaled, params, 3 + int(scaled)))
-    if best is None:  # no threshold left: loss nowhere
-        return Candidate(law, scaled, {"s": 1.0, **_NO_DUTY_LOSS}, 3 + int(scaled))
-    return best[1]
-
-
-def _same_both_ways(d: JointSpeeds, w: FloatArray) -> bool:
-    """Whether the runs towards + and towards − have the same mean ratio within three standard
-    errors of the difference (or one direction has no run)."""
-    plus, minus = d.direction > 0, d.direction < 0
-    if not plus.any() or not minus.any():
-        return True
-    diff = _wmean(d.ratio[plus], w[plus]) - _wmean(d.ratio[minus], w[minus])
-    return abs(diff) <= 3.0 * math.sqrt(1.0 / w[plus].sum() + 1.0 / w[minus].sum())
-
-
-def predict(c: Candidate, d: JointSpeeds) -> FloatArray:
-    """The ratio ``c`` predicts for every run of ``d``."""
-    s = c.params["s"]
-    if c.law == "none":
-        return np.full_like(d.ratio, s)
-    if c.law == "torque":
-        return s * _torque_pred(c.params["pullout_nm"], d.factor)
-    if c.law == "stall":
-        return s * _stall_pred(c.params["pullout_nm"], d.on_curve(c.curve).factor)
-    pred = np.full_like(d.ratio, s)
-    above = d.duty > c.params["loss_above_duty"]
-    pred[above & (d.direction > 0)] *= 1.0 - c.params["loss_plus"]
-    pred[above & (d.direction < 0)] *= 1.0 - c.params["loss_minus"]
-    return pred
-
-
-def prior_prediction(p: JointPhysics, d: JointSpeeds) -> FloatArray:
-    """The prior twin's ratio for every run (its own law and pull-out torque, no scale)."""
-    if p.loss_law == "torque":
-        return _torque_pred(p.pullout_nm, d.factor)
-    if p.loss_law == "stall":
-        return _stall_pred(p.pullout_nm, d.factor)
-    if p.loss_law == "none":
-        return np.ones_like(d.ratio)
-    c = Candidate("duty", False, {"s": 1.0, "loss_above_duty": p.loss_above_duty,
-                                  "loss_plus": p.loss_plus, "loss_minus": p.loss_minus}, 0)
-    return predict(c, d)
-
-
-def _subset(d: JointSpeeds, keep: npt.NDArray[np.bool_]) -> JointSpeeds:
-    factors = None if d.factors is None else {c: f[keep] for c, f in d.factors.items()}
-    return JointSpeeds(d.ratio[keep], d.sigma[keep], d.duty[keep], d.direction[keep],
-                       d.factor[keep], factors, d.curve)
-
 
 def _robust(z2: FloatArray) -> float:
     """Sum of squared standardised errors, each at most :data:`MISS_Z2`: a run predicted wrong
@@ -304,58 +80,33 @@ def _robust(z2: FloatArray) -> float:
     return float(np.minimum(z2, MISS_Z2).sum())
 
 
-def at_bound(c: Candidate) -> bool:
-    """Whether a fit ran into the edge of what it may return (a scale a quarter off, a pull-out
-    torque at the settings' band): it then stands in for something else and predicts nothing."""
-    s = c.params["s"]
-    p_nm = c.params.get("pullout_nm")
-    return (c.scaled and s in SCALE_RANGE) or (
-        p_nm is not None and p_nm in (float(_P_GRID[0]), float(_P_GRID[-1])))
-
-
 def held_out_chi2(d: JointSpeeds, law: str, scaled: bool) -> float:
     """Leave-one-out χ² of ``law``: each run predicted by the fit to all the others (infinite
     when a fit runs into its bounds: :func:`at_bound`)."""
     n = len(d.ratio)
     total = 0.0
-    if at_bound(_fit(d, law, scaled)):
+    if at_bound(fit_law(d, law, scaled)):
         return math.inf
     for i in range(n):
         keep = np.ones(n, dtype=bool)
         keep[i] = False
-        c = _fit(_subset(d, keep), law, scaled)
-        one = _subset(d, ~keep)
+        c = fit_law(subset(d, keep), law, scaled)
+        one = subset(d, ~keep)
         pred = predict(c, one)
         total += _robust(((one.ratio - pred) / one.sigma) ** 2)
     return total
 
 
-def _param_sigma(d: JointSpeeds, c: Candidate, key: str, step: float) -> float:
-    """Standard error of ``c.params[key]`` from the χ² curvature (central differences),
-    scaled by the reduced χ² when the fit is worse than the runs' errors."""
-
-    def chi2(v: float) -> float:
-        params = dict(c.params)
-        params[key] = v
-        pred = predict(Candidate(c.law, c.scaled, params, c.n_params, c.curve), d)
-        return float((((d.ratio - pred) / _sigma_total(d, pred / params["s"])) ** 2).sum())
-
-    v0 = c.params[key]
-    curv = (chi2(v0 + step) - 2.0 * chi2(v0) + chi2(v0 - step)) / step ** 2
-    if curv <= 0:
-        return math.inf
-    dof = max(1, len(d.ratio) - c.n_params)
-    return math.sqrt(2.0 / curv * max(1.0, chi2(v0) / dof))
-
-
 def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
                      link_of: Callable[[Sequence[float]], list[float]],
-                     fixed: Mapping[int, tuple[str, bool] | None] | None = None) -> list[Fitted]:
+                     fixed: Mapping[int, tuple[str, bool] | None] | None = None,
+                     options: dict[int, list[SpeedOption]] | None = None) -> list[Fitted]:
     """Per joint: the step-loss law and its parameters, and the gear ratio, as :class:`Fitted`
     values (the law as ``choice``); a joint whose runs do not show a better structure than the
     prior's beyond the noise keeps the prior, and says why. ``fixed``: the structure per joint
     (0-based; None: the prior) taken as chosen instead of choosing it (a refit on another base:
-    the sensitivity table)."""
+    the sensitivity table). ``options`` receives, per joint, the candidates the held-out
+    blocks judge (:func:`choose_joint`)."""
     out: list[Fitted] = []
     scatter, pairs = session_scatter(obs)
     noise = (f"; runs' errors × {scatter:.3g} (the scatter of {pairs} repeated runs)" if pairs
@@ -364,12 +115,22 @@ def fit_speed_models(obs: Observations, base: RobotSettings, prior: ArmPhysics,
         p = prior.joints[j]
         d = run_table(obs, base, prior, j, link_of, scatter)
         structure = None if fixed is None else (fixed.get(j) or ("prior", False))
+        found: list[SpeedOption] | None = None if options is None else options.setdefault(j, [])
         out.extend(replace(f, reason=f.reason + noise) if f.key == TWIN["loss_law"].path(j) else f
-                   for f in choose_joint(j, spec.gear_ratio, p, d, structure))
+                   for f in choose_joint(j, spec.gear_ratio, p, d, structure, found))
     return out
 
 
-def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
+def speed_keys(j: int) -> frozenset[str]:
+    """The settings keys of joint ``j``'s (0-based) speed model: its loss law and what the law
+    reads, its pull-out curve, its gear ratio."""
+    params = (TWIN["loss_law"], TWIN["pullout_curve"], *(p for p, _ in STEPS))
+    return frozenset({*(p.path(j) for p in params), f"joints.j{j + 1}.gear_ratio"})
+
+
+def kept_speed(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
+    """Joint ``j``'s (0-based) speed model kept at the prior ``p`` (nominal gear ratio
+    ``gear``), for ``reason``: nothing of it written."""
     law, pullout = TWIN["loss_law"], TWIN["pullout_nm"]
     return [Fitted(law.path(j), math.nan, None, law.unit, False, reason, choice=p.loss_law),
             Fitted(pullout.path(j), p.pullout_nm, None, pullout.unit, False, reason,
@@ -377,20 +138,27 @@ def _kept(j: int, gear: float, p: JointPhysics, reason: str) -> list[Fitted]:
             Fitted(f"joints.j{j + 1}.gear_ratio", gear, None, "", False, reason, gear)]
 
 
-def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
-                 fixed: tuple[str, bool] | None = None) -> list[Fitted]:
-    """Joint ``j``'s (0-based) speed model from its runs ``d`` against the prior ``p`` (nominal
-    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`.
-    ``fixed``: take this ``(law, scaled)`` as chosen (``("prior", False)``: keep the prior)."""
-    n = len(d.ratio)
-    if n < 3:
-        return _kept(j, gear, p, f"{n} speed runs: too few to hold any out")
-    if fixed is not None:
-        if fixed[0] == "prior":
-            return _kept(j, gear, p, "the prior (structure fixed)")
-        return _emit(j, gear, p, d, _fit(d, *fixed), "structure fixed", n)
-    prior_pred = prior_prediction(p, d)
-    prior_chi2 = _robust(((d.ratio - prior_pred) / d.sigma) ** 2)
+@dataclass(frozen=True, slots=True)
+class SpeedOption:
+    """One candidate speed model of a joint for the held-out blocks to judge: its name
+    (``duty+scale``), its number of parameters, its held-out χ² on the ladder's runs and its
+    :class:`Fitted` values (fitted to all runs)."""
+
+    name: str
+    n_params: int
+    ladder_chi2: float
+    fitted: list[Fitted]
+
+
+#: Candidate speed models per joint the held-out blocks judge beside the prior.
+MAX_OPTIONS: Final = 3
+
+
+def _ladder_scores(d: JointSpeeds, p: JointPhysics
+                   ) -> tuple[dict[tuple[str, bool], float], dict[tuple[str, bool], int], float]:
+    """Every candidate's held-out χ² on the runs ``d`` and its number of parameters, and the
+    prior's χ²."""
+    prior_chi2 = _robust(((d.ratio - prior_prediction(p, d)) / d.sigma) ** 2)
     laws = ["none", "torque", "duty"] + ([f"stall:{c}" for c in d.curves]
                                          if (d.ratio < STALLED_RATIO).any() else [])
     scores: dict[tuple[str, bool], float] = {}
@@ -399,16 +167,45 @@ def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
         for scaled in (False, True):
             scores[(law, scaled)] = held_out_chi2(d, law, scaled)
             sizes[(law, scaled)] = {"none": 0, "torque": 1, "duty": 3}.get(law, 1) + scaled
+    return scores, sizes, prior_chi2
+
+
+def choose_joint(j: int, gear: float, p: JointPhysics, d: JointSpeeds,
+                 fixed: tuple[str, bool] | None = None,
+                 options: list[SpeedOption] | None = None) -> list[Fitted]:
+    """Joint ``j``'s (0-based) speed model from its runs ``d`` against the prior ``p`` (nominal
+    gear ratio ``gear``): the chosen law, its parameters and the gear ratio as :class:`Fitted`.
+    ``fixed``: take this ``(law, scaled)`` as chosen (``("prior", False)``: keep the prior).
+    ``options`` receives the candidates the held-out blocks judge (:class:`SpeedOption`): the
+    one chosen here first, then the others no worse than the prior on the runs beyond the
+    noise, by their held-out χ², at most :data:`MAX_OPTIONS`, each whose values are
+    identified."""
+    n = len(d.ratio)
+    if n < 3:
+        return kept_speed(j, gear, p, f"{n} speed runs: too few to hold any out")
+    if fixed is not None:
+        if fixed[0] == "prior":
+            return kept_speed(j, gear, p, "the prior (structure fixed)")
+        return _emit(j, gear, p, d, fit_law(d, *fixed), "structure fixed", n)
+    scores, sizes, prior_chi2 = _ladder_scores(d, p)
     simple = _step_up(scores, sizes)
     everything = {"prior": prior_chi2, **{_name(k): v for k, v in scores.items()}}
     low = min(everything.values())
     weights = {k: math.exp(-0.5 * (v - low)) for k, v in everything.items()}
     total_w = sum(weights.values())
     table = ", ".join(f"{k} {v:.3g}" for k, v in sorted(everything.items(), key=lambda kv: kv[1]))
+    if options is not None:
+        ranked = sorted((k for k, v in scores.items() if v <= prior_chi2 + MARGIN),
+                        key=lambda k: (k != simple, scores[k]))
+        for k in ranked:
+            fitted = _emit(j, gear, p, d, fit_law(d, *k), f"{_name(k)} (ladder held-out χ² "
+                                                       f"{scores[k]:.3g}; {table})", n)
+            if any(f.identified for f in fitted) and len(options) < MAX_OPTIONS:
+                options.append(SpeedOption(_name(k), sizes[k], scores[k], fitted))
     if prior_chi2 - scores[simple] <= MARGIN:
-        return _kept(j, gear, p, f"no structure predicts the {n} held-out runs better than the "
-                                 f"prior beyond the noise (held-out χ²: {table})")
-    c = _fit(d, *simple)
+        return kept_speed(j, gear, p, f"no structure predicts the {n} held-out runs better than "
+                                      f"the prior beyond the noise (held-out χ²: {table})")
+    c = fit_law(d, *simple)
     sure = weights[_name(simple)] / total_w
     why = (f"{c.name} chosen by held-out prediction of {n} speed runs (weight {sure:.2f}; "
            f"held-out χ²: {table})")
@@ -425,7 +222,7 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
         out.append(Fitted(curve.path(j), math.nan, None, curve.unit, True,
                           f"{c.curve}: the pull-out curve of the law chosen (corner "
                           f"{p.corner_steps_per_s:g} microsteps/s, the prior's)", choice=c.curve))
-    for param, step in _STEPS:
+    for param, step in STEPS:
         key = param.name
         if key not in c.params:
             continue
@@ -440,9 +237,9 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
             out.append(Fitted(path, value, None, unit, True, reason, prior_value))
             continue
         if key == "pullout_nm" and c.law == "stall":
-            value, sigma = _stall_interval(d)
+            value, sigma = stall_bracket(d)
         else:
-            sigma = _param_sigma(d, c, key, step * max(1.0, abs(value)))
+            sigma = param_sigma(d, c, key, step * max(1.0, abs(value)))
         if key == "pullout_nm":  # the masses' error is common to every run: it does not average
             sigma = math.hypot(sigma, NEED_REL * value)
         if key == "pullout_nm" and not (d.factor > value).any():
@@ -456,7 +253,7 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
             out.append(Fitted(path, prior_value, None, unit, False,
                               f"not identified: {value:.3g} ± {sigma:.2g} (the interval is wider "
                               "than the value)", prior_value))
-            return _kept(j, gear, p, f"{c.name} was best but its {key} is not identified "
+            return kept_speed(j, gear, p, f"{c.name} was best but its {key} is not identified "
                                      f"({value:.3g} ± {sigma:.2g})")
         low_r, high_r = param.low, param.high
         note = ("" if low_r <= value <= high_r else
@@ -464,7 +261,7 @@ def _emit(j: int, gear: float, p: JointPhysics, d: JointSpeeds, c: Candidate, wh
         out.append(Fitted(path, value, sigma, unit, True, why + note, prior_value))
     if c.scaled:
         s = c.params["s"]
-        sigma_s = _param_sigma(d, c, "s", 1e-5)
+        sigma_s = param_sigma(d, c, "s", 1e-5)
         out.append(Fitted(f"joints.j{j + 1}.gear_ratio", gear / s, gear * sigma_s / s ** 2, "",
                           True, f"speed scale {s:.5g} ± {sigma_s:.2g} against law (12) with the "
                                 f"nominal ratio {gear:g}", gear))
@@ -486,16 +283,6 @@ def _step_up(scores: Mapping[tuple[str, bool], float],
         if scores[k] < scores[current] - need:
             current = k
     return current
-
-
-def _stall_interval(d: JointSpeeds) -> tuple[float, float]:
-    """:func:`~armbench.bench.calibrate.stall.stall_interval` of ``d``'s runs on its curve."""
-    return stall_interval(d.ratio, d.factor, (float(_P_GRID[0]), float(_P_GRID[-1])))
-
-
-def _curve_of(law: str, d: JointSpeeds) -> str:
-    """The pull-out curve of a stall law (``stall:linear``; plain ``stall``: the prior's)."""
-    return law.partition(":")[2] or d.curve
 
 
 def _name(k: tuple[str, bool]) -> str:

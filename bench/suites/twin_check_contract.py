@@ -68,6 +68,9 @@ class TwinCheckNames:
     per_allowed: str = "rms_per_allowed"
     settled_counts: str = "settled_counts"
     settled_per_allowed: str = "settled_per_allowed"
+    worst_part_counts: str = "worst_part_counts"
+    worst_part_per_allowed: str = "worst_part_per_allowed"
+    parts: str = "parts"
     rms_dt: str = "arrival.rms_dt_s"
     floor_dt: str = "arrival.floor_s"
     arrival_per_allowed: str = "arrival.rms_per_allowed"
@@ -90,10 +93,12 @@ class TwinCheckNames:
         the capture has truth) and of the whole check."""
         per_joint = (self.rms_counts, self.max_counts, self.rms_rad, self.max_rad,
                      self.floor_counts, self.allowed_counts, self.per_allowed,
-                     self.settled_counts, self.settled_per_allowed)
+                     self.settled_counts, self.settled_per_allowed, self.worst_part_counts,
+                     self.worst_part_per_allowed)
         whole = (self.mean_dt, self.max_abs_dt, self.rms_dt, self.floor_dt,
                  self.arrival_per_allowed, self.moves, self.compared, self.arm_only,
-                 self.twin_only, self.replies, self.untimed, self.sessions, self.scatter,
+                 self.twin_only, self.replies, self.untimed, self.sessions, self.parts,
+                 self.scatter,
                  self.reaction, self.shift_mean, self.shift_max, self.tcp_floor,
                  self.tcp_per_allowed, self.tcp_samples, self.tcp_rest,
                  self.tcp_rest_per_allowed, self.tcp_rms, self.tcp_max)

@@ -5,7 +5,7 @@ The commands of a capture are replayed, at their recorded times, into the emulat
 given settings (the twin), on virtual time, starting from the capture's first reported pose (the
 twin's replies count from its first one at that pose: what it reports while still booting is not
 the model's). The two reply streams are then compared timing-robustly
-(:mod:`armbench.bench.twin_check.align`): the twin's stream read as a trajectory at the arm's reply
+(:mod:`armbench.bench.calibrate.align`): the twin's stream read as a trajectory at the arm's reply
 times, each move from rest aligned at its start:
 
 * per joint, the RMS and largest divergence of the reported angle (rad and encoder counts), and
@@ -18,9 +18,9 @@ times, each move from rest aligned at its start:
 
 Each comparison has a floor computed from the capture: what a perfect twin would score. The
 link's timing scatter (the RMS of the replies' timing residuals, their tail too) times the twin's
-speed and the angle's quantisation (:func:`armbench.bench.twin_check.align.floor_rad`), the
+speed and the angle's quantisation (:func:`armbench.bench.calibrate.align.floor_rad`), the
 uncertainty of each move's start as the arm's own replies tell it times the speed
-(:func:`armbench.bench.twin_check.align.onset_floor_rad`), and the arm's reaction scatter (the
+(:func:`armbench.bench.calibrate.align.onset_floor_rad`), and the arm's reaction scatter (the
 spread of the measured start shifts) by replay: the twin replayed with each command moved by ± its
 RMS,
 compared with itself as the arm is (:func:`replay_floor`). The verdict allows
@@ -53,31 +53,23 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from armbench.bench.calibrate.capture_data import CaptureData
-from armbench.bench.suites.twin_check_contract import TWIN_CHECK
-from armbench.bench.twin_check.align import (
+from armbench.bench.calibrate.align import (
     TICK_RAD,
     Track,
     command_shifts,
-    floor_rad,
     interval_floor_s,
-    late_stamps,
     move_shifts,
-    onset_floor_rad,
     stamped_late_s,
-    timing_rms_s,
-    timing_scatter_s,
 )
-from armbench.bench.twin_check.diagnosis import Diagnosis, diagnose_joints, failing_joints
-from armbench.bench.twin_check.figures import (
-    Allowance,
-    arrival_measurements,
-    joint_measurements,
-    tcp_measurements,
-    verdict_of,
+from armbench.bench.calibrate.capture_data import CaptureData
+from armbench.bench.calibrate.divergence import (
+    SEEN_LATE,
+    diverge,
+    read_aligned,
+    read_late,
+    timed,
 )
-from armbench.bench.twin_check.replay import (
-    BURST_S,
+from armbench.bench.calibrate.replay import (
     TIME_SLACK_S,
     Session,
     TwinTruth,
@@ -85,7 +77,19 @@ from armbench.bench.twin_check.replay import (
     replay_twin,
     sessions,
 )
+from armbench.bench.suites.twin_check_contract import TWIN_CHECK
+from armbench.bench.twin_check.diagnosis import Diagnosis, diagnose_joints, failing_joints
+from armbench.bench.twin_check.figures import (
+    Allowance,
+    arrival_measurements,
+    joint_measurements,
+    part_measurements,
+    tcp_measurements,
+    verdict_of,
+)
+from armbench.bench.twin_check.parts import Part, part_figures
 from armbench.bench.twin_check.tool_point import arm_tcp_from_capture, tcp_divergence
+from armbench.bench.twin_check.where import factors_of, growth
 from armbench.drivers.model.settings import RobotSettings
 from armbench.record import Measurement, judge
 from armbench.record.limits import LimitsConfig, load_limits
@@ -97,8 +101,6 @@ DEFAULT_CONFIG: Final = Path(__file__).resolve().with_name("twin_check.toml")
 #: A move counts as arrived when every joint is this close to its target (rad): the driver's
 #: default arrival tolerance.
 ARRIVAL_TOLERANCE_RAD: Final = 3e-4
-#: An arrival seen after a gap of more than this many median reply intervals is not compared.
-SEEN_LATE: Final = 5.0
 #: A start shift further than this (s) from its joint's median is a start timed badly (a stale
 #: or late-read reply), not a reaction: the draws take it as this much.
 MAX_REACTION_S: Final = 0.02
@@ -162,6 +164,10 @@ class TwinCheck:
     arm_lag_s: FloatArray | None = None
     diagnoses: list[Diagnosis | None] = field(default_factory=lambda: [None] * 4)
     """Per joint, what its divergence looks like and what to do (where the joint failed)."""
+    parts: list[Part] = field(default_factory=list)
+    """The parts of the capture judged one by one (:mod:`armbench.bench.twin_check.parts`)."""
+    speed_rad_s: FloatArray | None = None
+    """The twin's speed at each compared reply (``(n, 4)``), beside :attr:`series`."""
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
@@ -181,6 +187,7 @@ class TwinCheck:
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
             "verdict": self.verdict,
+            "parts": [p.to_json() for p in self.parts],
             "diagnosis": [None if d is None else d.to_json() for d in self.diagnoses],
         }
 
@@ -231,32 +238,6 @@ def _settled(arm: Track, twin: Track, times: Sequence[float], shifts: FloatArray
     return np.asarray(rows).reshape(-1, 4)
 
 
-def _timed(replies: Sequence[tuple[float, Vec4]], start_s: float = -math.inf
-           ) -> list[tuple[float, Vec4]]:
-    """The replies whose stamp is their time: not read in one go with the one before or after
-    (the last of a burst too was stamped when the host woke); and those stamped before
-    ``start_s`` (the first command: the arm rests before it, so their stamps do not matter,
-    and they hold the pose the first move starts from)."""
-    t = np.asarray([r[0] for r in replies])
-    apart = np.diff(t) >= BURST_S
-    keep = (np.append(apart, True) & np.insert(apart, 0, True)) | (t < start_s)
-    return [r for r, k in zip(replies, keep, strict=True) if k]
-
-
-def _read_late(arm: Track, command_times: Sequence[float], scatter_s: float | None = None
-               ) -> npt.NDArray[np.bool_]:
-    """Per reply of ``arm`` (timed ones), whether the host read it late
-    (:func:`armbench.bench.twin_check.align.late_stamps`: a loaded host reads the replies some
-    milliseconds after they came, not always in one go), against the timing scatter
-    ``scatter_s`` (else the stream's own). Such a reply is neither compared nor used to time a
-    move's start."""
-    if len(arm.t_s) < 3:
-        return np.zeros(len(arm.t_s), dtype=bool)
-    if scatter_s is None:
-        scatter_s = timing_scatter_s(arm, command_times)
-    return late_stamps(arm, command_times, scatter_s)
-
-
 @dataclass(frozen=True, slots=True)
 class ReplayFloor:
     """How far the twin diverges from itself replayed with each command moved by a draw of the
@@ -267,6 +248,9 @@ class ReplayFloor:
     rad: FloatArray
     dt_s: float
     tcp_mm: float | None = None
+    #: The compared times (s) and the squared divergence there (``(m, 4)``, rad²): a part of
+    #: the capture takes its mean over its span.
+    per_reply: tuple[FloatArray, FloatArray] | None = None
 
 
 def _shift_at(times: Sequence[float], per_command: Sequence[float] | FloatArray) -> Any:
@@ -280,20 +264,6 @@ def _shift_at(times: Sequence[float], per_command: Sequence[float] | FloatArray)
     return at
 
 
-def _read_aligned(t_s: FloatArray, times: Sequence[float], twin: Track, shifts: FloatArray
-                  ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]:
-    """The twin's angles and speeds (``(n, 4)``) at the times ``t_s``, each joint read at its
-    start shift's instant, and whether a joint's instant falls where the twin's replies pause
-    (:meth:`Track.blind`: its motion there is not known)."""
-    k_of = np.clip(np.searchsorted(np.asarray(times), t_s + TIME_SLACK_S, side="right") - 1,
-                   0, len(times) - 1)
-    at = t_s[:, None] - shifts[k_of]            # per reply and joint, on the twin's clock
-    q = np.column_stack([twin.at(at[:, j])[:, j] for j in range(4)])
-    v = np.column_stack([twin.speed_at(at[:, j])[:, j] for j in range(4)])
-    blind = np.any(np.column_stack([twin.blind(at[:, j], SEEN_LATE) for j in range(4)]), axis=1)
-    return q, v, blind
-
-
 def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
                  perturbed: Sequence[tuple[float, Vec4]], settings: RobotSettings,
                  truth: tuple[TwinTruth, TwinTruth, Sequence[float]] | None = None
@@ -305,10 +275,10 @@ def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
     times = [c[0] for c in data.commands]
     measured = move_shifts(reference, base, data.commands, settings)
     shifts = measured.per_joint_s
-    timed = Track.of(_timed(data.replies))
-    t = timed.t_s[~_read_late(timed, times)]
+    kept = Track.of(timed(data.replies))
+    t = kept.t_s[~read_late(kept, times)]
     t = t[(t >= times[0]) & (t >= base.t_s[0])]
-    q_base, _, blind = _read_aligned(t, times, base, shifts)
+    q_base, _, blind = read_aligned(t, times, base, shifts)
     seen = ~(blind | reference.blind(t, SEEN_LATE))
     diff = (reference.at(t) - q_base)[seen]
     per_command = command_shifts(shifts, data.commands, reference, settings)
@@ -325,7 +295,8 @@ def replay_floor(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
         tcp = tcp_divergence(samples, truth[0], _shift_at(times, per_command), 0.0)
         tcp_mm = None if tcp is None else tcp["rms_mm"]
     return ReplayFloor(np.sqrt(np.mean(diff * diff, axis=0)),
-                       float(np.sqrt(np.mean(dts * dts))) if len(dts) else 0.0, tcp_mm)
+                       float(np.sqrt(np.mean(dts * dts))) if len(dts) else 0.0, tcp_mm,
+                       (t[seen], diff * diff))
 
 
 def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: RobotSettings,
@@ -335,50 +306,28 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     reaction part is ``floor_by_replay`` where given (what :func:`twin_check` passes), else the
     reaction scatter times the twin's speed."""
     allow = allowance or Allowance()
-    twin_track = Track.of(twin)
-    times = [c[0] for c in data.commands]
-    timed = _timed(data.replies, times[0] - TIME_SLACK_S if times else -math.inf)
-    scatter = timing_scatter_s(Track.of(timed), times)
-    late = _read_late(Track.of(timed), times, scatter)
-    untimed = len(data.replies) - len(timed) + int(late.sum())
-    data = CaptureData(data.path, data.commands, timed, data.bad_in_frames)
-    whole = Track.of(data.replies)
-    # the starts are timed on the replies read on time, the twin's alike (its own stale
-    # replies, after its firmware's pauses, are left out by the same rule)
-    twin_late = _read_late(twin_track, times, scatter)
-    measured = move_shifts(Track(whole.t_s[~late], whole.q_rad[~late]),
-                           Track(twin_track.t_s[~twin_late], twin_track.q_rad[~twin_late]),
-                           data.commands, settings)
-    shifts = measured.per_joint_s
-    start = times[0]
-    rows = [(t, q) for (t, q), x in zip(data.replies, late, strict=True)
-            if t >= start and t >= twin_track.t_s[0] and not x]
-    q_twin, speed, blind = _read_aligned(Track.of(rows).t_s, times, twin_track, shifts)
-    rows = [r for r, b in zip(rows, blind, strict=True) if not b]
-    arm = Track.of(rows)
-    q_twin, speed = q_twin[~blind], speed[~blind]
-    counts = np.asarray([j.counts_per_rad for j in settings.joints])
-    aligned = Aligned(arm.t_s, arm.q_rad, q_twin, counts)
-    diff = arm.q_rad - q_twin
-    rms = np.sqrt(np.mean(diff * diff, axis=0))
-    peak = np.max(np.abs(diff), axis=0)
-    reaction = measured.scatter_s()
-    command_scatter = scatter if reaction is None else max(scatter, reaction)
-    kept = Track(whole.t_s[~late], whole.q_rad[~late])
-    spread = timing_rms_s(kept, times)
-    spread = scatter if spread is None else max(scatter, spread)
-    if floor_by_replay is None:
-        floor = floor_rad(speed, spread, command_scatter, counts)
-    else:
-        floor = np.hypot(floor_rad(speed, spread, 0.0, counts), floor_by_replay.rad)
-    floor = np.hypot(floor, onset_floor_rad(measured, arm.t_s, times, speed))
+    div = diverge(data, twin, settings)
+    data, whole, twin_track, times = div.data, div.whole, div.twin, div.times
+    shifts = div.shifts.per_joint_s
+    counts = div.counts_per_rad
+    arm = Track(div.t_s, div.arm_rad)
+    aligned = Aligned(div.t_s, div.arm_rad, div.twin_rad, counts)
+    diff = div.diff_rad
+    rms = div.rms_rad()
+    peak = np.max(np.abs(diff), axis=0) if len(diff) else np.zeros(4)
+    floor2 = div.floor2_rad2(reaction=floor_by_replay is None)
+    floor = np.sqrt(np.mean(floor2, axis=0) + (
+        0.0 if floor_by_replay is None else floor_by_replay.rad ** 2))
     allowed = allow.floor_factor * floor * counts + allow.abs_counts
+    parts = part_figures(div.t_s, diff, floor2, counts, (allow.part_factor, allow.abs_counts),
+                         times,
+                         None if floor_by_replay is None else floor_by_replay.per_reply)
     per_command = command_shifts(shifts, data.commands, whole, settings)
     settled = _settled(arm, twin_track, times, shifts)
     settled_rms = np.sqrt(np.mean(settled * settled, axis=0)) if len(settled) else np.zeros(4)
     # where moves settled no timing enters: the floor there is the quantisation alone
-    settled_allowed = allow.floor_factor * floor_rad(np.zeros((0, 4)), 0.0, 0.0, counts) * counts \
-        + allow.abs_counts
+    settled_allowed = allow.floor_factor * div.floor_rad(rows=np.zeros(len(div.t_s), bool)) \
+        * counts + allow.abs_counts
     arm_arrivals = _arrivals(data.replies, data, settings)
     twin_arrivals = [a for a, _ in _arrivals(twin, data, settings, per_command)]
     pairs = [(a, b) for (a, _), b in zip(arm_arrivals, twin_arrivals, strict=True)]
@@ -389,17 +338,18 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
     arm_only = sum(a is not None and b is None for a, b in pairs)
     twin_only = sum(a is None and b is not None for a, b in pairs)
     if floor_by_replay is None:
-        dt_floor = interval_floor_s(whole, twin_track, scatter, command_scatter)
+        dt_floor = interval_floor_s(whole, twin_track, div.scatter_s, div.reaction_s)
     else:
-        dt_floor = math.hypot(interval_floor_s(whole, twin_track, scatter, 0.0),
+        dt_floor = math.hypot(interval_floor_s(whole, twin_track, div.scatter_s, 0.0),
                               floor_by_replay.dt_s)
     n = TWIN_CHECK
     measurements = joint_measurements(rms, peak, counts, floor, allowed, settled_rms,
                                       settled_allowed if len(settled) else None, limits)
+    measurements += part_measurements(parts, limits)
     measurements += arrival_measurements(dts, dt_floor, allow, limits)
     for figure, value, unit, what in (
-            (n.scatter, scatter, "s", "timing scatter of the link, from the arm's replies"),
-            (n.reaction, command_scatter, "s",
+            (n.scatter, div.scatter_s, "s", "timing scatter of the link, from the arm's replies"),
+            (n.reaction, div.reaction_s, "s",
              "scatter of the arm's reaction to commands, from the start shifts"),
             (n.shift_mean, float(np.mean(per_command)), "s", "mean start shift, arm - twin"),
             (n.shift_max, float(np.max(np.abs(shifts))), "s", "largest |start shift|"),
@@ -407,30 +357,35 @@ def compare(data: CaptureData, twin: Sequence[tuple[float, Vec4]], settings: Rob
             (n.compared, len(dts), "", "moves both streams arrived at"),
             (n.arm_only, arm_only, "", "moves only the arm arrived at"),
             (n.twin_only, twin_only, "", "moves only the twin arrived at"),
-            (n.replies, len(rows), "", "replies of the capture compared"),
-            (n.untimed, untimed, "", "replies left out: read in a burst or late (a host stall)")):
+            (n.replies, len(div.t_s), "", "replies of the capture compared"),
+            (n.untimed, div.untimed, "", "replies left out: read in a burst or late (a host "
+                                         "stall)")):
         m = judge(n.metric(figure), float(value), unit, limits, description=what)
         measurements.append(replace(m, better=None) if figure == n.shift_mean else m)
     return TwinCheck(
         [float(v) for v in rms], [float(v) for v in peak], [float(v) for v in rms * counts],
         [float(v) for v in peak * counts], dts, len(data.commands), arm_only, twin_only,
-        len(rows), measurements, verdict_of(measurements), list(twin), series=aligned,
+        len(div.t_s), measurements, verdict_of(measurements), list(twin), series=aligned,
         arrivals=[(c[0], a, b) for c, (a, b) in zip(data.commands, pairs, strict=True)],
         floor_counts=[float(v) for v in floor * counts],
         allowed_counts=[float(v) for v in allowed],
-        settled_counts=[float(v) for v in settled_rms * counts], scatter_s=scatter,
-        reaction_scatter_s=command_scatter,
+        settled_counts=[float(v) for v in settled_rms * counts], scatter_s=div.scatter_s,
+        reaction_scatter_s=div.reaction_s,
         shifts_s=[float(v) for v in per_command], joint_shifts_s=shifts,
-        shift_deviations_s=measured.deviations_s(), arm_lag_s=measured.arm_lag_s)
+        shift_deviations_s=div.shifts.deviations_s(), arm_lag_s=div.shifts.arm_lag_s,
+        parts=parts, speed_rad_s=div.speed_rad_s)
 
 
 def _mean_floor(floors: Sequence[ReplayFloor]) -> ReplayFloor:
     """The RMS over several replays' floors."""
     tcp = [f.tcp_mm for f in floors if f.tcp_mm is not None]
+    rows = [f.per_reply for f in floors if f.per_reply is not None]
+    per_reply = None if not rows else (np.concatenate([r[0] for r in rows]),
+                                       np.concatenate([r[1] for r in rows]))
     return ReplayFloor(
         np.sqrt(np.mean([f.rad ** 2 for f in floors], axis=0)),
         math.sqrt(sum(f.dt_s ** 2 for f in floors) / len(floors)),
-        math.sqrt(sum(v ** 2 for v in tcp) / len(tcp)) if tcp else None)
+        math.sqrt(sum(v ** 2 for v in tcp) / len(tcp)) if tcp else None, per_reply)
 
 
 def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> FloatArray:
@@ -445,11 +400,34 @@ def _reaction_draws(result: TwinCheck, n: int, rng: np.random.Generator) -> Floa
     return size * rng.choice(np.array([-1.0, 1.0]), size=n)
 
 
+def _where(diagnoses: Sequence[Diagnosis | None], result: TwinCheck, data: CaptureData,
+           session_starts_s: Sequence[float], settings: RobotSettings, allow: Allowance
+           ) -> list[Diagnosis | None]:
+    """Each diagnosis with where its joint's divergence grows and its worst part
+    (:mod:`armbench.bench.twin_check.where`, :mod:`armbench.bench.twin_check.parts`)."""
+    series = result.series
+    assert series is not None and result.speed_rad_s is not None
+    factors = factors_of(series.t_s, series.arm_rad, result.speed_rad_s, series.counts_per_rad,
+                         data.commands, session_starts_s, settings, TICK_RAD)
+    residual = -series.divergence_counts            # twin - arm
+    out: list[Diagnosis | None] = []
+    for j, d in enumerate(diagnoses):
+        if d is None:
+            out.append(None)
+            continue
+        worst = max(result.parts, key=lambda p: p.per_allowed(j), default=None)
+        out.append(replace(d, grows=tuple(growth(series.t_s, residual[:, j], factors[j],
+                                                 allow.abs_counts)),
+                           worst_part=None if worst is None else (
+                               worst.start_s, worst.end_s, worst.per_allowed(j))))
+    return out
+
+
 def twin_check(data: CaptureData, settings: RobotSettings,
                config: str | Path | None = None,
                arm_tcp: Sequence[tuple[float, Sequence[float]]] | None = None) -> TwinCheck:
     """Replay each session on a virtual-time loop and compare (see the module doc; commands
-    stamped late, :func:`armbench.bench.twin_check.align.stamped_late_s`, when the arm got them);
+    stamped late, :func:`armbench.bench.calibrate.align.stamped_late_s`, when the arm got them);
     then again with each command moved by a draw of the arm's reaction scatter, for the floor
     (:func:`replay_floor`). ``arm_tcp``: the arm's true TCP (capture clock s, m) from a
     reference instrument; without it, the truth joints of an MCAP capture, if any."""
@@ -499,8 +477,12 @@ def twin_check(data: CaptureData, settings: RobotSettings,
                   description="sessions replayed, each into a fresh twin")
     measurements = [*result.measurements, count, *tcp_measurements(tcp, allow, limits)]
     series = result.series
+    failing = failing_joints(measurements)
     diagnoses = result.diagnoses if series is None else diagnose_joints(
         series.t_s, series.arm_rad, series.twin_rad, series.counts_per_rad,
-        [c[0] for c in merged.commands], TICK_RAD, failing_joints(measurements))
+        [c[0] for c in merged.commands], TICK_RAD, failing)
+    if series is not None and result.speed_rad_s is not None and failing:
+        diagnoses = _where(diagnoses, result, merged, [p.data.replies[0][0] for p in parts],
+                           settings, allow)
     return replace(result, tcp=tcp, sessions=len(parts), measurements=measurements,
                    verdict=verdict_of(measurements), hall_counters=hall, diagnoses=diagnoses)

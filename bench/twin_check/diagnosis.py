@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.suites.twin_check_contract import TWIN_CHECK
+from armbench.bench.twin_check.where import Growth, direction_of, resembles
 from armbench.record import Measurement
 
 __all__ = ["EXPLAINS", "KINDS", "STEP_GAIN", "Diagnosis", "diagnose", "diagnose_joints",
@@ -60,10 +61,6 @@ STEP_GAIN: Final = 0.25
 #: A stream has arrived in a command's window from where it stays within this many wire ticks of
 #: where it ends.
 SETTLED_TICKS: Final = 3.0
-#: The joint's direction is the sign of its motion over this many replies, when that exceeds
-#: :data:`DIRECTION_TICKS` wire ticks (held otherwise).
-DIRECTION_REPLIES: Final = 5
-DIRECTION_TICKS: Final = 3.0
 #: The speed is the slope over this many replies either side (the wire's rounding averaged out).
 SPEED_REPLIES: Final = 3
 #: The span reported holds the replies around the largest divergence within this share of it.
@@ -100,6 +97,11 @@ class Diagnosis:
     fractions: dict[str, float]
     span_s: tuple[float, float]
     looks: str
+    #: Where the divergence grows (:mod:`armbench.bench.twin_check.where`), the strongest first.
+    grows: tuple[Growth, ...] = ()
+    #: The part of the capture where it is furthest over its allowance: its span (s) and its RMS
+    #: over the allowance there.
+    worst_part: tuple[float, float, float] | None = None
 
     @property
     def label(self) -> str:
@@ -117,13 +119,23 @@ class Diagnosis:
         a, b = self.span_s
         what = (self.looks if self.kind == "unexplained" else
                 f"{self.label}: {self.looks}; explains {self.explained:.0%} of the mean square")
-        return [f"diagnosis: {what}, largest at {a:.2f}..{b:.2f} s", f"next: {self.next_step}"]
+        out = [f"diagnosis: {what}, largest at {a:.2f}..{b:.2f} s"]
+        if self.worst_part is not None:
+            a, b, ratio = self.worst_part
+            out.append(f"worst part: {a:.2f}..{b:.2f} s, {ratio:.2f} x its allowance")
+        out += [f"where: {g.line()}" for g in self.grows]
+        out += [f"resembles: {text}" for text in resembles(self.grows)]
+        return [*out, f"next: {self.next_step}"]
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` object."""
         return {"joint": self.joint, "kind": self.kind, "label": self.label,
                 "explained": self.explained, "fractions": self.fractions,
-                "span_s": list(self.span_s), "looks": self.looks, "next_step": self.next_step}
+                "span_s": list(self.span_s), "looks": self.looks, "next_step": self.next_step,
+                "worst_part": None if self.worst_part is None else {
+                    "span_s": list(self.worst_part[:2]), "per_allowed": self.worst_part[2]},
+                "grows": [g.to_json() for g in self.grows],
+                "resembles": resembles(self.grows)}
 
 
 def failing_joints(measurements: Iterable[Measurement]) -> list[int]:
@@ -236,18 +248,6 @@ def _loss_explained(q: FloatArray, r: FloatArray, moves: Sequence[_Move]) -> dic
     return explained
 
 
-def _direction(q: FloatArray, tick: float) -> FloatArray:
-    """The sign of the joint's last motion (over :data:`DIRECTION_REPLIES`, beyond
-    :data:`DIRECTION_TICKS` ticks of ``tick`` counts), held through rests; 0 before it first
-    moves."""
-    w = DIRECTION_REPLIES
-    moved = np.zeros(len(q))
-    moved[w:] = q[w:] - q[:-w]
-    sign = np.where(np.abs(moved) > DIRECTION_TICKS * tick, np.sign(moved), 0.0)
-    last = np.maximum.accumulate(np.where(sign != 0, np.arange(len(q)), -1))
-    return np.where(last >= 0, sign[np.maximum(last, 0)], 0.0)
-
-
 def _speed(t: FloatArray, q: FloatArray) -> FloatArray:
     """The joint's speed (counts/s): the slope over :data:`SPEED_REPLIES` replies either side."""
     k = SPEED_REPLIES
@@ -295,7 +295,7 @@ def diagnose(joint: int, t_s: FloatArray, arm_counts: FloatArray, twin_counts: F
     total = float(np.dot(r[kept], r[kept]))
     fits = {"timing": _share(_speed(t, q)[kept], r[kept], total),
             "scale": _share(travel[kept], r[kept], total),
-            "play": _share(_direction(q, tick_counts)[kept], r[kept], total),
+            "play": _share(direction_of(q, tick_counts)[kept], r[kept], total),
             "offset": _share(np.ones(int(kept.sum())), r[kept], total)}
     fractions = {k: f[1] for k, f in fits.items()}
     # the lossy stream is behind along the motion: one sign for every move

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -17,8 +17,11 @@ from armbench.drivers.model.settings import SettingsError
 from armbench.record import Measurement, judge
 from armbench.record.limits import LimitsConfig
 
-__all__ = ["Allowance", "arrival_measurements", "joint_measurements", "tcp_measurements",
-           "verdict_of"]
+if TYPE_CHECKING:
+    from armbench.bench.twin_check.parts import Part
+
+__all__ = ["Allowance", "arrival_measurements", "joint_measurements", "part_measurements",
+           "tcp_measurements", "verdict_of"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -29,11 +32,14 @@ _TOLERANCE = Bound(0.0)
 
 @dataclass(frozen=True, slots=True)
 class Allowance:
-    """How far above its floor a twin may score: ``k × floor + abs`` per joint (counts), for the
-    arrival times (s) and the TCP (mm). Read from the config's ``[suites."twin-check"]``."""
+    """How far above its floor a twin may score: ``k × floor + abs`` per joint (counts), on each
+    part of the capture (``part_factor``: a part holds a few moves, where a timing artifact of
+    one move that the whole dilutes weighs in full), for the arrival times (s) and the TCP
+    (mm). Read from the config's ``[suites."twin-check"]``."""
 
     floor_factor: float = 3.0
     abs_counts: float = 2.0
+    part_factor: float = 5.0
     arrival_factor: float = 3.0
     arrival_abs_s: float = 0.01
     tcp_factor: float = 3.0
@@ -85,6 +91,30 @@ def joint_measurements(rms: FloatArray, peak: FloatArray, counts: FloatArray,
                              float(settled[j] * counts[j] / settled_allowed[j]), "", limits,
                              better="lower", description="RMS divergence where the moves "
                              "settled over k x quantisation + abs"))
+    return out
+
+
+def part_measurements(parts: Sequence[Part], limits: LimitsConfig | None) -> list[Measurement]:
+    """Per joint, the part of the capture where its RMS is furthest over its allowance: that RMS
+    (counts) and its ratio (the judged figure: a twin within its allowance on the whole may not
+    be on every part), and how many parts the capture was cut into."""
+    if not parts:
+        return []
+    n = TWIN_CHECK
+    out = []
+    for j, joint in enumerate(n.joints):
+        worst = max(parts, key=lambda p: p.per_allowed(j))
+        out.append(judge(n.joint_metric(joint, n.worst_part_counts), worst.rms_counts[j],
+                         "counts", limits, better="lower",
+                         description=f"RMS divergence of the reported angle on the part "
+                                     f"{worst.start_s:.2f}..{worst.end_s:.2f} s furthest over "
+                                     "its allowance"))
+        out.append(judge(n.joint_metric(joint, n.worst_part_per_allowed), worst.per_allowed(j),
+                         "", limits, better="lower",
+                         description="RMS over allowed RMS on the part of the capture furthest "
+                                     "over it"))
+    out.append(judge(n.metric(n.parts), float(len(parts)), "", limits,
+                     description="parts of the capture judged one by one"))
     return out
 
 

@@ -12,8 +12,8 @@ from typing import Any, Final
 
 import numpy as np
 
-from armbench.bench.twin_check.align import Track
-from armbench.bench.twin_check.replay import TwinTruth
+from armbench.bench.calibrate.align import Track
+from armbench.bench.calibrate.replay import TwinTruth
 from armbench.drivers.capture.read import read_attachment, read_joint_states
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.kinematics import tcp_position

@@ -11,7 +11,10 @@ Every output is checked before the arm moves or the capture is read: an existing
 overwritten only with ``--force``, a file of a run's record never, an unwritable path is refused.
 ``--check HELD_OUT`` then twin-checks the fitted settings on a capture the fit did not use (read
 before the arm moves) and prints, per failing joint, what its divergence looks like and what to do
-(:mod:`armbench.bench.twin_check.diagnosis`).
+(:mod:`armbench.bench.twin_check.diagnosis`). The geometry from what a lab has: ``--reference
+poses.csv`` (tool positions measured at known joint angles; with a port, a capture or alone) and
+``--touch-off plate.toml`` (with a port: the operator jogs the tool onto the plate's points at
+the terminal, :mod:`armbench.cli.commands.touch_operator`), both read before the arm moves.
 Exit status: 0 done, 1 the held-out check failed (the outputs are written), 2 bad input or an arm
 that does not move (the partial outputs are written).
 """
@@ -25,13 +28,17 @@ from pathlib import Path
 from typing import Any
 
 from armbench.bench.calibrate import DEFAULT_BUDGET_S, calibrate_capture, calibrate_port
+from armbench.bench.calibrate.calibration import calibrate_reference
 from armbench.bench.calibrate.capture_data import CaptureData, load_capture
+from armbench.bench.calibrate.model import CalibrationError
 from armbench.bench.calibrate.output import CalibrationResult, output_paths
+from armbench.bench.calibrate.reference import read_plate, read_reference
 from armbench.bench.runner.outputs import check_out_dir, check_out_files
 from armbench.bench.runner.truth import load_tracker
 from armbench.bench.twin_check.check import twin_check
 from armbench.cli.commands.bounds import REPLY_TIMEOUT_S, add_bounded
 from armbench.cli.commands.monitor import run_on_port
+from armbench.cli.commands.touch_operator import TerminalOperator
 from armbench.cli.commands.twin_check import format_failures
 from armbench.drivers.capture.jsonl import open_capture_file
 from armbench.drivers.model.bounds import Bound
@@ -51,7 +58,7 @@ def register(sub: Any) -> None:
                     "standard error, the fit as JSON and an HTML calibration page.",
         epilog="Exit status: 0 done, 1 the held-out check (--check) failed, 2 bad input or a "
                "joint that does not move (what was measured is written).")
-    src = p.add_mutually_exclusive_group(required=True)
+    src = p.add_mutually_exclusive_group()
     src.add_argument("--port", help="serial device, socket://HOST:PORT, rfc2217://HOST:PORT or "
                                     "fake://... (the emulator on virtual time)")
     src.add_argument("--capture", metavar="CAPTURE", help="fit an existing capture's traffic")
@@ -73,6 +80,14 @@ def register(sub: Any) -> None:
                    help="reference instrument plug-in (a laser tracker driver implementing "
                         "PoseSource, as for run): the link side (play, stiffness, DH errors) "
                         "is then identified over any port")
+    p.add_argument("--reference", metavar="CSV",
+                   help="tool positions a lab measured (a caliper, a CMM, a camera) at known joint "
+                        "angles, with their uncertainty: the DH lengths, joint offsets and play "
+                        "are fitted from them (with --port, --capture or alone)")
+    p.add_argument("--touch-off", metavar="PLATE",
+                   help="with --port: after the procedure, jog the tool onto each known point of "
+                        "the plate (a TOML file) at the terminal; the joint readings fit the DH "
+                        "lengths, joint offsets and play")
     p.add_argument("--check", metavar="CAPTURE",
                    help="a held-out capture of the same arm (not the one fitted): twin-check the "
                         "fitted settings on it and, per failing joint, say what its divergence "
@@ -81,6 +96,13 @@ def register(sub: Any) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.touch_off is not None and args.port is None:
+        raise CalibrationError("--touch-off needs --port (the arm is jogged onto the plate)")
+    if args.port is None and args.capture is None and args.reference is None:
+        raise CalibrationError("give --port, --capture or --reference")
+    # read before anything is written or moved: a bad file is bad input (exit status 2)
+    args.references = [] if args.reference is None else read_reference(args.reference)
+    args.plate = None if args.touch_off is None else read_plate(args.touch_off)
     out = _settings_path(Path(args.out))
     new_folder = not (out.parent.is_dir() or out == Path(args.out))  # else the former FILE.toml
     if new_folder:  # nothing in it to overwrite; made once its parent is known writable
@@ -92,7 +114,7 @@ def _run(args: argparse.Namespace) -> int:
         open_capture_file(args.capture).close()
     held_out = (None if args.check is None
                 else load_capture(args.check, load_settings(args.settings)))
-    if new_folder and args.capture is not None:  # on a port: once the arm answered
+    if new_folder and args.port is None:  # on a port: once the arm answered
         out.parent.mkdir(parents=True)
     try:
         result = _calibrate(args, out)
@@ -121,13 +143,18 @@ def _held_out_check(result: CalibrationResult, data: CaptureData, capture: str) 
 def _calibrate(args: argparse.Namespace, out: Path) -> CalibrationResult:
     base = load_settings(args.settings)
     if args.capture is not None:
-        return calibrate_capture(args.capture, base, out, page=render_page)
+        return calibrate_capture(args.capture, base, out, page=render_page,
+                                 references=args.references)
+    if args.port is None:
+        return calibrate_reference(args.reference, args.references, base, out, page=render_page)
     port: str = args.port
     tracker = None if args.tracker is None else load_tracker(args.tracker, base)
+    touch = None if args.plate is None else (args.plate, TerminalOperator())
     return run_on_port(port, calibrate_port(
         port, base, out, budget_s=args.budget_s,
         progress=lambda m: print(m, file=sys.stderr, flush=True), tracker=tracker,
-        page=render_page, reply_timeout_s=args.reply_timeout))
+        page=render_page, reply_timeout_s=args.reply_timeout, references=args.references,
+        touch=touch))
 
 
 #: The settings file of a calibration written to ``--out DIR``.

@@ -12,7 +12,7 @@ import numpy as np
 from markupsafe import Markup
 from matplotlib.figure import Figure
 
-from armbench.bench.calibrate.model import NO_TRUTH, CalibrationResult, Fitted
+from armbench.bench.calibrate.model import CalibrationResult, Fitted, no_truth
 from armbench.drivers.model.twin_parameters import TWIN_PARAMETERS, by_path
 from armbench.reports.render.format import jinja_environment
 from armbench.reports.render.plots import to_svg
@@ -66,7 +66,8 @@ def render_page(result: CalibrationResult) -> str:
     """The calibration page: a self-contained HTML document (no script, nothing fetched)."""
     template = jinja_environment().get_template("calibration.html.j2")
     return template.render(
-        obs=result.observations, error=result.error, NO_TRUTH=NO_TRUTH,
+        obs=result.observations, error=result.error, NO_TRUTH=no_truth(result.observations),
+        held_out=result.held_out,
         sensitivity=result.sensitivity,
         identified=[f for f in result.fitted if f.identified],
         kept=[(f, _prior_sigma(f)) for f in result.fitted if not f.identified],

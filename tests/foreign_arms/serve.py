@@ -1,10 +1,11 @@
 """Start a foreign arm (a simulator written apart from armbench) as a subprocess on a free
 loopback port and hand out its ``socket://`` URL.
 
-The arms: ``stall``, ``tracker``, ``jitter`` (the scripts of this folder) and ``shared`` (the
-simulator of /work/shared/foreign-arm, found as ``../shared/foreign-arm/foreign_arm.py`` beside
-the checkout, or ``$ARMBENCH_FOREIGN_ARM``; :func:`shared_arm_script` is None when it is absent,
-and a test then skips with the reason :data:`SHARED_MISSING`).
+The arms: ``stall``, ``tracker``, ``jitter``, ``threshold`` (the scripts of this folder) and
+``shared`` (the simulator of /work/shared/foreign-arm, found as
+``../shared/foreign-arm/foreign_arm.py`` beside the checkout, or ``$ARMBENCH_FOREIGN_ARM``;
+:func:`shared_arm_script` is None when it is absent, and a test then skips with the reason
+:data:`SHARED_MISSING`).
 
     with foreign_arm("jitter", "--gear-j3", "38") as arm:
         arm.url        # socket://127.0.0.1:PORT
@@ -29,7 +30,7 @@ from typing import Final
 HERE: Final = Path(__file__).resolve().parent
 ROOT: Final = HERE.parents[1]
 SCRIPTS: Final = {"stall": HERE / "stall_arm.py", "tracker": HERE / "tracker_arm.py",
-                  "jitter": HERE / "jitter_arm.py"}
+                  "jitter": HERE / "jitter_arm.py", "threshold": HERE / "threshold_arm.py"}
 SHARED_MISSING: Final = ("the shared foreign arm (../shared/foreign-arm/foreign_arm.py beside the "
                          "checkout, or $ARMBENCH_FOREIGN_ARM) is absent")
 #: How long an arm may take to print its listening line on a loaded machine (s).

@@ -15,8 +15,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from armbench.bench.calibrate.align import TICK_RAD
 from armbench.bench.calibrate.capture_data import CaptureData
-from armbench.bench.twin_check.align import TICK_RAD
 from armbench.drivers.host.motion import joint_speed_rad_s
 from armbench.drivers.model.kinematics import tcp_position
 from armbench.drivers.model.protocol import MAX_DUTY, AngleDecoder, Command, Framer, Reply
