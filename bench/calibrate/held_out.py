@@ -22,10 +22,11 @@ within twin-check's allowance of the floor, or three quarters of the prior's mea
 away) and not another, or that is ahead of the arm along the motion on one block and behind it
 on another (each beyond that block's floor), says the arm's behaviour moved during the session
 (its drives warming up): a constant fitted to the session predicts neither, and the prior is
-kept. Then what the fit changes on every joint at
-once (the stop rule, the Hall positions) is judged the same way, the speed models as chosen:
-kept only if no joint gets worse with it beyond the noise. Without a held-out block (a budget too
-small for one) every speed model keeps the prior, and says so.
+kept. Then what the fit changes on every joint at once is judged the same way, the speed models
+as chosen: the stop rule (a structure) kept only if some joint gets better with it and none
+worse, beyond the noise; the Hall positions (measured against the motor-side truth) unless a
+joint gets worse. Without a held-out block (a budget too small for one) every speed
+model keeps the prior, and says so.
 """
 
 from __future__ import annotations
@@ -58,8 +59,8 @@ FloatArray = npt.NDArray[np.float64]
 LEAD_S: Final = 0.1
 #: A joint moves where the twin's speed exceeds this (rad/s: a few ticks a reply interval).
 MOVING_RAD_S: Final = 0.05
-#: The settings keys every joint's reported angle depends on besides its speed model.
-_SHARED_KEYS: Final = (STOP_RULE_KEY, *(TWIN["hall_error_rad"].path(j) for j in range(4)))
+#: The Hall positions' settings keys: every joint's reported angle depends on them.
+_HALL_KEYS: Final = tuple(TWIN["hall_error_rad"].path(j) for j in range(4))
 
 
 @dataclass(frozen=True, slots=True)
@@ -314,19 +315,32 @@ def choose(fitted: Sequence[Fitted], base: RobotSettings,
 
 def _judge_shared(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block],
                   hall: bool) -> list[Fitted]:
-    """``fitted`` with the values every joint's reported angle depends on (the stop rule, the
-    Hall positions) kept only where the twin with them diverges on no joint more than without
-    them, beyond the noise, on the held-out ``blocks``."""
-    shared = [f for f in fitted if f.key in _SHARED_KEYS and f.identified]
+    """``fitted`` with the values every joint's reported angle depends on judged on the
+    held-out ``blocks``, the speed models as chosen: the stop rule (a structure) kept only where
+    the twin with it diverges less than without it on some joint and more on none, beyond the
+    noise (a tie keeps the prior); then the Hall positions (measured against the motor-side
+    truth, each with its interval) kept unless the twin with them diverges more on a joint."""
+    judged = _judge(fitted, base, blocks, hall, (STOP_RULE_KEY,), need_better=True)
+    return _judge(judged, base, blocks, hall, _HALL_KEYS, need_better=False)
+
+
+def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], hall: bool,
+           keys: Sequence[str], need_better: bool) -> list[Fitted]:
+    """``fitted`` with its identified values of ``keys`` put back to the prior where the twin
+    with them diverges more than without them on a joint beyond the noise, or (``need_better``)
+    less on none."""
+    shared = [f for f in fitted if f.key in keys and f.identified]
     if not shared:
         return fitted
     without = [f for f in fitted if f not in shared]
     mine = score(apply_fit(base, fitted), blocks, hall)
     other = score(apply_fit(base, without), blocks, hall)
     worse = [j + 1 for j in range(4) if _worse(mine, other, j)]
-    if not worse:
+    if not worse and not (need_better and not any(_better(mine, other, j) for j in range(4))):
         return fitted
-    why = (f"held out: the twin with it diverges more than without it on joint "
-           f"{', '.join(map(str, worse))} beyond the noise: the prior kept")
+    why = ("held out: the twin with it diverges more than without it on joint "
+           f"{', '.join(map(str, worse))} beyond the noise: the prior kept" if worse else
+           "held out: the twin with it predicts no joint better than without it beyond the "
+           "noise: the prior kept")
     return [replace(f, identified=False, reason=f"{why} (fitted: {f.reason})")
             if f in shared else f for f in fitted]

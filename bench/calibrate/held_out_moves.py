@@ -3,9 +3,10 @@ and never fitted, on which the calibration judges its fitted structures against 
 (:mod:`armbench.bench.calibrate.held_out`).
 
 A block is the accuracy suite's lap, shortened to what its share of the budget holds: the
-approach to the square's first corner, its corners at full duty with one duty for every joint
-(the paper's style), each joint's own moves between them (the joints suite's style: joints 1 and
-4 move in no square), then its edges streamed with per-joint duties at the suite's speed
+approach to the square's first corner, each joint's own moves there (the joints suite's style:
+joints 1 and 4 move in no square, so they come first, before a short budget runs out), the
+square's other corners at full duty with one duty for every joint (the paper's style), then its
+edges streamed with per-joint duties at the suite's speed
 (armbench's coordinated style: the duties a path uses, well below full). The same block is made
 twice: right after the approaches, and at the end of the session (an arm whose behaviour moves
 during the session is then not judged by what it did at the start only). A stalled corner is
@@ -105,15 +106,16 @@ def joint_target(q: Sequence[float], j: int, arm: Arm) -> list[float]:
 def plan_block(allot_s: float, arm: Arm, estimate: Callable[[Sequence[float],
                Sequence[float], int], float]) -> SuiteBlock | None:
     """The block that fits ``allot_s`` of robot time (``estimate``: a move's robot time from,
-    to, at a duty): the approach to the square's first corner and the next two at full duty
-    (the paper's style), each joint's own moves, the last two corners, then as many of the
-    square's edges streamed as the rest holds (armbench's style; at most four: a whole lap),
-    each part in that order while it fits; None when not even the first three do."""
+    to, at a duty): the approach to the square's first corner, each joint's own moves there,
+    the square's other corners at full duty (the paper's style) and back to the first, then as
+    many of the square's edges streamed as the rest holds (armbench's style; at most four: a
+    whole lap), each part in that order while it fits; None when not even the approach and two
+    joints' moves do."""
     corners = corner_targets(arm)
     plan: list[Segment] = []
     q = list(arm.state.q_rad)
-    for kind, index in (("corner", 0), ("corner", 1), ("corner", 2), *(("joint", j) for j in
-                        range(4)), ("corner", 3), ("corner", 0)):
+    for kind, index in (("corner", 0), *(("joint", j) for j in range(4)), ("corner", 1),
+                        ("corner", 2), ("corner", 3), ("corner", 0)):
         if kind == "corner":
             need, q_next = estimate(q, corners[index], MAX_DUTY), corners[index]
         else:

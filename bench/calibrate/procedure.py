@@ -9,13 +9,14 @@ Phases, the most informative first (each skipped when what is left of the budget
    (all joints at once): with a truth source the reversal of the link against the motor is the gear
    play, its scatter the stick-slip band; the counter against the motor after a Hall crossing is
    the Hall position's error.
-3. ``suite`` — a held-out block: the accuracy suite's motions (its square's corners at full duty,
+3. ``holds`` (truth only) — rest at poses of different gravity load, every joint approached from
+   below: deflection against the model's gravity torque (stiffness) and the true TCP against the
+   true joints (DH lengths and joint offsets). Right after the approaches, whose last pose they
+   start from.
+4. ``suite`` — a held-out block: the accuracy suite's motions (its square's corners at full duty,
    its edges streamed), recorded and never fitted; made again as ``end``, the last phase
    (``bench/calibrate/held_out_moves.py``): the fitted structures replace the prior only where
    they predict both better (``bench/calibrate/held_out.py``).
-4. ``holds`` (truth only) — rest at poses of different gravity load, every joint approached from
-   below: deflection against the model's gravity torque (stiffness) and the true TCP against the
-   true joints (DH lengths and joint offsets).
 5. ``ladder`` — per joint, moves at a ladder of duties up and down a gravity-loaded range: the
    effective speed against law (12), i.e. the step loss and where it starts.
 
@@ -67,7 +68,7 @@ DEFAULT_BUDGET_S: Final = 900.0
 #: Share of the budget the phases leave for what follows the session within it: the fit and the
 #: replays of the held-out blocks (seconds of CPU, more on a loaded machine).
 FIT_SHARE: Final = 0.03
-PHASES: Final = ("timing", "approaches", "suite", "holds", "ladder", "end")
+PHASES: Final = ("timing", "approaches", "holds", "suite", "ladder", "end")
 APPROACH_CYCLES: Final = 10
 SETTLE_S: Final = 0.25
 IDLE_S: Final = 1.0
@@ -171,13 +172,13 @@ class Procedure:
             ("timing", self.timing, IDLE_S + 1.0),
             ("approaches", self.approaches, 6.0),
         ]
-        if self._block is not None:
-            phases.append(("suite", self.suite, block_s))
         if self._truth is not None:
             phases.append(("holds", self.holds, 8.0))
         else:
             self.obs.phases_skipped["holds"] = "no truth source (deflection and kinematics " \
                                                "need one)"
+        if self._block is not None:
+            phases.append(("suite", self.suite, block_s))
         phases.append(("ladder", self.ladder, 4.0))
         if self._block is not None:
             phases.append(("end", self.end, 0.0))
@@ -205,7 +206,7 @@ class Procedure:
         self._block = plan_block(BLOCK_SHARE * self.budget_s, self.arm, self._move_estimate_s)
         if self._block is None:
             self.obs.phases_skipped["suite"] = self.obs.phases_skipped["end"] = (
-                f"budget: the approach to the square and two of its corners do not fit a "
+                f"budget: the approach to the square and two joints' own moves do not fit a "
                 f"held-out block's share ({BLOCK_SHARE:.0%} of {self.budget_s:g} s)")
             return 0.0
         self._reserve_s = self._block.estimate_s
