@@ -258,9 +258,12 @@ def test_foreign_arm_over_tcp_never_worse(tmp_path: Path) -> None:
     assert fitted["joints.j4.gear_ratio"]["identified"]
     assert abs(fitted["joints.j4.gear_ratio"]["value"] - 30.0) < 0.1
     assert fitted["emulator.physics.j2.loss_law"]["choice"] == "duty"
-    # its joints rest on their targets: the stop rule of a firmware that stops there
-    assert fitted["emulator.stop_rule"]["identified"]
-    assert fitted["emulator.stop_rule"]["choice"] == "reach"
+    # its joints rest on their targets: the approaches choose the stop rule of a firmware that
+    # stops there; it replaces the prior only where the held-out blocks say it predicts a joint
+    # better beyond the noise (a structure; a tie keeps the prior, said in the reason)
+    rule = fitted["emulator.stop_rule"]
+    assert rule["choice"] == "reach", rule
+    assert rule["identified"] or "predicts no joint better" in rule["reason"], rule
     capture = held / "capture.mcap"
     calibrated = _real_time_rms(capture, load_settings(out))
     default = _real_time_rms(capture, RobotSettings())
