@@ -4,9 +4,10 @@ and never fitted, on which the calibration judges its fitted structures against 
 
 A block is the accuracy suite's lap, shortened to what its share of the budget holds: the
 approach to the square's first corner, each joint's own moves there (the joints suite's style:
-joints 1 and 4 move in no square, so they come first, before a short budget runs out), the
-square's other corners at full duty with one duty for every joint (the paper's style), then its
-edges streamed with per-joint duties at the suite's speed
+joints 1 and 4 move in no square's corners, so they come first, before a short budget runs out),
+the square's first edge streamed (a stream is judged however short the budget: a stop rule
+shows itself differently there), the square's other corners at full duty with one duty for
+every joint (the paper's style), then its edges streamed with per-joint duties at the suite's speed
 (armbench's coordinated style: the duties a path uses, well below full). The same block is made
 twice: right after the approaches, and at the end of the session (an arm whose behaviour moves
 during the session is then not judged by what it did at the start only). A stalled corner is
@@ -107,16 +108,18 @@ def plan_block(allot_s: float, arm: Arm, estimate: Callable[[Sequence[float],
                Sequence[float], int], float]) -> SuiteBlock | None:
     """The block that fits ``allot_s`` of robot time (``estimate``: a move's robot time from,
     to, at a duty): the approach to the square's first corner, each joint's own moves there,
-    the square's other corners at full duty (the paper's style) and back to the first, then as
-    many of the square's edges streamed as the rest holds (armbench's style; at most four: a
-    whole lap), each part in that order while it fits; None when not even the approach and two
-    joints' moves do."""
+    the square's first edge streamed, its other corners at full duty (the paper's style) and
+    back to the first, then as many of the square's edges streamed as the rest holds
+    (armbench's style; at most four: a whole lap), each part in that order while it fits; None
+    when not even the approach and two joints' moves do."""
     corners = corner_targets(arm)
     plan: list[Segment] = []
     q = list(arm.state.q_rad)
-    for kind, index in (("corner", 0), *(("joint", j) for j in range(4)), ("corner", 1),
+    for kind, index in (("corner", 0), *(("joint", j) for j in range(4)), ("edge", 1),
                         ("corner", 2), ("corner", 3), ("corner", 0)):
-        if kind == "corner":
+        if kind == "edge":  # from the first corner to the second
+            need, q_next = EDGE_S, corners[1]
+        elif kind == "corner":
             need, q_next = estimate(q, corners[index], MAX_DUTY), corners[index]
         else:
             there = joint_target(q, index, arm)
