@@ -336,7 +336,8 @@ def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], h
     mine = score(apply_fit(base, fitted), blocks, hall)
     other = score(apply_fit(base, without), blocks, hall)
     worse = [j + 1 for j in range(4) if _worse(mine, other, j)]
-    if not worse and not (need_better and not any(_better(mine, other, j) for j in range(4))):
+    better = not need_better or any(_better(mine, other, j) for j in range(4))
+    if not worse and better:
         return fitted
     why = ("held out: the twin with it diverges more than without it on joint "
            f"{', '.join(map(str, worse))} beyond the noise: the prior kept" if worse else
