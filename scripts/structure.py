@@ -7,7 +7,8 @@ script runs it over the installed ``armbench`` (a regular install or a strict-mo
 which lays the package out as a tree), or reads a ``--deps-output`` file it wrote, and checks:
 
 - every module is reachable from every other along imports, either way;
-- no import goes from a layer of pyproject.toml's ``layers`` contract to a layer above it.
+- no import goes from a layer of one of pyproject.toml's ``layers`` contracts (the package's, and
+  each folder's) to a layer above it.
 
 It prints the figures (modules, edges, components, upward edges) and exits 1 on a violation::
 
@@ -17,6 +18,7 @@ It prints the figures (modules, edges, components, upward edges) and exits 1 on 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import shutil
 import subprocess
@@ -52,13 +54,22 @@ class Structure:
         return out
 
 
-def layers(pyproject: Path) -> list[list[str]]:
-    """The modules of each layer of the one ``layers`` import-linter contract, top first."""
+def layers(pyproject: Path) -> list[list[list[str]]]:
+    """The orders of pyproject.toml's ``layers`` import-linter contracts, each top first and
+    fully named: the package's own (the one without containers) first, then each folder's."""
     config = tomllib.loads(pyproject.read_text(encoding="utf-8"))
-    found = [c for c in config["tool"]["importlinter"]["contracts"] if c["type"] == "layers"]
-    if len(found) != 1:
-        raise ValueError(f"{pyproject}: {len(found)} layers contracts, expected one")
-    return [[m.strip() for m in layer.replace("|", ":").split(":")] for layer in found[0]["layers"]]
+    contracts = [c for c in config["tool"]["importlinter"]["contracts"] if c["type"] == "layers"]
+    tops = [c for c in contracts if not c.get("containers")]
+    if len(tops) != 1:
+        raise ValueError(f"{pyproject}: {len(tops)} layers contracts without containers, "
+                         "expected one (the package's own)")
+
+    def order(contract: Mapping[str, Any], prefix: str) -> list[list[str]]:
+        return [[prefix + m.strip() for m in layer.replace("|", ":").split(":")]
+                for layer in contract["layers"]]
+
+    return [order(tops[0], "")] + [order(c, container + ".") for c in contracts
+                                   if c.get("containers") for container in c["containers"]]
 
 
 def layer_of(module: str, order: Sequence[Sequence[str]]) -> int | None:
@@ -75,10 +86,11 @@ def graph_of(deps: Mapping[str, Any], package: str = "armbench") -> dict[str, li
             for name in sorted(mods)}
 
 
-def examine(graph: Graph, order: Sequence[Sequence[str]],
+def examine(graph: Graph, orders: Sequence[Sequence[Sequence[str]]],
             outside: frozenset[str] = frozenset({"armbench", "armbench.cli.perf.hot_modules"}),
             ) -> Structure:
-    """The figures and violations of ``graph`` against the layer ``order`` (top first);
+    """The figures and violations of ``graph`` against the layer ``orders`` (each top first;
+    the first the package's own, which every module must be placed in);
     ``outside``: modules no layer holds (the root package's lazy public names, the build's list
     of compiled modules), as in ``tests/test_architecture.py``."""
     edges = {(a, b) for a, imported in graph.items() for b in imported}
@@ -100,10 +112,10 @@ def examine(graph: Graph, order: Sequence[Sequence[str]],
                 todo.append(n)
         components.append(sorted(piece))
     components.sort(key=lambda c: (-len(c), c))
-    upward = sorted((a, b) for a, b in edges
-                    if (low := layer_of(a, order)) is not None
-                    and (high := layer_of(b, order)) is not None and high < low)
-    unplaced = sorted(m for m in graph if m not in outside and layer_of(m, order) is None
+    upward = sorted({(a, b) for order in orders for a, b in edges
+                     if (low := layer_of(a, order)) is not None
+                     and (high := layer_of(b, order)) is not None and high < low})
+    unplaced = sorted(m for m in graph if m not in outside and layer_of(m, orders[0]) is None
                       and not (graph[m] == [] and _is_package_of(m, graph)))
     return Structure(len(graph), len(edges), components, upward, unplaced)
 
@@ -123,8 +135,7 @@ def run_pydeps(out: Path) -> None:
     if not (tree / "bench").is_dir():
         raise SystemExit("armbench is installed with an import hook: pydeps needs pip install . "
                          "or pip install -e . --config-settings editable_mode=strict")
-    exe = shutil.which("pydeps", path=str(Path(sys.executable).parent)) or shutil.which("pydeps")
-    if exe is None:
+    if importlib.util.find_spec("pydeps") is None:
         raise SystemExit("pydeps is not installed (pip install pydeps)")
     with tempfile.TemporaryDirectory() as tmp:
         # a release build's compiled modules sit beside their sources and are found first, and
@@ -132,8 +143,9 @@ def run_pydeps(out: Path) -> None:
         sources = Path(tmp) / "armbench"
         shutil.copytree(tree, sources, ignore=shutil.ignore_patterns(
             "*.so", "*.pyd", "__pycache__"))
-        subprocess.run([exe, str(sources), "--show-deps", "--no-output", "--max-bacon", "0",
-                        "--only", "armbench", "--deps-output", str(out)],
+        subprocess.run([sys.executable, "-m", "pydeps", str(sources), "--show-deps",
+                        "--no-output", "--max-bacon", "0", "--only", "armbench",
+                        "--deps-output", str(out)],
                        check=True, stdout=subprocess.DEVNULL, timeout=600, cwd=tmp)
 
 
