@@ -16,9 +16,15 @@ HERE = str(Path(__file__).parent)
 
 
 def _draw(figures: Figures) -> tuple[str, weakref.ref[Figure]]:
-    fig = Figure()
-    fig.add_subplot().plot([0.0, 1.0], [1.0, 0.0])
-    return str(figures.make(fig, "a line", "caption").svg), weakref.ref(fig)
+    made: list[weakref.ref[Figure]] = []
+
+    def plot() -> Figure:  # a closure: drawn each time, never kept (reports.render.svg_cache)
+        fig = Figure()
+        fig.add_subplot().plot([0.0, 1.0], [1.0, 0.0])
+        made.append(weakref.ref(fig))
+        return fig
+
+    return str(figures.make(plot, (), "a line", "caption").svg), made[0]
 
 
 def test_drawn_figures_are_freed_and_the_heap_is_thawed_after_the_page() -> None:

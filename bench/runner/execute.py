@@ -41,6 +41,7 @@ from armbench.bench.runner.options import (
     EmulatorFactory,
     PlannedSuite,
     RunAborted,
+    RunAhead,
     RunOutcome,
     exit_status,
 )
@@ -148,9 +149,10 @@ async def _run_suite(runner: TrialRunner, parallel: ParallelTrials, ps: PlannedS
 async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
                   emulator_factory: EmulatorFactory | None = None,
                   writer_class: type[LoopClockWriter] = LoopClockWriter,
-                  meanwhile: Callable[[], None] | None = None) -> RunOutcome:
-    """Run a prepared plan (see the module docstring); returns the outcome. ``meanwhile`` runs
-    in a thread once the first trial is in the record (:meth:`TrialRunner.committed`).
+                  ahead: RunAhead | None = None) -> RunOutcome:
+    """Run a prepared plan (see the module docstring); returns the outcome. ``ahead`` hears
+    when the first trial is in the record and when each suite's summary is
+    (:class:`~armbench.bench.runner.options.RunAhead`).
 
     Cancellation (Ctrl-C) abandons the current trial (the driver tells the arm to hold), keeps
     the record as it is on disk (every finished trial) and propagates
@@ -161,13 +163,13 @@ async def execute(plan: BenchPlan, *, progress: IO[str] | None = None,
         make_directory(plan.out_dir, "run folder")
     with hold_run_folder(plan.out_dir):
         return await _execute(plan, progress=progress, emulator_factory=emulator_factory,
-                              writer_class=writer_class, meanwhile=meanwhile)
+                              writer_class=writer_class, ahead=ahead)
 
 
 async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
                    emulator_factory: EmulatorFactory | None,
                    writer_class: type[LoopClockWriter],
-                   meanwhile: Callable[[], None] | None) -> RunOutcome:
+                   ahead: RunAhead | None) -> RunOutcome:
     if plan.resume is not None:
         resumed = writer_class.resume(plan.out_dir)
         assert isinstance(resumed, LoopClockWriter)
@@ -187,7 +189,7 @@ async def _execute(plan: BenchPlan, *, progress: IO[str] | None,
         printer.plan(ps.name, len(plan.remaining_trials(ps)))
     runner = TrialRunner(plan, writer, printer,
                          emulator_factory if emulator_factory is not None else default_emulator,
-                         meanwhile=meanwhile)
+                         ahead=ahead)
     parallel = ParallelTrials(runner)
     if plan.resume is not None:
         runner.captures.recover(writer.record, writer.out_dir)

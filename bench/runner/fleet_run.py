@@ -30,7 +30,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sys
-import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +44,7 @@ from armbench.bench.runner.options import (
     EXIT_PASS,
     BenchPlan,
     EmulatorFactory,
+    RunAhead,
     RunOptions,
     RunOutcome,
 )
@@ -201,40 +201,24 @@ def _from_disk(plan: BenchPlan, status: int, error: str) -> RunOutcome | None:
 
 async def _run_arm(plan: BenchPlan, progress: IO[str] | None,
                    emulator_factory: EmulatorFactory | None,
-                   meanwhile: Callable[[], None] | None) -> _ArmEnd:
+                   ahead: RunAhead | None) -> _ArmEnd:
     """One arm's run; an exception that escapes it ends this arm only."""
     try:
         outcome = await execute(plan, progress=progress, emulator_factory=emulator_factory,
-                                meanwhile=meanwhile)
+                                ahead=ahead)
     except Exception as exc:  # the other arms go on: this one is in error
         error = f"{type(exc).__name__}: {exc}"
         return _ArmEnd(_from_disk(plan, EXIT_ERROR, error), error, exc)
     return _ArmEnd(outcome, outcome.error)
 
 
-def _once(fn: Callable[[], None]) -> Callable[[], None]:
-    """``fn``, run by the first of the threads that call it (every arm's runner starts one)."""
-    lock = threading.Lock()
-    started: list[bool] = []
-
-    def run() -> None:
-        with lock:
-            if started:
-                return
-            started.append(True)
-        fn()
-
-    return run
-
-
 async def _run_all(planned: _Planned, progress: IO[str] | None,
                    emulator_factory: EmulatorFactory | None,
-                   meanwhile: Callable[[], None] | None = None) -> list[_ArmEnd]:
+                   ahead: RunAhead | None = None) -> list[_ArmEnd]:
     layout = planned.layout
-    once = None if meanwhile is None else _once(meanwhile)  # the first arm's trial starts it
     return list(await asyncio.gather(*(
         _run_arm(plan, cast(IO[str], _Prefixed(progress, arm.name or ""))
-                 if layout.fleet and progress is not None else progress, emulator_factory, once)
+                 if layout.fleet and progress is not None else progress, emulator_factory, ahead)
         for plan, arm in zip(planned.plans, layout.arms, strict=True))))
 
 
@@ -273,7 +257,7 @@ def _workers_in_bound(options: RunOptions) -> bool:
 def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
                   emulator_factory: EmulatorFactory | None = None,
                   then: Callable[[RunOutcome], None] | None = None,
-                  meanwhile: Callable[[], None] | None = None) -> RunResult:
+                  ahead: RunAhead | None = None) -> RunResult:
     """Check every arm, find every arm that is already there, then run them all at once on a
     loop of the right kind (see the module docstring). Ctrl-C returns each arm's record on disk
     with exit status 130. ``then`` is called with each arm's outcome while the run's folder is
@@ -283,8 +267,9 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     refused); a new run's folder once it is made, after the arms answered at their ports. Each
     arm's folder is locked by the runner too (:mod:`~armbench.bench.runner.lock`).
 
-    With ``meanwhile``, a thread runs it once the first trial is in a record: work ``then`` will
-    need (the command imports the report's modules while the trials go on).
+    ``ahead`` hears when a first trial is in each record and when each suite's summary is
+    (:class:`~armbench.bench.runner.options.RunAhead`): it does work ``then`` will need while
+    the trials go on (the command imports the report's modules and draws the plots).
     """
     with contextlib.ExitStack() as held:
         if _workers_in_bound(options):  # else the plan refuses them, before any process starts
@@ -296,7 +281,7 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
         planned = _plan(options)
         probe_arms_sync(planned.plans)  # every arm answers before the run's folder is made
         _begin(planned, held, overwrite=options.overwrite)
-        main = _run_all(planned, progress, emulator_factory, meanwhile)
+        main = _run_all(planned, progress, emulator_factory, ahead)
         try:
             if all(plan.target.virtual for plan in planned.plans):
                 from armbench.fakes.clock.vclock import run_virtual

@@ -10,7 +10,7 @@ import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 from armbench.bench.suites import Suite
 from armbench.bench.suites.base import PoseSource, PowerSwitch
@@ -40,7 +40,8 @@ __all__ = [
     "CAPTURE_FILE", "DEFAULT_CONFIG", "DEFAULT_OUTAGE_TIMEOUT_S", "EXIT_ERROR", "EXIT_FAIL",
     "EXIT_INCOMPLETE", "EXIT_INTERRUPTED", "EXIT_PASS", "EXIT_REGRESSION", "JUNIT_FILE",
     "REPORT_FILE", "RUNNER_FILE", "BenchPlan",
-    "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunOptions", "RunOutcome",
+    "EmulatorFactory", "Isolation", "PlannedSuite", "RunAborted", "RunAhead", "RunOptions",
+    "RunOutcome",
     "default_workers", "derive_seed", "exit_status", "shard_assignment",
 ]
 
@@ -104,6 +105,18 @@ def derive_seed(seed: int, *labels: object) -> int:
     for any seed field, e.g. the emulator's boards derive ``31 * seed + board`` from it)."""
     text = json.dumps([seed, *[str(x) for x in labels]])
     return int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "big") >> (64 - 26)
+
+
+class RunAhead(Protocol):
+    """Work the caller of a run does before the run ends, in threads of its own, so that it is
+    not waiting once the trials end (the ``run`` command: the report's imports, then each
+    suite's plots). Both calls come from the run's loop and return at once."""
+
+    def started(self) -> None:
+        """A first trial is in a record: the run is under way (called for each arm)."""
+
+    def summarized(self, record: RunRecord, suite: str) -> None:
+        """Suite ``suite``'s summary is in ``record`` (which the run goes on writing)."""
 
 
 class RunAborted(ArmbenchError):

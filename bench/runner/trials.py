@@ -10,9 +10,8 @@ import contextlib
 import dataclasses
 import logging
 import random
-import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -24,6 +23,7 @@ from armbench.bench.runner.options import (
     EmulatorFactory,
     PlannedSuite,
     RunAborted,
+    RunAhead,
     derive_seed,
 )
 from armbench.bench.runner.power import port_power
@@ -358,7 +358,7 @@ class TrialRunner:
 
     def __init__(self, plan: BenchPlan, writer: LoopClockWriter, progress: ProgressPrinter,
                  emulator_factory: EmulatorFactory, *,
-                 meanwhile: Callable[[], None] | None = None) -> None:
+                 ahead: RunAhead | None = None) -> None:
         self.plan = plan
         self.writer = writer
         self.progress = progress
@@ -366,15 +366,17 @@ class TrialRunner:
         if plan.capture:
             self.attempts.captures.open_run(plan.settings, writer.record)
         self._wall0: dict[str, float] = {}
-        self._meanwhile = meanwhile
+        self._ahead = ahead
+        self._started = False
 
     def committed(self) -> None:
-        """A trial is in the record: the first time, the run is under way, and ``meanwhile``
-        (what the caller will need once the run ends: the report's modules) starts in a thread
-        of its own, so it is done while the trials go on instead of after them."""
-        meanwhile, self._meanwhile = self._meanwhile, None
-        if meanwhile is not None:
-            threading.Thread(target=meanwhile, name="armbench-meanwhile", daemon=True).start()
+        """A trial is in the record: the first time, the run is under way, and the caller's
+        work ahead (:class:`RunAhead`: the report's modules) starts, so it is done while the
+        trials go on instead of after them."""
+        if not self._started:
+            self._started = True
+            if self._ahead is not None:
+                self._ahead.started()
 
     def begin_wall(self, name: str) -> None:
         """Start the wall clock of suite ``name`` (begun in the record), counting the wall time
@@ -457,3 +459,5 @@ class TrialRunner:
         self.progress.message(f"[{ps.name}] done: {len(every)} measurement(s) "
                               f"({len(suite.measurements)} at suite level)"
                               + (f", {len(failed)} outside limits" if failed else ""))
+        if self._ahead is not None:
+            self._ahead.summarized(writer.record, ps.name)

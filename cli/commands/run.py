@@ -28,7 +28,7 @@ from armbench.bench.runner.progress import PER_SUITE, PER_TRIAL, ProgressStream
 from armbench.bench.suites import suite_names
 from armbench.cli.commands.bounds import CAPTURE_MAX_MB, add_bounded
 from armbench.cli.commands.fleet import fleet_summary
-from armbench.cli.commands.run_files import preload_reports, step_summary, write_reports
+from armbench.cli.commands.run_files import ReportAhead, step_summary, write_reports
 from armbench.record import CAPTURE_FILE, REPORT_FILE, RESULTS_FILE
 from armbench.record.claims import truth_line, uncovered_lines
 from armbench.record.verdict import EXIT_STATUS_EPILOG
@@ -156,10 +156,13 @@ def _run(args: argparse.Namespace) -> int:
         meta=tuple(args.meta))
     level = args.verbose - args.quiet
     # each record is on disk: now its reports, while the run folder is still locked
-    result = run_arms_sync(options, progress=progress_stream(level), then=lambda done:
-                           write_reports(done.record, done.out_dir,
-                                         capture_max_bytes=done.capture_max_bytes),
-                           meanwhile=preload_reports)
+    ahead = ReportAhead()
+
+    def reports(done: RunOutcome) -> None:
+        ahead.finish()
+        write_reports(done.record, done.out_dir, capture_max_bytes=done.capture_max_bytes)
+
+    result = run_arms_sync(options, progress=progress_stream(level), then=reports, ahead=ahead)
     if args.out is None and args.resume is None:
         link_latest(result.out_dir)
     if result.fleet:

@@ -8,14 +8,16 @@ from __future__ import annotations
 
 import html
 import logging
+import queue
 import sys
+import threading
 from pathlib import Path
 
 from armbench.bench.runner.options import CAPTURE_FILE, JUNIT_FILE, REPORT_FILE, RunOutcome
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.record import RunRecord, atomic_write_bytes, path_inside
 
-__all__ = ["preload_reports", "step_summary", "text_summary", "write_reports"]
+__all__ = ["ReportAhead", "step_summary", "text_summary", "write_reports"]
 
 log = logging.getLogger("armbench.runner")
 
@@ -30,17 +32,57 @@ def write_reports(record: RunRecord, out_dir: Path, *,
     _attach_report(out_dir, capture_max_bytes)
 
 
-def preload_reports() -> None:
-    """Import what :func:`write_reports` will (the report's pages, matplotlib, Jinja2): the run
-    command does it in a thread while the trials go on, so the report is not waiting for its
-    imports once they end. Without the report package (a minimal install) nothing is done."""
-    try:
-        import armbench.reports.files.junit
-        import armbench.reports.pages.page  # noqa: F401
-    except ImportError:
-        return
-    except Exception:  # the report itself says what is wrong, when it is written
-        log.debug("the report's modules could not be loaded in advance", exc_info=True)
+class ReportAhead:
+    """The report's work done while the trials go on (a
+    :class:`~armbench.bench.runner.options.RunAhead`): once the run is under way, a thread of its
+    own imports the report's modules (its pages, matplotlib, Jinja2); then it draws the plots of
+    each suite whose summary is in the record (``reports.pages.page.draw_ahead``), while the next
+    suite's trials run; the report written when the run ends (after :meth:`finish`) finds them
+    drawn. Without the report package (a minimal install) nothing is done; a plot that fails to
+    draw now is drawn (or reported) by the report itself."""
+
+    def __init__(self) -> None:
+        self._todo: queue.SimpleQueue[tuple[RunRecord, str] | None] = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        self._finished = False
+
+    def started(self) -> None:
+        with self._lock:
+            if self._thread is None and not self._finished:
+                self._thread = threading.Thread(target=self._work, name="armbench-report-ahead",
+                                                daemon=True)
+                self._thread.start()
+
+    def summarized(self, record: RunRecord, suite: str) -> None:
+        if not self._finished:
+            self._todo.put((record, suite))
+
+    def finish(self) -> None:
+        """Wait for the plots of the suites summarized so far (the report would draw them
+        itself; two threads must not draw at once: matplotlib's settings are the process's),
+        then stop: a suite summarized later is left to the report."""
+        with self._lock:
+            self._finished = True
+            thread = self._thread
+        self._todo.put(None)
+        if thread is not None:
+            thread.join()
+
+    def _work(self) -> None:
+        try:
+            import armbench.reports.files.junit  # noqa: F401
+            from armbench.reports.pages.page import draw_ahead
+        except ImportError:
+            return
+        except Exception:  # the report itself says what is wrong, when it is written
+            log.debug("the report's modules could not be loaded in advance", exc_info=True)
+            return
+        while (item := self._todo.get()) is not None:
+            try:
+                draw_ahead(*item)
+            except Exception:  # the record changed under the drawing: the report draws it
+                log.debug("the plots of %s were not drawn ahead", item[1], exc_info=True)
 
 
 def _attach_report(out_dir: Path, capture_max_bytes: int | None) -> None:

@@ -87,7 +87,7 @@ def _headlines(a: RunRecord, b: RunRecord, comparison: Comparison) -> tuple[
         out.append((name, rows))
         if panels:
             figures.append(figs.make(
-                plots_over_runs.compare_bars(panels, ("A", "B")),
+                plots_over_runs.compare_bars, (panels, ("A", "B")),
                 f"{name}: headline figures, A and B",
                 f"{name}: each headline figure in run A (hatched) and run B, the limit dashed.",
                 "; ".join(f"{r.label}: A {r.paper}, B {r.value}" for r in rows)))
@@ -135,7 +135,7 @@ def _paths(a: RunRecord, b: RunRecord, figs: Figures) -> FigureView | None:
             panels.append(plots.PathPanel(f"{style}: first lap of A and B", runs))
     if not panels:
         return None
-    return figs.make(plots.paths_yz(panels, None), "Accuracy: paths of runs A and B overlaid",
+    return figs.make(plots.paths_yz, (panels, None), "Accuracy: paths of runs A and B overlaid",
                      "The reported path of the first lap of each style in run A and run B, in "
                      "the YZ plane.")
 

@@ -54,8 +54,8 @@ from armbench.reports.render.views import (
 from armbench.reports.sections import SectionBuilder, generic, registered_sections
 from armbench.reports.sections.traffic import traffic_section
 
-__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "render_report", "report_chunks",
-           "suite_sections"]
+__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "draw_ahead", "render_report",
+           "report_chunks", "suite_sections"]
 
 _FIG_NUMBER = re.compile(r"^Fig\. \d+: ")
 #: The section of each suite the report knows, by the suite's name (registered as entry points,
@@ -93,6 +93,19 @@ def suite_sections(record: RunRecord, figs: Figures) -> tuple[list[SuiteView],
         section.scorecard = score_rows(record, suite, suite_headlines(name), cmp_rows)
         sections.append(section)
     return list(views.values()), sections, orphans
+
+
+def draw_ahead(record: RunRecord, name: str) -> None:
+    """Draw the plots of suite ``name``'s section of ``record`` now, to be found drawn
+    (:mod:`armbench.reports.render.svg_cache`) by the report written later: the run calls it
+    in a thread of its own once the suite's summary is in the record, while the next suite's
+    trials go on. Nothing is written; the collector is left alone (a full collection of the
+    run's process would hold up its event loop)."""
+    suite = record.suites.get(name)
+    if suite is None:
+        return
+    builder = registered_sections().get(name, generic.build)
+    builder(record, suite, suite_view(record, suite, "suite-0", {}), Figures(collect=False))
 
 
 def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:

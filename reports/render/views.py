@@ -8,7 +8,7 @@ import gc
 import json
 import math
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,7 +17,7 @@ import numpy.typing as npt
 from markupsafe import Markup
 from matplotlib.figure import Figure
 
-from armbench.reports.render import plots
+from armbench.reports.render import svg_cache
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -180,23 +180,23 @@ def figures_collected_alone() -> Iterator[None]:
 
 
 class Figures:
-    """Numbers the plots of one page so their SVG ids never clash."""
+    """Numbers the plots of one page so their SVG ids never clash. ``collect``: run the
+    collector after each plot drawn (:func:`~armbench.reports.render.svg_cache.drawn`); a page
+    does, under :func:`figures_collected_alone`."""
 
-    def __init__(self) -> None:
+    def __init__(self, *, collect: bool = True) -> None:
         self.count = 0
+        self.collect = collect
 
-    def make(self, fig: Figure, title: str, caption: str, alt: str = "") -> FigureView:
-        """The inline SVG of ``fig``; its text alternative (``aria-label``) is ``title`` and,
-        when given, ``alt``: the figures the plot shows, in words."""
+    def make(self, plot: Callable[..., Figure], args: tuple[object, ...], title: str,
+             caption: str, alt: str = "") -> FigureView:
+        """The inline SVG of ``plot(*args)`` (drawn now, or kept from an earlier draw of the
+        same inputs); its text alternative (``aria-label``) is ``title`` and, when given,
+        ``alt``: the figures the plot shows, in words."""
         self.count += 1
         label = f"{title}. {alt}" if alt else title
-        view = FigureView(plots.to_svg(fig, f"f{self.count}", label), caption, title)
-        # a drawn figure is a web of reference cycles (artists, transforms, callbacks): free it
-        # now, or the figures of a long run's sections pile up until the collector runs
-        fig.clear()
-        del fig
-        gc.collect()
-        return view
+        svg = svg_cache.drawn(plot, args, label, collect=self.collect)
+        return FigureView(Markup(svg_cache.renamed(svg, self.count)), caption, title)
 
     def copy(self, figure: FigureView) -> FigureView:
         """The same plot once more on the page (the lead plot), its ids renamed."""

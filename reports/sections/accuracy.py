@@ -160,7 +160,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
         return []
     recorded = suite.measurements
     out = [figs.make(
-        plots.paths_yz([plots.PathPanel(STYLE_TITLES[s], [
+        plots.paths_yz, ([plots.PathPanel(STYLE_TITLES[s], [
             plots.AttainedPath(_lap_label(lap), lap.path_mm)
             for lap in laps if lap.style == s])
             for s in styles], None if corners is None else corners * 1000.0),
@@ -173,7 +173,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
                   for s in styles))]
     if corners is not None and any(lap.errors is not None for lap in laps):
         out.append(figs.make(
-            plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
+            plots.error_over_time, ([plots.ErrorPanel(STYLE_TITLES[s], [
                 plots.ErrorRun(_lap_label(lap), *lap.errors)
                 for lap in laps if lap.style == s and lap.errors is not None],
                 _recorded(recorded, ACCURACY.metric(s, ACCURACY.mean))) for s in styles],
@@ -185,7 +185,7 @@ def _figures(laps: list[_Lap], corners: FloatArray | None, suite: SuiteRecord,
             f"paper's mean {format_value(paper_mm, 'mm')}"))
     if any(lap.belief is not None for lap in laps):
         out.append(figs.make(
-            plots.error_over_time([plots.ErrorPanel(STYLE_TITLES[s], [
+            plots.error_over_time, ([plots.ErrorPanel(STYLE_TITLES[s], [
                 plots.ErrorRun(_lap_label(lap), *lap.belief)
                 for lap in laps if lap.style == s and lap.belief is not None],
                 _recorded(recorded, ACCURACY.metric(s, ACCURACY.belief_mean)))

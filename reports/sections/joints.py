@@ -60,7 +60,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
                     default=None)
         alt = "" if worst is None else f"largest reported figure {worst:.3g} mrad"
         figures.append(figs.make(
-            plots.joint_bars([r.joint for r in rows], panels, "mrad"),
+            plots.joint_bars, ([r.joint for r in rows], panels, "mrad"),
             "Bidirectional positioning of each joint (ISO 230-2)",
             "Per joint, the reported angle (solid) and the true one (hatched): the encoder sits "
             "on the motor, so play and deflection show only in the true figures.", alt))

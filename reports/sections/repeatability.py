@@ -172,7 +172,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         figures.append(_cube_figure(figs, corners, poses, commanded, points, speeds, label))
         rp_text = "; ".join(f"{r.speed}: worst RP {r.worst_rp}" for r in speed_rows)
         figures.append(figs.make(
-            plots.pose_scatter(scatter),
+            plots.pose_scatter, (scatter,),
             "ISO 9283: attained positions around their barycentre",
             "Attained positions of each pose around their barycentre, projected on the YZ plane, "
             "one marker shape per speed; each circle is that speed's RP (ISO 9283: mean distance "
@@ -196,7 +196,7 @@ def _cube_figure(figs: Figures, corners: FloatArray | None, poses: list[str],
         if every:
             bary.append(np.array(every, dtype=np.float64).mean(axis=0) * 1000.0)
     return figs.make(
-        plots.cube_projections(None if corners is None else corners * 1000.0, pose_pts, bary),
+        plots.cube_projections, (None if corners is None else corners * 1000.0, pose_pts, bary),
         "ISO 9283: test cube and poses",
         "The ISO 9283 test cube and the commanded poses in three projections, with the "
         "barycentre of the attained positions of each pose (all speeds).",

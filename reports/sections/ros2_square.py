@@ -109,7 +109,7 @@ def _figures(suite: SuiteRecord, figs: Figures) -> list[FigureView]:
     if not panels:
         return []
     return [figs.make(
-        plots.paths_yz(panels, None if corners is None else corners * 1000.0),
+        plots.paths_yz, (panels, None if corners is None else corners * 1000.0),
         "The square in the YZ plane: the driver's own run and through ROS 2",
         "The reference square dashed, the reported path of each lap (forward kinematics of the "
         "reported joints) solid; one panel per style.",

@@ -177,7 +177,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
         ok = [sum(v) for v in by_condition.values()]
         bad = [len(v) - sum(v) for v in by_condition.values()]
         figures.append(figs.make(
-            plots.outcomes_by_condition(names, ok, bad),
+            plots.outcomes_by_condition, (names, ok, bad),
             "Start-up recovery: outcomes by condition",
             "Power cuts per condition (motion at the cut, relation to the Hall sensor, band of "
             "angles): recovered (solid) and not recovered (hatched). §5.2's procedure cannot "
@@ -186,7 +186,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
                                                                          strict=True))))
     if points:
         figures.append(figs.make(
-            plots.startup_plots(points, time_limit, error_limit, error_unit),
+            plots.startup_plots, (points, time_limit, error_limit, error_unit),
             "Start-up recovery: times and position errors",
             "Left: share of the cuts whose arm was back within a given time after power-on "
             "(crosses: cuts that did not recover). Right: position error after each cut (hatched: "

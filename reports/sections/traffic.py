@@ -72,7 +72,7 @@ def traffic_section(capture: Path, out_dir: Path, figs: Figures) -> TrafficView 
     figures = []
     if c.records:
         figures.append(figs.make(
-            plots.traffic_plot(c.bin_start_s, c.rate_in, c.rate_out, c.errors_per_bin,
+            plots.traffic_plot, (c.bin_start_s, c.rate_in, c.rate_out, c.errors_per_bin,
                                c.resyncs_per_bin, c.bin_s),
             "Traffic over time",
             "Frames per second in each direction over the capture"

@@ -185,7 +185,7 @@ def build(record: RunRecord, suite: SuiteRecord, view: SuiteView, figs: Figures)
     if series:
         worst = max(series, key=lambda s: float(np.max(np.abs(s.divergence_counts))))
         figures.append(figs.make(
-            overlay_plot(series, tolerance),
+            overlay_plot, (series, tolerance),
             "Arm against twin: reported angle and divergence per joint",
             "Left, per joint, the angle the arm reported (solid) and the one the twin reported "
             "when the same commands were replayed into it (dashed); right, their difference in "

@@ -1,0 +1,156 @@
+"""What a run's caller does while the trials go on (``run_arms_sync(ahead=...)``, a ``RunAhead``):
+the run command imports the report's modules once the run is under way and draws each suite's
+plots once its summary is in the record, so that the report written when the run ends finds them
+drawn (``reports.render.svg_cache``) and is the same page as one drawn from nothing."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+import pytest
+from matplotlib.figure import Figure
+
+from armbench.bench.runner import RunOptions, run_arms_sync
+from armbench.cli.commands.run_files import ReportAhead
+from armbench.record import RunRecord, load_record
+from armbench.reports.pages import page
+from armbench.reports.pages.page import build_report_html
+from armbench.reports.render import svg_cache
+from armbench.reports.render.views import Figures
+
+RECORDS = Path(__file__).parent / "fixtures" / "records"
+
+
+class Heard:
+    """A ``RunAhead`` that writes down what it hears, and where."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, str, Any]] = []
+
+    def started(self) -> None:
+        self.calls.append(("started", threading.current_thread().name, None))
+
+    def summarized(self, record: RunRecord, suite: str) -> None:
+        s = record.suites[suite]
+        self.calls.append(("summarized", suite, (s.ended_s is not None, len(s.measurements))))
+
+
+@pytest.mark.parametrize("ports", [[], ["a=fake://", "b=fake://?seed=3"]])
+def test_the_run_says_when_it_is_under_way_and_when_each_summary_is_in(
+        tmp_path: Path, ports: list[str]) -> None:
+    heard = Heard()
+    result = run_arms_sync(RunOptions(suites=["accuracy"], ports=ports, workers=1,
+                                      out=tmp_path / "run"), progress=None, ahead=heard)
+    assert result.exit_status == 0
+    arms = max(1, len(ports))
+    assert heard.calls[0][0] == "started"
+    assert [c[0] for c in heard.calls].count("started") == arms
+    summaries = [c for c in heard.calls if c[0] == "summarized"]
+    assert len(summaries) == arms
+    for _, suite, (ended, measured) in summaries:  # the summary is in the record when heard
+        assert suite == "accuracy" and ended and measured > 0
+
+
+def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every suite's plots are drawn in the thread of its own, and the report written at the
+    end draws only the traffic plot (its capture is whole only then)."""
+    from armbench.cli.commands import run
+    from armbench.cli.main import main
+
+    ahead: list[tuple[str, str]] = []
+    draw = page.draw_ahead
+
+    def watched(record: RunRecord, suite: str) -> None:
+        ahead.append((threading.current_thread().name, suite))
+        draw(record, suite)
+
+    in_report: list[int] = []
+    write = run.write_reports
+
+    def counted(record: RunRecord, out_dir: Path, **options: Any) -> None:
+        before = svg_cache.misses()
+        write(record, out_dir, **options)
+        in_report.append(svg_cache.misses() - before)
+
+    monkeypatch.setattr(page, "draw_ahead", watched)
+    monkeypatch.setattr(run, "write_reports", counted)
+    svg_cache.clear()
+    status = main(["run", "accuracy", "joints", "--workers", "1", "--out", str(tmp_path / "run")])
+    assert status == 0 and (tmp_path / "run" / "report.html").exists()
+    assert ahead == [("armbench-report-ahead", "accuracy"), ("armbench-report-ahead", "joints")]
+    assert in_report == [1]
+
+
+@pytest.mark.parametrize("fixture", ["passing", "interrupted"])
+def test_a_page_is_the_same_whether_its_plots_were_drawn_ahead(fixture: str) -> None:
+    record = load_record(RECORDS / f"{fixture}.json")
+    svg_cache.clear()
+    cold = build_report_html(record)
+    drawn_cold = svg_cache.misses()
+    svg_cache.clear()
+    ahead = ReportAhead()
+    ahead.started()
+    for name in record.suites:
+        ahead.summarized(record, name)
+    ahead.finish()
+    ahead.summarized(record, next(iter(record.suites)))  # after finish: nothing more is drawn
+    before = svg_cache.misses()
+    assert before > drawn_cold  # the plots were drawn again, ahead
+    assert build_report_html(record) == cold
+    assert svg_cache.misses() == before
+
+
+def line(ys: list[float]) -> Figure:
+    """A plot function its name finds."""
+    fig = Figure(figsize=(2, 1))
+    fig.add_subplot().plot(ys)
+    return fig
+
+
+def test_the_same_inputs_are_drawn_once_and_other_ones_again() -> None:
+    svg_cache.clear()
+    figs = Figures()
+    start = svg_cache.misses()
+    first = figs.make(line, ([0.0, 1.0],), "a line", "caption")
+    again = figs.make(line, ([0.0, 1.0],), "a line", "caption")
+    assert svg_cache.misses() == start + 1
+    assert 'id="f1-' in first.svg and 'id="f2-' in again.svg and 'id="f1-' not in again.svg
+    assert str(again.svg) == str(first.svg).replace('"f1-', '"f2-').replace("#f1-", "#f2-")
+    other = figs.make(line, ([0.0, 1.5],), "a line", "caption")
+    relabelled = figs.make(line, ([0.0, 1.0],), "a line", "caption", "its slope 1")
+    assert svg_cache.misses() == start + 3
+    assert "its slope 1" in relabelled.svg and "its slope 1" not in first.svg
+    assert str(other.svg).replace('"f3-', '"f1-').replace("#f3-", "#f1-") != str(first.svg)
+
+
+def test_a_plot_its_name_does_not_find_is_drawn_every_time() -> None:
+    """Two closures share a qualified name: a name cannot tell their plots apart."""
+    def scaled(k: float) -> Any:
+        def plot(ys: list[float]) -> Figure:
+            return line([k * y for y in ys])
+        return plot
+
+    svg_cache.clear()
+    figs = Figures()
+    start = svg_cache.misses()
+    one = figs.make(scaled(1.0), ([0.0, 1.0],), "a line", "caption")
+    two = figs.make(scaled(2.0), ([0.0, 1.0],), "a line", "caption")
+    assert svg_cache.misses() == start + 2
+    assert str(two.svg).replace('"f2-', '"f1-').replace("#f2-", "#f1-") != str(one.svg)
+
+
+def test_at_most_so_many_plots_are_kept_the_oldest_used_going_first() -> None:
+    svg_cache.clear()
+    figs = Figures()
+    for k in range(svg_cache.MAX_DRAWN):
+        figs.make(line, ([0.0, float(k)],), "a line", "caption")
+    figs.make(line, ([0.0, 0.0],), "a line", "caption")  # used again: now the newest
+    start = svg_cache.misses()
+    figs.make(line, ([0.0, -1.0],), "a line", "caption")  # one more: plot 1 goes
+    figs.make(line, ([0.0, 0.0],), "a line", "caption")
+    assert svg_cache.misses() == start + 1
+    figs.make(line, ([0.0, 1.0],), "a line", "caption")
+    assert svg_cache.misses() == start + 2
