@@ -1,20 +1,26 @@
-"""What a run's caller does while the trials go on (``run_arms_sync(ahead=...)``, a ``RunAhead``):
-the run command imports the report's modules once the run is under way and draws each suite's
-plots once its summary is in the record, so that the report written when the run ends finds them
-drawn (``reports.render.svg_cache``) and is the same page as one drawn from nothing."""
+"""What goes on beside a run's trials: its caller's work (``run_arms_sync(ahead=...)``, a
+``RunAhead``): the run command imports the report's modules once the run is under way and draws
+each suite's plots once its summary is in the record, so that the report written when the run
+ends finds them drawn (``reports.render.svg_cache``) and is the same page as one drawn from
+nothing; and each suite's summary, computed off the run's loop so that the loop goes on sending
+the next suite's trials to the workers."""
 
 from __future__ import annotations
 
+import asyncio
 import threading
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
 from matplotlib.figure import Figure
+from test_runner import TinySuite
 
-from armbench.bench.runner import RunOptions, run_arms_sync
+from armbench.bench.runner import RunOptions, run_arms_sync, run_sync
+from armbench.bench.suites import SUITES, SuiteContext
 from armbench.cli.commands.run_files import ReportAhead
-from armbench.record import RunRecord, load_record
+from armbench.record import Measurement, RunRecord, Trial, load_record
 from armbench.reports.pages import page
 from armbench.reports.pages.page import build_report_html
 from armbench.reports.render import svg_cache
@@ -57,7 +63,7 @@ def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every suite's plots are drawn in the thread of its own, and the report written at the
     end draws only the traffic plot (its capture is whole only then)."""
-    from armbench.cli.commands import run
+    from armbench.cli.commands import run_files
     from armbench.cli.main import main
 
     ahead: list[tuple[str, str]] = []
@@ -68,7 +74,7 @@ def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
         draw(record, suite)
 
     in_report: list[int] = []
-    write = run.write_reports
+    write = run_files.write_reports
 
     def counted(record: RunRecord, out_dir: Path, **options: Any) -> None:
         before = svg_cache.misses()
@@ -76,7 +82,7 @@ def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
         in_report.append(svg_cache.misses() - before)
 
     monkeypatch.setattr(page, "draw_ahead", watched)
-    monkeypatch.setattr(run, "write_reports", counted)
+    monkeypatch.setattr("armbench.cli.commands.run.write_reports", counted)
     svg_cache.clear()
     status = main(["run", "accuracy", "joints", "--workers", "1", "--out", str(tmp_path / "run")])
     assert status == 0 and (tmp_path / "run" / "report.html").exists()
@@ -154,3 +160,40 @@ def test_at_most_so_many_plots_are_kept_the_oldest_used_going_first() -> None:
     assert svg_cache.misses() == start + 1
     figs.make(line, ([0.0, 1.0],), "a line", "caption")
     assert svg_cache.misses() == start + 2
+
+
+class BesideSuite(TinySuite):
+    """``beside``: its summary asks the run's loop to run a callback and waits for it, which only
+    a summary off the loop's thread can see done."""
+
+    name = "beside"
+    loop: ClassVar[asyncio.AbstractEventLoop | None] = None
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        BesideSuite.loop = asyncio.get_running_loop()
+        return await super().run_trial(ctx, index, trial_params)
+
+    def summarize(self, ctx: SuiteContext, trials: Sequence[Trial]) -> list[Measurement]:
+        ran = threading.Event()
+        assert BesideSuite.loop is not None
+        BesideSuite.loop.call_soon_threadsafe(ran.set)
+        if not ran.wait(30):
+            raise RuntimeError("the run's loop did not run during the summary")
+        return super().summarize(ctx, trials)
+
+
+@pytest.fixture
+def _beside_registered(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    monkeypatch.setitem(SUITES, "beside", f"{__name__}:BesideSuite")
+    yield
+
+
+@pytest.mark.usefixtures("_beside_registered")
+def test_a_summary_is_computed_while_the_loop_goes_on(tmp_path: Path) -> None:
+    outcome = run_sync(RunOptions(suites=["beside"], out=tmp_path / "run", workers=1),
+                       progress=None)
+    suite = outcome.record.suites["beside"]
+    assert suite.error is None, suite.error
+    assert "tiny.move_mean_s" in {m.name for m in suite.measurements}
+    assert load_record(tmp_path / "run" / "results.json").suites["beside"].measurements

@@ -435,7 +435,11 @@ class TrialRunner:
         self.progress.trial(ps.name, index + 1, len(ps.trials), status, wall_s, retry=retry)
 
     async def summarize(self, ps: PlannedSuite) -> None:
-        """``Suite.summarize`` over the suite's completed trials, and the suite's end."""
+        """``Suite.summarize`` over the suite's completed trials, and the suite's end in the
+        record. Both run in a thread of its own, so that the loop goes on sending the next
+        suite's trials to the workers meanwhile (the summary and the record's write of a suite
+        of many trials take a large part of a second); the loop waits for the thread, a
+        cancellation too, so that nothing else writes the record meanwhile."""
         writer = self.writer
         arm = self.attempts.last_arm
         if arm is None:
@@ -444,13 +448,25 @@ class TrialRunner:
             arm = Arm(self.plan.port, self.plan.settings)  # never opened: summaries don't move
         ctx = self.attempts.context(ps, arm, None, derive_seed(self.plan.seed, ps.name,
                                                                "summary"))
+        trials = writer.completed_trials(ps.name)
+
+        def work() -> str | None:
+            try:
+                self.end_suite(ps.name, ps.suite.summarize(ctx, trials))
+            except Exception as exc:
+                log.debug("summary of %s failed", ps.name, exc_info=True)
+                self.end_suite(ps.name, error=f"summary: {describe(exc)}")
+                return describe(exc)
+            return None
+
+        done = asyncio.get_running_loop().run_in_executor(None, work)
         try:
-            measurements = ps.suite.summarize(ctx, writer.completed_trials(ps.name))
-            self.end_suite(ps.name, measurements)
-        except Exception as exc:
-            log.debug("summary of %s failed", ps.name, exc_info=True)
-            self.end_suite(ps.name, error=f"summary: {describe(exc)}")
-            self.progress.message(f"[{ps.name}] summary failed: {describe(exc)}")
+            error = await asyncio.shield(done)
+        except asyncio.CancelledError:
+            await asyncio.wait([done])
+            raise
+        if error is not None:
+            self.progress.message(f"[{ps.name}] summary failed: {error}")
             return
         suite = writer.suite(ps.name)
         every = [*(m for t in suite.trials for m in t.measurements), *suite.measurements]
