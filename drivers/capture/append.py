@@ -35,7 +35,7 @@ __all__ = ["ZSTD_MEDIA_TYPE", "append_attachment", "zstd_attachment"]
 #: Media type of a file attached zstd-compressed (``<name>.zst``).
 ZSTD_MEDIA_TYPE = "application/zstd"
 #: zstd level of the run's attached files (text: JSON and HTML, written once at the end): zstd's
-#: default, several times faster than level 9 on a long run's record for somewhat more bytes.
+#: default, much faster than level 9 on a long run's record for somewhat more bytes.
 _ZSTD_LEVEL = 3
 
 _MAGIC = b"\x89MCAP0\r\n"
