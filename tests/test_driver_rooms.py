@@ -1,12 +1,13 @@
 """The driver's rooms on their own: the sans-I/O reply stream fed plain bytes, target validation
-with its one limit slack, and the arrival tracker that moves and paths share."""
+with its one limit slack, the waiters that each new state is offered to, and the arrival tracker
+that moves and paths share."""
 
 from __future__ import annotations
 
 import asyncio
 import itertools
 import math
-from collections.abc import Awaitable
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import TypeVar
 
@@ -28,6 +29,7 @@ from armbench.drivers.host.move_targets import (
 )
 from armbench.drivers.host.replies import ReplyStream
 from armbench.drivers.host.state import JointState
+from armbench.drivers.host.waiters import Waiters, never
 from armbench.drivers.model.errors import JointRangeError
 from armbench.drivers.model.protocol import MAX_TICKS, REPLY_LEN, Command, Reply, encode_reply
 from armbench.drivers.model.settings import RobotSettings
@@ -264,3 +266,71 @@ probability = 1.0
             assert math.dist(arm.state.tcp_m(arm.settings), b) < 1e-3
 
     run_virtual(body())
+
+
+# --- the waiters ---------------------------------------------------------------------------------
+
+
+def _state(k: int, q1: float) -> JointState:
+    return JointState(0.01 * k, (q1, 0.0, 0.0, 0.0), Reply(0, 0, 0, 0), k)
+
+
+def _past(mark: float) -> Callable[[JointState], bool]:
+    return lambda state: state.q_rad[0] >= mark
+
+
+@settings(max_examples=60, deadline=None)
+@given(marks=st.lists(st.floats(-2.0, 2.0), min_size=1, max_size=5),
+       q1s=st.lists(st.floats(-2.0, 2.0), max_size=10))
+def test_each_waiter_gets_the_first_state_past_its_mark(marks: list[float],
+                                                       q1s: list[float]) -> None:
+    """Offered states in turn, each waiter is resolved with the first that satisfies it, and
+    only the unresolved ones stay; a deadline never reached resolves nothing."""
+
+    async def session() -> None:
+        waiters = Waiters()
+        added = [waiters.add(_past(m), math.inf) for m in marks]
+        states = [_state(k, q) for k, q in enumerate(q1s)]
+        for state in states:
+            waiters.offer(state)
+        for mark, w in zip(marks, added, strict=True):
+            first = next((s for s in states if s.q_rad[0] >= mark), None)
+            assert w.future.done() == (first is not None)
+            if first is not None:
+                assert w.future.result() is first
+        assert bool(waiters) == any(not w.future.done() for w in added)
+        waiters.close()
+        assert all(w.future.done() for w in added) and not waiters
+
+    run_virtual(session())
+
+
+def test_a_waiter_wakes_at_its_deadline_and_one_alarm_serves_them_all() -> None:
+    async def session() -> None:
+        loop = asyncio.get_running_loop()
+        waiters = Waiters()
+        t0 = loop.time()
+        late, early = waiters.add(never, t0 + 2.0), waiters.add(never, t0 + 1.0)
+        assert await early.future is None and loop.time() == pytest.approx(t0 + 1.0)
+        assert not late.future.done() and not early.woken
+        assert await late.future is None and loop.time() == pytest.approx(t0 + 2.0)
+        assert not waiters
+
+    run_virtual(session())
+
+
+def test_a_predicate_that_raises_fails_its_own_waiter_only() -> None:
+    async def session() -> None:
+        waiters = Waiters()
+
+        def broken(state: JointState) -> bool:
+            raise ValueError(f"cannot judge state {state.seq}")
+
+        bad, good = waiters.add(broken, math.inf), waiters.add(lambda s: True, math.inf)
+        waiters.offer(_state(3, 0.0))
+        with pytest.raises(ValueError, match="cannot judge state 3"):
+            bad.future.result()
+        hit = good.future.result()
+        assert hit is not None and hit.seq == 3 and not waiters
+
+    run_virtual(session())
