@@ -37,7 +37,7 @@ PLACEHOLDER = "f0"
 _drawn: collections.OrderedDict[bytes, str] = collections.OrderedDict()
 _lock = threading.Lock()
 _misses = [0]
-_PREFIXED = re.compile(rf'(id="|href="#|url\(#){PLACEHOLDER}-')
+_PREFIXED = re.compile(r'(id="|href="#|url\(#)f\d+-')
 
 
 def _named(plot: Callable[..., Figure]) -> bool:
@@ -88,7 +88,8 @@ def drawn(plot: Callable[..., Figure], args: tuple[object, ...], label: str, *,
 
 
 def renamed(svg: str, number: int) -> str:
-    """``svg`` (a kept one) with its ids prefixed for plot ``number`` of a page."""
+    """``svg`` (a kept one, or a plot already on a page) with its ids prefixed for plot
+    ``number`` of a page."""
     return _PREFIXED.sub(rf"\g<1>f{number}-", svg)
 
 

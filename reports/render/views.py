@@ -7,7 +7,6 @@ import contextlib
 import gc
 import json
 import math
-import re
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -201,7 +200,7 @@ class Figures:
     def copy(self, figure: FigureView) -> FigureView:
         """The same plot once more on the page (the lead plot), its ids renamed."""
         self.count += 1
-        svg = re.sub(r'(id="|href="#|url\(#)f\d+-', rf"\g<1>f{self.count}-", str(figure.svg))
+        svg = svg_cache.renamed(str(figure.svg), self.count)
         return FigureView(Markup(svg), figure.caption, figure.title)
 
 
