@@ -20,13 +20,13 @@ the blocks is taken, unless one with fewer parameters (the prior has none) is wi
 of it: ties keep the simpler model or the prior. A candidate that explains one block (its RMS
 within twin-check's allowance of the floor, or three quarters of the prior's mean square taken
 away) and not another, or that is ahead of the arm along the motion on one block and behind it
-on another (each beyond that block's floor), says the arm's behaviour moved during the session
-(its drives warming up): a constant fitted to the session predicts neither, and the prior is
-kept. Then what the fit changes on every joint at once is judged the same way, the speed models
-as chosen: the stop rule (a structure) kept only if some joint gets better with it and none
-worse, beyond the noise; the Hall positions (measured against the motor-side truth) unless a
-joint gets worse. Without a held-out block (a budget too small for one) every speed
-model keeps the prior, and says so.
+on another (each beyond that block's floor where the joint moves: the timing's share of it),
+says the arm's behaviour moved during the session (its drives warming up): a constant fitted to
+the session predicts neither, and the prior is kept. Then what the fit changes on every joint
+at once is judged the same way, the speed models as chosen: the stop rule (a structure) kept
+only if some joint gets better with it and none worse, beyond the noise; the Hall positions
+(measured against the motor-side truth) unless a joint gets worse. Without a held-out block (a
+budget too small for one) every speed model keeps the prior, and says so.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.twin.physics import DEFAULT_ARM
 
 __all__ = ["LEAD_S", "SIGMAS", "Block", "JointChoice", "Replayed", "blocks_of", "choose",
-           "decide", "score"]
+           "decide", "score", "worse"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -90,13 +90,15 @@ def blocks_of(capture: CaptureData, windows: Sequence[HeldOut]) -> list[Block]:
 class Replayed:
     """A twin on one held-out block: at each compared reply (its time, s) arm minus twin
     (``(n, 4)``, counts), the command in force (its index) and the way the twin's joint moves
-    there (``(n, 4)``: ±1, 0 at rest), and per joint the floor (counts)."""
+    there (``(n, 4)``: ±1, 0 at rest), and per joint the floor (counts) over all the replies
+    and over those where the joint moves (where the timing's share of it is)."""
 
     t_s: FloatArray
     diff_counts: FloatArray
     window: npt.NDArray[np.int64]
     floor: FloatArray
     way: FloatArray
+    moving_floor: FloatArray
 
     @property
     def rms(self) -> FloatArray:
@@ -135,8 +137,9 @@ def score(settings: RobotSettings, blocks: Sequence[Block], hall_counters: bool)
         times = np.asarray(d.times)
         window = np.searchsorted(times, d.t_s, side="right").astype(np.int64)
         way = np.sign(d.speed_rad_s) * (np.abs(d.speed_rad_s) > MOVING_RAD_S)
+        moving = np.asarray([d.floor_rad(rows=way[:, j] != 0)[j] for j in range(4)])
         out.append(Replayed(d.t_s, d.diff_rad * d.counts_per_rad, window,
-                            d.floor_rad() * d.counts_per_rad, way))
+                            d.floor_rad() * d.counts_per_rad, way, moving * d.counts_per_rad))
     return out
 
 
@@ -157,7 +160,7 @@ def _excess(a: Replayed, b: Replayed, j: int) -> tuple[float, float, float]:
 SIGMAS: Final = 2.0
 
 
-def _worse(a: Scores, b: Scores, j: int) -> bool:
+def worse(a: Scores, b: Scores, j: int) -> bool:
     """Whether ``a`` diverges more than ``b`` on joint ``j`` on some block beyond the noise:
     by more than that block's floor (squared) and :data:`SIGMAS` standard errors of the moves'
     scatter (a twin whose residual error is large moves it by more than the timing does from
@@ -205,8 +208,9 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
     """Whether the arm's joint ``j`` behaved otherwise on one block than on another, as a twin
     fitted to the session shows it: it explains one block and not another (:data:`EXPLAINS`),
     or it is ahead of the arm along the motion on one and behind on another, each by more than
-    that block's floor (a twin off by a constant share is off the same way on both). What it
-    shows, or None."""
+    that block's floor where the joint moves (a twin off by a constant share is off the same
+    way on both; a perfect one is off either way by the timing there). What it shows, or
+    None."""
     explained = [r.rms[j] <= 3.0 * r.floor[j] + 2.0 or r.rms[j] ** 2 <= (1 - EXPLAINS) * p.rms[j]
                  ** 2 for r, p in zip(score, prior, strict=True)]
     if any(explained) and not all(explained):
@@ -214,7 +218,7 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
         return (f"explains the {blocks[a]} block (RMS {score[a].rms[j]:.3g} counts against the "
                 f"prior's {prior[a].rms[j]:.3g}) and not the {blocks[b]} block "
                 f"({score[b].rms[j]:.3g} against {prior[b].rms[j]:.3g})")
-    leads = [(r.lead(j), float(r.floor[j])) for r in score]
+    leads = [(r.lead(j), float(r.moving_floor[j])) for r in score]
     ahead = [lead for lead, floor in leads if lead > floor]
     behind = [lead for lead, floor in leads if lead < -floor]
     if not ahead or not behind:
@@ -231,7 +235,7 @@ def decide(j: int, names: Sequence[str], sizes: Sequence[int], scores: Sequence[
     prior = scores[0]
     total = [float(sum(np.mean(r.diff_counts[:, j] ** 2) for r in s if len(r.t_s)))
              for s in scores]
-    fair = [k for k in range(len(scores)) if k == 0 or not _worse(scores[k], prior, j)]
+    fair = [k for k in range(len(scores)) if k == 0 or not worse(scores[k], prior, j)]
     best = min(fair, key=lambda k: total[k])
     tied = [k for k in fair if k == best or not _better(scores[best], scores[k], j)]
     chosen = min(tied, key=lambda k: (k != 0, sizes[k], total[k]))
@@ -335,12 +339,12 @@ def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], h
     without = [f for f in fitted if f not in shared]
     mine = score(apply_fit(base, fitted), blocks, hall)
     other = score(apply_fit(base, without), blocks, hall)
-    worse = [j + 1 for j in range(4) if _worse(mine, other, j)]
+    lost = [j + 1 for j in range(4) if worse(mine, other, j)]
     better = not need_better or any(_better(mine, other, j) for j in range(4))
-    if not worse and better:
+    if not lost and better:
         return fitted
     why = ("held out: the twin with it diverges more than without it on joint "
-           f"{', '.join(map(str, worse))} beyond the noise: the prior kept" if worse else
+           f"{', '.join(map(str, lost))} beyond the noise: the prior kept" if lost else
            "held out: the twin with it predicts no joint better than without it beyond the "
            "noise: the prior kept")
     return [replace(f, identified=False, reason=f"{why} (fitted: {f.reason})")
