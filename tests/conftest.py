@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from build_flavour import concerns_the_build_flavour
+from foreign_arms.sessions import Session, calibrate_all
 
 import armbench.cli.main
 
@@ -164,6 +165,13 @@ def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     xdg = session_dir(tmp_path_factory) / "xdg-cache"
     support = ensure_messages(root=xdg / "armbench" / CACHE_FOLDER)
     return {"xdg": str(xdg), "built_s": support.built_s, "prefix": support.prefix}
+
+
+@pytest.fixture(scope="session")
+def calibrated_sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Session]:
+    """The foreign arms calibrated and run once more, all at once, once per test session
+    (``foreign_arms/sessions.py``; its tests share the xdist group ``CALIBRATED_ARMS``)."""
+    return calibrate_all(tmp_path_factory)
 
 
 def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

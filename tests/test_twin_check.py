@@ -12,6 +12,7 @@ import subprocess
 import sys
 import tomllib
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -284,6 +285,23 @@ def _foreign_capture(folder: Path, name: str, *args: str, full: bool = True
     return capture, [(row[0], row[1:4]) for row in truth]
 
 
+Truth = list[tuple[float, list[float]]]
+
+
+def _foreign_captures(folder: Path, arms: Sequence[tuple[str, tuple[str, ...]]]
+                      ) -> list[tuple[Path, Truth]]:
+    """Real-time captures of the full lap of several foreign arms, taken at once (each lap on
+    a thread and an event loop of its own: the laps wait on their arms), in order."""
+    with contextlib.ExitStack() as up, ThreadPoolExecutor(len(arms)) as pool:
+        running = [up.enter_context(foreign_arm(name, *args)) for name, args in arms]
+        paths = [folder / f"{k}-{name}.jsonl" for k, (name, _) in enumerate(arms)]
+        laps = [pool.submit(asyncio.run, capture_lap(arm.url, path, full=True,
+                                                     tracker=arm.tracker))
+                for arm, path in zip(running, paths, strict=True)]
+        return [(path, [(row[0], row[1:4]) for row in lap.result()])
+                for path, lap in zip(paths, laps, strict=True)]
+
+
 def _check(capture: Path, settings: RobotSettings,
            arm_tcp: list[tuple[float, list[float]]] | None = None) -> TwinCheck:
     result = twin_check(load_capture(capture, settings), settings, arm_tcp=arm_tcp or None)
@@ -381,7 +399,8 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     passes, known-wrong models fail (a gear ratio 4 % off, a missing or wrong step-loss law, a
     duty loss a fifth too small, play 4 times too large or link lengths off, judged on the
     tracker's TCP), on the whole capture and on every part of it. No false pass, no
-    false fail. Figures for docs/calibration.md (printed with -s)."""
+    false fail. The arms' laps are captured at once. Figures for docs/calibration.md (printed
+    with -s)."""
     cases: list[tuple[str, tuple[str, ...], list[tuple[str, RobotSettings, str]], bool]] = [
         ("jitter", (), [("right", _twin((50, 50, JITTER_GEAR, 28)), "pass"),
                         ("j3 gear -4 %", _twin((50, 50, JITTER_GEAR * 0.96, 28)), "fail"),
@@ -415,10 +434,8 @@ def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     else:
         print(SHARED_MISSING)
     wrong: list[str] = []
-    for k, (name, args, twins, tracked) in enumerate(cases):
-        folder = tmp_path / str(k)
-        folder.mkdir()
-        capture, truth = _foreign_capture(folder, name, *args)
+    captures = _foreign_captures(tmp_path, [(name, args) for name, args, _, _ in cases])
+    for (name, args, twins, tracked), (capture, truth) in zip(cases, captures, strict=True):
         for label, settings, expected in twins:
             result = _check(capture, settings, truth if tracked else None)
             print(f"  {name} {' '.join(args)} / {label}: {result.verdict} (expected {expected})")

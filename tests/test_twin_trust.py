@@ -2,8 +2,8 @@
 from armbench, ``tests/foreign_arms/`` and the shared ``foreign_arm.py``) served in real time
 over TCP: each calibrated once (``armbench calibrate --port``, no reference instrument), then a
 held-out accuracy run of the same arm, twin-checked with the default and the calibrated twin.
-The arms are calibrated and run all at once, each by processes of its own: they wait on their
-arms in real time.
+The arms are calibrated and run all at once, once per test session
+(``tests/foreign_arms/sessions.py``).
 
 * never worse, joint by joint: the calibrated twin's RMS divergence on the held-out run at most
   1.1 × the default twin's or 1.5 × the capture's floor;
@@ -27,17 +27,16 @@ import asyncio
 import contextlib
 import json
 import math
-import subprocess
-import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
+from foreign_arms.serve import SHARED_MISSING, foreign_arm
+from foreign_arms.sessions import ARMS, CALIBRATED_ARMS, Session
 from foreign_arms.tracker_client import TrackerStream
 from test_calibrate_reference import ScriptedOperator
 from test_twin_check import _lap
@@ -45,6 +44,7 @@ from test_twin_check import _lap
 from armbench.bench.calibrate.calibration import calibrate_port, calibrate_reference
 from armbench.bench.calibrate.capture_data import load_capture
 from armbench.bench.calibrate.model import ReferencePose
+from armbench.bench.calibrate.output import CalibrationResult
 from armbench.bench.calibrate.procedure import HOLD_POSES_RAD
 from armbench.bench.twin_check.check import TwinCheck, twin_check
 from armbench.drivers.host.arm import Arm
@@ -53,27 +53,6 @@ from armbench.fakes.clock.vclock import run_virtual
 from armbench.fakes.twin.physics import DEFAULT_ARM
 
 pytestmark = pytest.mark.slow
-#: The tests of the calibrated arms run on one pytest-xdist worker: it calibrates them all at
-#: once (:func:`sessions`), which another worker would do again.
-CALIBRATED_ARMS = pytest.mark.xdist_group("twin-trust-calibrated")
-
-ROOT = Path(__file__).resolve().parents[1]
-#: Each arm: its script, its hidden behaviour, the calibration's budget (s). The threshold arm
-#: at the issue's 120 s (timed); the others at 90 s (at 60 s the held-out blocks hold two
-#: corners and no streamed edge: most joints keep the prior, which the check allows but which
-#: shows little).
-ARMS: dict[str, tuple[str, tuple[str, ...], float]] = {
-    "stall": ("stall", (), 90.0),
-    "jitter": ("jitter", (), 90.0),
-    "tracker": ("tracker", ("--play-deg", "0.5,0.5,1.0,0.5", "--offset-deg", "0.3,-0.4,0.4,0",
-                            "--a2-error-mm", "4", "--a3-error-mm", "-4"), 90.0),
-    "threshold": ("threshold", (), 120.0),
-    "shared": ("shared", ("--physics",), 90.0),
-    "drift": ("threshold", ("--drift-per-min", "1.5"), 90.0),
-}
-#: A loaded machine may starve the arm's process for seconds: not the arm's doing.
-PATIENT = ('spec_version = "armbench-limits/1"\n\n[bench]\nreply_timeout_s = 5.0\n'
-           "connect_timeout_s = 30.0\nmove_timeout_scale = 10.0\n\n[suites.accuracy]\nlaps = 1\n")
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,65 +66,20 @@ class Calibrated:
     calibrated: TwinCheck
 
 
-def _armbench(*args: str, timeout_s: float = 900.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armbench", *args], cwd=ROOT,
-                          capture_output=True, text=True, timeout=timeout_s, check=False)
-
-
 def _show(label: str, r: TwinCheck) -> str:
     worst = [round(max((p.per_allowed(j) for p in r.parts), default=0.0), 2) for j in range(4)]
     return (f"{label}: {r.verdict} rms {[round(v, 1) for v in r.rms_counts]} floor "
             f"{[round(v, 1) for v in r.floor_counts]} worst part {worst}")
 
 
-def _session(name: str, url: str, folder: Path) -> tuple[float, Path]:
-    """Calibrate the arm at ``url`` into ``folder`` (timed, wall clock), then its held-out
-    accuracy run: the calibration's wall time and the run's capture."""
-    _, _, budget = ARMS[name]
-    (folder / "patient.toml").write_text(PATIENT)
-    t0 = time.monotonic()
-    done = _armbench("calibrate", "--port", url, "--budget-s", f"{budget:g}",
-                     "--reply-timeout", "5", "--out", str(folder / "fit"))
-    wall_s = time.monotonic() - t0
-    assert done.returncode == 0, done.stderr[-3000:]
-    held = _armbench("run", "accuracy", "--port", url, "--config", str(folder / "patient.toml"),
-                     "--workers", "1", "--out", str(folder / "held"))
-    capture = folder / "held" / "capture.mcap"
-    # 4: the run ended in error (the stall arm stalls lifting at a corner at full duty and the
-    # move times out, as it is built to): its capture holds what the arm did
-    assert held.returncode in (0, 1, 4) and capture.exists(), (held.stdout[-2000:]
-                                                               + held.stderr[-2000:])
-    return wall_s, capture
-
-
-Session = tuple[Path, float, Path] | BaseException
-
-
-@pytest.fixture(scope="module")
-def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Session]:
-    """Every arm calibrated and run at once, each its own processes against its own arm: they
-    wait on their arms in real time, so together they take about as long as the longest. Per
-    arm: its folder, the calibration's wall time and the held-out run's capture, or what went
-    wrong (its tests fail with it; the others go on)."""
-    names = [n for n in ARMS if ARMS[n][0] != "shared" or shared_arm_script() is not None]
-    folders = {n: tmp_path_factory.mktemp(n) for n in names}
-    with contextlib.ExitStack() as arms_up, ThreadPoolExecutor(len(names)) as pool:
-        arms = {n: arms_up.enter_context(foreign_arm(ARMS[n][0], *ARMS[n][1])) for n in names}
-        futures = {n: pool.submit(_session, n, arms[n].url, folders[n]) for n in names}
-        out: dict[str, Session] = {}
-        for n, f in futures.items():
-            error = f.exception()
-            out[n] = error if error is not None else (folders[n], *f.result())
-        return out
-
-
 @pytest.fixture(scope="module", params=list(ARMS))
-def calibrated(request: pytest.FixtureRequest, sessions: dict[str, Session]) -> Calibrated:
+def calibrated(request: pytest.FixtureRequest,
+               calibrated_sessions: dict[str, Session]) -> Calibrated:
     """The arm ``request.param`` calibrated (timed, wall clock) and its held-out run checked."""
     name = request.param
-    if name not in sessions:
+    if name not in calibrated_sessions:
         pytest.skip(SHARED_MISSING)
-    outcome = sessions[name]
+    outcome = calibrated_sessions[name]
     if isinstance(outcome, BaseException):
         raise outcome
     folder, wall_s, capture = outcome
@@ -263,14 +197,57 @@ async def _measure(url: str, tracker: tuple[str, int], rng: np.random.Generator
     return out
 
 
+async def _touch_off(url: str, tracker: tuple[str, int], out: Path) -> CalibrationResult:
+    """``calibrate --touch-off`` of the tracker arm at ``url`` on the fixture of
+    ``test_calibrate_reference`` (its points drawn from a seeded generator) by its scripted
+    operator, whose eyes are the arm's tracker (see the module doc); the outputs in ``out``."""
+    from test_calibrate_reference import _plate
+
+    plate, real = _plate(np.random.default_rng(13))
+    async with TrackerStream(*tracker) as stream:
+        # the operator's eyes: the newest line of the tracker (each jog rests 0.3 s: the
+        # tracker's 100 lines a second have seen it by then)
+        eyes = ScriptedOperator(lambda: stream.samples[-1][1:4], real, plate)
+        return await calibrate_port(url, WEIGHTLESS, out / "robot.toml", budget_s=12.0,
+                                    reply_timeout_s=5.0, touch=(plate, eyes))
+
+
+@pytest.fixture(scope="module")
+def tracker_sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The tracker arms' real-time sessions, all at once (each on a thread and an event loop
+    of its own against an arm of its own: they wait on their arms): the twelve reference poses
+    measured on each configuration (by its id), and the touch-off of configuration A
+    (``touch``). An entry is what its session gave, or what went wrong."""
+    folder = tmp_path_factory.mktemp("touch-off")
+    ids = ["A", "B", "C"]
+    with contextlib.ExitStack() as up, ThreadPoolExecutor(len(ids) + 1) as pool:
+        arms = [up.enter_context(foreign_arm("tracker", *_tracker_args(c)))
+                for c in (*TRACKER_CONFIGS, TRACKER_CONFIGS[0])]
+        trackers = [arm.tracker for arm in arms]
+        assert all(trackers), trackers
+        jobs: dict[str, Future[Any]] = {
+            i: pool.submit(asyncio.run, _measure(arm.url, tracker, np.random.default_rng(5)))
+            for i, arm, tracker in zip(ids, arms, trackers, strict=False) if tracker}
+        touch, tracker = arms[-1], trackers[-1]
+        assert tracker is not None
+        jobs["touch"] = pool.submit(asyncio.run, _touch_off(touch.url, tracker, folder))
+        return {k: job.exception() or job.result() for k, job in jobs.items()}
+
+
+def _outcome(sessions: dict[str, Any], key: str) -> Any:
+    """The session's result; what went wrong in it raised."""
+    if isinstance(sessions[key], BaseException):
+        raise sessions[key]
+    return sessions[key]
+
+
 @pytest.mark.parametrize("config", TRACKER_CONFIGS, ids=["A", "B", "C"])
-def test_twelve_reference_poses_on_a_tracker_arm(config: tuple[Any, ...], tmp_path: Path) -> None:
+def test_twelve_reference_poses_on_a_tracker_arm(config: tuple[Any, ...], tmp_path: Path,
+                                                 tracker_sessions: dict[str, Any]) -> None:
     """Offsets within 0.05° (as the twin puts the link: the fitted offset plus the prior's
     Hall error) and the lengths a2, a3 within 0.3 mm (d1, d2 of 0 too)."""
     _, offset, a2, a3 = config
-    with foreign_arm("tracker", *_tracker_args(config)) as arm:
-        assert arm.tracker is not None
-        poses = asyncio.run(_measure(arm.url, arm.tracker, np.random.default_rng(5)))
+    poses = _outcome(tracker_sessions, "ABC"[TRACKER_CONFIGS.index(config)])
     result = calibrate_reference("tracker", poses, WEIGHTLESS, tmp_path / "robot.toml")
     fitted = {f.key: f for f in result.fitted}
     lengths = {"d1_m": 0.0, "d2_m": 0.0, "a2_m": a2 * 1e-3, "a3_m": a3 * 1e-3}
@@ -286,7 +263,7 @@ def test_twelve_reference_poses_on_a_tracker_arm(config: tuple[Any, ...], tmp_pa
         assert f.identified and abs(f.value + hall - offset[j]) <= 0.05, (j + 1, f.value)
 
 
-def test_touch_off_on_a_tracker_arm(tmp_path: Path) -> None:
+def test_touch_off_on_a_tracker_arm(tracker_sessions: dict[str, Any]) -> None:
     """The tracker arm of configuration A touched off on the fixture of
     ``test_calibrate_reference`` by its scripted operator, whose eyes here are the arm's tracker
     (see the module doc): every length and offset identified, the arm's within three standard
@@ -295,23 +272,8 @@ def test_touch_off_on_a_tracker_arm(tmp_path: Path) -> None:
     its offset, fitted with it, is said to be: there the link's position on that flank
     (the offset less half the play times the way its jogs went) is what the touches measure,
     and is checked."""
-    from test_calibrate_reference import _plate
-
-    rng = np.random.default_rng(13)
-    plate, real = _plate(rng)
     _, offset, a2, a3 = TRACKER_CONFIGS[0]
-
-    async def session(url: str, tracker: tuple[str, int]) -> Any:
-        async with TrackerStream(*tracker) as stream:
-            # the operator's eyes: the newest line of the tracker (each jog rests 0.3 s: the
-            # tracker's 100 lines a second have seen it by then)
-            eyes = ScriptedOperator(lambda: stream.samples[-1][1:4], real, plate)
-            return await calibrate_port(url, WEIGHTLESS, tmp_path / "robot.toml", budget_s=12.0,
-                                        reply_timeout_s=5.0, touch=(plate, eyes))
-
-    with foreign_arm("tracker", *_tracker_args(TRACKER_CONFIGS[0])) as arm:
-        assert arm.tracker is not None
-        result = asyncio.run(session(arm.url, arm.tracker))
+    result: CalibrationResult = _outcome(tracker_sessions, "touch")
     fitted = {f.key: f for f in result.fitted}
     refs = result.observations.references
     print(f"\ntouch-off: {len(refs)} points; " + ", ".join(
