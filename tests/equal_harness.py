@@ -332,9 +332,92 @@ def _emulator(emulator: object, q_rad: list[float], duty: int) -> object:
     return run_virtual(session())
 
 
+def _replies(name: str, *args: Any) -> object:
+    """A link's reply stream fed ``chunks`` (each by :meth:`one` first, as the link does, or by
+    :meth:`receive`): every state, batch and counter."""
+    from armbench.drivers.host.replies import ReplyStream
+
+    if name != "stream":
+        raise ValueError(f"no replies call {name!r}")
+    lower, upper, seq0, chunks = args
+    stream = ReplyStream(lower, upper, seq0)
+    out: list[object] = []
+    for k, (chunk, every, restart) in enumerate(chunks):
+        if restart:
+            stream.restart()
+        t_s = 0.01 * k
+        one = None if every else stream.one(chunk, t_s)
+        if one is not None:
+            out.append(("one", tuple(one)))
+        else:
+            batch = stream.receive(chunk, t_s, every=every)
+            out.append(("batch", batch.events, [tuple(s) for s in batch.states],
+                        None if batch.state is None else tuple(batch.state), batch.single))
+        out.append((stream.seq, stream.synced, stream.frames_received, stream.frames_dropped,
+                    stream.discarded_bytes))
+    return out
+
+
+def _waiters(name: str, *args: Any) -> object:
+    """Waiters for the joint-1 angle to pass each of ``marks`` (deadlines at loop times
+    ``wakes``), offered ``q1s`` one state each: which resolved, with what, and when."""
+    from armbench.drivers.host.state import JointState
+    from armbench.drivers.host.waiters import Waiters
+    from armbench.drivers.model.protocol import Reply
+    from armbench.fakes.clock.vclock import run_virtual
+
+    if name != "offer":
+        raise ValueError(f"no waiters call {name!r}")
+    marks, wakes, q1s = args
+
+    async def session() -> object:
+        def past(mark: float) -> Callable[[JointState], bool]:
+            return lambda state: state.q_rad[0] >= mark
+
+        def seq(state: JointState | None) -> int | None:
+            return None if state is None else state.seq
+
+        waiters = Waiters()
+        added = [waiters.add(past(m), w) for m, w in zip(marks, wakes, strict=True)]
+        out: list[object] = []
+        for k, q1 in enumerate(q1s):
+            await asyncio.sleep(0.01)
+            waiters.offer(JointState(0.01 * k, (q1, 0.0, 0.0, 0.0), Reply(0, 0, 0, 0), k))
+            out.append([(w.future.done(), w.woken,
+                         seq(w.future.result()) if w.future.done() else None) for w in added])
+            out.append(bool(waiters))
+        waiters.close()
+        out.append([(w.woken, w.future.done()) for w in added])
+        return out
+
+    return run_virtual(session())
+
+
+def _arrival(name: str, *args: Any) -> object:
+    """An arrival tracker on a link never opened, aimed at a command (``ahead_s`` its
+    look-ahead), offered states of ``qs``: arrived or not, and its progress bookkeeping."""
+    from armbench.drivers.host.arrival import ArrivalTracker
+    from armbench.drivers.host.link import ArmLink
+    from armbench.drivers.host.state import JointState
+    from armbench.drivers.model.protocol import Command, Reply
+
+    if name != "reached":
+        raise ValueError(f"no arrival call {name!r}")
+    tol, goal, duties, ahead_s, qs = args
+    tracker = ArrivalTracker(ArmLink("fake://"), tol, 100.0, 10.0, 0, 0.0)
+    tracker.aim(Command((0, 0, 0, 0), duties), goal, 0.0, ahead_s)
+    out: list[object] = []
+    for k, q in enumerate(qs):
+        out.append(tracker.reached(JointState(0.01 * k, q, Reply(0, 0, 0, 0), k)))
+        out.append((tracker._best, tracker._last_progress))
+    return out
+
+
 CALLS: dict[str, Callable[..., object]] = {"protocol": _protocol, "physics": _physics,
                                            "stepper": _stepper, "joint": _joint, "i2c": _i2c,
-                                           "uart": _uart, "boards": _boards}
+                                           "uart": _uart, "boards": _boards,
+                                           "replies": _replies, "waiters": _waiters,
+                                           "arrival": _arrival}
 
 
 def answer(line: str) -> str:

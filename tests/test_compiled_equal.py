@@ -465,3 +465,39 @@ def test_emulators_built_from_any_valid_table_reply_alike(call: Call, emulator: 
     """The whole emulator from a valid ``[emulator]`` table (numbers of any type): the boards read
     their settings in compiled code."""
     call("boards", "emulator", emulator, q, duty)
+
+
+@EXAMPLES
+@given(lower=four(LIMITS), upper=four(LIMITS), seq0=st.one_of(st.integers(0, 10), ODD),
+       chunks=streams(), every=st.lists(st.booleans(), min_size=7, max_size=7),
+       restart=st.integers(0, 8))
+def test_reply_streams_give_the_same_states(call: Call, lower: object, upper: object,
+                                            seq0: object, chunks: list[bytes],
+                                            every: list[bool], restart: int) -> None:
+    """The driver's reply stream (``drivers.host.replies``) over any byte stream, by single
+    replies and batches (``every``: a state per reply), with a reconnection somewhere."""
+    fed = [(c, every[k % 7], k == restart) for k, c in enumerate(chunks)]
+    call("replies", "stream", lower, upper, seq0, fed)
+
+
+@EXAMPLES
+@given(waits=st.lists(st.tuples(st.floats(-2.0, 2.0), st.one_of(
+           st.floats(0.0, 0.2), st.just(math.inf))), max_size=4),
+       q1s=st.lists(st.one_of(st.floats(-2.0, 2.0), st.integers(-2, 2)), max_size=12))
+def test_waiters_resolve_alike(call: Call, waits: list[tuple[float, float]],
+                               q1s: list[object]) -> None:
+    """The driver's waiters (``drivers.host.waiters``): resolved by a state, by their deadline
+    or by closing, in the same order."""
+    call("waiters", "offer", [m for m, _ in waits], [w for _, w in waits], q1s)
+
+
+@EXAMPLES
+@given(tol=plain_four(st.one_of(st.floats(0.0, 0.05), st.integers(0, 1))),
+       goal=plain_four(st.floats(-3.0, 3.0)), duties=VALID_DUTIES,
+       ahead_s=st.one_of(st.just(0.0), st.floats(0.0, 0.5)),
+       qs=st.lists(plain_four(st.floats(-3.0, 3.0)), max_size=10))
+def test_arrival_is_seen_alike(call: Call, tol: object, goal: object, duties: object,
+                               ahead_s: float, qs: list[object]) -> None:
+    """The driver's arrival tracker (``drivers.host.arrival``): arrival, the look-ahead of a
+    path and the progress bookkeeping that decides a resend."""
+    call("arrival", "reached", tol, goal, duties, ahead_s, qs)

@@ -1,4 +1,5 @@
-"""The modules a release build compiles with mypyc: the emulator's and the codec's per-reply work.
+"""The modules a release build compiles with mypyc: the per-reply work of the emulator, the codec
+and the driver below its public API.
 
 Importing nothing when loaded, so that ``setup.py`` reads it before anything is installed, and
 ``armbench perf`` can say which build it measured (``docs/performance.md``).
@@ -15,6 +16,9 @@ HOT_MODULES = (
     "armbench.fakes.twin.physics",
     "armbench.fakes.twin.stepper",
     "armbench.fakes.firmware.uart",
+    "armbench.drivers.host.replies",
+    "armbench.drivers.host.waiters",
+    "armbench.drivers.host.arrival",
 )
 
 
