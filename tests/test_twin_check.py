@@ -276,30 +276,28 @@ def _tracker_twin(play_deg: float, offset_deg: Sequence[float], a2_mm: float,
     return _twin(physics=physics)
 
 
-def _foreign_capture(folder: Path, name: str, *args: str, full: bool = True
-                     ) -> tuple[Path, list[tuple[float, list[float]]]]:
-    """A real-time capture of a foreign arm (and its tracker's TCP, if it has one)."""
-    capture = folder / f"{name}.jsonl"
-    with foreign_arm(name, *args) as arm:
-        truth = asyncio.run(capture_lap(arm.url, capture, full=full, tracker=arm.tracker))
-    return capture, [(row[0], row[1:4]) for row in truth]
-
-
 Truth = list[tuple[float, list[float]]]
 
 
-def _foreign_captures(folder: Path, arms: Sequence[tuple[str, tuple[str, ...]]]
-                      ) -> list[tuple[Path, Truth]]:
-    """Real-time captures of the full lap of several foreign arms, taken at once (each lap on
-    a thread and an event loop of its own: the laps wait on their arms), in order."""
+def _foreign_captures(folder: Path, arms: Sequence[tuple[str, tuple[str, ...]]],
+                      full: bool = True) -> list[tuple[Path, Truth]]:
+    """Real-time captures of the lap (``full``: every part of it) of several foreign arms, and
+    of their trackers' TCP where they have one, taken at once (each lap on a thread and an
+    event loop of its own: the laps wait on their arms), in order."""
     with contextlib.ExitStack() as up, ThreadPoolExecutor(len(arms)) as pool:
         running = [up.enter_context(foreign_arm(name, *args)) for name, args in arms]
         paths = [folder / f"{k}-{name}.jsonl" for k, (name, _) in enumerate(arms)]
-        laps = [pool.submit(asyncio.run, capture_lap(arm.url, path, full=True,
+        laps = [pool.submit(asyncio.run, capture_lap(arm.url, path, full=full,
                                                      tracker=arm.tracker))
                 for arm, path in zip(running, paths, strict=True)]
         return [(path, [(row[0], row[1:4]) for row in lap.result()])
                 for path, lap in zip(paths, laps, strict=True)]
+
+
+def _foreign_capture(folder: Path, name: str, *args: str, full: bool = True
+                     ) -> tuple[Path, Truth]:
+    """A real-time capture of a foreign arm (and its tracker's TCP, if it has one)."""
+    return _foreign_captures(folder, [(name, args)], full)[0]
 
 
 def _check(capture: Path, settings: RobotSettings,

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from foreign_arms.serve import SHARED_MISSING, foreign_arm
+from foreign_arms.serve import SHARED_MISSING, RunningArm, foreign_arm
 from foreign_arms.sessions import ARMS, CALIBRATED_ARMS, Session
 from foreign_arms.tracker_client import TrackerStream
 from test_calibrate_reference import ScriptedOperator
@@ -175,13 +175,18 @@ def _tracker_args(config: tuple[Any, ...]) -> list[str]:
             f"--a2-error-mm={a2}", f"--a3-error-mm={a3}"]
 
 
-async def _measure(url: str, tracker: tuple[str, int], rng: np.random.Generator
-                   ) -> list[ReferencePose]:
+def _tracker_of(arm: RunningArm) -> tuple[str, int]:
+    assert arm.tracker is not None, "a tracker arm serves its tracker"
+    return arm.tracker
+
+
+async def _measure(tracked: RunningArm, rng: np.random.Generator) -> list[ReferencePose]:
     """The twelve hold poses, each joint approached from a side of its own (over the poses
     every joint from both), the tracker's TCP at rest with 0.1 mm of normal noise per
     coordinate (a lab's instrument)."""
     out = []
-    async with TrackerStream(*tracker) as stream, Arm.connect(url, reply_timeout_s=5.0) as arm:
+    async with (TrackerStream(*_tracker_of(tracked)) as stream,
+                Arm.connect(tracked.url, reply_timeout_s=5.0) as arm):
         for k, pose in enumerate(HOLD_POSES_RAD):
             approach = [1 if (k >> j) & 1 else -1 for j in range(4)]
             await arm.move_joints([q - a * 0.04 for q, a in zip(pose, approach, strict=True)],
@@ -197,18 +202,18 @@ async def _measure(url: str, tracker: tuple[str, int], rng: np.random.Generator
     return out
 
 
-async def _touch_off(url: str, tracker: tuple[str, int], out: Path) -> CalibrationResult:
-    """``calibrate --touch-off`` of the tracker arm at ``url`` on the fixture of
+async def _touch_off(tracked: RunningArm, out: Path) -> CalibrationResult:
+    """``calibrate --touch-off`` of the tracker arm ``tracked`` on the fixture of
     ``test_calibrate_reference`` (its points drawn from a seeded generator) by its scripted
     operator, whose eyes are the arm's tracker (see the module doc); the outputs in ``out``."""
     from test_calibrate_reference import _plate
 
     plate, real = _plate(np.random.default_rng(13))
-    async with TrackerStream(*tracker) as stream:
+    async with TrackerStream(*_tracker_of(tracked)) as stream:
         # the operator's eyes: the newest line of the tracker (each jog rests 0.3 s: the
         # tracker's 100 lines a second have seen it by then)
         eyes = ScriptedOperator(lambda: stream.samples[-1][1:4], real, plate)
-        return await calibrate_port(url, WEIGHTLESS, out / "robot.toml", budget_s=12.0,
+        return await calibrate_port(tracked.url, WEIGHTLESS, out / "robot.toml", budget_s=12.0,
                                     reply_timeout_s=5.0, touch=(plate, eyes))
 
 
@@ -221,16 +226,13 @@ def tracker_sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]
     folder = tmp_path_factory.mktemp("touch-off")
     ids = ["A", "B", "C"]
     with contextlib.ExitStack() as up, ThreadPoolExecutor(len(ids) + 1) as pool:
-        arms = [up.enter_context(foreign_arm("tracker", *_tracker_args(c)))
-                for c in (*TRACKER_CONFIGS, TRACKER_CONFIGS[0])]
-        trackers = [arm.tracker for arm in arms]
-        assert all(trackers), trackers
+        measured = [up.enter_context(foreign_arm("tracker", *_tracker_args(c)))
+                    for c in TRACKER_CONFIGS]
+        touched = up.enter_context(foreign_arm("tracker", *_tracker_args(TRACKER_CONFIGS[0])))
         jobs: dict[str, Future[Any]] = {
-            i: pool.submit(asyncio.run, _measure(arm.url, tracker, np.random.default_rng(5)))
-            for i, arm, tracker in zip(ids, arms, trackers, strict=False) if tracker}
-        touch, tracker = arms[-1], trackers[-1]
-        assert tracker is not None
-        jobs["touch"] = pool.submit(asyncio.run, _touch_off(touch.url, tracker, folder))
+            i: pool.submit(asyncio.run, _measure(arm, np.random.default_rng(5)))
+            for i, arm in zip(ids, measured, strict=True)}
+        jobs["touch"] = pool.submit(asyncio.run, _touch_off(touched, folder))
         return {k: job.exception() or job.result() for k, job in jobs.items()}
 
 
