@@ -55,8 +55,9 @@ class ReportAhead:
                 self._thread.start()
 
     def summarized(self, record: RunRecord, suite: str) -> None:
-        if not self._finished:
-            self._todo.put((record, suite))
+        with self._lock:
+            if not self._finished:
+                self._todo.put((record, suite))
 
     def finish(self) -> None:
         """Wait for the plots of the suites summarized so far (the report would draw them

@@ -36,7 +36,7 @@ PLACEHOLDER = "f0"
 
 _drawn: collections.OrderedDict[bytes, str] = collections.OrderedDict()
 _lock = threading.Lock()
-_misses = [0]
+_misses = 0
 _PREFIXED = re.compile(r'(id="|href="#|url\(#)f\d+-')
 
 
@@ -65,6 +65,7 @@ def drawn(plot: Callable[..., Figure], args: tuple[object, ...], label: str, *,
     to_svg`), ids prefixed with :data:`PLACEHOLDER`: drawn now unless it is kept. A figure drawn
     now is freed at once; with ``collect``, the collector runs too (a drawn figure is a web of
     reference cycles; the page sets what existed before it aside, so that is cheap)."""
+    global _misses
     key = _key(plot, args, label)
     if key is not None:
         with _lock:
@@ -79,7 +80,7 @@ def drawn(plot: Callable[..., Figure], args: tuple[object, ...], label: str, *,
     if collect:
         gc.collect()
     with _lock:
-        _misses[0] += 1
+        _misses += 1
         if key is not None:
             _drawn[key] = svg
             while len(_drawn) > MAX_DRAWN:
@@ -95,7 +96,7 @@ def renamed(svg: str, number: int) -> str:
 
 def misses() -> int:
     """Plots drawn so far (not found kept) in this process."""
-    return _misses[0]
+    return _misses
 
 
 def clear() -> None:
