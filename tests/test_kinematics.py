@@ -26,6 +26,7 @@ from armbench.drivers.model.kinematics import (
     ik,
     ik_best,
     protocol_to_dh,
+    tcp_point,
     tcp_position,
     wrap_protocol,
 )
@@ -110,6 +111,28 @@ def test_vectorised_fk_equals_per_row() -> None:
     np.testing.assert_array_equal(nested.reshape(200, 4, 4), batch)
     q = dh_to_protocol(theta, DEFAULT)
     np.testing.assert_allclose(tcp_position(q, DEFAULT.with_d4(0.1)), batch[:, :3, 3], atol=1e-15)
+
+
+@given(st.lists(st.floats(-10, 10), min_size=4, max_size=4), st.booleans(),
+       st.floats(-0.2, 0.2))
+@settings(max_examples=300, deadline=None)
+def test_one_pose_equals_its_row_of_the_vectorised_fk(q: list[float], odd: bool,
+                                                      d4: float) -> None:
+    """One pose is chained in floats, a trajectory through the matrices: the same TCP within
+    rounding, on the default and an odd joint mapping, with any gripper offset."""
+    s = (_odd_mapping() if odd else DEFAULT).with_d4(d4)
+    batch = tcp_position(np.array([q, q]), s)
+    one = tcp_position(q, s)
+    assert one.shape == (3,)
+    np.testing.assert_allclose(one, batch[0], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(one, tcp_point(q, s))
+    np.testing.assert_allclose(one, fk(q, s)[:3, 3], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [[0.0, 0.0, 0.0], 1.0, [[0.0] * 5]])
+def test_tcp_position_rejects_wrong_shapes(bad: Any) -> None:
+    with pytest.raises(KinematicsError, match="shape"):
+        tcp_position(bad, DEFAULT)
 
 
 def test_fk_is_rigid_and_position_ignores_joint4() -> None:

@@ -33,7 +33,7 @@ from armbench.drivers.host.motion import (
 )
 from armbench.drivers.model.bounds import Bound, check
 from armbench.drivers.model.errors import ArmbenchError
-from armbench.drivers.model.kinematics import BRANCHES, KinematicsError, ik_best, tcp_position
+from armbench.drivers.model.kinematics import BRANCHES, KinematicsError, ik_best, tcp_point
 from armbench.drivers.model.protocol import MAX_DUTY, REPLY_LEN
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.tasks import cancel_and_wait
@@ -113,8 +113,7 @@ def rad_list(q: Iterable[float]) -> list[float]:
 
 def fk_m(q_rad: Sequence[float], settings: RobotSettings) -> Vec3:
     """TCP position (m, base frame) of protocol joint angles ``q_rad`` (rad)."""
-    p = tcp_position(np.asarray(q_rad, dtype=np.float64), settings)
-    return float(p[0]), float(p[1]), float(p[2])
+    return tcp_point([float(q) for q in q_rad], settings)
 
 
 def duty_for_speed_pct(speed_pct: float) -> int:

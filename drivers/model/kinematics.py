@@ -45,6 +45,7 @@ __all__ = [
     "ik",
     "ik_best",
     "protocol_to_dh",
+    "tcp_point",
     "tcp_position",
     "wrap_protocol",
 ]
@@ -250,9 +251,34 @@ def fk(q_protocol: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
 
 
 def tcp_position(q_protocol: npt.ArrayLike, settings: RobotSettings) -> FloatArray:
-    """TCP position(s) in metres, ``(3,)`` or ``(N, 3)``, for protocol-convention angles (rad)."""
-    out: FloatArray = fk(q_protocol, settings)[..., :3, 3]
+    """TCP position(s) in metres, ``(3,)`` or ``(N, 3)``, for protocol-convention angles (rad).
+
+    One pose is chained in floats (:func:`tcp_point`), as the suites and the emulator ask for it
+    once per sample; a trajectory is one vectorised :func:`fk`."""
+    q = _joint_array(q_protocol, "q")
+    if q.ndim == 1:
+        return np.array(tcp_point(q.tolist(), settings), dtype=np.float64)
+    out: FloatArray = fk(q, settings)[..., :3, 3]
     return out
+
+
+def tcp_point(q_protocol: Sequence[float], settings: RobotSettings) -> tuple[float, float, float]:
+    """TCP position (m) of one pose of protocol-convention angles (rad): the DH chain of
+    :func:`fk` applied to the TCP's origin, last link first, without building the matrices
+    (the same product, summed in another order: equal to it within rounding)."""
+    g = settings.geometry
+    a_m = (0.0, g.a2_m, g.a3_m, 0.0)
+    d_m = (g.d1_m, g.d2_m, 0.0, g.d4_m)
+    x = y = z = 0.0
+    for i in (3, 2, 1, 0):
+        joint = settings.joints[i]
+        theta = joint.sign * q_protocol[i] + joint.offset_rad
+        ct, st = math.cos(theta), math.sin(theta)
+        ca, sa = _ALPHA_COS_SIN[i]
+        x, y, z = (ct * x - st * ca * y + st * sa * z + a_m[i] * ct,
+                   st * x + ct * ca * y - ct * sa * z + a_m[i] * st,
+                   sa * y + ca * z + d_m[i])
+    return x, y, z
 
 
 # --------------------------------------------------------------------------------------------
