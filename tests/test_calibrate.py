@@ -17,6 +17,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import pytest
+from conftest import cli, one_line_error
 from hidden_arms import check_recovery, draw_hidden, write_hidden
 
 from armbench.bench.calibrate import (
@@ -132,9 +133,11 @@ def test_budget_orders_phases(tmp_path: Path) -> None:
     assert obs.robot_time_s <= 12.0
 
 
-def test_stalled_joint_stops_with_partial_output(tmp_path: Path) -> None:
+def test_stalled_joint_stops_with_partial_output(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """A joint that does not move ends the calibration with a typed error naming it; what was
-    measured before is fitted and written."""
+    measured before is fitted and written. The command line (in this process: its status is the
+    one ``python -m armbench`` exits with) says so in status 2 and a line naming the joint."""
     faults = tmp_path / "stall.toml"
     faults.write_text('[[faults]]\nkind = "stall"\njoint = 3\nat_s = 8.0\n')
     out = tmp_path / "robot.toml"
@@ -151,11 +154,10 @@ def test_stalled_joint_stops_with_partial_output(tmp_path: Path) -> None:
     assert obs.error is not None
     # the command line: status 2, one line naming the joint
     out2 = tmp_path / "cli.toml"
-    proc = subprocess.run([sys.executable, "-m", "armbench", "calibrate", "--port",
-                           f"fake://?faults={faults}", "--out", str(out2)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 2
-    assert "joint 3 does not move" in proc.stderr
+    status, _, err = cli(capsys, "calibrate", "--port", f"fake://?faults={faults}", "--out",
+                         str(out2))
+    assert status == 2
+    assert "joint 3 does not move" in err
     assert out2.exists()
 
 
@@ -369,16 +371,18 @@ def test_capture_of_another_model(capture: Path, tmp_path: Path) -> None:
         calibrate_capture(six, RobotSettings(), tmp_path / "r.toml")
 
 
-def test_capture_without_commands(capture: Path, tmp_path: Path) -> None:
+def test_capture_without_commands(capture: Path, tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Replies alone: no commands to fit, from the function and from the command line (in this
+    process, status 2)."""
     only_in = tmp_path / "in.jsonl"
     only_in.write_text("".join(line + "\n" for line in capture.read_text().splitlines()
                                if '"dir": "in"' in line))
     with pytest.raises(CaptureContentError, match="no commands"):
         calibrate_capture(only_in, RobotSettings(), tmp_path / "r.toml")
-    proc = subprocess.run([sys.executable, "-m", "armbench", "calibrate", "--capture",
-                           str(only_in), "--out", str(tmp_path / "x.toml")], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "no commands" in proc.stderr
+    status, _, err = cli(capsys, "calibrate", "--capture", str(only_in), "--out",
+                         str(tmp_path / "x.toml"))
+    assert status == 2 and "no commands" in err
 
 
 @pytest.mark.slow
@@ -413,8 +417,6 @@ def test_reply_timeout_reaches_the_driver(tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     """``--reply-timeout S``: an arm that falls silent (a power cut, on virtual time) ends the
     procedure after S s, in one line naming S; a bad S is refused before connecting."""
-    from conftest import cli, one_line_error
-
     faults = tmp_path / "cut.toml"
     faults.write_text('[[faults]]\nkind = "power_cut"\nat_s = 0.5\n')
     for timeout_s in ("0.25", "1.5"):

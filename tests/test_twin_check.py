@@ -8,8 +8,6 @@ import asyncio
 import contextlib
 import itertools
 import json
-import subprocess
-import sys
 import tomllib
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -18,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import cli
 from foreign_arms.laps import capture_lap
 from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from hidden_arms import draw_hidden, write_hidden
@@ -32,7 +31,6 @@ from armbench.fakes.clock.vclock import run_virtual
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.metrics import error_summary, path_errors, square_yz
 
-ROOT = Path(__file__).resolve().parents[1]
 CORNERS = square_yz((0.38, 0.0, 0.80), 0.15)
 
 
@@ -80,22 +78,22 @@ def test_same_arm_is_exact(default_capture: Path) -> None:
     assert all(abs(dt) < 1e-9 for dt in result.arrival_dt_s)
 
 
-def test_cli_json_and_gate(default_capture: Path, tmp_path: Path) -> None:
+def test_cli_json_and_gate(default_capture: Path, tmp_path: Path,
+                           capsys: pytest.CaptureFixture[str]) -> None:
     """--json prints one object with rms_rad, max_rad (4 each) and the verdict; an ideal twin of
-    the physical arm fails the gate (exit 1)."""
-    proc = subprocess.run([sys.executable, "-m", "armbench", "twin-check", str(default_capture),
-                           "--json"], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    body = json.loads(proc.stdout)
+    the physical arm fails the gate (exit 1). The command runs in this process: its status is
+    the one ``python -m armbench`` exits with (``sys.exit(main())``)."""
+    status, out, err = cli(capsys, "twin-check", str(default_capture), "--json")
+    assert status == 0, err
+    body = json.loads(out)
     assert len(body["rms_rad"]) == 4 and len(body["max_rad"]) == 4
     assert body["verdict"] == "pass"
     ideal = tmp_path / "ideal.toml"
     ideal.write_text('[emulator]\nprofile = "ideal"\n')
-    proc = subprocess.run([sys.executable, "-m", "armbench", "twin-check", str(default_capture),
-                           "--settings", str(ideal), "--json"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300)
-    assert proc.returncode == 1
-    body = json.loads(proc.stdout)
+    status, out, _ = cli(capsys, "twin-check", str(default_capture), "--settings", str(ideal),
+                         "--json")
+    assert status == 1
+    body = json.loads(out)
     assert body["verdict"] == "fail"
     assert max(body["rms_rad"]) > 1e-3
 
@@ -141,7 +139,10 @@ def test_a_missing_step_loss_is_diagnosed_as_such(default_capture: Path) -> None
     assert "j2.loss_law" in j2.next_step and "--budget-s" in j2.next_step
 
 
-def test_bad_captures(default_capture: Path, tmp_path: Path) -> None:
+def test_bad_captures(default_capture: Path, tmp_path: Path,
+                      capsys: pytest.CaptureFixture[str]) -> None:
+    """A truncated capture, one without commands and one of another robot model: exit status 2
+    and the reason on stderr (the command in this process, as in test_cli_json_and_gate)."""
     lines = default_capture.read_text().splitlines()
     cut = tmp_path / "cut.jsonl"
     cut.write_text("\n".join(lines[:300]) + "\n" + lines[300][:20])
@@ -152,10 +153,9 @@ def test_bad_captures(default_capture: Path, tmp_path: Path) -> None:
     for args, message in (([str(cut)], "truncated"), ([str(only_in)], "no commands"),
                           ([str(default_capture), "--settings", str(narrow)],
                            "another robot model")):
-        proc = subprocess.run([sys.executable, "-m", "armbench", "twin-check", *args], cwd=ROOT,
-                              capture_output=True, text=True, timeout=300)
-        assert proc.returncode == 2, (args, proc.stdout)
-        assert message in proc.stderr
+        status, out, err = cli(capsys, "twin-check", *args)
+        assert status == 2, (args, out)
+        assert message in err
 
 
 def _fidelity(seed: int, folder: Path) -> dict[str, list[float]]:
@@ -212,19 +212,19 @@ def test_calibrated_twins_several_arms(tmp_path: Path) -> None:
         assert abs(f["calibrated_path_mm"][0] - arm) <= 0.1 * arm, (seed, f)
 
 
-def test_run_capture_in_sessions(tmp_path: Path) -> None:
+def test_run_capture_in_sessions(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A run's capture holds one emulator per trial: twin-check cuts it into sessions and
     replays each into a fresh twin. The runner seeds each trial's emulator its own way (the
     capture does not say how), so the default twin of the default arm matches within the random
-    draws: a few counts."""
+    draws: a few counts. (The run is ``armbench run`` in this process: the capture is the
+    claim's, not the process.)"""
     config = tmp_path / "bench.toml"
     config.write_text('spec_version = "armbench-limits/1"\n[suites.joints]\njoints = [1, 3]\n'
                       "cycles = 2\ntargets_frac = [0.3, 0.7]\n")
     out = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "armbench", "run", "joints", "--config",
-                           str(config), "--out", str(out), "--workers", "1"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr
+    status, _, err = cli(capsys, "run", "joints", "--config", str(config), "--out", str(out),
+                         "--workers", "1")
+    assert status == 0, err
     settings = RobotSettings()
     result = twin_check(load_capture(out / "capture.mcap", settings), settings)
     assert result.sessions >= 2

@@ -1,13 +1,12 @@
 """``armbench twin-check --out DIR``: the check as a run record (results.json read back by the
 record package, report.html with the overlay, junit.xml), the CI gate's exit statuses, bad input
 writing nothing; and the min/max envelope that keeps the record's series bounded. The emulator
-stands in for the arm (its capture is the arm's traffic); everything else is the real command."""
+stands in for the arm (its capture is the arm's traffic); everything else is the real command,
+run in this process (its status is the one ``python -m armbench`` exits with)."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import cli
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_report import cells, check_safe, parse
@@ -28,13 +28,7 @@ from armbench.metrics.series import envelope_indices
 from armbench.record import load_record
 from armbench.record.suite_contract import SAMPLE
 
-ROOT = Path(__file__).resolve().parents[1]
 N = TWIN_CHECK
-
-
-def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armbench", *map(str, args)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
@@ -48,12 +42,13 @@ def _series(samples: list[Mapping[str, Any]], joint: int) -> list[Mapping[str, A
     return [s for s in samples if s[SAMPLE.kind] == N.series_kind and s[N.joint] == joint]
 
 
-def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path) -> None:
+def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
     """The arm's capture against its own twin: a record with RMS 0 and verdict pass, junit.xml
     without failures, and ``armbench report DIR`` renders it again."""
     out = tmp_path / "check"
-    proc = _cli("twin-check", capture, "--out", out)
-    assert proc.returncode == 0, proc.stderr
+    status, _, err = cli(capsys, "twin-check", str(capture), "--out", str(out))
+    assert status == 0, err
     record = load_record(out / "results.json")
     assert record.verdict == "pass"
     assert list(record.suites) == [N.suite] and record.planned_suites == [N.suite]
@@ -73,8 +68,8 @@ def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path) -> None:
     assert sum(int(s.get("failures", "0")) for s in junit.iter("testsuite")) == 0
     assert (out / "report.html").is_file()
     (out / "report.html").unlink()
-    proc = _cli("report", out)
-    assert proc.returncode == 0, proc.stderr
+    status, _, err = cli(capsys, "report", str(out))
+    assert status == 0, err
     html = (out / "report.html").read_text(encoding="utf-8")
     doc = parse(html)
     check_safe(html, doc)
@@ -83,16 +78,18 @@ def test_same_arm_record_and_rerender(capture: Path, tmp_path: Path) -> None:
     assert "pass" in section.text().lower()
 
 
-def test_other_twin_fails_with_the_overlay(capture: Path, tmp_path: Path) -> None:
+def test_other_twin_fails_with_the_overlay(capture: Path, tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
     """A twin with a weaker joint 2 (pull-out torque 1.0 instead of 1.5 N·m): exit 1, a fail
     record whose numbers are the ones --json prints, whose kept series show the divergence (its
     peak kept exactly), and a report with the overlay figure and the per-joint table."""
     weak = tmp_path / "weak.toml"
     weak.write_text("[emulator.physics.j2]\npullout_nm = 1.0\n")
     out = tmp_path / "check"
-    proc = _cli("twin-check", capture, "--settings", weak, "--out", out, "--json")
-    assert proc.returncode == 1, proc.stderr
-    body = json.loads(proc.stdout)
+    status, stdout, err = cli(capsys, "twin-check", str(capture), "--settings", str(weak),
+                              "--out", str(out), "--json")
+    assert status == 1, err
+    body = json.loads(stdout)
     assert body["verdict"] == "fail"
     record = load_record(out / "results.json")
     assert record.verdict == "fail"
@@ -152,21 +149,22 @@ def test_other_twin_fails_with_the_overlay(capture: Path, tmp_path: Path) -> Non
     assert scorecard is not None and "worst joint RMS divergence" in scorecard.text()
 
 
-def test_bad_input_writes_nothing(capture: Path, tmp_path: Path) -> None:
+def test_bad_input_writes_nothing(capture: Path, tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
     """A truncated capture exits 2 with --out and leaves no record; an --out that already holds
     a record exits 2 before the replay and leaves that record as it was."""
     lines = capture.read_text().splitlines()
     cut = tmp_path / "cut.jsonl"
     cut.write_text("\n".join(lines[:300]) + "\n" + lines[300][:20])
     out = tmp_path / "check"
-    proc = _cli("twin-check", cut, "--out", out)
-    assert proc.returncode == 2 and "truncated" in proc.stderr
+    status, _, err = cli(capsys, "twin-check", str(cut), "--out", str(out))
+    assert status == 2 and "truncated" in err
     assert not (out / "results.json").exists() and not (out / "junit.xml").exists()
     taken = tmp_path / "taken"
     taken.mkdir()
     (taken / "results.json").write_text("{}")
-    proc = _cli("twin-check", capture, "--out", taken)
-    assert proc.returncode == 2 and "already holds a run record" in proc.stderr
+    status, _, err = cli(capsys, "twin-check", str(capture), "--out", str(taken))
+    assert status == 2 and "already holds a run record" in err
     assert (taken / "results.json").read_text() == "{}"
 
 
