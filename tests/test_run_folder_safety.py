@@ -38,6 +38,33 @@ ROOT = Path(__file__).resolve().parents[1]
 SEED = "3"
 WAIT_S = 300.0
 """Upper bound of a whole accuracy run under load (it takes seconds alone)."""
+SQUARE = """
+[suites.accuracy]
+side_m = 0.1
+speed_m_s = 0.2
+settle_s = 0.0
+sample_period_s = 0.05
+"""
+"""The accuracy run of every case here, judged by the packaged limits: the default six trials
+(three laps of both styles, which the kills after trial 1 or 3 of 6 count on) on a 10 cm square
+at 20 cm/s, sampled every 50 ms. What a case claims of a run folder holds for any square; this
+one costs half the default's 15 cm at 5 cm/s (its trials, its capture and the twin-check
+replaying it) and still passes every limit."""
+
+
+def _square(folder: Path) -> str:
+    """The packaged limits and :data:`SQUARE` written into ``folder``: the ``--config`` of a run
+    (``--resume`` reads it again from there)."""
+    path = folder / "square.toml"
+    path.write_text((ROOT / "record" / "default_bench.toml").read_text(encoding="utf-8") + SQUARE,
+                    encoding="utf-8")
+    return str(path)
+
+
+def _accuracy(folder: Path, out: Path, *more: str) -> list[str]:
+    """``run accuracy`` of :data:`SQUARE` (written into ``folder``) and the seed into ``out``."""
+    return ["run", "accuracy", "--config", _square(folder), "--out", str(out), "--seed", SEED,
+            *more]
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -116,9 +143,11 @@ def _capture(run: Path) -> Capture:
 
 @pytest.fixture(scope="module")
 def whole_run(tmp_path_factory: pytest.TempPathFactory) -> Capture:
-    """An uninterrupted ``run accuracy`` of the seed: what every resumed run must equal."""
-    out = tmp_path_factory.mktemp("whole") / "run"
-    done = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
+    """An uninterrupted ``run accuracy`` of :data:`SQUARE` and the seed: what every resumed run
+    must equal."""
+    tmp = tmp_path_factory.mktemp("whole")
+    out = tmp / "run"
+    done = _bench(*_accuracy(tmp, out))
     assert done.returncode == 0, done.stderr
     return _capture(out)
 
@@ -131,7 +160,7 @@ def test_resume_of_a_run_still_going_is_refused_and_the_run_completes(
     """The run is frozen (SIGSTOP) mid-way, holding its folder: ``--resume`` of it exits 2 with
     one line naming the holder, and changes nothing; the run, continued, ends as a whole run."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    proc = _start(*_accuracy(tmp_path, out))
     try:
         _wait_for(proc, "trial 2/6 done")
         _freeze(proc, signal.SIGSTOP)
@@ -153,7 +182,7 @@ def test_resume_of_a_run_still_going_is_refused_and_the_run_completes(
 def test_a_second_run_into_the_same_out_is_refused(tmp_path: Path) -> None:
     """Two runs given one ``--out``: the second is refused before it writes anything."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED)
+    proc = _start(*_accuracy(tmp_path, out))
     try:
         _wait_for(proc, "trial 1/6 done")
         _freeze(proc, signal.SIGSTOP)
@@ -173,7 +202,7 @@ def test_a_second_run_into_the_same_out_is_refused(tmp_path: Path) -> None:
 def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
     """The lock is the OS's: ``kill -9`` of its holder releases it, and the resume goes on."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
+    proc = _start(*_accuracy(tmp_path, out, "--workers", "1"))
     _wait_for(proc, "trial 1/6 done")
     os.killpg(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=WAIT_S)
@@ -185,9 +214,8 @@ def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
     """A fleet's folder is locked as a run's is: with its lock held by another process,
     ``run --resume FLEET`` is refused naming that process, and the fleet's files are unchanged."""
     fleet = tmp_path / "fleet"
-    one_lap = tmp_path / "one-lap.toml"  # what is refused does not depend on the laps
-    one_lap.write_text((ROOT / "record" / "default_bench.toml").read_text(encoding="utf-8")
-                       + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
+    one_lap = Path(_square(tmp_path))  # what is refused depends on neither square nor laps
+    one_lap.write_text(one_lap.read_text(encoding="utf-8") + "laps = 1\n", encoding="utf-8")
     done = _bench("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
                   "--out", str(fleet), "--workers", "1", "--config", str(one_lap))
     assert done.returncode == 0, done.stderr
@@ -223,7 +251,7 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
     parts of trials measured in turn), then resumed: the same frames in time order, every trial
     event, the same twin-check."""
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", workers)
+    proc = _start(*_accuracy(tmp_path, out, "--workers", workers))
     _wait_for(proc, f"trial {after}/6 done")
     proc.send_signal(sig)
     proc.communicate(timeout=WAIT_S)
@@ -251,7 +279,7 @@ def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Ca
     armbench): the new ``capture.mcap`` holds the old session's frames and the new ones."""
     out = tmp_path / "run"
     # in turn (one worker): the line comes when the trial is done, four are still to run
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
+    proc = _start(*_accuracy(tmp_path, out, "--workers", "1"))
     _wait_for(proc, "trial 2/6 done")
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=WAIT_S)
@@ -278,7 +306,7 @@ def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Ca
 
 def _interrupted_run(tmp_path: Path) -> Path:
     out = tmp_path / "run"
-    proc = _start("run", "accuracy", "--out", str(out), "--seed", SEED, "--workers", "1")
+    proc = _start(*_accuracy(tmp_path, out, "--workers", "1"))
     _wait_for(proc, "trial 1/6 done")
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=WAIT_S)
@@ -392,6 +420,11 @@ def test_an_unwritable_out_is_refused_in_one_line(case: str, tmp_path: Path) -> 
     assert blocker.read_text() == "mine\n"
 
 
+FULL_DISK_KB = 240
+"""A disk the run of :data:`SQUARE` fills after two or three trials (its folder takes twice that
+by the end)."""
+
+
 def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
                                                          whole_run: Capture) -> None:
     """A tmpfs too small for the run: the record's own error in one line (not the capture's
@@ -399,9 +432,9 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
     the capture parts the full disk kept out of ``capture.mcap``: moved to a disk with room
     and resumed, the run ends with the whole run's capture."""
     moved = tmp_path / "moved"
-    with mounted_tmpfs(tmp_path / "small", "size=1200k") as disk:
+    with mounted_tmpfs(tmp_path / "small", f"size={FULL_DISK_KB}k") as disk:
         out = disk / "run"
-        full = _bench("run", "accuracy", "--out", str(out), "--seed", SEED)
+        full = _bench(*_accuracy(tmp_path, out))
         assert full.returncode == 2, full.stderr
         assert "Traceback" not in full.stderr
         line = full.stderr.strip().splitlines()[-1]
