@@ -51,7 +51,8 @@ async def _lap(port: str, capture: Path, settings: RobotSettings | None = None) 
 
 def _path_mean_mm(replies: list[tuple[float, tuple[float, float, float, float]]],
                   settings: RobotSettings) -> float:
-    pts = np.asarray([tcp_position(q, settings) for _, q in replies])
+    """The mean path error (mm) of the square from a reply stream (one vectorised FK call)."""
+    pts = tcp_position(np.asarray([q for _, q in replies]), settings)
     return error_summary(path_errors(pts, CORNERS, closed=True)).mean_mm
 
 
@@ -171,15 +172,15 @@ def _fidelity(seed: int, folder: Path) -> dict[str, list[float]]:
     run_virtual(_lap(f"fake://?settings={hidden}", capture, load_settings(base)))
     raw = tomllib.loads(hidden.read_text())
     raw["emulator"]["seed"] = 0
+    floor = RobotSettings.from_mapping(raw)
     out: dict[str, list[float]] = {}
     for name, settings in (("calibrated", load_settings(folder / "robot.toml")),
-                           ("prior", load_settings(base)),
-                           ("floor", RobotSettings.from_mapping(raw))):
-        data = load_capture(capture, settings)
-        result = twin_check(data, settings)
+                           ("prior", load_settings(base)), ("floor", floor)):
+        result = twin_check(load_capture(capture, settings), settings)
         out[name] = result.rms_counts
         out[name + "_path_mm"] = [_path_mean_mm(result.twin_replies, settings)]
-        out["arm_path_mm"] = [_path_mean_mm(data.replies, settings)]
+    # the arm's own path error, through its own model (the hidden arm's settings)
+    out["arm_path_mm"] = [_path_mean_mm(load_capture(capture, floor).replies, floor)]
     return out
 
 
