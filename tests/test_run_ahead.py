@@ -17,7 +17,7 @@ import pytest
 from matplotlib.figure import Figure
 from test_runner import TinySuite
 
-from armbench.bench.runner import RunOptions, run_arms_sync, run_sync
+from armbench.bench.runner import DEFAULT_CONFIG, RunOptions, run_arms_sync, run_sync
 from armbench.bench.suites import SUITES, SuiteContext
 from armbench.cli.commands.run_files import ReportAhead
 from armbench.record import Measurement, RunRecord, Trial, load_record
@@ -27,6 +27,24 @@ from armbench.reports.render import svg_cache
 from armbench.reports.render.views import Figures
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
+#: The packaged limits with one lap of the square and two joint cycles: what goes on beside a
+#: run does not depend on how many trials its suites have.
+SHORT_SUITES = """
+[suites.accuracy]
+laps = 1
+
+[suites.joints]
+cycles = 2
+"""
+
+
+@pytest.fixture
+def short_config(tmp_path: Path) -> Path:
+    """The packaged limits with fewer trials per suite."""
+    config = tmp_path / "bench.toml"
+    config.write_text(Path(DEFAULT_CONFIG).read_text(encoding="utf-8") + SHORT_SUITES,
+                      encoding="utf-8")
+    return config
 
 
 class Heard:
@@ -45,10 +63,11 @@ class Heard:
 
 @pytest.mark.parametrize("ports", [[], ["a=fake://", "b=fake://?seed=3"]])
 def test_the_run_says_when_it_is_under_way_and_when_each_summary_is_in(
-        tmp_path: Path, ports: list[str]) -> None:
+        tmp_path: Path, short_config: Path, ports: list[str]) -> None:
     heard = Heard()
     result = run_arms_sync(RunOptions(suites=["accuracy"], ports=ports, workers=1,
-                                      out=tmp_path / "run"), progress=None, ahead=heard)
+                                      config=short_config, out=tmp_path / "run"),
+                           progress=None, ahead=heard)
     assert result.exit_status == 0
     arms = max(1, len(ports))
     assert heard.calls[0][0] == "started"
@@ -60,7 +79,7 @@ def test_the_run_says_when_it_is_under_way_and_when_each_summary_is_in(
 
 
 def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        tmp_path: Path, short_config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every suite's plots are drawn in the thread of its own, and the report written at the
     end draws only the traffic plot (its capture is whole only then)."""
     from armbench.cli.commands import run_files
@@ -84,7 +103,8 @@ def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
     monkeypatch.setattr(page, "draw_ahead", watched)
     monkeypatch.setattr("armbench.cli.commands.run.write_reports", counted)
     svg_cache.clear()
-    status = main(["run", "accuracy", "joints", "--workers", "1", "--out", str(tmp_path / "run")])
+    status = main(["run", "accuracy", "joints", "--workers", "1", "--config", str(short_config),
+                   "--out", str(tmp_path / "run")])
     assert status == 0 and (tmp_path / "run" / "report.html").exists()
     assert ahead == [("armbench-report-ahead", "accuracy"), ("armbench-report-ahead", "joints")]
     assert in_report == [1]
@@ -148,17 +168,25 @@ def test_a_plot_its_name_does_not_find_is_drawn_every_time() -> None:
     assert str(two.svg).replace('"f2-', '"f1-').replace("#f2-", "#f1-") != str(one.svg)
 
 
+def blank(k: float) -> Figure:
+    """A plot function its name finds, whose plot has nothing to draw (the cheapest SVG): its
+    input alone tells its plots apart."""
+    return Figure(figsize=(0.1, 0.1))
+
+
 def test_at_most_so_many_plots_are_kept_the_oldest_used_going_first() -> None:
+    """Which plots are kept is the claim, not what they show: blank plots, and no collection
+    after each (a full one in this process, as no page sets its objects aside)."""
     svg_cache.clear()
-    figs = Figures()
+    figs = Figures(collect=False)
     for k in range(svg_cache.MAX_DRAWN):
-        figs.make(line, ([0.0, float(k)],), "a line", "caption")
-    figs.make(line, ([0.0, 0.0],), "a line", "caption")  # used again: now the newest
+        figs.make(blank, (float(k),), "a plot", "caption")
+    figs.make(blank, (0.0,), "a plot", "caption")  # used again: now the newest
     start = svg_cache.misses()
-    figs.make(line, ([0.0, -1.0],), "a line", "caption")  # one more: plot 1 goes
-    figs.make(line, ([0.0, 0.0],), "a line", "caption")
+    figs.make(blank, (-1.0,), "a plot", "caption")  # one more: plot 1 goes
+    figs.make(blank, (0.0,), "a plot", "caption")
     assert svg_cache.misses() == start + 1
-    figs.make(line, ([0.0, 1.0],), "a line", "caption")
+    figs.make(blank, (1.0,), "a plot", "caption")
     assert svg_cache.misses() == start + 2
 
 
