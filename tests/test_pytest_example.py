@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from conftest import shared_wheel
 from far_end import Emulator
+from test_pytest_plugin import NOT_A_USERS
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "pytest-bench"
@@ -32,11 +33,12 @@ def _project(tmp_path: Path) -> Path:
 
 def _pytest(project: Path, *args: str, python: str = sys.executable
             ) -> subprocess.CompletedProcess[str]:
-    """``pytest ARGS`` in the project, as its user runs it (every warning shown once; labgrid's
-    own plugin, installed with the test extra, kept out as a lab without labgrid would)."""
+    """``pytest ARGS`` in the project, as its user runs it (every warning shown once; the
+    plugins of this environment that ``armbench[pytest]`` does not bring kept out,
+    ``test_pytest_plugin.NOT_A_USERS``)."""
     env = {**os.environ, "PYTHONWARNINGS": "default"}
     env.pop("PYTEST_ADDOPTS", None)
-    return subprocess.run([python, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:labgrid",
+    return subprocess.run([python, "-m", "pytest", "-p", "no:cacheprovider", *NOT_A_USERS,
                            "-rs", *args], cwd=project, env=env, capture_output=True, text=True,
                           timeout=600, check=False)
 

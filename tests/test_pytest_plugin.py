@@ -17,16 +17,23 @@ from armbench.record import load_record
 pytest_plugins = ["pytester"]
 
 
+#: Plugins of this test environment that ``armbench[pytest]`` does not bring, kept out of the
+#: users' sessions: labgrid's (the labgrid extra), as a user without a lab would; Hypothesis's
+#: (the test extra) and anyio's (here through httpx), which import their packages (and trio)
+#: at every session's start, most of a short session's CPU.
+NOT_A_USERS = ["-p", "no:labgrid", "-p", "no:hypothesispytest", "-p", "no:anyio"]
+
+
 def plugin() -> list[str]:
     """``-p armbench.cli.plugin.pytest_plugin`` unless the installed ``pytest11`` entry point loads
-    it already (registering the module twice under two names is an error); and labgrid's plugin
-    (installed with the labgrid extra) kept out of the users' sessions, as a user without a lab
-    would. The sessions run in processes of their own, as a user's do (in-process, pytester
-    would drop what a session imported, and numpy cannot be imported twice in one process)."""
+    it already (registering the module twice under two names is an error); and
+    :data:`NOT_A_USERS` kept out of the users' sessions. The sessions run in processes of their
+    own, as a user's do (in-process, pytester would drop what a session imported, and numpy
+    cannot be imported twice in one process)."""
     installed = any(ep.value == "armbench.cli.plugin.pytest_plugin"
                     for ep in importlib.metadata.entry_points(group="pytest11"))
     ours = [] if installed else ["-p", "armbench.cli.plugin.pytest_plugin"]
-    return ["-p", "no:labgrid", *ours]
+    return [*NOT_A_USERS, *ours]
 
 USER_TESTS = '''
 import asyncio
