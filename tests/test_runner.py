@@ -293,9 +293,11 @@ def test_run_end_to_end_writes_every_file(tmp_path: Path) -> None:
 
 
 def test_limit_failure_exits_1(tmp_path: Path) -> None:
+    """Measured in turn (``workers=1``): a limit is judged alike in a worker process
+    (``test_parallel_trials_commit_in_order_on_one_run_clock``), which would cost a pool."""
     out = tmp_path / "run"
     outcome = run(RunOptions(suites=["tiny"], config=write_config(tmp_path, move_high=0.01),
-                             out=out))
+                             out=out, workers=1))
     assert outcome.exit_status == EXIT_FAIL
     assert outcome.record.verdict == "fail"
     failures = ET.parse(out / "junit.xml").getroot().iter("failure")
@@ -603,13 +605,18 @@ def test_ctrl_c_exits_130_and_resume_completes(
 def test_regression_gate_fails_on_an_injected_fault(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
+    """The clean runs are measured in turn (``--workers 1``, no pool of processes to start),
+    the faulted one in worker processes as by default: a trial's figures are the same either
+    way (``test_parallel_trials_commit_in_order_on_one_run_clock``), so only the fault can
+    regress them."""
     config = str(write_config(tmp_path))
     clean = tmp_path / "clean"
-    assert armbench.cli.main.main(["run", "tiny", "--config", config,
+    assert armbench.cli.main.main(["run", "tiny", "--config", config, "--workers", "1",
                                    "--out", str(clean)]) == EXIT_PASS
     same = tmp_path / "same"
-    assert armbench.cli.main.main(["run", "tiny", "--config", config, "--out", str(same),
-                           "--baseline", str(clean / "results.json")]) == EXIT_PASS
+    assert armbench.cli.main.main(["run", "tiny", "--config", config, "--workers", "1",
+                                   "--out", str(same),
+                                   "--baseline", str(clean / "results.json")]) == EXIT_PASS
     assert not load_record(same / "results.json").baseline.regressed  # type: ignore[union-attr]
 
     faults = tmp_path / "stall.toml"  # joint 1 blocked for 0.3 s in every trial
@@ -684,6 +691,8 @@ MINIMAL: dict[str, str] = {
 
 @pytest.mark.parametrize("name", list(MINIMAL))
 def test_real_suite_runs_with_minimal_parameters(name: str, tmp_path: Path) -> None:
+    """Measured in turn (``workers=1``): the real suites in worker processes are the default
+    run's (``test_report_real.py``)."""
     module = SUITES[name].partition(":")[0]
     try:
         importlib.import_module(module)
@@ -694,7 +703,7 @@ def test_real_suite_runs_with_minimal_parameters(name: str, tmp_path: Path) -> N
     config = tmp_path / "bench.toml"
     config.write_text(f'spec_version = "armbench-limits/1"\n\n[suites.{suite.name}]\n{table}')
     out = tmp_path / "run"
-    outcome = run(RunOptions(suites=[name], config=config, out=out))
+    outcome = run(RunOptions(suites=[name], config=config, out=out, workers=1))
     record = load_record(out / "results.json")
     rec = record.suites[suite.name]
     assert rec.status == "done", rec.error
