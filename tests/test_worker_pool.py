@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import os
+import signal
 import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -29,8 +31,13 @@ def loaded(names: tuple[str, ...]) -> tuple[int, list[bool]]:
 
 @pytest.fixture(autouse=True)
 def no_pool_left() -> Iterator[None]:
+    """Each test starts with no pool readied or parked (by a run of another test in this
+    process) and leaves none."""
+    worker_process.discard_prestarted()
+    worker_process.discard_parked()
     yield
     worker_process.discard_prestarted()
+    worker_process.discard_parked()
 
 
 def test_a_prestarted_pool_is_taken_with_its_modules_already_imported() -> None:
@@ -79,13 +86,9 @@ def test_a_run_starts_its_workers_only_where_it_will_measure_in_them(
         assert "armbench.bench.suites.accuracy" in waiting[1]
 
 
-def test_the_pool_of_a_run_is_the_one_started_as_it_began(tmp_path: Path,
-                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    """A default-sized run of a suite on fake:// measures in the pool started before its plan;
-    none is left waiting after it."""
-    from armbench.bench.runner import run_sync
-
-    made: list[object] = []
+def _counted(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """The sizes of the pools started from now on."""
+    made: list[int] = []
     new_pool = worker_process.new_pool
 
     def counted(workers: int, preload: tuple[str, ...] = ()) -> object:
@@ -93,10 +96,57 @@ def test_the_pool_of_a_run_is_the_one_started_as_it_began(tmp_path: Path,
         return new_pool(workers, preload)
 
     monkeypatch.setattr(worker_process, "new_pool", counted)
+    return made
+
+
+def test_the_pool_of_a_run_is_the_one_started_as_it_began(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """A default-sized run of a suite on fake:// measures in the pool started before its plan;
+    after it, none is left waiting for it: the pool is parked for the next run."""
+    from armbench.bench.runner import run_sync
+
+    made = _counted(monkeypatch)
     outcome = run_sync(RunOptions(suites=["joints"], out=tmp_path / "run", workers=2),
                        progress=None)
     assert outcome.exit_status == 0
     assert made == [2] and worker_process._prestarted is None
+    assert worker_process._parked is not None and worker_process._parked[0] == 2
+
+
+def test_the_next_run_of_the_process_takes_the_parked_pool(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Runs one after the other in one process start their workers once, and measure the same:
+    a parked pool's workers keep nothing of a run that the next could see. A change of what
+    spawned workers take from the process (here the environment) starts new ones, as does a
+    pool that lost a worker while parked."""
+    from armbench.bench.runner import run_sync
+    from armbench.record import load_record
+
+    made = _counted(monkeypatch)
+
+    def run(name: str) -> dict[str, object]:
+        outcome = run_sync(RunOptions(suites=["joints"], out=tmp_path / name, workers=2,
+                                      seed=5), progress=None)
+        assert outcome.exit_status == 0
+        suite = load_record(tmp_path / name / "results.json").suites["joints"]
+        return {m.name: m.value for m in suite.measurements}
+
+    first = run("first")
+    assert run("second") == first and made == [2]
+    monkeypatch.setenv("ARMBENCH_TEST_POOL", "changed")
+    assert run("third") == first and made == [2, 2]
+    parked = worker_process._parked
+    assert parked is not None
+    pid = parked[1].submit(os.getpid).result(timeout=120)
+    os.kill(pid, signal.SIGKILL)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        try:
+            parked[1].submit(os.getpid).result(timeout=120)
+        except concurrent.futures.BrokenExecutor:
+            break
+        time.sleep(0.05)
+    assert run("fourth") == first and made == [2, 2, 2]
 
 
 def test_the_next_suites_trials_are_measured_while_the_last_one_ends(

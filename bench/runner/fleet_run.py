@@ -52,7 +52,7 @@ from armbench.bench.runner.overwrite import remove_earlier_run
 from armbench.bench.runner.parallel import prestart_workers
 from armbench.bench.runner.plan import BENCH_BOUNDS, prepare
 from armbench.bench.runner.probe import probe_arms, probe_arms_sync
-from armbench.bench.workers.worker_process import discard_prestarted
+from armbench.bench.workers.worker_process import park_prestarted
 from armbench.drivers.model.bounds import check_whole
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import SettingsError
@@ -274,7 +274,7 @@ def run_arms_sync(options: RunOptions, *, progress: IO[str] | None = sys.stderr,
     with contextlib.ExitStack() as held:
         if _workers_in_bound(options):  # else the plan refuses them, before any process starts
             prestart_workers(options)  # they start while the run is planned
-        held.callback(discard_prestarted)
+        held.callback(park_prestarted)
         if options.resume is not None and any(
                 (Path(options.resume) / name).is_file() for name in (RESULTS_FILE, FLEET_FILE)):
             held.enter_context(hold_run_folder(options.resume))

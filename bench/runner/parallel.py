@@ -49,7 +49,7 @@ from armbench.bench.runner.options import (
 )
 from armbench.bench.runner.trials import TrialAttempts, TrialRunner, default_emulator, describe
 from armbench.bench.suites import registered_suites, suite_names
-from armbench.bench.workers.worker_process import new_pool, prestart, run_job, take_pool
+from armbench.bench.workers.worker_process import new_pool, park, prestart, run_job, take_pool
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.transports.target import target_of
 from armbench.record import Trial, path_inside
@@ -192,6 +192,9 @@ class ParallelTrials:
         """Seconds the committed jobs took inside the workers (with the wall time of the run:
         the overhead of sending trials out)."""
         self.jobs = 0
+        self._sent: list[concurrent.futures.Future[JobResult]] = []
+        """The jobs sent to :attr:`pool` not known to be done: a pool is parked for the next run
+        only when they all are (a busy worker finishes its trial alone)."""
         self._in_flight: asyncio.Semaphore | None = None
         self._started: tuple[str, tuple[int, ...],
                              list[asyncio.Future[list[JobResult]]]] | None = None
@@ -326,10 +329,13 @@ class ParallelTrials:
                                       _worker_modules([s.ref for s in runner.plan.suites]))
             pool = self.pool
             try:
-                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+                sent = pool.submit(run_job, job)
+                self._sent = [f for f in self._sent if not f.done()]
+                self._sent.append(sent)
+                result: JobResult = await asyncio.wrap_future(sent, loop=loop)
             except concurrent.futures.BrokenExecutor:
                 if self.pool is pool:
-                    self.close()
+                    self.close(park_pool=False)
                 raise
             return result
 
@@ -396,14 +402,19 @@ class ParallelTrials:
         runner.show_attempt(ps, index, attempt, trial, wall_s)
         return trial
 
-    def close(self) -> None:
-        """Let the worker processes go (a busy one finishes its trial alone); the next parallel
-        suite starts new ones."""
+    def close(self, park_pool: bool = True) -> None:
+        """Let the worker processes go: parked for the next run of this process when every job
+        sent is done and ``park_pool`` (not after a worker died), else shut down (a busy one
+        finishes its trial alone)."""
         self._drop_started()
         self._in_flight = None
         pool, self.pool = self.pool, None
+        sent, self._sent = self._sent, []
         if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+            if park_pool and all(f.done() for f in sent):
+                park(pool, self.runner.plan.workers)
+            else:
+                pool.shutdown(wait=False, cancel_futures=True)
         cluster, self.cluster = self.cluster, None
         if cluster is not None:
             cluster.close()

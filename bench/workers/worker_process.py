@@ -9,7 +9,12 @@ will need as it starts.
 A spawned worker takes about a second to start (an interpreter, numpy, the emulator) before it
 can measure anything. :func:`prestart` starts the pool of a run at once, so the workers start
 while the run's process is still planning; :func:`take_pool` hands it to the runner when it has
-the number of workers asked for, and :func:`discard_prestarted` lets an unused one go.
+the number of workers asked for, and :func:`discard_prestarted` lets an unused one go. A run
+done with its pool parks it (:func:`park`): the next run of the same process (a test session, a
+notebook, a campaign of runs) takes it instead of starting workers again, as long as nothing the
+workers took from the process at their start (the import path, the working folder, the
+environment) has changed; the workers end with the process, or when :func:`discard_parked`
+lets them go.
 """
 
 from __future__ import annotations
@@ -24,11 +29,12 @@ import signal
 import sys
 import threading
 import time
+import weakref
 from collections.abc import Coroutine, Sequence
 from typing import Any, Protocol, TypeVar
 
-__all__ = ["Job", "discard_prestarted", "new_pool", "prestart", "run_job", "take_pool",
-           "worker_init"]
+__all__ = ["Job", "discard_parked", "discard_prestarted", "new_pool", "park", "park_prestarted",
+           "prestart", "run_job", "take_pool", "worker_init"]
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
@@ -71,46 +77,110 @@ def _started() -> None:
     """A job that does nothing: submitting one per worker makes the pool start them all."""
 
 
+#: Variables of the environment that change from call to call within one process and that no
+#: job reads: pytest's name of the test running.
+_UNREAD_ENVIRONMENT = frozenset({"PYTEST_CURRENT_TEST"})
+
+_inherited_by: weakref.WeakKeyDictionary[concurrent.futures.ProcessPoolExecutor,
+                                         tuple[object, ...]] = weakref.WeakKeyDictionary()
+"""What each pool's workers took from this process as they were spawned (:func:`_inherited`)."""
+
+
+def _inherited() -> tuple[object, ...]:
+    """What a spawned worker takes from this process as it starts and a job may depend on: the
+    import path, the working folder and the environment."""
+    environment = tuple(sorted((k, v) for k, v in os.environ.items()
+                               if k not in _UNREAD_ENVIRONMENT))
+    return tuple(sys.path), os.getcwd(), environment
+
+
 def new_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.ProcessPoolExecutor:
     """A pool of ``workers`` spawned worker processes (:func:`worker_init`), each importing
     ``preload`` as it starts; started now, not at the first job."""
     pool = concurrent.futures.ProcessPoolExecutor(
         workers, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init,
         initargs=(os.getpid(), tuple(preload)))
+    _inherited_by[pool] = _inherited()
     for _ in range(workers):  # a spawning pool starts a process per job submitted
         pool.submit(_started)
     return pool
 
 
 _prestarted: tuple[int, tuple[str, ...], concurrent.futures.ProcessPoolExecutor] | None = None
+_parked: tuple[int, concurrent.futures.ProcessPoolExecutor] | None = None
 
 
 def prestart(workers: int, preload: Sequence[str] = ()) -> None:
-    """Start a pool of ``workers`` now, kept for :func:`take_pool` (one at a time: an unused one
-    started before is let go)."""
+    """Have a pool of ``workers`` ready for :func:`take_pool`: the parked one if it fits, else
+    one started now (one at a time: an unused one started before is let go)."""
     global _prestarted
     discard_prestarted()
-    _prestarted = (workers, tuple(preload), new_pool(workers, preload))
+    _prestarted = (workers, tuple(preload), _unpark(workers) or new_pool(workers, preload))
 
 
 def take_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.ProcessPoolExecutor:
-    """The pool :func:`prestart` started if it has ``workers`` workers, else a new one importing
-    ``preload`` (and the other one let go)."""
+    """The pool :func:`prestart` readied if it has ``workers`` workers, else the parked one if it
+    fits, else a new one importing ``preload`` (and the others let go)."""
     global _prestarted
     if _prestarted is not None and _prestarted[0] == workers:
         pool = _prestarted[2]
         _prestarted = None
         return pool
     discard_prestarted()
-    return new_pool(workers, preload)
+    return _unpark(workers) or new_pool(workers, preload)
 
 
 def discard_prestarted() -> None:
-    """Let the pool :func:`prestart` started go, if no run took it."""
+    """Let the pool :func:`prestart` readied go, if no run took it."""
     global _prestarted
     if _prestarted is not None:
         _prestarted[2].shutdown(wait=False, cancel_futures=True)
         _prestarted = None
+
+
+def park(pool: concurrent.futures.ProcessPoolExecutor, workers: int) -> None:
+    """Keep ``pool``, its ``workers`` all idle and alive, for the next run of this process that
+    asks for as many: their start (about a CPU second each) is saved. One pool is kept; one
+    parked before is let go."""
+    global _parked
+    discard_parked()
+    _parked = (workers, pool)
+
+
+def park_prestarted() -> None:
+    """At a run's end: the pool :func:`prestart` readied for it, if it took none, parked."""
+    global _prestarted
+    if _prestarted is not None:
+        workers, _, pool = _prestarted
+        _prestarted = None
+        park(pool, workers)
+
+
+def _unpark(workers: int) -> concurrent.futures.ProcessPoolExecutor | None:
+    """The parked pool if it has ``workers`` workers, none lost, and what they took from this
+    process at their start is still the same; else None, the parked one let go."""
+    global _parked
+    parked, _parked = _parked, None
+    if parked is None:
+        return None
+    count, pool = parked
+    if count == workers and _inherited_by.get(pool) == _inherited():
+        try:
+            pool.submit(_started)  # refused at once by a pool that lost a worker meanwhile
+        except (concurrent.futures.BrokenExecutor, RuntimeError):
+            pass
+        else:
+            return pool
+    pool.shutdown(wait=False, cancel_futures=True)
+    return None
+
+
+def discard_parked() -> None:
+    """Let the parked pool's workers go."""
+    global _parked
+    parked, _parked = _parked, None
+    if parked is not None:
+        parked[1].shutdown(wait=False, cancel_futures=True)
 
 
 def run_job(job: Job[T_co]) -> T_co:
