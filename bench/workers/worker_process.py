@@ -19,6 +19,7 @@ lets them go.
 
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import contextlib
 import ctypes
@@ -181,6 +182,15 @@ def discard_parked() -> None:
     parked, _parked = _parked, None
     if parked is not None:
         parked[1].shutdown(wait=False, cancel_futures=True)
+
+
+def _let_go() -> None:
+    """At the process's exit, while the modules a pool's clean-up uses are still there."""
+    discard_prestarted()
+    discard_parked()
+
+
+atexit.register(_let_go)
 
 
 def run_job(job: Job[T_co]) -> T_co:
