@@ -181,6 +181,13 @@ def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     return status, captured.out, captured.err
 
 
+#: ``--workers 1`` for a ``run`` the test expects refused, or that measures a single trial: it is
+#: refused (or measured in this process) alike with any count of workers, and with more than one
+#: a ``fake://`` run first starts that many worker processes while it plans, each importing the
+#: emulator: a CPU second or so per run, for processes that such a run never uses.
+ONE_WORKER = ("--workers", "1")
+
+
 def one_line_error(status: int, err: str, *expected: str) -> None:
     """Exit status 2 and a single stderr line holding every ``expected`` text, no traceback."""
     lines = err.strip().splitlines()

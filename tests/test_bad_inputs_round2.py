@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import cli, one_line_error
+from conftest import ONE_WORKER, cli, one_line_error
 
 from armbench.bench.runner.plan import BENCH_BOUNDS, MAX_TRIALS
 from armbench.bench.suites import SUITES
@@ -95,7 +95,8 @@ def test_a_fifo_as_a_toml_input_is_refused_without_blocking(tmp_path: Path, opti
     fifo = tmp_path / "input.toml"
     os.mkfifo(fifo)  # nobody ever writes to it: opening it for reading would block for ever
     out = tmp_path / "r"
-    status, err = child_cli("run", "accuracy", *_toml_args(option, fifo), "--out", str(out))
+    status, err = child_cli("run", "accuracy", *_toml_args(option, fifo), *ONE_WORKER, "--out",
+                            str(out))
     one_line_error(status, err, str(fifo), "is a FIFO", "regular file")
     assert not out.exists()
 
@@ -103,8 +104,8 @@ def test_a_fifo_as_a_toml_input_is_refused_without_blocking(tmp_path: Path, opti
 @pytest.mark.parametrize("option", ["--config", "fake://settings"])
 def test_dev_zero_as_a_toml_input_is_refused_without_reading(tmp_path: Path, option: str) -> None:
     out = tmp_path / "r"
-    status, err = child_cli("run", "accuracy", *_toml_args(option, Path("/dev/zero")), "--out",
-                            str(out))
+    status, err = child_cli("run", "accuracy", *_toml_args(option, Path("/dev/zero")), *ONE_WORKER,
+                            "--out", str(out))
     one_line_error(status, err, "/dev/zero", "is a character device")
     assert not out.exists()
 
@@ -126,7 +127,8 @@ def test_a_toml_input_beyond_the_size_bound_is_refused(
     big.write_text("# padding\n" * (MAX_TOML_BYTES // 10 + 1))  # one comment line too many
     assert big.stat().st_size > MAX_TOML_BYTES
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", option, str(big), "--out", str(out))
+    status, _, err = cli(capsys, "run", "accuracy", option, str(big), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, str(big), f"larger than {MAX_TOML_BYTES} bytes")
     assert not out.exists()
 
@@ -137,7 +139,8 @@ def test_a_deeply_nested_toml_input_is_one_line(
         tmp_path: Path, option: str, depth: int, capsys: pytest.CaptureFixture[str]) -> None:
     deep = nested_toml(tmp_path / "deep.toml", depth)
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", *_toml_args(option, deep), "--out", str(out))
+    status, _, err = cli(capsys, "run", "accuracy", *_toml_args(option, deep), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, str(deep), f"nested more than {MAX_TOML_DEPTH}")
     assert not out.exists()
 
@@ -147,7 +150,7 @@ def test_the_nesting_bound_leaves_the_formats_room(tmp_path: Path,
     """A settings file nested exactly to the bound is read (and refused for what it says, not
     for its depth)."""
     ok = nested_toml(tmp_path / "ok.toml", MAX_TOML_DEPTH - 1)
-    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(ok), "--out",
+    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(ok), *ONE_WORKER, "--out",
                          str(tmp_path / "r"))
     assert status == 2 and "nested" not in err, err
 
@@ -175,7 +178,7 @@ def test_a_huge_integer_in_a_baseline_is_refused_before_the_run(
     config.write_text(ONE_LAP)
     out = tmp_path / "r"
     status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out),
-                         "--baseline", str(bad))
+                         "--baseline", str(bad), *ONE_WORKER)
     one_line_error(status, err, "baseline", str(bad), "4300 digits")
     assert not out.exists()
 
@@ -244,7 +247,9 @@ def test_bench_times_and_counts_beyond_their_bound_are_refused(
         tmp_path: Path, key: str, value: str, capsys: pytest.CaptureFixture[str]) -> None:
     config = _config(tmp_path, "bench", f"{key} = {value}")
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    workers = () if key == "workers" else ONE_WORKER  # --workers would stand for the config's
+    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), *workers, "--out",
+                         str(out))
     whole = "a whole number " if BENCH_BOUNDS[key].whole else ""
     one_line_error(status, err, f"bench.{key}", f"must be {whole}in {BENCH_BOUNDS[key]}")
     assert not out.exists()
@@ -254,7 +259,8 @@ def test_bench_times_and_counts_beyond_their_bound_are_refused(
 def test_command_line_counts_beyond_their_bound_are_refused(
         tmp_path: Path, flag: str, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", flag, "1000000", "--out", str(out))
+    workers = () if flag == "--workers" else ONE_WORKER
+    status, _, err = cli(capsys, "run", "accuracy", flag, "1000000", *workers, "--out", str(out))
     one_line_error(status, err, flag, "1000000", f"must be a whole number in "
                                                  f"{BENCH_BOUNDS[flag[2:]]}")
     assert not out.exists()
@@ -271,7 +277,8 @@ def test_suite_times_and_counts_beyond_their_bound_are_refused(
         capsys: pytest.CaptureFixture[str]) -> None:
     config = _config(tmp_path, f"suites.{suite}", line)
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", suite, "--config", str(config), "--out", str(out))
+    status, _, err = cli(capsys, "run", suite, "--config", str(config), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, f"suites.{suite}.{key}", bound)
     assert not out.exists()
 
@@ -282,8 +289,8 @@ def test_emulator_times_beyond_their_bound_are_refused(
     settings = tmp_path / "robot.toml"
     settings.write_text(f"[emulator]\n{key} = 1e10\n")
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(settings), "--out",
-                         str(out))
+    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(settings), *ONE_WORKER,
+                         "--out", str(out))
     one_line_error(status, err, f"emulator.{key}", "10000000000.0", "must be in [0, ")
     assert not out.exists()
 
@@ -314,8 +321,8 @@ def test_a_non_finite_emulator_seed_is_refused_at_load(
     settings = tmp_path / "robot.toml"
     settings.write_text("[emulator]\nseed = inf\n")
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(settings), "--out",
-                         str(out))
+    status, _, err = cli(capsys, "run", "accuracy", "--settings", str(settings), *ONE_WORKER,
+                         "--out", str(out))
     one_line_error(status, err, "emulator.seed", "inf")
     assert not out.exists()
 
@@ -347,7 +354,8 @@ def test_a_move_timeout_scale_that_is_no_factor_is_refused(
         tmp_path: Path, value: str, capsys: pytest.CaptureFixture[str]) -> None:
     config = _config(tmp_path, "bench", f"move_timeout_scale = {value}")
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, "bench.move_timeout_scale")
     assert not out.exists()
 
@@ -360,7 +368,7 @@ def test_the_move_timeout_scale_reaches_the_driver_of_every_trial(
     config.write_text(config.read_text() + "\n[suites.accuracy]\nlaps = 1\n"
                       'styles = ["paper"]\n')
     out = tmp_path / "r"
-    cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    cli(capsys, "run", "accuracy", "--config", str(config), *ONE_WORKER, "--out", str(out))
     record = load_record(out / "results.json")
     errors = [t.error for s in record.suites.values() for t in s.trials]
     assert errors and all(e is not None and "MoveTimeoutError" in e for e in errors), errors

@@ -13,12 +13,14 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import ONE_WORKER
 from tmpfs import mounted_tmpfs
 
 from armbench.cli.main import main
 from armbench.fakes.avr.harness import FIRMWARE_SOURCE
 from armbench.record import RecordError
 from armbench.record.files import atomic_write_bytes
+from armbench.record.verdict import DEFAULT_CONFIG
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = ROOT / "tests" / "fixtures" / "records"
@@ -138,7 +140,8 @@ def test_a_fifo_as_the_summary_is_refused_before_the_run(tmp_path: Path) -> None
     """It blocked after the whole run, waiting for a reader that never came."""
     fifo = tmp_path / "summary.md"
     os.mkfifo(fifo)
-    err = _refused_process("run", "accuracy", "--summary", fifo, "--out", tmp_path / "run")
+    err = _refused_process("run", "accuracy", "--summary", fifo, *ONE_WORKER, "--out",
+                           tmp_path / "run")
     assert f"--summary {fifo}: is a FIFO" in err
     assert fifo.is_fifo() and not (tmp_path / "run").exists()
 
@@ -152,7 +155,8 @@ def test_an_unwritable_summary_is_refused_before_the_run(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], summary: str, problem: str) -> None:
     """Each was a traceback and exit 1 after the whole run."""
     path = summary.format(tmp=tmp_path)
-    err = _refused(capsys, "run", "accuracy", "--summary", path, "--out", tmp_path / "run")
+    err = _refused(capsys, "run", "accuracy", "--summary", path, *ONE_WORKER, "--out",
+                   tmp_path / "run")
     assert f"--summary {path}: {problem.format(tmp=tmp_path)}" in err, err
     assert not (tmp_path / "run").exists()
 
@@ -160,7 +164,11 @@ def test_an_unwritable_summary_is_refused_before_the_run(
 def test_a_summary_that_fails_after_the_run_keeps_its_status(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The disk of the summary fills during the run (a real full tmpfs): one warning line, the
-    run's exit status and results as they are."""
+    run's exit status and results as they are. The default limits over one lap per accuracy
+    style (the summary is written once the run ends, whatever its length), in this process."""
+    config = tmp_path / "one-lap.toml"
+    config.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
+                      + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     with mounted_tmpfs(tmp_path / "disk", "size=64k") as disk:
         summary = disk / "summary.md"
         earlier = "# earlier steps\n" * 256  # a whole page: appending needs another
@@ -168,8 +176,8 @@ def test_a_summary_that_fails_after_the_run_keeps_its_status(
         with contextlib.suppress(OSError), (disk / "filler").open("wb") as fh:
             while fh.write(bytes(4096)):
                 fh.flush()
-        status = main(["run", "accuracy", "--seed", "3", "--summary", str(summary), "--out",
-                       str(tmp_path / "run")])
+        status = main(["run", "accuracy", "--seed", "3", "--config", str(config), "--summary",
+                       str(summary), *ONE_WORKER, "--out", str(tmp_path / "run")])
         err = capsys.readouterr().err
         assert summary.read_text() == earlier
     assert status == 0, err
@@ -253,6 +261,7 @@ def test_a_deadband_is_a_bounded_whole_number(tmp_path: Path, capsys: pytest.Cap
                                               value: str, problem: str) -> None:
     settings = tmp_path / "robot.toml"
     settings.write_text(f"[emulator]\ndeadband_counts = {value}\n")
-    err = _refused(capsys, "run", "accuracy", "--settings", settings, "--out", tmp_path / "run")
+    err = _refused(capsys, "run", "accuracy", "--settings", settings, *ONE_WORKER, "--out",
+                   tmp_path / "run")
     assert f"emulator.deadband_counts: {problem}" in err
     assert not (tmp_path / "run").exists()

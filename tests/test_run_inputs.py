@@ -13,7 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import cli, one_line_error
+from conftest import ONE_WORKER, cli, one_line_error
 
 import armbench.cli.main
 from armbench.bench.runner import ProgressPrinter
@@ -112,7 +112,8 @@ def test_a_bad_settings_or_limits_file_is_one_line(
         bad = write(tmp_path / "latin1.toml", "# réglages\n".encode("latin-1"))
         expected = "is not UTF-8"
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", option, str(bad), "--out", str(out))
+    status, _, err = cli(capsys, "run", "accuracy", option, str(bad), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, str(bad), expected)
     assert not out.exists()
 
@@ -129,7 +130,7 @@ def test_a_faults_file_that_injects_nothing_it_says_is_refused(
     faults = write(tmp_path / "faults.toml", content)
     out = tmp_path / "r"
     status, _, err = cli(capsys, "run", "accuracy", "--config", str(limits), "--out", str(out),
-                         "--faults", str(faults))
+                         "--faults", str(faults), *ONE_WORKER)
     one_line_error(status, err, expected)
     assert not out.exists()
 
@@ -138,7 +139,8 @@ def test_a_limit_in_the_wrong_unit_is_refused_before_trial_0(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     config = write(tmp_path / "bench.toml", ONE_LAP.format(laps=1) + LIMIT.format(unit="mm"))
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), "--out", str(out))
+    status, _, err = cli(capsys, "run", "accuracy", "--config", str(config), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, 'limits."accuracy.coordinated.lap_time_s".unit', "'s'")
     assert not out.exists()  # nothing measured, nothing created
 
@@ -167,7 +169,8 @@ def test_suite_parameters_beyond_their_bound_are_refused_at_once(
     config = write(tmp_path / "bench.toml",
                    f'spec_version = "armbench-limits/1"\n\n[suites.{table}]\n{key}\n')
     out = tmp_path / "r"
-    status, _, err = cli(capsys, "run", table, "--config", str(config), "--out", str(out))
+    status, _, err = cli(capsys, "run", table, "--config", str(config), *ONE_WORKER, "--out",
+                         str(out))
     one_line_error(status, err, f"suites.{table}.{key.split()[0]}", bound)
     assert not out.exists()
 
@@ -196,7 +199,7 @@ def test_deeply_nested_json_is_one_line_everywhere_a_record_is_read(
     one_line_error(*cli(capsys, "compare", good, str(deep))[::2], "nested too deeply")
     out = tmp_path / "r"
     one_line_error(*cli(capsys, "run", "accuracy", "--config", str(limits), "--out", str(out),
-                        "--baseline", str(deep))[::2], "nested too deeply")
+                        "--baseline", str(deep), *ONE_WORKER)[::2], "nested too deeply")
     assert not out.exists()
     runs = tmp_path / "runs"
     (runs / "bad").mkdir(parents=True)
