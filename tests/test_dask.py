@@ -118,17 +118,19 @@ class _KillOnce:
                     return
 
 
-def test_worker_killed_mid_campaign_loses_and_repeats_nothing(tmp_path: Path) -> None:
+def test_worker_killed_mid_campaign_loses_and_repeats_nothing(
+        tmp_path: Path, two_workers: Any) -> None:
+    """The module's cluster, after the other tests that use it (its nanny starts a new worker
+    in place of the one killed): a cluster of its own would start two more worker processes."""
     samples = 30
-    with _cluster(2) as cluster:
-        stream = _KillOnce(cluster, after=4)
-        outcome = run_campaign(CampaignOptions("startup-recovery", samples, seed=9,
-                                               out=tmp_path / "killed",
-                                               scheduler=cluster.scheduler_address),
-                               progress=stream)  # type: ignore[arg-type]
-        assert stream.killed is not None, "no worker was busy to kill"
-        alive = {n.process.pid for n in cluster.workers.values() if n.process is not None}
-        assert stream.killed not in alive
+    stream = _KillOnce(two_workers, after=4)
+    outcome = run_campaign(CampaignOptions("startup-recovery", samples, seed=9,
+                                           out=tmp_path / "killed",
+                                           scheduler=two_workers.scheduler_address),
+                           progress=stream)  # type: ignore[arg-type]
+    assert stream.killed is not None, "no worker was busy to kill"
+    alive = {n.process.pid for n in two_workers.workers.values() if n.process is not None}
+    assert stream.killed not in alive
     suite = outcome.record.suites["startup-recovery"]
     assert [t.index for t in suite.trials] == list(range(samples))  # each sample exactly once
     assert not suite.superseded_trials
