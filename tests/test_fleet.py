@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from chromium import CHROMIUM, Chromium
+from conftest import ONE_WORKER
 from test_report import cells, parse
 
 from armbench.bench.runner.fleet_run import arm_name, fleet_exit_status, parse_arms
@@ -109,7 +110,9 @@ def test_arm_names_and_ports() -> None:
 def fake_fleets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Fleet ``a`` (two emulated arms) and fleet ``b`` of the same arms against ``a`` as
     baseline, arm ``heavy`` carrying a 0.4 kg payload this time; one lap per accuracy style
-    (what a fleet does with its arms' runs does not depend on their length)."""
+    (what a fleet does with its arms' runs does not depend on their length), each arm's trials
+    measured in this process (``ONE_WORKER``: nor on where they are measured; with more, each
+    arm would start worker processes of its own)."""
     root = tmp_path_factory.mktemp("fleets")
     strict = root / "strict.toml"  # accuracy regresses when 1 % worse than its baseline
     text = DEFAULT_CONFIG.read_text(encoding="utf-8")
@@ -118,11 +121,11 @@ def fake_fleets(tmp_path_factory: pytest.TempPathFactory) -> Path:
     strict.write_text(text.replace(loose, "tolerance_pct = 1.0\ntolerance_abs = 0.0")
                       + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
     status, out = _cli("accuracy", "--port", "light=fake://", "--port", "heavy=fake://?seed=5",
-                       "--out", str(root / "a"), "--config", str(strict))
+                       "--out", str(root / "a"), "--config", str(strict), *ONE_WORKER)
     assert status == 0, out
     status, out = _cli("accuracy", "--port", "light=fake://", "--port",
                        "heavy=fake://?seed=5&payload=0.4", "--out", str(root / "b"),
-                       "--baseline", str(root / "a"), "--config", str(strict))
+                       "--baseline", str(root / "a"), "--config", str(strict), *ONE_WORKER)
     assert status == 3, out  # regressed, every limit held
     (root / "b.out").write_text(out, encoding="utf-8")
     return root
@@ -146,7 +149,8 @@ def test_each_arm_gets_a_run_folder_of_its_own(fake_fleets: Path) -> None:
     assert _headline(light, 4) != _headline(heavy, 4)
     # the same arm alone gives the same record: a fleet does not change what an arm measures
     status, _ = _cli("accuracy", "--port", "solo=fake://?seed=5", "--out",
-                     str(fake_fleets / "alone"), "--config", str(fake_fleets / "strict.toml"))
+                     str(fake_fleets / "alone"), "--config", str(fake_fleets / "strict.toml"),
+                     *ONE_WORKER)
     alone = load_record(fake_fleets / "alone" / "results.json")
     assert status == 0 and alone.environment.port == "fake://?seed=5"
     assert [_headline(alone, k) for k in range(5)] == [_headline(heavy, k) for k in range(5)]
@@ -211,7 +215,8 @@ def test_one_arm_lost_mid_run_the_others_complete(tmp_path: Path) -> None:
     """Arm ``arm-b`` falls silent mid-run (its emulator loses power, as an arm whose cable is
     pulled does): its run ends in error with what it measured on disk, the other two complete,
     and the fleet says so. On virtual time: how the fleet takes one arm's failure does not depend
-    on real time. A port lost over a real link is in ``test_outage_campaign.py`` and
+    on real time, nor on where each arm's trials are measured (here in this process). A port
+    lost over a real link is in ``test_outage_campaign.py`` and
     ``test_arm_driver.py::test_port_lost_mid_move``; a fleet over real ptys and ser2net in
     ``test_accuracy_on_two_labgrid_places_at_once``."""
     cut = tmp_path / "power-cut.toml"  # mid-lap: a lap of the 4 cm square takes ~5 s
@@ -222,7 +227,7 @@ def test_one_arm_lost_mid_run_the_others_complete(tmp_path: Path) -> None:
     out_dir = tmp_path / "fleet"
     status, stdout = _cli("accuracy", "--config", str(config), "--out", str(out_dir),
                           "--port", "arm-a=fake://", "--port", f"arm-b=fake://?faults={cut}",
-                          "--port", "arm-c=fake://?seed=5")
+                          "--port", "arm-c=fake://?seed=5", *ONE_WORKER)
     assert status == 4, stdout  # incomplete: an arm lost mid-run
     lines = stdout.splitlines()
     assert lines[0] == "fleet of 3 arm(s): exit 4, not passed: arm-b", stdout
