@@ -317,8 +317,7 @@ def test_never_over_a_run_record(captures: dict[str, Path], tmp_path: Path, name
         (run / record_file).write_text(f"the run's {record_file}\n")
     before = _user_files(run)
     for force in ((), ("--force",)):
-        err = _cli("calibrate", "--capture", captures["jsonl"], "--out", run / name, *force,
-                   process=True)
+        err = _cli("calibrate", "--capture", captures["jsonl"], "--out", run / name, *force)
         assert "belongs to the run record" in err
     assert _user_files(run) == before
 
