@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from conftest import cli
 from netutil import free_port, listening
 
 from armbench.drivers.host.arm import Arm
@@ -251,22 +252,21 @@ def test_a_coordinator_that_starts_late_is_asked_again(
         _stop(procs)
 
 
-def test_the_cli_moves_the_arm_of_a_place(lab: Lab) -> None:
-    done = subprocess.run([sys.executable, "-m", "armbench", "move", "--port", lab.port("arm-a"),
-                           "--reply-timeout", str(REPLY_TIMEOUT_S),
-                           "--timeout", str(MOVE_TIMEOUT_S), "0.02", "0", "0", "0"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120, check=False)
-    assert done.returncode == 0, done.stderr
+def test_the_cli_moves_the_arm_of_a_place(lab: Lab, capsys: pytest.CaptureFixture[str]) -> None:
+    """``armbench move`` and ``monitor`` on a place, in this process (the command's process is
+    ``test_ctrl_c_releases_the_place``'s)."""
+    status, _, err = cli(capsys, "move", "--port", lab.port("arm-a"), "--reply-timeout",
+                         str(REPLY_TIMEOUT_S), "--timeout", str(MOVE_TIMEOUT_S), "0.02", "0", "0",
+                         "0")
+    assert status == 0, err
     assert _acquired_by(lab, "arm-a") == ""
     locked = lab.client("-p", "arm-a", "acquire", user="bob")
     assert locked.returncode == 0
     try:
-        refused = subprocess.run([sys.executable, "-m", "armbench", "monitor", "--port",
-                                  lab.port("arm-a")], cwd=ROOT, capture_output=True, text=True,
-                                 timeout=120, check=False)
-        assert refused.returncode == 2
-        assert "acquired by" in refused.stderr and "bob" in refused.stderr
-        assert len(refused.stderr.strip().splitlines()) == 1
+        status, _, err = cli(capsys, "monitor", "--port", lab.port("arm-a"))
+        assert status == 2
+        assert "acquired by" in err and "bob" in err
+        assert len(err.strip().splitlines()) == 1
     finally:
         lab.client("-p", "arm-a", "release", user="bob")
 
