@@ -359,7 +359,7 @@ def test_an_interrupted_fleet_is_resumed(tmp_path: Path) -> None:
     assert read_fleet_index(fleet).exit_status == 130
     status, _ = _cli("--resume", str(fleet), "--port", "fake://")
     assert status == 2  # a fleet continues on its own ports
-    status, out = _cli("--resume", str(fleet))
+    status, out = _cli("--resume", str(fleet), *ONE_WORKER)  # as the run was given
     assert status == 0, out
     for n in "ab":
         record = load_record(fleet / n / "results.json")
