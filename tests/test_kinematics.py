@@ -135,6 +135,12 @@ def test_tcp_position_rejects_wrong_shapes(bad: Any) -> None:
         tcp_position(bad, DEFAULT)
 
 
+def test_tcp_point_rejects_a_pose_of_other_than_four_joints() -> None:
+    for q in ([0.0, 0.0, 0.0], [0.0] * 5):
+        with pytest.raises(KinematicsError, match=f"4 joint angles, got {len(q)}"):
+            tcp_point(q, DEFAULT)
+
+
 def test_fk_is_rigid_and_position_ignores_joint4() -> None:
     rng = np.random.default_rng(2)
     theta = rng.uniform(-math.pi, math.pi, (100, 4))

@@ -266,6 +266,8 @@ def tcp_point(q_protocol: Sequence[float], settings: RobotSettings) -> tuple[flo
     """TCP position (m) of one pose of protocol-convention angles (rad): the DH chain of
     :func:`fk` applied to the TCP's origin, last link first, without building the matrices
     (the same product, summed in another order: equal to it within rounding)."""
+    if len(q_protocol) != 4:
+        raise KinematicsError(f"q must have 4 joint angles, got {len(q_protocol)}")
     g = settings.geometry
     a_m = (0.0, g.a2_m, g.a3_m, 0.0)
     d_m = (g.d1_m, g.d2_m, 0.0, g.d4_m)
