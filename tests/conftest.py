@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import re
 import shutil
@@ -179,6 +180,17 @@ def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     status = armbench.cli.main.main(list(args))
     captured = capsys.readouterr()
     return status, captured.out, captured.err
+
+
+def run_here(*args: str) -> subprocess.CompletedProcess[str]:
+    """``armbench ARGS`` in this process, reported as a child process's would be (status, stdout,
+    stderr): for the runs and resumes whose process is not the case (only what they leave in
+    the folder is), where a fresh interpreter's imports would cost more than the run itself;
+    unlike :func:`cli` it needs no ``capsys``, so module fixtures can use it."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = armbench.cli.main.main(list(args))
+    return subprocess.CompletedProcess(list(args), status, out.getvalue(), err.getvalue())
 
 
 #: ``--workers 1`` for a ``run`` the test expects refused, or that measures a single trial: it is

@@ -101,9 +101,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
+from conftest import run_here
 from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
 
-import armbench.cli.main
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.cli.commands.run_files import write_reports
 from armbench.drivers.capture.read import open_capture
@@ -577,16 +577,6 @@ def _bench(*args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[
                           capture_output=True, timeout=timeout_s, check=False)
 
 
-def _here(*args: str) -> subprocess.CompletedProcess[str]:
-    """``armbench ARGS`` in this process, as :func:`_bench` reports it: for the runs that resume
-    or replace a killed one (the killed process is the case, theirs is not), where a fresh
-    interpreter's imports would cost more than the run itself."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = armbench.cli.main.main(list(args))
-    return subprocess.CompletedProcess(list(args), status, out.getvalue(), err.getvalue())
-
-
 def _measurements(record: Any) -> dict[str, float]:
     out: dict[str, float] = {}
     for suite, trial, m in record.iter_measurements():
@@ -638,7 +628,7 @@ def test_kill_9_then_resume(moment: int, reference_run: Reference, tmp_path: Pat
         refused = _bench("run", "--resume", str(out))
         assert refused.returncode == 2 and "results.json" in refused.stderr, refused.stderr
         assert len(refused.stderr.strip().splitlines()) == 1
-        fresh = _here("run", "accuracy", "--config", str(reference_run.config), "--out",
+        fresh = run_here("run", "accuracy", "--config", str(reference_run.config), "--out",
                       str(out), "--seed", "5")
         assert fresh.returncode == 0, fresh.stderr
         outcome = f"killed at {delay:.2f} s (status {status}): no record yet; fresh run exit 0"
@@ -646,7 +636,7 @@ def test_kill_9_then_resume(moment: int, reference_run: Reference, tmp_path: Pat
         before = load_record(results)  # accepted as it is on disk
         done_before = [t.index for t in before.suites["accuracy"].trials
                        if t.status == "done"] if "accuracy" in before.suites else []
-        resumed = _here("run", "--resume", str(out))
+        resumed = run_here("run", "--resume", str(out))
         assert resumed.returncode in (0, 1), resumed.stderr
         outcome = (f"killed at {delay:.2f} s (status {status}): {before.verdict}, trials "
                    f"{done_before} done; resume exit {resumed.returncode}")
@@ -692,7 +682,7 @@ def test_kill_9_between_capture_and_record_keeps_the_capture_one_stream(
                             cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert killed.returncode == -signal.SIGKILL
     assert [t.index for t in load_record(out / "results.json").suites["accuracy"].trials] == [0, 1]
-    resumed = _here("run", "--resume", str(out))
+    resumed = run_here("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
     times = [r.t_s for r in open_capture(out / "capture.mcap")]
     assert times == sorted(times), "capture.mcap is not one stream on the run clock"

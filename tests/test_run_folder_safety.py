@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import run_here
 from tmpfs import mounted_tmpfs
 
 import armbench.cli.main
@@ -82,17 +83,6 @@ def _bench(*args: str, cwd: Path = ROOT, env: dict[str, str] | None = None
     return subprocess.run([sys.executable, "-m", "armbench", *args], cwd=cwd, text=True,
                           capture_output=True, timeout=WAIT_S, check=False,
                           env=env if env is not None else _env())
-
-
-def _here(*args: str) -> subprocess.CompletedProcess[str]:
-    """``armbench ARGS`` in this process, as :func:`_bench` reports it: for the runs and resumes
-    whose process is not the case (only what they leave in the folder is), where a fresh
-    interpreter's imports would cost more than the run itself. What a command prints to a user
-    (a refusal's one line) is checked of its own process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        status = armbench.cli.main.main(list(args))
-    return subprocess.CompletedProcess(list(args), status, out.getvalue(), err.getvalue())
 
 
 def _start(*args: str) -> subprocess.Popen[str]:
@@ -175,7 +165,7 @@ def whole_run(tmp_path_factory: pytest.TempPathFactory) -> Capture:
     must equal."""
     tmp = tmp_path_factory.mktemp("whole")
     out = tmp / "run"
-    done = _here(*_accuracy(tmp, out))
+    done = run_here(*_accuracy(tmp, out))
     assert done.returncode == 0, done.stderr
     return _capture(out)
 
@@ -234,7 +224,7 @@ def test_a_killed_holder_leaves_no_lock(tmp_path: Path) -> None:
     _wait_for(proc, "trial 1/6 done")
     os.killpg(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=WAIT_S)
-    resumed = _here("run", "--resume", str(out))
+    resumed = run_here("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
 
 
@@ -244,7 +234,7 @@ def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
     fleet = tmp_path / "fleet"
     one_lap = Path(_square(tmp_path))  # what is refused depends on neither square nor laps
     one_lap.write_text(one_lap.read_text(encoding="utf-8") + "laps = 1\n", encoding="utf-8")
-    done = _here("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
+    done = run_here("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
                  "--out", str(fleet), "--workers", "1", "--config", str(one_lap))
     assert done.returncode == 0, done.stderr
     holder = subprocess.Popen(
@@ -289,7 +279,7 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
     proc.send_signal(sig)
     proc.communicate(timeout=WAIT_S)
     assert proc.returncode == -sig
-    resumed = _here("run", "--resume", str(out))
+    resumed = run_here("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
     got = _capture(out)
     times = [r.t_s for r in got.frames]
@@ -329,7 +319,7 @@ def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Ca
     legacy.close()
     (out / "capture.mcap").unlink()
     kept = (out / "capture.jsonl").read_bytes()
-    resumed = _here("run", "--resume", str(out))
+    resumed = run_here("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
     frames = list(open_capture(out / "capture.mcap"))
     assert len(frames) == len(whole_run.frames)
@@ -374,7 +364,7 @@ def test_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
 def test_campaign_resume_imports_no_module_the_folder_names(tmp_path: Path) -> None:
     """``armbench campaign --resume`` reads its suite from ``runner.json`` too."""
     out = tmp_path / "campaign"
-    done = _here("campaign", "startup-recovery", "--samples", "2", "--workers", "1", "--out",
+    done = run_here("campaign", "startup-recovery", "--samples", "2", "--workers", "1", "--out",
                  str(out))
     assert done.returncode == 0, done.stderr
     info = json.loads((out / "runner.json").read_text())
@@ -394,7 +384,7 @@ def test_resume_loads_a_suite_registered_in_the_package(tmp_path: Path) -> None:
     info = json.loads((out / "runner.json").read_text())
     info["suites"] = {"accuracy": "armbench.bench.suites.accuracy:AccuracySuite"}
     (out / "runner.json").write_text(json.dumps(info))
-    assert _here("run", "--resume", str(out)).returncode == 0
+    assert run_here("run", "--resume", str(out)).returncode == 0
 
 
 # -- inputs refused before any folder exists ----------------------------------------------------
@@ -488,7 +478,7 @@ def test_a_full_disk_says_so_and_keeps_what_was_measured(tmp_path: Path,
         errored = sorted((name, t.index) for name, s in record.suites.items() for t in s.trials
                          if t.status == "error")
         shutil.copytree(out, moved)
-    resumed = _here("run", "--resume", str(moved))
+    resumed = run_here("run", "--resume", str(moved))
     assert resumed.returncode == 0, resumed.stderr
     got = _capture(moved)
     assert got.frames == whole_run.frames
