@@ -19,6 +19,7 @@ from build_flavour import concerns_the_build_flavour
 from foreign_arms.sessions import Session, calibrate_all
 
 import armbench.cli.main
+from armbench.record.verdict import DEFAULT_CONFIG
 
 #: The checkout under test.
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,6 +181,15 @@ def cli(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
     status = armbench.cli.main.main(list(args))
     captured = capsys.readouterr()
     return status, captured.out, captured.err
+
+
+def packaged_limits_with(path: Path, extra: str) -> Path:
+    """Write the packaged limits (``record/default_bench.toml``) followed by ``extra`` (TOML:
+    suite parameters, mostly, to make a run shorter) to ``path``: a ``--config`` judged by the
+    default limits. Returns ``path``."""
+    path.write_text(Path(DEFAULT_CONFIG).read_text(encoding="utf-8") + "\n" + extra,
+                    encoding="utf-8")
+    return path
 
 
 def run_here(*args: str) -> subprocess.CompletedProcess[str]:

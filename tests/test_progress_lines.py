@@ -12,8 +12,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import packaged_limits_with
 
-from armbench.bench.runner import DEFAULT_CONFIG, ProgressPrinter
+from armbench.bench.runner import ProgressPrinter
 from armbench.bench.runner.progress import PER_SUITE, PER_TRIAL, ProgressStream
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -132,10 +133,7 @@ def test_per_trial_lines_are_what_a_plain_stream_and_minus_v_get() -> None:
 @pytest.fixture(scope="module")
 def short_default(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The packaged limits with fewer trials per suite."""
-    config = tmp_path_factory.mktemp("config") / "bench.toml"
-    config.write_text(Path(DEFAULT_CONFIG).read_text(encoding="utf-8") + SHORT_SUITES,
-                      encoding="utf-8")
-    return config
+    return packaged_limits_with(tmp_path_factory.mktemp("config") / "bench.toml", SHORT_SUITES)
 
 
 def _in_pty(args: list[str], cwd: Path) -> tuple[int, str]:

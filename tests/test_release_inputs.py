@@ -13,14 +13,13 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import ONE_WORKER
+from conftest import ONE_WORKER, packaged_limits_with
 from tmpfs import mounted_tmpfs
 
 from armbench.cli.main import main
 from armbench.fakes.avr.harness import FIRMWARE_SOURCE
 from armbench.record import RecordError
 from armbench.record.files import atomic_write_bytes
-from armbench.record.verdict import DEFAULT_CONFIG
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = ROOT / "tests" / "fixtures" / "records"
@@ -166,9 +165,7 @@ def test_a_summary_that_fails_after_the_run_keeps_its_status(
     """The disk of the summary fills during the run (a real full tmpfs): one warning line, the
     run's exit status and results as they are. The default limits over one lap per accuracy
     style (the summary is written once the run ends, whatever its length), in this process."""
-    config = tmp_path / "one-lap.toml"
-    config.write_text(DEFAULT_CONFIG.read_text(encoding="utf-8")
-                      + "\n[suites.accuracy]\nlaps = 1\n", encoding="utf-8")
+    config = packaged_limits_with(tmp_path / "one-lap.toml", "[suites.accuracy]\nlaps = 1\n")
     with mounted_tmpfs(tmp_path / "disk", "size=64k") as disk:
         summary = disk / "summary.md"
         earlier = "# earlier steps\n" * 256  # a whole page: appending needs another

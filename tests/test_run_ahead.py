@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+from conftest import packaged_limits_with
 from matplotlib.figure import Figure
 from test_runner import TinySuite
 
-from armbench.bench.runner import DEFAULT_CONFIG, RunOptions, run_arms_sync, run_sync
+from armbench.bench.runner import RunOptions, run_arms_sync, run_sync
 from armbench.bench.suites import SUITES, SuiteContext
 from armbench.cli.commands.run_files import ReportAhead
 from armbench.record import Measurement, RunRecord, Trial, load_record
@@ -41,10 +42,7 @@ cycles = 2
 @pytest.fixture
 def short_config(tmp_path: Path) -> Path:
     """The packaged limits with fewer trials per suite."""
-    config = tmp_path / "bench.toml"
-    config.write_text(Path(DEFAULT_CONFIG).read_text(encoding="utf-8") + SHORT_SUITES,
-                      encoding="utf-8")
-    return config
+    return packaged_limits_with(tmp_path / "bench.toml", SHORT_SUITES)
 
 
 class Heard:

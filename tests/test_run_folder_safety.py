@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import run_here
+from conftest import packaged_limits_with, run_here
 from tmpfs import mounted_tmpfs
 
 import armbench.cli.main
@@ -62,10 +62,7 @@ replaying it) and still passes every limit."""
 def _square(folder: Path) -> str:
     """The packaged limits and :data:`SQUARE` written into ``folder``: the ``--config`` of a run
     (``--resume`` reads it again from there)."""
-    path = folder / "square.toml"
-    path.write_text((ROOT / "record" / "default_bench.toml").read_text(encoding="utf-8") + SQUARE,
-                    encoding="utf-8")
-    return str(path)
+    return str(packaged_limits_with(folder / "square.toml", SQUARE))
 
 
 def _accuracy(folder: Path, out: Path, *more: str) -> list[str]:
