@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from html.parser import HTMLParser
@@ -538,6 +539,23 @@ def test_index_over_several_runs(runs_dir: Path) -> None:
     labels = " ".join(s.text() + (s.attrs.get("aria-label") or "") for s in svgs)
     for k in held:
         assert KEY_METRICS[k][1].label in labels
+
+
+def test_index_keeps_the_order_of_runs_started_in_one_second(tmp_path: Path) -> None:
+    """Records made one after the other carry labels finer than the second, so the index lists
+    them in the order they started whatever their random run ids."""
+    runs = tmp_path / "runs"
+    env = load_record(RECORDS / "passing.json").environment
+    first = RunRecord.new(env, run_id="zz-first")
+    time.sleep(0.002)
+    second = RunRecord.new(env, run_id="aa-second")
+    for record in (first, second):
+        (runs / record.run_id).mkdir(parents=True)
+        (runs / record.run_id / "results.json").write_text(json.dumps(record.to_json()))
+    assert first.created < second.created
+    table = next(parse(render_index(runs).read_text(encoding="utf-8")).iter("table"))
+    ids = [cells(r)[1] for r in list(table.iter("tr"))[1:]]
+    assert len(ids) == 2 and ids[0].startswith("zz-first") and ids[1].startswith("aa-second")
 
 
 def test_index_of_an_empty_directory(tmp_path: Path) -> None:
