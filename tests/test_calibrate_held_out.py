@@ -9,13 +9,14 @@ effects are known exactly only so. The procedure runs on the emulator (virtual t
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.calibrate import calibrate_port
-from armbench.bench.calibrate.held_out import Replayed, decide
+from armbench.bench.calibrate.held_out import Replayed, decide, shared_verdict
 from armbench.bench.calibrate.held_out_moves import BLOCK_SHARE
 from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.clock.vclock import run_virtual
@@ -75,6 +76,30 @@ def test_a_tie_of_candidates_keeps_the_simpler() -> None:
     """Two candidates both far better than the prior and within the noise of each other: the
     one with fewer parameters (torque+scale, 2, against duty, 3)."""
     assert _choose((40, 40), (3.0, 3.0), (3.3, 3.2)) == "torque+scale"
+
+
+def _off(block: Replayed, factor: float = 1.0, move: int = -1, counts: float = 0.0) -> Replayed:
+    """``block`` with joint 2's divergence scaled by ``factor`` and ``counts`` more through
+    ``move``."""
+    diff = block.diff_counts.copy()
+    diff[:, 1] *= factor
+    diff[block.window == move, 1] += counts
+    return replace(block, diff_counts=diff)
+
+
+def test_a_shared_structure_needs_more_than_one_move() -> None:
+    """The stop rule changes every joint at once. On a joint neither twin predicts (50 counts
+    off, a step loss the prior lacks) the two rules may put one move 300 counts apart in one
+    block, and another 60 apart the other way in the other: no evidence, the prior kept. The
+    same joint a tenth closer on every move of both blocks is evidence: kept."""
+    mine = [_block(50, 1), _off(_block(50, 2), move=7, counts=60.0)]
+    without = [_off(_block(50, 1), move=3, counts=300.0), _block(50, 2)]
+    assert shared_verdict(mine, without, need_better=True) == ([], False)
+    closer = [_off(b, factor=0.9) for b in without]
+    assert shared_verdict(closer, without, need_better=True) == ([], True)
+    # a value that need not be better (the Hall positions) is kept unless a joint is worse
+    assert shared_verdict(mine, without, need_better=False) == ([], True)
+    assert shared_verdict(without, closer, need_better=False) == ([2], True)
 
 
 def test_worse_at_the_end_of_the_session_is_out() -> None:

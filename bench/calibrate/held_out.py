@@ -24,7 +24,9 @@ on another (each beyond that block's floor where the joint moves: the timing's s
 says the arm's behaviour moved during the session (its drives warming up): a constant fitted to
 the session predicts neither, and the prior is kept. Then what the fit changes on every joint
 at once is judged the same way, the speed models as chosen: the stop rule (a structure) kept
-only if some joint gets better with it and none worse, beyond the noise; the Hall positions
+only if some joint gets better with it beyond the noise and the moves' scatter (a joint no twin
+predicts, one move different by far either way, is no evidence) and none worse beyond the
+noise; the Hall positions
 (measured against the motor-side truth) unless a joint gets worse. Without a held-out block (a
 budget too small for one) every speed model keeps the prior, and says so.
 """
@@ -51,7 +53,7 @@ from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.twin.physics import DEFAULT_ARM
 
 __all__ = ["LEAD_S", "SIGMAS", "Block", "JointChoice", "Replayed", "blocks_of", "choose",
-           "decide", "score", "worse"]
+           "decide", "score", "shared_verdict", "worse"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -179,6 +181,17 @@ def _better(a: Scores, b: Scores, j: int) -> bool:
     parts = [_excess(y, x, j) for x, y in zip(a, b, strict=True)]
     excess = sum(p[0] for p in parts)
     return excess > sum(p[2] for p in parts)
+
+
+def _surely_better(a: Scores, b: Scores, j: int) -> bool:
+    """Whether ``a`` diverges less than ``b`` on joint ``j`` over all blocks beyond the floors
+    squared and :data:`SIGMAS` standard errors of the moves' scatter: what a change to every
+    joint at once must show, since on a joint neither twin predicts (a step loss the prior
+    lacks) one move may differ by far either way."""
+    parts = [_excess(y, x, j) for x, y in zip(a, b, strict=True)]
+    excess = sum(p[0] for p in parts)
+    se = float(np.sqrt(sum(p[1] ** 2 for p in parts)))
+    return excess > sum(p[2] for p in parts) + SIGMAS * se
 
 
 @dataclass(frozen=True, slots=True)
@@ -321,26 +334,33 @@ def _judge_shared(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Bl
                   hall: bool) -> list[Fitted]:
     """``fitted`` with the values every joint's reported angle depends on judged on the
     held-out ``blocks``, the speed models as chosen: the stop rule (a structure) kept only where
-    the twin with it diverges less than without it on some joint and more on none, beyond the
-    noise (a tie keeps the prior); then the Hall positions (measured against the motor-side
-    truth, each with its interval) kept unless the twin with them diverges more on a joint."""
+    the twin with it diverges less than without it on some joint (beyond the noise and the
+    moves' scatter) and more on none, beyond the noise (a tie keeps the prior); then the Hall
+    positions (measured against the motor-side truth, each with its interval) kept unless the
+    twin with them diverges more on a joint."""
     judged = _judge(fitted, base, blocks, hall, (STOP_RULE_KEY,), need_better=True)
     return _judge(judged, base, blocks, hall, _HALL_KEYS, need_better=False)
+
+
+def shared_verdict(mine: Scores, other: Scores, need_better: bool) -> tuple[list[int], bool]:
+    """The joints (1-based) on which the twin with a shared value (``mine``) diverges more than
+    without it (``other``) beyond the noise, and whether it is better enough to keep: always
+    unless ``need_better``, else on some joint beyond the noise and the moves' scatter."""
+    lost = [j + 1 for j in range(4) if worse(mine, other, j)]
+    return lost, not need_better or any(_surely_better(mine, other, j) for j in range(4))
 
 
 def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], hall: bool,
            keys: Sequence[str], need_better: bool) -> list[Fitted]:
     """``fitted`` with its identified values of ``keys`` put back to the prior where the twin
     with them diverges more than without them on a joint beyond the noise, or (``need_better``)
-    less on none."""
+    less on none beyond the noise and the moves' scatter."""
     shared = [f for f in fitted if f.key in keys and f.identified]
     if not shared:
         return fitted
     without = [f for f in fitted if f not in shared]
-    mine = score(apply_fit(base, fitted), blocks, hall)
-    other = score(apply_fit(base, without), blocks, hall)
-    lost = [j + 1 for j in range(4) if worse(mine, other, j)]
-    better = not need_better or any(_better(mine, other, j) for j in range(4))
+    lost, better = shared_verdict(score(apply_fit(base, fitted), blocks, hall),
+                                  score(apply_fit(base, without), blocks, hall), need_better)
     if not lost and better:
         return fitted
     why = ("held out: the twin with it diverges more than without it on joint "
