@@ -183,9 +183,9 @@ class Uart:
         if sink is None:
             self.tx_dropped_bytes += len(data)
             return
-        sink(data)
         if tag is not None and self.on_delivered is not None:
-            self.on_delivered(tag)
+            self.on_delivered(tag)  # first: the host may judge the reply as it takes it in
+        sink(data)
 
     def cut(self) -> None:
         """The board lost power: bytes still on the line never arrive, the line is idle, and the
