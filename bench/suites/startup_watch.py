@@ -73,26 +73,23 @@ async def await_recovery(arm: Any, t_on: float,
     """Watch the replies after power-on (loop time ``t_on``) until the arm has been within
     tolerance and still for ``still_s`` or ``timeout_s`` has passed. Silence is expected while a
     joint 1 recovery runs (the master starts its loop afterwards), so reply timeouts are waited
-    through; a lost port raises."""
+    through; a lost port raises. Each reply is judged as the driver takes it in (a predicate of
+    :meth:`wait_state`), so the watching task wakes once, not once per reply."""
     loop = asyncio.get_running_loop()
     deadline = t_on + timeout_s
     out = Recovery()
     seen = arm.state.seq
     window: JointState | None = None
     last_trace = -math.inf
-    while True:
-        remaining = deadline - loop.time()
-        if remaining <= 0:
-            break
-        try:
-            state = await arm.wait_state(lambda s, seen=seen: s.seq > seen, timeout_s=remaining)
-        except WaitTimeoutError:
-            break
-        except ReplyTimeoutError:
-            continue
+
+    def recovered(state: JointState) -> bool:
+        """Take in ``state`` (once); True when it ends the watch."""
+        nonlocal seen, window, last_trace
+        if state.seq <= seen:
+            return False
         seen = state.seq
         if state.t_s < t_on:
-            continue
+            return False
         e, within, what = error(state)
         out.last, out.error_rad, out.compared_with = state, e, what
         if out.first_reply_s is None:
@@ -105,7 +102,7 @@ async def await_recovery(arm: Any, t_on: float,
                 error_mrad=round(e * 1e3, 4), within=within)
         if not within:
             window = None
-            continue
+            return False
         if window is None or max(abs(a - b) for a, b in zip(state.q_rad, window.q_rad,
                                                             strict=True)) > STILL_RAD:
             window = state
@@ -113,7 +110,20 @@ async def await_recovery(arm: Any, t_on: float,
             out.recovered_s = round(window.t_s - t_on, 6)
             log(event=STARTUP.ev_recovered, recovery_s=out.recovered_s,
                 error_mrad=round(e * 1e3, 4))
-            return out
+            return True
+        return False
+
+    while True:
+        remaining = deadline - loop.time()
+        if remaining <= 0:
+            break
+        try:
+            await arm.wait_state(recovered, timeout_s=remaining)
+        except WaitTimeoutError:
+            break
+        except ReplyTimeoutError:
+            continue
+        return out
     log(event=STARTUP.ev_timeout, after_s=round(loop.time() - t_on, 6))
     return out
 
