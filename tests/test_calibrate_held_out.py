@@ -143,6 +143,33 @@ def test_a_lead_within_the_timing_of_moving_replies_is_no_drift() -> None:
     assert choice.kept == "prior" and "moved during the session" in choice.why, choice.why
 
 
+def _two_moves(seed: int, leads: tuple[float, float]) -> Replayed:
+    """A block of two moves (the first and second half of :func:`_block`'s), the twin ahead of
+    the arm along the motion by ``leads[k]`` counts in move ``k``; floor 2 everywhere."""
+    block = _block(1, seed)
+    window = (block.window >= MOVES // 2).astype(np.int64)
+    diff = block.diff_counts.copy()
+    diff[:, 1] -= np.asarray(leads)[window] * block.way[:, 1]
+    return replace(block, diff_counts=diff, window=window)
+
+
+def test_a_lead_that_one_move_carries_is_no_drift() -> None:
+    """Two moves a block, as a short budget holds (the shared arm's j4 in CI): the twin on
+    time in one move and 14 counts ahead in the other (7 on the block's average), then on
+    time and 10 behind (5): one move of a loaded host's carries it, and the moves' scatter
+    says so; the fitted law is kept. Ahead in both moves of one block and behind in both of
+    the other is drift: the prior is kept."""
+    one_move = [[_block(100, 1), _block(100, 2)],
+                [_two_moves(3, (0.0, 14.0)), _two_moves(4, (0.0, -10.0))],
+                [_block(110, 5), _block(110, 6)]]
+    assert decide(1, NAMES, SIZES, one_move, ["suite", "end"]).kept == "duty"
+    both = [[_block(100, 1), _block(100, 2)],
+            [_two_moves(3, (7.0, 7.0)), _two_moves(4, (-5.0, -5.0))],
+            [_block(110, 5), _block(110, 6)]]
+    choice = decide(1, NAMES, SIZES, both, ["suite", "end"])
+    assert choice.kept == "prior" and "moved during the session" in choice.why, choice.why
+
+
 def test_a_structure_that_explains_only_the_start_keeps_the_prior() -> None:
     """The duty law explains the block after the approaches (3 counts against the prior's 300)
     and not the end block (250 against 300: the arm loses far more by then), though better

@@ -20,7 +20,8 @@ the blocks is taken, unless one with fewer parameters (the prior has none) is wi
 of it: ties keep the simpler model or the prior. A candidate that explains one block (its RMS
 within twin-check's allowance of the floor, or three quarters of the prior's mean square taken
 away) and not another, or that is ahead of the arm along the motion on one block and behind it
-on another (each beyond that block's floor where the joint moves: the timing's share of it),
+on another (each beyond that block's floor where the joint moves, the timing's share of it, and
+:data:`SIGMAS` standard errors of the moves' scatter),
 says the arm's behaviour moved during the session (its drives warming up): a constant fitted to
 the session predicts neither, and the prior is kept. Then what the fit changes on every joint
 at once is judged the same way, the speed models as chosen: the stop rule (a structure) kept
@@ -108,13 +109,17 @@ class Replayed:
         d = self.diff_counts
         return np.sqrt(np.mean(d * d, axis=0)) if len(d) else np.zeros(4)
 
-    def lead(self, j: int) -> float:
+    def lead(self, j: int) -> tuple[float, float]:
         """How far the twin's joint ``j`` is ahead of the arm's along its motion, on average
-        where it moves (counts; negative: behind)."""
+        where it moves (counts; negative: behind), and its standard error, the moves being the
+        independent units (0 with one move: nothing to tell its scatter by)."""
         moving = self.way[:, j] != 0
         if not moving.any():
-            return 0.0
-        return float(np.mean(-self.diff_counts[moving, j] * self.way[moving, j]))
+            return 0.0, 0.0
+        x = -self.diff_counts[moving, j] * self.way[moving, j]
+        lead = float(np.mean(x))
+        per_move = np.bincount(self.window[moving], weights=x - lead)
+        return lead, float(np.sqrt(np.sum(per_move ** 2)) / len(x))
 
 
 #: A twin on every held-out block.
@@ -221,9 +226,10 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
     """Whether the arm's joint ``j`` behaved otherwise on one block than on another, as a twin
     fitted to the session shows it: it explains one block and not another (:data:`EXPLAINS`),
     or it is ahead of the arm along the motion on one and behind on another, each by more than
-    that block's floor where the joint moves (a twin off by a constant share is off the same
-    way on both; a perfect one is off either way by the timing there). What it shows, or
-    None."""
+    that block's floor where the joint moves and :data:`SIGMAS` standard errors of the moves'
+    scatter (a twin off by a constant share is off the same way on both; a perfect one is off
+    either way by the timing there, which one move of a loaded host's may carry far). What it
+    shows, or None."""
     explained = [r.rms[j] <= 3.0 * r.floor[j] + 2.0 or r.rms[j] ** 2 <= (1 - EXPLAINS) * p.rms[j]
                  ** 2 for r, p in zip(score, prior, strict=True)]
     if any(explained) and not all(explained):
@@ -231,9 +237,10 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
         return (f"explains the {blocks[a]} block (RMS {score[a].rms[j]:.3g} counts against the "
                 f"prior's {prior[a].rms[j]:.3g}) and not the {blocks[b]} block "
                 f"({score[b].rms[j]:.3g} against {prior[b].rms[j]:.3g})")
-    leads = [(r.lead(j), float(r.moving_floor[j])) for r in score]
-    ahead = [lead for lead, floor in leads if lead > floor]
-    behind = [lead for lead, floor in leads if lead < -floor]
+    leads = [(lead, float(r.moving_floor[j]) + SIGMAS * se)
+             for r in score for lead, se in [r.lead(j)]]
+    ahead = [lead for lead, noise in leads if lead > noise]
+    behind = [lead for lead, noise in leads if lead < -noise]
     if not ahead or not behind:
         return None
     return ("is ahead of the arm along the motion on a block by "
