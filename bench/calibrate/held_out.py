@@ -179,24 +179,16 @@ def worse(a: Scores, b: Scores, j: int) -> bool:
     return False
 
 
-def _better(a: Scores, b: Scores, j: int) -> bool:
+def _better(a: Scores, b: Scores, j: int, sigmas: float = 0.0) -> bool:
     """Whether ``a`` diverges less than ``b`` on joint ``j`` over all blocks beyond the noise:
     its mean square by more than the blocks' floors squared (the timing a perfect twin meets:
-    one move that ``b`` gets wrong by far is reason enough)."""
-    parts = [_excess(y, x, j) for x, y in zip(a, b, strict=True)]
-    excess = sum(p[0] for p in parts)
-    return excess > sum(p[2] for p in parts)
-
-
-def _surely_better(a: Scores, b: Scores, j: int) -> bool:
-    """Whether ``a`` diverges less than ``b`` on joint ``j`` over all blocks beyond the floors
-    squared and :data:`SIGMAS` standard errors of the moves' scatter: what a change to every
-    joint at once must show, since on a joint neither twin predicts (a step loss the prior
-    lacks) one move may differ by far either way."""
+    one move that ``b`` gets wrong by far is reason enough) and ``sigmas`` standard errors of
+    the moves' scatter (what a change to every joint at once must show: on a joint neither
+    twin predicts, a step loss the prior lacks, one move may differ by far either way)."""
     parts = [_excess(y, x, j) for x, y in zip(a, b, strict=True)]
     excess = sum(p[0] for p in parts)
     se = float(np.sqrt(sum(p[1] ** 2 for p in parts)))
-    return excess > sum(p[2] for p in parts) + SIGMAS * se
+    return excess > sum(p[2] for p in parts) + sigmas * se
 
 
 @dataclass(frozen=True, slots=True)
@@ -354,7 +346,7 @@ def shared_verdict(mine: Scores, other: Scores, need_better: bool) -> tuple[list
     without it (``other``) beyond the noise, and whether it is better enough to keep: always
     unless ``need_better``, else on some joint beyond the noise and the moves' scatter."""
     lost = [j + 1 for j in range(4) if worse(mine, other, j)]
-    return lost, not need_better or any(_surely_better(mine, other, j) for j in range(4))
+    return lost, not need_better or any(_better(mine, other, j, SIGMAS) for j in range(4))
 
 
 def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], hall: bool,
