@@ -254,7 +254,7 @@ class TruthProbe:
         gt = self._matched(state)
         if gt is not None:
             side = gt.motor_rad if motor else None
-            return tuple(float(v) for v in (side if side is not None else gt.true_rad))
+            return tuple(map(float, side if side is not None else gt.true_rad))
         q = self._source.true_joints_rad()
         return None if q is None else tuple(float(v) for v in q)
 
@@ -278,13 +278,20 @@ class TruthProbe:
         history = () if emulator is None else emulator.truth
         if not history:
             return None
+        t_max = state.t_s + 1e-9
+        q = state.q_rad
         for k, gt in enumerate(reversed(history)):
             if k >= self.SEARCH:
                 break
-            if gt.t_s > state.t_s + 1e-9:
+            if gt.t_s > t_max:
                 continue
-            if all(abs(float(a) - float(b)) <= 2e-4
-                   for a, b in zip(gt.firmware_rad, state.q_rad, strict=True)):
+            fw = gt.firmware_rad
+            if len(fw) == len(q) == 4:  # the arm's four joints, unrolled: once per reply
+                if (abs(float(fw[0]) - q[0]) <= 2e-4 and abs(float(fw[1]) - q[1]) <= 2e-4
+                        and abs(float(fw[2]) - q[2]) <= 2e-4
+                        and abs(float(fw[3]) - q[3]) <= 2e-4):
+                    return gt
+            elif all(abs(float(a) - float(b)) <= 2e-4 for a, b in zip(fw, q, strict=True)):
                 return gt
         return None
 
