@@ -629,7 +629,7 @@ def test_kill_9_then_resume(moment: int, reference_run: Reference, tmp_path: Pat
         assert refused.returncode == 2 and "results.json" in refused.stderr, refused.stderr
         assert len(refused.stderr.strip().splitlines()) == 1
         fresh = run_here("run", "accuracy", "--config", str(reference_run.config), "--out",
-                      str(out), "--seed", "5")
+                         str(out), "--seed", "5")
         assert fresh.returncode == 0, fresh.stderr
         outcome = f"killed at {delay:.2f} s (status {status}): no record yet; fresh run exit 0"
     else:

@@ -232,7 +232,7 @@ def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
     one_lap = Path(_square(tmp_path))  # what is refused depends on neither square nor laps
     one_lap.write_text(one_lap.read_text(encoding="utf-8") + "laps = 1\n", encoding="utf-8")
     done = run_here("run", "accuracy", "--port", "a=fake://?seed=1", "--port", "b=fake://?seed=2",
-                 "--out", str(fleet), "--workers", "1", "--config", str(one_lap))
+                    "--out", str(fleet), "--workers", "1", "--config", str(one_lap))
     assert done.returncode == 0, done.stderr
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys\n"
@@ -362,7 +362,7 @@ def test_campaign_resume_imports_no_module_the_folder_names(tmp_path: Path) -> N
     """``armbench campaign --resume`` reads its suite from ``runner.json`` too."""
     out = tmp_path / "campaign"
     done = run_here("campaign", "startup-recovery", "--samples", "2", "--workers", "1", "--out",
-                 str(out))
+                    str(out))
     assert done.returncode == 0, done.stderr
     info = json.loads((out / "runner.json").read_text())
     info["campaign"]["suite"] = "this:Nope"

@@ -229,10 +229,15 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
         return (f"explains the {blocks[a]} block (RMS {score[a].rms[j]:.3g} counts against the "
                 f"prior's {prior[a].rms[j]:.3g}) and not the {blocks[b]} block "
                 f"({score[b].rms[j]:.3g} against {prior[b].rms[j]:.3g})")
-    leads = [(lead, float(r.moving_floor[j]) + SIGMAS * se)
-             for r in score for lead, se in [r.lead(j)]]
-    ahead = [lead for lead, noise in leads if lead > noise]
-    behind = [lead for lead, noise in leads if lead < -noise]
+    ahead: list[float] = []
+    behind: list[float] = []
+    for r in score:
+        lead, se = r.lead(j)
+        noise = float(r.moving_floor[j]) + SIGMAS * se
+        if lead > noise:
+            ahead.append(lead)
+        elif lead < -noise:
+            behind.append(lead)
     if not ahead or not behind:
         return None
     return ("is ahead of the arm along the motion on a block by "
