@@ -69,9 +69,14 @@ def test_every_hot_module_has_tests_run_against_both_builds() -> None:
 
 
 def test_the_plain_python_stage_runs_the_picked_tests() -> None:
-    """The stage installs the plain-Python build, then runs the tests the rule marks (not slow:
-    the slow stage built and compared both wheels already)."""
+    """The stage installs the plain-Python build into a venv, then runs the tests the rule
+    marks (not slow: the slow stage built and compared both wheels already) with that venv's
+    Python, first on PATH."""
     stage = CI.read_text(encoding="utf-8").split('stage "tests against the plain-Python build')[1]
-    assert "ARMBENCH_PURE_PYTHON=1 python3 -m pip install" in stage
-    (command,) = re.findall(r"^python3 -m pytest .*$", stage, re.MULTILINE)
+    install = re.search(r'^ *ARMBENCH_PURE_PYTHON=1 "(\$\w+)/bin/python" -m pip install', stage,
+                        re.MULTILINE)
+    assert install is not None, stage
+    venv = re.escape(install.group(1))
+    (command,) = re.findall(rf'^ *PATH="{venv}/bin:\$PATH" "{venv}/bin/python" -m pytest .*$',
+                            stage, re.MULTILINE)
     assert "-m 'build_flavour and not slow'" in command, command
