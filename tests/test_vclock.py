@@ -32,6 +32,32 @@ def test_equal_time_timers_run_in_the_order_they_were_scheduled() -> None:
     assert run_virtual(main) == list(range(50))
 
 
+def test_cancelled_timers_leave_a_small_heap_at_once() -> None:
+    """A cancelled long timer does not wait in the heap for its deadline once cancelled ones are
+    half of it (asyncio waits for more than 100 timers). With a timer always due sooner (as the
+    UART's next byte is), a cancelled one never reaches the top to be popped; each push and pop
+    would compare with all that stayed. The ticks still run in order, every 0.5 ms."""
+    async def main() -> tuple[int, list[float]]:
+        loop = asyncio.get_running_loop()
+        ticks: list[float] = []
+
+        def tick() -> None:
+            ticks.append(loop.time())
+            loop.call_at(loop.time() + 5e-4, tick)
+
+        loop.call_soon(tick)
+        biggest = 0
+        for _ in range(300):  # an alarm re-set per step, as a waiter's deadline is
+            loop.call_at(loop.time() + 60.0, ticks.append, -1.0).cancel()
+            await asyncio.sleep(2e-3)
+            biggest = max(biggest, len(loop._scheduled))  # type: ignore[attr-defined]
+        return biggest, ticks
+
+    biggest, ticks = run_virtual(main)
+    assert ticks == sorted(ticks) and len(ticks) == 1201 and ticks[0] == 0.0
+    assert biggest <= 3, biggest  # the tick and the sleep (asyncio's rule left 99)
+
+
 def test_timer_handles_are_what_asyncio_would_build() -> None:
     """``call_at`` fills the handles' attributes itself (no ``__init__``); they must hold what
     asyncio's own constructor gives, and cancel, compare and print as asyncio's do."""

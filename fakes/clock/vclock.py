@@ -28,8 +28,8 @@ __all__ = ["ClockPeer", "VirtualTimeLoop", "run_virtual", "virtual_loop_factory"
 
 T = TypeVar("T")
 
-# asyncio's thresholds for cleaning cancelled timers out of the heap (base_events.py)
-_MIN_SCHEDULED_TIMER_HANDLES = 100
+# the share of cancelled timers at which they leave the heap (asyncio's, base_events.py; asyncio
+# also waits for more than 100 timers, which this loop does not: _drop_cancelled)
 _MIN_CANCELLED_FRACTION = 0.5
 
 
@@ -200,9 +200,9 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         of iterations instead of one each. Per iteration: the clock is an attribute, not a call;
         no cap of a day on a jump; no event processing without events; the selector's skipped
         polls (:class:`_VirtualSelector`) and each handle's ``_run`` are done inline (no frame
-        per call). Debug mode, and a heap with many cancelled timers to clean up, take
-        asyncio's own iteration (whose private state this shares: ``_scheduled``, ``_ready``,
-        ... are the same in CPython 3.11 to 3.13)."""
+        per call). Cancelled timers go as soon as they are half the heap (:func:`_drop_cancelled`).
+        Debug mode takes asyncio's own iteration (whose private state this shares:
+        ``_scheduled``, ``_ready``, ... are the same in CPython 3.11 to 3.13)."""
         base: Any = self
         scheduled: list[Any] = base._scheduled
         ready: collections.deque[Any] = base._ready
@@ -211,12 +211,12 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
         resolution: float = base._clock_resolution
         heappop = heapq.heappop
         while True:
-            n = len(scheduled)
-            if base._debug or (n > _MIN_SCHEDULED_TIMER_HANDLES
-                               and base._timer_cancelled_count > n * _MIN_CANCELLED_FRACTION):
+            if base._debug:
                 base_run_once: Callable[[], None] = super()._run_once  # type: ignore[misc]
                 base_run_once()
                 return
+            if base._timer_cancelled_count > len(scheduled) * _MIN_CANCELLED_FRACTION:
+                _drop_cancelled(base, scheduled)
             while scheduled and scheduled[0]._cancelled:
                 base._timer_cancelled_count -= 1
                 heappop(scheduled)._scheduled = False
@@ -268,6 +268,24 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
             target = self._virtual_now + dt_s
             reached = min(peer.run_until(target) for peer in list(self.peers))
             self._virtual_now = max(self._virtual_now, reached)
+
+
+def _drop_cancelled(loop: Any, scheduled: list[Any]) -> None:
+    """Take the cancelled timers out of the loop's heap ``scheduled`` (in place), as asyncio's
+    iteration does once they are half of more than 100 timers. On virtual time the heap is small
+    (a run's trial: the UART's next byte, a waiter's alarm) and a cancelled sleep or alarm stays
+    until its deadline, so a few of them made every push and pop of the UART's timer compare
+    several times more (each compare a Python ``__lt__``): here they go whenever they are half of
+    it. Order is (time, scheduling sequence) whatever the heap's history, so no timer moves."""
+    live: list[Any] = []
+    for handle in scheduled:
+        if handle._cancelled:
+            handle._scheduled = False
+        else:
+            live.append(handle)
+    heapq.heapify(live)
+    scheduled[:] = live
+    loop._timer_cancelled_count = 0
 
 
 def _report(handle: Any, exc: BaseException) -> None:
