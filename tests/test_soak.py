@@ -156,7 +156,8 @@ def soak(duration_s: float, sample_s: float, capture: Path, seed: int = 9, *,
     try:
         report = run_virtual(main())
     finally:
-        tracemalloc.stop()
+        if traced:
+            tracemalloc.stop()
     return SoakReport(**{**report.__dict__, "cpu_s": time.process_time() - cpu0,
                          "wall_s": time.perf_counter() - wall0})
 

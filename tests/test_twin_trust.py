@@ -128,15 +128,18 @@ def test_a_fitted_twin_runs_the_suites_no_slower(calibrated: Calibrated,
     the same calls however busy the machine is, where its CPU time varies by half; the CPU
     figures of the bench are ``armbench perf``'s). A first lap of each warms the caches."""
     fitted = calibrated.fit / "robot.toml"
-    calls = {}
+
+    def lap(label: str, port: str) -> None:
+        try:
+            run_virtual(_lap(port, tmp_path / f"{label}.jsonl"))
+        except Exception as exc:  # a twin that stalls like its arm may end its lap early
+            print(f"  {label} lap: {exc!r}")
+
+    calls: dict[str, int] = {}
     for label, port in (("default", "fake://"), ("fitted", f"fake://?settings={fitted}")):
-        for counted in (False, True):
-            profile = cProfile.Profile()
-            with profile if counted else contextlib.nullcontext():
-                try:
-                    run_virtual(_lap(port, tmp_path / f"{label}.jsonl"))
-                except Exception as exc:  # a twin that stalls like its arm may end its lap early
-                    print(f"  {label} lap: {exc!r}")
+        lap(label, port)
+        with cProfile.Profile() as profile:
+            lap(label, port)
         calls[label] = pstats.Stats(profile).total_calls  # type: ignore[attr-defined]
     print(f"  lap calls: {calls}")
     assert calls["fitted"] <= 1.2 * calls["default"], calls

@@ -271,12 +271,11 @@ class VirtualTimeLoop(asyncio.SelectorEventLoop):
 
 
 def _drop_cancelled(loop: Any, scheduled: list[Any]) -> None:
-    """Take the cancelled timers out of the loop's heap ``scheduled`` (in place), as asyncio's
-    iteration does once they are half of more than 100 timers. On virtual time the heap is small
-    (a run's trial: the UART's next byte, a waiter's alarm) and a cancelled sleep or alarm stays
-    until its deadline, so a few of them made every push and pop of the UART's timer compare
-    several times more (each compare a Python ``__lt__``): here they go whenever they are half of
-    it. Order is (time, scheduling sequence) whatever the heap's history, so no timer moves."""
+    """Take the cancelled timers out of the loop's heap ``scheduled``, in place. asyncio does so
+    only beyond 100 timers; on virtual time the heap is a few live timers, and a cancelled one
+    waits for its deadline beneath a timer always due sooner (the UART's next byte), so every push
+    and pop would compare with it (a Python ``__lt__``). Timers are ordered by time, then by
+    scheduling sequence: no live timer moves."""
     live: list[Any] = []
     for handle in scheduled:
         if handle._cancelled:
