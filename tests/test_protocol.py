@@ -303,7 +303,7 @@ _NEAR_REPLY = st.builds(
     st.lists(st.one_of(st.sampled_from([b"00000", b"62832", b"62833", b"62829", b"62799",
                                         b"61999", b"99999", b"07000", b"63000"]),
                        st.binary(min_size=5, max_size=5),
-                       st.text("0123456789 +-_\t", min_size=5, max_size=5).map(str.encode)),
+                       st.text("0123456789/: +-_\t", min_size=5, max_size=5).map(str.encode)),
              min_size=4, max_size=4),
     st.lists(st.sampled_from([b","] * 12 + [b";", b"#"]), min_size=3, max_size=3),
     st.sampled_from([b"#"] * 6 + [b"$", b","]))
@@ -312,9 +312,9 @@ _NEAR_REPLY = st.builds(
 @settings(max_examples=400)
 @given(_NEAR_REPLY)
 def test_one_reply_accepts_what_the_reply_pattern_matches(data: bytes) -> None:
-    """The short path reads a reply by slices: the same replies as the frame pattern (five
-    ASCII digits up to the largest tick count, commas, ``$`` and ``#``), nothing else
-    (``int`` alone would take `` 1234``, ``+1234`` or ``1_234``)."""
+    """The short path reads a reply byte by byte: the same replies as the frame pattern (five
+    ASCII digits up to the largest tick count, commas, ``$`` and ``#``), nothing else (not the
+    bytes either side of the digits, ``/`` and ``:``, nor `` 1234``, ``+1234`` or ``1_234``)."""
     from armbench.drivers.model.protocol import _REPLY_RE
 
     assert len(data) == REPLY_LEN
