@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import math
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -274,26 +275,28 @@ class TruthProbe:
         reply arrived whose firmware angles are the reply's (within a wire tick); else None."""
         if state is None:
             return None
-        emulator = emulator_of(self._arm)
+        emulator = self._arm.emulator
         history = () if emulator is None else emulator.truth
         if not history:
             return None
         t_max = state.t_s + 1e-9
         q = state.q_rad
-        for k, gt in enumerate(reversed(history)):
-            if k >= self.SEARCH:
-                break
-            if gt.t_s > t_max:
-                continue
-            fw = gt.firmware_rad
-            if len(fw) == len(q) == 4:  # the arm's four joints, unrolled: once per reply
-                if (abs(float(fw[0]) - q[0]) <= 2e-4 and abs(float(fw[1]) - q[1]) <= 2e-4
-                        and abs(float(fw[2]) - q[2]) <= 2e-4
-                        and abs(float(fw[3]) - q[3]) <= 2e-4):
-                    return gt
-            elif all(abs(float(a) - float(b)) <= 2e-4 for a, b in zip(fw, q, strict=True)):
+        newest = history[-1]  # the reply's own sample, as a rule: tried before any search
+        if newest.t_s <= t_max and _same_belief(newest.firmware_rad, q):
+            return newest
+        for gt in itertools.islice(reversed(history), 1, self.SEARCH):
+            if gt.t_s <= t_max and _same_belief(gt.firmware_rad, q):
                 return gt
         return None
+
+
+def _same_belief(fw: Sequence[float], q: Sequence[float]) -> bool:
+    """Whether a truth sample's firmware angles ``fw`` are the reply's ``q`` within a wire tick
+    (rad); the arm's four joints unrolled (once per reply)."""
+    if len(fw) == len(q) == 4:
+        return (abs(float(fw[0]) - q[0]) <= 2e-4 and abs(float(fw[1]) - q[1]) <= 2e-4
+                and abs(float(fw[2]) - q[2]) <= 2e-4 and abs(float(fw[3]) - q[3]) <= 2e-4)
+    return all(abs(float(a) - float(b)) <= 2e-4 for a, b in zip(fw, q, strict=True))
 
 
 # --------------------------------------------------------------------------------------------

@@ -103,9 +103,12 @@ async def await_recovery(arm: Any, t_on: float,
         if not within:
             window = None
             return False
-        if window is None or max(abs(a - b) for a, b in zip(state.q_rad, window.q_rad,
-                                                            strict=True)) > STILL_RAD:
+        if window is None:
             window = state
+        else:  # once per reply: the four joints unrolled
+            (a1, a2, a3, a4), (b1, b2, b3, b4) = state.q_rad, window.q_rad
+            if max(abs(a1 - b1), abs(a2 - b2), abs(a3 - b3), abs(a4 - b4)) > STILL_RAD:
+                window = state
         if state.t_s - window.t_s >= still_s:
             out.recovered_s = round(window.t_s - t_on, 6)
             log(event=STARTUP.ev_recovered, recovery_s=out.recovered_s,
