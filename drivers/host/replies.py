@@ -15,7 +15,7 @@ plain bytes, in the style of h11::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from armbench.drivers.host.state import JointState
 from armbench.drivers.model.protocol import (
@@ -29,7 +29,7 @@ from armbench.drivers.model.protocol import (
 
 __all__ = ["Batch", "ReplyStream"]
 
-_new = tuple.__new__
+_new: Final = tuple.__new__  # Final: a C global where mypyc compiles, not a dict lookup
 
 
 class Batch(NamedTuple):
@@ -87,7 +87,7 @@ class ReplyStream:
         self.synced = True
         self.seq = seq = self.seq + 1
         self.frames_received += 1
-        return _new(JointState, (t_s, self._decode(reply), reply, seq))
+        return _new(JointState, (t_s, self._decode.angles(reply), reply, seq))
 
     def receive(self, data: bytes, t_s: float, *, every: bool = False) -> Batch:
         """Feed a chunk read at loop time ``t_s``; with ``every`` decode each reply it completes
@@ -97,7 +97,7 @@ class ReplyStream:
         before = framer.discarded_bytes
         events = framer.feed(data)
         self.discarded_bytes += framer.discarded_bytes - before
-        decode = self._decode
+        decoder = self._decode
         states: list[JointState] = []
         last: Reply | None = None
         n = 0
@@ -107,12 +107,13 @@ class ReplyStream:
                 last = ev
                 self.synced = True
                 if every:
-                    states.append(_new(JointState, (t_s, decode(ev), ev, self.seq + n)))
+                    states.append(_new(JointState, (t_s, decoder.angles(ev), ev, self.seq + n)))
             elif self.synced and isinstance(ev, FrameError):
                 self.frames_dropped += 1
         if last is None:
             return Batch(events, states, None, single)
         self.seq += n
         self.frames_received += n
-        state = states[-1] if states else _new(JointState, (t_s, decode(last), last, self.seq))
+        state = states[-1] if states else _new(
+            JointState, (t_s, decoder.angles(last), last, self.seq))
         return Batch(events, states, state, single)

@@ -106,6 +106,11 @@ class AngleDecoder:
 
     def __call__(self, reply: Reply) -> tuple[float, float, float, float]:
         """The reply's joint angles (rad), each in its joint's window."""
+        return self.angles(reply)
+
+    def angles(self, reply: Reply) -> tuple[float, float, float, float]:
+        """:meth:`__call__` by name: compiled, a call by name is a direct C call, where calling
+        the instance goes through Python's call protocol."""
         t1, t2, t3, t4 = reply
         return (t1 / TICKS_PER_RAD - TWO_PI * (self._k1 + (t1 >= self._a1) + (t1 >= self._b1)),
                 t2 / TICKS_PER_RAD - TWO_PI * (self._k2 + (t2 >= self._a2) + (t2 >= self._b2)),
@@ -278,7 +283,7 @@ _REPLY_RE = re.compile(rb"\$" + rb",".join([_T] * 4) + rb"#")
 _COMMAND_RE = re.compile(rb"\$" + rb",".join([_T + rb",(\d\d)"] * 4) + rb"#")
 _CANDIDATE_RE = re.compile(rb"\$([^$#]*)#")
 _RAW_KEEP = 64
-_new = tuple.__new__
+_new: Final = tuple.__new__  # Final: a C global where mypyc compiles, not a dict lookup
 
 
 def _command(f: tuple[bytes, ...]) -> Command:
