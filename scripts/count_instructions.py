@@ -1,0 +1,76 @@
+"""Instructions per simulated second, counted by valgrind's callgrind: the bare emulator against
+the emulator with the driver in the loop, on the installed build.
+
+CPU seconds on a shared machine vary by a third from one minute to the next; instruction counts
+do not (the same count for the same build and inputs, whatever else runs). Each workload runs
+twice, for ``--short`` and ``--long`` simulated seconds, and the difference of the two counts is
+the cost of ``long - short`` simulated seconds, without the interpreter's start-up and imports.
+``PYTHONHASHSEED`` is fixed, so dictionaries are laid out alike in both runs.
+
+    python scripts/count_instructions.py [--short 5] [--long 15]
+
+Workloads (those of ``armbench perf``): ``bare``, the emulator alone at full duty with its
+replies dropped (``emulator.realtime_factor``); ``driver``, full-duty ``move_joints`` over
+``fake://`` (``driver.fake_realtime_factor``). Needs ``valgrind`` on ``PATH``; takes a minute or
+two (callgrind runs Python about 50 times slower).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+
+WORKLOAD = """
+import sys
+from armbench.fakes.clock.vclock import run_virtual
+mode, sim_s = sys.argv[1], float(sys.argv[2])
+if mode == "bare":
+    from armbench.cli.perf.emulator_perf import emulate
+    run_virtual(emulate(sim_s, moving=True))
+else:
+    from armbench.cli.perf.driver_perf import _moves
+    run_virtual(_moves(sim_s))
+"""
+
+
+def count(mode: str, sim_s: float) -> int:
+    """Instructions of one run of workload ``mode`` for ``sim_s`` simulated seconds."""
+    with tempfile.TemporaryDirectory(prefix="armbench-callgrind-") as tmp:
+        out = os.path.join(tmp, "callgrind.out")
+        done = subprocess.run(
+            ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable,
+             "-c", WORKLOAD, mode, str(sim_s)],
+            capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": "0"},
+            check=False)
+    found = re.search(r"Collected : (\d+)", done.stderr)
+    if done.returncode != 0 or found is None:
+        raise SystemExit(f"callgrind failed on {mode} {sim_s}: {done.stderr[-2000:]}")
+    return int(found.group(1))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--short", type=float, default=5.0, help="simulated s of the short run")
+    parser.add_argument("--long", type=float, default=15.0, help="simulated s of the long run")
+    args = parser.parse_args(argv)
+    if shutil.which("valgrind") is None:
+        raise SystemExit("valgrind is not on PATH (Debian: apt-get install valgrind)")
+    if not args.long > args.short >= 0:
+        raise SystemExit(f"--long {args.long} must be more than --short {args.short} >= 0")
+    span_s = args.long - args.short
+    per_s: dict[str, float] = {}
+    for mode in ("bare", "driver"):
+        per_s[mode] = (count(mode, args.long) - count(mode, args.short)) / span_s
+        print(f"instructions.{mode}_per_sim_s  {per_s[mode] / 1e6:10.2f} M/sim s")
+    print(f"instructions.driver_per_bare     {per_s['driver'] / per_s['bare']:10.3f} x   "
+          f"(the host's share: {(per_s['driver'] - per_s['bare']) / 1e6:.2f} M/sim s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
