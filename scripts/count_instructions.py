@@ -5,7 +5,10 @@ CPU seconds on a shared machine vary by a third from one minute to the next; ins
 do not (the same count for the same build and inputs, whatever else runs). Each workload runs
 twice, for ``--short`` and ``--long`` simulated seconds, and the difference of the two counts is
 the cost of ``long - short`` simulated seconds, without the interpreter's start-up and imports.
-``PYTHONHASHSEED`` is fixed, so dictionaries are laid out alike in both runs.
+``PYTHONHASHSEED`` is fixed, so dictionaries are laid out alike in every run, and numpy's
+OpenBLAS runs no threads of its own: its idle threads spin for as long as the scheduler lets
+them, which made counts of the same run differ by up to 2 %. So fixed, three runs of the same
+work differ by a few thousand instructions in 800 million.
 
     python scripts/count_instructions.py [--short 5] [--long 15]
 
@@ -24,6 +27,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
+
+#: What makes two runs of the same work count the same instructions (see above).
+FIXED_ENV = {"PYTHONHASHSEED": "0", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 WORKLOAD = """
 import sys
@@ -45,8 +51,7 @@ def count(mode: str, sim_s: float) -> int:
         done = subprocess.run(
             ["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}", sys.executable,
              "-c", WORKLOAD, mode, str(sim_s)],
-            capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": "0"},
-            check=False)
+            capture_output=True, text=True, env={**os.environ, **FIXED_ENV}, check=False)
     found = re.search(r"Collected : (\d+)", done.stderr)
     if done.returncode != 0 or found is None:
         raise SystemExit(f"callgrind failed on {mode} {sim_s}: {done.stderr[-2000:]}")
