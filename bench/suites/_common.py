@@ -275,7 +275,7 @@ class TruthProbe:
         reply arrived whose firmware angles are the reply's (within a wire tick); else None."""
         if state is None:
             return None
-        emulator = self._arm.emulator
+        emulator = emulator_of(self._arm)
         history = () if emulator is None else emulator.truth
         if not history:
             return None
