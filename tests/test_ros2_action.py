@@ -156,6 +156,31 @@ def test_an_invalid_goal_and_an_old_stamp_are_refused_before_motion() -> None:
 def test_cancel_holds_the_arm_before_the_next_reply() -> None:
     """The cancel reaches the node, the arm is held at the same virtual instant (before the next
     reply is read), and the goal ends CANCELED with the arm standing still."""
+    _cancel_and_check()
+
+
+def test_a_cancel_rclpy_marks_late_still_ends_canceled(monkeypatch: pytest.MonkeyPatch) -> None:
+    """rclpy marks a goal cancel-requested only after the node's cancel callback has returned, on
+    another executor thread; the node holds the arm at once and ends the goal CANCELED when the
+    mark comes. Here the mark is held back half a second (a loaded machine's thread switch, made
+    certain), so the goal's end on the loop comes before it."""
+    from rclpy.action.server import GoalEvent, ServerGoalHandle
+
+    marked = ServerGoalHandle._update_state
+    late: list[float] = []
+
+    def mark_late(handle: Any, event: Any) -> None:
+        if event == GoalEvent.CANCEL_GOAL:
+            late.append(time.monotonic())
+            time.sleep(0.5)
+        marked(handle, event)
+
+    monkeypatch.setattr(ServerGoalHandle, "_update_state", mark_late)
+    _cancel_and_check()
+    assert len(late) == 1  # the delay was on the cancel's path
+
+
+def _cancel_and_check() -> None:
     slow = _goal([[1.5, 0.0, 0.0, 0.0]], [60.0])
     node, arm, got, sent = _with_node(_action(slow, more=("--cancel-after", "20")))
     assert got["cancel"]["goals_canceling"] == 1

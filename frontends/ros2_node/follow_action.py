@@ -15,6 +15,12 @@ result comes when the arm has arrived within the goal tolerance (``SUCCESSFUL``)
 not within the trajectory's time plus ``goal_time_tolerance``, ``GOAL_TOLERANCE_VIOLATED`` (held).
 A cancel holds the arm at once (the streaming's hold) and the goal ends ``CANCELED``.
 
+rclpy marks a goal cancel-requested only after the cancel callback has returned, on its own
+thread, so the node keeps its own record of the cancels it accepted (by goal id): a goal that
+was not running yet finds its cancel there, and a goal cancelled on the loop is ended
+``CANCELED`` once rclpy has marked it (ending it before would abort it and answer the cancel
+with no goal cancelling).
+
 Threads: the action's callbacks run on the node's executor threads (a reentrant callback group on
 a multi-threaded executor); each goal's execute callback hands the goal to the loop
 (``run_coroutine_threadsafe``) and waits there for its result, so other goals, cancels and the
@@ -28,6 +34,7 @@ import concurrent.futures
 import contextlib
 import itertools
 import logging
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Protocol
@@ -55,6 +62,10 @@ log = logging.getLogger("armbench.ros2")
 DEFAULT_CONTROLLER: Final = "arm_controller"
 #: The action's name under the controller.
 ACTION: Final = "follow_joint_trajectory"
+
+#: Real seconds the execute callback waits for rclpy to mark a goal whose cancel the node
+#: accepted (rclpy marks it right after the cancel callback returns): a guard, not a pace.
+CANCEL_MARK_WAIT_S: Final = 10.0
 
 #: What the execution reports on each reply: the time from the start (s), the desired
 #: positions and velocities, the state, and the index of the point aimed at.
@@ -192,7 +203,9 @@ class FollowServer:
         self._cancel_ok = CancelResponse.ACCEPT
         self._loop = asyncio.get_running_loop()
         self._ids = itertools.count(1)
-        self._running: dict[int, asyncio.Task[Any]] = {}
+        self._running: dict[bytes, asyncio.Task[Any]] = {}
+        self._cancels: set[bytes] = set()
+        """The goals (ids) whose cancel the node accepted; written on the executor's threads."""
         self.name = f"{controller}/{ACTION}"
         self._runs: set[asyncio.Task[Any]] = set()
         self.closed = False
@@ -201,7 +214,7 @@ class FollowServer:
         """The result code of each goal ended, by its number (in order of arrival)."""
         self.cancelled_at: dict[int, float] = {}
         """Loop time at which the node took up each cancel of a running goal, by goal number."""
-        self._numbers: dict[int, int] = {}
+        self._numbers: dict[bytes, int] = {}
         self.server = ActionServer(node.node, FollowJointTrajectory, self.name,
                                    execute_callback=self._execute,
                                    cancel_callback=self._cancel,
@@ -221,37 +234,40 @@ class FollowServer:
     # --- the executor threads -----------------------------------------------------------------
 
     def _cancel(self, handle: Any) -> Any:
-        self._loop.call_soon_threadsafe(self._cancel_on_loop, id(handle))
+        key = _key(handle)
+        self._cancels.add(key)  # before the loop hears of it: a goal not yet running finds it
+        self._loop.call_soon_threadsafe(self._cancel_on_loop, key)
         return self._cancel_ok
 
     def _execute(self, handle: Any) -> Any:
-        number = next(self._ids)
+        number, key = next(self._ids), _key(handle)
         goal = copy_goal(handle.request)
         try:
             future = asyncio.run_coroutine_threadsafe(
-                self._run(number, id(handle), goal, handle), self._loop)
+                self._run(number, key, goal, handle), self._loop)
             state, code, text = future.result()
         except (concurrent.futures.CancelledError, RuntimeError):
             state, code, text = "aborted", GOAL_TOLERANCE_VIOLATED, "the node shut down"
         result = self._action.Result(error_code=code, error_string=text)
         self.results[number] = code
-        if state == "canceled" and handle.is_cancel_requested:
+        if state == "canceled" and _cancel_marked(handle):
             handle.canceled()
         elif code == SUCCESSFUL and state == "done":
             handle.succeed()
         else:
             handle.abort()
+        self._cancels.discard(key)
         return result
 
     # --- the loop -----------------------------------------------------------------------------
 
-    def _cancel_on_loop(self, key: int) -> None:
+    def _cancel_on_loop(self, key: bytes) -> None:
         task = self._running.get(key)
         if task is not None and not task.done():
             self.cancelled_at[self._numbers[key]] = self._loop.time()
             self.jobs.cancel("canceled", "cancelled by its client", task)
 
-    async def _run(self, number: int, key: int, goal: Any,
+    async def _run(self, number: int, key: bytes, goal: Any,
                    handle: Any) -> tuple[str, int, str]:
         run = asyncio.current_task()
         assert run is not None
@@ -261,7 +277,7 @@ class FollowServer:
         finally:
             self._runs.discard(run)
 
-    async def _follow(self, number: int, key: int, goal: Any,
+    async def _follow(self, number: int, key: bytes, goal: Any,
                       handle: Any) -> tuple[str, int, str]:
         node, arm = self.node, self.node.arm
         if self.closed:
@@ -273,7 +289,7 @@ class FollowServer:
         except GoalRefused as exc:
             log.error("goal %d refused, nothing moved: %s", number, exc.reason)
             return "aborted", exc.code, exc.reason
-        if handle.is_cancel_requested:
+        if key in self._cancels:
             return "canceled", SUCCESSFUL, "cancelled before it started"
         await self.jobs.replace(f"goal {number} of {self.name}")
         log.info("goal %d accepted: %d points, %.3f s planned", number, accepted.plan.points,
@@ -281,7 +297,7 @@ class FollowServer:
         task = self.jobs.start(execute(arm, accepted, node.options.lookahead_s,
                                        node.feedback_publisher(handle)))
         self._running[key], self._numbers[key] = task, number
-        if handle.is_cancel_requested:  # came while the one before was being replaced
+        if key in self._cancels:  # came while the one before was being replaced
             self._cancel_on_loop(key)
         try:
             await asyncio.wait({task})
@@ -304,3 +320,20 @@ class FollowServer:
             node.last_run = outcome.run
         log.info("goal %d: %s (%d)", number, outcome.text, outcome.code)
         return ("done" if outcome.code == SUCCESSFUL else "aborted"), outcome.code, outcome.text
+
+
+def _key(handle: Any) -> bytes:
+    """A goal's id: unique for the server's life (an object's ``id`` is reused)."""
+    return bytes(handle.goal_id.uuid)
+
+
+def _cancel_marked(handle: Any) -> bool:
+    """Wait (on the executor's thread) until rclpy has marked ``handle`` cancel-requested, which
+    it does once the node's cancel callback has returned; False if it has not in
+    :data:`CANCEL_MARK_WAIT_S` (the goal is then aborted)."""
+    deadline = time.monotonic() + CANCEL_MARK_WAIT_S
+    while not handle.is_cancel_requested:
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.001)
+    return True
