@@ -34,6 +34,9 @@ NAMES = [j.name for j in S.joints]
 CLIENT = [sys.executable, "-m", "armbench.frontends.ros2_node.client"]
 #: Real seconds a client or a command may take at most on a loaded machine (a hang guard).
 GUARD_S = 90.0
+#: Real seconds an ``idle`` subscriber stays at most: the test ends it (killed) when its run is
+#: over, however long a loaded machine makes that; this only ends one the test left behind.
+IDLE_GUARD_S = 1800.0
 _DOMAINS = itertools.count()
 
 
@@ -241,15 +244,17 @@ def test_a_subscriber_that_never_reads_does_not_fill_or_stop_the_node(mode: str)
             node = ArmNode(arm, NodeOptions(clock=True, slow_subscriber=mode,
                                             pace_timeout_s=1.0))
             idle = await asyncio.create_subprocess_exec(
-                *CLIENT, "idle", "--timeout", str(GUARD_S), stdout=asyncio.subprocess.PIPE)
+                *CLIENT, "idle", "--timeout", str(IDLE_GUARD_S), stdout=asyncio.subprocess.PIPE)
             try:
                 assert idle.stdout is not None
                 assert b"subscribed" in await idle.stdout.readline()  # matched before we run
                 rss0, seq0 = _rss_mb(), arm.state.seq
                 status = await node.run(duration_s)
                 grown, replies = _rss_mb() - rss0, arm.state.seq - seq0
+                assert idle.returncode is None  # the subscriber was there all the run
             finally:
-                idle.kill()
+                if idle.returncode is None:
+                    idle.kill()
                 await idle.wait()
             return node, status, replies, grown
 
