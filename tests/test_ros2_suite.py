@@ -39,6 +39,7 @@ spec_version = "armbench-limits/1"
 [suites.ros2-square]
 side_m = 0.06
 laps = {laps}
+{square}
 [suites.accuracy]
 side_m = 0.06
 laps = {laps}
@@ -91,12 +92,16 @@ reply_timeout_s = 10.0
 connect_timeout_s = 60.0
 retries = 3
 """
+#: ... and a lap the host's load puts behind its path is measured, not ended: the path tolerance
+#: stops only a lap gone astray (a stall is ended by it on virtual time, test_ros2_action.py).
+#: Observed in CI beside the slow stage: the arm up to 0.32 rad behind at the default 0.3.
+PATIENT_PATH = "path_tolerance_rad = 1.5"
 
 
 def _run(tmp_path: Path, port: str, suites: list[str], laps: int = 1,
-         limits: str = "", bench: str = "") -> dict[str, Any]:
+         limits: str = "", bench: str = "", square: str = "") -> dict[str, Any]:
     config = tmp_path / "small.toml"
-    config.write_text(SMALL.format(laps=laps, limits=limits, bench=bench))
+    config.write_text(SMALL.format(laps=laps, limits=limits, bench=bench, square=square))
     out = tmp_path / f"run-{'-'.join(suites)}"
     done = subprocess.run([sys.executable, "-m", "armbench", "run", *suites, "--port", port,
                            "--config", str(config), "--out", str(out)],
@@ -149,7 +154,8 @@ def test_in_real_time_over_a_pty_the_suite_runs_the_same(tmp_path: Path) -> None
     emulator = Emulator(tmp_path, "pty")
     emulator.start()
     try:
-        record = _run(tmp_path, emulator.port, [ROS2_SQUARE.suite], bench=PATIENT)
+        record = _run(tmp_path, emulator.port, [ROS2_SQUARE.suite], bench=PATIENT,
+                      square=PATIENT_PATH)
     finally:
         emulator.stop()
     suite = record["suites"][ROS2_SQUARE.suite]
@@ -158,3 +164,23 @@ def test_in_real_time_over_a_pty_the_suite_runs_the_same(tmp_path: Path) -> None
     assert ros[ROS2_SQUARE.ratio] > 0  # both laps measured (the figure: docs/ros.md)
     for style in ROS2_SQUARE.styles:
         assert ros[ROS2_SQUARE.metric(style, ROS2_SQUARE.laps)] == 1.0
+
+
+@needs_ros2
+def test_the_path_tolerance_is_the_goals_and_ends_a_lap_beyond_it(tmp_path: Path) -> None:
+    """``path_tolerance_rad`` is what the goal carries: far below the lag of law (12)'s duty steps
+    the node aborts the lap, the trial is an error naming the tolerance, and no figure of it is
+    a pass."""
+    config = tmp_path / "tight.toml"
+    config.write_text(SMALL.format(laps=1, limits="", bench="[bench]\nretries = 0\n",
+                                   square='styles = ["trajectory"]\npath_tolerance_rad = 1e-4'))
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "armbench", "run", ROS2_SQUARE.suite,
+                           "--port", "fake://", "--config", str(config), "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode != 0, done.stdout[-2000:]
+    suite = json.loads((out / "results.json").read_text())["suites"][ROS2_SQUARE.suite]
+    [trial] = suite["trials"]
+    assert trial["status"] == "error", trial
+    assert "path tolerance of 0.0001 rad" in json.dumps(trial), trial
+    assert not any(m["outcome"] == "pass" for m in suite["measurements"]), suite["measurements"]

@@ -27,6 +27,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import os
 import sys
 import tempfile
@@ -65,11 +66,6 @@ __all__ = ["STYLES", "Ros2SquareSuite"]
 #: The two ways a lap is driven, in the order they alternate.
 STYLES: Final = ROS2_SQUARE.styles
 N = ROS2_SQUARE
-#: The path tolerance of the suite's goals (rad, each joint): the lap's path errors are the
-#: suite's figures, not a reason to end it; this only stops a lap the arm does not follow at all
-#: (a stall), looser than the action's default so that an emulator starved for a moment in real
-#: time on a loaded host still gives a lap to measure.
-PATH_TOLERANCE_RAD: Final = 0.3
 #: Virtual seconds a trial may see pass per real second of its client process (the emulator
 #: alone runs a few hundred times real time): the trial's overall guard on virtual time.
 VIRTUAL_PER_REAL: Final = 1000.0
@@ -108,6 +104,11 @@ class Ros2SquareSuite(Suite):
             "styles": list(STYLES),
             "domain_id": -1,
             "client_timeout_s": 120.0,
+            # the goals' path tolerance (each joint): the lap's path errors are the suite's
+            # figures, not a reason to end it; this only stops a lap the arm does not follow at
+            # all (a stall). Looser than the action's default, so that a host starved for a
+            # moment in real time still gives a lap to measure; a shared host may need more.
+            "path_tolerance_rad": 0.3,
         }
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
@@ -121,6 +122,8 @@ class Ros2SquareSuite(Suite):
         where = f"suites.{self.name}"
         check_whole(f"{where}.domain_id", params["domain_id"], Bound(-1, 232))
         check(f"{where}.client_timeout_s", params["client_timeout_s"], Bound(1.0, 3600.0, "s"))
+        check(f"{where}.path_tolerance_rad", params["path_tolerance_rad"],
+              Bound(0.0, 2 * math.pi, "rad", low_open=True))
         check_square(where, settings, params, STYLES)
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
@@ -197,8 +200,9 @@ async def _ros_lap(ctx: SuiteContext, p: Mapping[str, Any], index: int) -> PathR
                                   float(p["speed_m_s"]), float(p["spacing_m"]), str(p["branch"]),
                                   roll_rad=float(p["roll_rad"]))
     names = [j.name for j in ctx.settings.joints]
+    path_rad = float(p["path_tolerance_rad"])
     trajectory = {"names": names, "points": qs[1:], "times_s": times[1:],  # qs[0]: the first
-                  "path_tolerance": dict.fromkeys(names, PATH_TOLERANCE_RAD)}  # corner, the arm
+                  "path_tolerance": dict.fromkeys(names, path_rad)}  # corner, the arm
     env = dict(os.environ)
     if domain >= 0:
         env["ROS_DOMAIN_ID"] = str(domain)
