@@ -255,7 +255,10 @@ class TruthProbe:
         gt = self._matched(state)
         if gt is not None:
             side = gt.motor_rad if motor else None
-            return tuple(map(float, side if side is not None else gt.true_rad))
+            if side is None:
+                side = gt.true_rad
+            # the emulators' samples are tuples of floats already (once per reply)
+            return side if type(side) is tuple else tuple(map(float, side))
         q = self._source.true_joints_rad()
         return None if q is None else tuple(float(v) for v in q)
 
@@ -294,8 +297,8 @@ def _same_belief(fw: Sequence[float], q: Sequence[float]) -> bool:
     """Whether a truth sample's firmware angles ``fw`` are the reply's ``q`` within a wire tick
     (rad); the arm's four joints unrolled (once per reply)."""
     if len(fw) == len(q) == 4:
-        return (abs(float(fw[0]) - q[0]) <= 2e-4 and abs(float(fw[1]) - q[1]) <= 2e-4
-                and abs(float(fw[2]) - q[2]) <= 2e-4 and abs(float(fw[3]) - q[3]) <= 2e-4)
+        return (abs(fw[0] - q[0]) <= 2e-4 and abs(fw[1] - q[1]) <= 2e-4
+                and abs(fw[2] - q[2]) <= 2e-4 and abs(fw[3] - q[3]) <= 2e-4)
     return all(abs(float(a) - float(b)) <= 2e-4 for a, b in zip(fw, q, strict=True))
 
 
