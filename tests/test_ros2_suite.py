@@ -94,7 +94,7 @@ retries = 3
 """
 #: ... and a lap the host's load puts behind its path is measured, not ended: the path tolerance
 #: stops only a lap gone astray (a stall is ended by it on virtual time, test_ros2_action.py).
-#: Observed in CI beside the slow stage: the arm up to 0.32 rad behind at the default 0.3.
+#: (Beside CI's slow stage the arm fell further behind than the default 0.3 rad: CHANGELOG.)
 PATIENT_PATH = "path_tolerance_rad = 1.5"
 
 
