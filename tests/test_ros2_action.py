@@ -181,6 +181,35 @@ def test_a_cancel_rclpy_marks_late_still_ends_canceled(monkeypatch: pytest.Monke
     assert held_back == 1  # the delay was on the cancel's path
 
 
+def test_a_cancel_that_comes_after_the_goal_ended_leaves_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """rclpy may hand the node a cancel of a goal that another executor thread is ending; here
+    the node's cancel callback gets the goal's own handle after the goal succeeded (the race
+    made certain): the goal stays SUCCEEDED and the node keeps no record of the cancel."""
+    from armbench.frontends.ros2_node.follow_action import FollowServer
+
+    handles: list[Any] = []
+    execute = FollowServer._execute
+
+    def keep(server: FollowServer, handle: Any) -> Any:
+        handles.append(handle)
+        return execute(server, handle)
+
+    monkeypatch.setattr(FollowServer, "_execute", keep)
+    left: list[set[bytes]] = []
+
+    async def cancel_late(node: Any) -> None:
+        while not node.action.results:
+            await asyncio.sleep(0.01)
+        node.action._cancel(handles[0])
+        left.append(set(node.action._cancels))
+
+    node, _, got, _ = _with_node(_action(_goal([[0.1, 0.0, 0.0, 0.0]], [1.0])),
+                                 during=cancel_late)
+    assert (got["status"], node.action.results) == ("SUCCEEDED", {1: 0}), got
+    assert left == [set()]
+
+
 def _cancel_and_check() -> None:
     slow = _goal([[1.5, 0.0, 0.0, 0.0]], [60.0])
     node, arm, got, sent = _with_node(_action(slow, more=("--cancel-after", "20")))
@@ -197,6 +226,7 @@ def _cancel_and_check() -> None:
     q = np.array(arm.state.q_rad)
     assert 0.0 < q[0] < 1.5  # stopped on the way
     assert "holds at" in got["error_string"]
+    assert not node.action._cancels  # the ended goal's cancel is let go
 
 
 def test_a_new_goal_preempts_the_running_one() -> None:

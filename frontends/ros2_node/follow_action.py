@@ -34,6 +34,7 @@ import concurrent.futures
 import contextlib
 import itertools
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -205,7 +206,9 @@ class FollowServer:
         self._ids = itertools.count(1)
         self._running: dict[bytes, asyncio.Task[Any]] = {}
         self._cancels: set[bytes] = set()
-        """The goals (ids) whose cancel the node accepted; written on the executor's threads."""
+        """The running or waiting goals (ids) whose cancel the node accepted; written on the
+        executor's threads, under ``_cancels_lock``."""
+        self._cancels_lock = threading.Lock()
         self.name = f"{controller}/{ACTION}"
         self._runs: set[asyncio.Task[Any]] = set()
         self.closed = False
@@ -235,7 +238,9 @@ class FollowServer:
 
     def _cancel(self, handle: Any) -> Any:
         key = _key(handle)
-        self._cancels.add(key)  # before the loop hears of it: a goal not yet running finds it
+        with self._cancels_lock:  # a goal already ended leaves no entry behind
+            if handle.is_active:  # before the loop hears of it: a goal not yet running finds it
+                self._cancels.add(key)
         self._loop.call_soon_threadsafe(self._cancel_on_loop, key)
         return self._cancel_ok
 
@@ -256,7 +261,8 @@ class FollowServer:
             handle.succeed()
         else:
             handle.abort()
-        self._cancels.discard(key)
+        with self._cancels_lock:  # the goal is ended: a cancel from now on adds nothing
+            self._cancels.discard(key)
         return result
 
     # --- the loop -----------------------------------------------------------------------------
