@@ -170,6 +170,22 @@ def test_a_lead_that_one_move_carries_is_no_drift() -> None:
     assert choice.kept == "prior" and "moved during the session" in choice.why, choice.why
 
 
+def test_better_at_the_end_and_worse_after_the_approaches_keeps_the_prior() -> None:
+    """The drift arm's joint 3 in CI (its losses grow by half of themselves each 20 s): the
+    torque law 888 counts RMS on the block after the approaches against the prior's 859 (worse,
+    within the moves' scatter) and 955 at the end against 1540 (better by far). The blocks hold
+    the same motions, so the law fits a moment of the session: the prior is kept, and the
+    reason names both blocks. Better on both is kept."""
+    scores = [[_block(859, 1), _block(1540, 2)], [_block(888, 3), _block(955, 4)],
+              [_block(1100, 5), _block(1600, 6)]]
+    choice = decide(1, NAMES, SIZES, scores, ["suite", "end"])
+    assert choice.kept == "prior" and "moved during the session" in choice.why, choice.why
+    assert "better than the prior on the end block" in choice.why
+    assert "worse on the suite block" in choice.why
+    scores[1][0] = _block(820, 7)
+    assert decide(1, NAMES, SIZES, scores, ["suite", "end"]).kept == "duty"
+
+
 def test_a_structure_that_explains_only_the_start_keeps_the_prior() -> None:
     """The duty law explains the block after the approaches (3 counts against the prior's 300)
     and not the end block (250 against 300: the arm loses far more by then), though better
