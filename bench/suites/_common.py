@@ -278,7 +278,7 @@ class TruthProbe:
         reply arrived whose firmware angles are the reply's (within a wire tick); else None."""
         if state is None:
             return None
-        emulator = emulator_of(self._arm)
+        emulator = self._arm.emulator  # the arm's current transport's (once per reply)
         history = () if emulator is None else emulator.truth
         if not history:
             return None

@@ -279,10 +279,13 @@ class StartupRecoverySuite(Suite):
         tol_rad = float(p["tolerance_rad"])
         tol_m = float(p["tolerance_mm"]) / 1000.0
 
+        # judged once per reply: what is fixed for the trial is looked up once
+        truth_joints = probe.joints if probe.available else None
+
         def error(state: JointState) -> tuple[float, bool, str]:
             """(error, within tolerance, what it was compared with) of ``state``."""
-            if probe.available:
-                q = probe.joints(state, motor=True)
+            if truth_joints is not None:
+                q = truth_joints(state, motor=True)
                 if q is not None:  # once per reply: the four joints unrolled
                     (a1, a2, a3, a4), (b1, b2, b3, b4) = state.q_rad, q
                     e = max(abs(a1 - b1), abs(a2 - b2), abs(a3 - b3), abs(a4 - b4))

@@ -81,7 +81,7 @@ from armbench.drivers.model.errors import (
 from armbench.drivers.model.kinematics import Vec4, ik_best
 from armbench.drivers.model.protocol import MAX_DUTY, Command
 from armbench.drivers.model.settings import RobotSettings
-from armbench.drivers.transports.base import Emulator, GroundTruth, emulated
+from armbench.drivers.transports.base import Emulator, GroundTruth
 
 __all__ = [
     "CONNECT_TIMEOUT_S",
@@ -198,7 +198,8 @@ class Arm(ArmLink):
     def emulator(self) -> Emulator | None:
         """The emulator behind the current transport (``fake://``, ``avr://`` on virtual time),
         for its side channels; else None (:meth:`Transport.emulator`)."""
-        return emulated(self._transport)
+        transport = self._transport  # read once per reply by a truth match: no call more
+        return None if transport is None else transport.emulator
 
     def ground_truth(self) -> GroundTruth | None:
         """The emulator's newest ground-truth sample when the transport has an emulator, else
