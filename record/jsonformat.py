@@ -7,6 +7,7 @@ import json
 from collections.abc import Iterable, Iterator, Mapping
 from datetime import date, datetime
 from datetime import time as time_of_day
+from json.encoder import c_make_encoder, encode_basestring  # type: ignore[attr-defined]
 from typing import Any
 
 from armbench.record.fields import RecordError
@@ -47,20 +48,38 @@ class Placeholder:
 #: ``JSONEncoder`` per call, and the record makes one call per sample.
 _compact_encoder = json.JSONEncoder(ensure_ascii=False, allow_nan=False, separators=(", ", ": "),
                                     default=json_default)
+#: The C encoder behind it, made once: ``JSONEncoder.encode`` makes one per call, which costs
+#: more than encoding a sample's value. Without a check for circular references: it only sees
+#: scalars and flat containers (:func:`_encode` recurses into the others itself).
+_c_encoder = None if c_make_encoder is None else c_make_encoder(
+    None, json_default, encode_basestring, None, ": ", ", ", False, False, False)
 
 
 def _compact(value: object) -> str:
-    return _compact_encoder.encode(value)
+    """One line of strict JSON for a scalar or a flat container (what ``_compact_encoder``
+    writes)."""
+    if type(value) is str:  # a key: what the encoder does with it, minus the encoder
+        return encode_basestring(value)
+    if _c_encoder is None:
+        return _compact_encoder.encode(value)
+    return "".join(_c_encoder(value, 0))
 
 
-def _is_scalar(value: object) -> bool:
-    return isinstance(value, _SCALARS)
+def _all_scalars(values: Iterable[object]) -> bool:
+    """True when every value is a scalar (a loop, not a generator: once per sample's vector)."""
+    for v in values:  # noqa: SIM110 (all() over a generator: a frame per value)
+        if not isinstance(v, _SCALARS):
+            return False
+    return True
 
 
 def _is_flat(values: Iterable[object]) -> bool:
     """True when every value is a scalar or a list of scalars (a sample, a limit, a vector)."""
-    return all(_is_scalar(v) or (isinstance(v, (list, tuple)) and all(map(_is_scalar, v)))
-               for v in values)
+    for v in values:
+        if not (isinstance(v, _SCALARS)
+                or (isinstance(v, (list, tuple)) and _all_scalars(v))):
+            return False
+    return True
 
 
 def _encode(value: object, level: int = 0) -> str:
@@ -85,7 +104,7 @@ def _encode(value: object, level: int = 0) -> str:
     if isinstance(value, (list, tuple)):
         if not value:
             return "[]"
-        if all(map(_is_scalar, value)):
+        if _all_scalars(value):
             return _compact(value)
         pad = " " * (level + 1)
         items = (f"{pad}{_encode(v, level + 1)}" for v in value)
@@ -122,7 +141,7 @@ def iter_encode(value: object, level: int = 0) -> Iterator[str | Placeholder]:
                 yield from iter_encode(v, level + 1)
             yield "\n" + " " * level + "}"
             return
-        if not all(map(_is_scalar, value)):
+        if not _all_scalars(value):
             yield "[\n"
             for i, v in enumerate(value):
                 yield f"{_SEPARATOR if i else ''}{pad}"
