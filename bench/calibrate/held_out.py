@@ -29,8 +29,8 @@ every joint at once is judged the same way, the speed models as chosen: the stop
 structure) kept only if some joint gets better with it beyond the noise and the moves' scatter
 (a joint no twin predicts, one move different by far either way, is no evidence) and none worse
 beyond the noise; the Hall positions (measured against the motor-side truth) unless a joint
-gets worse. Without a held-out block (a
-budget too small for one) every speed model keeps the prior, and says so.
+gets worse. Without a held-out block (a budget too small for one) every speed model keeps the
+prior, and says so.
 """
 
 from __future__ import annotations

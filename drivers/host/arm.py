@@ -198,7 +198,7 @@ class Arm(ArmLink):
     def emulator(self) -> Emulator | None:
         """The emulator behind the current transport (``fake://``, ``avr://`` on virtual time),
         for its side channels; else None (:meth:`Transport.emulator`)."""
-        transport = self._transport  # read once per reply by a truth match: no call more
+        transport = self._transport  # a truth match reads this once a reply: one call less
         return None if transport is None else transport.emulator
 
     def ground_truth(self) -> GroundTruth | None:
