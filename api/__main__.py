@@ -1,8 +1,6 @@
 """``python -m armbench`` is the ``armbench`` command."""
 
-import sys
-
-from armbench.cli.main import main
+from armbench.cli.main import program
 
 if __name__ == "__main__":  # not when a worker process imports it (bench/workers/)
-    sys.exit(main())
+    program()

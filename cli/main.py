@@ -13,12 +13,13 @@ import os
 import sys
 from collections.abc import Sequence
 from importlib.metadata import version
-from typing import Any
+from typing import Any, NoReturn
 
+from armbench.bench.workers.process_end import end_process
 from armbench.cli.commands.bounds import check_bounds
 from armbench.drivers.model.errors import ArmbenchError
 
-__all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "build_parser", "main"]
+__all__ = ["COMMANDS", "EXIT_BROKEN_PIPE", "build_parser", "main", "program"]
 
 #: Exit status when stdout's reader closed the pipe: what a process killed by SIGPIPE reports.
 EXIT_BROKEN_PIPE = 141
@@ -136,3 +137,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
         return EXIT_BROKEN_PIPE
     return status
+
+
+def program() -> NoReturn:
+    """The ``armbench`` program (its console script, ``python -m armbench``): :func:`main` on
+    the command line, then the process ends with its status, without the interpreter's
+    teardown (:func:`~armbench.bench.workers.process_end.end_process`)."""
+    end_process(main())
+

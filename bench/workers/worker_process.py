@@ -14,7 +14,8 @@ done with its pool parks it (:func:`park`): the next run of the same process (a 
 notebook, a campaign of runs) takes it instead of starting workers again, as long as nothing the
 workers took from the process at their start (the import path, the working folder, the
 environment) has changed; the workers end with the process, or when :func:`discard_parked`
-lets them go.
+lets them go. A worker let go ends without its interpreter's teardown (:func:`_end_at_once`),
+and :func:`let_go_workers` lets a process that is about to end wait for its workers to be gone.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import concurrent.futures
 import contextlib
 import ctypes
 import importlib
+import logging
 import multiprocessing
 import os
 import signal
@@ -34,8 +36,8 @@ import weakref
 from collections.abc import Coroutine, Sequence
 from typing import Any, Protocol, TypeVar
 
-__all__ = ["Job", "discard_parked", "discard_prestarted", "new_pool", "park", "park_prestarted",
-           "prestart", "run_job", "take_pool", "worker_init"]
+__all__ = ["Job", "discard_parked", "discard_prestarted", "let_go_workers", "new_pool", "park",
+           "park_prestarted", "prestart", "run_job", "take_pool", "worker_init"]
 
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
@@ -54,7 +56,8 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     record): a worker finishes the trial at hand. A worker whose parent dies (``kill -9``) exits
     at once instead of living on as an orphan holding the parent's output pipes: the kernel's
     parent-death signal on Linux, and a watch on ``parent`` (the run's pid) everywhere. The
-    modules ``preload`` names are imported last (what a job will need)."""
+    modules ``preload`` names are imported last (what a job will need); the worker's end is
+    :func:`_end_at_once`."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
@@ -72,6 +75,21 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
     for name in preload:
         importlib.import_module(name)
+    atexit.register(_end_at_once)
+
+
+def _end_at_once() -> None:
+    """A worker's last at-exit handler: its loop ended (the pool let it go), so it ends now with
+    status 0 instead of tearing its interpreter down (freeing the emulator's and numpy's
+    modules: a fifth of a second its parent would wait for). A loop that failed has printed
+    why and ends with 0 too: the pool tells a worker's end by its process, not its status. The
+    handlers registered after the worker started have run; of those registered before, only
+    the standard streams and logging hold anything, flushed here."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            stream.flush()
+    os._exit(0)
 
 
 def _started() -> None:
@@ -184,13 +202,19 @@ def discard_parked() -> None:
         parked[1].shutdown(wait=False, cancel_futures=True)
 
 
-def _let_go() -> None:
-    """At the process's exit, while the modules a pool's clean-up uses are still there."""
-    discard_prestarted()
-    discard_parked()
+def let_go_workers(*, wait: bool = False) -> None:
+    """Let the prestarted and the parked pool go; ``wait``: until their workers have ended (a
+    process about to end without its interpreter's teardown:
+    :mod:`~armbench.bench.workers.process_end`). Also run at the process's exit, while the
+    modules a pool's clean-up uses are still there."""
+    global _prestarted, _parked
+    pools = [held[-1] for held in (_prestarted, _parked) if held is not None]
+    _prestarted = _parked = None
+    for pool in pools:
+        pool.shutdown(wait=wait, cancel_futures=True)
 
 
-atexit.register(_let_go)
+atexit.register(let_go_workers)
 
 
 def run_job(job: Job[T_co]) -> T_co:

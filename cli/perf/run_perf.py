@@ -32,6 +32,7 @@ pool of two spawned workers takes to answer a first job that imports what a tria
 
 from __future__ import annotations
 
+import atexit
 import bisect
 import collections
 import concurrent.futures
@@ -205,7 +206,9 @@ def covered_s(spans: list[tuple[float, float]], begin: float, end: float) -> flo
 
 
 def child(out_dir: str) -> None:
-    """The timed run (in a fresh process): prints its phases as one JSON line on stdout."""
+    """The timed run (in a fresh process): the program as a user runs it (``python -m armbench
+    run``), which ends its process; its phases are printed as one JSON line on stdout by an
+    at-exit handler, which the program's end runs (after the workers are gone)."""
     begin = time.perf_counter()
     trace = _CpuTrace()
     clock = _Clock()
@@ -213,26 +216,24 @@ def child(out_dir: str) -> None:
     missing = _patch(clock)
     jobs = _trial_jobs()
     clock.leave()
-    # the program as a user runs it (``python -m armbench run``), its exit status caught
+
+    def phases() -> None:
+        clock.enter("end")
+        end = time.perf_counter()
+        seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
+        cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
+        trace.stop()
+        spans = [(j["start_s"], j["start_s"] + j["worker_s"]) for j in jobs]
+        print(json.dumps({"phases": seconds, "cpu": cpu, "missing": missing,
+                          "worker_s": sum(j["worker_s"] for j in jobs), "jobs": len(jobs),
+                          "worker_cpu_s": sum(j["cpu_s"] for j in jobs),
+                          "robot_s": sum(j["robot_s"] for j in jobs),
+                          "process_s": end - begin, "trials_s": covered_s(spans, begin, end),
+                          "serial_cpu_s": trace.cpu_outside(spans)}), flush=True)
+
+    atexit.register(phases)
     sys.argv = ["armbench", "run", "--out", out_dir, "-q"]
-    try:
-        runpy.run_module("armbench", run_name="__main__", alter_sys=True)
-        status = 0
-    except SystemExit as exc:
-        status = exc.code if isinstance(exc.code, int) else 1
-    clock.enter("end")
-    end = time.perf_counter()
-    seconds = {k: v for k, v in clock.seconds.items() if k not in ("setup", "end")}
-    cpu = {k: v for k, v in clock.cpu_seconds.items() if k not in ("setup", "end")}
-    trace.stop()
-    spans = [(j["start_s"], j["start_s"] + j["worker_s"]) for j in jobs]
-    trials_s = covered_s(spans, begin, end)
-    print(json.dumps({"status": status, "phases": seconds, "cpu": cpu, "missing": missing,
-                      "worker_s": sum(j["worker_s"] for j in jobs), "jobs": len(jobs),
-                      "worker_cpu_s": sum(j["cpu_s"] for j in jobs),
-                      "robot_s": sum(j["robot_s"] for j in jobs),
-                      "process_s": end - begin, "trials_s": trials_s,
-                      "serial_cpu_s": trace.cpu_outside(spans)}))
+    runpy.run_module("armbench", run_name="__main__", alter_sys=True)
 
 
 def _run_wall(args: list[str], out: Path) -> tuple[float, float, str]:

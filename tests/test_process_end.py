@@ -1,0 +1,98 @@
+"""The end of an ``armbench`` process (``bench/workers/process_end.py``) and of its worker
+processes (``bench/workers/worker_process.py``): no interpreter teardown, and nothing an ordinary
+exit does for the user lost. Real processes: the program in a child interpreter, a real spawned
+pool."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+from conftest import packaged_limits_with
+
+from armbench.bench.workers import worker_process
+
+WAIT_S = 300.0
+"""Upper bound of a child process's life here under load (each takes a second or so alone)."""
+
+STARTUP = """
+[suites.startup-recovery]
+trials = 4
+wear_duration_s = 0.0
+"""
+"""A short start-up recovery run: four power cuts, two for each worker."""
+
+
+def _python(code: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, text=True,
+                          capture_output=True, timeout=WAIT_S)
+
+
+def test_the_status_the_output_and_the_exit_handlers_are_kept(tmp_path: Path) -> None:
+    """Unflushed output reaches the reader, the at-exit handlers run (after what the process
+    printed), and the status is the one given."""
+    done = _python("""
+        import atexit, sys
+        from armbench.bench.workers.process_end import end_process
+        atexit.register(lambda: print("handler ran"))
+        print("unflushed", end="")
+        print("on stderr", end="", file=sys.stderr)
+        end_process(3)
+        """, tmp_path)
+    assert done.returncode == 3, done.stderr
+    assert done.stdout == "unflushedhandler ran\n"
+    assert done.stderr == "on stderr"
+
+
+def test_a_thread_still_at_work_is_waited_for(tmp_path: Path) -> None:
+    """A thread that is not a daemon finishes its work before the process ends, as with an
+    ordinary exit."""
+    done = _python("""
+        import threading, time
+        from armbench.bench.workers.process_end import end_process
+        def work():
+            time.sleep(0.3)
+            print("thread done", flush=True)
+        threading.Thread(target=work).start()
+        end_process(4)
+        """, tmp_path)
+    assert done.returncode == 4, done.stderr
+    assert done.stdout == "thread done\n"
+
+
+def test_a_run_in_workers_ends_with_nothing_left_behind(tmp_path: Path) -> None:
+    """``python -m armbench run`` with two workers: its status and record, and none of its
+    semaphores left for multiprocessing's resource tracker to warn about."""
+    config = packaged_limits_with(tmp_path / "short.toml", STARTUP)
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "armbench", "run", "startup-recovery", "--config",
+                           str(config), "--out", str(out), "--workers", "2", "-q"], cwd=tmp_path,
+                          text=True, capture_output=True, timeout=WAIT_S)
+    assert done.returncode == 0, done.stderr
+    assert "verdict pass" in done.stdout
+    assert (out / "report.html").is_file() and (out / "results.json").is_file()
+    assert "leaked" not in done.stderr and "resource_tracker" not in done.stderr, done.stderr
+
+
+def _note_at_exit(path: str) -> int:
+    """In a worker: at its exit, ``path`` is written (a handler registered after it started)."""
+    import atexit
+    import os
+
+    atexit.register(lambda: Path(path).write_text("ran"))
+    return os.getpid()
+
+
+def test_a_worker_let_go_ends_with_status_0_after_its_own_handlers(tmp_path: Path) -> None:
+    """A parked pool let go and waited for: its worker ended with status 0, and the at-exit
+    handler a job registered in it ran first."""
+    pool = worker_process.new_pool(1)
+    note = tmp_path / "note"
+    pool.submit(_note_at_exit, str(note)).result(timeout=WAIT_S)
+    processes = list(pool._processes.values())
+    worker_process.park(pool, 1)
+    worker_process.let_go_workers(wait=True)
+    assert [p.exitcode for p in processes] == [0]
+    assert note.read_text() == "ran"
