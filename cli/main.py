@@ -144,4 +144,3 @@ def program() -> NoReturn:
     the command line, then the process ends with its status, without the interpreter's
     teardown (:func:`~armbench.bench.workers.process_end.end_process`)."""
     end_process(main())
-
