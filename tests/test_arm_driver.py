@@ -726,7 +726,9 @@ def test_reconnect_resumes_the_stream(link: Link) -> None:
                     await within(asyncio.to_thread(emu.start), START_S)
                 else:
                     await within(arm.transport.close())
-                st = await within(arm.wait_state(lambda s: arm.reconnects == 1 and s.seq > seq0
+                # a link that drops again as the emulator comes back (a loaded machine) counts
+                # another reconnection: the stream must resume after the first, however many
+                st = await within(arm.wait_state(lambda s: arm.reconnects >= 1 and s.seq > seq0
                                                  and arm.connected),
                                   START_S if emu is not None else STEP_S)
                 assert st.seq > seq0 and arm.frames_received >= st.seq
