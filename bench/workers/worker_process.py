@@ -57,7 +57,9 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     at once instead of living on as an orphan holding the parent's output pipes: the kernel's
     parent-death signal on Linux, and a watch on ``parent`` (the run's pid) everywhere. The
     modules ``preload`` names are imported last (what a job will need); the worker's end is
-    :func:`_end_at_once`."""
+    :func:`_end_at_once`, registered first so that every at-exit handler of those modules and
+    of the jobs runs before it."""
+    atexit.register(_end_at_once)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
@@ -75,7 +77,6 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
     for name in preload:
         importlib.import_module(name)
-    atexit.register(_end_at_once)
 
 
 def _end_at_once() -> None:
@@ -83,7 +84,7 @@ def _end_at_once() -> None:
     status 0 instead of tearing its interpreter down (freeing the emulator's and numpy's
     modules: a fifth of a second its parent would wait for). A loop that failed has printed
     why and ends with 0 too: the pool tells a worker's end by its process, not its status. The
-    handlers registered after the worker started have run; of those registered before, only
+    handlers registered since the worker started have run; of those registered before, only
     the standard streams and logging hold anything, flushed here."""
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
@@ -149,12 +150,13 @@ def take_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.P
     return _unpark(workers) or new_pool(workers, preload)
 
 
-def discard_prestarted() -> None:
-    """Let the pool :func:`prestart` readied go, if no run took it."""
+def discard_prestarted(*, wait: bool = False) -> None:
+    """Let the pool :func:`prestart` readied go, if no run took it (``wait``: until its workers
+    have ended)."""
     global _prestarted
-    if _prestarted is not None:
-        _prestarted[2].shutdown(wait=False, cancel_futures=True)
-        _prestarted = None
+    prestarted, _prestarted = _prestarted, None
+    if prestarted is not None:
+        prestarted[2].shutdown(wait=wait, cancel_futures=True)
 
 
 def park(pool: concurrent.futures.ProcessPoolExecutor, workers: int) -> None:
@@ -194,12 +196,12 @@ def _unpark(workers: int) -> concurrent.futures.ProcessPoolExecutor | None:
     return None
 
 
-def discard_parked() -> None:
-    """Let the parked pool's workers go."""
+def discard_parked(*, wait: bool = False) -> None:
+    """Let the parked pool's workers go (``wait``: until they have ended)."""
     global _parked
     parked, _parked = _parked, None
     if parked is not None:
-        parked[1].shutdown(wait=False, cancel_futures=True)
+        parked[1].shutdown(wait=wait, cancel_futures=True)
 
 
 def let_go_workers(*, wait: bool = False) -> None:
@@ -207,11 +209,8 @@ def let_go_workers(*, wait: bool = False) -> None:
     process about to end without its interpreter's teardown:
     :mod:`~armbench.bench.workers.process_end`). Also run at the process's exit, while the
     modules a pool's clean-up uses are still there."""
-    global _prestarted, _parked
-    pools = [held[-1] for held in (_prestarted, _parked) if held is not None]
-    _prestarted = _parked = None
-    for pool in pools:
-        pool.shutdown(wait=wait, cancel_futures=True)
+    discard_prestarted(wait=wait)
+    discard_parked(wait=wait)
 
 
 atexit.register(let_go_workers)
