@@ -1,7 +1,7 @@
 """The end of a process that may hold worker processes (the ``armbench`` program's): without the
 interpreter's teardown, which frees every object the process made (a default run's record,
-numpy's and matplotlib's modules) and waits for its workers' own: most of a second at the end
-of a run, with nothing left to do."""
+numpy's and matplotlib's modules) and waits for its workers' own: about half a second at the
+end of a default run, with nothing left to do."""
 
 from __future__ import annotations
 
