@@ -19,8 +19,9 @@ prior on any block beyond the noise; of the others and the prior, the lowest mea
 the blocks is taken, unless one with fewer parameters (the prior has none) is within the noise
 of it: ties keep the simpler model or the prior. A candidate that explains one block (its RMS
 within twin-check's allowance of the floor, or three quarters of the prior's mean square taken
-away) and not another, that is better than the prior on one block beyond the noise and worse
-on another beyond that block's floor (the blocks hold the same motions), or that is ahead of the
+away) and not another, that is better than the prior on one block and worse on another, each
+beyond that block's floor (the blocks hold the same motions; one move is as good a reason to
+doubt a law as to keep it), or that is ahead of the
 arm along the motion on one block and behind it on another (each beyond that block's floor where
 the joint moves, the timing's share of it, and :data:`SIGMAS` standard errors of the moves'
 scatter), says the arm's behaviour moved during the session (its drives warming up): a constant
@@ -218,9 +219,10 @@ EXPLAINS: Final = 0.75
 def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str | None:
     """Whether the arm's joint ``j`` behaved otherwise on one block than on another, as a twin
     fitted to the session shows it: it explains one block and not another (:data:`EXPLAINS`),
-    or it is better than the prior on one block beyond the noise and worse on another beyond
-    that block's floor (the blocks hold the same motions: a constant that wins on one and loses
-    on the other fits a moment of the session, not the arm of the suites' runs that follow),
+    or it is better than the prior on one block and worse on another, each beyond that block's
+    floor (the blocks hold the same motions: a constant that wins on one and loses on the other
+    fits a moment of the session, not the arm of the suites' runs that follow; a win one move
+    carries counts, as it does for the choice),
     or it is ahead of the arm along the motion on one and behind on another, each by more than
     that block's floor where the joint moves and :data:`SIGMAS` standard errors of the moves'
     scatter (a twin off by a constant share is off the same way on both; a perfect one is off
@@ -234,11 +236,11 @@ def _moved(score: Scores, prior: Scores, j: int, blocks: Sequence[str]) -> str |
                 f"prior's {prior[a].rms[j]:.3g}) and not the {blocks[b]} block "
                 f"({score[b].rms[j]:.3g} against {prior[b].rms[j]:.3g})")
     gains = [_excess(p, r, j) for r, p in zip(score, prior, strict=True)]
-    better = [gain > floor2 + SIGMAS * se for gain, se, floor2 in gains]
+    better = [gain > floor2 for gain, _, floor2 in gains]
     lost = [-gain > floor2 for gain, _, floor2 in gains]
     if any(better) and any(lost):
         a, b = better.index(True), lost.index(True)
-        return (f"is better than the prior on the {blocks[a]} block beyond the noise (RMS "
+        return (f"is better than the prior on the {blocks[a]} block beyond its floor (RMS "
                 f"{score[a].rms[j]:.3g} counts against {prior[a].rms[j]:.3g}) and worse on the "
                 f"{blocks[b]} block beyond its floor ({score[b].rms[j]:.3g} against "
                 f"{prior[b].rms[j]:.3g})")
