@@ -25,6 +25,7 @@ from armbench.record import Measurement, RunRecord, Trial, load_record
 from armbench.reports.pages import page
 from armbench.reports.pages.page import build_report_html
 from armbench.reports.render import svg_cache
+from armbench.reports.render.format import jinja_environment
 from armbench.reports.render.views import Figures
 
 RECORDS = Path(__file__).parent / "fixtures" / "records"
@@ -79,7 +80,8 @@ def test_the_run_says_when_it_is_under_way_and_when_each_summary_is_in(
 def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
         tmp_path: Path, short_config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Every suite's plots are drawn in the thread of its own, and the report written at the
-    end draws only the traffic plot (its capture is whole only then)."""
+    end draws only the traffic plot (its capture is whole only then) and compiles no template
+    (compiled in that thread too)."""
     from armbench.cli.commands import run_files
     from armbench.cli.main import main
 
@@ -98,14 +100,26 @@ def test_the_run_command_draws_each_suite_ahead_and_the_report_only_the_traffic(
         write(record, out_dir, **options)
         in_report.append(svg_cache.misses() - before)
 
+    env = jinja_environment()
+    compiled: list[str] = []
+    compile_template = env.compile
+
+    def compiling(source: str, name: str | None = None, *args: Any, **kwargs: Any) -> Any:
+        compiled.append(threading.current_thread().name)
+        return compile_template(source, name, *args, **kwargs)
+
     monkeypatch.setattr(page, "draw_ahead", watched)
     monkeypatch.setattr("armbench.cli.commands.run.write_reports", counted)
+    monkeypatch.setattr(env, "compile", compiling)
     svg_cache.clear()
+    env.cache.clear()  # type: ignore[union-attr]  # the environment keeps a cache
     status = main(["run", "accuracy", "joints", "--workers", "1", "--config", str(short_config),
                    "--out", str(tmp_path / "run")])
     assert status == 0 and (tmp_path / "run" / "report.html").exists()
     assert ahead == [("armbench-report-ahead", "accuracy"), ("armbench-report-ahead", "joints")]
     assert in_report == [1]
+    # the templates were compiled ahead too: the report compiled none
+    assert compiled and set(compiled) == {"armbench-report-ahead"}, compiled
 
 
 @pytest.mark.parametrize("fixture", ["passing", "interrupted"])

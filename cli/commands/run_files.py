@@ -35,11 +35,12 @@ def write_reports(record: RunRecord, out_dir: Path, *,
 class ReportAhead:
     """The report's work done while the trials go on (a
     :class:`~armbench.bench.runner.options.RunAhead`): once the run is under way, a thread of its
-    own imports the report's modules (its pages, matplotlib, Jinja2); then it draws the plots of
-    each suite whose summary is in the record (``reports.pages.page.draw_ahead``), while the next
-    suite's trials run; the report written when the run ends (after :meth:`finish`) finds them
-    drawn. Without the report package (a minimal install) nothing is done; a plot that fails to
-    draw now is drawn (or reported) by the report itself."""
+    own imports the report's modules (its pages, matplotlib, Jinja2) and compiles its templates
+    (``reports.pages.page.load_templates``); then it draws the plots of each suite whose summary
+    is in the record (``reports.pages.page.draw_ahead``), while the next suite's trials run; the
+    report written when the run ends (after :meth:`finish`) finds them compiled and drawn.
+    Without the report package (a minimal install) nothing is done; a plot that fails to draw
+    now is drawn (or reported) by the report itself."""
 
     def __init__(self) -> None:
         self._todo: queue.SimpleQueue[tuple[RunRecord, str] | None] = queue.SimpleQueue()
@@ -73,7 +74,9 @@ class ReportAhead:
     def _work(self) -> None:
         try:
             import armbench.reports.files.junit  # noqa: F401
-            from armbench.reports.pages.page import draw_ahead
+            from armbench.reports.pages.page import draw_ahead, load_templates
+
+            load_templates()
         except ImportError:
             return
         except Exception:  # the report itself says what is wrong, when it is written

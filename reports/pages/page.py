@@ -24,6 +24,8 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import BinaryIO
 
+from jinja2 import meta
+
 from armbench.record import (
     CAPTURE_FILE,
     LEGACY_CAPTURE_FILE,
@@ -54,8 +56,8 @@ from armbench.reports.render.views import (
 from armbench.reports.sections import SectionBuilder, generic, registered_sections
 from armbench.reports.sections.traffic import traffic_section
 
-__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "draw_ahead", "render_report",
-           "report_chunks", "suite_sections"]
+__all__ = ["REPORT_FILE", "SECTIONS", "build_report_html", "draw_ahead", "load_templates",
+           "render_report", "report_chunks", "suite_sections"]
 
 _FIG_NUMBER = re.compile(r"^Fig\. \d+: ")
 #: The section of each suite the report knows, by the suite's name (registered as entry points,
@@ -106,6 +108,27 @@ def draw_ahead(record: RunRecord, name: str) -> None:
         return
     builder = registered_sections().get(name, generic.build)
     builder(record, suite, suite_view(record, suite, "suite-0", {}), Figures(collect=False))
+
+
+def load_templates() -> list[str]:
+    """Compile the report page's templates now, for the report written later to find them
+    compiled (the environment keeps them): ``report.html.j2`` and every template it names,
+    every section's for an include whose name is computed. The run calls it in a thread of its
+    own while the trials go on. Returns the templates' names."""
+    env = jinja_environment()
+    todo, done = ["report.html.j2"], []
+    while todo:
+        name = todo.pop()
+        if name in done:
+            continue
+        done.append(name)
+        env.get_template(name)
+        assert env.loader is not None  # the environment loads from the package's folder
+        source = env.loader.get_source(env, name)[0]
+        for ref in meta.find_referenced_templates(env.parse(source)):
+            todo.extend([ref] if ref is not None else env.list_templates(
+                filter_func=lambda n: n.startswith("sections/")))
+    return done
 
 
 def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:
