@@ -5,6 +5,7 @@ pool."""
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import textwrap
@@ -96,3 +97,22 @@ def test_a_worker_let_go_ends_with_status_0_after_its_own_handlers(tmp_path: Pat
     worker_process.let_go_workers(wait=True)
     assert [p.exitcode for p in processes] == [0]
     assert note.read_text() == "ran"
+
+
+def test_a_pool_no_run_took_is_stopped_not_waited_for(tmp_path: Path) -> None:
+    """A refused run's prestarted pool: its workers, still importing what a trial needs, are
+    stopped (SIGTERM) when it is let go; a pool a run took is not (above: status 0). The
+    program refusing a run (its pool parked, then let go at its end) prints its one-line error
+    and nothing of the stopped workers."""
+    worker_process.prestart(2, ("armbench.fakes.firmware.arm_emulator",))
+    prestarted = worker_process._prestarted
+    assert prestarted is not None
+    processes = list(prestarted[2]._processes.values())
+    worker_process.let_go_workers(wait=True)
+    assert [p.exitcode for p in processes] == [-signal.SIGTERM] * 2
+    done = subprocess.run([sys.executable, "-m", "armbench", "run", "--config",
+                           str(tmp_path / "missing.toml"), "--out", str(tmp_path / "run")],
+                          cwd=tmp_path, text=True, capture_output=True, timeout=WAIT_S)
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"armbench run: error: limits file: '{tmp_path / 'missing.toml'}' does not exist"]

@@ -101,6 +101,10 @@ def _started() -> None:
 #: job reads: pytest's name of the test running.
 _UNREAD_ENVIRONMENT = frozenset({"PYTEST_CURRENT_TEST"})
 
+_untaken: weakref.WeakSet[concurrent.futures.ProcessPoolExecutor] = weakref.WeakSet()
+"""The pools :func:`prestart` started that no run has taken (:func:`take_pool`): their workers
+have measured nothing."""
+
 _inherited_by: weakref.WeakKeyDictionary[concurrent.futures.ProcessPoolExecutor,
                                          tuple[object, ...]] = weakref.WeakKeyDictionary()
 """What each pool's workers took from this process as they were spawned (:func:`_inherited`)."""
@@ -135,7 +139,11 @@ def prestart(workers: int, preload: Sequence[str] = ()) -> None:
     one started now (one at a time: an unused one started before is let go)."""
     global _prestarted
     discard_prestarted()
-    _prestarted = (workers, tuple(preload), _unpark(workers) or new_pool(workers, preload))
+    pool = _unpark(workers)
+    if pool is None:
+        pool = new_pool(workers, preload)
+        _untaken.add(pool)
+    _prestarted = (workers, tuple(preload), pool)
 
 
 def take_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.ProcessPoolExecutor:
@@ -145,9 +153,22 @@ def take_pool(workers: int, preload: Sequence[str] = ()) -> concurrent.futures.P
     if _prestarted is not None and _prestarted[0] == workers:
         pool = _prestarted[2]
         _prestarted = None
-        return pool
-    discard_prestarted()
-    return _unpark(workers) or new_pool(workers, preload)
+    else:
+        discard_prestarted()
+        pool = _unpark(workers) or new_pool(workers, preload)
+    _untaken.discard(pool)
+    return pool
+
+
+def _let_go(pool: concurrent.futures.ProcessPoolExecutor, wait: bool) -> None:
+    """Shut ``pool`` down (``wait``: until its workers have ended). The workers of a pool no
+    run took hold nothing a job made: they are stopped at once, not waited for while they
+    import what a trial needs (a refused run's process would wait a second for them)."""
+    if pool in _untaken:
+        for process in list((pool._processes or {}).values()):  # None once shut down
+            with contextlib.suppress(OSError, ValueError):
+                process.terminate()
+    pool.shutdown(wait=wait, cancel_futures=True)
 
 
 def discard_prestarted(*, wait: bool = False) -> None:
@@ -156,7 +177,7 @@ def discard_prestarted(*, wait: bool = False) -> None:
     global _prestarted
     prestarted, _prestarted = _prestarted, None
     if prestarted is not None:
-        prestarted[2].shutdown(wait=wait, cancel_futures=True)
+        _let_go(prestarted[2], wait)
 
 
 def park(pool: concurrent.futures.ProcessPoolExecutor, workers: int) -> None:
@@ -192,7 +213,7 @@ def _unpark(workers: int) -> concurrent.futures.ProcessPoolExecutor | None:
             pass
         else:
             return pool
-    pool.shutdown(wait=False, cancel_futures=True)
+    _let_go(pool, False)
     return None
 
 
@@ -201,7 +222,7 @@ def discard_parked(*, wait: bool = False) -> None:
     global _parked
     parked, _parked = _parked, None
     if parked is not None:
-        parked[1].shutdown(wait=wait, cancel_futures=True)
+        _let_go(parked[1], wait)
 
 
 def let_go_workers(*, wait: bool = False) -> None:
