@@ -104,6 +104,7 @@ def test_a_pool_no_run_took_is_stopped_not_waited_for(tmp_path: Path) -> None:
     stopped (SIGTERM) when it is let go; a pool a run took is not (above: status 0). The
     program refusing a run (its pool parked, then let go at its end) prints its one-line error
     and nothing of the stopped workers."""
+    worker_process.let_go_workers(wait=True)  # a pool an earlier test parked here is not taken
     worker_process.prestart(2, ("armbench.fakes.firmware.arm_emulator",))
     prestarted = worker_process._prestarted
     assert prestarted is not None
