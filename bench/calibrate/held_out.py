@@ -21,17 +21,16 @@ of it: ties keep the simpler model or the prior. A candidate that explains one b
 within twin-check's allowance of the floor, or three quarters of the prior's mean square taken
 away) and not another, that is better than the prior on one block and worse on another, each
 beyond that block's floor (the blocks hold the same motions; one move is as good a reason to
-doubt a law as to keep it), or that is ahead of the
-arm along the motion on one block and behind it on another (each beyond that block's floor where
-the joint moves, the timing's share of it, and :data:`SIGMAS` standard errors of the moves'
-scatter), says the arm's behaviour moved during the session (its drives warming up): a constant
-fitted to the session predicts neither, and the prior is kept. Then what the fit changes on
-every joint at once is judged the same way, the speed models as chosen: the stop rule (a
-structure) kept only if some joint gets better with it beyond the noise and the moves' scatter
-(a joint no twin predicts, one move different by far either way, is no evidence) and none worse
-beyond the noise; the Hall positions (measured against the motor-side truth) unless a joint
-gets worse. Without a held-out block (a budget too small for one) every speed model keeps the
-prior, and says so.
+doubt a law as to keep it), or that is ahead of the arm along the motion on one block and
+behind it on another (each beyond that block's floor where the joint moves, the timing's share
+of it, and :data:`SIGMAS` standard errors of the moves' scatter), says the arm's behaviour
+moved during the session (its drives warming up): a constant fitted to the session predicts
+neither, and the prior is kept. Then what the fit changes on every joint at once is judged the
+same way, the speed models as chosen: the stop rule (a structure) kept only if some joint gets
+better with it beyond the noise and the moves' scatter (a joint no twin predicts, one move
+different by far either way, is no evidence) and none worse beyond the noise; the Hall
+positions (measured against the motor-side truth) unless a joint gets worse. Without a held-out
+block (a budget too small for one) every speed model keeps the prior, and says so.
 """
 
 from __future__ import annotations
