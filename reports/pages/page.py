@@ -110,25 +110,24 @@ def draw_ahead(record: RunRecord, name: str) -> None:
     builder(record, suite, suite_view(record, suite, "suite-0", {}), Figures(collect=False))
 
 
-def load_templates() -> list[str]:
+def load_templates() -> None:
     """Compile the report page's templates now, for the report written later to find them
     compiled (the environment keeps them): ``report.html.j2`` and every template it names,
     every section's for an include whose name is computed. The run calls it in a thread of its
-    own while the trials go on. Returns the templates' names."""
+    own while the trials go on."""
     env = jinja_environment()
-    todo, done = ["report.html.j2"], []
+    todo, done = ["report.html.j2"], set()
     while todo:
         name = todo.pop()
         if name in done:
             continue
-        done.append(name)
+        done.add(name)
         env.get_template(name)
         assert env.loader is not None  # the environment loads from the package's folder
         source = env.loader.get_source(env, name)[0]
         for ref in meta.find_referenced_templates(env.parse(source)):
             todo.extend([ref] if ref is not None else env.list_templates(
                 filter_func=lambda n: n.startswith("sections/")))
-    return done
 
 
 def _lead(sections: Sequence[SectionView], figs: Figures) -> FigureView | None:
