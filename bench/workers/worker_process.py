@@ -9,13 +9,14 @@ will need as it starts.
 A spawned worker takes about a second to start (an interpreter, numpy, the emulator) before it
 can measure anything. :func:`prestart` starts the pool of a run at once, so the workers start
 while the run's process is still planning; :func:`take_pool` hands it to the runner when it has
-the number of workers asked for, and :func:`discard_prestarted` lets an unused one go. A run
-done with its pool parks it (:func:`park`): the next run of the same process (a test session, a
-notebook, a campaign of runs) takes it instead of starting workers again, as long as nothing the
-workers took from the process at their start (the import path, the working folder, the
-environment) has changed; the workers end with the process, or when :func:`discard_parked`
-lets them go. A worker let go ends without its interpreter's teardown (:func:`_end_at_once`),
-and :func:`let_go_workers` lets a process that is about to end wait for its workers to be gone.
+the number of workers asked for, and :func:`discard_prestarted` lets an unused one go (stopped
+at once: a pool no run took holds nothing a job made). A run done with its pool parks it
+(:func:`park`): the next run of the same process (a test session, a notebook, a campaign of
+runs) takes it instead of starting workers again, as long as nothing the workers took from the
+process at their start (the import path, the working folder, the environment) has changed; the
+workers end with the process, or when :func:`discard_parked` lets them go. A worker let go
+ends without its interpreter's teardown (:func:`_end_at_once`), and :func:`let_go_workers`
+lets a process that is about to end wait for its workers to be gone.
 """
 
 from __future__ import annotations
