@@ -7,6 +7,7 @@ import concurrent.futures
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -249,3 +250,55 @@ def test_a_trial_measured_again_does_not_wait_behind_the_next_suite(
     # queued behind them the attempt would start once three had (two workers, four trials)
     ended_before = [key for key, (_, end) in spans.items() if key[0] == "tiny" and end < retried[0]]
     assert len(ended_before) <= 1, ended_before
+
+
+class GatedSuite(TinySuite):
+    """The tiny suite, each trial first waiting until the file ``open`` exists in the folder
+    ``ARMBENCH_TEST_GATE`` names."""
+
+    async def run_trial(self, ctx: SuiteContext, index: int,
+                        trial_params: Mapping[str, Any]) -> Trial:
+        gate = Path(os.environ["ARMBENCH_TEST_GATE"]) / "open"
+        deadline = time.monotonic() + 60.0
+        while not gate.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)  # a worker of its own: blocking it blocks nothing else
+        return await super().run_trial(ctx, index, trial_params)
+
+
+def test_the_next_trial_waits_in_the_pool_while_the_workers_measure(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two jobs per worker are in flight: while both workers measure, the next two trials are
+    already in the pool, so a worker that ends one starts the next without waiting for the run's
+    loop (busy committing). The trials wait at a gate that opens once four jobs are sent and
+    unfinished (or after 20 s, when the test has failed)."""
+    from armbench.bench.runner import parallel, run_sync
+    from armbench.bench.suites import SUITES
+
+    monkeypatch.setitem(SUITES, "tiny", f"{__name__}:GatedSuite")
+    monkeypatch.setenv("ARMBENCH_TEST_GATE", str(tmp_path))
+    gate = tmp_path / "open"
+    opened = threading.Timer(20.0, gate.touch)
+    opened.start()
+    outstanding: set[concurrent.futures.Future[Any]] = set()
+    most = [0]
+    submit = concurrent.futures.ProcessPoolExecutor.submit
+
+    def counted(self: concurrent.futures.ProcessPoolExecutor, fn: Any, /, *args: Any,
+                **kwargs: Any) -> concurrent.futures.Future[Any]:
+        future = submit(self, fn, *args, **kwargs)
+        if fn is parallel.run_attempts:
+            outstanding.add(future)
+            future.add_done_callback(outstanding.discard)
+            most[0] = max(most[0], len(outstanding))
+            if len(outstanding) == 4:
+                gate.touch()
+        return future
+
+    monkeypatch.setattr(concurrent.futures.ProcessPoolExecutor, "submit", counted)
+    try:
+        outcome = run_sync(RunOptions(suites=["tiny"], config=write_config(tmp_path, trials=6),
+                                      out=tmp_path / "run", workers=2), progress=None)
+    finally:
+        opened.cancel()
+    assert outcome.exit_status == 0
+    assert most[0] == 4

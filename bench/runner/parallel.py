@@ -16,10 +16,13 @@ With a Dask scheduler (``plan.scheduler``, ``armbench.bench.runner.cluster``) th
 to the cluster's workers instead, whatever ``workers`` says; a job then sends its capture part
 back as bytes (workers may have no access to the run directory) and the parent writes it.
 
-A worker runs :meth:`TrialJob.measure`: the same :meth:`TrialAttempts.attempt` the sequential
-path runs, on a ``VirtualTimeLoop`` starting at 0, with a stand-in for the record writer (the
-worker never writes ``results.json``) and the trial's progress messages collected for the parent
-to print.
+A worker runs :func:`run_attempts`: :meth:`TrialJob.measure`, the same
+:meth:`TrialAttempts.attempt` the sequential path runs, on a ``VirtualTimeLoop`` starting at 0,
+with a stand-in for the record writer (the worker never writes ``results.json``) and the trial's
+progress messages collected for the parent to print; an attempt that does not end ``done`` is
+measured again in the same worker, each on a fresh loop, so a trial measured again never waits
+behind the jobs queued after it. Two jobs per worker are in flight: the next one is there when one
+ends, while the run's loop commits the last.
 """
 
 from __future__ import annotations
@@ -54,7 +57,8 @@ from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.transports.target import target_of
 from armbench.record import Trial, path_inside
 
-__all__ = ["TRIAL_MODULES", "JobResult", "ParallelTrials", "TrialJob", "prestart_workers"]
+__all__ = ["TRIAL_MODULES", "JobResult", "ParallelTrials", "TrialJob", "prestart_workers",
+           "run_attempts"]
 
 #: What every trial job imports in its worker, besides its suite's module: imported by each
 #: worker as it starts (``worker_process.worker_init``), not by its first job.
@@ -121,6 +125,9 @@ class TrialJob:
     attempt: int
     params: Mapping[str, Any]
     """The trial's parameters."""
+    attempts: int = 1
+    """How many attempts the trial has in all (``retries`` + 1): :func:`run_attempts` measures
+    from ``attempt`` on until one is done."""
     ship: bool = False
     """Send the capture back as bytes (a Dask worker) instead of leaving it in the run
     directory (a local worker process)."""
@@ -147,6 +154,17 @@ class TrialJob:
                                  part_tag=job_part_tag(self.suite.name, self.index, self.attempt))
         trial = await attempts.attempt(self.suite, self.index, self.attempt, self.params)
         return JobResult(trial, tuple(attempts.unmerged), tuple(messages.lines))
+
+
+def run_attempts(job: TrialJob) -> list[JobResult]:
+    """The attempts of ``job``'s trial from ``job.attempt`` on, each on a fresh virtual-time loop
+    (:func:`run_job`), until one is done or none is left (runs in a worker process)."""
+    results = []
+    for attempt in range(job.attempt, max(job.attempt + 1, job.attempts)):
+        results.append(run_job(dataclasses.replace(job, attempt=attempt)))
+        if results[-1].trial.status == "done":
+            break
+    return results
 
 
 def _worker_modules(suite_refs: Sequence[str]) -> tuple[str, ...]:
@@ -192,7 +210,7 @@ class ParallelTrials:
         """Seconds the committed jobs took inside the workers (with the wall time of the run:
         the overhead of sending trials out)."""
         self.jobs = 0
-        self._sent: list[concurrent.futures.Future[JobResult]] = []
+        self._sent: list[concurrent.futures.Future[list[JobResult]]] = []
         """The jobs sent to :attr:`pool` not known to be done: a pool is parked for the next run
         only when they all are (a busy worker finishes its trial alone)."""
         self._in_flight: asyncio.Semaphore | None = None
@@ -229,7 +247,8 @@ class ParallelTrials:
         plan = dataclasses.replace(self.runner.plan, suites=[], resume=None, baseline=None,
                                    runner_info={})
         return TrialJob(plan, dataclasses.replace(ps, trials=[]), index, attempt,
-                        ps.trials[index], ship=self.runner.plan.scheduler is not None)
+                        ps.trials[index], attempts=self.runner.plan.retries + 1,
+                        ship=self.runner.plan.scheduler is not None)
 
     async def _connect(self) -> DaskCluster:
         """The Dask client, connected on first use (in a thread: connecting blocks)."""
@@ -244,14 +263,15 @@ class ParallelTrials:
         return self.cluster
 
     async def _slots(self) -> asyncio.Semaphore:
-        """The jobs in flight at once, every suite's: the pool's queue stays short (two per
-        thread of a Dask cluster: the next trial is there when one ends)."""
+        """The jobs in flight at once, every suite's: two per worker process or thread of a
+        Dask cluster, so that the next trial is there when one ends (a worker would wait for the
+        run's loop to send it otherwise); the queue stays short."""
         if self._in_flight is None:
             if self.runner.plan.scheduler is not None:
                 cluster = await self._connect()
                 self._in_flight = asyncio.Semaphore(2 * cluster.threads())
             else:
-                self._in_flight = asyncio.Semaphore(self.runner.plan.workers)
+                self._in_flight = asyncio.Semaphore(2 * self.runner.plan.workers)
         return self._in_flight
 
     async def start(self, ps: PlannedSuite, todo: Sequence[int]) -> None:
@@ -319,56 +339,57 @@ class ParallelTrials:
         attempts = runner.plan.retries + 1
         in_flight = await self._slots()
 
-        async def shared(job: TrialJob) -> JobResult:
+        async def shared(job: TrialJob) -> list[JobResult]:
             if self.cluster is not None:
-                on_cluster: JobResult = await loop.run_in_executor(self.cluster.executor,
-                                                                   run_job, job)
+                on_cluster: list[JobResult] = await loop.run_in_executor(
+                    self.cluster.executor, run_attempts, job)
                 return on_cluster
             if self.pool is None:
                 self.pool = take_pool(runner.plan.workers,
                                       _worker_modules([s.ref for s in runner.plan.suites]))
             pool = self.pool
             try:
-                sent = pool.submit(run_job, job)
+                sent = pool.submit(run_attempts, job)
                 self._sent = [f for f in self._sent if not f.done()]
                 self._sent.append(sent)
-                result: JobResult = await asyncio.wrap_future(sent, loop=loop)
+                results: list[JobResult] = await asyncio.wrap_future(sent, loop=loop)
             except concurrent.futures.BrokenExecutor:
                 if self.pool is pool:
                     self.close(park_pool=False)
                 raise
-            return result
+            return results
 
-        async def alone(job: TrialJob) -> JobResult:
+        async def alone(job: TrialJob) -> list[JobResult]:
             """In a process of its own: a dying worker breaks the whole pool, failing the
             trials beside it too; measured alone, only the trial that kills its process fails."""
             pool = new_pool(1, _worker_modules([ps.ref]))
             try:
-                result: JobResult = await loop.run_in_executor(pool, run_job, job)
+                results: list[JobResult] = await loop.run_in_executor(pool, run_attempts, job)
             finally:
                 pool.shutdown(wait=False)
-            return result
+            return results
 
         async def measure(index: int) -> list[JobResult]:
-            """Every attempt of trial ``index`` (until one is done), in one slot: a trial
-            measured again does not wait behind the trials sent after it (the next suite's
-            among them), which would wait in memory for it to be committed."""
-            results = []
+            """Every attempt of trial ``index`` (until one is done), in one slot and, unless its
+            worker fails, in one job (:func:`run_attempts`): a trial measured again does not
+            wait behind the trials sent after it (the next suite's among them), which would wait
+            in memory for it to be committed. A worker that fails costs the attempts of its job
+            not yet returned; the first of them counts as the attempt in error."""
+            results: list[JobResult] = []
             async with in_flight:
-                for attempt in range(attempts):
-                    job = self._job(ps, index, attempt)
+                while len(results) < attempts:
+                    job = self._job(ps, index, len(results))
                     try:
                         try:
-                            result = await shared(job)
+                            results += await shared(job)
                         except concurrent.futures.BrokenExecutor:
-                            result = await alone(job)
+                            results += await alone(job)
                     except Exception as exc:  # the worker failed (killed, KilledWorker on Dask)
                         log.error("suite %s trial %d: worker failed: %s", ps.name, index, exc)
-                        result = JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
-                                                 status="error",
-                                                 error=f"worker: {describe(exc)}"), (), ())
-                    results.append(result)
-                    if result.trial.status == "done":
+                        results.append(JobResult(Trial(index, 0.0, 0.0, params=ps.trials[index],
+                                                       status="error",
+                                                       error=f"worker: {describe(exc)}"), (), ()))
+                    if results[-1].trial.status == "done":
                         break
             return results
 
