@@ -8,7 +8,7 @@ import io
 from pathlib import Path
 
 from armbench.bench.runner import RunOptions, run_sync
-from armbench.bench.runner.capture_run import LoggedReReferencingPower, logged_power
+from armbench.bench.runner.part_events import LoggedReReferencingPower, logged_power
 from armbench.bench.runner.power import EmulatorPower
 from armbench.bench.suites import ReReferencing
 from armbench.drivers.capture.part import PartWriter

@@ -3,34 +3,47 @@ each writes (``arms``), :func:`prepare` validates everything an arm's run reads 
 :func:`run_arms_sync` runs every arm of a run, one or several at once, through the same path
 (``fleet_run``; :func:`run_sync` for a run of one arm), :func:`execute` one arm's run
 (``execute``), trial by trial (``trials``), in worker processes when it can (``parallel``),
-showing progress (``progress``) and keeping the traffic capture one stream (``capture_run``)."""
+showing progress (``progress``) and keeping the traffic capture one stream (``capture_run``).
+Each name loads its module on first use, so that a worker process importing one module of the
+runner does not import the others."""
 
-from armbench.bench.runner.arms import ArmRun, RunLayout, lay_out
-from armbench.bench.runner.execute import execute
-from armbench.bench.runner.fleet_run import RunResult, run_arms, run_arms_sync, run_bench, run_sync
-from armbench.bench.runner.options import (
-    CAPTURE_FILE,
-    DEFAULT_CONFIG,
-    EXIT_ERROR,
-    EXIT_FAIL,
-    EXIT_INCOMPLETE,
-    EXIT_INTERRUPTED,
-    EXIT_PASS,
-    EXIT_REGRESSION,
-    JUNIT_FILE,
-    REPORT_FILE,
-    RUNNER_FILE,
-    BenchPlan,
-    EmulatorFactory,
-    PlannedSuite,
-    RunAborted,
-    RunOptions,
-    RunOutcome,
-    derive_seed,
-    exit_status,
-)
-from armbench.bench.runner.plan import prepare
-from armbench.bench.runner.progress import ProgressPrinter
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from armbench.bench.runner.arms import ArmRun, RunLayout, lay_out
+    from armbench.bench.runner.execute import execute
+    from armbench.bench.runner.fleet_run import (
+        RunResult,
+        run_arms,
+        run_arms_sync,
+        run_bench,
+        run_sync,
+    )
+    from armbench.bench.runner.options import (
+        CAPTURE_FILE,
+        DEFAULT_CONFIG,
+        EXIT_ERROR,
+        EXIT_FAIL,
+        EXIT_INCOMPLETE,
+        EXIT_INTERRUPTED,
+        EXIT_PASS,
+        EXIT_REGRESSION,
+        JUNIT_FILE,
+        REPORT_FILE,
+        RUNNER_FILE,
+        BenchPlan,
+        EmulatorFactory,
+        PlannedSuite,
+        RunAborted,
+        RunOptions,
+        RunOutcome,
+        derive_seed,
+        exit_status,
+    )
+    from armbench.bench.runner.plan import prepare
+    from armbench.bench.runner.progress import ProgressPrinter
 
 __all__ = [
     "CAPTURE_FILE",
@@ -64,3 +77,45 @@ __all__ = [
     "run_bench",
     "run_sync",
 ]
+
+_LAZY = {
+    "ArmRun": "armbench.bench.runner.arms",
+    "BenchPlan": "armbench.bench.runner.options",
+    "CAPTURE_FILE": "armbench.bench.runner.options",
+    "DEFAULT_CONFIG": "armbench.bench.runner.options",
+    "EXIT_ERROR": "armbench.bench.runner.options",
+    "EXIT_FAIL": "armbench.bench.runner.options",
+    "EXIT_INCOMPLETE": "armbench.bench.runner.options",
+    "EXIT_INTERRUPTED": "armbench.bench.runner.options",
+    "EXIT_PASS": "armbench.bench.runner.options",
+    "EXIT_REGRESSION": "armbench.bench.runner.options",
+    "EmulatorFactory": "armbench.bench.runner.options",
+    "JUNIT_FILE": "armbench.bench.runner.options",
+    "PlannedSuite": "armbench.bench.runner.options",
+    "ProgressPrinter": "armbench.bench.runner.progress",
+    "REPORT_FILE": "armbench.bench.runner.options",
+    "RUNNER_FILE": "armbench.bench.runner.options",
+    "RunAborted": "armbench.bench.runner.options",
+    "RunLayout": "armbench.bench.runner.arms",
+    "RunOptions": "armbench.bench.runner.options",
+    "RunOutcome": "armbench.bench.runner.options",
+    "RunResult": "armbench.bench.runner.fleet_run",
+    "derive_seed": "armbench.bench.runner.options",
+    "execute": "armbench.bench.runner.execute",
+    "exit_status": "armbench.bench.runner.options",
+    "lay_out": "armbench.bench.runner.arms",
+    "prepare": "armbench.bench.runner.plan",
+    "run_arms": "armbench.bench.runner.fleet_run",
+    "run_arms_sync": "armbench.bench.runner.fleet_run",
+    "run_bench": "armbench.bench.runner.fleet_run",
+    "run_sync": "armbench.bench.runner.fleet_run",
+}
+
+
+def __getattr__(name: str) -> object:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'armbench.bench.runner' has no attribute {name!r}")
+    from importlib import import_module
+
+    return getattr(import_module(module), name)

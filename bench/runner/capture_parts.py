@@ -11,11 +11,14 @@ import logging
 import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from armbench.bench.runner.capture_run import RunCapture
 from armbench.drivers.capture.part import part_span
 from armbench.drivers.model.settings import RobotSettings
 from armbench.record import RunRecord, Trial
+
+if TYPE_CHECKING:
+    from armbench.bench.runner.capture_run import RunCapture
 
 __all__ = ["CaptureParts", "job_part_tag"]
 
@@ -54,7 +57,10 @@ class CaptureParts:
 
     def open_run(self, settings: RobotSettings, record: RunRecord) -> None:
         """Write parts into the run's ``capture.mcap`` (only the process holding the record
-        does: a worker's parts stay files, sent back to it)."""
+        does: a worker's parts stay files, sent back to it). The MCAP writer is imported here,
+        so a worker never imports it."""
+        from armbench.bench.runner.capture_run import RunCapture
+
         self.run = RunCapture(self.capture, settings, record, self.max_bytes)
 
     def merge(self, part: Path, offset_s: float = 0.0) -> None:

@@ -16,7 +16,6 @@ from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
 from armbench.bench.runner.capture_parts import CaptureParts
-from armbench.bench.runner.capture_run import emulator_truth, fault_events, logged_power
 from armbench.bench.runner.options import (
     CAPTURE_FILE,
     BenchPlan,
@@ -26,6 +25,7 @@ from armbench.bench.runner.options import (
     RunAhead,
     derive_seed,
 )
+from armbench.bench.runner.part_events import emulator_truth, fault_events, logged_power
 from armbench.bench.runner.power import port_power
 from armbench.bench.runner.progress import ProgressPrinter
 from armbench.bench.runner.truth import EmulatorTruth

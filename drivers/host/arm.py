@@ -29,7 +29,6 @@ from typing import Any, Final, Literal
 import numpy as np
 import numpy.typing as npt
 
-from armbench.drivers.capture.read import replay_capture
 from armbench.drivers.host.arrival import (
     HOLD_ON,
     MOVE_TIMEOUT_MARGIN,
@@ -434,7 +433,10 @@ class Arm(ArmLink):
         ``align="first"``: the first command goes out now; ``"connect"``: each command goes out
         at its recorded time after the capture started, counted from this connection's opening
         (a recording made right after connecting is then reproduced to the loop, e.g. into a
-        fresh ``fake://`` emulator on virtual time)."""
+        fresh ``fake://`` emulator on virtual time). The capture reader (MCAP among its
+        formats) is imported here: a connection that replays nothing does not load it."""
+        from armbench.drivers.capture.read import replay_capture
+
         check("speed", speed, _REPLAY_SPEED, option_refused)
         if align not in ("first", "connect"):
             raise InvalidTargetError(None, "align", align, "is not 'first' or 'connect'")
