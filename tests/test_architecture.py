@@ -11,6 +11,7 @@ the folders with an import hook that static tools cannot follow."""
 from __future__ import annotations
 
 import importlib.util
+import pkgutil
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -231,3 +232,15 @@ def test_pydeps_sees_one_piece_and_no_import_up() -> None:
                           capture_output=True, text=True, timeout=600, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "components 1," in done.stdout and "upward edges 0" in done.stdout
+
+
+@pytest.mark.parametrize("package", ["armbench", "armbench.bench.runner"])
+def test_no_name_loaded_on_first_use_is_also_a_submodule(package: str) -> None:
+    """A package whose names load on first use (its ``_LAZY``) must not export a name that is
+    also one of its modules': once that module is imported (by any other), the package's
+    attribute is the module, and ``from package import name`` gives it instead of the object."""
+    pkg = importlib.import_module(package)
+    lazy = set(pkg._LAZY)
+    assert lazy <= set(pkg.__all__)
+    submodules = {info.name for info in pkgutil.iter_modules(pkg.__path__)}
+    assert lazy & submodules == set()

@@ -29,9 +29,9 @@ from armbench.bench.runner import (
     PlannedSuite,
     RunOptions,
     RunOutcome,
-    execute,
     prepare,
 )
+from armbench.bench.runner.execute import execute
 from armbench.bench.runner.plan import MAX_TRIALS, check_registered_suites, json_equal
 from armbench.bench.runner.trials import LoopClockWriter
 from armbench.drivers.model.bounds import Bound, check_whole

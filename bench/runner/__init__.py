@@ -1,11 +1,12 @@
 """The bench runner behind ``armbench run``: :func:`lay_out` says which arms a run has and where
 each writes (``arms``), :func:`prepare` validates everything an arm's run reads (``plan``),
 :func:`run_arms_sync` runs every arm of a run, one or several at once, through the same path
-(``fleet_run``; :func:`run_sync` for a run of one arm), :func:`execute` one arm's run
-(``execute``), trial by trial (``trials``), in worker processes when it can (``parallel``),
+(``fleet_run``; :func:`run_sync` for a run of one arm), one arm's run is
+``execute.execute``, trial by trial (``trials``), in worker processes when it can (``parallel``),
 showing progress (``progress``) and keeping the traffic capture one stream (``capture_run``).
 Each name loads its module on first use, so that a worker process importing one module of the
-runner does not import the others."""
+runner does not import the others (``execute`` is therefore the module, not its function: a lazy
+name cannot share a submodule's)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,6 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from armbench.bench.runner.arms import ArmRun, RunLayout, lay_out
-    from armbench.bench.runner.execute import execute
     from armbench.bench.runner.fleet_run import (
         RunResult,
         run_arms,
@@ -68,7 +68,6 @@ __all__ = [
     "RunOutcome",
     "RunResult",
     "derive_seed",
-    "execute",
     "exit_status",
     "lay_out",
     "prepare",
@@ -101,7 +100,6 @@ _LAZY = {
     "RunOutcome": "armbench.bench.runner.options",
     "RunResult": "armbench.bench.runner.fleet_run",
     "derive_seed": "armbench.bench.runner.options",
-    "execute": "armbench.bench.runner.execute",
     "exit_status": "armbench.bench.runner.options",
     "lay_out": "armbench.bench.runner.arms",
     "prepare": "armbench.bench.runner.plan",
