@@ -42,11 +42,18 @@ class EntryPointError(ArmbenchError):
         self.reason = reason
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=8)
+def _read_all(path: tuple[str, ...]) -> tuple[importlib.metadata.EntryPoint, ...]:
+    """Every entry point found along ``path`` (``sys.path``, the key of the cache: a
+    distribution put on the path is found at the next look-up), every group's: the
+    distributions' metadata is read once, not once per group."""
+    found = importlib.metadata.entry_points()
+    return tuple(ep for group in sorted(found.groups) for ep in found.select(group=group))
+
+
 def _read(group: str, path: tuple[str, ...]) -> tuple[importlib.metadata.EntryPoint, ...]:
-    """The entry points of ``group`` found along ``path`` (``sys.path``, the key of the cache: a
-    distribution put on the path is found at the next look-up)."""
-    return tuple(importlib.metadata.entry_points(group=group))
+    """The entry points of ``group`` found along ``path``, in the order the metadata has them."""
+    return tuple(ep for ep in _read_all(path) if ep.group == group)
 
 
 def _all(group: str, fold_case: bool) -> dict[str, list[importlib.metadata.EntryPoint]]:
