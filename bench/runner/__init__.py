@@ -1,8 +1,8 @@
 """The bench runner behind ``armbench run``: :func:`lay_out` says which arms a run has and where
 each writes (``arms``), :func:`prepare` validates everything an arm's run reads (``plan``),
 :func:`run_arms_sync` runs every arm of a run, one or several at once, through the same path
-(``fleet_run``; :func:`run_sync` for a run of one arm), one arm's run is
-``execute.execute``, trial by trial (``trials``), in worker processes when it can (``parallel``),
+(``fleet_run``; :func:`run_sync` for a run of one arm), ``execute.execute`` runs one arm's run
+trial by trial (``trials``), in worker processes when it can (``parallel``),
 showing progress (``progress``) and keeping the traffic capture one stream (``capture_run``).
 Each name loads its module on first use, so that a worker process importing one module of the
 runner does not import the others (``execute`` is therefore the module, not its function: a lazy
