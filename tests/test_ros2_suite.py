@@ -94,8 +94,9 @@ retries = 3
 """
 #: ... and a lap the host's load puts behind its path is measured, not ended: the path tolerance
 #: stops only a lap gone astray (a stall is ended by it on virtual time, test_ros2_action.py).
-#: (Beside CI's slow stage the arm fell further behind than the default 0.3 rad: CHANGELOG.)
-PATIENT_PATH = "path_tolerance_rad = 1.5"
+#: (Beside CI's slow stage the arm fell further behind than the default 0.3 rad, and reached a
+#: lap's last point after the driver's slack for the move: CHANGELOG.)
+PATIENT_PATH = "path_tolerance_rad = 1.5\ngoal_time_tolerance_s = 60.0"
 
 
 def _run(tmp_path: Path, port: str, suites: list[str], laps: int = 1,
@@ -164,6 +165,26 @@ def test_in_real_time_over_a_pty_the_suite_runs_the_same(tmp_path: Path) -> None
     assert ros[ROS2_SQUARE.ratio] > 0  # both laps measured (the figure: docs/ros.md)
     for style in ROS2_SQUARE.styles:
         assert ros[ROS2_SQUARE.metric(style, ROS2_SQUARE.laps)] == 1.0
+
+
+@needs_ros2
+def test_the_goal_time_tolerance_is_the_goals(tmp_path: Path) -> None:
+    """``goal_time_tolerance_s`` is what the goal carries: 1 ms after the trajectory's time is
+    less than the arm needs to settle on the last point, so the node aborts the lap and the
+    trial is an error saying so; no figure of it is a pass."""
+    config = tmp_path / "late.toml"
+    config.write_text(SMALL.format(laps=1, limits="", bench="[bench]\nretries = 0\n",
+                                   square='styles = ["trajectory"]\ngoal_time_tolerance_s = 0.001'))
+    out = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "armbench", "run", ROS2_SQUARE.suite,
+                           "--port", "fake://", "--config", str(config), "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert done.returncode != 0, done.stdout[-2000:]
+    suite = json.loads((out / "results.json").read_text())["suites"][ROS2_SQUARE.suite]
+    [trial] = suite["trials"]
+    assert trial["status"] == "error", trial
+    assert "the trajectory's time plus goal_time_tolerance" in json.dumps(trial), trial
+    assert not any(m["outcome"] == "pass" for m in suite["measurements"]), suite["measurements"]
 
 
 @needs_ros2

@@ -109,6 +109,9 @@ class Ros2SquareSuite(Suite):
             # all (a stall). Looser than the action's default, so that a host starved for a
             # moment in real time still gives a lap to measure; a shared host may need more.
             "path_tolerance_rad": 0.3,
+            # the goal's goal_time_tolerance: 0 leaves the node the driver's own slack for a
+            # move of the lap's length; a host starved for seconds in real time needs more
+            "goal_time_tolerance_s": 0.0,
         }
 
     def validate(self, settings: RobotSettings, params: Mapping[str, Any]) -> None:
@@ -124,6 +127,8 @@ class Ros2SquareSuite(Suite):
         check(f"{where}.client_timeout_s", params["client_timeout_s"], Bound(1.0, 3600.0, "s"))
         check(f"{where}.path_tolerance_rad", params["path_tolerance_rad"],
               Bound(0.0, 2 * math.pi, "rad", low_open=True))
+        check(f"{where}.goal_time_tolerance_s", params["goal_time_tolerance_s"],
+              Bound(0.0, 3600.0, "s"))
         check_square(where, settings, params, STYLES)
 
     def metric_names(self, params: Mapping[str, Any]) -> frozenset[str]:
@@ -202,7 +207,8 @@ async def _ros_lap(ctx: SuiteContext, p: Mapping[str, Any], index: int) -> PathR
     names = [j.name for j in ctx.settings.joints]
     path_rad = float(p["path_tolerance_rad"])
     trajectory = {"names": names, "points": qs[1:], "times_s": times[1:],  # qs[0]: the first
-                  "path_tolerance": dict.fromkeys(names, path_rad)}  # corner, the arm
+                  "path_tolerance": dict.fromkeys(names, path_rad),  # corner, the arm
+                  "goal_time_tolerance_s": float(p["goal_time_tolerance_s"])}
     env = dict(os.environ)
     if domain >= 0:
         env["ROS_DOMAIN_ID"] = str(domain)
