@@ -24,6 +24,7 @@ from armbench.drivers.model.errors import (
     TransportError,
     WaitTimeoutError,
 )
+from armbench.drivers.model.lazy_names import lazy_name
 
 if TYPE_CHECKING:
     from armbench.drivers.host.arm import Arm, LinkOptions, PathRun, ReconnectPolicy
@@ -68,9 +69,4 @@ _LAZY = {
 
 
 def __getattr__(name: str) -> object:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'armbench' has no attribute {name!r}")
-    from importlib import import_module
-
-    return getattr(import_module(module), name)
+    return lazy_name(__name__, _LAZY, name)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from armbench.drivers.model.lazy_names import lazy_name
+
 if TYPE_CHECKING:
     from armbench.bench.runner.arms import ArmRun, RunLayout, lay_out
     from armbench.bench.runner.fleet_run import (
@@ -111,9 +113,4 @@ _LAZY = {
 
 
 def __getattr__(name: str) -> object:
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'armbench.bench.runner' has no attribute {name!r}")
-    from importlib import import_module
-
-    return getattr(import_module(module), name)
+    return lazy_name(__name__, _LAZY, name)
