@@ -5,11 +5,14 @@ from __future__ import annotations
 
 import asyncio
 import json
+import tempfile
 from collections.abc import Awaitable
 from pathlib import Path
 from typing import TypeVar
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from armbench.drivers.capture.jsonl import (
     CaptureError,
@@ -152,3 +155,29 @@ def test_replay_aligned_to_the_connection_reproduces_a_stop_mid_move(tmp_path: P
     assert all(abs(a - b) < 1e-9 for a, b in zip(truth, truth2, strict=True))
     with pytest.raises(ValueError):
         run_virtual(within(_replay("fake://", cap, "sideways", 0.0), 60.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.0, 2e5, allow_nan=False),
+                          st.sampled_from(["in", "out"]),
+                          st.text(st.characters(min_codepoint=1, max_codepoint=0x7f),
+                                  max_size=40),
+                          st.booleans()), max_size=30))
+def test_a_capture_reads_as_json_reads_its_lines(
+        records: list[tuple[float, str, str, bool]]) -> None:
+    """The reader's short path for the lines ``frame`` writes gives the records ``json``
+    gives, for any times, directions and frames (quotes, backslashes, controls: the long path)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "c.jsonl"
+        cap = CaptureWriter(path, 0.0)
+        t_s = 0.0
+        for dt_s, direction, frame, plain in records:
+            t_s += dt_s / 1e3
+            if plain and frame.isprintable() and '"' not in frame and "\\" not in frame:
+                cap.frame(t_s, "in" if direction == "in" else "out", frame)
+            else:
+                cap.write(t_s, "in" if direction == "in" else "out", frame, None)
+        cap.close()
+        by_json = [CaptureRecord(float(o["t_s"]), o["dir"], o["frame"], o["error"])
+                   for o in map(json.loads, path.read_text().splitlines())]
+        assert list(read_capture(path)) == by_json

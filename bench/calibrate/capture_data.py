@@ -76,13 +76,18 @@ def load_capture(path: str | Path, settings: RobotSettings) -> CaptureData:
     commands: list[tuple[float, Command]] = []
     replies: list[tuple[float, Vec4]] = []
     bad = 0
+    one_reply = Framer("reply").one_reply  # holds nothing between calls: a reply or None
     try:
         for rec in open_capture(p):
             if rec.error is not None:
                 bad += rec.dir == "in"
                 continue
-            framer = Framer("command" if rec.dir == "out" else "reply")
-            events = framer.feed(rec.frame.encode("ascii", "backslashreplace"))
+            data = rec.frame.encode("ascii", "backslashreplace")
+            reply = one_reply(data) if rec.dir == "in" else None
+            if reply is not None:
+                replies.append((rec.t_s, decode(reply)))
+                continue
+            events = Framer("command" if rec.dir == "out" else "reply").feed(data)
             if rec.dir == "out":
                 if len(events) == 1 and isinstance(events[0], Command):
                     commands.append((rec.t_s, events[0]))
@@ -109,13 +114,16 @@ def load_capture(path: str | Path, settings: RobotSettings) -> CaptureData:
         raise CaptureContentError(str(p), f"another robot model: {bad} of "
                                           f"{bad + len(replies)} reply frames are not "
                                           "this protocol's 4-joint replies")
-    for t, q in replies:
-        for j, (v, spec) in enumerate(zip(q, settings.joints, strict=True)):
-            if not spec.lower_rad - LIMIT_SLACK_RAD <= v <= spec.upper_rad + LIMIT_SLACK_RAD:
-                raise CaptureContentError(
-                    str(p), f"another robot model: at {t:.3f} s joint {j + 1} reports "
-                            f"{v:+.4f} rad, outside its limits {spec.lower_rad:+.4f}.."
-                            f"{spec.upper_rad:+.4f} rad in these settings")
+    q = np.array([r[1] for r in replies])
+    inside = ((q >= np.array(settings.lower_rad) - LIMIT_SLACK_RAD)
+              & (q <= np.array(settings.upper_rad) + LIMIT_SLACK_RAD))
+    if not inside.all():
+        k, j = (int(i) for i in np.argwhere(~inside)[0])  # the first reply outside, its joint
+        spec = settings.joints[j]
+        raise CaptureContentError(
+            str(p), f"another robot model: at {replies[k][0]:.3f} s joint {j + 1} reports "
+                    f"{replies[k][1][j]:+.4f} rad, outside its limits {spec.lower_rad:+.4f}.."
+                    f"{spec.upper_rad:+.4f} rad in these settings")
     if not commands:
         raise CaptureContentError(str(p), "no commands: the capture has replies only (a "
                                           "monitor session?), nothing to replay or fit")

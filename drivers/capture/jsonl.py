@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any, Final, Literal, NamedTuple
@@ -150,6 +151,12 @@ def _plain(text: str) -> bool:
     """Whether ``text`` goes into JSON unchanged: printable ASCII without '"' and '\\' (every
     valid frame); anything else is written by ``json.dumps``."""
     return text.isascii() and text.isprintable() and '"' not in text and "\\" not in text
+
+
+#: A line as :meth:`CaptureWriter.frame` writes it (time, direction, a frame that needs no JSON
+#: escaping, no error): :func:`read_capture` reads it without ``json``, to the same record.
+_FRAME_LINE: Final = re.compile(rb'\{"t_s": (\d{1,5}\.\d{1,9}), "dir": "(in|out)", '
+                                rb'"frame": "([ !#-\[\]-~]*)", "error": null\}\n?')
 
 
 def frame_text(data: bytes) -> str:
@@ -419,6 +426,25 @@ def _record(obj: Any, path: str, line: int) -> CaptureRecord | None:
     return CaptureRecord(t_s, d, f, e)
 
 
+def _json_record(raw: bytes, path: str, n: int, fh: IO[bytes]) -> CaptureRecord | None:
+    """The record line ``n`` of ``path`` holds, read with ``json`` (None for an event line);
+    :class:`CaptureError` if it is not one."""
+    try:
+        obj = json.loads(raw.decode("ascii"))
+    except UnicodeDecodeError as exc:
+        raise CaptureError(path, n, f"is not text: byte 0x{raw[exc.start]:02x} at column "
+                                    f"{exc.start + 1}") from None
+    except ValueError as exc:
+        raise not_a_capture(Path(path), _head(fh)) or CaptureError(
+            path, n, f"is not JSON: {exc}") from None
+    except RecursionError:
+        raise CaptureError(path, n, "is not a capture record: JSON nested too deeply") from None
+    try:
+        return _record(obj, path, n)
+    except CaptureError as exc:
+        raise not_a_capture(Path(path), _head(fh), obj) or exc from None
+
+
 def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
     """Every record of a JSON Lines capture file, in order (streamed: the file is not loaded
     whole); event lines (a stop at the size bound) are skipped. Either format:
@@ -434,23 +460,15 @@ def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
             if len(raw) > MAX_LINE_BYTES:
                 raise CaptureError(p, n, f"is longer than {MAX_LINE_BYTES} bytes: not a "
                                          "capture record")
-            if not raw.strip():
+            plain = _FRAME_LINE.fullmatch(raw)
+            if plain is not None:
+                record: CaptureRecord | None = CaptureRecord(
+                    float(plain[1]), "in" if plain[2] == b"in" else "out",
+                    plain[3].decode("ascii"), None)
+            elif not raw.strip():
                 continue
-            try:
-                obj = json.loads(raw.decode("ascii"))
-            except UnicodeDecodeError as exc:
-                raise CaptureError(p, n, f"is not text: byte 0x{raw[exc.start]:02x} at column "
-                                         f"{exc.start + 1}") from None
-            except ValueError as exc:
-                raise not_a_capture(Path(p), _head(fh)) or CaptureError(
-                    p, n, f"is not JSON: {exc}") from None
-            except RecursionError:
-                raise CaptureError(p, n, "is not a capture record: JSON nested too "
-                                         "deeply") from None
-            try:
-                record = _record(obj, p, n)
-            except CaptureError as exc:
-                raise not_a_capture(Path(p), _head(fh), obj) or exc from None
+            else:
+                record = _json_record(raw, p, n, fh)
             if record is None:
                 continue
             if last is not None and record.t_s < last[0]:
