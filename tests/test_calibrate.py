@@ -14,6 +14,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -152,6 +153,8 @@ def test_stalled_joint_stops_with_partial_output(tmp_path: Path,
         out.with_suffix(".observations.json").read_text()))
     assert obs.reply_dt_s and obs.approaches
     assert obs.error is not None
+    # saved as dataclasses.asdict gives it, without its copies
+    assert obs.to_json() == asdict(obs) and Observations.from_json(obs.to_json()) == obs
     # the command line: status 2, one line naming the joint
     out2 = tmp_path / "cli.toml"
     status, _, err = cli(capsys, "calibrate", "--port", f"fake://?faults={faults}", "--out",
