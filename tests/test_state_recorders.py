@@ -18,17 +18,19 @@ from armbench.fakes.clock.vclock import run_virtual
 
 
 def test_an_ended_recorder_takes_out_itself_not_an_equal_one() -> None:
-    async def main() -> tuple[int, int]:
+    async def main() -> tuple[list[int], int, int]:
         async with Arm.connect("fake://") as arm:
             with arm.record_states() as outer:
                 with arm.record_states() as inner:
                     pass  # both empty (equal) when the inner one ends
                 seq = arm.state.seq
                 await arm.wait_state(lambda s: s.seq > seq + 100)
-                return len(outer), len(inner)
+                return [s.seq for s in outer], len(inner), arm.state.seq
 
-    outer_n, inner_n = run_virtual(main())
-    assert outer_n > 100 and inner_n == 0, (outer_n, inner_n)
+    outer, inner_n, last = run_virtual(main())
+    assert len(outer) > 100 and inner_n == 0, (len(outer), inner_n)
+    # every reply once, in order, up to the newest (fake:// hands them over one per chunk)
+    assert outer == list(range(outer[0], last + 1))
 
 
 def test_a_path_that_ends_at_once_leaves_the_other_recorders_fed() -> None:

@@ -309,18 +309,19 @@ class ArmLink:
         replies = self._replies
         capture = self._capture
         recorders = self._recorders
-        if not recorders:
-            one = replies.one(data, t)
-            if one is not None:  # what follows does for a chunk that is exactly one reply
-                if capture is not None:
-                    capture.reply(t, data)
-                self._state = one
-                if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
-                    self.outages.reply(t, self._last_rx_s)
-                self._last_rx_s = t
-                self._tx_since_rx = 0
-                self._waiters.offer(one)
-                return
+        one = replies.one(data, t)
+        if one is not None:  # what follows does for a chunk that is exactly one reply
+            for r in recorders:
+                r.append(one)
+            if capture is not None:
+                capture.reply(t, data)
+            self._state = one
+            if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
+                self.outages.reply(t, self._last_rx_s)
+            self._last_rx_s = t
+            self._tx_since_rx = 0
+            self._waiters.offer(one)
+            return
         batch = replies.receive(data, t, every=bool(recorders))
         for note in self._notes.feed(data):
             self._note_log("%s: the server says: %s", self.port, note)
