@@ -315,12 +315,7 @@ class ArmLink:
                 r.append(one)
             if capture is not None:
                 capture.reply(t, data)
-            self._state = one
-            if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
-                self.outages.reply(t, self._last_rx_s)
-            self._last_rx_s = t
-            self._tx_since_rx = 0
-            self._waiters.offer(one)
+            self._took(one, t)
             return
         batch = replies.receive(data, t, every=bool(recorders))
         for note in self._notes.feed(data):
@@ -336,14 +331,18 @@ class ArmLink:
                     capture.frame(t, "in", (data if batch.single else ev.encode()).decode("ascii"))
                 elif isinstance(ev, FrameError):
                     capture.write(t, "in", frame_text(ev.raw), ev.reason)
-        state = batch.state
-        if state is not None:
-            self._state = state
-            if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
-                self.outages.reply(t, self._last_rx_s)
-            self._last_rx_s = t
-            self._tx_since_rx = 0
-            self._waiters.offer(state)
+        if batch.state is not None:
+            self._took(batch.state, t)
+
+    def _took(self, state: JointState, t: float) -> None:
+        """``state``, read at loop time ``t``, is the newest: it ends an outage or a silence
+        and goes to the waiters."""
+        self._state = state
+        if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
+            self.outages.reply(t, self._last_rx_s)
+        self._last_rx_s = t
+        self._tx_since_rx = 0
+        self._waiters.offer(state)
 
     async def _reconnect(self, exc: TransportError) -> bool:
         policy = self.reconnect_policy
