@@ -163,18 +163,18 @@ def _field_names(kind: type) -> tuple[str, ...]:
     return tuple(f.name for f in fields(kind))
 
 
-def _plain(value: Any) -> Any:
+def _json_ready(value: Any) -> Any:
     """``value`` with its dataclasses as dicts and its containers new (``asdict``'s result):
     the numbers and strings, which never change, are not copied."""
     kind = type(value)
     if is_dataclass(kind):
-        return {name: _plain(getattr(value, name)) for name in _field_names(kind)}
+        return {name: _json_ready(getattr(value, name)) for name in _field_names(kind)}
     if kind is list:
-        return [_plain(v) for v in value]
+        return [_json_ready(v) for v in value]
     if kind is tuple:
-        return tuple(_plain(v) for v in value)
+        return tuple(_json_ready(v) for v in value)
     if kind is dict:
-        return {k: _plain(v) for k, v in value.items()}
+        return {k: _json_ready(v) for k, v in value.items()}
     return value
 
 
@@ -204,7 +204,7 @@ class Observations:
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready mapping: what ``dataclasses.asdict`` gives, at a fraction of its cost
         (it copies every number; the observations are saved after every unit of work)."""
-        out: dict[str, Any] = _plain(self)
+        out: dict[str, Any] = _json_ready(self)
         return out
 
     @classmethod

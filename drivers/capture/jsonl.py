@@ -460,11 +460,11 @@ def read_capture(path: str | Path) -> Iterator[CaptureRecord]:
             if len(raw) > MAX_LINE_BYTES:
                 raise CaptureError(p, n, f"is longer than {MAX_LINE_BYTES} bytes: not a "
                                          "capture record")
-            plain = _FRAME_LINE.fullmatch(raw)
-            if plain is not None:
+            written = _FRAME_LINE.fullmatch(raw)
+            if written is not None:
                 record: CaptureRecord | None = CaptureRecord(
-                    float(plain[1]), "in" if plain[2] == b"in" else "out",
-                    plain[3].decode("ascii"), None)
+                    float(written[1]), "in" if written[2] == b"in" else "out",
+                    written[3].decode("ascii"), None)
             elif not raw.strip():
                 continue
             else:
