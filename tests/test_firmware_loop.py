@@ -22,7 +22,7 @@ from test_firmware import needs_toolchain
 from armbench.bench.runner.power import HarnessPower, port_power
 from armbench.bench.suites import ReReferencing
 from armbench.drivers.host.arm import Arm
-from armbench.drivers.model.protocol import Command, Framer, Reply
+from armbench.drivers.model.protocol import REPLY_LEN, Command, Framer, Reply
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.transports import open_transport
 from armbench.fakes.avr.avr_transport import AvrTransport
@@ -63,7 +63,10 @@ async def test_avr_port_serves_the_firmware_in_real_time() -> None:
     assert stats["uart"]["replies"] >= len(replies)
     assert transport.harness is None  # closed with the transport
     last = transport.last_stats  # the figures at the close, the lag declared in the log
-    assert last is not None and last["sim_s"] >= 1.5 and last["lag_max_ms"] >= 0.0
+    # the simulated time covers at least the replies its line carried: a starved harness lags
+    # real time, so it may fall short of the 1.5 s waited (CHANGELOG)
+    line_s = stats["uart"]["replies"] * REPLY_LEN * RobotSettings().serial.byte_time_s
+    assert last is not None and last["sim_s"] >= line_s and last["lag_max_ms"] >= 0.0
 
 
 async def test_power_cut_while_moving_recovers_at_the_hall(tmp_path: Path) -> None:
