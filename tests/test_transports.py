@@ -43,7 +43,7 @@ from armbench.drivers.transports import (
     transport_class,
 )
 from armbench.drivers.transports.rfc2217 import Rfc2217Transport
-from armbench.drivers.transports.serial_port import SerialTransport
+from armbench.drivers.transports.serial_port import IN_USE, SerialTransport
 from armbench.drivers.transports.tcp import TcpTransport
 
 T = TypeVar("T")
@@ -275,6 +275,27 @@ async def test_serial_line_settings(pty: Pty) -> None:
         assert ispeed == ospeed == termios.B57600
         assert cflag & termios.CSTOPB
         assert t.is_open
+
+
+async def test_serial_a_held_port_is_refused_and_its_holder_loses_nothing(pty: Pty) -> None:
+    """A second opener of a port armbench holds is refused, naming the port, and the holder
+    still reads every byte: two readers would each get part of the stream, and pyserial reports
+    the reads the other took as a lost device. Once the holder closes, the port opens again."""
+    holder = open_transport(pty.path, SerialSettings())
+    await within(holder.open())
+    try:
+        intruder = open_transport(pty.path, SerialSettings())
+        with pytest.raises(TransportError) as info:
+            await within(intruder.open())
+        assert (info.value.port, info.value.reason) == (pty.path, IN_USE)
+        assert not intruder.is_open
+        os.write(pty.master, ALL_BYTES)
+        assert await read_exactly(holder, 256) == ALL_BYTES
+    finally:
+        await within(holder.close())
+    async with open_transport(pty.path, SerialSettings()) as again:
+        os.write(pty.master, ALL_BYTES)
+        assert await read_exactly(again, 256) == ALL_BYTES
 
 
 async def test_serial_lost_when_peer_closes(pty: Pty) -> None:

@@ -8,6 +8,11 @@ modem-control ioctls that a pty does not support are ignored by pyserial. A Linu
 rate and stop
 bits but forces 8 data bits without parity, and glibc then reports the second ``tcsetattr``
 pyserial makes as EINVAL: on a pty use 8N1/8N2 (any baud rate); real UARTs take every setting.
+
+The port is held exclusively (pyserial's ``exclusive``: an advisory ``flock`` on POSIX): a second
+armbench, or any program that locks the same way, is refused with :data:`IN_USE` instead of
+sharing the line. Two readers of one port each get part of the replies, and pyserial then
+reports the other's reads as a lost device ("readiness to read but returned no data").
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.model.user_files import file_kind
 from armbench.drivers.transports.streams import StreamTransport
 
-__all__ = ["NO_DEVICE", "OPEN_TIMEOUT_S", "SerialTransport", "check_device", "pyserial_settings"]
+__all__ = ["IN_USE", "NO_DEVICE", "OPEN_TIMEOUT_S", "SerialTransport", "check_device",
+           "pyserial_settings"]
 
 OPEN_TIMEOUT_S = 5.0
 """Seconds :meth:`SerialTransport.open` waits for the device to open (USB adapters can be slow)."""
@@ -32,6 +38,10 @@ OPEN_TIMEOUT_S = 5.0
 #: Why a device name that names nothing is refused, with where to look.
 NO_DEVICE = ("no such serial device (is the arm plugged in? 'python3 -m serial.tools.list_ports' "
              "lists the ports)")
+
+#: Why a port another process holds is refused.
+IN_USE = ("is in use by another program (it holds the port's lock; two programs reading one "
+          "port would each get part of the replies)")
 
 #: The controlling terminal of whoever runs armbench: a terminal, never an arm.
 CONTROLLING_TERMINAL = "/dev/tty"
@@ -123,11 +133,13 @@ class SerialTransport(StreamTransport):
         try:
             async with asyncio.timeout(self.open_timeout_s):
                 return await serial_asyncio_fast.open_serial_connection(
-                    loop=asyncio.get_running_loop(), url=self.port,
+                    loop=asyncio.get_running_loop(), url=self.port, exclusive=True,
                     **pyserial_settings(self.serial))
         except TimeoutError:
             raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
         except _open_errors() as exc:  # serial.SerialException is an OSError
+            if "exclusively lock" in str(exc):  # pyserial's words when the lock is held
+                raise self._error(IN_USE) from exc
             if not _is_terminal(self.port):
                 raise self._error("is not a serial device (a character device that is not a "
                                   "terminal)") from exc
