@@ -135,3 +135,19 @@ def test_the_cpu_spent_with_no_trial_running_is_what_falls_between_the_spans() -
     # (their middles covered), 0-1, 7-8 and 8-9 (0.5 s of CPU each) are not
     assert perf_run._CpuTrace.cpu_outside(trace, [(5.2, 6.8), (1.5, 5.5)]) == pytest.approx(1.5)
     assert perf_run._CpuTrace.cpu_outside(trace, []) == pytest.approx(0.5 * 6 + 0.1 * 3)
+
+
+def test_the_bare_emulator_yardstick_starts_when_told_and_reports_its_seconds(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Each of the yardstick's two processes waits for the moment both were told (so the two
+    run at once, as the workers do), then prints the wall and CPU seconds of its simulated
+    seconds as one JSON line."""
+    import json
+
+    start_at = time.perf_counter() + 0.3
+    perf_run.bare_child(5.0, start_at)
+    assert time.perf_counter() >= start_at
+    figures = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(figures) == {"wall_s", "cpu_s"}
+    assert 0.0 < figures["cpu_s"] <= figures["wall_s"] + 0.05, figures
+    assert figures["wall_s"] < 5.0, figures  # virtual time: far faster than the robot's
