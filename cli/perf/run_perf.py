@@ -305,8 +305,12 @@ def _bare_emulator(options: PerfOptions) -> tuple[float, float]:
             [sys.executable, "-c", f"from {__name__} import bare_child; "
                                    f"bare_child({sim_s!r}, {start_at!r})"],
             stdout=subprocess.PIPE, text=True) for _ in range(2)]
-        done = [json.loads(p.communicate(timeout=600)[0].strip().splitlines()[-1])
-                for p in procs]
+        done = []
+        for proc in procs:
+            lines = proc.communicate(timeout=600)[0].strip().splitlines()
+            if proc.returncode != 0 or not lines:
+                raise RuntimeError(f"the bare emulator's process failed ({proc.returncode})")
+            done.append(json.loads(lines[-1]))
         best_wall = max(best_wall, 2 * sim_s / sum(d["wall_s"] for d in done))
         best_cpu = max(best_cpu, 2 * sim_s / sum(d["cpu_s"] for d in done))
     return best_wall, best_cpu
