@@ -306,11 +306,17 @@ def _bare_emulator(options: PerfOptions) -> tuple[float, float]:
                                    f"bare_child({sim_s!r}, {start_at!r})"],
             stdout=subprocess.PIPE, text=True) for _ in range(2)]
         done = []
-        for proc in procs:
-            lines = proc.communicate(timeout=600)[0].strip().splitlines()
-            if proc.returncode != 0 or not lines:
-                raise RuntimeError(f"the bare emulator's process failed ({proc.returncode})")
-            done.append(json.loads(lines[-1]))
+        try:
+            for proc in procs:
+                lines = proc.communicate(timeout=600)[0].strip().splitlines()
+                if proc.returncode != 0 or not lines:
+                    raise RuntimeError(f"the bare emulator's process failed ({proc.returncode})")
+                done.append(json.loads(lines[-1]))
+        finally:  # a failed or timed-out one leaves no other running
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
         best_wall = max(best_wall, 2 * sim_s / sum(d["wall_s"] for d in done))
         best_cpu = max(best_cpu, 2 * sim_s / sum(d["cpu_s"] for d in done))
     return best_wall, best_cpu
