@@ -3,8 +3,10 @@
 compiled by mypyc in one and their Python source in the other. A test module that imports a hot
 module or the emulator they make up (:data:`FLAVOUR_MODULES`), itself or through a helper module
 of ``tests/``, tests that code directly: it is run against both builds (``.ci/run``'s
-plain-Python stage runs ``-m build_flavour``). The rest of the suite reaches the hot modules only
-through the same calls, which the slow stage compares between the two builds call by call
+plain-Python stage runs ``-m build_flavour``). A test module that borrows a fixture or a helper
+from another test module (``from test_runner import ...``) is not a test of what that one
+tests: the import is not followed. The rest of the suite reaches the hot modules only through
+the same calls, which the slow stage compares between the two builds call by call
 (``test_compiled_equal.py``) and session by session (``test_compiled.py``)."""
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ def imported_modules(source: str) -> set[str]:
 @functools.cache
 def concerns_the_build_flavour(path: Path) -> bool:
     """Whether the module at ``path`` imports one of :data:`FLAVOUR_MODULES`, itself or through
-    the modules of its folder it imports (a helper of ``tests/``: ``build_trace``, ...)."""
+    the helper modules of its folder it imports (``build_trace``, ...; not another
+    ``test_*`` module, whose fixtures and helpers it merely borrows)."""
     return _reaches_a_flavour_module(path, set())
 
 
@@ -44,6 +47,7 @@ def _reaches_a_flavour_module(path: Path, seen: set[Path]) -> bool:
     names = imported_modules(path.read_text(encoding="utf-8"))
     if names & FLAVOUR_MODULES:
         return True
-    helpers = (path.parent / f"{name}.py" for name in names if "." not in name)
+    helpers = (path.parent / f"{name}.py" for name in names
+               if "." not in name and not name.startswith("test_"))
     return any(helper.is_file() and helper not in seen and _reaches_a_flavour_module(helper, seen)
                for helper in helpers)

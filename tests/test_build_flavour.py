@@ -39,9 +39,11 @@ def test_an_import_of_a_hot_module_is_seen_however_written(source: str, tmp_path
     "from .joint import Motion\n",                        # relative: not the package's module
     "from helper_of_tests import thing\n",
     "import numpy\n",
+    "from test_other import a_fixture\n",                # borrowed from another test module
 ])
 def test_other_imports_are_not(source: str, tmp_path: Path) -> None:
     (tmp_path / "helper_of_tests.py").write_text("from test_module import x\n")  # a cycle
+    (tmp_path / "test_other.py").write_text("from armbench.fakes.firmware import uart\n")
     module = tmp_path / "test_module.py"
     module.write_text(source)
     assert not concerns_the_build_flavour(module)
