@@ -156,7 +156,9 @@ def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     """The ROS message support (control_msgs, tf2_msgs) built once per test session into a cache
     its workers share (``xdg``: the ``XDG_CACHE_HOME`` to give the node and the clients), and
     active in this process; ``built_s``: the build's seconds in the process that built it
-    (None in the others). Skips where the extra is not installed."""
+    (None in the others). Where ``XDG_CACHE_HOME`` is set, its cache is the one used, as
+    ``armbench ros2`` would (``.ci/run`` builds it with ``armbench ros2 build-msgs`` first: a
+    build is a minute of CPU). Skips where the extra is not installed."""
     from armbench.frontends.ros2_node import missing_ros2
 
     why = missing_ros2()
@@ -164,7 +166,8 @@ def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         pytest.skip(f"armbench[ros2] not installed: {why}")
     from armbench.frontends.ros2_node.msgs_build import CACHE_FOLDER, ensure_messages
 
-    xdg = session_dir(tmp_path_factory) / "xdg-cache"
+    given = os.environ.get("XDG_CACHE_HOME")
+    xdg = Path(given) if given else session_dir(tmp_path_factory) / "xdg-cache"
     support = ensure_messages(root=xdg / "armbench" / CACHE_FOLDER)
     return {"xdg": str(xdg), "built_s": support.built_s, "prefix": support.prefix}
 
