@@ -18,8 +18,6 @@ import sys
 from collections.abc import Iterator
 from typing import Any, Final, TextIO
 
-import foxglove
-
 from armbench.drivers.model import ros2
 from armbench.drivers.model.errors import ArmbenchError
 from armbench.drivers.model.settings import RobotSettings
@@ -90,6 +88,10 @@ class LiveView:
 
     def __init__(self, settings: RobotSettings, host: str = DEFAULT_HOST,
                  port: int = DEFAULT_PORT, *, name: str = "armbench") -> None:
+        # imported here: emulate and monitor import this module but serve Foxglove only when
+        # asked, and the SDK takes a tenth of a second to load
+        import foxglove
+
         self.settings = settings
         self._context = foxglove.Context()
         try:
