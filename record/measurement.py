@@ -3,6 +3,7 @@ repetition with its raw samples) and a :class:`SuiteRecord` (one suite's trials 
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypedDict, get_args
@@ -269,7 +270,7 @@ class SuiteRecord:
     """One suite's part of the run. Mutable: :class:`RecordWriter` fills it in as trials finish.
 
     ``version`` is the suite code's version (trials of different versions never mix);
-    ``params`` the suite's parameters; ``trials`` the current trials by index;
+    ``params`` the suite's parameters; ``trials`` the current trials, in index order;
     ``superseded_trials`` errored trials that a resumed run measured again; ``measurements`` the
     suite-level figures (the ones compared with a baseline). ``status``: ``"running"`` until the
     suite ends (an interrupted suite stays so), then ``"done"`` or ``"error"`` (with ``error``).
@@ -320,25 +321,36 @@ class SuiteRecord:
         """The trials with status ``"done"``, by index (a resumed suite skips these)."""
         return [t for t in self.trials if t.status == "done"]
 
+    def current(self, index: int) -> Trial | None:
+        """The current trial of ``index``, if there is one: found by bisection, ``trials`` being
+        in index order (:meth:`place` keeps them so; a campaign places 10 000)."""
+        trials = self.trials
+        i = bisect.bisect_left(trials, index, key=_trial_index)
+        return trials[i] if i < len(trials) and trials[i].index == index else None
+
     def holds(self, trial: Trial) -> bool:
         """Whether this suite already holds ``trial`` (the same index, status, times and
         error, current or superseded): a journal replayed over a record that has it."""
         key = (trial.index, trial.status, trial.started_s, trial.duration_s, trial.error)
+        current = self.current(trial.index)
         return any((t.index, t.status, t.started_s, t.duration_s, t.error) == key
-                   for t in (*self.trials, *self.superseded_trials))
+                   for t in (*(() if current is None else (current,)),
+                             *self.superseded_trials))
 
     def place(self, trial: Trial) -> None:
-        """Add a finished trial: one re-measuring an errored trial (same index) moves that one
-        to ``superseded_trials``; re-measuring a done trial is a RecordError."""
-        for i, old in enumerate(self.trials):
-            if old.index == trial.index:
-                if old.status == "done":
-                    raise RecordError(f"suites.{self.name}.trials[index {trial.index}]",
-                                      "is already measured")
-                self.superseded_trials.append(self.trials.pop(i))
-                break
-        self.trials.append(trial)
-        self.trials.sort(key=lambda t: t.index)
+        """Add a finished trial in index order: one re-measuring an errored trial (same index)
+        takes its place and moves it to ``superseded_trials``; re-measuring a done trial is a
+        RecordError."""
+        trials = self.trials
+        i = bisect.bisect_left(trials, trial.index, key=_trial_index)
+        if i < len(trials) and trials[i].index == trial.index:
+            if trials[i].status == "done":
+                raise RecordError(f"suites.{self.name}.trials[index {trial.index}]",
+                                  "is already measured")
+            self.superseded_trials.append(trials[i])
+            trials[i] = trial
+        else:
+            trials.insert(i, trial)
 
     def to_json(self, trial_json: Callable[[Trial], object] = Trial.to_json) -> SuiteJson:
         """The JSON object of this suite; ``trial_json`` makes each trial's (the writer leaves
@@ -375,7 +387,7 @@ class SuiteRecord:
             error=_opt_str(_get(d, "error", where), f"{where}.error"),
             started_s=_num(_get(d, "started_s", where), f"{where}.started_s"),
             ended_s=_opt_num(_get(d, "ended_s", where), f"{where}.ended_s"),
-            trials=trials("trials"),
+            trials=sorted(trials("trials"), key=_trial_index),  # in index order, as placed
             superseded_trials=trials("superseded_trials"),
             measurements=[Measurement.from_json(m, f"{where}.measurements[{i}]")
                           for i, m in enumerate(ms)],
@@ -387,3 +399,6 @@ class SuiteRecord:
         _unique_names(suite.measurements, f"{where}.measurements")
         return suite
 
+
+def _trial_index(trial: Trial) -> int:
+    return trial.index

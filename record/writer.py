@@ -280,7 +280,8 @@ class RecordWriter:
             raise RecordError(f"suites.{name}", f"is {suite.status}; begin it before adding trials")
         where = f"suites.{name}.trials[index {trial.index}]"
         line = json_line({"suite": name, "trial": trial.to_json()}, where)
-        if any(old.index == trial.index and old.status == "done" for old in suite.trials):
+        old = suite.current(trial.index)
+        if old is not None and old.status == "done":
             raise RecordError(where, "is already measured")
         offset, length = append_line(self.journal, line)
         text = self._encode_ahead(trial, where)

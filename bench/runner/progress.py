@@ -119,7 +119,8 @@ class ProgressPrinter:
         self._tty = bool(stream is not None and getattr(stream, "isatty", lambda: False)())
         self._wall = wall_clock
         self._t0 = wall_clock()
-        self._durations: dict[str, list[float]] = {}
+        self._durations: dict[str, tuple[float, int]] = {}
+        """Per suite, its finished trials' wall seconds added up, and their number."""
         self._remaining: dict[str, int] = {}
         self._planned: dict[str, int] = {}
         self._pending_s = 0.0
@@ -135,14 +136,14 @@ class ProgressPrinter:
 
     def estimate_s(self) -> float | None:
         """Seconds (wall) the remaining trials should take, None before any trial ended."""
-        everything = [d for ds in self._durations.values() for d in ds]
-        if not everything:
+        count = sum(n for _, n in self._durations.values())
+        if not count:
             return None
-        overall = sum(everything) / len(everything)
+        overall = sum(total_s for total_s, _ in self._durations.values()) / count
         total = 0.0
         for suite, left in self._remaining.items():
-            ds = self._durations.get(suite)
-            total += left * (sum(ds) / len(ds) if ds else overall)
+            total_s, n = self._durations.get(suite, (0.0, 0))
+            total += left * (total_s / n if n else overall)
         return total
 
     def trial(self, suite: str, k: int, n: int, status: str, wall_s: float, *,
@@ -153,7 +154,8 @@ class ProgressPrinter:
         self._pending_s += wall_s
         if not retry:
             self.done += 1
-            self._durations.setdefault(suite, []).append(self._pending_s)
+            total_s, count = self._durations.get(suite, (0.0, 0))
+            self._durations[suite] = (total_s + self._pending_s, count + 1)
             self._pending_s = 0.0
             self._remaining[suite] = max(0, self._remaining.get(suite, 1) - 1)
         if self.per_trial:
@@ -224,10 +226,10 @@ class ProgressPrinter:
             parts.append(f"robot {_clock(self.robot_clock() - line.started_robot_s)}")
         parts.append(f"elapsed {_clock(now - line.started_wall_s)}")
         left = self._remaining.get(line.name, 0)
-        ds = self._durations.get(line.name)
-        if left and ds:
+        total_s, n = self._durations.get(line.name, (0.0, 0))
+        if left and n:
             run = self.estimate_s()
-            parts.append(f"left ~{_clock(left * sum(ds) / len(ds))}"
+            parts.append(f"left ~{_clock(left * total_s / n)}"
                          + (f" (run ~{_clock(run)})" if run is not None else ""))
         if line.note:
             parts.append(line.note)
