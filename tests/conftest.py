@@ -38,8 +38,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     pseudo-terminals (Windows), the tests that need one skip. First of the hook's
     implementations: pytest-xdist's reads the groups into the test ids in its own (a
     plugin registered after this file, so called before it unless told). The tests of a module
-    that imports a hot module are marked ``build_flavour`` (``build_flavour.py``)."""
+    that imports a hot module are marked ``build_flavour`` (``build_flavour.py``). Tests marked
+    ``long`` go first, longest first (:func:`longest_first`)."""
     group_by_module_fixtures(items)
+    longest_first(items)
     for item in items:
         if concerns_the_build_flavour(item.path):
             item.add_marker(pytest.mark.build_flavour)
@@ -49,6 +51,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if _NEEDS_PTY.search(item.name) or "pty_emulator" in getattr(item, "fixturenames", ()):
             item.add_marker(skip)
+
+
+def longest_first(items: list[pytest.Item]) -> None:
+    """Put the tests marked ``pytest.mark.long(wall_s=...)`` first, longest first, the others
+    after them in their order: pytest-xdist hands work out in this order (with
+    ``--no-loadscope-reorder``, as the slow stage of ``.ci/run`` runs; otherwise it puts the
+    groups of most tests first), so a test of minutes starts at once instead of ending the
+    session alone. ``wall_s`` is the test's wall time as CI's durations show it, setup
+    included (a group goes where its first test goes)."""
+    def wall_s(item: pytest.Item) -> float:
+        mark = item.get_closest_marker("long")
+        return float(mark.kwargs["wall_s"]) if mark is not None else 0.0
+
+    items.sort(key=lambda item: -wall_s(item))
 
 
 def group_by_module_fixtures(items: list[pytest.Item]) -> None:

@@ -70,6 +70,7 @@ def test_hidden_arms_quick(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.long(wall_s=180)
 def test_hidden_arms_twenty(tmp_path: Path) -> None:
     """The target: every identified parameter's interval covers the hidden value on at least 18
     of 20 hidden arms (counted over the arms where the data identified it)."""
@@ -389,6 +390,7 @@ def test_capture_without_commands(capture: Path, tmp_path: Path,
 
 
 @pytest.mark.slow
+@pytest.mark.long(wall_s=120)
 def test_budget_on_a_pty(tmp_path: Path) -> None:
     """``calibrate --budget-s 120`` against ``armbench emulate --pty`` (real time, another
     process): it finishes, within its robot-time budget (the wall time is in the docs)."""

@@ -254,6 +254,7 @@ def _worse_joints(capture: Path, fitted: RobotSettings, default: RobotSettings) 
 
 
 @pytest.mark.slow
+@pytest.mark.long(wall_s=155)
 @CALIBRATED_ARMS
 @pytest.mark.skipif(shared_arm_script() is None, reason=SHARED_MISSING)
 def test_foreign_arm_over_tcp_never_worse(calibrated_sessions: dict[str, Session]) -> None:

@@ -43,6 +43,7 @@ def test_one_two_four_workers_and_three_shards_give_one_record(tmp_path: Path) -
         assert record_differences(tmp_path / "w1", tmp_path / other) == [], other
 
 
+@pytest.mark.long(wall_s=210)
 def test_ten_thousand_cuts(tmp_path: Path) -> None:
     outcome = run_campaign(CampaignOptions("startup-recovery", 10_000, seed=0,
                                            out=tmp_path / "c", workers=2), progress=None)

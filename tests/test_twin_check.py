@@ -392,6 +392,7 @@ def _stall_twin(gears: tuple[float, float, float, float] = (50, 50, 38, 28),
 
 
 @pytest.mark.slow
+@pytest.mark.long(wall_s=90)
 def test_foreign_arm_verdicts(tmp_path: Path) -> None:
     """On a real-time capture of every foreign arm (the full lap: single-joint moves, the
     accuracy square's corners and its streamed path): the model of the arm's hidden truth

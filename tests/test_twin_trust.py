@@ -251,6 +251,7 @@ def _outcome(sessions: dict[str, Any], key: str) -> Any:
     return sessions[key]
 
 
+@pytest.mark.long(wall_s=240)
 @pytest.mark.parametrize("config", TRACKER_CONFIGS, ids=["A", "B", "C"])
 def test_twelve_reference_poses_on_a_tracker_arm(config: tuple[Any, ...], tmp_path: Path,
                                                  tracker_sessions: dict[str, Any]) -> None:
