@@ -333,9 +333,8 @@ class SuiteRecord:
         error, current or superseded): a journal replayed over a record that has it."""
         key = (trial.index, trial.status, trial.started_s, trial.duration_s, trial.error)
         current = self.current(trial.index)
-        return any((t.index, t.status, t.started_s, t.duration_s, t.error) == key
-                   for t in (*(() if current is None else (current,)),
-                             *self.superseded_trials))
+        held = self.superseded_trials if current is None else [current, *self.superseded_trials]
+        return any((t.index, t.status, t.started_s, t.duration_s, t.error) == key for t in held)
 
     def place(self, trial: Trial) -> None:
         """Add a finished trial in index order: one re-measuring an errored trial (same index)

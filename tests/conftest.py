@@ -174,7 +174,7 @@ def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     active in this process; ``built_s``: the build's seconds in the process that built it
     (None in the others). Where ``XDG_CACHE_HOME`` is set, its cache is the one used, as
     ``armbench ros2`` would (``.ci/run`` builds it with ``armbench ros2 build-msgs`` first: a
-    build is a minute of CPU). Skips where the extra is not installed."""
+    build is more than half a minute of CPU). Skips where the extra is not installed."""
     from armbench.frontends.ros2_node import missing_ros2
 
     why = missing_ros2()
