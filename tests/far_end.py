@@ -4,6 +4,7 @@ subprocess, and a real ser2net serving that pty as RFC 2217. Shared by the fault
 from __future__ import annotations
 
 import contextlib
+import os
 import select
 import shutil
 import signal
@@ -79,6 +80,23 @@ def emulator_maker(tmp: Path) -> Iterator[Callable[..., Emulator]]:
     finally:
         for emu in made:
             emu.stop()
+
+
+@contextlib.contextmanager
+def pty_numbered(path: str, tries: int = 64) -> Iterator[tuple[int, int]]:
+    """A new pty pair (master, slave) whose slave is ``path``, a ``/dev/pts/N`` just freed: the
+    kernel gives the lowest free number, so the first pty opened here takes it unless another
+    process was quicker, and those taken meanwhile are held until the end. Skips the test when
+    all ``tries`` missed (another process holds the number)."""
+    with contextlib.ExitStack() as held:
+        for _ in range(tries):
+            master, slave = os.openpty()
+            held.callback(os.close, master)
+            held.callback(os.close, slave)
+            if os.ttyname(slave) == path:
+                yield master, slave
+                return
+        pytest.skip(f"{path} was taken by another process before {tries} ptys were opened here")
 
 
 @dataclass

@@ -88,8 +88,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import fcntl
 import io
 import json
+import os
 import random
 import signal
 import subprocess
@@ -102,7 +104,7 @@ from typing import Any, TypeVar
 
 import pytest
 from conftest import run_here
-from far_end import Emulator, Ser2net, emulator_maker, ser2net_over
+from far_end import Emulator, Ser2net, emulator_maker, pty_numbered, ser2net_over
 
 from armbench.bench.runner import RunOptions, run_bench
 from armbench.cli.commands.run_files import write_reports
@@ -850,6 +852,35 @@ def test_pty_close_then_reconnect_on_the_same_link(emulators: Callable[..., Emul
     MATRIX[("emulator SIGTERM + restart", "pty")] = asyncio.run(within(body(), 60.0))
 
 
+def test_a_killed_emulators_pty_number_is_left_to_its_new_owner(
+        emulators: Callable[..., Emulator]) -> None:
+    """The emulator killed (SIGKILL) leaves its link behind, and the next pty opened takes its
+    number: that pty is another program's. The reconnection does not open it (it would hold the
+    port and read that program's bytes: the other's own open refused as in use), and follows
+    the link once the emulator is back with a pty and a link of its own."""
+    emu = emulators("pty")
+    number = os.readlink(emu.link)
+
+    async def body() -> str:
+        async with Arm.connect(emu.port, reconnect=FAST_RECONNECT,
+                               reply_timeout_s=REAL_REPLY_TIMEOUT_S) as arm:
+            seq0 = arm.state.seq
+            await asyncio.to_thread(emu.stop, signal.SIGKILL)
+            await _until(lambda: not arm.connected)
+            with pty_numbered(number) as (_, slave):
+                attempts = arm.reconnect_attempts
+                await _until(lambda: arm.reconnect_attempts >= attempts + 3 or arm.reconnects > 0)
+                assert arm.reconnects == 0, "reconnected to another program's pty"
+                fcntl.flock(slave, fcntl.LOCK_EX | fcntl.LOCK_NB)  # nobody else holds it
+            await within(asyncio.to_thread(emu.start), 30.0)
+            await within(arm.wait_state(lambda s: arm.reconnects >= 1 and s.seq > seq0
+                                        and arm.connected))
+            return f"{number} left alone; reconnected to {os.readlink(emu.link)}"
+
+    MATRIX[("emulator SIGKILL, its pty number reused", "pty")] = asyncio.run(
+        within(body(), 60.0))
+
+
 def test_tcp_emulator_killed_reconnection_gives_up(emulators: Callable[..., Emulator]) -> None:
     emu = emulators("tcp")
     policy = ReconnectPolicy(initial_delay_s=0.02, factor=1.0, max_delay_s=0.02, max_attempts=3)
@@ -917,8 +948,10 @@ def test_ser2net_restart_is_reported_and_reconnected(ser2net: tuple[Ser2net, Emu
             done = await within(mover, 20.0)
             assert done is not None and near(done.q_rad, TARGET, 3e-4)
             # The emulator behind ser2net dies: ser2net hangs up; back on the same link, the
-            # driver reconnects through ser2net and the stream resumes.
+            # driver reconnects through ser2net and the stream resumes. The link goes with the
+            # emulator: ser2net would follow one left behind to whatever pty took its number.
             await asyncio.to_thread(emu.stop, signal.SIGKILL)
+            emu.link.unlink(missing_ok=True)
             await _until(lambda: not arm.connected)
             await within(asyncio.to_thread(emu.start), 30.0)
             seq = arm.state.seq

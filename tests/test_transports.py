@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import pytest
+from far_end import pty_numbered
 from netutil import free_port, listening
 
 from armbench.drivers.model.errors import PortLostError, TransportError
@@ -43,7 +44,7 @@ from armbench.drivers.transports import (
     transport_class,
 )
 from armbench.drivers.transports.rfc2217 import Rfc2217Transport
-from armbench.drivers.transports.serial_port import IN_USE, SerialTransport
+from armbench.drivers.transports.serial_port import IN_USE, PTY_TAKEN, SerialTransport
 from armbench.drivers.transports.tcp import TcpTransport
 
 T = TypeVar("T")
@@ -296,6 +297,63 @@ async def test_serial_a_held_port_is_refused_and_its_holder_loses_nothing(pty: P
     async with open_transport(pty.path, SerialSettings()) as again:
         os.write(pty.master, ALL_BYTES)
         assert await read_exactly(again, 256) == ALL_BYTES
+
+
+COARSE_CLOCK_S = 0.05
+"""More than a tick of the kernel's coarse clock (1–10 ms), which stamps a file's change time."""
+
+
+async def _lose(pty: Pty, port: str) -> SerialTransport:
+    """A serial transport on ``port`` (leading to ``pty``) that lost its pty: the far end
+    closed, as a killed emulator's does, and the number is free again."""
+    lost = SerialTransport(port, SerialSettings())
+    await within(lost.open())
+    assert lost.pty is not None
+    pty.close(pty.master)
+    with pytest.raises(PortLostError):
+        await within(lost.read())
+    await within(lost.close())
+    pty.close(pty.slave)
+    return lost
+
+
+@pytest.mark.parametrize("via", ["/dev/pts/N", "a link left behind"])
+async def test_serial_a_new_pty_under_the_lost_ones_name_is_not_opened(
+        pty: Pty, via: str, tmp_path: Path) -> None:
+    """After a loss, the pty that took the lost one's number is another program's: reconnecting
+    through the same name, or the same link a killed emulator left, does not open it (it would
+    hold that program's port and read its bytes). A new process cannot know and opens it."""
+    port = pty.path
+    if via != "/dev/pts/N":
+        port = str(tmp_path / "arm-pty")
+        os.symlink(pty.path, port)
+        await asyncio.sleep(COARSE_CLOCK_S)  # the link older than the next pty, as a real one
+    lost = await _lose(pty, port)
+    with pty_numbered(pty.path) as (master, _):
+        again = SerialTransport(port, SerialSettings())
+        again.follow(lost)
+        with pytest.raises(TransportError) as info:
+            await within(again.open())
+        assert (info.value.port, info.value.reason) == (port, PTY_TAKEN)
+        async with SerialTransport(port, SerialSettings()) as unknowing:
+            os.write(master, b"$1#")
+            assert await read_exactly(unknowing, 3) == b"$1#"
+
+
+async def test_serial_a_link_made_anew_is_followed_to_its_pty(pty: Pty, tmp_path: Path) -> None:
+    """An emulator restarted with ``--link`` makes the link anew: the reconnection follows it,
+    to a pty of the lost one's number too."""
+    link = tmp_path / "arm-pty"
+    link.symlink_to(pty.path)
+    lost = await _lose(pty, str(link))
+    with pty_numbered(pty.path) as (master, _):
+        link.unlink()
+        link.symlink_to(pty.path)
+        again = SerialTransport(str(link), SerialSettings())
+        again.follow(lost)
+        async with again:
+            os.write(master, b"$1#")
+            assert await read_exactly(again, 3) == b"$1#"
 
 
 async def test_serial_lost_when_peer_closes(pty: Pty) -> None:

@@ -365,6 +365,8 @@ class ArmLink:
                 return False
             attempts += 1
             transport = open_transport(self.port, self.settings.serial)
+            if old is not None:
+                transport.follow(old)
             try:
                 await transport.open()
             except BaseException as err:

@@ -191,6 +191,13 @@ class Transport(abc.ABC):
         calls it before it makes a run folder; the default checks nothing."""
         return
 
+    def follow(self, previous: Transport) -> None:
+        """Called before :meth:`open` when this transport reconnects to the port ``previous``
+        lost, so that it can tell its old peer's return from a newcomer under the same name
+        (a serial transport refuses a pty that took the lost one's number). The default
+        takes nothing: a port's name stands for the same peer each time."""
+        return
+
     @abc.abstractmethod
     async def open(self) -> None:
         """Open and configure the port; raises :class:`TransportError` naming it on failure."""

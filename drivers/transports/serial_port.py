@@ -13,6 +13,13 @@ The port is held exclusively (pyserial's ``exclusive``: an advisory ``flock`` on
 armbench, or any program that locks the same way, is refused with :data:`IN_USE` instead of
 sharing the line. Two readers of one port each get part of the replies, and pyserial then
 reports the other's reads as a lost device ("readiness to read but returned no data").
+
+A pty ends with its far end, and the kernel gives its number to the next pty anyone opens. A
+reconnection (:meth:`SerialTransport.follow`) therefore does not open a new pty under the lost
+one's ``/dev/pts/N``, nor through a symbolic link older than the pty it now leads to (a link a
+killed emulator left behind): that pty belongs to another program, and opening it would hold
+that program's port and read its bytes. A link made for the new pty (an emulator restarted with
+``--link``) is followed.
 """
 
 from __future__ import annotations
@@ -22,15 +29,17 @@ import contextlib
 import errno
 import os
 import stat
+from dataclasses import dataclass
 from typing import Any
 
 from armbench.drivers.model.errors import TransportError
 from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.model.user_files import file_kind
+from armbench.drivers.transports.base import Transport
 from armbench.drivers.transports.streams import StreamTransport
 
-__all__ = ["IN_USE", "NO_DEVICE", "OPEN_TIMEOUT_S", "SerialTransport", "check_device",
-           "pyserial_settings"]
+__all__ = ["IN_USE", "NO_DEVICE", "OPEN_TIMEOUT_S", "PTY_TAKEN", "PtyIdentity", "SerialTransport",
+           "check_device", "pyserial_settings"]
 
 OPEN_TIMEOUT_S = 5.0
 """Seconds :meth:`SerialTransport.open` waits for the device to open (USB adapters can be slow)."""
@@ -43,8 +52,51 @@ NO_DEVICE = ("no such serial device (is the arm plugged in? 'python3 -m serial.t
 IN_USE = ("is in use by another program (it holds the port's lock; two programs reading one "
           "port would each get part of the replies)")
 
+#: Why a reconnection does not open the pty now under the lost one's name.
+PTY_TAKEN = ("now leads to a new pty that took the lost one's number (a pty ends with its far "
+             "end and the kernel gives the number to the next pty opened): it belongs to "
+             "another program and is not opened")
+
 #: The controlling terminal of whoever runs armbench: a terminal, never an arm.
 CONTROLLING_TERMINAL = "/dev/tty"
+
+PTY_SLAVE_MAJORS = range(136, 144)
+"""Device major numbers of Unix 98 pty slaves (``/dev/pts/N``; the kernel's
+``Documentation/admin-guide/devices.txt``)."""
+
+
+@dataclass(frozen=True)
+class PtyIdentity:
+    """Which pty a port name leads to: the pty node's (device, inode, change time in ns), which
+    a new pty of the same number does not share, and the change time of the symbolic link the
+    name is (None when it is no link). Change times come from the kernel's coarse clock (a few
+    ms): a link made for a pty is never older than it, a link left behind by a killed emulator
+    is older than the pty that took its number later."""
+
+    pty: tuple[int, int, int]
+    link_ctime_ns: int | None
+
+    @classmethod
+    def of(cls, port: str) -> PtyIdentity | None:
+        """The identity of the pty ``port`` leads to; None for anything but a pty slave (or a
+        name that leads nowhere)."""
+        if os.name != "posix":
+            return None
+        try:
+            node = os.stat(port)
+            name = os.lstat(port)
+        except (OSError, ValueError):
+            return None
+        if not stat.S_ISCHR(node.st_mode) or os.major(node.st_rdev) not in PTY_SLAVE_MAJORS:
+            return None
+        return cls((node.st_rdev, node.st_ino, node.st_ctime_ns),
+                   name.st_ctime_ns if stat.S_ISLNK(name.st_mode) else None)
+
+    def taken_by(self, now: PtyIdentity | None) -> bool:
+        """Whether ``now``, what the name leads to after this pty was lost, is another program's
+        pty: a different pty node reached directly, or through a link older than it."""
+        return (now is not None and now.pty != self.pty
+                and (now.link_ctime_ns is None or now.link_ctime_ns < now.pty[2]))
 
 
 def check_device(port: str) -> None:
@@ -123,6 +175,15 @@ class SerialTransport(StreamTransport):
         super().__init__(port, serial)
         self.open_timeout_s = open_timeout_s
         """Seconds :meth:`open` waits for the device."""
+        self.pty: PtyIdentity | None = None
+        """The pty the port led to when it opened (None for anything but a pty)."""
+        self._lost_pty: PtyIdentity | None = None
+
+    def follow(self, previous: Transport) -> None:
+        """Remember the pty the previous transport of this port had: a new pty under its
+        name, reached the same way, is refused with :data:`PTY_TAKEN`."""
+        if isinstance(previous, SerialTransport) and previous.port == self.port:
+            self._lost_pty = previous.pty or previous._lost_pty
 
     async def _connect(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
         # pyserial picks its platform's backend when imported: on POSIX that imports fcntl and
@@ -130,11 +191,16 @@ class SerialTransport(StreamTransport):
         import serial_asyncio_fast
 
         check_device(self.port)
+        pty = PtyIdentity.of(self.port)
+        if self._lost_pty is not None and self._lost_pty.taken_by(pty):
+            raise self._error(PTY_TAKEN)
         try:
             async with asyncio.timeout(self.open_timeout_s):
-                return await serial_asyncio_fast.open_serial_connection(
+                pair = await serial_asyncio_fast.open_serial_connection(
                     loop=asyncio.get_running_loop(), url=self.port, exclusive=True,
                     **pyserial_settings(self.serial))
+            self.pty = pty
+            return pair
         except TimeoutError:
             raise self._error(f"device did not open within {self.open_timeout_s:g} s") from None
         except _open_errors() as exc:  # serial.SerialException is an OSError
