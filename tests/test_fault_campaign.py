@@ -815,10 +815,9 @@ def test_pty_closed_by_the_emulator_mid_move(emulators: Callable[..., Emulator])
 def _one_reconnection_per_loss(arm: Arm) -> None:
     """The first loss is the emulator's stop (its link was gone for two attempts at least), and
     each loss the port reported was answered by one reconnection, none missing and none more.
-    On a shared machine the new pty may be lost again through something outside the test (the
-    message pyserial gives when another process read the bytes; an armbench that comes second is
-    now refused the port, docs/transports.md): a port lost and found, not the driver's doing.
-    Every loss is shown."""
+    On a shared machine the new pty may be lost again through a program outside the test that
+    reads it without taking its lock (pyserial's "readiness to read but returned no data"): a
+    port lost and found, not the driver's doing. Every loss is shown."""
     lost = [o for o in arm.link_outages() if o.kind == "port lost"]
     shown = [(o.cause, o.reconnect_attempts, o.ended_s is not None) for o in lost]
     assert lost and lost[0].reconnect_attempts >= 2, shown
