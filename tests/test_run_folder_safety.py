@@ -22,6 +22,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,9 +91,38 @@ def _start(*args: str) -> subprocess.Popen[str]:
                             start_new_session=True)
 
 
+STOP_S = 30.0
+"""Bound on a SIGSTOP taking effect in each process of a run: a hung kernel, not a slow host."""
+
+
+def _group_states(pgid: int) -> list[str]:
+    """The state letter (``/proc/PID/stat``: R, S, D, T, Z, ...) of each process of the group
+    ``pgid``."""
+    states = []
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = Path(entry.path, "stat").read_text(encoding="ascii")
+        except OSError:  # ended meanwhile
+            continue
+        state, _, group = stat.rpartition(")")[2].split()[:3]  # after the command's name
+        if int(group) == pgid:
+            states.append(state)
+    return states
+
+
 def _freeze(proc: subprocess.Popen[str], sig: signal.Signals) -> None:
-    """SIGSTOP or SIGCONT to the run and its workers."""
+    """SIGSTOP or SIGCONT to the run and its workers. A stop returns once every process of the
+    run has stopped: a signal takes effect when its process next leaves the kernel, so a worker
+    busy on the other CPU may still finish writing its capture part after ``killpg`` returns."""
     os.killpg(proc.pid, sig)
+    if sig != signal.SIGSTOP:
+        return
+    deadline = time.monotonic() + STOP_S
+    while any(state not in "TtZX" for state in _group_states(proc.pid)):
+        assert time.monotonic() < deadline, _group_states(proc.pid)
+        time.sleep(0.005)
 
 
 def _wait_for(proc: subprocess.Popen[str], text: str) -> None:
