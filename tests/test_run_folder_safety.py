@@ -324,8 +324,19 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
         assert got.twin["verdict"] == whole_run.twin["verdict"]
         assert got.twin["rms_counts"] == whole_run.twin["rms_counts"]
     else:  # what it reads of a capture besides the frames, equal above
-        assert (got.truth, got.arm) == (whole_run.truth, whole_run.arm)
+        assert got.truth == whole_run.truth, _first_difference(got.truth, whole_run.truth)
+        assert got.arm == whole_run.arm
     assert not list(out.glob(".capture.part*"))
+
+
+def _first_difference(got: list[tuple[float, tuple[float, ...]]],
+                      want: list[tuple[float, tuple[float, ...]]]) -> str:
+    """Where two lists of truth samples part, with the samples around it: what pytest's diff of
+    two lists of hundreds cuts off."""
+    k = next((i for i, (a, b) in enumerate(zip(got, want, strict=False)) if a != b),
+             min(len(got), len(want)))
+    return (f"{len(got)} samples against {len(want)}; the first difference at {k}: "
+            f"{got[max(0, k - 2):k + 3]} against {want[max(0, k - 2):k + 3]}")
 
 
 def test_a_resumed_legacy_capture_keeps_its_frames(tmp_path: Path, whole_run: Capture) -> None:
