@@ -288,8 +288,9 @@ def test_resume_of_a_fleet_being_written_is_refused(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("sig", "after", "workers", "replayed"), [
     (signal.SIGKILL, 1, "2", True), (signal.SIGKILL, 3, "2", False),
     (signal.SIGTERM, 1, "2", False), (signal.SIGTERM, 3, "2", False),
-    (signal.SIGKILL, 3, "1", True)],
-    ids=["SIGKILL-1", "SIGKILL-3", "SIGTERM-1", "SIGTERM-3", "SIGKILL-3-in-turn"])
+    (signal.SIGKILL, 3, "1", True), (signal.SIGKILL, 5, "2", False)],
+    ids=["SIGKILL-1", "SIGKILL-3", "SIGTERM-1", "SIGTERM-3", "SIGKILL-3-in-turn",
+         "SIGKILL-5-last-in-turn"])
 def test_resumed_capture_after_a_kill_equals_the_whole_run(
         sig: signal.Signals, after: int, workers: str, replayed: bool, tmp_path: Path,
         whole_run: Capture) -> None:
@@ -298,14 +299,18 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
     event, the same twin-check. The check itself runs on the resumed capture where it is
     ``replayed``: after the first trial (the most of the run resumed), and in turn, whose truth
     is sampled at other moments than the whole run's (one worker carries the sampling's phase
-    from trial to trial; a resumed session starts it afresh). Elsewhere the capture gives it the
-    same input (:class:`Capture`), so the same check."""
+    from trial to trial; a resumed session starts it afresh). So is a single trial left to the
+    resumed session, measured in turn (``ParallelTrials.usable``), as happens when the signal
+    lands late, on a loaded machine, after the workers' next trials were recorded. Elsewhere
+    the capture gives it the same input (:class:`Capture`), so the same check."""
     out = tmp_path / "run"
     proc = _start(*_accuracy(tmp_path, out, "--workers", workers))
     _wait_for(proc, f"trial {after}/6 done")
     proc.send_signal(sig)
     proc.communicate(timeout=WAIT_S)
     assert proc.returncode == -sig
+    recorded = load_record(out / "results.json").suites["accuracy"].trials
+    replayed = replayed or sum(t.status == "done" for t in recorded) == 5
     resumed = run_here("run", "--resume", str(out))
     assert resumed.returncode == 0, resumed.stderr
     got = _capture(out)
