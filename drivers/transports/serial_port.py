@@ -67,13 +67,14 @@ PTY_SLAVE_MAJORS = range(136, 144)
 
 @dataclass(frozen=True)
 class PtyIdentity:
-    """Which pty a port name leads to: the pty node's (device, inode, change time in ns), which
-    a new pty of the same number does not share, and the change time of the symbolic link the
-    name is (None when it is no link). Change times come from the kernel's coarse clock (a few
-    ms): a link made for a pty is never older than it, a link left behind by a killed emulator
-    is older than the pty that took its number later."""
+    """Which pty a port name leads to: the pty node's device and inode numbers and its change
+    time in ns, which a new pty of the same number does not share, and the change time of the
+    symbolic link the name is (None when it is no link). Change times come from the kernel's
+    coarse clock (a few ms): a link made for a pty is never older than it, a link left behind
+    by a killed emulator is older than the pty that took its number later."""
 
-    pty: tuple[int, int, int]
+    node: tuple[int, int]
+    ctime_ns: int
     link_ctime_ns: int | None
 
     @classmethod
@@ -89,14 +90,14 @@ class PtyIdentity:
             return None
         if not stat.S_ISCHR(node.st_mode) or os.major(node.st_rdev) not in PTY_SLAVE_MAJORS:
             return None
-        return cls((node.st_rdev, node.st_ino, node.st_ctime_ns),
+        return cls((node.st_rdev, node.st_ino), node.st_ctime_ns,
                    name.st_ctime_ns if stat.S_ISLNK(name.st_mode) else None)
 
     def taken_by(self, now: PtyIdentity | None) -> bool:
         """Whether ``now``, what the name leads to after this pty was lost, is another program's
         pty: a different pty node reached directly, or through a link older than it."""
-        return (now is not None and now.pty != self.pty
-                and (now.link_ctime_ns is None or now.link_ctime_ns < now.pty[2]))
+        return (now is not None and (now.node, now.ctime_ns) != (self.node, self.ctime_ns)
+                and (now.link_ctime_ns is None or now.link_ctime_ns < now.ctime_ns))
 
 
 def check_device(port: str) -> None:
