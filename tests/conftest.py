@@ -239,6 +239,15 @@ def one_line_error(status: int, err: str, *expected: str) -> None:
         assert text in lines[0], lines[0]
 
 
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto``: one worker more than the CPUs this process may use. A third of the tests'
+    time is waiting in real time (an emulator process, a browser, a labgrid place), so a worker
+    per CPU leaves CPU idle: on two CPUs the default run takes a fifth less wall time for a
+    twentieth more CPU (``measurements/performance.md``)."""
+    return len(os.sched_getaffinity(0)) + 1 if hasattr(os, "sched_getaffinity") else (
+        (os.cpu_count() or 1) + 1)
+
+
 def pytest_configure(config: pytest.Config) -> None:
     """A shell starts a background job with SIGINT ignored, and every process it starts inherits
     that (armbench too: it honours an ignored SIGINT as any Unix program does). The Ctrl-C tests
