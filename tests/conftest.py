@@ -19,6 +19,7 @@ from build_flavour import concerns_the_build_flavour
 from foreign_arms.sessions import Session, calibrate_all
 
 import armbench.cli.main
+from armbench.bench.workers.collector_pace import pace_collector
 from armbench.record.verdict import DEFAULT_CONFIG
 
 #: The checkout under test.
@@ -251,6 +252,9 @@ def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
 def pytest_configure(config: pytest.Config) -> None:
     """A shell starts a background job with SIGINT ignored, and every process it starts inherits
     that (armbench too: it honours an ignored SIGINT as any Unix program does). The Ctrl-C tests
-    press Ctrl-C on their children as a terminal would, so the children must take it."""
+    press Ctrl-C on their children as a terminal would, so the children must take it. The tests
+    run the bench in their own processes too: their garbage is collected at the pace of the
+    ``armbench`` program's (:mod:`armbench.bench.workers.collector_pace`)."""
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    pace_collector()

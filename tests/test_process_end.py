@@ -14,6 +14,7 @@ from pathlib import Path
 from conftest import packaged_limits_with
 
 from armbench.bench.workers import worker_process
+from armbench.bench.workers.collector_pace import YOUNG_ALLOCATIONS
 
 WAIT_S = 300.0
 """Upper bound of a child process's life here under load (each takes a second or so alone)."""
@@ -117,3 +118,29 @@ def test_a_pool_no_run_took_is_stopped_not_waited_for(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
         f"armbench run: error: limits file: '{tmp_path / 'missing.toml'}' does not exist"]
+
+
+def test_the_program_and_its_workers_collect_at_armbenchs_pace(tmp_path: Path) -> None:
+    """The ``armbench`` program and its spawned workers collect the youngest generation every
+    ``YOUNG_ALLOCATIONS`` allocations, the older generations' ratios kept; a process that only
+    imports armbench keeps CPython's pace (a child interpreter: this one is the tests', paced
+    by ``conftest.py``)."""
+    done = _python("""
+        import gc, sys
+        import armbench, armbench.cli.main as cli
+        from armbench.bench.workers import worker_process
+        print(*gc.get_threshold())
+        def main():
+            print(*gc.get_threshold())
+            pool = worker_process.new_pool(1)
+            print(*pool.submit(gc.get_threshold).result(timeout=300))
+            pool.shutdown()
+            return 0
+        cli.main = main
+        cli.program()
+    """, tmp_path)
+    assert done.returncode == 0, done.stderr
+    imported, program, worker = (tuple(map(int, line.split()))
+                                 for line in done.stdout.splitlines())
+    assert imported[0] != YOUNG_ALLOCATIONS  # CPython's own (700 in 3.11)
+    assert program == worker == (YOUNG_ALLOCATIONS, *imported[1:])

@@ -3,8 +3,8 @@
 A worker measures one job at a time on a fresh virtual-time loop (:func:`run_job`); what a job
 is (one attempt of one trial) is the runner's business: a worker only needs something with an
 async ``measure()``, so it imports nothing of the runner. :func:`worker_init` makes a worker a
-good child: Ctrl-C is the parent's, and it dies with its parent; it imports the modules a job
-will need as it starts.
+good child: Ctrl-C is the parent's, and it dies with its parent; it collects its garbage at
+armbench's pace, as the program does, and imports the modules a job will need as it starts.
 
 A spawned worker takes about a second to start (an interpreter, numpy, the emulator) before it
 can measure anything. :func:`prestart` starts the pool of a run at once, so the workers start
@@ -37,6 +37,8 @@ import weakref
 from collections.abc import Coroutine, Sequence
 from typing import Any, Protocol, TypeVar
 
+from armbench.bench.workers.collector_pace import pace_collector
+
 __all__ = ["Job", "discard_parked", "discard_prestarted", "let_go_workers", "new_pool", "park",
            "park_prestarted", "prestart", "run_job", "take_pool", "worker_init"]
 
@@ -59,7 +61,9 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     parent-death signal on Linux, and a watch on ``parent`` (the run's pid) everywhere. The
     modules ``preload`` names are imported last (what a job will need); the worker's end is
     :func:`_end_at_once`, registered first so that every at-exit handler of those modules and
-    of the jobs runs before it."""
+    of the jobs runs before it. It collects its garbage at armbench's pace
+    (:mod:`~armbench.bench.workers.collector_pace`)."""
+    pace_collector()
     atexit.register(_end_at_once)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):
