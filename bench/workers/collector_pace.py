@@ -8,7 +8,7 @@ processes (the ``armbench`` program and its trial workers) collect the youngest 
 :data:`YOUNG_ALLOCATIONS` allocations instead; the older generations keep their ratios to it, so
 cycles are still collected, in fewer and larger passes. A process that merely imports armbench
 (a user's script, a pytest session with the plugin) keeps its own pace: the collector is the
-process owner's to set. The figures are in ``docs/performance.md``.
+process owner's to set (``docs/performance.md``).
 """
 
 from __future__ import annotations
