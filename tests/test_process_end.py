@@ -126,7 +126,7 @@ def test_the_program_and_its_workers_collect_at_armbenchs_pace(tmp_path: Path) -
     imports armbench keeps CPython's pace (a child interpreter: this one is the tests', paced
     by ``conftest.py``)."""
     done = _python("""
-        import gc, sys
+        import gc
         import armbench, armbench.cli.main as cli
         from armbench.bench.workers import worker_process
         print(*gc.get_threshold())

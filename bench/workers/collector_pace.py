@@ -3,10 +3,10 @@
 An emulated arm and its driver allocate a few small objects for every reply (a joint state, a
 frame's fields, a timer) and free nearly all of them by reference counting at once. CPython's
 default pace (the youngest generation collected every 700 allocations) then runs the collector
-every couple of replies, over objects that are already gone or long-lived. armbench's own
-processes (the ``armbench`` program and its trial workers) collect the youngest generation every
-:data:`YOUNG_ALLOCATIONS` allocations instead; the older generations keep their ratios to it, so
-cycles are still collected, in fewer and larger passes. A process that merely imports armbench
+every couple of replies, to find almost nothing to free. armbench's own processes (the
+``armbench`` program and its trial workers) collect the youngest generation every
+:data:`YOUNG_ALLOCATIONS` allocations instead; the older generations keep their ratios to it,
+so cycles are still collected, in fewer and larger passes. A process that merely imports armbench
 (a user's script, a pytest session with the plugin) keeps its own pace: the collector is the
 process owner's to set (``docs/performance.md``).
 """
@@ -20,8 +20,8 @@ __all__ = ["YOUNG_ALLOCATIONS", "pace_collector"]
 
 YOUNG_ALLOCATIONS: Final = 10_000
 """Allocations (less deallocations) of container objects between two collections of the youngest
-generation; CPython's default is 700. A larger value gains little more: the collector's cost per
-reply is already small at this one."""
+generation; CPython's default is 700. Larger values were measured to gain little more
+(``measurements/performance.md``)."""
 
 
 def pace_collector() -> None:
