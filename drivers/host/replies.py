@@ -56,13 +56,17 @@ class ReplyStream:
     ``seq0 + 1`` on; :meth:`restart` starts a new link.
     """
 
-    __slots__ = ("_decode", "_framer", "discarded_bytes", "frames_dropped", "frames_received",
-                 "seq", "synced")
+    __slots__ = ("_angles", "_decode", "_framer", "_reply", "discarded_bytes", "frames_dropped",
+                 "frames_received", "seq", "synced")
 
     def __init__(self, lower_rad: Sequence[float], upper_rad: Sequence[float],
                  seq0: int = 0) -> None:
         self._framer = Framer("reply")
         self._decode = AngleDecoder(lower_rad, upper_rad)
+        self._reply: Reply | None = None
+        # tuple[float, ...], not the four-float tuple angles() returns: compiled, that one is
+        # held as four C doubles and boxed again on every read
+        self._angles: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
         self.seq = seq0
         """Number of the newest state."""
         self.synced = False
@@ -84,10 +88,12 @@ class ReplyStream:
         reply = self._framer.one_reply(data)
         if reply is None:
             return None
+        if reply is not self._reply:  # the framer returns a repeated reply as the same object
+            self._reply, self._angles = reply, self._decode.angles(reply)
         self.synced = True
         self.seq = seq = self.seq + 1
         self.frames_received += 1
-        return _new(JointState, (t_s, self._decode.angles(reply), reply, seq))
+        return _new(JointState, (t_s, self._angles, reply, seq))
 
     def receive(self, data: bytes, t_s: float, *, every: bool = False) -> Batch:
         """Feed a chunk read at loop time ``t_s``; with ``every`` decode each reply it completes

@@ -332,8 +332,8 @@ class Framer:
     so a stream without ``#`` cannot grow memory. CR/LF between frames are accepted silently.
     """
 
-    __slots__ = ("_buf", "_fast", "_len", "_replies", "discarded_bytes", "errors", "frames",
-                 "kind")
+    __slots__ = ("_buf", "_fast", "_last_data", "_last_reply", "_len", "_replies",
+                 "discarded_bytes", "errors", "frames", "kind")
 
     def __init__(self, kind: FrameKind = "reply") -> None:
         if kind not in ("reply", "command"):
@@ -343,6 +343,8 @@ class Framer:
         self._fast = (_REPLY_RE if kind == "reply" else _COMMAND_RE).findall
         self._replies = kind == "reply"
         self._buf = b""
+        self._last_data = b""
+        self._last_reply: Reply | None = None
         self.frames = 0
         """Valid frames decoded."""
         self.errors = 0
@@ -360,9 +362,13 @@ class Framer:
         a fake:// or a quiet line delivers them): counted as :meth:`feed` would. Otherwise None,
         and nothing is consumed: :meth:`feed` the chunk."""
         if self._replies and not self._buf and len(data) == REPLY_LEN:
+            if data == self._last_data:  # an arm at rest repeats its reply: the same Reply
+                self.frames += 1
+                return self._last_reply
             reply = _one_reply(data)
             if reply is not None:
                 self.frames += 1
+                self._last_data, self._last_reply = data, reply
             return reply
         return None
 
