@@ -15,6 +15,7 @@ import asyncio
 import dataclasses
 import enum
 import json
+import math
 import sys
 from collections.abc import Callable, Mapping
 from fractions import Fraction
@@ -358,6 +359,60 @@ def _replies(name: str, *args: Any) -> object:
     return out
 
 
+def _intake(name: str, *args: Any) -> object:
+    """A link's intake (``drivers.host.intake``) pushed ``chunks`` at loop times ``times``,
+    with a recorder, a capture and a waiter for joint 1 past ``mark``; chunks that are not one
+    reply go through the reply stream's batches, as the link's general path takes them: every
+    state, recording, capture call, outage and the waiter's answer."""
+    from armbench.drivers.host.intake import ReplyIntake
+    from armbench.drivers.host.link_outages import OutageLog
+    from armbench.drivers.host.replies import ReplyStream
+    from armbench.drivers.host.state import JointState
+    from armbench.drivers.host.waiters import Waiters
+    from armbench.fakes.clock.vclock import run_virtual
+
+    if name != "push":
+        raise ValueError(f"no intake call {name!r}")
+    silence_s, mark, times, chunks = args
+
+    async def session() -> object:
+        loop = asyncio.get_running_loop()
+        stream, waiters = ReplyStream((-3.2,) * 4, (3.2,) * 4), Waiters()
+        captured: list[object] = []
+        general: list[object] = []
+
+        class Capture:
+            def reply(self, t_s: float, data: bytes) -> None:
+                captured.append((t_s, data))
+
+        def chunk(data: bytes, t_s: float) -> None:
+            batch = stream.receive(data, t_s)
+            general.append((t_s, data, len(batch.events)))
+            if batch.state is not None:
+                intake.took(batch.state, t_s)
+
+        intake = ReplyIntake(stream, waiters, OutageLog(silence_s), silence_s, chunk,
+                             lambda exc: general.append(repr(exc)))
+        intake.clock, intake.capture = loop.time, Capture()
+        recorded: list[JointState] = []
+        intake.recorders.append(recorded)
+        waiter = waiters.add(lambda state: state.q_rad[0] >= mark, math.inf)
+        out: list[object] = []
+        for t_s, data in zip(times, chunks, strict=True):
+            await asyncio.sleep(t_s)
+            intake.push(data)
+            state = intake.state
+            out.append((None if state is None else tuple(state), intake.last_rx_s,
+                        intake.tx_since_rx, intake.outages.count))
+        answer = waiter.future.result() if waiter.future.done() else None
+        outages = intake.outages.between(-math.inf, math.inf, math.inf)
+        return (out, [tuple(s) for s in recorded], captured, general,
+                [dataclasses.astuple(o) for o in outages],
+                None if answer is None else tuple(answer))
+
+    return run_virtual(session())
+
+
 def _waiters(name: str, *args: Any) -> object:
     """Waiters for the joint-1 angle to pass each of ``marks`` (deadlines at loop times
     ``wakes``), offered ``q1s`` one state each: which resolved, with what, and when."""
@@ -416,7 +471,8 @@ def _arrival(name: str, *args: Any) -> object:
 CALLS: dict[str, Callable[..., object]] = {"protocol": _protocol, "physics": _physics,
                                            "stepper": _stepper, "joint": _joint, "i2c": _i2c,
                                            "uart": _uart, "boards": _boards,
-                                           "replies": _replies, "waiters": _waiters,
+                                           "replies": _replies, "intake": _intake,
+                                           "waiters": _waiters,
                                            "arrival": _arrival}
 
 

@@ -483,6 +483,23 @@ def test_reply_streams_give_the_same_states(call: Call, lower: object, upper: ob
 
 
 @EXAMPLES
+@given(data=st.data(), silence_s=st.sampled_from([0.05, 0.5]), mark=st.floats(-3.0, 3.0))
+def test_intakes_take_replies_alike(call: Call, data: st.DataObject, silence_s: float,
+                                    mark: float) -> None:
+    """The link's per-reply path (``drivers.host.intake``): chunks drawn from a few replies (so
+    that an arm at rest repeats its reply) and damaged or torn ones, pushed with gaps that are
+    sometimes a silence: the states, recordings, capture, outages and the waiter's answer."""
+    replies = data.draw(st.lists(VALID_TICKS.map(lambda t: Reply(*t).encode()), min_size=1,
+                                 max_size=3))
+    chunk = st.one_of(st.sampled_from(replies), st.sampled_from(replies).map(lambda r: r[:9]),
+                      st.binary(max_size=30), st.sampled_from(replies).map(lambda r: r + r))
+    chunks = data.draw(st.lists(chunk, max_size=12))
+    times = data.draw(st.lists(st.sampled_from([0.0, 0.002, 0.01, 0.3, 1.0]),
+                               min_size=len(chunks), max_size=len(chunks)))
+    call("intake", "push", silence_s, mark, times, chunks)
+
+
+@EXAMPLES
 @given(waits=st.lists(st.tuples(st.floats(-2.0, 2.0), st.one_of(
            st.floats(0.0, 0.2), st.just(math.inf))), max_size=4),
        q1s=st.lists(st.one_of(st.floats(-2.0, 2.0), st.integers(-2, 2)), max_size=12))

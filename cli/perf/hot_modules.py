@@ -17,6 +17,7 @@ HOT_MODULES = (
     "armbench.fakes.twin.stepper",
     "armbench.fakes.firmware.uart",
     "armbench.drivers.host.replies",
+    "armbench.drivers.host.intake",
     "armbench.drivers.host.waiters",
     "armbench.drivers.host.arrival",
 )

@@ -136,7 +136,7 @@ class StateStream:
 
     def __init__(self, arm: Arm, include_current: bool = True) -> None:
         self._arm = arm
-        state = arm._state
+        state = arm._intake.state
         self._seen = 0 if include_current or state is None else state.seq
         self._counting = not include_current
         self.skipped = 0
@@ -152,7 +152,7 @@ class StateStream:
         while True:
             if arm._closed:
                 raise StopAsyncIteration
-            state = arm._state
+            state = arm._intake.state
             if state is not None and state.seq > self._seen:
                 if self._counting:
                     self.skipped += state.seq - self._seen - 1
@@ -267,7 +267,7 @@ class Arm(ArmLink):
         since = loop.time()
         deadline = None if timeout_s is None else since + timeout_s
         self._raise_if_failed()
-        state = self._state
+        state = self._intake.state
         if state is not None and predicate(state):
             return state
         while True:
@@ -276,7 +276,7 @@ class Arm(ArmLink):
                 return got
             if deadline is not None and loop.time() >= deadline:
                 assert timeout_s is not None
-                raise WaitTimeoutError("wait_state", timeout_s, self._state)
+                raise WaitTimeoutError("wait_state", timeout_s, self._intake.state)
 
     def record_states(self) -> contextlib.AbstractContextManager[list[JointState]]:
         """``with arm.record_states() as states:`` collects every state received inside the block

@@ -107,7 +107,7 @@ class ArrivalTracker:
     def _check_current(self) -> None:
         link = self._link
         if link._generation != self._gen:
-            raise MoveInterruptedError(self._goal, link._state)
+            raise MoveInterruptedError(self._goal, link._intake.state)
 
     async def arrive(self) -> JointState:
         """The first state (the current one included) at the goal; sends the command again when
@@ -149,4 +149,4 @@ class ArrivalTracker:
                 return got
             if not link._reconnecting and (
                     loop.time() >= self.deadline + link.link_down_s(self._since)):
-                raise MoveTimeoutError(self._goal, self.tol, self.timeout_s, link._state)
+                raise MoveTimeoutError(self._goal, self.tol, self.timeout_s, link._intake.state)

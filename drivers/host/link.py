@@ -22,6 +22,7 @@ from types import TracebackType
 from typing import Any, Final, Self
 
 from armbench.drivers.capture.jsonl import CaptureWriter, frame_text
+from armbench.drivers.host.intake import ReplyIntake
 from armbench.drivers.host.link_options import (
     CONNECT_TIMEOUT_S,
     DEFAULT_LINK_OPTIONS,
@@ -89,7 +90,6 @@ class ArmLink:
         """The robot model: limits, drive trains, geometry, line settings."""
         self.options = opts
         """How this connection behaves (its timeouts, capture, reconnection)."""
-        self.reply_timeout_s = opts.reply_timeout_s
         self.connect_timeout_s = opts.connect_timeout_s
         self.resend_after_s = opts.resend_after_s
         self.move_timeout_scale = opts.move_timeout_scale
@@ -109,12 +109,9 @@ class ArmLink:
         self._upper = self.settings.upper_rad
         self._replies = ReplyStream(self._lower, self._upper)
         self._command_wire_s = COMMAND_LEN * self.settings.serial.byte_time_s
-        self._state: JointState | None = None
-        self._last_rx_s = -math.inf
         self._linked_s = -math.inf
         self._linked0_s = 0.0
         self._waiters = Waiters()
-        self._recorders: list[list[JointState]] = []
         self._failure: BaseException | None = None
         self._opened = False
         self._closed = False
@@ -129,9 +126,11 @@ class ArmLink:
         """Successful reconnections."""
         self.reconnect_attempts = 0
         """Failed reconnection attempts."""
-        self.outages = OutageLog(self.reply_timeout_s)
+        self.outages = OutageLog(opts.reply_timeout_s)
         """Every loss of the link (see :mod:`~armbench.drivers.host.link_outages`)."""
-        self._tx_since_rx = 0
+        self._intake = ReplyIntake(self._replies, self._waiters, self.outages,
+                                   opts.reply_timeout_s, self._on_chunk, self._reader_failed)
+        self._intake.capture = self._capture
         self._notes = ServerNotes()
         self._note_log = LogLimit(log, logging.WARNING, "server notes")
         self.server_note: str | None = None
@@ -140,6 +139,16 @@ class ArmLink:
         sends many, a few per interval, then their count:
         :mod:`armbench.drivers.model.log_limit`)."""
         self._note_frames = -1
+
+    @property
+    def reply_timeout_s(self) -> float:
+        """Seconds of silence after which a wait raises :class:`ReplyTimeoutError` (and a gap
+        between replies counts as an outage)."""
+        return self._intake.reply_timeout_s
+
+    @reply_timeout_s.setter
+    def reply_timeout_s(self, value: float) -> None:
+        self._intake.reply_timeout_s = value
 
     @property
     def frames_received(self) -> int:
@@ -170,6 +179,7 @@ class ArmLink:
             raise DriverError(f"{self.port}: already opened")
         self._opened = True
         self._loop = loop = asyncio.get_running_loop()
+        self._intake.clock = loop.time
         transport = self._given_transport or open_transport(self.port, self.settings.serial)
         await transport.open()
         self._transport = transport
@@ -177,8 +187,9 @@ class ArmLink:
         try:
             if self._capture is None and self.capture_path is not None:
                 self._capture = CaptureWriter(self.capture_path, loop.time())
+                self._intake.capture = self._capture
             self._reader = loop.create_task(self._read_loop(), name=f"arm-reader {self.port}")
-            if self._state is None and await self._wait(
+            if self._intake.state is None and await self._wait(
                     any_state, loop.time() + self.connect_timeout_s, reply_timeout=False) is None:
                 self._raise_if_failed()  # the port closed (a server saying why, when it did)
                 raise ReplyTimeoutError(self.port, self.connect_timeout_s, None)
@@ -194,6 +205,7 @@ class ArmLink:
         if self._closed:
             return
         self._closed = True
+        self._intake.live = False
         self._note_log.flush()
         self._waiters.close()
         try:
@@ -231,9 +243,9 @@ class ArmLink:
     @property
     def state(self) -> JointState:
         """The newest state (always set once :meth:`open` has returned)."""
-        if self._state is None:
+        if self._intake.state is None:
             raise DriverError(f"{self.port}: no state received yet")
-        return self._state
+        return self._intake.state
 
     @property
     def transport(self) -> Transport:
@@ -251,13 +263,13 @@ class ArmLink:
     def link_outages(self, since_s: float = -math.inf) -> list[LinkOutage]:
         """The link's outages that overlap loop times [``since_s``, now], oldest first; one
         going on now comes last, with ``ended_s`` None."""
-        now = self._loop.time() if self._loop is not None else self._last_rx_s
-        return self.outages.between(since_s, now, self._last_rx_s)
+        now = self._loop.time() if self._loop is not None else self._intake.last_rx_s
+        return self.outages.between(since_s, now, self._intake.last_rx_s)
 
     def link_down_s(self, since_s: float) -> float:
         """Seconds since loop time ``since_s`` during which the port was lost."""
         assert self._loop is not None
-        return self.outages.down_s(since_s, self._loop.time(), self._last_rx_s)
+        return self.outages.down_s(since_s, self._loop.time(), self._intake.last_rx_s)
 
     # --- reader -------------------------------------------------------------------------------
 
@@ -267,8 +279,8 @@ class ArmLink:
                 transport = self._transport
                 assert transport is not None
                 push = getattr(transport, "set_receiver", None)
-                if push is not None:  # fake://: replies come straight to _on_pushed
-                    push(self._on_pushed)
+                if push is not None:  # fake://: replies come straight to the intake
+                    push(self._intake.push)
                 try:
                     data = await transport.read()
                 except TransportError as exc:
@@ -283,40 +295,25 @@ class ArmLink:
                     if not await self._reconnect(exc):
                         return
                     continue
-                self._on_data(data)
+                self._intake.take(data)
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # a bug: show it to the waiters instead of dying silently
             log.exception("%s: reader failed", self.port)
             self._set_failure(exc)
 
-    def _on_pushed(self, data: bytes) -> None:
-        """A chunk a transport hands over as it arrives (``set_receiver``, ``fake://``): handled
-        as the reader handles a read, minus a future and a task switch per reply."""
-        if self._closed or self._failure is not None:  # the reader would have stopped by now
-            return
-        try:
-            self._on_data(data)
-        except Exception as exc:  # a bug: show it to the waiters, as the reader does
-            log.exception("%s: reader failed", self.port)
-            self._set_failure(exc)
+    def _reader_failed(self, exc: Exception) -> None:
+        """A pushed chunk raised ``exc`` (a bug): shown to the waiters, as the reader does."""
+        log.error("%s: reader failed", self.port, exc_info=exc)
+        self._set_failure(exc)
 
-    def _on_data(self, data: bytes) -> None:
-        """A chunk read now: through the reply stream into the state, the recorders, the capture
-        and the waiters."""
-        assert self._loop is not None
-        t = self._loop.time()
+    def _on_chunk(self, data: bytes, t: float) -> None:
+        """A chunk read at loop time ``t`` that is not exactly one reply (the intake takes
+        those): through the reply stream into the state, the recorders, the capture and the
+        waiters."""
         replies = self._replies
         capture = self._capture
-        recorders = self._recorders
-        one = replies.one(data, t)
-        if one is not None:  # what follows does for a chunk that is exactly one reply
-            for r in recorders:
-                r.append(one)
-            if capture is not None:
-                capture.reply(t, data)
-            self._took(one, t)
-            return
+        recorders = self._intake.recorders
         batch = replies.receive(data, t, every=bool(recorders))
         for note in self._notes.feed(data):
             self._note_log("%s: the server says: %s", self.port, note)
@@ -332,17 +329,7 @@ class ArmLink:
                 elif isinstance(ev, FrameError):
                     capture.write(t, "in", frame_text(ev.raw), ev.reason)
         if batch.state is not None:
-            self._took(batch.state, t)
-
-    def _took(self, state: JointState, t: float) -> None:
-        """``state``, read at loop time ``t``, is the newest: it ends an outage or a silence
-        and goes to the waiters."""
-        self._state = state
-        if t - self._last_rx_s >= self.reply_timeout_s or self.outages.current:
-            self.outages.reply(t, self._last_rx_s)
-        self._last_rx_s = t
-        self._tx_since_rx = 0
-        self._waiters.offer(state)
+            self._intake.took(batch.state, t)
 
     async def _reconnect(self, exc: TransportError) -> bool:
         policy = self.reconnect_policy
@@ -407,18 +394,19 @@ class ArmLink:
 
     def _silent_since_s(self) -> float:
         """Loop time since which the link has been silent: the last reply, or the opening."""
-        return max(self._last_rx_s, self._linked0_s)
+        return max(self._intake.last_rx_s, self._linked0_s)
 
     def _lost(self, exc: TransportError) -> None:
         """The transport reported the port lost: an outage begins (one already going on goes
         on)."""
         assert self._loop is not None
         self.outages.lost(self._loop.time(), exc.reason, self._silent_since_s(),
-                          self._tx_since_rx)
+                          self._intake.tx_since_rx)
 
     def _set_failure(self, exc: BaseException) -> None:
         if self._failure is None:
             self._failure = exc
+            self._intake.live = False
         self._waiters.wake_all()
 
     def _raise_if_failed(self) -> None:
@@ -459,7 +447,8 @@ class ArmLink:
                 return None
             wake_at = math.inf if deadline is None else deadline
             if reply_timeout and not self._reconnecting:
-                silent_until = max(self._last_rx_s, since, self._linked_s) + self.reply_timeout_s
+                intake = self._intake
+                silent_until = max(intake.last_rx_s, since, self._linked_s) + intake.reply_timeout_s
                 if now >= silent_until and not drained:
                     # A host held up (a busy machine, a slow synchronous step) finds replies
                     # waiting unread in the OS's buffer: the reader takes them first.
@@ -468,7 +457,7 @@ class ArmLink:
                         await asyncio.sleep(0)
                     continue
                 if now >= silent_until:
-                    raise ReplyTimeoutError(self.port, self.reply_timeout_s, self._state)
+                    raise ReplyTimeoutError(self.port, self.reply_timeout_s, self._intake.state)
                 drained = False
                 wake_at = min(wake_at, silent_until)
             waiter = self._waiters.add(predicate, wake_at)
@@ -498,11 +487,11 @@ class ArmLink:
         not by value: two recorders holding the same states (two empty ones) are equal lists,
         and ``list.remove`` would take out the other one, which then gets nothing while this
         one grows for as long as the link lives."""
-        self._recorders.append(buf)
+        self._intake.recorders.append(buf)
         try:
             yield buf
         finally:
-            self._recorders[:] = [r for r in self._recorders if r is not buf]
+            self._intake.recorders[:] = [r for r in self._intake.recorders if r is not buf]
 
     # --- sending ------------------------------------------------------------------------------
 
@@ -533,7 +522,7 @@ class ArmLink:
                 await self._wait_link(gen)
                 continue
             self.commands_sent += 1
-            self._tx_since_rx += 1
+            self._intake.tx_since_rx += 1
             if self._capture is not None:
                 self._capture.frame(t, "out", data.decode("ascii"))
             return t
@@ -551,11 +540,11 @@ class ArmLink:
 
     async def _hold_best_effort(self) -> None:
         """Send a hold without letting a second cancellation or a dead link get in the way."""
-        if self._closed or self._failure is not None or self._state is None or (
+        if self._closed or self._failure is not None or self._intake.state is None or (
                 self._loop is None):
             return
         self._supersede()
-        cmd = Command.from_rad(self._state.q_rad, 0)
+        cmd = Command.from_rad(self._intake.state.q_rad, 0)
         task = self._loop.create_task(self._send(cmd, retry=False))
         with contextlib.suppress(asyncio.CancelledError):  # cancelled again: the hold goes on
             await asyncio.wait({task}, timeout=HOLD_TIMEOUT_S)
