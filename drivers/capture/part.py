@@ -12,6 +12,7 @@ cut short ends at its last whole block.
 from __future__ import annotations
 
 import json
+import math
 import struct
 from array import array
 from collections.abc import Callable, Iterator, Mapping
@@ -37,6 +38,10 @@ TRUTH_PERIOD_S: Final = 0.1
 #: Flag bits of a record: arm → host, a framing error.
 IN_FLAG: Final = 1
 ERROR_FLAG: Final = 2
+
+#: Loop seconds a reply's due check runs early, before a slot boundary or a flush interval ends:
+#: far more than the rounding of the exact checks it guards, which then decide as before.
+_DUE_EARLY_S: Final = 1e-6
 
 _BLOCK: Final = struct.Struct("<4sIIIII")
 _BLOCK_MAGIC: Final = b"ABP2"
@@ -88,6 +93,8 @@ class PartWriter(CaptureWriter):
         self._truth = truth
         self._period_s = period_s
         self._slot = -1.0
+        self._due_s = -math.inf
+        """Loop time from which a reply runs the truth and flush checks (:meth:`_due`)."""
         try:
             self._bin: IO[bytes] | None = self.path.open("wb")
         except OSError as exc:
@@ -107,11 +114,26 @@ class PartWriter(CaptureWriter):
         self._times.append(t_s - self.t0_s)
         self._frames.append(data)
         self._flags.append(IN_FLAG)
+        if t_s >= self._due_s or len(self._frames) >= self.batch_records:
+            self._due(t_s)
+
+    def _due(self, t_s: float) -> None:
+        """The checks of a reply at ``t_s`` (a new truth slot, a block to write), which a reply
+        runs only from ``_due_s`` on: most replies fall inside a slot and a block's interval."""
         if self._truth is not None and (t_s - self.t0_s) // self._period_s != self._slot:
             self._sample_truth(t_s)
         if (len(self._frames) >= self.batch_records
                 or t_s - self._last_flush >= self.batch_interval_s):
             self.flush(t_s)
+        self._set_due()
+
+    def _set_due(self) -> None:
+        """The loop time at which the next slot or the next block's interval begins, a little
+        early; a slot whose truth was missing is due at once, so that the next reply tries again."""
+        due = self._last_flush + self.batch_interval_s
+        if self._truth is not None:
+            due = min(due, self.t0_s + (self._slot + 1.0) * self._period_s)
+        self._due_s = due - _DUE_EARLY_S
 
     def _sample_truth(self, t_s: float) -> None:
         assert self._truth is not None
@@ -172,6 +194,7 @@ class PartWriter(CaptureWriter):
         self.batches += 1
         if t_s is not None:
             self._last_flush = t_s
+            self._set_due()
 
     def close(self) -> None:
         if self._bin is None:
