@@ -54,8 +54,26 @@ MOVES = (((0.5, 0.4, -0.6, 0.8), 99), ((-0.3, 0.2, 0.5, -0.4), 60),
          ((0.1, -0.2, 0.3, 0.2), (30, 99, 70, 10)), ((0.0, 0.0, 0.0, 0.0), 90))
 
 
+def every_truth(emulator: ArmEmulator) -> list[Any]:
+    """Every truth sample ``emulator`` has delivered and delivers from now on: its history keeps
+    only the newest (``TRUTH_HISTORY``), the trace compares them all."""
+    samples = list(emulator.truth)
+    deliver = emulator.uart.on_delivered
+    assert deliver is not None
+
+    def keep(sample: Any) -> None:
+        samples.append(sample)
+        deliver(sample)
+
+    emulator.uart.on_delivered = keep
+    return samples
+
+
 async def _session(port: str) -> dict[str, Any]:
     async with Arm.connect(port) as arm:
+        first = arm.emulator
+        assert isinstance(first, ArmEmulator)
+        every = every_truth(first)
         with arm.record_states() as states:
             for q, duty in MOVES:  # fixed times, arrived or not (missed steps may keep a joint off)
                 await arm.move_joints(q, duty, wait=False)
@@ -69,7 +87,7 @@ async def _session(port: str) -> dict[str, Any]:
             emulator.power_on()
             await asyncio.sleep(12.0)
             await arm.stop()
-        truth = [(s.t_s, s.true_rad, s.firmware_rad) for s in emulator.truth]
+        truth = [(s.t_s, s.true_rad, s.firmware_rad) for s in every]
         return {
             "states": [(s.t_s, s.ticks, s.q_rad, s.seq) for s in states],
             "truth": truth, "stats": emulator.stats().to_json(),
@@ -86,13 +104,14 @@ async def _blocking_session(settings: Path) -> dict[str, Any]:
     replies: list[tuple[float, str]] = []
     emulator.attach_host(lambda data: replies.append((loop.time(), data.decode("latin-1"))))
     async with emulator:
+        every = every_truth(emulator)
         for q, duty in MOVES:
             command = Command.from_rad(q, duty).encode()
             for _ in range(100):
                 emulator.host_write(command)
                 await asyncio.sleep(0.02)
         return {"replies": replies, "stats": emulator.stats().to_json(),
-                "truth": [(s.t_s, s.true_rad, s.firmware_rad) for s in emulator.truth]}
+                "truth": [(s.t_s, s.true_rad, s.firmware_rad) for s in every]}
 
 
 def trace() -> dict[str, Any]:

@@ -16,9 +16,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from build_trace import every_truth
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from armbench.bench.suites._common import TruthProbe
 from armbench.drivers.model.protocol import Command, FrameError, Framer, Reply
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.model.twin_parameters import JOINT_PARAMETERS
@@ -29,7 +31,7 @@ from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.firmware.faults import Fault, parse_faults
 from armbench.fakes.firmware.i2c import REG_STATUS, I2CBus, transaction_bits
 from armbench.fakes.firmware.i2c_messages import I2CMessage
-from armbench.fakes.twin.physics import END_STOP_MARGIN_RAD
+from armbench.fakes.twin.physics import END_STOP_MARGIN_RAD, TRUTH_HISTORY
 
 ROBOT = RobotSettings()
 LOWER, UPPER = ROBOT.lower_rad, ROBOT.upper_rad
@@ -545,6 +547,24 @@ def test_the_newest_truth_sample_belongs_to_the_newest_delivered_reply() -> None
                 assert reply == Reply.from_rad(sample.firmware_rad)
                 assert sample.t_s <= host.replies[-1][0]
         assert len(arm.truth) == len(host.replies)
+
+    emulate(body)
+
+
+def test_the_truth_history_keeps_the_newest_samples_the_bench_searches() -> None:
+    """The history is bounded (a longer one only feeds the garbage collector) and holds more
+    than the newest samples a reply's truth is looked for among; every sample still passes
+    ``uart.on_delivered``, in the order of the replies."""
+    assert TruthProbe.SEARCH < TRUTH_HISTORY
+
+    async def body(arm: ArmEmulator, host: Host) -> None:
+        every = every_truth(arm)
+        host.send([0.5, 0.4, -0.3, 0.6], 99)
+        while len(every) < 2 * TRUTH_HISTORY + 5:
+            await asyncio.sleep(0.01)
+        assert len(arm.truth) == TRUTH_HISTORY
+        assert list(arm.truth) == every[-TRUTH_HISTORY:]
+        assert [s.t_s for s in every] == sorted(s.t_s for s in every)
 
     emulate(body)
 

@@ -47,15 +47,13 @@ from armbench.fakes.avr.harness import (
 )
 from armbench.fakes.clock.vclock import VirtualTimeLoop
 from armbench.fakes.links.in_process import InProcessTransport
-from armbench.fakes.twin.physics import TruthSample
+from armbench.fakes.twin.physics import TRUTH_HISTORY, TruthSample
 
-__all__ = ["CYCLES_PER_S", "TRUTH_HISTORY", "AvrBoards", "AvrVirtualTransport",
+__all__ = ["CYCLES_PER_S", "AvrBoards", "AvrVirtualTransport",
            "LockstepHarness", "fresh_boards"]
 
 #: The boards' clock: ATmega328P at 16 MHz.
 CYCLES_PER_S = 16_000_000
-#: Ground-truth samples kept (one per reply), as the emulator keeps.
-TRUTH_HISTORY = 4096
 _NO_FAULTS = "avr:// injects no faults (the harness models none); use fake:// for a fault list"
 #: How long the harness may take to quit before it is killed (s, wall).
 _QUIT_TIMEOUT_S = 5.0

@@ -23,13 +23,11 @@ from armbench.fakes.firmware.faults import Fault, FaultInjector
 from armbench.fakes.firmware.i2c import BusClock, I2CBus
 from armbench.fakes.firmware.master_board import MasterBoard
 from armbench.fakes.firmware.uart import Uart
-from armbench.fakes.twin.physics import Mechanism
+from armbench.fakes.twin.physics import TRUTH_HISTORY, Mechanism
 
 __all__ = ["ArmEmulator", "ArmStats"]
 
 log = logging.getLogger("armbench.emulator")
-
-TRUTH_HISTORY = 4096
 
 
 @dataclass(frozen=True, slots=True)

@@ -46,6 +46,7 @@ __all__ = [
     "LOSS_LAWS",
     "PROFILES",
     "PULLOUT_CURVES",
+    "TRUTH_HISTORY",
     "ArmPhysics",
     "GeometryError",
     "JointPhysics",
@@ -62,6 +63,13 @@ __all__ = [
 PROFILES: Final = ("physical", "ideal")
 
 Vec4 = tuple[float, float, float, float]
+
+
+#: Truth samples an emulator keeps (one per reply, the newest last). A reply's truth is looked
+#: for among the newest 32 (``bench/suites/_common.py:TruthProbe.SEARCH``) and a capture reads
+#: the newest; a short history also lets each sample die young, freed by reference counting
+#: before the garbage collector's youngest generation has to walk it (``docs/performance.md``).
+TRUTH_HISTORY: Final = 256
 
 
 class TruthSample(NamedTuple):
