@@ -299,11 +299,11 @@ class ArmLink:
         except asyncio.CancelledError:
             raise
         except Exception as exc:  # a bug: show it to the waiters instead of dying silently
-            log.exception("%s: reader failed", self.port)
-            self._set_failure(exc)
+            self._reader_failed(exc)
 
     def _reader_failed(self, exc: Exception) -> None:
-        """A pushed chunk raised ``exc`` (a bug): shown to the waiters, as the reader does."""
+        """The reader, or a chunk pushed to the intake, raised ``exc`` (a bug): logged and shown
+        to the waiters instead of dying silently."""
         log.error("%s: reader failed", self.port, exc_info=exc)
         self._set_failure(exc)
 
