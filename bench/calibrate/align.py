@@ -14,9 +14,10 @@ of that is the model's doing. So:
   with no model in it (:func:`late_stamps`), and is neither compared nor used to time a start;
 * each move that starts from rest is aligned at its start: the time the arm's joint left its
   pose (its first replies beyond :data:`ONSET_TICKS`, traced back along the joint's nominal speed)
-  against the twin's; commands sent while the arm moves (a streamed path) keep the shift of the
-  move they continue. A twin that is too slow or loses steps still diverges: only the start is
-  aligned, not the motion;
+  against the twin's; that pose, and whether the joint rested, from every reply read before the
+  command, those left out for their stamps too (a stamp can be late, never early); commands
+  sent while the arm moves (a streamed path) keep the shift of the move they continue. A twin
+  that is too slow or loses steps still diverges: only the start is aligned, not the motion;
 * the floor comes from the capture itself. The arm's own replies, where a joint moves steadily,
   scatter around the straight line through their neighbours by the link's timing scatter times
   the joint's speed: that scatter (s; a robust spread of those residuals in time units finds the
@@ -146,7 +147,8 @@ class Track:
 
 
 def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float,
-             target_rad: float | None = None) -> tuple[float, float] | None:
+             target_rad: float | None = None, pose_rad: float | None = None
+             ) -> tuple[float, float] | None:
     """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``), and the
     standard error of that time (s): each of the first :data:`ONSET_REPLIES` replies
     :data:`ONSET_TICKS` or more away from the pose at the command, traced back at the speed
@@ -156,13 +158,14 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     and sent after it is stale: one such reply does not move the median). Its standard error
     is that of a median of their spread, less the wire angle's quantisation (already in the
     floor): how much the replies disagree on the start, which a host that read them late by
-    different amounts shows. None when it did not leave."""
+    different amounts shows. ``pose_rad``: where the joint was at the command, when known
+    better than from the newest reply of ``track`` before it. None when it did not leave."""
     t, q = track.t_s, track.q_rad[:, joint]
     i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
     i1 = int(np.searchsorted(t, t1_s + SAME_INSTANT_S))
-    if i0 == 0 or i1 <= i0:
+    if i1 <= i0 or (i0 == 0 and pose_rad is None):
         return None
-    pose = q[i0 - 1]
+    pose = q[i0 - 1] if pose_rad is None else pose_rad
     away = np.abs(q[i0:i1] - pose)
     moved = np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:ONSET_REPLIES]
     if len(moved) == 0:
@@ -232,14 +235,24 @@ class Shifts:
         return float(np.sqrt(np.mean(np.square(self.deviations_s()))))
 
 
+def _newest(track: Track, t_s: float) -> FloatArray | None:
+    """The angles of the newest reply of ``track`` stamped before ``t_s`` (None: there is none)."""
+    i = int(np.searchsorted(track.t_s, t_s + SAME_INSTANT_S))
+    return None if i == 0 else track.q_rad[i - 1]
+
+
 def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command]],
-                settings: RobotSettings) -> Shifts:
+                settings: RobotSettings, poses: tuple[Track, Track] | None = None) -> Shifts:
     """Per command and joint (``(n, 4)``), the time (s) the arm's joint started moving after the
     twin's (arm − twin): measured, at each command, on each joint that was at rest (in both
     streams) and has a way of :data:`MIN_WAY_TICKS` or more (the firmware passes a command on
     to each joint's board in turn: each joint has its own delay); carried over from the move
     before otherwise (0 before the first measured start, or when a stream did not move). Within
-    ±:data:`MAX_SHIFT_S`."""
+    ±:data:`MAX_SHIFT_S`. ``poses``: the two streams with every reply, those left out of
+    ``arm`` and ``twin`` for their stamps too (read in a burst or late): where a joint was and
+    whether it rested at a command comes from them, since a stamp may be late but never early
+    (after a host stall the newest timed reply before a command can be from before the move
+    that ended at it, and a start traced back from there came before the command)."""
     out = np.zeros((len(commands), 4))
     onset_se = np.zeros((len(commands), 4))
     lag = np.full(len(commands), np.nan)
@@ -247,17 +260,18 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     measured: list[tuple[int, float]] = []
     times = [c[0] for c in commands] + [math.inf]
     lower, upper = settings.lower_rad, settings.upper_rad
+    arm_poses, twin_poses = (arm, twin) if poses is None else poses
     for k, (t_c, cmd) in enumerate(commands):
-        i = int(np.searchsorted(arm.t_s, t_c + SAME_INSTANT_S))
-        if i > 0:
-            way = np.abs(np.asarray(cmd.angles_rad(lower, upper)) - arm.q_rad[i - 1])
+        arm_pose, twin_pose = _newest(arm_poses, t_c), _newest(twin_poses, t_c)
+        if arm_pose is not None and twin_pose is not None:
+            way = np.abs(np.asarray(cmd.angles_rad(lower, upper)) - arm_pose)
             for j in np.flatnonzero((way >= MIN_WAY_TICKS * TICK_RAD)
                                     & (np.asarray(cmd.duties) > 0)
-                                    & _at_rest(arm, t_c) & _at_rest(twin, t_c)):
+                                    & _at_rest(arm_poses, t_c) & _at_rest(twin_poses, t_c)):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
                 goal = float(cmd.angles_rad(lower, upper)[j])
-                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, goal)
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, goal)
+                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, goal, float(arm_pose[j]))
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, goal, float(twin_pose[j]))
                 if a is not None and b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]

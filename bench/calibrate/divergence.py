@@ -165,7 +165,8 @@ class Divergence:
 class ArmSide:
     """What the arm's capture alone says, the same against every twin: the capture with its
     timed replies only, those replies as a track, which of them the host read late, the
-    link's timing scatter and spread, and how many replies were left out."""
+    link's timing scatter and spread, how many replies were left out, and every reply as the
+    host read it (``received``: where the arm was at a command, whatever the stamps)."""
 
     data: CaptureData
     whole: Track
@@ -173,6 +174,7 @@ class ArmSide:
     scatter_s: float
     spread_s: float
     untimed: int
+    received: Track
 
 
 def arm_side(data: CaptureData) -> ArmSide:
@@ -185,7 +187,8 @@ def arm_side(data: CaptureData) -> ArmSide:
     whole = Track.of(kept)
     spread = timing_rms_s(Track(whole.t_s[~late], whole.q_rad[~late]), times)
     return ArmSide(CaptureData(data.path, data.commands, kept, data.bad_in_frames), whole, late,
-                   scatter, scatter if spread is None else max(scatter, spread), untimed)
+                   scatter, scatter if spread is None else max(scatter, spread), untimed,
+                   Track.of(data.replies))
 
 
 def diverge(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
@@ -201,7 +204,7 @@ def diverge(data: CaptureData, twin: Sequence[tuple[float, Vec4]],
     twin_late = read_late(twin_track, times, scatter)
     measured = move_shifts(Track(whole.t_s[~late], whole.q_rad[~late]),
                            Track(twin_track.t_s[~twin_late], twin_track.q_rad[~twin_late]),
-                           data.commands, settings)
+                           data.commands, settings, (side.received, twin_track))
     start = times[0] if times else -math.inf
     rows = [(t, q) for (t, q), x in zip(data.replies, late, strict=True)
             if t >= start and len(twin_track.t_s) and t >= twin_track.t_s[0] and not x]
