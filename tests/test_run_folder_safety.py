@@ -29,6 +29,7 @@ from typing import Any
 
 import pytest
 from conftest import packaged_limits_with, run_here
+from mcap.reader import make_reader
 from tmpfs import mounted_tmpfs
 
 import armbench.cli.main
@@ -332,6 +333,32 @@ def test_resumed_capture_after_a_kill_equals_the_whole_run(
         assert got.truth == whole_run.truth, _first_difference(got.truth, whole_run.truth)
         assert got.arm == whole_run.arm
     assert not list(out.glob(".capture.part*"))
+
+
+def test_a_run_killed_while_attaching_its_record_is_finished_by_resume(
+        tmp_path: Path, whole_run: Capture) -> None:
+    """Killed after its last trial was in the capture, while the record was being attached (the
+    capture cut where its first attachment begins, as the kill leaves it): ``--resume`` has no
+    trial left to run and used to leave the capture so, without the record twin-check reads
+    the arm from. It now finishes the capture: the record attached, the same frames and events
+    as the uninterrupted run. (In the killed-run test above, a signal landing that late on a
+    loaded machine failed it.)"""
+    out = tmp_path / "run"
+    done = run_here(*_accuracy(tmp_path, out))
+    assert done.returncode == 0, done.stderr
+    capture = out / "capture.mcap"
+    with capture.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.attachment_indexes
+    with capture.open("r+b") as f:
+        f.truncate(min(a.offset for a in summary.attachment_indexes))
+    assert read_attachment(capture, "results.json") is None
+    resumed = run_here("run", "--resume", str(out))
+    assert resumed.returncode == 0, resumed.stderr
+    got = _capture(out)
+    assert got.frames == whole_run.frames
+    assert got.events == whole_run.events
+    assert got.arm == whole_run.arm
 
 
 def _first_difference(got: list[tuple[float, tuple[float, ...]]],

@@ -117,8 +117,10 @@ class CaptureParts:
                 self._failed(exc)
 
     def finish(self, attachments: Mapping[str, Path]) -> None:
-        """Attach the run's files and close ``capture.mcap`` (when one was written)."""
-        if self.run is not None and self.run.sink is not None:
+        """Attach the run's files and close ``capture.mcap`` (when one was written, in this
+        session or an earlier one: a run killed after its last trial was in the capture, before
+        the record was attached, is finished by a ``--resume`` that has nothing left to run)."""
+        if self.run is not None and (self.run.sink is not None or self.capture.exists()):
             try:
                 self.run.finish(attachments)
             except OSError as exc:
