@@ -147,10 +147,9 @@ class Track:
 
 
 def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: float,
-             target_rad: float | None = None, pose_rad: float | None = None
-             ) -> tuple[float, float] | None:
-    """When ``joint`` left its pose after a command at ``t0_s`` (before ``t1_s``), and the
-    standard error of that time (s): each of the first :data:`ONSET_REPLIES` replies
+             pose_rad: float, target_rad: float | None = None) -> tuple[float, float] | None:
+    """When ``joint`` left its pose ``pose_rad`` after a command at ``t0_s`` (before ``t1_s``),
+    and the standard error of that time (s): each of the first :data:`ONSET_REPLIES` replies
     :data:`ONSET_TICKS` or more away from the pose at the command, traced back at the speed
     they show (the median slope between every two of the first :data:`SPEED_REPLIES` that have
     not arrived at ``target_rad``; ``speed_rad_s``, the nominal one, if that is outside
@@ -158,15 +157,13 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     and sent after it is stale: one such reply does not move the median). Its standard error
     is that of a median of their spread, less the wire angle's quantisation (already in the
     floor): how much the replies disagree on the start, which a host that read them late by
-    different amounts shows. ``pose_rad``: where the joint was at the command, when known
-    better than from the newest reply of ``track`` before it. None when it did not leave."""
+    different amounts shows. None when it did not leave."""
     t, q = track.t_s, track.q_rad[:, joint]
     i0 = int(np.searchsorted(t, t0_s + SAME_INSTANT_S))
     i1 = int(np.searchsorted(t, t1_s + SAME_INSTANT_S))
-    if i1 <= i0 or (i0 == 0 and pose_rad is None):
+    if i1 <= i0:
         return None
-    pose = q[i0 - 1] if pose_rad is None else pose_rad
-    away = np.abs(q[i0:i1] - pose)
+    away = np.abs(q[i0:i1] - pose_rad)
     moved = np.flatnonzero(away > ONSET_TICKS * TICK_RAD)[:ONSET_REPLIES]
     if len(moved) == 0:
         return None
@@ -186,7 +183,7 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     speed = float(np.median(slopes)) if len(slopes) else speed_rad_s
     if not SPEED_BAND[0] * speed_rad_s <= speed <= SPEED_BAND[1] * speed_rad_s:
         speed = speed_rad_s
-    starts = t[k] - np.abs(q[k] - pose) / speed
+    starts = t[k] - np.abs(q[k] - pose_rad) / speed
     start = float(np.median(starts))
     if len(starts) < 2:
         return start, 0.0
@@ -270,8 +267,8 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                                     & _at_rest(arm_poses, t_c) & _at_rest(twin_poses, t_c)):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
                 goal = float(cmd.angles_rad(lower, upper)[j])
-                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, goal, float(arm_pose[j]))
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, goal, float(twin_pose[j]))
+                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, float(arm_pose[j]), goal)
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_pose[j]), goal)
                 if a is not None and b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]
