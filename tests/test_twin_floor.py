@@ -1,7 +1,9 @@
 """The floor of twin-check counts every timing scatter the capture shows: how much the arm's own
 replies disagree on when a move started (a loaded host reading them late by different amounts),
 the tail of the replies' timing scatter (not only its robust core), and a first move whose
-pose before the command was read in one go (a host busy at the connection)."""
+pose before the command was read in one go (a host busy at the connection); and the alignment of
+moves the host read around a stall (a command stamped late, a move read in one go before the
+next command)."""
 
 from __future__ import annotations
 
@@ -172,7 +174,6 @@ def test_a_command_stamped_late_is_replayed_when_the_arm_got_it(ideal_capture: P
     # arm's reaction to its other commands, a few counts of this one's start left)
     assert max(result.rms_counts) <= 5.0, result.rms_counts
     assert result.verdict == "pass", result.to_json()
-
 
 
 async def _two_moves(port: str, capture: Path) -> None:

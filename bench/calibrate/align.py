@@ -192,12 +192,16 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     return start, math.sqrt(max(0.0, spread2 - quant2) * MEDIAN_EFFICIENCY / len(starts))
 
 
-def _at_rest(track: Track, t_s: float) -> npt.NDArray[np.bool_]:
-    """Per joint, whether the stream's last two replies before ``t_s`` show no motion."""
+def _pose_at(track: Track, t_s: float) -> tuple[FloatArray, npt.NDArray[np.bool_]] | None:
+    """The angles of the stream's newest reply before ``t_s`` and, per joint, whether its last
+    two replies then show no motion (one reply alone: at rest); None when there is none."""
     i = int(np.searchsorted(track.t_s, t_s + SAME_INSTANT_S))
-    if i < 2:
-        return np.full(track.q_rad.shape[1], i == 1)
-    return np.asarray(np.abs(track.q_rad[i - 1] - track.q_rad[i - 2]) <= REST_TICKS * TICK_RAD)
+    if i == 0:
+        return None
+    q = track.q_rad
+    rest = np.full(q.shape[1], True) if i == 1 else np.abs(q[i - 1] - q[i - 2]) <= \
+        REST_TICKS * TICK_RAD
+    return q[i - 1], np.asarray(rest)
 
 
 @dataclass(frozen=True, slots=True)
@@ -232,12 +236,6 @@ class Shifts:
         return float(np.sqrt(np.mean(np.square(self.deviations_s()))))
 
 
-def _newest(track: Track, t_s: float) -> FloatArray | None:
-    """The angles of the newest reply of ``track`` stamped before ``t_s`` (None: there is none)."""
-    i = int(np.searchsorted(track.t_s, t_s + SAME_INSTANT_S))
-    return None if i == 0 else track.q_rad[i - 1]
-
-
 def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command]],
                 settings: RobotSettings, poses: tuple[Track, Track] | None = None) -> Shifts:
     """Per command and joint (``(n, 4)``), the time (s) the arm's joint started moving after the
@@ -259,12 +257,12 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     lower, upper = settings.lower_rad, settings.upper_rad
     arm_poses, twin_poses = (arm, twin) if poses is None else poses
     for k, (t_c, cmd) in enumerate(commands):
-        arm_pose, twin_pose = _newest(arm_poses, t_c), _newest(twin_poses, t_c)
-        if arm_pose is not None and twin_pose is not None:
+        arm_at, twin_at = _pose_at(arm_poses, t_c), _pose_at(twin_poses, t_c)
+        if arm_at is not None and twin_at is not None:
+            (arm_pose, arm_rest), (twin_pose, twin_rest) = arm_at, twin_at
             way = np.abs(np.asarray(cmd.angles_rad(lower, upper)) - arm_pose)
             for j in np.flatnonzero((way >= MIN_WAY_TICKS * TICK_RAD)
-                                    & (np.asarray(cmd.duties) > 0)
-                                    & _at_rest(arm_poses, t_c) & _at_rest(twin_poses, t_c)):
+                                    & (np.asarray(cmd.duties) > 0) & arm_rest & twin_rest):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
                 goal = float(cmd.angles_rad(lower, upper)[j])
                 a = _onset_s(arm, t_c, times[k + 1], int(j), speed, float(arm_pose[j]), goal)
