@@ -69,7 +69,7 @@ def test_rests_that_no_rule_explains_keep_the_prior() -> None:
     assert (fitted.choice, fitted.identified) == ("window", False), fitted.reason
 
 
-def _truth_minus_belief(resumed: bool) -> tuple[float, float]:
+def _truth_minus_belief(resumed: bool | tuple[bool, ...]) -> tuple[float, float]:
     """Joint 1's true angle minus its counter's (rad) of a twin with its Hall sensor 0.2° off,
     at power-up at +0.05 rad and after a move across the sensor (at 0) to −0.05 rad and back."""
     robot = _robot(physics={"j1": {"hall_error_deg": 0.2, "backlash_deg": 0.0,
@@ -99,3 +99,10 @@ def test_a_resumed_twin_agrees_with_its_hall_sensor() -> None:
     tol = 2.5 / RobotSettings().joints[0].counts_per_rad
     assert _truth_minus_belief(resumed=True) == pytest.approx((error, error), abs=tol)
     assert _truth_minus_belief(resumed=False) == pytest.approx((0.0, error), abs=tol)
+    # per joint: each joint's sensor sets its own counter
+    assert _truth_minus_belief(resumed=(True, False, False, False)) == pytest.approx(
+        (error, error), abs=tol)
+    assert _truth_minus_belief(resumed=(False, True, True, True)) == pytest.approx(
+        (0.0, error), abs=tol)
+    with pytest.raises(ValueError, match="resumed names 3 joints; the arm has 4"):
+        ArmEmulator(RobotSettings(), resumed=(True, True, True))

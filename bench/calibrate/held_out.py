@@ -46,7 +46,7 @@ from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.calibrate.divergence import ArmSide, arm_side, diverge
 from armbench.bench.calibrate.model import Fitted, HeldOut
 from armbench.bench.calibrate.output import apply_fit
-from armbench.bench.calibrate.replay import replay_twin
+from armbench.bench.calibrate.replay import Counters, closer_counters, replay_twin
 from armbench.bench.calibrate.stop_rule import STOP_RULE_KEY
 from armbench.bench.calibrate.structure import SpeedOption, kept_speed, speed_keys
 from armbench.drivers.model.settings import RobotSettings
@@ -127,17 +127,17 @@ class Replayed:
 Scores = list[Replayed]
 
 
-def _replay(data: CaptureData, settings: RobotSettings, hall_counters: bool
+def _replay(data: CaptureData, settings: RobotSettings, hall_counters: Counters
             ) -> list[tuple[float, tuple[float, float, float, float]]]:
     from armbench.fakes.clock.vclock import run_virtual
 
     return run_virtual(replay_twin(data, settings, hall_counters=hall_counters))
 
 
-def score(settings: RobotSettings, blocks: Sequence[Block], hall_counters: bool) -> Scores:
+def score(settings: RobotSettings, blocks: Sequence[Block], hall_counters: Counters) -> Scores:
     """Replay ``blocks`` into the twin of ``settings`` (its counters as its Hall sensors set
-    them, or as a new arm's) and compare; on its own virtual-time loop (call it where no loop
-    runs: a worker thread)."""
+    them, or as a new arm's, per joint when a sequence) and compare; on its own virtual-time
+    loop (call it where no loop runs: a worker thread)."""
     out = []
     for block in blocks:
         d = diverge(block.data, _replay(block.data, settings, hall_counters), settings,
@@ -306,12 +306,12 @@ def _prior_speed(j: int, base: RobotSettings, reason: str) -> list[Fitted]:
 
 def choose(fitted: Sequence[Fitted], base: RobotSettings,
            options: Mapping[int, Sequence[SpeedOption]], blocks: Sequence[Block],
-           hall_counters: bool | None = None) -> tuple[list[Fitted], list[JointChoice]]:
+           hall_counters: Counters | None = None) -> tuple[list[Fitted], list[JointChoice]]:
     """``fitted`` with each joint's speed model and the shared values (stop rule, Hall
     positions) as the held-out ``blocks`` choose them (see the module doc), and the choice of
     each joint with its reasons. ``hall_counters``: whether the arm's counters were as its Hall
     sensors set them when the blocks began (a session whose approaches crossed them all); None:
-    as the base twin's replay says (the closer of the two)."""
+    as the base twin's replay says, joint by joint (:func:`closer_counters`)."""
     out = list(fitted)
     if not blocks:
         for j in range(4):
@@ -322,7 +322,8 @@ def choose(fitted: Sequence[Fitted], base: RobotSettings,
     hall = hall_counters
     if hall is None:
         default = {h: score(base, blocks, h) for h in (False, True)}
-        hall = min(default, key=lambda h: float(sum(np.sum(r.rms ** 2) for r in default[h])))
+        hall = closer_counters(*(np.sum([r.rms ** 2 for r in default[h]], axis=0).tolist()
+                                 for h in (False, True)))
     with_prior = list(out)
     for j in range(4):
         with_prior = _with_speed(with_prior, j, _prior_speed(j, base, ""))
@@ -349,7 +350,7 @@ def choose(fitted: Sequence[Fitted], base: RobotSettings,
 
 
 def _judge_shared(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block],
-                  hall: bool) -> list[Fitted]:
+                  hall: Counters) -> list[Fitted]:
     """``fitted`` with the values every joint's reported angle depends on judged on the
     held-out ``blocks``, the speed models as chosen: the stop rule (a structure) kept only where
     the twin with it diverges less than without it on some joint (beyond the noise and the
@@ -368,7 +369,7 @@ def shared_verdict(mine: Scores, other: Scores, need_better: bool) -> tuple[list
     return lost, not need_better or any(_better(mine, other, j, SIGMAS) for j in range(4))
 
 
-def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], hall: bool,
+def _judge(fitted: list[Fitted], base: RobotSettings, blocks: Sequence[Block], hall: Counters,
            keys: Sequence[str], need_better: bool) -> list[Fitted]:
     """``fitted`` with its identified values of ``keys`` put back to the prior where the twin
     with them diverges more than without them on a joint beyond the noise, or (``need_better``)

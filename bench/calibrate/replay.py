@@ -24,8 +24,8 @@ from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.firmware.arm_emulator import ArmEmulator
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 
-__all__ = ["BURST_S", "SILENCE_S", "TIME_SLACK_S", "Session", "TwinTruth", "replay_sessions",
-           "replay_twin", "sessions"]
+__all__ = ["BURST_S", "SILENCE_S", "TIME_SLACK_S", "Counters", "Session", "TwinTruth",
+           "closer_counters", "replay_sessions", "replay_twin", "sessions"]
 
 #: A reply further than this (rad) beyond what full speed allows since the previous one starts a
 #: new session (the capture of another emulator, or an arm moved by hand while off).
@@ -52,6 +52,18 @@ LEAVE_TIMEOUT_S: Final = 0.3
 
 Vec4 = tuple[float, float, float, float]
 Vec3 = tuple[float, float, float]
+#: How the twin's counters start: as its Hall sensors set them (True) or as a new arm's (False),
+#: for the whole arm or per joint.
+Counters = bool | tuple[bool, ...]
+
+
+def closer_counters(new_arm: Sequence[float], by_hall: Sequence[float]) -> tuple[bool, ...]:
+    """Per joint, whether the twin replayed with Hall-set counters came closer to the arm than
+    the one with a new arm's (``new_arm``, ``by_hall``: a divergence per joint; a tie keeps the
+    new arm's). Each joint's sensor sets its own counter once the joint has passed it, so the
+    choice is the joint's: a joint the twin models badly, whose divergence dwarfs the others',
+    does not choose for them."""
+    return tuple(float(b) < float(a) for a, b in zip(new_arm, by_hall, strict=True))
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,15 +87,16 @@ class TwinTruth:
 
 async def replay_twin(data: CaptureData, settings: RobotSettings,
                       truth: TwinTruth | None = None, in_flight: Command | None = None,
-                      offsets_s: Sequence[float] | None = None, hall_counters: bool = False
-                      ) -> list[tuple[float, Vec4]]:
+                      offsets_s: Sequence[float] | None = None,
+                      hall_counters: Counters = False) -> list[tuple[float, Vec4]]:
     """Replay ``data``'s commands into a twin built from ``settings`` on the running loop; the
     twin's replies from the first one at the session's first pose, on the capture's clock (that
     reply aligned with the capture's first). ``in_flight`` is written first, at once; with
     ``offsets_s``, each command that much later (earlier when negative; never before the one
     before it). With ``truth`` given, the twin's truth at each of its replies is appended to
     it. ``hall_counters``: the twin's counters as its Hall sensors set them (an arm that ran
-    before, ``ArmEmulator(resumed=True)``); else as a new arm's, true at power-up."""
+    before, ``ArmEmulator(resumed=True)``); else as a new arm's, true at power-up; per joint
+    when a sequence (:func:`closer_counters`)."""
     loop = asyncio.get_running_loop()
     q0 = data.replies[0][1]
     emulator = ArmEmulator(settings, emulator_settings(settings), initial_q_rad=q0,
@@ -151,7 +164,7 @@ async def replay_twin(data: CaptureData, settings: RobotSettings,
 def replay_sessions(parts: Sequence[Session], settings: RobotSettings,
                     offsets: Sequence[float] | npt.NDArray[np.float64] | None,
                     truth: TwinTruth | None,
-                    hall_counters: bool) -> list[tuple[float, Vec4]]:
+                    hall_counters: Counters) -> list[tuple[float, Vec4]]:
     """Replay each session into a twin of its own, each on a virtual-time loop of its own, the
     replies in order; ``offsets`` moves the commands of all sessions, in order (see
     :func:`replay_twin`)."""

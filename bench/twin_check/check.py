@@ -73,6 +73,7 @@ from armbench.bench.calibrate.replay import (
     TIME_SLACK_S,
     Session,
     TwinTruth,
+    closer_counters,
     replay_sessions,
     replay_twin,
     sessions,
@@ -149,8 +150,9 @@ class TwinCheck:
     twin_replies: list[tuple[float, Vec4]]
     tcp: dict[str, float] | None = None
     sessions: int = 1
-    hall_counters: bool = False
-    """Whether the twin's counters were as its Hall sensors set them (else a new arm's)."""
+    hall_counters: tuple[bool, ...] = (False, False, False, False)
+    """Per joint, whether the twin's counters were as its Hall sensors set them (else a new
+    arm's)."""
     series: Aligned | None = None
     arrivals: list[tuple[float, float | None, float | None]] = field(default_factory=list)
     floor_counts: list[float] = field(default_factory=list)
@@ -182,7 +184,7 @@ class TwinCheck:
                         "mean_dt_s": None if dt is None else float(dt.mean()),
                         "max_abs_dt_s": None if dt is None else float(np.abs(dt).max())},
             "tcp": self.tcp, "replies_compared": self.replies_compared,
-            "sessions": self.sessions, "hall_counters": self.hall_counters,
+            "sessions": self.sessions, "hall_counters": list(self.hall_counters),
             "measurements": [{"name": m.name, "value": m.value, "unit": m.unit,
                               "limit": m.limit.describe() if m.limit else None,
                               "outcome": m.outcome} for m in self.measurements],
@@ -442,14 +444,20 @@ def twin_check(data: CaptureData, settings: RobotSettings,
                          [r for p in parts for r in p.data.replies], data.bad_in_frames)
 
     # the twin's counters as a new arm's or as its Hall sensors set them (they differ after the
-    # twin passes a Hall sensor whose position error its settings give): the closer replay
-    tried = []
-    for hall in (False, True):
+    # twin passes a Hall sensor whose position error its settings give): joint by joint, the
+    # closer replay; replayed once more when the joints choose differently
+    tried = {}
+    for ran in (False, True):
         truth = TwinTruth() if truth_tcp else None
-        twin = replay_sessions(parts, settings, None, truth, hall)
-        tried.append((compare(merged, twin, settings, limits, allow), twin, truth, hall))
-    first, twin, twin_truth, hall = min(tried, key=lambda c: float(np.sum(np.square(
-        c[0].rms_counts))))
+        twin = replay_sessions(parts, settings, None, truth, ran)
+        tried[ran] = (compare(merged, twin, settings, limits, allow), twin, truth)
+    hall = closer_counters(tried[False][0].rms_counts, tried[True][0].rms_counts)
+    if len(set(hall)) == 1:
+        first, twin, twin_truth = tried[hall[0]]
+    else:
+        twin_truth = TwinTruth() if truth_tcp else None
+        twin = replay_sessions(parts, settings, None, twin_truth, hall)
+        first = compare(merged, twin, settings, limits, allow)
     # commands the host stamped late are replayed when the arm got them
     late = stamped_late_s(first.arm_lag_s, [c[0] for c in merged.commands], MAX_REACTION_S)
     if late is not None:

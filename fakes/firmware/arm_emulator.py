@@ -56,23 +56,30 @@ class ArmEmulator:
 
     def __init__(self, robot: RobotSettings | None = None,
                  settings: EmulatorSettings | None = None, faults: Sequence[Fault] = (),
-                 initial_q_rad: Sequence[float] | None = None, resumed: bool = False) -> None:
+                 initial_q_rad: Sequence[float] | None = None,
+                 resumed: bool | Sequence[bool] = False) -> None:
         """``initial_q_rad``: the joints' angles at power-up (rad; default 0: a new arm,
         assembled at its zero pose, its counters at 0 there and EEPROM blank). ``resumed``: an
         arm that ran before, stopped at that pose: each EEPROM holds a "stopped" record of it
         and each counter agrees with its Hall sensor, which has set it (the motor stands the
-        Hall's position error away from the pose the counter says)."""
+        Hall's position error away from the pose the counter says); per joint when a sequence
+        (each joint's sensor sets its own counter, once the joint has passed it)."""
         self.robot = robot or RobotSettings()
         self.settings = settings or emulator_settings(self.robot)
         self.eeproms = [Eeprom(self.settings.eeprom_cells) for _ in self.robot.joints]
         q0 = list(initial_q_rad) if initial_q_rad is not None else [0.0] * len(self.robot.joints)
+        ran = ([bool(resumed)] * len(q0) if isinstance(resumed, bool)
+               else [bool(r) for r in resumed])
+        if len(ran) != len(q0):
+            raise ValueError(f"resumed names {len(ran)} joints; the arm has {len(q0)}")
         physics = self.settings.physics
-        hall_error_rad = ([p.hall_error_rad for p in physics.joints]
-                          if physics is not None and resumed else [0.0] * len(q0))
+        hall_error_rad = ([p.hall_error_rad if r else 0.0 for p, r in zip(physics.joints, ran,
+                                                                             strict=True)]
+                          if physics is not None else [0.0] * len(q0))
         steps = [round((q + e) * j.steps_per_rad)
                  for q, e, j in zip(q0, hall_error_rad, self.robot.joints, strict=True)]
-        if resumed:
-            for eeprom, q, j in zip(self.eeproms, q0, self.robot.joints, strict=True):
+        for eeprom, q, j, r in zip(self.eeproms, q0, self.robot.joints, ran, strict=True):
+            if r:
                 eeprom.store("stopped", round(q * j.counts_per_rad))
                 eeprom.land([0.0] * len(eeprom.last_written))
         self.clock = BusClock()
