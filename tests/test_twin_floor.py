@@ -70,6 +70,24 @@ def test_a_start_read_late_by_different_amounts_has_a_standard_error() -> None:
     assert shifts.onset_se_s[0, 0] == 0.0                  # a joint that did not move
 
 
+def test_the_arms_lag_is_the_arms_whatever_the_twin_did() -> None:
+    """The arm's reaction to a command (its start less the command's stamp: what finds the
+    commands a stalled host stamped late) comes from the arm's replies alone. A twin that was
+    still moving at the command, or never moved, measures no start shift there, and used to
+    leave the arm's lag unmeasured too: which commands counted as stamped late then hung on the
+    twin's other joints, and so did every joint's figure."""
+    arm, command = _ramp()
+    still = Track(arm.t_s, np.zeros_like(arm.q_rad))             # a twin that never moved
+    drifting = Track(arm.t_s, arm.q_rad.copy())
+    drifting.q_rad[:, 2] = -0.5 * arm.t_s                          # moving at the command
+    for twin in (arm, still, drifting):
+        shifts = move_shifts(arm, twin, [(0.1, command)], IDEAL)
+        assert shifts.arm_lag_s is not None
+        assert shifts.arm_lag_s[0] == pytest.approx(START_S - 0.1, abs=1e-3)
+    assert move_shifts(arm, still, [(0.1, command)], IDEAL).measured == []
+    assert move_shifts(arm, drifting, [(0.1, command)], IDEAL).measured == []
+
+
 def test_the_timing_rms_counts_the_tail() -> None:
     """A few replies read a little late (not enough to be left out) barely move the robust
     spread, but a perfect twin's RMS divergence meets them in full: the floor's timing part is

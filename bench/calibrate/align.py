@@ -214,7 +214,8 @@ class Shifts:
     measured: list[tuple[int, float]]
     onset_se_s: FloatArray | None = None
     #: Per command, the earliest of the arm's measured starts after it less its stamp (s; nan
-    #: where none was measured): the arm's reaction time as the capture's stamps show it.
+    #: where none was measured): the arm's reaction time as the capture's stamps show it, from
+    #: the arm's replies alone (every joint that rested and has the way, whatever the twin did).
     arm_lag_s: FloatArray | None = None
 
     def deviations_s(self) -> list[float]:
@@ -258,19 +259,26 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     arm_poses, twin_poses = (arm, twin) if poses is None else poses
     for k, (t_c, cmd) in enumerate(commands):
         arm_at, twin_at = _pose_at(arm_poses, t_c), _pose_at(twin_poses, t_c)
-        if arm_at is not None and twin_at is not None:
-            (arm_pose, arm_rest), (twin_pose, twin_rest) = arm_at, twin_at
-            way = np.abs(np.asarray(cmd.angles_rad(lower, upper)) - arm_pose)
+        if arm_at is not None:
+            arm_pose, arm_rest = arm_at
+            goals = np.asarray(cmd.angles_rad(lower, upper))
+            way = np.abs(goals - arm_pose)
+            # the arm's start is the arm's (its lag too, whatever the twin did); a shift needs
+            # the twin's start as well
             for j in np.flatnonzero((way >= MIN_WAY_TICKS * TICK_RAD)
-                                    & (np.asarray(cmd.duties) > 0) & arm_rest & twin_rest):
+                                    & (np.asarray(cmd.duties) > 0) & arm_rest):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
-                goal = float(cmd.angles_rad(lower, upper)[j])
+                goal = float(goals[j])
                 a = _onset_s(arm, t_c, times[k + 1], int(j), speed, float(arm_pose[j]), goal)
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_pose[j]), goal)
-                if a is not None and b is not None:
+                if a is None:
+                    continue
+                lag[k] = np.fmin(lag[k], a[0] - t_c)
+                if twin_at is None or not twin_at[1][j]:
+                    continue
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_at[0][j]), goal)
+                if b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]
-                    lag[k] = np.fmin(lag[k], a[0] - t_c)
                     measured.append((int(j), float(shift[j])))
         out[k], onset_se[k] = shift, se
     return Shifts(out, measured, onset_se, lag)
