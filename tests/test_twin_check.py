@@ -8,16 +8,17 @@ import asyncio
 import contextlib
 import itertools
 import json
+import multiprocessing
 import tomllib
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from conftest import cli
-from foreign_arms.laps import capture_lap
+from foreign_arms.laps import lap_in_process
 from foreign_arms.serve import SHARED_MISSING, foreign_arm, shared_arm_script
 from hidden_arms import draw_hidden, write_hidden
 
@@ -283,13 +284,14 @@ Truth = list[tuple[float, list[float]]]
 def _foreign_captures(folder: Path, arms: Sequence[tuple[str, tuple[str, ...]]],
                       full: bool = True) -> list[tuple[Path, Truth]]:
     """Real-time captures of the lap (``full``: every part of it) of several foreign arms, and
-    of their trackers' TCP where they have one, taken at once (each lap on a thread and an
-    event loop of its own: the laps wait on their arms), in order."""
-    with contextlib.ExitStack() as up, ThreadPoolExecutor(len(arms)) as pool:
+    of their trackers' TCP where they have one, taken at once (each lap in a process of its
+    own, as each arm is: the laps wait on their arms, and as threads of one process they
+    would wait on each other's Python work too), in order."""
+    with contextlib.ExitStack() as up, ProcessPoolExecutor(
+            len(arms), mp_context=multiprocessing.get_context("spawn")) as pool:
         running = [up.enter_context(foreign_arm(name, *args)) for name, args in arms]
         paths = [folder / f"{k}-{name}.jsonl" for k, (name, _) in enumerate(arms)]
-        laps = [pool.submit(asyncio.run, capture_lap(arm.url, path, full=full,
-                                                     tracker=arm.tracker))
+        laps = [pool.submit(lap_in_process, arm.url, path, full, arm.tracker)
                 for arm, path in zip(running, paths, strict=True)]
         return [(path, [(row[0], row[1:4]) for row in lap.result()])
                 for path, lap in zip(paths, laps, strict=True)]

@@ -66,6 +66,15 @@ async def capture_lap(url: str, capture: Path, *, full: bool = True,
     return [[s[0] - writer.t0_s, *s[1:]] for s in stream.samples]
 
 
+def lap_in_process(url: str, capture: Path, full: bool,
+                   tracker: tuple[str, int] | None) -> list[list[float]]:
+    """:func:`capture_lap` on an event loop of its own, for a process of its own: laps taken at
+    once as threads of one process share its interpreter lock, and a lap's host waits for the
+    others' Python work between two of its arm's replies (a loaded machine makes that tens of
+    milliseconds)."""
+    return asyncio.run(capture_lap(url, capture, full=full, tracker=tracker))
+
+
 def write_truth(samples: list[list[float]], path: Path) -> None:
     """Keep the tracker's samples beside the capture (JSON)."""
     path.write_text(json.dumps(samples))
