@@ -273,9 +273,12 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                 if a is None:
                     continue
                 lag[k] = np.fmin(lag[k], a[0] - t_c)
-                if twin_at is None or not twin_at[1][j]:
+                if twin_at is None:
                     continue
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_at[0][j]), goal)
+                twin_pose, twin_rest = twin_at
+                if not twin_rest[j]:
+                    continue
+                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_pose[j]), goal)
                 if b is not None:
                     shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
                     se[j] = a[1]
