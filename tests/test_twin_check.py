@@ -326,9 +326,10 @@ def _check(capture: Path, settings: RobotSettings,
 
 
 JITTER_GEAR = 39.5  # jitter_arm.py's hidden joint-3 gear
-#: The jitter arm's held-out accuracy run, captured over TCP with three busy loops beside it,
-#: and the settings ``armbench calibrate`` fitted to that arm before it (joints 2 and 3).
-JITTER_HELD_OUT = Path(__file__).parent / "fixtures" / "twin_check"
+#: The folder of the jitter arm's held-out accuracy run, captured over TCP with three busy loops
+#: beside it, and of the settings ``armbench calibrate`` fitted to that arm before it (joints 2
+#: and 3).
+JITTER_FIXTURES = Path(__file__).parent / "fixtures" / "twin_check"
 
 
 def test_each_joint_chooses_its_own_counters() -> None:
@@ -339,8 +340,8 @@ def test_each_joint_chooses_its_own_counters() -> None:
     divergence, the default twin's joint 3 (140 counts off) chose for joint 1: 7.8 counts
     against the calibrated twin's 6.9 on this capture (and the other way round in a CI run,
     failing ``test_twin_trust``'s never-worse check)."""
-    capture = JITTER_HELD_OUT / "jitter_held_out.mcap"
-    fitted = load_settings(JITTER_HELD_OUT / "jitter_fitted.toml")
+    capture = JITTER_FIXTURES / "jitter_held_out.mcap"
+    fitted = load_settings(JITTER_FIXTURES / "jitter_fitted.toml")
     default = twin_check(load_capture(capture, RobotSettings()), RobotSettings())
     calibrated = twin_check(load_capture(capture, fitted), fitted)
     assert default.rms_counts[2] > 20 * calibrated.rms_counts[2]  # joint 3 modelled badly

@@ -73,9 +73,8 @@ class ArmEmulator:
         if len(ran) != len(q0):
             raise ValueError(f"resumed names {len(ran)} joints; the arm has {len(q0)}")
         physics = self.settings.physics
-        hall_error_rad = ([p.hall_error_rad if r else 0.0 for p, r in zip(physics.joints, ran,
-                                                                             strict=True)]
-                          if physics is not None else [0.0] * len(q0))
+        hall_error_rad = [0.0] * len(q0) if physics is None else [
+            p.hall_error_rad if r else 0.0 for p, r in zip(physics.joints, ran, strict=True)]
         steps = [round((q + e) * j.steps_per_rad)
                  for q, e, j in zip(q0, hall_error_rad, self.robot.joints, strict=True)]
         for eeprom, q, j, r in zip(self.eeproms, q0, self.robot.joints, ran, strict=True):
