@@ -2,7 +2,8 @@
 the first reply of each ``period_s`` slot that has one, a missing truth tried again at the next
 reply, a block written when full or when its interval has passed. Checked against the rule
 written out here reply by reply, on times that fall on, just before and just after the
-boundaries, since the writer runs its checks only from a precomputed time on."""
+boundaries, since the writer runs its checks only from a precomputed time on; through the
+writer's ``reply`` and through the compiled open block the driver writes to (``reply_sink``)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from armbench.drivers.capture.open_block import IN_FLAG, OpenBlock
 from armbench.drivers.capture.part import PartWriter, read_part
 from armbench.drivers.model.protocol import Reply
 
@@ -41,11 +43,12 @@ _STEP = st.one_of(st.sampled_from([0.0, 0.0024, 0.1, 0.7]),
                   st.sampled_from([0.1 - 1e-12, 0.1 + 1e-12, 1e-7]))
 
 
+@pytest.mark.parametrize("via", ["writer", "sink"])
 @settings(max_examples=150, deadline=None)
 @given(t0_s=st.sampled_from([0.0, 10.0, 1234.5678]), period_s=st.sampled_from([0.1, 0.05]),
        records=st.integers(1, 9), interval_s=st.sampled_from([0.25, 1.0, 20.0]),
        steps=st.lists(st.tuples(_STEP, st.booleans()), max_size=60))
-def test_truth_and_blocks_follow_the_rule(tmp_path_factory: pytest.TempPathFactory,
+def test_truth_and_blocks_follow_the_rule(tmp_path_factory: pytest.TempPathFactory, via: str,
                                           t0_s: float, period_s: float, records: int,
                                           interval_s: float,
                                           steps: list[tuple[float, bool]]) -> None:
@@ -61,9 +64,10 @@ def test_truth_and_blocks_follow_the_rule(tmp_path_factory: pytest.TempPathFacto
 
     writer = PartWriter(path, t0_s, truth=lambda: current[0], period_s=period_s,
                         batch_records=records, batch_interval_s=interval_s)
+    reply = writer.reply if via == "writer" else writer.reply_sink().reply
     for t_s, q in zip(times, truths, strict=True):
         current[0] = q
-        writer.reply(t_s, REPLY)
+        reply(t_s, REPLY)
     writer.close()
 
     blocks = list(read_part(path))
@@ -73,3 +77,19 @@ def test_truth_and_blocks_follow_the_rule(tmp_path_factory: pytest.TempPathFacto
     assert [float(x) for b in blocks for x in b.truth_t_s] == [times[i] - t0_s for i in sampled]
     assert [tuple(float(v) for v in row) for b in blocks for row in b.truth_rad] == [
         truths[i] for i in sampled]
+
+
+def test_the_open_block_calls_due_from_its_time_or_when_full() -> None:
+    due: list[float] = []
+    block = OpenBlock(10.0, 3, due.append)
+    block.due_s = 10.5
+    block.reply(10.25, REPLY)  # before due_s, one record of three: nothing due
+    block.add(10.3, 0, b"$out#")
+    assert due == []
+    block.reply(10.5, REPLY)  # at due_s, and the block full
+    block.due_s = 99.0
+    block.reply(10.75, REPLY)  # full already: due again
+    assert due == [10.5, 10.75]
+    assert block.take() == ([0.25, 10.3 - 10.0, 0.5, 0.75], [IN_FLAG, 0, IN_FLAG, IN_FLAG],
+                            [REPLY, b"$out#", REPLY, REPLY])
+    assert block.take() == ([], [], [])

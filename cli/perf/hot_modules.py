@@ -20,6 +20,7 @@ HOT_MODULES = (
     "armbench.drivers.host.intake",
     "armbench.drivers.host.waiters",
     "armbench.drivers.host.arrival",
+    "armbench.drivers.capture.open_block",
 )
 
 

@@ -29,7 +29,7 @@ import math
 import re
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import IO, Any, Final, Literal, NamedTuple
+from typing import IO, Any, Final, Literal, NamedTuple, Protocol
 
 from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.errors import ArmbenchError
@@ -46,6 +46,7 @@ __all__ = [
     "CaptureRecord",
     "CaptureWriter",
     "ReplayCommand",
+    "ReplySink",
     "capture_end_s",
     "capture_options",
     "capture_stopped",
@@ -164,6 +165,14 @@ def frame_text(data: bytes) -> str:
     return data.decode("ascii", "backslashreplace")
 
 
+class ReplySink(Protocol):
+    """Where the driver's per-reply path writes each valid reply
+    (:meth:`CaptureWriter.reply_sink`)."""
+
+    def reply(self, t_s: float, data: bytes) -> None:
+        """One valid reply, the wire bytes of exactly one frame, read at loop time ``t_s``."""
+
+
 class CaptureWriter:
     """Appends records to a JSON Lines file in batches. Times are given by the caller (loop time)
     and stored relative to ``t0_s``."""
@@ -226,6 +235,11 @@ class CaptureWriter:
         """Add a reply the codec validated, as the wire bytes of exactly one frame (the
         driver's short path): :meth:`frame` with ``"in"``."""
         self.frame(t_s, "in", data.decode("ascii"))
+
+    def reply_sink(self) -> ReplySink:
+        """What the driver hands each valid reply to: this writer (:meth:`reply`), or a faster
+        object of a subclass that records the same."""
+        return self
 
     def _added(self, t_s: float) -> None:
         self.records += 1

@@ -12,7 +12,6 @@ cut short ends at its last whole block.
 from __future__ import annotations
 
 import json
-import math
 import struct
 from array import array
 from collections.abc import Callable, Iterator, Mapping
@@ -23,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.drivers.capture.jsonl import CaptureError, CaptureWriter, Direction
+from armbench.drivers.capture.open_block import IN_FLAG, OpenBlock
 
 __all__ = ["BLOCK_RECORDS", "BLOCK_S", "ERROR_FLAG", "IN_FLAG", "TRUTH_PERIOD_S", "PartBlock",
            "PartWriter", "first_part_time", "part_span", "read_part"]
@@ -35,8 +35,7 @@ BLOCK_S: Final = 20.0
 
 #: Seconds between two truth samples at least (the derived topics' rate, 10 Hz).
 TRUTH_PERIOD_S: Final = 0.1
-#: Flag bits of a record: arm → host, a framing error.
-IN_FLAG: Final = 1
+#: Flag bit of a record with a framing error (``IN_FLAG``: arm → host).
 ERROR_FLAG: Final = 2
 
 #: Loop seconds a reply's due check runs early, before a slot boundary or a flush interval ends:
@@ -64,12 +63,13 @@ class PartBlock(NamedTuple):
 
 class PartWriter(CaptureWriter):
     """A connection's capture part, written where the trial runs (a worker process, or the
-    runner): the driver's frames (the :class:`~armbench.drivers.capture.jsonl.CaptureWriter` calls;
-    a reply costs three appends), the ground truth beside the replies (sampled every
-    ``period_s`` from ``truth``, a callable giving the newest truth in rad or None) and bench
-    events. The truth is taken at the first reply of each ``period_s`` slot of the part's
-    clock, where :class:`~armbench.drivers.capture.mcap_writer.McapCapture` samples the replies, so
-    the two stand side by side."""
+    runner): the driver's frames (the :class:`~armbench.drivers.capture.jsonl.CaptureWriter`
+    calls; the replies go straight to the compiled open block, :meth:`reply_sink`), the ground
+    truth beside the replies (sampled every ``period_s`` from ``truth``, a callable giving the
+    newest truth in rad or None) and bench events. The truth is taken at the first reply of each
+    ``period_s`` slot of the part's clock, where
+    :class:`~armbench.drivers.capture.mcap_writer.McapCapture` samples the replies, so the two
+    stand side by side."""
 
     def __init__(self, path: str | Path, t0_s: float, *,
                  truth: Callable[[], tuple[float, ...] | None] | None = None,
@@ -83,9 +83,7 @@ class PartWriter(CaptureWriter):
         self.batches = 0
         self._written = 0
         self._last_flush = t0_s
-        self._times = array("d")
-        self._flags = bytearray()
-        self._frames: list[bytes] = []
+        self._block = OpenBlock(t0_s, self.batch_records, self._due)
         self._truth_t = array("d")
         self._truth_q = array("d")
         self._joints = 0
@@ -93,8 +91,6 @@ class PartWriter(CaptureWriter):
         self._truth = truth
         self._period_s = period_s
         self._slot = -1.0
-        self._due_s = -math.inf
-        """Loop time from which a reply runs the truth and flush checks (:meth:`_due`)."""
         try:
             self._bin: IO[bytes] | None = self.path.open("wb")
         except OSError as exc:
@@ -104,25 +100,26 @@ class PartWriter(CaptureWriter):
     @property
     def records(self) -> int:  # type: ignore[override]
         """Records accepted so far."""
-        return self._written + len(self._frames)
+        return self._written + len(self._block.frames)
 
     @property
     def buffered(self) -> int:
-        return len(self._frames)
+        return len(self._block.frames)
 
     def reply(self, t_s: float, data: bytes) -> None:
-        self._times.append(t_s - self.t0_s)
-        self._frames.append(data)
-        self._flags.append(IN_FLAG)
-        if t_s >= self._due_s or len(self._frames) >= self.batch_records:
-            self._due(t_s)
+        self._block.reply(t_s, data)
+
+    def reply_sink(self) -> OpenBlock:
+        """The open block: its compiled ``reply`` is :meth:`reply` without a Python call."""
+        return self._block
 
     def _due(self, t_s: float) -> None:
         """The checks of a reply at ``t_s`` (a new truth slot, a block to write), which a reply
-        runs only from ``_due_s`` on: most replies fall inside a slot and a block's interval."""
+        runs only from the block's ``due_s`` on: most replies fall inside a slot and a block's
+        interval."""
         if self._truth is not None and (t_s - self.t0_s) // self._period_s != self._slot:
             self._sample_truth(t_s)
-        if (len(self._frames) >= self.batch_records
+        if (len(self._block.frames) >= self.batch_records
                 or t_s - self._last_flush >= self.batch_interval_s):
             self.flush(t_s)
         self._set_due()
@@ -133,7 +130,7 @@ class PartWriter(CaptureWriter):
         due = self._last_flush + self.batch_interval_s
         if self._truth is not None:
             due = min(due, self.t0_s + (self._slot + 1.0) * self._period_s)
-        self._due_s = due - _DUE_EARLY_S
+        self._block.due_s = due - _DUE_EARLY_S
 
     def _sample_truth(self, t_s: float) -> None:
         assert self._truth is not None
@@ -149,10 +146,8 @@ class PartWriter(CaptureWriter):
         if direction == "in":
             self.reply(t_s, data)
             return
-        self._times.append(t_s - self.t0_s)
-        self._frames.append(data)
-        self._flags.append(0)
-        if (len(self._frames) >= self.batch_records
+        self._block.add(t_s, 0, data)
+        if (len(self._block.frames) >= self.batch_records
                 or t_s - self._last_flush >= self.batch_interval_s):
             self.flush(t_s)
 
@@ -160,10 +155,9 @@ class PartWriter(CaptureWriter):
         if error is None:
             self.frame(t_s, direction, frame)
             return
-        self._extra.append({"i": len(self._frames), "error": error})
-        self._times.append(t_s - self.t0_s)
-        self._frames.append(frame.encode("utf-8", "backslashreplace"))
-        self._flags.append((IN_FLAG if direction == "in" else 0) | ERROR_FLAG)
+        self._extra.append({"i": len(self._block.frames), "error": error})
+        self._block.add(t_s, (IN_FLAG if direction == "in" else 0) | ERROR_FLAG,
+                        frame.encode("utf-8", "backslashreplace"))
 
     def event(self, t_s: float, kind: str, suite: str = "", trial: int = -1,
               detail: Mapping[str, Any] | None = None) -> None:
@@ -172,22 +166,19 @@ class PartWriter(CaptureWriter):
                             "trial": trial, "detail": dict(detail or {})})
 
     def flush(self, t_s: float | None = None) -> None:
-        if self._bin is None or not (self._frames or self._extra or self._truth_t):
+        if self._bin is None or not (self._block.frames or self._extra or self._truth_t):
             return
-        frames = self._frames
+        times, flags, frames = self._block.take()
         lengths = np.fromiter(map(len, frames), dtype="<u2", count=len(frames))
         extra = "".join(json.dumps(x) + "\n" for x in self._extra).encode()
         blob = b"".join(frames)
         self._bin.write(b"".join((
             _BLOCK.pack(_BLOCK_MAGIC, len(frames), len(blob), len(extra), len(self._truth_t),
                         self._joints),
-            self._times.tobytes(), bytes(self._flags), lengths.tobytes(), blob,
+            array("d", times).tobytes(), bytes(flags), lengths.tobytes(), blob,
             self._truth_t.tobytes(), self._truth_q.tobytes(), extra)))
         self._bin.flush()
         self._written += len(frames)
-        self._times = array("d")
-        self._flags = bytearray()
-        self._frames = []
         self._truth_t = array("d")
         self._truth_q = array("d")
         self._extra = []

@@ -13,21 +13,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Protocol
 
+from armbench.drivers.capture.jsonl import ReplySink
 from armbench.drivers.host.link_outages import OutageLog
 from armbench.drivers.host.replies import ReplyStream
 from armbench.drivers.host.state import JointState
 from armbench.drivers.host.waiters import Waiters
 
-__all__ = ["ReplyCapture", "ReplyIntake"]
-
-
-class ReplyCapture(Protocol):
-    """Where the intake writes each reply's bytes (a capture writer)."""
-
-    def reply(self, t_s: float, data: bytes) -> None:
-        """One valid reply, read at loop time ``t_s``."""
+__all__ = ["ReplyIntake"]
 
 
 class ReplyIntake:
@@ -51,7 +44,7 @@ class ReplyIntake:
         self.failed = failed
         self.clock: Callable[[], float] = _no_clock
         """The loop's time (set when the link opens)."""
-        self.capture: ReplyCapture | None = None
+        self.capture: ReplySink | None = None
         self.recorders: list[list[JointState]] = []
         """Lists every new state is appended to (``ArmLink.record_states``)."""
         self.state: JointState | None = None

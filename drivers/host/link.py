@@ -130,7 +130,8 @@ class ArmLink:
         """Every loss of the link (see :mod:`~armbench.drivers.host.link_outages`)."""
         self._intake = ReplyIntake(self._replies, self._waiters, self.outages,
                                    opts.reply_timeout_s, self._on_chunk, self._reader_failed)
-        self._intake.capture = self._capture
+        if self._capture is not None:
+            self._intake.capture = self._capture.reply_sink()
         self._notes = ServerNotes()
         self._note_log = LogLimit(log, logging.WARNING, "server notes")
         self.server_note: str | None = None
@@ -187,7 +188,7 @@ class ArmLink:
         try:
             if self._capture is None and self.capture_path is not None:
                 self._capture = CaptureWriter(self.capture_path, loop.time())
-                self._intake.capture = self._capture
+                self._intake.capture = self._capture.reply_sink()
             self._reader = loop.create_task(self._read_loop(), name=f"arm-reader {self.port}")
             if self._intake.state is None and await self._wait(
                     any_state, loop.time() + self.connect_timeout_s, reply_timeout=False) is None:
