@@ -17,7 +17,8 @@ replies dropped (``emulator.realtime_factor``); ``driver``, full-duty ``move_joi
 ``fake://`` (``driver.fake_realtime_factor``). The two do not ask the emulator for the same work
 (the driver's moves stop at each pose, the bare emulator's do not), so the host's own cost is
 counted against a third: ``replay``, the emulator sent the very commands the driver sent, at the
-same loop times, its replies dropped: the same emulator work without the host
+same loop times, its replies handed to a receiver that drops them (``set_receiver``, as the
+driver receives them): the same emulator work and hand-over without the host
 (``instructions.host_per_reply``). ``capture`` is the driver's workload writing a trial's capture
 part with the emulator's truth, as a trial does (``instructions.capture_per_reply``). Needs
 ``valgrind`` on ``PATH``; takes a few minutes (callgrind runs Python about 50 times slower).
