@@ -22,6 +22,7 @@ from armbench.fakes.clock.vclock import run_virtual
 from armbench.fakes.firmware.arm_emulator import ArmEmulator
 from armbench.fakes.firmware.emulator_settings import emulator_settings
 from armbench.fakes.links.fake_transport import FAKE_CAPABILITIES, FakeTransport
+from armbench.fakes.links.handover import CountedSink
 from armbench.fakes.links.in_process import MAX_UNREAD_BYTES, InProcessTransport
 
 PORT = "fake://?profile=ideal"
@@ -57,6 +58,43 @@ def test_kept_chunks_are_read_before_the_receiver_gets_any() -> None:
     assert len(replies(pushed)) >= 15
     assert len(replies(first + kept + pushed)) == sum(map(len, map(replies, (first, kept, pushed))))
     assert bytes_in == len(first) + len(kept) + len(pushed)
+
+
+def test_a_counted_sink_hands_over_and_counts() -> None:
+    got: list[bytes] = []
+    sink = CountedSink(got.append)
+    sink(b"$00001,00002,00003,00004#")
+    sink(b"ab")
+    assert got == [b"$00001,00002,00003,00004#", b"ab"]
+    assert sink.bytes == 27
+
+
+def test_the_receiver_is_the_peers_sink_while_nothing_is_kept() -> None:
+    """With a receiver and nothing kept the emulator calls it through a counted sink (no
+    interpreted frame a chunk); without one it calls the transport's own, which keeps chunks for
+    reads. Every byte is counted either way, the sink's too once it is let go."""
+    async def main() -> tuple[list[int], int, int]:
+        transport = FakeTransport(PORT, SerialSettings())
+        await transport.open()
+        emulator = transport.peer
+        assert emulator is not None
+        first = await transport.read()  # waits for the first reply
+        pushed: list[bytes] = []
+        transport.set_receiver(pushed.append)
+        assert isinstance(emulator.uart.host_sink, CountedSink)
+        await asyncio.sleep(0.05)
+        counts = [transport.bytes_in - len(first), sum(map(len, pushed))]
+        transport.set_receiver(None)
+        assert not isinstance(emulator.uart.host_sink, CountedSink)
+        kept = await transport.read()
+        counts.append(transport.bytes_in - len(first))
+        await transport.close()
+        return counts, len(kept), transport.bytes_in - len(first)
+
+    (direct, pushed, after_read), kept, closed = run_virtual(main)
+    assert direct == pushed > 0
+    assert after_read == pushed + kept
+    assert closed == after_read
 
 
 def test_close_wakes_a_waiting_read_and_leaves_a_given_emulator_running() -> None:

@@ -21,6 +21,7 @@ HOT_MODULES = (
     "armbench.drivers.host.waiters",
     "armbench.drivers.host.arrival",
     "armbench.drivers.capture.open_block",
+    "armbench.fakes.links.handover",
 )
 
 

@@ -10,7 +10,9 @@ host's bytes in a plain call. :class:`InProcessTransport` makes a
 - chunks are kept for :meth:`~InProcessTransport.read` in a bounded buffer (a host that leaves
   more than :attr:`~InProcessTransport.max_unread_bytes` unread has lost the port, as a UART
   that overruns), or handed to a receiver the moment they arrive
-  (:meth:`~InProcessTransport.set_receiver`: no future and no task switch per reply);
+  (:meth:`~InProcessTransport.set_receiver`: no future and no task switch per reply, and,
+  while none is kept, no interpreted frame either: the peer calls the receiver through a
+  compiled byte count, :class:`~armbench.fakes.links.handover.CountedSink`);
 - a read waits on one future, woken by the next chunk, by :meth:`~InProcessTransport.close`
   (a lost port) or by the peer's loss (:meth:`~InProcessTransport._peer_lost`);
 - a peer given to the constructor is the caller's to close; one the transport makes itself
@@ -31,6 +33,7 @@ from typing import ClassVar, Generic, Protocol, TypeVar
 from armbench.drivers.model.settings import SerialSettings
 from armbench.drivers.transports.base import READ_CHUNK, Transport
 from armbench.drivers.transports.capabilities import Capabilities
+from armbench.fakes.links.handover import CountedSink
 
 __all__ = ["MAX_UNREAD_BYTES", "InProcessPeer", "InProcessTransport"]
 
@@ -84,6 +87,9 @@ class InProcessTransport(Transport, Generic[PeerT]):
         return cls.declared
 
     def __init__(self, port: str, serial: SerialSettings, peer: PeerT | None = None) -> None:
+        self._direct: CountedSink | None = None
+        """The peer's sink while chunks go straight to the receiver (:meth:`_route`)."""
+        self._bytes_in = 0
         super().__init__(port, serial)
         self._given = peer
         self._peer: PeerT | None = peer
@@ -100,6 +106,17 @@ class InProcessTransport(Transport, Generic[PeerT]):
         return self._peer
 
     @property
+    def bytes_in(self) -> int:
+        """Payload bytes received: returned by :meth:`read` or handed to the receiver."""
+        direct = self._direct
+        return self._bytes_in if direct is None else self._bytes_in + direct.bytes
+
+    @bytes_in.setter
+    def bytes_in(self, value: int) -> None:
+        direct = self._direct
+        self._bytes_in = value if direct is None else value - direct.bytes
+
+    @property
     def is_open(self) -> bool:
         """Opened, not closed, and the port not lost (:meth:`_peer_lost`)."""
         return self._open and self._lost_reason is None
@@ -108,6 +125,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
         """Take what ``peer`` sends from now on; the transport is open."""
         peer.attach_host(self._receive)
         self._open = True
+        self._route()
 
     def set_receiver(self, receiver: Callable[[bytes], None] | None) -> None:
         """Hand each chunk to ``receiver`` the moment it arrives (in the peer's callback, at
@@ -115,6 +133,29 @@ class InProcessTransport(Transport, Generic[PeerT]):
         reply. Chunks already kept are read first; :meth:`read` then waits for more kept chunks
         or the end of the connection. None: back to plain reads."""
         self._receiver = receiver
+        self._route()
+
+    def _route(self) -> None:
+        """Attach the peer to the receiver itself (through a :class:`CountedSink`) while one is
+        set and no chunk is kept, else to :meth:`_receive`; a sink let go leaves its count in
+        :attr:`bytes_in`."""
+        peer, receiver, direct = self._peer, self._receiver, self._direct
+        if peer is None or not self._open:
+            return
+        if receiver is not None and not self._chunks:
+            if direct is None or direct.receiver != receiver:
+                self._let_go_direct()
+                self._direct = CountedSink(receiver)
+                peer.attach_host(self._direct)
+            return
+        if direct is not None:
+            self._let_go_direct()
+            peer.attach_host(self._receive)
+
+    def _let_go_direct(self) -> None:
+        direct, self._direct = self._direct, None
+        if direct is not None:
+            self._bytes_in += direct.bytes
 
     def _receive(self, data: bytes) -> None:
         """The peer's sink (:meth:`InProcessPeer.attach_host`): a chunk at its loop time."""
@@ -162,6 +203,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
         self._chunks.clear()
         self._unread = 0
         self.bytes_in += len(data)
+        self._route()  # a receiver now takes the chunks straight
         return data
 
     def _read_some(self) -> bytes:
@@ -190,6 +232,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
             return
         self._open = False
         self._receiver = None
+        self._let_go_direct()
         if self._waiter is not None and not self._waiter.done():
             self._waiter.set_exception(self._lost("transport closed"))
         peer = self._peer
