@@ -153,6 +153,7 @@ class InProcessTransport(Transport, Generic[PeerT]):
             peer.attach_host(self._receive)
 
     def _let_go_direct(self) -> None:
+        """Stop using the counted sink, its count kept in :attr:`bytes_in`."""
         direct, self._direct = self._direct, None
         if direct is not None:
             self._bytes_in += direct.bytes
