@@ -155,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
             runs = [count(mode, size, os.path.join(tmp, f"{size}.json"))
                     for size in (args.short, args.long)]
             per_s[mode] = (runs[1][0] - runs[0][0]) / span_s
-            replies = replies or runs[1][1] - runs[0][1]
+            if mode == "driver":
+                replies = runs[1][1] - runs[0][1]
             print(f"instructions.{mode}_per_sim_s  {per_s[mode] / 1e6:10.2f} M/sim s")
     print(f"instructions.driver_per_bare     {per_s['driver'] / per_s['bare']:10.3f} x   "
           f"(the host's share: {(per_s['driver'] - per_s['bare']) / 1e6:.2f} M/sim s)")

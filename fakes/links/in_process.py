@@ -159,12 +159,8 @@ class InProcessTransport(Transport, Generic[PeerT]):
             self._bytes_in += direct.bytes
 
     def _receive(self, data: bytes) -> None:
-        """The peer's sink (:meth:`InProcessPeer.attach_host`): a chunk at its loop time."""
-        receiver = self._receiver
-        if receiver is not None and not self._chunks:
-            self.bytes_in += len(data)
-            receiver(data)
-            return
+        """The peer's sink while no receiver takes the chunks, or chunks are still kept
+        (:meth:`_route`): a chunk at its loop time, kept for :meth:`read`."""
         if self._lost_reason is not None:
             return
         unread = self._unread + len(data)
