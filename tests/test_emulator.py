@@ -20,7 +20,7 @@ from build_trace import every_truth
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from armbench.bench.suites._common import TruthProbe
+from armbench.bench.suites.truth_probe import TRUTH_SEARCH
 from armbench.drivers.model.protocol import Command, FrameError, Framer, Reply
 from armbench.drivers.model.settings import RobotSettings
 from armbench.drivers.model.twin_parameters import JOINT_PARAMETERS
@@ -555,7 +555,7 @@ def test_the_truth_history_keeps_the_newest_samples_the_bench_searches() -> None
     """The history is bounded (a longer one only feeds the garbage collector) and holds more
     than the newest samples a reply's truth is looked for among; every sample still passes
     ``uart.on_delivered``, in the order of the replies."""
-    assert TruthProbe.SEARCH < TRUTH_HISTORY
+    assert TRUTH_SEARCH < TRUTH_HISTORY
 
     async def body(arm: ArmEmulator, host: Host) -> None:
         every = every_truth(arm)

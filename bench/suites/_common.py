@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import itertools
 import math
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.suites.base import SuiteContext
+from armbench.bench.suites.truth_probe import TruthProbe
 from armbench.drivers.host.arm import DriverClosedError
 from armbench.drivers.host.motion import (
     MAX_PERIOD_CYCLES,
@@ -38,7 +38,7 @@ from armbench.drivers.model.kinematics import BRANCHES, KinematicsError, ik_best
 from armbench.drivers.model.protocol import MAX_DUTY, REPLY_LEN
 from armbench.drivers.model.settings import RobotSettings, SettingsError
 from armbench.drivers.model.tasks import cancel_and_wait
-from armbench.drivers.transports.base import Emulator, GroundTruth
+from armbench.drivers.transports.base import Emulator
 from armbench.record import Better, Measurement, Trial
 from armbench.record.suite_contract import POS_DECIMALS, RAD_DECIMALS
 
@@ -53,7 +53,6 @@ __all__ = [
     "StateRecorder",
     "TrialAborted",
     "TrialSkipped",
-    "TruthProbe",
     "check_bool",
     "check_branch",
     "check_reachable",
@@ -215,91 +214,6 @@ class Measurements:
 
 def _undirected(m: Measurement) -> Measurement:
     return Measurement(m.name, m.value, m.unit, m.limit, m.outcome, None, m.description)
-
-
-# --------------------------------------------------------------------------------------------
-# Ground truth
-
-
-class TruthProbe:
-    """The true joints / TCP beside a reply, when the bench has a reference instrument.
-
-    With ``ctx.truth`` set and an emulator behind the port, the truth of a reply is the emulator's
-    ground-truth sample of that very reply (``ArmEmulator.truth``: the true joints when the
-    firmware sampled them for it, matched by time and content), so like is compared with like and
-    the transmission lag (~2.2 ms at 115200 Bd) does not count as an error. Otherwise it is
-    ``ctx.truth`` read when the reply is handled (a laser tracker on hardware; its latency is the
-    instrument's). Without ``ctx.truth`` there is no truth (the paper's situation).
-    """
-
-    #: How many of the emulator's newest truth samples are searched for a reply's own.
-    SEARCH: Final = 32
-
-    def __init__(self, ctx: SuiteContext) -> None:
-        self._arm = ctx.arm
-        self._source = ctx.truth
-        self._settings = ctx.settings
-
-    @property
-    def available(self) -> bool:
-        """Whether a reference instrument exists."""
-        return self._source is not None
-
-    def joints(self, state: JointState | None = None, *,
-               motor: bool = False) -> tuple[float, ...] | None:
-        """True joint angles (rad) beside ``state`` (or now), if the instrument gives them; with
-        ``motor`` the motor shafts' angles where the emulator gives them (what the firmware's
-        counters should say: the link's play and deflection are beyond any encoder's view)."""
-        if self._source is None:
-            return None
-        gt = self._matched(state)
-        if gt is not None:
-            side = gt.motor_rad if motor else None
-            if side is None:
-                side = gt.true_rad
-            # the emulators' samples are tuples of floats already (once per reply)
-            return side if type(side) is tuple else tuple(map(float, side))
-        q = self._source.true_joints_rad()
-        return None if q is None else tuple(float(v) for v in q)
-
-    def position(self, state: JointState | None = None) -> Vec3 | None:
-        """True TCP position (m) beside ``state`` (or now)."""
-        if self._source is None:
-            return None
-        gt = self._matched(state)
-        if gt is not None:  # the real arm's kinematics where the emulator has them
-            actual = getattr(emulator_of(self._arm), "actual_settings", None)
-            return fk_m(gt.true_rad, actual if actual is not None else self._settings)
-        p = self._source.true_position_m()
-        return None if p is None else (float(p[0]), float(p[1]), float(p[2]))
-
-    def _matched(self, state: JointState | None) -> GroundTruth | None:
-        """The emulator's truth sample of ``state``'s reply: the newest one printed before the
-        reply arrived whose firmware angles are the reply's (within a wire tick); else None."""
-        if state is None:
-            return None
-        emulator = self._arm.emulator  # the arm's current transport's (once per reply)
-        history = () if emulator is None else emulator.truth
-        if not history:
-            return None
-        t_max = state.t_s + 1e-9
-        q = state.q_rad
-        newest = history[-1]  # the reply's own sample, as a rule: tried before any search
-        if newest.t_s <= t_max and _same_belief(newest.firmware_rad, q):
-            return newest
-        for gt in itertools.islice(reversed(history), 1, self.SEARCH):
-            if gt.t_s <= t_max and _same_belief(gt.firmware_rad, q):
-                return gt
-        return None
-
-
-def _same_belief(fw: Sequence[float], q: Sequence[float]) -> bool:
-    """Whether a truth sample's firmware angles ``fw`` are the reply's ``q`` within a wire tick
-    (rad); the arm's four joints unrolled (once per reply)."""
-    if len(fw) == len(q) == 4:
-        return (abs(fw[0] - q[0]) <= 2e-4 and abs(fw[1] - q[1]) <= 2e-4
-                and abs(fw[2] - q[2]) <= 2e-4 and abs(fw[3] - q[3]) <= 2e-4)
-    return all(abs(float(a) - float(b)) <= 2e-4 for a, b in zip(fw, q, strict=True))
 
 
 # --------------------------------------------------------------------------------------------

@@ -23,13 +23,13 @@ from typing import Any, Final
 from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
-    TruthProbe,
     guarded_trial,
     loop_time,
     settled_state,
 )
 from armbench.bench.suites.base import Suite, SuiteContext
 from armbench.bench.suites.joints_contract import JOINTS
+from armbench.bench.suites.truth_probe import TruthProbe
 from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
 from armbench.drivers.model.settings import RobotSettings, SettingsError

@@ -42,7 +42,6 @@ from armbench.bench.suites._common import (
     MAX_REPEATS,
     Measurements,
     TrialSkipped,
-    TruthProbe,
     check_bool,
     eeprom_counters,
     guarded_trial,
@@ -58,6 +57,7 @@ from armbench.bench.suites.eeprom_wear import (
     measure_wear,
     wear_measurements,
 )
+from armbench.bench.suites.recovery_judge import RecoveryJudge
 from armbench.bench.suites.startup_conditions import (
     CONDITIONS,
     Condition,
@@ -73,6 +73,7 @@ from armbench.bench.suites.startup_watch import (
     rescue,
     stalled_joints,
 )
+from armbench.bench.suites.truth_probe import TruthProbe
 from armbench.drivers.host.motion import coordinated_duties, joint_times_s
 from armbench.drivers.model.bounds import Bound, check, check_whole
 from armbench.drivers.model.protocol import MAX_DUTY
@@ -85,7 +86,7 @@ S: Final = STARTUP
 MIN_ROOM_RAD: Final = 0.02
 
 if TYPE_CHECKING:
-    from armbench.drivers.host.arm import JointState
+    pass
 
 __all__ = [
     "ATMEGA328P_EEPROM_CYCLES",
@@ -276,29 +277,10 @@ class StartupRecoverySuite(Suite):
         hall = [j.hall_rad for j in ctx.settings.joints]
         fixed = [hall[i] if motion[i] != "stopped" else before.q_rad[i]
                  for i in range(len(hall))]
-        tol_rad = float(p["tolerance_rad"])
-        tol_m = float(p["tolerance_mm"]) / 1000.0
-
-        # judged once per reply: what is fixed for the trial is looked up once
-        truth_joints = probe.joints if probe.available else None
-
-        def error(state: JointState) -> tuple[float, bool, str]:
-            """(error, within tolerance, what it was compared with) of ``state``."""
-            if truth_joints is not None:
-                q = truth_joints(state, motor=True)
-                if q is not None:  # once per reply: the four joints unrolled
-                    (a1, a2, a3, a4), (b1, b2, b3, b4) = state.q_rad, q
-                    e = max(abs(a1 - b1), abs(a2 - b2), abs(a3 - b3), abs(a4 - b4))
-                    return e, e <= tol_rad, "truth_rad"
-                pos = probe.position(state)
-                if pos is not None:
-                    e = float(np.linalg.norm(np.subtract(state.tcp_m(ctx.settings), pos)))
-                    return e, e <= tol_m, "truth_m"
-            e = max(abs(a - b) for a, b in zip(state.q_rad, fixed, strict=True))
-            return e, e <= tol_rad, "expected_rad"
-
-        result = await await_recovery(arm, t_on, error, float(p["recovery_timeout_s"]),
-                                       float(p["still_s"]), log)
+        judge = RecoveryJudge(probe, fixed, float(p["tolerance_rad"]),
+                              float(p["tolerance_mm"]) / 1000.0, ctx.settings, t_on,
+                              float(p["still_s"]), arm.state.seq, log)
+        result = await await_recovery(arm, judge, float(p["recovery_timeout_s"]), log)
         counters1 = eeprom_counters(arm)
         stalled = stalled_joints(arm)
         recovered = result.recovered_s is not None

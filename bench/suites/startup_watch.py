@@ -5,26 +5,20 @@ did not come back. Time is the running loop's."""
 from __future__ import annotations
 
 import asyncio
-import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
 from armbench.bench.suites._common import emulator_of, loop_time, rad_list, settled_state
 from armbench.bench.suites.base import ReReferencing, SuiteContext
+from armbench.bench.suites.recovery_judge import STILL_RAD, RecoveryJudge
 from armbench.bench.suites.startup_contract import STARTUP
 from armbench.drivers.host.arm import ReplyTimeoutError, WaitTimeoutError
 
 if TYPE_CHECKING:
     from armbench.drivers.host.arm import JointState
 
-__all__ = ["MOTION_WINDOW_S", "STILL_RAD", "TRACE_PERIOD_S", "Recovery", "await_recovery",
-           "motion_at", "rescue", "stalled_joints"]
+__all__ = ["MOTION_WINDOW_S", "await_recovery", "motion_at", "rescue", "stalled_joints"]
 
-#: Two replies whose joints differ by no more than this (rad, 1.5 wire ticks) show a still arm.
-STILL_RAD: Final = 1.5e-4
-#: Interval (s) of the recovery trace kept in the samples.
-TRACE_PERIOD_S: Final = 0.1
 #: Motion at the cut is read over this window of replies (s): at duty ≥ 10 a moving joint
 #: covers more than ``STILL_RAD`` in it.
 MOTION_WINDOW_S: Final = 0.05
@@ -57,78 +51,29 @@ def stalled_joints(arm: Any) -> list[int] | None:
     return out
 
 
-@dataclass(slots=True)
-class Recovery:
-    first_reply_s: float | None = None
-    recovered_s: float | None = None
-    error_rad: float | None = None
-    compared_with: str | None = None
-    last: JointState | None = None
-
-
-async def await_recovery(arm: Any, t_on: float,
-                          error: Callable[[JointState], tuple[float, bool, str]],
-                          timeout_s: float, still_s: float,
-                          log: Callable[..., Any]) -> Recovery:
-    """Watch the replies after power-on (loop time ``t_on``) until the arm has been within
-    tolerance and still for ``still_s`` or ``timeout_s`` has passed. Silence is expected while a
-    joint 1 recovery runs (the master starts its loop afterwards), so reply timeouts are waited
-    through; a lost port raises. Each reply is judged as the driver takes it in (a predicate of
-    :meth:`wait_state`), so the watching task wakes once, not once per reply."""
+async def await_recovery(arm: Any, judge: RecoveryJudge, timeout_s: float,
+                         log: Callable[..., Any]) -> RecoveryJudge:
+    """Watch the replies after power-on (loop time ``judge.t_on``) until ``judge`` finds the arm
+    back or ``timeout_s`` has passed; returns ``judge``, which holds what it saw. Silence is
+    expected while a joint 1 recovery runs (the master starts its loop afterwards), so reply
+    timeouts are waited through; a lost port raises. Each reply is judged as the driver takes it
+    in (a predicate of :meth:`wait_state`), so the watching task wakes once, not once per
+    reply."""
     loop = asyncio.get_running_loop()
-    deadline = t_on + timeout_s
-    out = Recovery()
-    seen = arm.state.seq
-    window: JointState | None = None
-    last_trace = -math.inf
-
-    def recovered(state: JointState) -> bool:
-        """Take in ``state`` (once); True when it ends the watch."""
-        nonlocal seen, window, last_trace
-        if state.seq <= seen:
-            return False
-        seen = state.seq
-        if state.t_s < t_on:
-            return False
-        e, within, what = error(state)
-        out.last, out.error_rad, out.compared_with = state, e, what
-        if out.first_reply_s is None:
-            out.first_reply_s = round(state.t_s - t_on, 6)
-            log(event=STARTUP.ev_ready, first_reply_s=out.first_reply_s,
-                q_rad=rad_list(state.q_rad))
-        if state.t_s - last_trace >= TRACE_PERIOD_S:
-            last_trace = state.t_s
-            log(event=STARTUP.ev_position_check, q_rad=rad_list(state.q_rad),
-                error_mrad=round(e * 1e3, 4), within=within)
-        if not within:
-            window = None
-            return False
-        if window is None:
-            window = state
-        else:  # once per reply: the four joints unrolled
-            (a1, a2, a3, a4), (b1, b2, b3, b4) = state.q_rad, window.q_rad
-            if max(abs(a1 - b1), abs(a2 - b2), abs(a3 - b3), abs(a4 - b4)) > STILL_RAD:
-                window = state
-        if state.t_s - window.t_s >= still_s:
-            out.recovered_s = round(window.t_s - t_on, 6)
-            log(event=STARTUP.ev_recovered, recovery_s=out.recovered_s,
-                error_mrad=round(e * 1e3, 4))
-            return True
-        return False
-
+    deadline = judge.t_on + timeout_s
     while True:
         remaining = deadline - loop.time()
         if remaining <= 0:
             break
         try:
-            await arm.wait_state(recovered, timeout_s=remaining)
+            await arm.wait_state(judge.take, timeout_s=remaining)
         except WaitTimeoutError:
             break
         except ReplyTimeoutError:
             continue
-        return out
-    log(event=STARTUP.ev_timeout, after_s=round(loop.time() - t_on, 6))
-    return out
+        return judge
+    log(event=STARTUP.ev_timeout, after_s=round(loop.time() - judge.t_on, 6))
+    return judge
 
 
 async def rescue(ctx: SuiteContext, log: Callable[..., Any]) -> None:

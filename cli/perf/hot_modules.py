@@ -22,6 +22,8 @@ HOT_MODULES = (
     "armbench.drivers.host.arrival",
     "armbench.drivers.capture.open_block",
     "armbench.fakes.links.handover",
+    "armbench.bench.suites.truth_probe",
+    "armbench.bench.suites.recovery_judge",
 )
 
 
