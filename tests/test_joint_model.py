@@ -8,6 +8,7 @@ import math
 from dataclasses import replace
 from fractions import Fraction
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -24,6 +25,7 @@ from armbench.fakes.twin.joint import (
     step_period_ticks,
 )
 from armbench.fakes.twin.physics import ideal_joint
+from armbench.fakes.twin.stepper import clone_bits
 
 LOOKAHEAD_TICKS = 3_000  # how far the reference checks next_event_tick when the event is far
 
@@ -509,3 +511,16 @@ def test_the_reach_rule_restarts_only_beyond_the_deadband() -> None:
 def test_an_unknown_stop_rule_is_refused() -> None:
     with pytest.raises(ValueError, match="stop_rule 'exact'"):
         JointModel(DEFAULT_JOINTS[0], stop_rule="exact")  # type: ignore[arg-type]
+
+
+@given(st.integers(0, 2**64), st.integers(0, 50))
+def test_a_cloned_bit_generator_goes_on_alone_from_the_same_state(seed: int, drawn: int) -> None:
+    """A clone draws what its original would have drawn next, and drawing from one leaves the
+    other where it was (a joint's prediction draws on its clone's streams only)."""
+    bits = np.random.PCG64([seed, 1])
+    np.random.Generator(bits).random(drawn)
+    twin = clone_bits(bits)
+    assert twin is not None and twin is not bits and clone_bits(None) is None
+    ahead = np.random.Generator(twin).random(5)
+    assert list(np.random.Generator(bits).random(5)) == list(ahead)
+    assert twin.state == bits.state
