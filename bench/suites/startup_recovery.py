@@ -34,7 +34,7 @@ from __future__ import annotations
 import asyncio
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, Final
+from typing import Any, ClassVar, Final
 
 import numpy as np
 
@@ -84,9 +84,6 @@ from armbench.record.suite_contract import SAMPLE
 S: Final = STARTUP
 #: The least room a band may leave a joint between its limit and the cut (rad).
 MIN_ROOM_RAD: Final = 0.02
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = [
     "ATMEGA328P_EEPROM_CYCLES",
