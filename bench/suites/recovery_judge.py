@@ -42,7 +42,6 @@ class RecoveryJudge:
                  tolerance_m: float, settings: RobotSettings, t_on: float, still_s: float,
                  seen: int, log: Callable[..., Any]) -> None:
         self._probe = probe
-        self._truth = probe.available
         self._expected = tuple(expected_rad)
         self._tol_rad = tolerance_rad
         self._tol_m = tolerance_m
@@ -61,7 +60,7 @@ class RecoveryJudge:
 
     def error(self, state: JointState) -> tuple[float, bool, str]:
         """(error, within tolerance, what it was compared with) of ``state``."""
-        if self._truth:
+        if self._probe.available:
             q = self._probe.joints(state, motor=True)
             if q is not None:
                 return self._within(_largest_difference(state.q_rad, q), "truth_rad")
