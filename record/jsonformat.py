@@ -27,6 +27,9 @@ def json_default(obj: object) -> Any:
 
 
 _SCALARS = (str, int, float, bool, type(None))
+#: What the C encoder writes for a finite float and an int (``float.__repr__``, ``int.__repr__``).
+_float_repr = float.__repr__
+_int_repr = int.__repr__
 #: A flat object is written on one line when it is at most this long (characters).
 _INLINE_WIDTH = 120
 #: Between the items of an object or list laid out over several lines.
@@ -87,7 +90,8 @@ def _encode(value: object, level: int = 0) -> str:
     level; lists of scalars (``[x, y, z]``) and short flat objects (a sample) on one line.
 
     Unlike ``json.dumps(indent=...)``, which runs the pure-Python encoder over everything, the
-    one-line parts go through the C encoder.
+    one-line parts go through the C encoder, and a scalar inside a container is written where
+    it is met (:func:`_item`): a record is mostly scalars, one call each was most of its cost.
     """
     if isinstance(value, _SCALARS):
         return _compact(value)
@@ -99,17 +103,34 @@ def _encode(value: object, level: int = 0) -> str:
             if len(text) <= _INLINE_WIDTH:
                 return text
         pad = " " * (level + 1)
-        items = (f"{pad}{_compact(str(k))}: {_encode(v, level + 1)}" for k, v in value.items())
-        return "{\n" + ",\n".join(items) + "\n" + " " * level + "}"
+        lines = [f"{pad}{encode_basestring(k) if type(k) is str else _compact(str(k))}: "
+                 f"{_item(v, level + 1)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(lines) + "\n" + " " * level + "}"
     if isinstance(value, (list, tuple)):
         if not value:
             return "[]"
         if _all_scalars(value):
             return _compact(value)
         pad = " " * (level + 1)
-        items = (f"{pad}{_encode(v, level + 1)}" for v in value)
-        return "[\n" + ",\n".join(items) + "\n" + " " * level + "]"
+        lines = [f"{pad}{_item(v, level + 1)}" for v in value]
+        return "[\n" + ",\n".join(lines) + "\n" + " " * level + "]"
     return _encode(json_default(value), level)
+
+
+def _item(value: object, level: int) -> str:
+    """:func:`_encode` of an item of a container: the common scalars by their exact type
+    (what the C encoder writes for them), anything else (a NaN too) by :func:`_encode`."""
+    if type(value) is str:
+        return encode_basestring(value)
+    if type(value) is float and value - value == 0.0:  # finite
+        return _float_repr(value)
+    if type(value) is int:
+        return _int_repr(value)
+    if value is None:
+        return "null"
+    if type(value) is bool:
+        return "true" if value else "false"
+    return _encode(value, level)
 
 
 def _to_json_text(value: object, where: str, level: int = 0) -> str:

@@ -76,7 +76,8 @@ def test_numpy_values_are_their_lists_and_numbers() -> None:
     assert json.loads(_encode(value)) == {"q_rad": [0.5, -1.25], "n": 3, "x": 0.1}
 
 
-@pytest.mark.parametrize("bad", [math.nan, math.inf, [1.0, -math.inf], {"a": [math.nan]}])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, [1.0, -math.inf], {"a": [math.nan]},
+                                 [[0.5], math.nan], [[0.5], -math.inf]])
 def test_not_strict_json_names_where(bad: Any) -> None:
     with pytest.raises(RecordError, match=r"suites\.x\.trials\[0\].*NaN and infinity"):
         _to_json_text({"value": bad}, "suites.x.trials[0]")
