@@ -103,8 +103,8 @@ def _encode(value: object, level: int = 0) -> str:
             if len(text) <= _INLINE_WIDTH:
                 return text
         pad = " " * (level + 1)
-        lines = [f"{pad}{encode_basestring(k) if type(k) is str else _compact(str(k))}: "
-                 f"{_item(v, level + 1)}" for k, v in value.items()]
+        lines = [f"{pad}{encode_basestring(str(k))}: {_item(v, level + 1)}"
+                 for k, v in value.items()]
         return "{\n" + ",\n".join(lines) + "\n" + " " * level + "}"
     if isinstance(value, (list, tuple)):
         if not value:
