@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from importlib.metadata import version
 from typing import Any, NoReturn
 
+from armbench.bench.workers.blas_threads import one_blas_thread
 from armbench.bench.workers.collector_pace import pace_collector
 from armbench.bench.workers.process_end import end_process
 from armbench.cli.commands.bounds import check_bounds
@@ -144,6 +145,8 @@ def program() -> NoReturn:
     """The ``armbench`` program (its console script, ``python -m armbench``): :func:`main` on
     the command line, then the process ends with its status, without the interpreter's
     teardown (:func:`~armbench.bench.workers.process_end.end_process`). The process collects
-    its garbage at armbench's pace (:mod:`~armbench.bench.workers.collector_pace`)."""
+    its garbage at armbench's pace (:mod:`~armbench.bench.workers.collector_pace`) and runs
+    one BLAS thread (:mod:`~armbench.bench.workers.blas_threads`)."""
     pace_collector()
+    one_blas_thread()
     end_process(main())

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from armbench.bench.workers.blas_threads import one_blas_thread
+
+# before anything loads numpy: the tests' processes run one BLAS thread, as the program's do
+one_blas_thread()
+
 import contextlib
 import io
 import os

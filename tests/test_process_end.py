@@ -5,6 +5,7 @@ pool."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ from pathlib import Path
 from conftest import packaged_limits_with
 
 from armbench.bench.workers import worker_process
+from armbench.bench.workers.blas_threads import BLAS_THREAD_VARIABLES
 from armbench.bench.workers.collector_pace import YOUNG_ALLOCATIONS
 
 WAIT_S = 300.0
@@ -27,9 +29,10 @@ wear_duration_s = 0.0
 """A short start-up recovery run: four power cuts, two for each worker."""
 
 
-def _python(code: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+def _python(code: str, cwd: Path,
+            env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, text=True,
-                          capture_output=True, timeout=WAIT_S)
+                          capture_output=True, timeout=WAIT_S, env=env)
 
 
 def test_the_status_the_output_and_the_exit_handlers_are_kept(tmp_path: Path) -> None:
@@ -144,3 +147,33 @@ def test_the_program_and_its_workers_collect_at_armbenchs_pace(tmp_path: Path) -
                                  for line in done.stdout.splitlines())
     assert imported[0] != YOUNG_ALLOCATIONS  # CPython's own (700 in 3.11)
     assert program == worker == (YOUNG_ALLOCATIONS, *imported[1:])
+
+
+def test_the_program_and_its_workers_run_one_blas_thread(tmp_path: Path) -> None:
+    """The ``armbench`` program and its spawned workers ask OpenBLAS for one thread: numpy and
+    scipy loaded in the program start no thread of theirs (Linux counts them); a process that
+    only imports armbench keeps the environment it had; a count the user set wins."""
+    code = """
+        import os, sys
+        import armbench, armbench.cli.main as cli
+        from armbench.bench.workers import worker_process
+        print(os.environ.get("OPENBLAS_NUM_THREADS"))
+        def main():
+            import numpy, scipy.linalg
+            tasks = len(os.listdir("/proc/self/task")) if sys.platform == "linux" else 1
+            pool = worker_process.new_pool(1)
+            worker = pool.submit(os.getenv, "OPENBLAS_NUM_THREADS").result(timeout=300)
+            pool.shutdown()
+            print(os.environ.get("OPENBLAS_NUM_THREADS"), tasks, worker)
+            return 0
+        cli.main = main
+        cli.program()
+    """
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    done = _python(code, tmp_path, env)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["None", "1", "1", "1"]
+    done = _python(code, tmp_path, {**env, "OMP_NUM_THREADS": "2"})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split()[:2] == ["None", "None"]
+    assert done.stdout.split()[-1] == "None"

@@ -4,7 +4,8 @@ A worker measures one job at a time on a fresh virtual-time loop (:func:`run_job
 is (one attempt of one trial) is the runner's business: a worker only needs something with an
 async ``measure()``, so it imports nothing of the runner. :func:`worker_init` makes a worker a
 good child: Ctrl-C is the parent's, and it dies with its parent; it collects its garbage at
-armbench's pace, as the program does, and imports the modules a job will need as it starts.
+armbench's pace and runs one BLAS thread, as the program does, and imports the modules a job
+will need as it starts.
 
 A spawned worker takes about a second to start (an interpreter, numpy, the emulator) before it
 can measure anything. :func:`prestart` starts the pool of a run at once, so the workers start
@@ -37,6 +38,7 @@ import weakref
 from collections.abc import Coroutine, Sequence
 from typing import Any, Protocol, TypeVar
 
+from armbench.bench.workers.blas_threads import one_blas_thread
 from armbench.bench.workers.collector_pace import pace_collector
 
 __all__ = ["Job", "discard_parked", "discard_prestarted", "let_go_workers", "new_pool", "park",
@@ -62,8 +64,10 @@ def worker_init(parent: int, preload: Sequence[str] = ()) -> None:
     modules ``preload`` names are imported last (what a job will need); the worker's end is
     :func:`_end_at_once`, registered first so that every at-exit handler of those modules and
     of the jobs runs before it. It collects its garbage at armbench's pace
-    (:mod:`~armbench.bench.workers.collector_pace`)."""
+    (:mod:`~armbench.bench.workers.collector_pace`) and runs one BLAS thread
+    (:mod:`~armbench.bench.workers.blas_threads`)."""
     pace_collector()
+    one_blas_thread()
     atexit.register(_end_at_once)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if sys.platform.startswith("linux"):

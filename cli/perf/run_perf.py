@@ -286,11 +286,14 @@ def bare_child(sim_s: float, start_at: float) -> None:
     seconds of ``emulator.realtime_factor``'s workload, begun at ``start_at`` on the machine's
     ``perf_counter`` (once the imports are done), its wall and thread CPU seconds printed as one
     JSON line."""
+    from armbench.bench.workers.blas_threads import one_blas_thread
     from armbench.bench.workers.collector_pace import pace_collector
+
+    pace_collector()  # as in the trials' workers
+    one_blas_thread()  # before numpy loads
     from armbench.cli.perf.emulator_perf import emulate
     from armbench.fakes.clock.vclock import run_virtual
 
-    pace_collector()  # as in the trials' workers
     time.sleep(max(0.0, start_at - time.perf_counter()))
     cpu: list[float] = []
     wall, _ = run_virtual(emulate(sim_s, moving=True, cpu=cpu))
