@@ -1,8 +1,9 @@
 """How many threads OpenBLAS (numpy's and scipy's linear algebra) runs in armbench's own processes.
 
-The bench's matrices are small (a pose's 4×4 chain, a calibration's Jacobian of a few hundred
-rows), where a second BLAS thread gains nothing; but an OpenBLAS thread woken by a call spins for
-a while before it sleeps, taking a core from the emulator, the workers and the tests beside it.
+The bench's matrices are small (a pose's 4×4 chain, a calibration's Jacobian), and a second BLAS
+thread was measured to gain nothing on them, a calibration included; but OpenBLAS starts its
+threads as it loads, and a thread woken by a call spins for a while before it sleeps, taking a
+core from the emulator, the workers and the tests beside it.
 armbench's own processes (the ``armbench`` program and its trial workers) ask for one thread,
 unless the environment already says how many (``OPENBLAS_NUM_THREADS``, ``GOTO_NUM_THREADS`` or
 ``OMP_NUM_THREADS``: the user's answer wins). OpenBLAS reads the setting when it loads, with
