@@ -4,12 +4,15 @@ The bench's matrices are small (a pose's 4×4 chain, a calibration's Jacobian), 
 thread was measured to gain nothing on them, a calibration included; but OpenBLAS starts its
 threads as it loads, and a thread woken by a call spins for a while before it sleeps, taking a
 core from the emulator, the workers and the tests beside it.
+
 armbench's own processes (the ``armbench`` program and its trial workers) ask for one thread,
 unless the environment already says how many (``OPENBLAS_NUM_THREADS``, ``GOTO_NUM_THREADS`` or
 ``OMP_NUM_THREADS``: the user's answer wins). OpenBLAS reads the setting when it loads, with
 numpy or scipy, so it is set before either is imported; the processes started later (workers,
 ``armbench emulate``) inherit it. A process that merely imports armbench keeps its own setting:
-its threads are its owner's to set (``docs/performance.md``).
+its threads are its owner's to set (``docs/performance.md``). So does a worker of such a
+process whose main module loaded numpy: a spawned worker imports that module before its
+initializer runs.
 """
 
 from __future__ import annotations
