@@ -20,6 +20,7 @@ from types import ModuleType
 
 import grimp
 import pytest
+from script_loader import load_script
 
 import armbench
 
@@ -189,12 +190,7 @@ def test_a_folder_imported_by_its_bare_name_is_refused(package: str) -> None:
 
 
 def _structure_script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("structure", ROOT / "scripts" / "structure.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up while being defined
-    spec.loader.exec_module(module)
-    return module
+    return load_script("structure")
 
 
 def test_the_structure_check_finds_a_piece_apart_and_an_import_up() -> None:

@@ -4,7 +4,6 @@ as a real process on real commands (a Python one-liner stands in for a figure sc
 
 from __future__ import annotations
 
-import importlib.util
 import platform
 import subprocess
 import sys
@@ -12,17 +11,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 from types import ModuleType
 
+from script_loader import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "measure.py"
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("measure", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass looks its module up by name
-    spec.loader.exec_module(module)
-    return module
+    return load_script("measure")
 
 
 def _measure(out: Path, *args: str) -> subprocess.CompletedProcess[str]:

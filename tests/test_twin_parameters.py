@@ -14,7 +14,6 @@ DH length errors are left out of that search: their names are the nominal length
 from __future__ import annotations
 
 import ast
-import importlib.util
 import math
 from collections.abc import Iterator
 from dataclasses import MISSING, fields
@@ -22,6 +21,7 @@ from pathlib import Path
 from types import ModuleType
 
 import pytest
+from script_loader import load_script
 from test_structure import ROOT, read_sources
 
 from armbench.bench.calibrate.model import Fitted
@@ -226,12 +226,7 @@ def test_the_loader_and_the_calibration_share_one_band(p: TwinParameter) -> None
 
 
 def _table_script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location(
-        "twin_parameter_table", ROOT / "scripts" / "twin_parameter_table.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("twin_parameter_table")
 
 
 def test_the_docs_table_is_the_declaration() -> None:
