@@ -9,6 +9,7 @@ as a new dated file in ``measurements/``, so that measured figures are generated
     ros2 [ARGS...]              scripts/ros2_figures.py ARGS
     foreign-arm NAME OUT [...]  scripts/foreign_arm_figures.py NAME OUT ...
     same-figures A B            scripts/same_figures.py A B
+    trial-cpu VARIANT...        scripts/trial_cpu.py VARIANT...
     run -- CMD...               any other command (give it a --topic)
 
 The options come before the recipe: everything after it is the command's.
@@ -47,6 +48,7 @@ RECIPES: dict[str, list[str]] = {
     "ros2": [sys.executable, str(SCRIPTS / "ros2_figures.py")],
     "foreign-arm": [sys.executable, str(SCRIPTS / "foreign_arm_figures.py")],
     "same-figures": [sys.executable, str(SCRIPTS / "same_figures.py")],
+    "trial-cpu": [sys.executable, str(SCRIPTS / "trial_cpu.py")],
     "run": [],
 }
 TOPIC = re.compile(r"[a-z0-9][a-z0-9-]{0,59}")
