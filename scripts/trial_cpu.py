@@ -56,9 +56,11 @@ def one_run(python: str, options: list[str]) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         done = subprocess.run([python, __file__, "--child", str(Path(tmp) / "run"), *options],
                               capture_output=True, text=True, timeout=900)
-    if done.returncode not in (0, 1):  # 1: the run's verdict failed, its trials still ran
+    lines = done.stdout.strip().splitlines()
+    # 1: the run's verdict failed, its trials still ran
+    if done.returncode not in (0, 1) or not lines or not lines[-1].startswith("{"):
         raise SystemExit(f"{python} {options} failed ({done.returncode}): {done.stderr[-500:]}")
-    result: dict[str, float] = json.loads(done.stdout.strip().splitlines()[-1])
+    result: dict[str, float] = json.loads(lines[-1])
     return result
 
 
