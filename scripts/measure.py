@@ -10,6 +10,7 @@ as a new dated file in ``measurements/``, so that measured figures are generated
     foreign-arm NAME OUT [...]  scripts/foreign_arm_figures.py NAME OUT ...
     same-figures A B            scripts/same_figures.py A B
     trial-cpu VARIANT...        scripts/trial_cpu.py VARIANT...
+    emulator-share [...]        scripts/emulator_share.py ...
     run -- CMD...               any other command (give it a --topic)
 
 The options come before the recipe: everything after it is the command's.
@@ -49,6 +50,7 @@ RECIPES: dict[str, list[str]] = {
     "foreign-arm": [sys.executable, str(SCRIPTS / "foreign_arm_figures.py")],
     "same-figures": [sys.executable, str(SCRIPTS / "same_figures.py")],
     "trial-cpu": [sys.executable, str(SCRIPTS / "trial_cpu.py")],
+    "emulator-share": [sys.executable, str(SCRIPTS / "emulator_share.py")],
     "run": [],
 }
 TOPIC = re.compile(r"[a-z0-9][a-z0-9-]{0,59}")

@@ -77,7 +77,8 @@ def test_the_recipes_run_the_figure_scripts_and_perf() -> None:
         "perf", "--json", "--only", "emulator"]
     for recipe, script in (("dask", "dask_throughput.py"), ("ros2", "ros2_figures.py"),
                            ("foreign-arm", "foreign_arm_figures.py"),
-                           ("same-figures", "same_figures.py"), ("trial-cpu", "trial_cpu.py")):
+                           ("same-figures", "same_figures.py"), ("trial-cpu", "trial_cpu.py"),
+                           ("emulator-share", "emulator_share.py")):
         command = measure.command_of(recipe, [])
         assert Path(command[1]) == ROOT / "scripts" / script
         assert Path(command[1]).is_file()
