@@ -3,18 +3,21 @@ and how much the bench's (driver, suites, capture), for the trials of one ``armb
 
     python scripts/emulator_share.py [--repeats N] [RUN OPTIONS...]
 
-Each repeat is a fresh process running ``armbench run --workers 1`` (the trials in turn on one
-loop, so each trial's CPU is its loop thread's) with the run options given (none: the default
-run). Every emulator a trial makes is watched: the loop thread's CPU from its construction to its
-close (the trial's CPU), and what the bench did to it in that time at its loop times (the host's
-bytes, power cuts and restores, board resets, stalls). After the run each emulator is replayed: a
-fresh one with the same settings and faults, the same calls at the same times, no host (as
-``armbench perf`` runs the bare emulator), its CPU counted from its construction to its close.
-A replay is **faithful** when the emulator ends with the same counters as in the trial
+Each repeat is a fresh process that runs ``armbench run --workers 2`` with the run options given
+(none: the default run) and keeps the trial jobs it sends to its workers. It then measures each
+job again itself, as a worker does (its attempts, each on a fresh virtual-time loop; the job's
+CPU as ``armbench perf`` counts a worker's), and watches the emulator each attempt makes: the
+CPU from its construction to its close, and what the bench did to it at its loop times (the
+host's bytes, power cuts and restores, board resets, stalls, EEPROM erasures). Each watched
+emulator is then replayed: a fresh one with the same settings and faults, the same calls at the
+same times, no host (as ``armbench perf`` runs the bare emulator). A replay is **faithful** when
+the emulator ends with the same counters as in the trial
 (:meth:`~armbench.fakes.firmware.arm_emulator.ArmEmulator.stats`: main loops, commands, bytes,
-I²C transactions, EEPROM writes): the same arm doing the same work, so the difference in CPU is
-the bench's. Prints a table per repeat (suite and trial kind: trials, robot seconds, trial CPU,
-replay CPU, their ratio, faithful replays) and the totals' least and mean over the repeats.
+I²C transactions, EEPROM writes): the same arm doing the same work, so the trial's CPU less the
+replay's is the bench's. Prints a table per repeat (suite and trial kind: trials, robot
+seconds, the jobs' CPU, the CPU while their emulators ran, the replays' CPU, the jobs' over the
+replays', faithful replays), then the totals' least and mean over the repeats; exits 1 when a
+replay was not faithful.
 """
 
 from __future__ import annotations
@@ -62,8 +65,8 @@ def _loop_s() -> float:
 
 
 @contextlib.contextmanager
-def watching(group: Callable[[], str]) -> Iterator[list[Watched]]:
-    """Within the block every emulator made is watched (``group`` names the trial making it);
+def watching(group: str) -> Iterator[list[Watched]]:
+    """Within the block every emulator made is watched (``group`` names the trials making them);
     yields the list the watched emulators are appended to. The emulator's and the EEPROM's
     classes are patched for the block and restored after it."""
     from armbench.fakes.firmware.arm_emulator import ArmEmulator
@@ -77,7 +80,7 @@ def watching(group: Callable[[], str]) -> Iterator[list[Watched]]:
     erase = Eeprom.erase
 
     def watched_init(self: ArmEmulator, *args: Any, **kwargs: Any) -> None:
-        w = Watched(group(), (args, kwargs), cpu0_s=time.thread_time())
+        w = Watched(group, (args, kwargs), cpu0_s=time.thread_time())
         init(self, *args, **kwargs)
         self._watched = w  # type: ignore[attr-defined]
         for k, eeprom in enumerate(self.eeproms):
@@ -168,43 +171,48 @@ def replay(w: Watched, make: Callable[..., Any]) -> tuple[float, bool]:
 
 
 def child(out_dir: str, options: list[str]) -> int:
-    """One watched run in this process, then every emulator of it replayed, and one JSON line
-    of the groups' figures printed; returns the run's exit status."""
-    from armbench.bench.runner.trials import TrialAttempts
+    """One run in this process (two workers), its trial jobs kept as they are sent out; then
+    each job measured again here as a worker measures it (its attempts, each on a fresh
+    virtual-time loop), its emulator watched and replayed, and one JSON line of the groups'
+    figures printed. Returns the run's exit status."""
+    from armbench.bench.runner.parallel import ParallelTrials, TrialJob, run_attempts
     from armbench.bench.workers.blas_threads import one_blas_thread
     from armbench.bench.workers.collector_pace import pace_collector
     from armbench.cli.main import main
     from armbench.fakes.firmware.arm_emulator import ArmEmulator
 
-    current = ["outside a trial"]
-    attempt = TrialAttempts.attempt
+    jobs: dict[tuple[str, int, int], TrialJob] = {}
+    make_job = ParallelTrials._job
 
-    async def named(self: TrialAttempts, ps: Any, index: int, *args: Any, **kwargs: Any) -> Any:
-        params = args[1] if len(args) > 1 else kwargs.get("trial_params") or ps.trials[index]
-        kind = params.get("kind") if hasattr(params, "get") else None
-        current[0] = f"{ps.name}/{kind}" if isinstance(kind, str) else ps.name
-        try:
-            return await attempt(self, ps, index, *args, **kwargs)
-        finally:
-            current[0] = "outside a trial"
+    def kept(self: ParallelTrials, ps: Any, index: int, attempt: int) -> TrialJob:
+        job = make_job(self, ps, index, attempt)
+        jobs.setdefault((ps.name, index, attempt), job)
+        return job
 
-    TrialAttempts.attempt = named  # type: ignore[method-assign]
-    pace_collector()  # as the armbench program does before its run
+    ParallelTrials._job = kept  # type: ignore[method-assign]
+    pace_collector()  # as the armbench program and its workers do
     one_blas_thread()
-    with watching(lambda: current[0]) as watched:
-        status = main(["run", "-q", "--workers", "1", "--out", out_dir, *options])
+    status = main(["run", "-q", "--workers", "2", "--out", out_dir, *options])
     groups: dict[str, dict[str, float]] = {}
-    for w in watched:
-        if w.end_s is None or w.start_s is None or w.cpu_s is None:
-            continue
-        cpu, same = replay(w, ArmEmulator)
-        g = groups.setdefault(w.group, {"trials": 0, "robot_s": 0.0, "trial_cpu_s": 0.0,
-                                        "replay_cpu_s": 0.0, "faithful": 0})
+    for job in jobs.values():
+        kind = job.params.get("kind")
+        name = f"{job.suite.name}/{kind}" if isinstance(kind, str) else job.suite.name
+        with watching(name) as watched:
+            results = run_attempts(job)
+        g = groups.setdefault(name, {"trials": 0, "robot_s": 0.0, "trial_cpu_s": 0.0,
+                                     "emulator_cpu_s": 0.0, "replay_cpu_s": 0.0,
+                                     "emulators": 0, "faithful": 0})
         g["trials"] += 1
-        g["robot_s"] += w.end_s - w.start_s
-        g["trial_cpu_s"] += w.cpu_s
-        g["replay_cpu_s"] += cpu
-        g["faithful"] += int(same)
+        g["robot_s"] += sum(r.trial.duration_s for r in results)
+        g["trial_cpu_s"] += sum(r.worker_cpu_s for r in results)
+        for w in watched:
+            if w.end_s is None or w.start_s is None or w.cpu_s is None:
+                continue
+            cpu, same = replay(w, ArmEmulator)
+            g["emulators"] += 1
+            g["emulator_cpu_s"] += w.cpu_s
+            g["replay_cpu_s"] += cpu
+            g["faithful"] += int(same)
     print(json.dumps(groups), flush=True)
     return status
 
@@ -225,15 +233,16 @@ def one_run(options: list[str]) -> dict[str, dict[str, float]]:
 
 def table(groups: dict[str, dict[str, float]]) -> tuple[list[str], dict[str, float]]:
     """The lines of one run's table, and its totals."""
-    keys = ("trials", "robot_s", "trial_cpu_s", "replay_cpu_s", "faithful")
+    keys = ("trials", "robot_s", "trial_cpu_s", "emulator_cpu_s", "replay_cpu_s", "emulators",
+            "faithful")
     total = {k: sum(g[k] for g in groups.values()) for k in keys}
-    lines = [f"{'suite/kind':28s} {'trials':>6s} {'robot s':>9s} {'trial CPU s':>11s} "
-             f"{'replay CPU s':>12s} {'ratio':>6s} {'faithful':>8s}"]
+    lines = [f"{'suite/kind':24s} {'trials':>6s} {'robot s':>8s} {'trial CPU s':>11s} "
+             f"{'emulator s':>10s} {'replay s':>8s} {'ratio':>5s} {'faithful':>8s}"]
     for name, g in [*sorted(groups.items()), ("all", total)]:
         ratio = g["trial_cpu_s"] / g["replay_cpu_s"] if g["replay_cpu_s"] > 0 else float("nan")
-        lines.append(f"{name:28s} {g['trials']:6.0f} {g['robot_s']:9.1f} {g['trial_cpu_s']:11.3f} "
-                     f"{g['replay_cpu_s']:12.3f} {ratio:6.2f} "
-                     f"{g['faithful']:.0f}/{g['trials']:.0f}".rstrip())
+        lines.append(f"{name:24s} {g['trials']:6.0f} {g['robot_s']:8.1f} {g['trial_cpu_s']:11.3f} "
+                     f"{g['emulator_cpu_s']:10.3f} {g['replay_cpu_s']:8.3f} {ratio:5.2f} "
+                     f"{g['faithful']:.0f}/{g['emulators']:.0f}")
     return lines, total
 
 
@@ -251,8 +260,8 @@ def main(argv: list[str] | None = None) -> int:
         lines, total = table(one_run(options))
         print(f"run {k + 1}:", *lines, sep="\n", flush=True)
         totals.append(total)
-        unfaithful += int(total["trials"] - total["faithful"])
-    for key in ("trial_cpu_s", "replay_cpu_s"):
+        unfaithful += int(total["emulators"] - total["faithful"])
+    for key in ("trial_cpu_s", "emulator_cpu_s", "replay_cpu_s"):
         values = [t[key] for t in totals]
         print(f"{key}: least {min(values):.3f} s, mean {statistics.mean(values):.3f} s over "
               f"{len(values)} runs")
