@@ -31,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -165,9 +165,8 @@ def replay(w: Watched, make: Callable[..., Any]) -> tuple[float, bool]:
     virtual-time loop: its CPU seconds, and whether it ended as the watched one did."""
     from armbench.fakes.clock.vclock import run_virtual
 
-    coro: Coroutine[Any, Any, tuple[float, dict[str, Any]]] = _replay(w, make)
-    cpu, stats = run_virtual(coro)
-    return cpu, json.loads(json.dumps(stats)) == json.loads(json.dumps(w.stats))
+    cpu, stats = run_virtual(_replay(w, make))
+    return cpu, stats == w.stats
 
 
 def child(out_dir: str, options: list[str]) -> int:
