@@ -27,14 +27,13 @@ import asyncio
 import contextlib
 import json
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
+
+from child_figures import child_figures
 
 #: The emulator's methods through which a bench changes what the arm does (the host's bytes and
 #: the bench's hands on the arm), recorded and replayed; besides them, an EEPROM of the arm
@@ -218,15 +217,8 @@ def child(out_dir: str, options: list[str]) -> int:
 
 def one_run(options: list[str]) -> dict[str, dict[str, float]]:
     """The groups' figures of one watched run with ``options``, in a fresh process."""
-    with tempfile.TemporaryDirectory() as tmp:
-        done = subprocess.run([sys.executable, __file__, "--child", str(Path(tmp) / "run"),
-                               *options], capture_output=True, text=True, timeout=1800)
-    lines = done.stdout.strip().splitlines()
-    # 1: the run's verdict failed, its trials still ran
-    if done.returncode not in (0, 1) or not lines or not lines[-1].startswith("{"):
-        raise SystemExit(f"the watched run {options} failed ({done.returncode}): "
-                         f"{done.stderr[-800:]}")
-    groups: dict[str, dict[str, float]] = json.loads(lines[-1])
+    groups: dict[str, dict[str, float]] = child_figures(sys.executable, __file__, options,
+                                                        timeout_s=1800)
     return groups
 
 

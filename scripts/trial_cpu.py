@@ -18,10 +18,9 @@ import json
 import runpy
 import shlex
 import statistics
-import subprocess
 import sys
-import tempfile
-from pathlib import Path
+
+from child_figures import child_figures
 
 
 def child(out_dir: str, options: list[str]) -> None:
@@ -53,14 +52,7 @@ def variant(text: str) -> tuple[str, str, list[str]]:
 
 def one_run(python: str, options: list[str]) -> dict[str, float]:
     """The trial jobs' figures of one run of ``python``'s armbench with ``options``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        done = subprocess.run([python, __file__, "--child", str(Path(tmp) / "run"), *options],
-                              capture_output=True, text=True, timeout=900)
-    lines = done.stdout.strip().splitlines()
-    # 1: the run's verdict failed, its trials still ran
-    if done.returncode not in (0, 1) or not lines or not lines[-1].startswith("{"):
-        raise SystemExit(f"{python} {options} failed ({done.returncode}): {done.stderr[-500:]}")
-    result: dict[str, float] = json.loads(lines[-1])
+    result: dict[str, float] = child_figures(python, __file__, options, timeout_s=900)
     return result
 
 

@@ -14,7 +14,10 @@ SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 def load_script(name: str) -> ModuleType:
     """``scripts/<name>.py``, loaded by path and registered in ``sys.modules`` (as
-    ``armbench_script_<name>``: a dataclass looks its module up while being defined)."""
+    ``armbench_script_<name>``: a dataclass looks its module up while being defined), with
+    ``scripts/`` on the import path as when the script runs (it may import its neighbours)."""
+    if str(SCRIPTS) not in sys.path:
+        sys.path.append(str(SCRIPTS))
     spec = importlib.util.spec_from_file_location(f"armbench_script_{name}",
                                                   SCRIPTS / f"{name}.py")
     assert spec is not None and spec.loader is not None

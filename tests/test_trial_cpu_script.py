@@ -6,6 +6,7 @@ import argparse
 import re
 import subprocess
 import sys
+from pathlib import Path
 from types import ModuleType
 
 import pytest
@@ -41,3 +42,13 @@ def test_each_variant_runs_and_its_trials_cpu_is_counted() -> None:
         assert int(jobs) > 0 and float(robot_s) > 0 and float(cpu_s) > 0
     assert runs[0][1:3] == runs[1][1:3]  # the same trials, with or without a capture
     assert "one: least" in done.stdout and "capture-off: least" in done.stdout
+
+
+def test_an_interpreter_that_cannot_run_is_named_in_one_line(tmp_path: Path) -> None:
+    missing = tmp_path / "no-venv" / "python"
+    done = subprocess.run([sys.executable, str(SCRIPT), "--repeats", "1", f"gone={missing}"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines() == [
+        f"trial_cpu.py: cannot run {str(missing)!r}: [Errno 2] No such file or directory: "
+        f"{str(missing)!r}"]
