@@ -9,6 +9,7 @@ one_blas_thread()
 
 import contextlib
 import io
+import itertools
 import os
 import re
 import shutil
@@ -16,8 +17,10 @@ import signal
 import subprocess
 import sys
 import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Final
 
 import pytest
 from build_flavour import concerns_the_build_flavour
@@ -192,6 +195,41 @@ def ros2_msgs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     xdg = Path(given) if given else session_dir(tmp_path_factory) / "xdg-cache"
     support = ensure_messages(root=xdg / "armbench" / CACHE_FOLDER)
     return {"xdg": str(xdg), "built_s": support.built_s, "prefix": support.prefix}
+
+
+#: The ROS 2 domain ids the tests take: 1 to 101, the ids ROS names safe on Linux (a higher id's
+#: ports can fall in the kernel's ephemeral range).
+ROS_DOMAINS: Final = range(1, 102)
+_ros_tests = itertools.count()
+
+
+def ros_domain_id() -> int:
+    """A ROS domain id that no test of another worker of this session (pytest-xdist) takes while
+    this one runs: each worker walks through :data:`ROS_DOMAINS` by the number of workers from
+    its own residue; the session's starting point is drawn from its run id, so two sessions on
+    one host seldom meet."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    span = len(ROS_DOMAINS) - len(ROS_DOMAINS) % workers
+    start = zlib.crc32(os.environ.get("PYTEST_XDIST_TESTRUNUID", "").encode()) % span
+    return ROS_DOMAINS[(start + index + workers * next(_ros_tests)) % span]
+
+
+@pytest.fixture
+def ros_domain(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest) -> Iterator[int]:
+    """A ROS domain for this test alone (:func:`ros_domain_id`), discovery on this host only,
+    and, where the extra is installed, the session's message support (``ros2_msgs``). A test
+    whose node and client met another test's in one domain would be answered by the wrong
+    node."""
+    from armbench.frontends.ros2_node import missing_ros2
+
+    domain = ros_domain_id()
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if missing_ros2() is None:  # the node builds nothing: the session's message support
+        monkeypatch.setenv("XDG_CACHE_HOME", str(request.getfixturevalue("ros2_msgs")["xdg"]))
+    yield domain
 
 
 @pytest.fixture(scope="session")

@@ -13,13 +13,12 @@ it); what is asserted is judged on virtual time or counted in replies, never on 
 from __future__ import annotations
 
 import asyncio
-import itertools
 import json
 import os
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -33,28 +32,17 @@ from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.clock.vclock import run_virtual
 from armbench.frontends.ros2_node import missing_ros2
 
-pytestmark = pytest.mark.skipif(missing_ros2() is not None,
-                                reason=f"armbench[ros2] not installed: {missing_ros2()}")
+pytestmark = [pytest.mark.skipif(missing_ros2() is not None,
+                                 reason=f"armbench[ros2] not installed: {missing_ros2()}"),
+              pytest.mark.usefixtures("ros_domain")]  # a domain of its own (conftest.py)
 
 S = RobotSettings()
 NAMES = [j.name for j in S.joints]
 CLIENT = [sys.executable, "-m", "armbench.frontends.ros2_node.action_client"]
 #: Real seconds a client may take at most on a loaded machine (a hang guard).
 GUARD_S = 120.0
-_DOMAINS = itertools.count()
 #: A drive too weak to lift: joint 2 loses synchronism at speed (``fake://?settings=...``).
 WEAK_DRIVE = '[emulator.physics.j2]\npullout_nm = 0.3\nloss_law = "stall"\n'
-
-
-@pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch,
-               ros2_msgs: dict[str, object]) -> Iterator[int]:
-    """A ROS domain for this test alone, discovery on localhost only, the session's messages."""
-    domain = 1 + (os.getpid() * 43 + 11 + next(_DOMAINS)) % 200
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(ros2_msgs["xdg"]))
-    yield domain
 
 
 async def _process(argv: list[str]) -> dict[str, Any]:

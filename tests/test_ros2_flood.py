@@ -12,12 +12,10 @@ get exactly one final status for every one of theirs (told apart by their source
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -25,25 +23,15 @@ import pytest
 
 from armbench.frontends.ros2_node import missing_ros2
 
-pytestmark = pytest.mark.skipif(missing_ros2() is not None,
-                                reason=f"armbench[ros2] not installed: {missing_ros2()}")
+pytestmark = [pytest.mark.skipif(missing_ros2() is not None,
+                                 reason=f"armbench[ros2] not installed: {missing_ros2()}"),
+              pytest.mark.usefixtures("ros_domain")]  # a domain of its own (conftest.py)
 
 CLIENT = [sys.executable, "-m", "armbench.frontends.ros2_node.client"]
 #: Real seconds a client or the command may take at most on a loaded machine (a hang guard).
 GUARD_S = 120.0
 #: How far the node's resident memory may grow over the test (MB).
 RSS_GROWTH_MB = 50.0
-
-
-@pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch,
-               ros2_msgs: dict[str, object]) -> Iterator[int]:
-    """A ROS domain for this test alone, discovery on localhost only."""
-    domain = 201 + os.getpid() % 30
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(ros2_msgs["xdg"]))  # the session's messages
-    yield domain
 
 
 def _rss_mb(pid: int) -> float:

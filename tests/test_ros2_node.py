@@ -9,14 +9,12 @@ on: on virtual time the emulator runs as fast as the machine lets it.
 from __future__ import annotations
 
 import asyncio
-import itertools
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import pytest
@@ -26,8 +24,9 @@ from armbench.drivers.model.settings import RobotSettings
 from armbench.fakes.clock.vclock import run_virtual
 from armbench.frontends.ros2_node import missing_ros2
 
-pytestmark = pytest.mark.skipif(missing_ros2() is not None,
-                                reason=f"armbench[ros2] not installed: {missing_ros2()}")
+pytestmark = [pytest.mark.skipif(missing_ros2() is not None,
+                                 reason=f"armbench[ros2] not installed: {missing_ros2()}"),
+              pytest.mark.usefixtures("ros_domain")]  # a domain of its own (conftest.py)
 
 S = RobotSettings()
 NAMES = [j.name for j in S.joints]
@@ -37,18 +36,6 @@ GUARD_S = 90.0
 #: Real seconds an ``idle`` subscriber stays at most: the test ends it (killed) when its run is
 #: over, however long a loaded machine makes that; this only ends one the test left behind.
 IDLE_GUARD_S = 1800.0
-_DOMAINS = itertools.count()
-
-
-@pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch,
-               ros2_msgs: dict[str, object]) -> Iterator[int]:
-    """A ROS domain for this test alone (0..232 are valid), discovery on localhost only."""
-    domain = 1 + (os.getpid() * 37 + next(_DOMAINS)) % 200
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    monkeypatch.setenv("XDG_CACHE_HOME", str(ros2_msgs["xdg"]))  # the session's messages
-    yield domain
 
 
 async def _client(*args: str) -> dict[str, Any]:

@@ -8,17 +8,14 @@ suite is still registered, and ``armbench run ros2-square`` says what is missing
 
 from __future__ import annotations
 
-import itertools
 import json
-import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import one_line_error
+from conftest import ROS_DOMAINS, one_line_error, ros_domain_id
 from far_end import Emulator
 
 from armbench.bench.suites import registered_suites, suite_class, suite_names
@@ -26,11 +23,11 @@ from armbench.bench.suites.ros2_square_contract import ROS2_SQUARE
 from armbench.frontends.ros2_node import missing_ros2
 from armbench.record.suite_contract import contract
 
+pytestmark = pytest.mark.usefixtures("ros_domain")  # a domain of its own (conftest.py)
 needs_ros2 = pytest.mark.skipif(missing_ros2() is not None,
                                 reason=f"armbench[ros2] not installed: {missing_ros2()}")
 #: The accuracy suite's contract, by its name (wherever it is defined).
 ACCURACY: Any = contract("accuracy")
-_DOMAINS = itertools.count()
 #: A short square: two laps of each style take a few seconds of robot time.
 SMALL = """\
 spec_version = "armbench-limits/1"
@@ -45,17 +42,6 @@ side_m = 0.06
 laps = {laps}
 styles = ["coordinated"]
 """
-
-
-@pytest.fixture(autouse=True)
-def ros_domain(monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest) -> Iterator[int]:
-    """A ROS domain for this test alone (0..232 are valid), discovery on localhost only."""
-    domain = 1 + (os.getpid() * 41 + 7 + next(_DOMAINS)) % 200
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    if missing_ros2() is None:  # the node builds nothing: the session's message support
-        monkeypatch.setenv("XDG_CACHE_HOME", str(request.getfixturevalue("ros2_msgs")["xdg"]))
-    yield domain
 
 
 def test_the_suite_is_registered_but_not_in_the_default_run() -> None:
@@ -198,3 +184,20 @@ def test_the_path_tolerance_is_the_goals_and_ends_a_lap_beyond_it(tmp_path: Path
     """``path_tolerance_rad`` is what the goal carries: far below the lag of law (12)'s duty steps
     the node aborts the lap, the trial is an error naming the tolerance."""
     _one_lap_in_error(tmp_path, "path_tolerance_rad = 1e-4", "path tolerance of 0.0001 rad")
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 4, 7])
+def test_the_workers_of_a_session_never_share_a_ros_domain(
+        monkeypatch: pytest.MonkeyPatch, workers: int) -> None:
+    """Each xdist worker takes the ROS domains of its own residue (``conftest.ros_domain_id``):
+    tests running at once in two workers never meet in one domain, whatever each has taken."""
+    monkeypatch.setenv("PYTEST_XDIST_WORKER_COUNT", str(workers))
+    monkeypatch.setenv("PYTEST_XDIST_TESTRUNUID", "a-session")
+    taken: dict[str, set[int]] = {}
+    for k in range(workers):
+        monkeypatch.setenv("PYTEST_XDIST_WORKER", f"gw{k}")
+        taken[f"gw{k}"] = {ros_domain_id() for _ in range(250)}
+    for k, domains in enumerate(taken.values()):
+        assert domains <= set(ROS_DOMAINS) and len(domains) >= len(ROS_DOMAINS) // workers - 1
+        for other in list(taken.values())[k + 1:]:
+            assert not domains & other
