@@ -322,6 +322,9 @@ def _check(capture: Path, settings: RobotSettings,
     print(capture.name, result.verdict, "rms", [round(v, 1) for v in result.rms_counts],
           "floor", [round(v, 1) for v in result.floor_counts],
           "allowed", [round(v, 1) for v in result.allowed_counts], "tcp", result.tcp)
+    for m in result.measurements:  # what a verdict that surprises hangs on, in the test's log
+        if m.outcome == "fail":
+            print(f"    failed: {m.name} = {m.value:.4g} {m.unit}, limit {m.limit}")
     return result
 
 
