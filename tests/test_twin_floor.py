@@ -17,11 +17,13 @@ from test_twin_check import IDEAL, _lap, _records, _write
 
 from armbench.bench.calibrate import load_capture
 from armbench.bench.calibrate.align import (
+    MAX_SHIFT_S,
     MEDIAN_EFFICIENCY,
     ONSET_REPLIES,
     TICK_RAD,
     Track,
     move_shifts,
+    silent_s,
     timing_rms_s,
     timing_scatter_s,
 )
@@ -167,6 +169,28 @@ def test_a_slow_joints_start_is_timed_through_the_rounding(phase_s: float, duty:
     assert shifts.measured
     # within the time of half a tick (the rounding of the pose a start is traced back from)
     assert abs(shifts.per_joint_s[0, 0]) < 0.5 * TICK_RAD / speed, shifts.per_joint_s[0, 0]
+
+
+def test_an_arm_silent_at_a_command_may_start_as_late_as_it_was_silent() -> None:
+    """An arm whose loop stalled across a command (a starved process: no reply from just before
+    the command until it woke) acts on the command when it wakes: its start 90 ms after the
+    twin's is a timing matter, and the shift is measured in full, not cut at the 60 ms that
+    bound an arm that answered all along (the right twin of the threshold arm, its process paused
+    for 20–300 ms at random, failed by the 30 ms cut off: 80 counts on joint 1 over the whole
+    move). An arm that answered all along and started that late is held to 60 ms."""
+    arm, command = _ramp()                      # leaves its pose at 0.2 s; command at 0.1 s
+    twin = Track(arm.t_s - (START_S - 0.11), arm.q_rad)   # left it at 0.11 s
+    late = move_shifts(arm, twin, [(0.1, command)], IDEAL)
+    assert late.per_joint_s[0, 2] == pytest.approx(MAX_SHIFT_S)
+    quiet = (arm.t_s > 0.095) & (arm.t_s < 0.2)
+    silent = Track(arm.t_s[~quiet], arm.q_rad[~quiet])
+    woke = move_shifts(silent, twin, [(0.1, command)], IDEAL)
+    assert woke.per_joint_s[0, 2] == pytest.approx(START_S - 0.11, abs=1e-3)
+    assert silent_s(silent, 0.1, START_S, PERIOD_S) == pytest.approx(0.1 - PERIOD_S, abs=1e-3)
+    # a host that stalled reads every reply, late and in one go: no silence
+    burst = arm.t_s.copy()
+    burst[quiet] = 0.2 - 1e-5 * np.arange(int(quiet.sum()))[::-1]
+    assert silent_s(Track(burst, arm.q_rad), 0.1, START_S, PERIOD_S) == 0.0
 
 
 def test_a_command_stamped_late_is_replayed_when_the_arm_got_it(ideal_capture: Path,

@@ -47,8 +47,8 @@ from armbench.drivers.model.protocol import TICKS_PER_RAD, Command
 from armbench.drivers.model.settings import RobotSettings
 
 __all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
-           "late_stamps", "move_shifts", "onset_floor_rad", "stamped_late_s", "timing_rms_s",
-           "timing_scatter_s"]
+           "late_stamps", "move_shifts", "onset_floor_rad", "silent_s", "stamped_late_s",
+           "timing_rms_s", "timing_scatter_s"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -71,7 +71,8 @@ SPEED_BAND: Final = (0.3, 1.5)
 MIN_WAY_TICKS: Final = 30.0
 #: The arm is at rest at a command when its last replies before it differ by at most this.
 REST_TICKS: Final = 1.5
-#: The largest start shift taken (s): a twin that starts later than this is not a timing matter.
+#: The largest start shift taken (s): a twin that starts later than this is not a timing matter,
+#: unless the arm was silent meanwhile (:func:`silent_s`).
 MAX_SHIFT_S: Final = 0.06
 #: Steady motion for the timing scatter: the two neighbours of a reply this many ticks apart.
 STEADY_TICKS: Final = 20.0
@@ -192,6 +193,16 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
     return start, math.sqrt(max(0.0, spread2 - quant2) * MEDIAN_EFFICIENCY / len(starts))
 
 
+def silent_s(track: Track, t0_s: float, t1_s: float, interval_s: float) -> float:
+    """How long (s) the stream was silent between ``t0_s`` and ``t1_s``: the span less the
+    replies it holds, a median ``interval_s`` each (and one for the reply that ends it). A
+    sender whose loop stalled (a starved process on a loaded machine, a firmware busy) sent none
+    meanwhile; a host that stalled read them late but read them all (a burst), which is no
+    silence."""
+    n = int(np.searchsorted(track.t_s, t1_s) - np.searchsorted(track.t_s, t0_s, side="right"))
+    return max(0.0, (t1_s - t0_s) - (n + 1) * interval_s)
+
+
 def _pose_at(track: Track, t_s: float) -> tuple[FloatArray, npt.NDArray[np.bool_]] | None:
     """The angles of the stream's newest reply before ``t_s`` and, per joint, whether its last
     two replies then show no motion (one reply alone: at rest); None when there is none."""
@@ -244,7 +255,9 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     streams) and has a way of :data:`MIN_WAY_TICKS` or more (the firmware passes a command on
     to each joint's board in turn: each joint has its own delay); carried over from the move
     before otherwise (0 before the first measured start, or when a stream did not move). Within
-    ±:data:`MAX_SHIFT_S`. ``poses``: the two streams with every reply, those left out of
+    ±:data:`MAX_SHIFT_S`, the arm later by as much more as it was silent between the command and
+    its start (:func:`silent_s`: an arm whose loop stalled acts on the command when it wakes,
+    which is a timing matter too). ``poses``: the two streams with every reply, those left out of
     ``arm`` and ``twin`` for their stamps too (read in a burst or late): where a joint was and
     whether it rested at a command comes from them, since a stamp may be late but never early
     (after a host stall the newest timed reply before a command can be from before the move
@@ -257,6 +270,7 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     times = [c[0] for c in commands] + [math.inf]
     lower, upper = settings.lower_rad, settings.upper_rad
     arm_poses, twin_poses = (arm, twin) if poses is None else poses
+    interval_s = float(np.median(np.diff(arm_poses.t_s))) if len(arm_poses.t_s) > 1 else 0.0
     for k, (t_c, cmd) in enumerate(commands):
         arm_at, twin_at = _pose_at(arm_poses, t_c), _pose_at(twin_poses, t_c)
         if arm_at is not None:
@@ -280,7 +294,8 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                     continue
                 b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_pose[j]), goal)
                 if b is not None:
-                    shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S))
+                    later_s = MAX_SHIFT_S + silent_s(arm_poses, t_c, a[0], interval_s)
+                    shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, later_s))
                     se[j] = a[1]
                     measured.append((int(j), float(shift[j])))
         out[k], onset_se[k] = shift, se
