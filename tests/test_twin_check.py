@@ -331,7 +331,7 @@ def _check(capture: Path, settings: RobotSettings,
 JITTER_GEAR = 39.5  # jitter_arm.py's hidden joint-3 gear
 #: The folder of the jitter arm's held-out accuracy run, captured over TCP with three busy loops
 #: beside it, and of the settings ``armbench calibrate`` fitted to that arm before it (joints 2
-#: and 3).
+#: and 3); and of its short lap captured with its process starved.
 JITTER_FIXTURES = Path(__file__).parent / "fixtures" / "twin_check"
 
 
@@ -367,6 +367,21 @@ def test_foreign_arm_verdicts_short_capture(tmp_path: Path) -> None:
     assert off.rms_counts[2] > off.allowed_counts[2]
     nominal = _check(capture, _twin())
     assert nominal.verdict == "fail"
+
+
+def test_a_starved_arms_capture_judges_its_twins_as_a_quiet_ones() -> None:
+    """The jitter arm's short lap, captured while its process was paused for 20–300 ms at random
+    (``jitter_starved.jsonl``: the arm silent 230 ms across one command, and 366 ms across two
+    more, which it read together when it woke): the right twin passes, with the floor of a
+    quiet capture (the starts the silences delayed are aligned and are no reaction scatter),
+    and the twins 4 % off and nominal fail. The right twin failed by 500 counts on joints 2
+    and 4 before, its floor grown tenfold."""
+    capture = JITTER_FIXTURES / "jitter_starved.jsonl"
+    right = _check(capture, _twin((50, 50, JITTER_GEAR, 28)))
+    assert right.verdict == "pass", right.to_json()
+    assert max(right.floor_counts) < 2.0, right.floor_counts
+    assert _check(capture, _twin((50, 50, JITTER_GEAR * 0.96, 28))).verdict == "fail"
+    assert _check(capture, _twin()).verdict == "fail"
 
 
 TRACKER_ARGS = ("--play-deg", "0.5,0.5,0.5,0.5", "--offset-deg", "0.3,-0.4,0.4,0",

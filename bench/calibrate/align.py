@@ -46,9 +46,9 @@ from armbench.drivers.host.motion import joint_speed_rad_s
 from armbench.drivers.model.protocol import TICKS_PER_RAD, Command
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["ONSET_TICKS", "Shifts", "Track", "command_shifts", "floor_rad", "interval_floor_s",
-           "late_stamps", "move_shifts", "onset_floor_rad", "silent_s", "stamped_late_s",
-           "timing_rms_s", "timing_scatter_s"]
+__all__ = ["ONSET_TICKS", "SEEN_LATE", "Shifts", "Track", "command_shifts", "floor_rad",
+           "interval_floor_s", "late_stamps", "move_shifts", "onset_floor_rad", "silent_s",
+           "stamped_late_s", "timing_rms_s", "timing_scatter_s"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -74,6 +74,9 @@ REST_TICKS: Final = 1.5
 #: The largest start shift taken (s): a twin that starts later than this is not a timing matter,
 #: unless the arm was silent meanwhile (:func:`silent_s`).
 MAX_SHIFT_S: Final = 0.06
+#: Where a stream's replies pause for more than this many median intervals its motion is not
+#: known (and an arrival first seen after such a gap is not timed), and its sender was silent.
+SEEN_LATE: Final = 5.0
 #: Steady motion for the timing scatter: the two neighbours of a reply this many ticks apart.
 STEADY_TICKS: Final = 20.0
 #: The timing RMS takes a reply where the joint's speeds just outside its neighbours agree
@@ -195,12 +198,14 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
 
 def silent_s(track: Track, t0_s: float, t1_s: float, interval_s: float) -> float:
     """How long (s) the stream was silent between ``t0_s`` and ``t1_s``: the span less the
-    replies it holds, a median ``interval_s`` each (and one for the reply that ends it). A
-    sender whose loop stalled (a starved process on a loaded machine, a firmware busy) sent none
-    meanwhile; a host that stalled read them late but read them all (a burst), which is no
-    silence."""
+    replies it holds, a median ``interval_s`` each (and one for the reply that ends it), where
+    that is more than :data:`SEEN_LATE` intervals (less is a sender's jitter); else 0. A
+    sender whose loop stalled (a starved process on a loaded machine, a firmware busy) sent
+    none meanwhile; a host that stalled read them late but read them all (a burst), which is
+    no silence."""
     n = int(np.searchsorted(track.t_s, t1_s) - np.searchsorted(track.t_s, t0_s, side="right"))
-    return max(0.0, (t1_s - t0_s) - (n + 1) * interval_s)
+    silence = (t1_s - t0_s) - (n + 1) * interval_s
+    return silence if silence > SEEN_LATE * interval_s else 0.0
 
 
 def _pose_at(track: Track, t_s: float) -> tuple[FloatArray, npt.NDArray[np.bool_]] | None:
@@ -215,11 +220,25 @@ def _pose_at(track: Track, t_s: float) -> tuple[FloatArray, npt.NDArray[np.bool_
     return q[i - 1], np.asarray(rest)
 
 
+def _heard_until(arm: Track, times: Sequence[float], k: int) -> float:
+    """Until when command ``k``'s start is looked for: the next command the arm sent a reply
+    before (``times``: the commands' and a last ``inf``). Commands that came while it was
+    silent since command ``k`` (its loop stalled) reached it together when it woke, and its
+    start then answers the first of them."""
+    t_c, end = times[k], k + 1
+    while end < len(times) - 1 and (int(np.searchsorted(arm.t_s, times[end], side="right"))
+                                    == int(np.searchsorted(arm.t_s, t_c, side="right"))):
+        end += 1
+    return times[end]
+
+
 @dataclass(frozen=True, slots=True)
 class Shifts:
     """The start shifts: per command and joint (``(n, 4)``, s), and the measured ones
-    (joint, s); per command and joint, the standard error (s) of the arm's start the shift
-    was measured at (``(n, 4)``, carried with the shift: 0 where none was measured)."""
+    (joint, s; not those of an arm silent before its start: its reaction scatter is that of an
+    arm awake, which the commands it met awake may meet); per command and joint, the standard
+    error (s) of the arm's start the shift was measured at (``(n, 4)``, carried with the
+    shift: 0 where none was measured)."""
 
     per_joint_s: FloatArray
     measured: list[tuple[int, float]]
@@ -252,16 +271,18 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                 settings: RobotSettings, poses: tuple[Track, Track] | None = None) -> Shifts:
     """Per command and joint (``(n, 4)``), the time (s) the arm's joint started moving after the
     twin's (arm − twin): measured, at each command, on each joint that was at rest (in both
-    streams) and has a way of :data:`MIN_WAY_TICKS` or more (the firmware passes a command on
-    to each joint's board in turn: each joint has its own delay); carried over from the move
-    before otherwise (0 before the first measured start, or when a stream did not move). Within
+    streams) and has a way of :data:`MIN_WAY_TICKS` or more (the firmware passes a command on to
+    each joint's board in turn: each joint has its own delay); carried over from the move before
+    otherwise (0 before the first measured start, or when a stream did not move). Within
     ±:data:`MAX_SHIFT_S`, the arm later by as much more as it was silent between the command and
     its start (:func:`silent_s`: an arm whose loop stalled acts on the command when it wakes,
-    which is a timing matter too). ``poses``: the two streams with every reply, those left out of
-    ``arm`` and ``twin`` for their stamps too (read in a burst or late): where a joint was and
-    whether it rested at a command comes from them, since a stamp may be late but never early
-    (after a host stall the newest timed reply before a command can be from before the move
-    that ended at it, and a start traced back from there came before the command)."""
+    which is a timing matter too; the commands that came while it was silent reached it
+    together, and its start answers the first). ``poses``: the two streams with every reply,
+    those left out of ``arm`` and ``twin`` for their stamps too (read in a burst or late): where
+    a joint was and whether it rested at a command comes from them, since a stamp may be late
+    but never early (after a host stall the newest timed reply before a command can be from
+    before the move that ended at it, and a start traced back from there came before the
+    command)."""
     out = np.zeros((len(commands), 4))
     onset_se = np.zeros((len(commands), 4))
     lag = np.full(len(commands), np.nan)
@@ -273,6 +294,7 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
     interval_s = float(np.median(np.diff(arm_poses.t_s))) if len(arm_poses.t_s) > 1 else 0.0
     for k, (t_c, cmd) in enumerate(commands):
         arm_at, twin_at = _pose_at(arm_poses, t_c), _pose_at(twin_poses, t_c)
+        until = _heard_until(arm_poses, times, k)
         if arm_at is not None:
             arm_pose, arm_rest = arm_at
             goals = np.asarray(cmd.angles_rad(lower, upper))
@@ -283,7 +305,7 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                                     & (np.asarray(cmd.duties) > 0) & arm_rest):
                 speed = joint_speed_rad_s(cmd.duties[j], settings.joints[j].steps_per_rad)
                 goal = float(goals[j])
-                a = _onset_s(arm, t_c, times[k + 1], int(j), speed, float(arm_pose[j]), goal)
+                a = _onset_s(arm, t_c, until, int(j), speed, float(arm_pose[j]), goal)
                 if a is None:
                     continue
                 lag[k] = np.fmin(lag[k], a[0] - t_c)
@@ -292,12 +314,13 @@ def move_shifts(arm: Track, twin: Track, commands: Sequence[tuple[float, Command
                 twin_pose, twin_rest = twin_at
                 if not twin_rest[j]:
                     continue
-                b = _onset_s(twin, t_c, times[k + 1], int(j), speed, float(twin_pose[j]), goal)
+                b = _onset_s(twin, t_c, until, int(j), speed, float(twin_pose[j]), goal)
                 if b is not None:
-                    later_s = MAX_SHIFT_S + silent_s(arm_poses, t_c, a[0], interval_s)
-                    shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, later_s))
+                    silence_s = silent_s(arm_poses, t_c, a[0], interval_s)
+                    shift[j] = float(np.clip(a[0] - b[0], -MAX_SHIFT_S, MAX_SHIFT_S + silence_s))
                     se[j] = a[1]
-                    measured.append((int(j), float(shift[j])))
+                    if silence_s == 0.0:  # how late an arm wakes is no reaction of it
+                        measured.append((int(j), float(shift[j])))
         out[k], onset_se[k] = shift, se
     return Shifts(out, measured, onset_se, lag)
 

@@ -17,13 +17,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.calibrate.align import (
     SAME_INSTANT_S,
+    SEEN_LATE,
     TICK_RAD,
     Shifts,
     Track,
@@ -36,16 +36,11 @@ from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.calibrate.replay import BURST_S, TIME_SLACK_S
 from armbench.drivers.model.settings import RobotSettings
 
-__all__ = ["SEEN_LATE", "ArmSide", "Divergence", "arm_side", "diverge", "read_aligned",
+__all__ = ["ArmSide", "Divergence", "arm_side", "diverge", "read_aligned",
            "read_late", "timed"]
 
 FloatArray = npt.NDArray[np.float64]
 Vec4 = tuple[float, float, float, float]
-
-#: Where a stream's replies pause for more than this many median intervals its motion is not
-#: known (and an arrival first seen after such a gap is not timed).
-SEEN_LATE: Final = 5.0
-
 
 def timed(replies: Sequence[tuple[float, Vec4]], start_s: float = -math.inf
           ) -> list[tuple[float, Vec4]]:

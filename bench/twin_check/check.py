@@ -54,6 +54,7 @@ import numpy as np
 import numpy.typing as npt
 
 from armbench.bench.calibrate.align import (
+    SEEN_LATE,
     TICK_RAD,
     Track,
     command_shifts,
@@ -63,7 +64,6 @@ from armbench.bench.calibrate.align import (
 )
 from armbench.bench.calibrate.capture_data import CaptureData
 from armbench.bench.calibrate.divergence import (
-    SEEN_LATE,
     diverge,
     read_aligned,
     read_late,
