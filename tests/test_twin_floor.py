@@ -191,11 +191,16 @@ def test_an_arm_silent_at_a_command_may_start_as_late_as_it_was_silent() -> None
     woke = move_shifts(silent, twin, [(0.1, command)], IDEAL)
     assert woke.per_joint_s[0, 2] == pytest.approx(START_S - 0.11, abs=1e-3)
     assert woke.measured == []
-    assert silent_s(silent, 0.1, START_S, PERIOD_S) == pytest.approx(0.1 - PERIOD_S, abs=1e-3)
+    assert silent_s(silent, 0.1, START_S, PERIOD_S) == pytest.approx(0.1, abs=1e-3)
     # a host that stalled reads every reply, late and in one go: no silence
     burst = arm.t_s.copy()
     burst[quiet] = 0.2 - 1e-5 * np.arange(int(quiet.sum()))[::-1]
     assert silent_s(Track(burst, arm.q_rad), 0.1, START_S, PERIOD_S) == 0.0
+    # a silence that began well before the command counts from the command on: an arm that
+    # woke 15 ms after it was silent all that time (its start is no reaction to the command)
+    gap = (arm.t_s > 0.02) & (arm.t_s < 0.135)
+    assert silent_s(Track(arm.t_s[~gap], arm.q_rad[~gap]), 0.12, 0.135, PERIOD_S) == \
+        pytest.approx(0.015, abs=1e-6)
     # a pause of a few intervals is a sender's jitter, not a silence
     short = (arm.t_s > 0.1) & (arm.t_s < 0.1 + SEEN_LATE * PERIOD_S)
     assert silent_s(Track(arm.t_s[~short], arm.q_rad[~short]), 0.1, 0.13, PERIOD_S) == 0.0

@@ -197,15 +197,17 @@ def _onset_s(track: Track, t0_s: float, t1_s: float, joint: int, speed_rad_s: fl
 
 
 def silent_s(track: Track, t0_s: float, t1_s: float, interval_s: float) -> float:
-    """How long (s) the stream was silent between ``t0_s`` and ``t1_s``: the span less the
-    replies it holds, a median ``interval_s`` each (and one for the reply that ends it), where
-    that is more than :data:`SEEN_LATE` intervals (less is a sender's jitter); else 0. A
-    sender whose loop stalled (a starved process on a loaded machine, a firmware busy) sent
-    none meanwhile; a host that stalled read them late but read them all (a burst), which is
-    no silence."""
-    n = int(np.searchsorted(track.t_s, t1_s) - np.searchsorted(track.t_s, t0_s, side="right"))
-    silence = (t1_s - t0_s) - (n + 1) * interval_s
-    return silence if silence > SEEN_LATE * interval_s else 0.0
+    """How long (s) of ``t0_s`` to ``t1_s`` the stream was silent: where the span from its last
+    reply before ``t0_s`` to ``t1_s``, less the replies it holds there (a median ``interval_s``
+    each, and one for the reply that ends it), is more than :data:`SEEN_LATE` intervals (less
+    is a sender's jitter), that much, at most ``t1_s − t0_s``; else 0. A sender whose loop
+    stalled (a starved process on a loaded machine, a firmware busy) sent none meanwhile; a
+    host that stalled read them late but read them all (a burst), which is no silence."""
+    i0 = int(np.searchsorted(track.t_s, t0_s, side="right"))
+    since = float(track.t_s[i0 - 1]) if i0 > 0 else t0_s
+    n = int(np.searchsorted(track.t_s, t1_s)) - i0
+    missing = (t1_s - since) - (n + 1) * interval_s
+    return min(missing, t1_s - t0_s) if missing > SEEN_LATE * interval_s else 0.0
 
 
 def _pose_at(track: Track, t_s: float) -> tuple[FloatArray, npt.NDArray[np.bool_]] | None:
