@@ -16,8 +16,10 @@ of that is the model's doing. So:
   pose (its first replies beyond :data:`ONSET_TICKS`, traced back along the joint's nominal speed)
   against the twin's; that pose, and whether the joint rested, from every reply read before the
   command, those left out for their stamps too (a stamp can be late, never early); commands
-  sent while the arm moves (a streamed path) keep the shift of the move they continue. A twin
-  that is too slow or loses steps still diverges: only the start is aligned, not the motion;
+  sent while the arm moves (a streamed path) keep the shift of the move they continue; an arm
+  silent across a command (its loop stalled) may start as much later as it was silent, and the
+  commands that came meanwhile reached it together. A twin that is too slow or loses steps
+  still diverges: only the start is aligned, not the motion;
 * the floor comes from the capture itself. The arm's own replies, where a joint moves steadily,
   scatter around the straight line through their neighbours by the link's timing scatter times
   the joint's speed: that scatter (s; a robust spread of those residuals in time units finds the
