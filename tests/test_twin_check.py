@@ -296,7 +296,8 @@ def _foreign_captures(folder: Path, arms: Sequence[tuple[str, tuple[str, ...]]],
             len(arms), mp_context=multiprocessing.get_context("spawn")) as pool:
         running = [up.enter_context(foreign_arm(name, *args)) for name, args in arms]
         if starve_seed is not None:
-            hosts = {pool.submit(os.getpid).result() for _ in arms}  # the pool's, started
+            # the pool's workers, started by the calls (with several arms, those that answer)
+            hosts = {pool.submit(os.getpid).result() for _ in arms}
             up.enter_context(starved([a.process.pid for a in running] + sorted(hosts),
                                      starve_seed))
         paths = [folder / f"{k}-{name}.jsonl" for k, (name, _) in enumerate(arms)]
@@ -378,7 +379,7 @@ def test_foreign_arm_verdicts_short_capture(tmp_path: Path) -> None:
     assert nominal.verdict == "fail"
 
 
-def test_a_starved_arms_capture_judges_its_twins_as_a_quiet_ones() -> None:
+def test_a_starved_arms_capture_judges_its_twins_as_a_quiet_one_does() -> None:
     """The jitter arm's short lap, captured while its process was paused for 20–300 ms at random
     (``jitter_starved.jsonl``: the arm silent 230 ms across one command, and 366 ms across two
     more, which it read together when it woke): the right twin passes, with the floor of a
