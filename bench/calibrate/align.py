@@ -229,9 +229,9 @@ def _heard_until(arm: Track, times: Sequence[float], k: int) -> float:
     before (``times``: the commands' and a last ``inf``). Commands that came while it was
     silent since command ``k`` (its loop stalled) reached it together when it woke, and its
     start then answers the first of them."""
-    t_c, end = times[k], k + 1
-    while end < len(times) - 1 and (int(np.searchsorted(arm.t_s, times[end], side="right"))
-                                    == int(np.searchsorted(arm.t_s, t_c, side="right"))):
+    heard = int(np.searchsorted(arm.t_s, times[k], side="right"))  # replies by command k
+    end = k + 1
+    while end < len(times) - 1 and int(np.searchsorted(arm.t_s, times[end], side="right")) == heard:
         end += 1
     return times[end]
 
