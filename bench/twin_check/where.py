@@ -35,8 +35,8 @@ FloatArray = npt.NDArray[np.float64]
 GROWS: Final = 2.0
 #: ... and its high side holds at least this share of the squared divergence.
 HOLDS: Final = 0.5
-#: Factors named per joint at most (the most concentrated first: the factors are correlated, a
-#: lossy lift at full duty is fast too).
+#: Factors named per joint at most (the one that separates the divergence best first: the factors
+#: are correlated, a lossy lift at full duty is fast too).
 NAMED: Final = 3
 #: Each side of a split holds at least this share of the replies (a few replies prove nothing).
 MIN_SHARE: Final = 0.05
@@ -160,13 +160,12 @@ def _split(x: FloatArray, r2: FloatArray) -> tuple[float, float, float, float] |
 def growth(t_s: FloatArray, residual_counts: FloatArray, factors: dict[str, FloatArray],
            floor_counts: float) -> list[Growth]:
     """The factors along which ``residual_counts`` (twin − arm at the compared replies, times
-    ``t_s``) grows (see the module doc), at most :data:`NAMED`, the most concentrated first
-    (the share of the squared divergence its high side holds over the share of the replies);
-    ``factors`` maps each factor's name to its value at every reply (NaN: it says nothing
-    there; -inf: below any threshold); a high side must be above ``floor_counts`` (the
-    allowance's absolute part)."""
+    ``t_s``) grows (see the module doc), at most :data:`NAMED`, the one separating it best
+    first (:func:`_separation`); ``factors`` maps each factor's name to its value at every
+    reply (NaN: it says nothing there; -inf: below any threshold); a high side must be above
+    ``floor_counts`` (the allowance's absolute part)."""
     r2 = residual_counts * residual_counts
-    out = []
+    out: list[tuple[float, Growth]] = []
     for name, x in factors.items():
         values = np.asarray(x, dtype=np.float64)
         found = _split(values, r2)
@@ -179,9 +178,20 @@ def growth(t_s: FloatArray, residual_counts: FloatArray, factors: dict[str, Floa
             continue
         # the spans where it grows: on the high side, at least half its RMS there
         grows = ~np.isnan(values) & (values >= thr) & (r2 >= 0.25 * m_hi)
-        out.append(Growth(name, thr, rms_hi, rms_lo, share, holds, _spans(t_s[grows])))
-    out.sort(key=lambda g: g.holds / g.share, reverse=True)
-    return out[:NAMED]
+        out.append((_separation(m_hi, m_lo, share),
+                    Growth(name, thr, rms_hi, rms_lo, share, holds, _spans(t_s[grows]))))
+    out.sort(key=lambda sg: sg[0], reverse=True)
+    return [g for _, g in out[:NAMED]]
+
+
+def _separation(m_hi: float, m_lo: float, share: float) -> float:
+    """How well a split separates the squared divergence (its between-group sum of squares per
+    reply, as :func:`_split` chooses thresholds): the order factors are named in. Concentration
+    alone (the share held over the share of replies) ties for every part of the region where
+    the divergence grows, so a factor cutting out a part of it (the last seconds of a session,
+    by time) could be named before the one that covers all of it; this criterion peaks at the
+    whole region."""
+    return share * (1.0 - share) * (m_hi - m_lo) ** 2
 
 
 def direction_of(q: FloatArray, tick: float) -> FloatArray:
