@@ -2,6 +2,18 @@
 
 from __future__ import annotations
 
+import os
+import sys
+
+# Before anything is imported: the test session keeps the bytecode of what it compiles, even where
+# PYTHONDONTWRITEBYTECODE is set (as on the CI machine). pytest rewrites the asserts of the test
+# modules and of every module of armbench (a distribution with a pytest11 entry point) as each
+# process imports them; without the cache every xdist worker, and every pytest and Python process
+# the tests start, parses and compiles them again (README). The cache goes where Python puts
+# it, in __pycache__ beside each module: the clone's tests and the installed package.
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
 from armbench.bench.workers.blas_threads import one_blas_thread
 
 # before anything loads numpy: the tests' processes run one BLAS thread, as the program's do
@@ -10,12 +22,10 @@ one_blas_thread()
 import contextlib
 import io
 import itertools
-import os
 import re
 import shutil
 import signal
 import subprocess
-import sys
 import zipfile
 import zlib
 from collections.abc import Iterator
