@@ -129,7 +129,7 @@ def _spans(t: FloatArray) -> tuple[tuple[float, float], ...]:
 
 def _split(x: FloatArray, r2: FloatArray) -> tuple[float, float, float, float] | None:
     """The threshold of ``x`` (NaN: left out; -inf: below any threshold) whose high side's mean
-    of ``r2`` exceeds the low side's by the most (between-group sum of squares), each side at
+    of ``r2`` exceeds the low side's by the most (:func:`_separation`), each side at
     least :data:`MIN_SHARE` of the replies: threshold, high mean, low mean, high share. None
     when no split qualifies."""
     known = ~np.isnan(x)
@@ -149,7 +149,7 @@ def _split(x: FloatArray, r2: FloatArray) -> tuple[float, float, float, float] |
         if k < MIN_SHARE * n or n - k < MIN_SHARE * n:
             continue
         m_hi, m_lo = float(r2[high].mean()), float(r2[low].mean())
-        gain = k * (n - k) / n * (m_hi - m_lo) ** 2 if m_hi > m_lo else 0.0
+        gain = _separation(m_hi, m_lo, k / n) if m_hi > m_lo else 0.0
         if best is None or gain > best[0]:
             best = (gain, float(thr), m_hi, m_lo, k / n)
     if best is None or best[0] <= 0.0:
